@@ -1,0 +1,204 @@
+"""The Fokker-Planck problem every backend solves.
+
+In the diffusion "time" ``tau = integral D(eta) d eta`` (units of pressure
+squared) the magnification-dependent equation of SPEC section 4 reads
+
+    d Pr / d tau = - d/dp [ a(p, tau) Pr ] + d^2/dp^2 [ f(p, tau) Pr ],
+    Pr(p, tau = 0) = delta(p - mean_pressure),
+
+on ``0 <= p < infinity`` with an absorbing end at ``p = 0``: probability that
+reaches ``p = 0`` is the non-contact weight ``zero_weight`` (it contributes 0 to
+the mean pressure, so mean pressure is conserved with the drift ``a = 0``).
+``tau`` runs to ``tau_end = variance / 2`` so that ``f = 1`` without the wall
+gives a Gaussian of variance ``variance``.
+
+When ``D(p, eta) = D(eta) f(p)`` factorizes (no drift, ``f`` independent of
+``eta``) the problem is autonomous and one solve in ``tau`` is all a scene
+needs.  A magnification-dependent drift ``A(p, eta)`` becomes
+``a(p, tau) = A(p, eta(tau)) / D(eta(tau))``; see
+:func:`FokkerPlanckProblem.from_magnification`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+import numpy as np
+from numpy.typing import NDArray
+
+Array = NDArray[np.float64]
+
+
+def _unit(p: Array) -> Array:
+    return np.ones_like(np.asarray(p, dtype=float))
+
+
+@dataclass(frozen=True)
+class FokkerPlanckProblem:
+    """Drift-diffusion problem in the diffusion time ``tau``.
+
+    Parameters
+    ----------
+    mean_pressure : float
+        ``p0`` (units of pressure), > 0: location of the initial ``delta``.
+    variance : float
+        ``V`` (pressure squared), > 0: the problem runs to ``tau_end = V/2``.
+    diffusivity : callable
+        Vectorized ``f(p)`` (dimensionless), ``f >= 0`` and finite on ``p > 0``;
+        ``f(p, tau)`` if ``time_dependent``.
+    drift : callable, optional
+        Vectorized ``a(p, tau)`` (pressure per unit tau); ``None`` means 0.
+    time_dependent : bool
+        Whether ``diffusivity`` takes ``(p, tau)`` instead of ``p``.
+    """
+
+    mean_pressure: float
+    variance: float
+    diffusivity: Callable[..., Array] = _unit
+    drift: Optional[Callable[[Array, float], Array]] = None
+    time_dependent: bool = False
+    label: str = ""
+    metadata: dict = field(default_factory=dict, compare=False)
+
+    def __post_init__(self) -> None:
+        for name in ("mean_pressure", "variance"):
+            value = getattr(self, name)
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                raise ValueError(f"{name} must be a finite number > 0; got {name}={value!r}") from None
+            if not np.isfinite(value) or value <= 0.0:
+                raise ValueError(f"{name} must be a finite number > 0 (units of pressure{'^2' if name == 'variance' else ''}); got {name}={value!r}")
+            object.__setattr__(self, name, value)
+        if self.diffusivity is None:
+            object.__setattr__(self, "diffusivity", _unit)
+        if not callable(self.diffusivity):
+            raise ValueError(
+                f"diffusivity must be a vectorized callable f(p) of the pressure; got {type(self.diffusivity).__name__}"
+            )
+        if self.drift is not None and not callable(self.drift):
+            raise ValueError(f"drift must be a vectorized callable a(p, tau) or None; got {type(self.drift).__name__}")
+
+    # ------------------------------------------------------------------ helpers
+    @property
+    def tau_end(self) -> float:
+        """Final diffusion time ``variance / 2`` (pressure squared)."""
+        return 0.5 * self.variance
+
+    @property
+    def autonomous(self) -> bool:
+        """True when neither ``f`` nor the drift depend on ``tau``."""
+        return self.drift is None and not self.time_dependent
+
+    def f(self, p: Array, tau: float = 0.0) -> Array:
+        """Evaluate the pressure factor ``f`` on ``p`` (and ``tau``), checked.
+
+        Raises
+        ------
+        ValueError
+            If ``f`` returns a wrong shape, a NaN/inf, or a negative value.
+        """
+        p = np.asarray(p, dtype=float)
+        out = self.diffusivity(p, tau) if self.time_dependent else self.diffusivity(p)
+        out = np.asarray(out, dtype=float)
+        if out.shape != p.shape:
+            out = np.broadcast_to(out, p.shape).astype(float)
+        if not np.all(np.isfinite(out)):
+            bad = p[~np.isfinite(out)][0]
+            raise ValueError(f"diffusivity returned a non-finite value at p={bad!r}; f(p) must be finite and >= 0")
+        if np.any(out < 0.0):
+            bad = p[out < 0.0][0]
+            raise ValueError(f"diffusivity returned a negative value at p={bad!r}; f(p) must be >= 0")
+        return out
+
+    def a(self, p: Array, tau: float = 0.0) -> Array:
+        """Evaluate the drift ``a(p, tau)`` (0 when there is none), checked finite."""
+        p = np.asarray(p, dtype=float)
+        if self.drift is None:
+            return np.zeros_like(p)
+        out = np.broadcast_to(np.asarray(self.drift(p, tau), dtype=float), p.shape)
+        if not np.all(np.isfinite(out)):
+            raise ValueError("drift returned a non-finite value; a(p, tau) must be finite")
+        return np.array(out)
+
+    def upper_bound(self, tail_mass: float = 1e-12, z: Optional[float] = None) -> float:
+        """A pressure ``p_max`` above which less than about ``tail_mass`` lies.
+
+        Fixed point of ``p_max = p0 + z sqrt(2 tau_end max_{[0, p_max]} f)``
+        (plus the drift's largest displacement), with ``z`` the Gaussian
+        quantile of ``tail_mass``.  For ``f`` growing linearly in ``p`` this
+        bounds the exponential (Feller) tail too.  Units of pressure.
+        """
+        from scipy.special import erfcinv
+
+        if z is None:
+            z = float(np.sqrt(2.0) * erfcinv(2.0 * min(max(tail_mass, 1e-300), 0.5)))
+        z = max(z, 1.0)
+        p0, tau = self.mean_pressure, self.tau_end
+        p_max = p0 + z * np.sqrt(2.0 * tau)
+        for _ in range(60):
+            probe = np.linspace(0.0, p_max, 2049)[1:]
+            taus = (0.0, 0.5 * tau, tau) if self.time_dependent else (0.0,)
+            f_max = max(float(np.max(self.f(probe, t))) for t in taus)
+            shift = 0.0
+            if self.drift is not None:
+                shift = tau * max(float(np.max(np.abs(self.a(probe, t)))) for t in (0.0, 0.5 * tau, tau))
+            new = p0 + shift + z * np.sqrt(2.0 * tau * max(f_max, 1e-300))
+            if new <= p_max * (1.0 + 1e-6):
+                return float(max(p_max, new))
+            p_max = new
+        raise ValueError(
+            "could not bound the pressure domain: the diffusivity grows faster than linearly "
+            f"(p_max exceeded {p_max:.3g} after 60 iterations)"
+        )
+
+    @classmethod
+    def from_magnification(
+        cls,
+        *,
+        mean_pressure: float,
+        eta: Array,
+        variance_of_eta: Array,
+        pressure_factor: Callable[[Array], Array],
+        drift_of_eta: Optional[Callable[[Array, float], Array]] = None,
+        label: str = "",
+    ) -> "FokkerPlanckProblem":
+        """Build the ``tau`` problem from a magnification schedule.
+
+        Parameters
+        ----------
+        mean_pressure : float
+            ``p0`` (units of pressure).
+        eta : array
+            Increasing magnifications ``eta = q/q_L`` from 1.
+        variance_of_eta : array
+            ``V(eta)`` (pressure squared), non-decreasing, ``V(1) >= 0``.
+        pressure_factor : callable
+            ``f(p) = c(p) t(p)``.
+        drift_of_eta : callable, optional
+            ``A(p, eta)`` (pressure per unit magnification).  Converted to
+            ``a = A / D(eta)`` with ``D = (1/2) dV/deta``; segments where ``D = 0``
+            are skipped (their drift cannot be represented in ``tau``; the
+            conversion raises if a drift is given there).
+        """
+        eta = np.asarray(eta, dtype=float)
+        v = np.asarray(variance_of_eta, dtype=float)
+        if eta.ndim != 1 or v.shape != eta.shape or eta.size < 2:
+            raise ValueError("eta and variance_of_eta must be 1-D arrays of equal length >= 2")
+        if np.any(np.diff(eta) <= 0) or np.any(np.diff(v) < 0):
+            raise ValueError("eta must increase and variance_of_eta must not decrease")
+        variance = float(v[-1] - v[0])
+        if drift_of_eta is None:
+            return cls(mean_pressure, variance, pressure_factor, label=label)
+        tau_nodes = 0.5 * (v - v[0])
+        d_eta = np.gradient(v, eta) * 0.5
+
+        def drift(p: Array, tau: float) -> Array:
+            e = float(np.interp(tau, tau_nodes, eta))
+            d = float(np.interp(e, eta, d_eta))
+            if d <= 0.0:
+                raise ValueError(f"drift given where D(eta) = 0 (eta={e:.6g}); cannot map it to tau")
+            return np.asarray(drift_of_eta(p, e), dtype=float) / d
+
+        return cls(mean_pressure, variance, pressure_factor, drift=drift, label=label,
+                   metadata={"eta": eta, "variance_of_eta": v})

@@ -1,0 +1,124 @@
+"""Result object shared by every backend (scipy-style contract)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+import numpy as np
+from numpy.typing import NDArray
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class PressureDistribution:
+    """A pressure distribution ``Pr(p)`` with its diagnostics.
+
+    ``Pr(p) = density(p) + zero_weight * delta(p)``.
+
+    Attributes
+    ----------
+    p : ndarray
+        Pressure grid (units of pressure): cell centres for finite-volume
+        backends, evaluation points for closed forms.
+    density : ndarray
+        Continuous part of ``Pr`` on ``p`` (1 / pressure), non-negative.
+    weights : ndarray
+        Quadrature weights on ``p`` (units of pressure) such that
+        ``sum(weights * g(p) * density)`` integrates ``g`` against the
+        continuous part (cell widths for finite volumes).
+    zero_weight : float
+        Probability in the non-contact peak ``delta(p)`` (0 where the model
+        has none).  ``1 - zero_weight`` is the relative contact area.
+    mean_pressure, variance : float
+        The problem's ``p0`` and ``V`` (the inputs).
+    backend : str
+        Which backend produced it (``"closed_form"``, ``"native"``, ``"pypde"``,
+        ``"fipy"``).
+    success : bool
+        True only when the solver reached the requested tolerance.
+    message : str
+        Human-readable status.
+    error_estimate : float
+        Estimated L1 error of the density (``integral |density - exact| dp``
+        plus the error of ``zero_weight``), from step/grid refinement or 0
+        for closed forms evaluated to round-off.
+    wall_time : float
+        Seconds spent in the solve (excluding imports / JIT compilation, which
+        are in ``diagnostics``).
+    diagnostics : dict
+        Backend-specific details (cells, steps, refinements, timings).
+    edges : ndarray, optional
+        Cell edges (length ``len(p) + 1``) for finite-volume results.
+    """
+
+    p: Array
+    density: Array
+    weights: Array
+    zero_weight: float
+    mean_pressure: float
+    variance: float
+    backend: str
+    success: bool = True
+    message: str = ""
+    error_estimate: float = 0.0
+    wall_time: float = 0.0
+    diagnostics: dict = field(default_factory=dict)
+    edges: Optional[Array] = None
+
+    @property
+    def mass(self) -> float:
+        """Total probability: continuous part plus ``zero_weight`` (should be 1)."""
+        return float(np.sum(self.weights * self.density) + self.zero_weight)
+
+    @property
+    def mean(self) -> float:
+        """Mean pressure ``integral p Pr(p) dp`` (the delta at 0 adds nothing)."""
+        return float(np.sum(self.weights * self.p * self.density))
+
+    @property
+    def second_moment(self) -> float:
+        """``integral p^2 Pr(p) dp`` (pressure squared)."""
+        return float(np.sum(self.weights * self.p**2 * self.density))
+
+    @property
+    def contact_fraction(self) -> float:
+        """Relative contact area ``1 - zero_weight``."""
+        return 1.0 - float(self.zero_weight)
+
+    def moment(self, order: int, central: bool = False) -> float:
+        """Moment ``<p^k>`` (or ``<(p - mean)^k>`` if ``central``) of the full ``Pr``,
+        including the ``delta(p)`` peak at ``p = 0``."""
+        shift = self.mean if central else 0.0
+        value = float(np.sum(self.weights * (self.p - shift) ** order * self.density))
+        return value + float(self.zero_weight) * (0.0 - shift) ** order
+
+    def pdf(self, p: Any) -> Array:
+        """Continuous part interpolated (linearly) at ``p``; 0 outside the grid."""
+        return np.interp(np.asarray(p, dtype=float), self.p, self.density, left=0.0, right=0.0)
+
+    def cdf(self, p: Any) -> Array:
+        """Cumulative probability ``P(pressure <= p)`` including the delta at 0."""
+        if self.edges is not None:
+            nodes = self.edges
+            cum = np.concatenate(([0.0], np.cumsum(self.weights * self.density)))
+        else:
+            nodes = self.p
+            cum = np.cumsum(self.weights * self.density)
+        p = np.asarray(p, dtype=float)
+        out = np.interp(p, nodes, cum, left=0.0, right=cum[-1])
+        return np.where(p >= 0.0, out + self.zero_weight, 0.0)
+
+    def plot(self, ax: Any = None, *, log: bool = True, **kwargs: Any) -> Any:
+        """Plot the continuous density against ``p``; see :func:`diffusion_pr.plotting.plot_distribution`."""
+        from .plotting import plot_distribution
+
+        return plot_distribution(self, ax=ax, log=log, **kwargs)
+
+    def __repr__(self) -> str:  # a short, useful summary instead of the arrays
+        return (
+            f"PressureDistribution(backend={self.backend!r}, success={self.success}, cells={self.p.size}, "
+            f"mass={self.mass:.10g}, mean={self.mean:.6g} (p0={self.mean_pressure:.6g}), "
+            f"zero_weight={self.zero_weight:.6g}, error_estimate={self.error_estimate:.2e}, "
+            f"wall_time={self.wall_time:.3g} s, message={self.message!r})"
+        )
