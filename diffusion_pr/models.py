@@ -22,6 +22,7 @@ Tails ``t(p)`` (large-pressure behaviour)
     * :class:`GaussianTail` -- ``t = 1`` (Gaussian tails, the default).
     * :class:`LinearTail` -- ``t = 1 + p / p_t``.
     * :class:`MaxLinearTail` -- ``t = max(1, p / p_t)``.
+
     Both linear variants make ``D`` grow proportionally to ``p`` at large ``p``,
     which gives exponential tails (the paper's "D proportional to sigma").
 
