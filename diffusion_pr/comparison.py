@@ -1,0 +1,354 @@
+"""Theory against simulation: histograms, distances, moments, curvature, fits.
+
+A simulated pressure field (from :mod:`gfmd_ref` or any other contact solver)
+enters as a :class:`SimulatedHistogram`: bin edges, the density of the
+continuous part, the weight of exactly-zero pressures (the hard-wall
+non-contact peak), and, where known, the raw moments and quantiles of the field
+(computed from the field itself, not from the binned data).  Everything here is
+numpy/scipy only: :mod:`diffusion_pr` does not need :mod:`gfmd_ref`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Optional, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class SimulatedHistogram:
+    """A pressure histogram of one simulated contact.
+
+    Attributes
+    ----------
+    edges : ndarray
+        Bin edges (units of pressure), increasing, ``edges[0] >= 0``.
+    density : ndarray
+        Density of the continuous part in each bin (1 / pressure), normalized
+        so that ``sum(density * widths) + zero_weight == 1``.
+    zero_weight : float
+        Fraction of the area with exactly zero pressure (hard wall).
+    moments : dict
+        ``mean``, ``variance``, ``third_central`` (pressure, pressure^2,
+        pressure^3) of the whole field, computed from the field.
+    quantile_levels, quantiles : ndarray, optional
+        The empirical quantile function of the field (for a Kolmogorov distance
+        at full resolution).
+    metadata : dict
+        Provenance (parameters, seed, solver tolerance, residual, ...).
+    """
+
+    edges: Array
+    density: Array
+    zero_weight: float = 0.0
+    moments: dict = field(default_factory=dict)
+    quantile_levels: Optional[Array] = None
+    quantiles: Optional[Array] = None
+    metadata: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        edges = np.asarray(self.edges, dtype=float)
+        density = np.asarray(self.density, dtype=float)
+        if edges.ndim != 1 or density.shape != (edges.size - 1,) or edges.size < 2:
+            raise ValueError(f"edges must have one more entry than density; got {edges.shape} and {density.shape}")
+        if np.any(np.diff(edges) <= 0) or not np.all(np.isfinite(edges)):
+            raise ValueError("edges must be finite and strictly increasing")
+        if np.any(density < 0) or not np.all(np.isfinite(density)):
+            raise ValueError("density must be finite and >= 0")
+        object.__setattr__(self, "edges", edges)
+        object.__setattr__(self, "density", density)
+
+    @property
+    def centers(self) -> Array:
+        """Bin centres (units of pressure)."""
+        return 0.5 * (self.edges[1:] + self.edges[:-1])
+
+    @property
+    def widths(self) -> Array:
+        """Bin widths (units of pressure)."""
+        return np.diff(self.edges)
+
+    @property
+    def contact_fraction(self) -> float:
+        """``1 - zero_weight`` (meaningful for the hard wall)."""
+        return 1.0 - float(self.zero_weight)
+
+    @classmethod
+    def from_pressures(cls, pressure: ArrayLike, *, bins: int | Sequence[float] = 200,
+                       p_max: Optional[float] = None, n_quantiles: int = 2049,
+                       metadata: Optional[dict] = None) -> "SimulatedHistogram":
+        """Histogram a pressure field.
+
+        Parameters
+        ----------
+        pressure : array
+            Local pressures (units of pressure), any shape, all ``>= 0``.
+        bins : int or sequence
+            Number of uniform bins on ``(0, p_max]`` or explicit edges.
+        p_max : float, optional
+            Upper end of the uniform bins (default: the largest pressure).
+        n_quantiles : int
+            Number of stored quantile levels of the field.
+        """
+        values = np.asarray(pressure, dtype=float).ravel()
+        if values.size == 0 or not np.all(np.isfinite(values)):
+            raise ValueError("pressure must be a non-empty array of finite values")
+        if np.any(values < 0):
+            raise ValueError(f"pressure must be >= 0; found min {values.min()!r}")
+        n = values.size
+        zero = values == 0.0
+        zero_weight = float(np.count_nonzero(zero)) / n
+        positive = values[~zero]
+        if np.ndim(bins) == 0:
+            top = float(p_max) if p_max is not None else float(positive.max() if positive.size else 1.0)
+            edges = np.linspace(0.0, top, int(bins) + 1)
+        else:
+            edges = np.asarray(bins, dtype=float)
+        counts, _ = np.histogram(positive, bins=edges)
+        density = counts / (n * np.diff(edges))
+        mean = float(values.mean())
+        centred = values - mean
+        moments = {
+            "mean": mean,
+            "variance": float(np.mean(centred**2)),
+            "third_central": float(np.mean(centred**3)),
+            "outside_bins": float(positive.size - counts.sum()) / n,
+        }
+        levels = np.linspace(0.0, 1.0, n_quantiles)
+        quantiles = np.quantile(values, levels)
+        return cls(edges, density, zero_weight, moments, levels, quantiles, dict(metadata or {}))
+
+    def rebinned(self, factor: int) -> "SimulatedHistogram":
+        """Merge ``factor`` adjacent bins (fewer, less noisy bins)."""
+        factor = int(factor)
+        if factor < 1:
+            raise ValueError(f"factor must be an integer >= 1; got factor={factor!r}")
+        n = (self.density.size // factor) * factor
+        mass = (self.density * self.widths)[:n].reshape(-1, factor).sum(axis=1)
+        edges = self.edges[: n + 1 : factor]
+        return SimulatedHistogram(edges, mass / np.diff(edges), self.zero_weight, dict(self.moments),
+                                  self.quantile_levels, self.quantiles, dict(self.metadata))
+
+
+def bin_averaged_density(theory: Any, edges: ArrayLike) -> Array:
+    """Average of a theory's continuous density over each bin (1 / pressure).
+
+    Uses the theory's cumulative distribution, so narrow features are
+    integrated exactly rather than sampled at bin centres; the ``delta(p)``
+    peak is excluded.
+    """
+    edges = np.asarray(edges, dtype=float)
+    cdf = np.asarray(theory.cdf(edges), dtype=float)
+    # theory.cdf includes zero_weight for p >= 0; differences cancel it except
+    # across p = 0 itself, which no bin here straddles (edges[0] >= 0).
+    return np.diff(cdf) / np.diff(edges)
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Distances and moments between a theory and a simulated histogram.
+
+    Attributes
+    ----------
+    l1 : float
+        ``sum |Pr_theory - Pr_sim| * width`` over the bins plus
+        ``|zero_weight_theory - zero_weight_sim|`` (0 ... 2, dimensionless).
+    kolmogorov : float
+        ``max |F_theory - F_sim|`` over the stored quantiles (or bin edges),
+        both sides of every jump of the empirical CDF.
+    moments_theory, moments_sim : dict
+        ``mean``, ``variance``, ``third_central`` of both (pressure^k).
+    contact_fraction_theory, contact_fraction_sim : float
+        ``1 - zero_weight`` of both.
+    """
+
+    l1: float
+    kolmogorov: float
+    moments_theory: dict
+    moments_sim: dict
+    contact_fraction_theory: float
+    contact_fraction_sim: float
+
+
+def compare(theory: Any, hist: SimulatedHistogram) -> Comparison:
+    """Compare a :class:`~diffusion_pr.result.PressureDistribution` with a histogram."""
+    avg = bin_averaged_density(theory, hist.edges)
+    beyond = max(0.0, 1.0 - float(theory.cdf(hist.edges[-1])))
+    l1 = float(np.sum(np.abs(avg - hist.density) * hist.widths))
+    l1 += abs(float(theory.zero_weight) - float(hist.zero_weight)) + beyond
+    l1 += float(hist.moments.get("outside_bins", 0.0))
+    if hist.quantiles is not None and hist.quantile_levels is not None:
+        ks = _kolmogorov_from_quantiles(theory, hist.quantiles, hist.quantile_levels)
+    else:
+        f_sim = hist.zero_weight + np.concatenate(([0.0], np.cumsum(hist.density * hist.widths)))
+        ks = float(np.max(np.abs(np.asarray(theory.cdf(hist.edges)) - f_sim)))
+    moments_theory = {
+        "mean": theory.mean,
+        "variance": theory.moment(2, central=True),
+        "third_central": theory.moment(3, central=True),
+    }
+    return Comparison(l1, ks, moments_theory, dict(hist.moments), theory.contact_fraction, hist.contact_fraction)
+
+
+def _kolmogorov_from_quantiles(theory: Any, quantiles: Array, levels: Array) -> float:
+    """``sup |F_theory - F_sim|`` from the stored quantile function of the field.
+
+    At each distinct quantile value ``x`` the empirical CDF jumps from about
+    the first to the last level whose quantile is ``x`` (ties: the delta peak
+    at 0); both sides of the jump are compared with the theory's CDF on the
+    same side.  Resolution: one level step, ``1/(len(levels) - 1)``.
+    """
+    uniq, first = np.unique(quantiles, return_index=True)
+    last = np.searchsorted(quantiles, uniq, side="right") - 1
+    f_after = np.asarray(theory.cdf(uniq), dtype=float)
+    f_before = f_after - np.where(uniq == 0.0, float(theory.zero_weight), 0.0)
+    before = np.maximum(first - 1, 0)
+    return float(max(np.max(np.abs(f_after - levels[last])), np.max(np.abs(f_before - levels[before]))))
+
+
+def log_density_curvature(p: ArrayLike, density: ArrayLike, *, p_lo: float, p_hi: float,
+                          weights: Optional[ArrayLike] = None) -> float:
+    """Curvature ``d^2 ln Pr / dp^2`` of a quadratic fit on ``[p_lo, p_hi]``.
+
+    For a Gaussian of variance ``V`` this is ``-1/V`` (1 / pressure^2).  The
+    paper's claim "the curvature of ln Pr(p) is off by about 20 %" is tested
+    with this number (theory and simulation fitted on the same window).
+
+    Parameters
+    ----------
+    p, density : array
+        Points (units of pressure) and density (1 / pressure); non-positive
+        densities inside the window are ignored.
+    p_lo, p_hi : float
+        Fit window (units of pressure).
+    weights : array, optional
+        Least-squares weights (e.g. sqrt of histogram counts).
+    """
+    p = np.asarray(p, dtype=float)
+    density = np.asarray(density, dtype=float)
+    mask = (p >= p_lo) & (p <= p_hi) & (density > 0)
+    if np.count_nonzero(mask) < 4:
+        raise ValueError(f"fewer than 4 points with positive density in [{p_lo!r}, {p_hi!r}]")
+    w = None if weights is None else np.asarray(weights, dtype=float)[mask]
+    coeffs = np.polyfit(p[mask], np.log(density[mask]), 2, w=w)
+    return float(2.0 * coeffs[0])
+
+
+@dataclass(frozen=True)
+class CutoffFit:
+    """Least-squares fit of the cutoff pressure ``p_c``.
+
+    Attributes
+    ----------
+    p_c : float
+        Best cutoff pressure (units of pressure).
+    objective : float
+        Least-squares objective at the optimum (see :func:`fit_cutoff_pressure`).
+    l1 : float
+        L1 distance between theory and histogram at the optimum.
+    evaluations : int
+        Number of theory solves.
+    success : bool
+        Whether the bounded optimiser converged inside the bracket.
+    message : str
+    """
+
+    p_c: float
+    objective: float
+    l1: float
+    evaluations: int
+    success: bool
+    message: str
+
+
+def fit_cutoff_pressure(hist: SimulatedHistogram, spectrum: Any, *, E_star: float, mean_pressure: float,
+                        zeta: float, cutoff: str = "muser", tail: Any = None, p_t: Optional[float] = None,
+                        bounds: tuple[float, float] | None = None, log_density: bool = True,
+                        backend: str = "native", rtol: float = 1e-5, xatol: float = 1e-3) -> CutoffFit:
+    """Fit ``p_c`` of a smoothed cutoff to a simulated histogram by least squares.
+
+    The objective is ``sum_i w_i (y_theory,i - y_sim,i)^2`` over bins with a
+    positive simulated density, where ``y`` is ``ln Pr`` (``log_density=True``,
+    the paper's Fig. 1 is a log plot, weights ``w_i = counts``-like
+    ``Pr_sim * width``) or ``Pr`` itself (weights ``width``).  The theory is
+    the second-order cumulant theory of :func:`diffusion_pr.pressure_distribution`
+    for the given spectrum (use the surface's own
+    :class:`~diffusion_pr.spectra.DiscreteSpectrum`).  The 1-D minimisation is
+    a bounded Brent search in ``ln p_c``.
+
+    Parameters
+    ----------
+    hist : SimulatedHistogram
+    spectrum : spectrum object
+    E_star, mean_pressure, zeta : float
+        Contact modulus, mean pressure (units of pressure), wall range
+        (units of length).
+    cutoff : str
+        ``"muser"``, ``"raised_cosine"`` or ``"smoothstep"``.
+    bounds : (float, float), optional
+        Bracket for ``p_c`` (default ``(0.02, 5) * mean_pressure``).
+    """
+    from scipy.optimize import minimize_scalar
+
+    from .api import pressure_distribution
+
+    lo, hi = bounds if bounds is not None else (0.02 * mean_pressure, 5.0 * mean_pressure)
+    if not (0 < lo < hi):
+        raise ValueError(f"bounds must satisfy 0 < lo < hi; got bounds={(lo, hi)!r}")
+    mask = hist.density > 0
+    width = hist.widths
+    calls = {"n": 0}
+
+    def theory_for(p_c: float) -> Any:
+        calls["n"] += 1
+        return pressure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
+                                     cutoff=cutoff, p_c=p_c, tail=tail, p_t=p_t, backend=backend, rtol=rtol)
+
+    def objective(log_pc: float) -> float:
+        avg = bin_averaged_density(theory_for(float(np.exp(log_pc))), hist.edges)
+        if log_density:
+            y_t = np.log(np.maximum(avg[mask], 1e-300))
+            y_s = np.log(hist.density[mask])
+            w = hist.density[mask] * width[mask]
+        else:
+            y_t, y_s, w = avg[mask], hist.density[mask], width[mask]
+        return float(np.sum(w * (y_t - y_s) ** 2))
+
+    res = minimize_scalar(objective, bounds=(np.log(lo), np.log(hi)), method="bounded",
+                          options={"xatol": xatol})
+    p_c = float(np.exp(res.x))
+    at_edge = min(abs(res.x - np.log(lo)), abs(res.x - np.log(hi))) < 10 * xatol
+    l1 = compare(theory_for(p_c), hist).l1
+    msg = str(res.message) + ("; optimum at the bracket edge" if at_edge else "")
+    return CutoffFit(p_c, float(res.fun), l1, calls["n"], bool(res.success) and not at_edge, msg)
+
+
+def fit_tail_pressure(hist: SimulatedHistogram, spectrum: Any, *, E_star: float, mean_pressure: float,
+                      zeta: float = 0.0, cutoff: str = "sharp", p_c: Optional[float] = None,
+                      tail: str = "linear", bounds: tuple[float, float] | None = None,
+                      backend: str = "native", rtol: float = 1e-5) -> tuple[float, float]:
+    """Fit the crossover pressure ``p_t`` of an exponential-tail variant.
+
+    Least squares on ``ln Pr`` over bins with positive simulated density,
+    weighted by the simulated bin mass. Returns ``(p_t, objective)``.
+    """
+    from scipy.optimize import minimize_scalar
+
+    from .api import pressure_distribution
+
+    lo, hi = bounds if bounds is not None else (0.05 * mean_pressure, 1e3 * mean_pressure)
+    mask = hist.density > 0
+    w = hist.density[mask] * hist.widths[mask]
+
+    def objective(log_pt: float) -> float:
+        th = pressure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
+                                   cutoff=cutoff, p_c=p_c, tail=tail, p_t=float(np.exp(log_pt)),
+                                   backend=backend, rtol=rtol)
+        avg = bin_averaged_density(th, hist.edges)
+        return float(np.sum(w * (np.log(np.maximum(avg[mask], 1e-300)) - np.log(hist.density[mask])) ** 2))
+
+    res = minimize_scalar(objective, bounds=(np.log(lo), np.log(hi)), method="bounded", options={"xatol": 1e-3})
+    return float(np.exp(res.x)), float(res.fun)

@@ -1,0 +1,263 @@
+"""Bundled GFMD reference data for the paper's Fig. 1 system, and its generator.
+
+The Fig. 1 system of Müser, PRL 100, 055504 (2008) (SPEC section 6): a
+``1024 x 1024`` grid with period ``L = 1024`` (the grid spacing is the length
+unit), roughness on wavelengths ``32 <= lambda <= 1024``, Hurst exponent
+``H = 0.3``, rms slope ``0.031``, contact modulus ``E* = 8/3`` and mean pressure
+``p0 = 0.004``, with exponential repulsion at several ``zeta`` and with the hard
+wall.
+
+Each bundled case is a small compressed ``.npz`` in ``diffusion_pr/data/``
+holding the pressure histogram (:class:`~diffusion_pr.comparison.SimulatedHistogram`),
+the surface's own discrete spectrum (:class:`~diffusion_pr.spectra.DiscreteSpectrum`,
+shells of equal ``|q|``), and the provenance: parameters, seed, solver,
+tolerance, residual, iterations, code version and the command that regenerates
+it (:func:`generate_reference`, ``diffusion-pr make-reference``).  Loading
+needs only numpy; generating needs :mod:`gfmd_ref`.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Optional, Sequence
+
+import numpy as np
+
+from .comparison import SimulatedHistogram
+
+DATA_DIR = Path(__file__).resolve().parent / "data"
+
+#: The paper's Fig. 1 scene (lengths in grid units of the 1024^2 system).
+FIG1_SCENE: dict[str, float] = {
+    "length": 1024.0,
+    "hurst": 0.3,
+    "q_min": 2.0 * math.pi / 1024.0,
+    "q_max": 2.0 * math.pi / 32.0,
+    "rms_slope": 0.031,
+    "E_star": 8.0 / 3.0,
+    "mean_pressure": 0.004,
+}
+
+#: zeta values (units of the grid spacing) of the bundled exponential-wall cases.
+FIG1_ZETAS: tuple[float, ...] = (0.001, 0.01, 0.1, 0.25, 0.5, 1.0, 2.0, 4.0)
+
+#: the paper's fitted cutoff pressures (units of E*'s pressure unit).
+PAPER_CUTOFF_PRESSURES: dict[float, float] = {0.001: 0.0068, 0.01: 0.0082, 0.25: 0.0027, 0.5: 0.0027,
+                                               1.0: 0.0027, 2.0: 0.0027, 4.0: 0.0027}
+
+
+def case_name(zeta: Optional[float], seed: int, n: int = 1024, surface: str = "fig1") -> str:
+    """File stem of a case: ``fig1_n1024_hard_s1`` or ``fig1_n1024_zeta0.25_s1``."""
+    wall = "hard" if zeta is None or zeta == 0 else f"zeta{zeta:g}"
+    return f"{surface}_n{n}_{wall}_s{seed}"
+
+
+@dataclass(frozen=True)
+class ReferenceCase:
+    """One bundled GFMD result.
+
+    Attributes
+    ----------
+    name : str
+    zeta : float or None
+        Range of the exponential wall (units of length); ``None`` for the hard wall.
+    histogram : SimulatedHistogram
+    spectrum : DiscreteSpectrum
+        The surface's own spectrum (use it for the theory curve).
+    provenance : dict
+    """
+
+    name: str
+    zeta: Optional[float]
+    histogram: SimulatedHistogram
+    spectrum: Any
+    provenance: dict
+
+    @property
+    def E_star(self) -> float:
+        """Contact modulus of the run (units of pressure)."""
+        return float(self.provenance["E_star"])
+
+    @property
+    def mean_pressure(self) -> float:
+        """Mean pressure of the run (units of pressure)."""
+        return float(self.provenance["mean_pressure"])
+
+
+def available_references(data_dir: Path | str | None = None) -> list[str]:
+    """Names of the bundled cases (file stems), sorted."""
+    folder = Path(data_dir) if data_dir is not None else DATA_DIR
+    return sorted(p.stem for p in folder.glob("*.npz"))
+
+
+def load_reference(name: str, data_dir: Path | str | None = None) -> ReferenceCase:
+    """Load a bundled case by name (see :func:`available_references`).
+
+    Raises
+    ------
+    ValueError
+        If no such case is bundled (the message lists the available ones).
+    """
+    from .spectra import DiscreteSpectrum
+
+    folder = Path(data_dir) if data_dir is not None else DATA_DIR
+    path = folder / f"{name}.npz"
+    if not path.exists():
+        raise ValueError(f"no reference case {name!r}; available: {available_references(folder)}")
+    with np.load(path, allow_pickle=False) as data:
+        prov = json.loads(str(data["provenance"]))
+        hist = SimulatedHistogram(
+            edges=data["edges"], density=data["density"], zero_weight=float(data["zero_weight"]),
+            moments=json.loads(str(data["moments"])), quantile_levels=data["quantile_levels"],
+            quantiles=data["quantiles"], metadata=prov,
+        )
+        spectrum = DiscreteSpectrum(data["spectrum_q"], data["spectrum_power"], data["spectrum_multiplicity"],
+                                    float(prov["length"]))
+    zeta = prov.get("zeta")
+    return ReferenceCase(name, None if zeta is None else float(zeta), hist, spectrum, prov)
+
+
+def _spectrum_shells(heights: np.ndarray, length: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Shells of equal |q| of a height map: (|q|, summed |h~|^2, multiplicity)."""
+    n = heights.shape[0]
+    ht = np.fft.fft2(heights) / (n * n)
+    power = (ht.real**2 + ht.imag**2).ravel()
+    k = np.fft.fftfreq(n, d=1.0 / n).astype(np.int64)
+    k2 = (k[:, None] ** 2 + k[None, :] ** 2).ravel()
+    keep = (k2 > 0) & (power > 1e-24 * power.sum())
+    uk2, inv = np.unique(k2[keep], return_inverse=True)
+    return (2.0 * math.pi / length * np.sqrt(uk2.astype(float)),
+            np.bincount(inv, weights=power[keep], minlength=uk2.size),
+            np.bincount(inv, minlength=uk2.size))
+
+
+def save_case(path: Path, pressure: np.ndarray, heights: np.ndarray, provenance: dict,
+              bin_width: float) -> SimulatedHistogram:
+    """Histogram a pressure field and write one ``.npz`` case (compressed)."""
+    top = float(pressure.max())
+    n_bins = max(10, int(math.ceil(top / bin_width)))
+    edges = np.arange(n_bins + 1) * bin_width
+    hist = SimulatedHistogram.from_pressures(pressure, bins=edges, metadata=provenance)
+    q, power, mult = _spectrum_shells(heights, float(provenance["length"]))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(
+        path, edges=hist.edges, density=hist.density, zero_weight=hist.zero_weight,
+        moments=json.dumps(hist.moments), quantile_levels=hist.quantile_levels, quantiles=hist.quantiles,
+        spectrum_q=q, spectrum_power=power, spectrum_multiplicity=mult,
+        provenance=json.dumps(provenance, sort_keys=True),
+    )
+    return hist
+
+
+def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS), seeds: Sequence[int] = (1,),
+                       n: int = 1024, tol: float = 1e-6, out_dir: Path | str | None = None,
+                       surface: str = "fig1", progress: bool = True, log: Any = print) -> list[Path]:
+    """Run GFMD on the Fig. 1 system and write the bundled cases.
+
+    Parameters
+    ----------
+    zetas : iterable of float or None
+        Wall ranges (units of the grid spacing of the 1024^2 system); ``None``
+        is the hard wall.
+    seeds : sequence of int
+        Surface seeds (``gfmd_ref.self_affine_surface(..., seed=seed)``).
+    n : int
+        Grid points per side (the physical cell stays ``L = 1024``).
+    tol : float
+        GFMD tolerance relative to ``p0``.
+    out_dir : path, optional
+        Output folder (default: the package's ``data`` folder).
+    surface : str
+        ``"fig1"`` (Gaussian coloured noise) or ``"fig1-skewed"`` (the same
+        spectrum mapped through a non-Gaussian height transform, see
+        :func:`skewed_surface`).
+    """
+    from importlib.metadata import PackageNotFoundError, version
+
+    import gfmd_ref
+
+    try:
+        code_version = version("diffusion-pr")
+    except PackageNotFoundError:  # running from a source tree that is not installed
+        code_version = "unknown"
+    code_version += f" (git {_git_revision()})"
+
+    folder = Path(out_dir) if out_dir is not None else DATA_DIR
+    scene = FIG1_SCENE
+    written = []
+    for seed in seeds:
+        heights = gfmd_ref.self_affine_surface(
+            n, length=scene["length"], hurst=scene["hurst"], q_min=scene["q_min"], q_max=scene["q_max"],
+            rms_slope=scene["rms_slope"], seed=seed)
+        if surface == "fig1-skewed":
+            heights = skewed_surface(heights, length=scene["length"], rms_slope=scene["rms_slope"])
+        elif surface != "fig1":
+            raise ValueError(f"surface must be 'fig1' or 'fig1-skewed'; got surface={surface!r}")
+        for zeta in zetas:
+            interaction = gfmd_ref.HardWall() if zeta is None else gfmd_ref.ExponentialRepulsion(zeta)
+            t0 = time.perf_counter()
+            res = gfmd_ref.solve_contact(heights, length=scene["length"], E_star=scene["E_star"],
+                                         mean_pressure=scene["mean_pressure"], interaction=interaction,
+                                         tol=tol, progress=progress)
+            wall = time.perf_counter() - t0
+            name = case_name(zeta, seed, n, surface)
+            cmd = (f"diffusion-pr make-reference --n {n} --seeds {seed} --tol {tol:g} --surface {surface} "
+                   f"--zetas {'hard' if zeta is None else f'{zeta:g}'}")
+            prov = {
+                **scene, "n": n, "zeta": zeta, "interaction": "hard" if zeta is None else "exponential",
+                "seed": int(seed), "surface": surface, "tol": tol, "method": res.method,
+                "converged": bool(res.converged), "residual": float(res.residual),
+                "iterations": int(res.iterations), "wall_time_s": round(wall, 3),
+                "contact_fraction": float(res.contact_fraction), "code_version": code_version,
+                "command": cmd,
+            }
+            save_case(folder / f"{name}.npz", np.asarray(res.pressure), np.asarray(heights), prov,
+                      bin_width=scene["mean_pressure"] / 20.0)
+            log(f"{name}: converged={res.converged} residual={res.residual:.2e} it={res.iterations} "
+                f"a={res.contact_fraction:.5f} {wall:.1f} s")
+            written.append(folder / f"{name}.npz")
+    return written
+
+
+def _git_revision() -> str:
+    """Short git revision of the source tree, or ``"unknown"``."""
+    import subprocess
+
+    try:
+        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=Path(__file__).parent,
+                             capture_output=True, text=True, timeout=10)
+        return out.stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def skewed_surface(heights: np.ndarray, *, length: float, rms_slope: float, skew: float = 1.0) -> np.ndarray:
+    """A non-Gaussian surface made from a coloured-noise one.
+
+    ``h' = exp(skew * h / h_rms)``, centred and rescaled to the requested rms
+    slope (computed spectrally).  The map keeps the phases' structure but
+    correlates the Fourier modes (it is no longer coloured noise) and gives
+    the heights a positive skewness: sharper peaks, flatter valleys.
+
+    Parameters
+    ----------
+    heights : (n, n) array
+        A coloured-noise height map (units of length).
+    length : float
+        Period (units of length).
+    rms_slope : float
+        Target rms slope of the result (dimensionless).
+    skew : float
+        Strength of the exponential map (dimensionless, > 0).
+    """
+    h = np.asarray(heights, dtype=float)
+    out = np.exp(skew * (h - h.mean()) / h.std())
+    out -= out.mean()
+    n = h.shape[0]
+    k = 2.0 * math.pi / length * np.fft.fftfreq(n, d=1.0 / n)
+    ht = np.fft.fft2(out) / (n * n)
+    slope2 = float(np.sum((k[:, None] ** 2 + k[None, :] ** 2) * np.abs(ht) ** 2))
+    return out * (rms_slope / math.sqrt(slope2))
