@@ -4,11 +4,11 @@ For a linear-elastic half-space of contact modulus ``E*`` against a rigid rough
 surface with exponential repulsion of range ``zeta`` at mean pressure ``p0``,
 the second-order cumulant expansion gives the linear response
 ``u~(q) = G1(q) h~(q)`` with (M. H. Müser, Phys. Rev. Lett. 100, 055504 (2008),
-Eq. 10, doi:10.1103/PhysRevLett.100.055504)
+Eq. 10, doi:10.1103/PhysRevLett.100.055504)::
 
     G1(q) = 1 / (1 + zeta q E* / (2 p0)),
 
-and, since ``sigma~(q) = (q E*/2) u~(q)`` (Eq. 3), the stress variance
+and, since ``sigma~(q) = (q E*/2) u~(q)`` (Eq. 3), the stress variance::
 
     V(zeta) = sum_q (q E*/2)^2 |G1(q)|^2 <|h~(q)|^2>
             -> (E*/2)^2 2 pi \int q^3 C(q) |G1(q)|^2 dq       (continuum).

@@ -10,7 +10,7 @@ doi:10.1103/PhysRevLett.100.055504; B. N. J. Persson, J. Chem. Phys. 115, 3840
 
   so ``h~`` has the units of length.
 * Isotropic power spectral density ``C(q)`` [length^4] with
-  ``<|h~(q)|^2> = C(|q|) (2 pi / L)^2``; in the continuum limit
+  ``<|h~(q)|^2> = C(|q|) (2 pi / L)^2``; in the continuum limit::
 
       h_rms^2 = 2 pi \int q C(q) dq,        gbar^2 = <|grad h|^2> = 2 pi \int q^3 C(q) dq.
 
@@ -82,26 +82,14 @@ def _eval_weight(weight: Weight | None, q: np.ndarray) -> np.ndarray:
 class Spectrum(abc.ABC):
     r"""Common interface of isotropic height spectra.
 
-    Attributes every spectrum provides
-    ----------------------------------
-    q_min, q_max : float
-        Smallest and largest wavenumber carrying roughness [rad/length].
-    h_rms : float
-        Root-mean-square height [length], ``sqrt(2 pi \int q C dq)``.
-    mean_square_gradient : float
-        ``gbar^2 = <|grad h|^2> = 2 pi \int q^3 C dq`` [dimensionless].
-    rms_slope : float
-        ``gbar = sqrt(mean_square_gradient)`` [dimensionless].
-
-    Methods
-    -------
-    integrate(weight)
-        ``2 pi \int q C(q) weight(q) dq`` (continuum) or
-        ``sum_q |h~(q)|^2 weight(|q|)`` (discrete) [length^2 x units of weight].
-    cumulative(weight, q)
-        The same restricted to ``|q'| <= q``, vectorized over ``q``.
-    quadrature()
-        Nodes ``q_i`` and weights ``w_i`` with ``integrate(f) ~= sum_i w_i f(q_i)``.
+    Every spectrum provides the attributes ``q_min`` and ``q_max`` (smallest
+    and largest wavenumber carrying roughness [rad/length]), the properties
+    :attr:`h_rms` [length], :attr:`mean_square_gradient` and
+    :attr:`rms_slope` [dimensionless], and the methods :meth:`integrate`
+    (``2 pi \int q C(q) weight(q) dq``, or ``sum_q |h~(q)|^2 weight(|q|)``
+    for a discrete spectrum), :meth:`cumulative` (the same restricted to
+    ``|q'| <= q``, vectorized over ``q``) and :meth:`quadrature` (nodes and
+    weights with ``integrate(f) ~= sum_i w_i f(q_i)``).
     """
 
     # Subclasses provide ``q_min`` and ``q_max`` (attributes or properties).
