@@ -1,0 +1,244 @@
+"""Tests of diffusion_pr.closed_forms against independent oracles.
+
+Oracles: quadrature (normalization, moments), finite-difference residuals of
+the Fokker-Planck equations, Monte Carlo of the underlying Ito processes
+(seeded; tolerances from the MC standard error), high-precision mpmath
+evaluation of the naive Feller formula, and the SPEC's printed numbers.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import quad
+
+from diffusion_pr.closed_forms import (
+    Moments,
+    feller_density,
+    feller_moments,
+    feller_zero_weight,
+    gaussian_density,
+    gaussian_moments,
+    mirror_gaussian_density,
+    mirror_gaussian_moments,
+    persson_contact_fraction,
+    persson_zero_weight,
+)
+
+
+def _quad0inf(f, scale: float, centre: float) -> float:
+    """int_0^inf f dp, split at the bulk of the mass so quad resolves narrow peaks."""
+    pts = sorted({max(centre - 10 * scale, 0.0), centre, centre + 10 * scale})
+    pts = [x for x in pts if x > 0]
+    edges = [0.0] + pts
+    total = sum(quad(f, a, b, epsabs=0.0, epsrel=1e-12, limit=400)[0] for a, b in zip(edges[:-1], edges[1:]))
+    return total + quad(f, edges[-1], np.inf, epsabs=1e-15, epsrel=1e-12, limit=400)[0]
+
+
+# --------------------------------------------------------------------------- Gaussian / Persson
+def test_gaussian_normalized_and_moments():
+    m, v = 0.3, 0.04
+    f = lambda p: gaussian_density(p, m, v)
+    assert quad(f, -np.inf, np.inf, epsrel=1e-12)[0] == pytest.approx(1.0, abs=1e-10)
+    assert quad(lambda p: p * f(p), -np.inf, np.inf, epsrel=1e-12)[0] == pytest.approx(m, rel=1e-10)
+    assert gaussian_moments(m, v) == Moments(m, v, 0.0)
+    assert gaussian_density(m, m, v) == pytest.approx(1 / math.sqrt(2 * math.pi * v), rel=1e-15)
+
+
+def test_spec_persson_number():
+    # SPEC section 3: sqrt(V0) = 0.041333 (i.e. (E*/2) rms_slope = 4/3 * 0.031) -> a_r = 0.07709
+    V0 = (4.0 / 3.0 * 0.031) ** 2
+    assert persson_contact_fraction(0.004, V0) == pytest.approx(0.07709, abs=5e-6)
+    assert persson_contact_fraction(0.004, V0) + persson_zero_weight(0.004, V0) == pytest.approx(1.0, abs=1e-15)
+
+
+@pytest.mark.parametrize("ratio", [1e-3, 0.1, 1.0, 3.0, 10.0])
+def test_mirror_gaussian_normalization_mean_variance(ratio):
+    # hard cases p0/sqrt(V) from 1e-3 to 10; quadrature at epsrel 1e-12 -> 1e-9 tolerances
+    V = 2.0
+    p0 = ratio * math.sqrt(V)
+    f = lambda p: mirror_gaussian_density(p, p0, V)
+    zw = persson_zero_weight(p0, V)
+    sd = math.sqrt(V)
+    assert _quad0inf(f, sd, p0) + zw == pytest.approx(1.0, abs=1e-10)
+    mean = _quad0inf(lambda p: p * f(p), sd, p0)
+    assert mean == pytest.approx(p0, rel=1e-9)  # the delta at p = 0 carries no pressure
+    m2 = _quad0inf(lambda p: p * p * f(p), sd, p0)
+    mom = mirror_gaussian_moments(p0, V)
+    assert mom.mean == p0
+    assert mom.variance == pytest.approx(m2 - p0**2, rel=1e-8)
+    assert mom.zero_weight == pytest.approx(zw, rel=1e-14)
+
+
+def test_persson_zero_weight_tail_accuracy():
+    # erfc keeps relative accuracy deep in the tail: p0/sqrt(2V) = 8 -> erfc(8) = 1.1224297172982928e-29
+    # (reference value: mpmath.erfc(8) to 17 digits); 1 - erf would give 0.
+    assert persson_zero_weight(8.0 * math.sqrt(2.0), 1.0) == pytest.approx(1.1224297172982928e-29, rel=1e-13)
+
+
+def test_mirror_gaussian_small_p_and_support():
+    # near p = 0 the density is linear: 2 p p0/V * phi(0; p0, V) (expm1 keeps it accurate)
+    p0, V = 1.0, 0.5
+    p = 1e-12
+    slope = 2 * p0 / V * math.exp(-p0**2 / (2 * V)) / math.sqrt(2 * math.pi * V)
+    assert mirror_gaussian_density(p, p0, V) == pytest.approx(slope * p, rel=1e-9)
+    assert mirror_gaussian_density([-1.0, 0.0], p0, V).tolist() == [0.0, 0.0]
+
+
+def test_mirror_gaussian_pde_residual():
+    # Pr(p, tau) with V = 2 tau solves dPr/dtau = d^2 Pr/dp^2 on p > 0 with Pr(0) = 0.
+    # Central differences, h = 1e-3, dtau = 1e-4: truncation ~1e-6 relative to |dPr/dtau|.
+    p0, tau = 1.0, 0.3
+    p = np.linspace(0.01, 4.0, 400)
+    h, dt = 1e-3, 1e-4
+    P = lambda pp, t: mirror_gaussian_density(pp, p0, 2 * t)
+    lhs = (P(p, tau + dt) - P(p, tau - dt)) / (2 * dt)
+    rhs = (P(p + h, tau) - 2 * P(p, tau) + P(p - h, tau)) / h**2
+    assert np.max(np.abs(lhs - rhs)) < 1e-5 * np.max(np.abs(lhs))
+
+
+def test_mirror_gaussian_vs_absorbed_brownian_motion():
+    # Monte Carlo: p_{k+1} = p_k + sqrt(V/n) Z, killed at 0. Between steps the path is a Brownian
+    # bridge, which crosses 0 with probability exp(-2 p_k p_{k+1} / (V/n)) (reflection principle):
+    # with that test the discrete simulation is exact, so only statistical error remains.
+    rng = np.random.default_rng(7)
+    npath, nstep = 200_000, 50
+    p0, V = 1.0, 1.5
+    dv = V / nstep
+    p = np.full(npath, p0)
+    alive = np.ones(npath, bool)
+    for _ in range(nstep):
+        new = p + math.sqrt(dv) * rng.standard_normal(npath)
+        cross = (new <= 0) | (rng.random(npath) < np.exp(-2 * np.maximum(p, 0) * np.maximum(new, 0) / dv))
+        alive &= ~cross
+        p = np.where(alive, new, 0.0)
+    zw_mc = 1 - alive.mean()
+    se = math.sqrt(zw_mc * (1 - zw_mc) / npath)
+    assert zw_mc == pytest.approx(persson_zero_weight(p0, V), abs=5 * se)
+    # empirical CDF at several pressures vs quadrature of the closed form (5 standard errors)
+    zw = persson_zero_weight(p0, V)
+    for x in (0.25, 0.5, 1.0, 2.0, 3.5):
+        exact = zw + quad(lambda q: mirror_gaussian_density(q, p0, V), 0, x, epsrel=1e-12)[0]
+        emp = np.mean(p <= x)
+        assert emp == pytest.approx(exact, abs=5 * math.sqrt(exact * (1 - exact) / npath))
+    # mean conserved (martingale): standard error sqrt(var/npath)
+    assert p.mean() == pytest.approx(p0, abs=5 * p.std() / math.sqrt(npath))
+
+
+# --------------------------------------------------------------------------- Feller
+@pytest.mark.parametrize("p0,tau,a", [(1.0, 0.5, 1.0), (0.004, 1e-4, 2.0), (2.0, 1e-3, 0.1), (1.0, 50.0, 1.0)])
+def test_feller_normalization_and_moments(p0, tau, a):
+    # int density + zero weight = 1, mean p0, variance 2 a p0 tau; quadrature tolerances 1e-9
+    f = lambda p: feller_density(p, p0, tau, a)
+    zw = feller_zero_weight(p0, tau, a)
+    scale = math.sqrt(2 * a * p0 * tau) + a * tau
+    assert _quad0inf(f, scale, p0) + zw == pytest.approx(1.0, abs=1e-9)
+    mean = _quad0inf(lambda p: p * f(p), scale, p0)
+    assert mean == pytest.approx(p0, rel=1e-9)
+    m2 = _quad0inf(lambda p: p * p * f(p), scale, p0)
+    mom = feller_moments(p0, tau, a)
+    assert mom.variance == pytest.approx(2 * a * p0 * tau, rel=1e-15)
+    assert m2 - p0**2 == pytest.approx(mom.variance, rel=1e-8)
+    assert mom.zero_weight == zw and mom.mean == p0
+
+
+def test_feller_against_mpmath_naive_formula():
+    # The overflow-free ive form vs the printed formula (SPEC section 4) in 50-digit arithmetic,
+    # including x = 2 sqrt(p p0)/(a tau) ~ 1e4, where I1(x) overflows double precision.
+    mpmath = pytest.importorskip("mpmath")
+    mpmath.mp.dps = 50
+    for p0, tau, a in ((1.0, 0.5, 1.0), (1.0, 1e-4, 1.0), (0.004, 2e-5, 3.0)):
+        at = a * tau
+        for p in (1e-9, 0.3 * p0, 0.97 * p0, p0, 1.05 * p0, 3 * p0):
+            P = mpmath.mpf(p)
+            naive = (1 / mpmath.mpf(at)) * mpmath.sqrt(p0 / P) * mpmath.exp(-(P + p0) / at) * mpmath.besseli(
+                1, 2 * mpmath.sqrt(P * p0) / at
+            )
+            got = feller_density(p, p0, tau, a)
+            if float(naive) > 1e-250:
+                assert got == pytest.approx(float(naive), rel=1e-11)
+            else:
+                assert got < 1e-200
+    # p -> 0+ limit: p0 exp(-p0/(a tau)) / (a tau)^2
+    assert feller_density(0.0, 1.0, 0.5, 1.0) == pytest.approx(math.exp(-2.0) / 0.25, rel=1e-15)
+    assert feller_density(-1.0, 1.0, 0.5, 1.0) == 0.0
+
+
+def test_feller_pde_residual_and_boundary_flux():
+    # Pr solves dPr/dtau = d^2(a p Pr)/dp^2; central differences (h = 1e-3, dtau = 1e-5) leave
+    # ~1e-6 relative truncation error -> tolerance 1e-5 of max |dPr/dtau|.
+    p0, tau, a = 1.0, 0.5, 1.0
+    p = np.linspace(0.02, 5.0, 500)
+    h, dt = 1e-3, 1e-5
+    P = lambda pp, t: feller_density(pp, p0, t, a)
+    lhs = (P(p, tau + dt) - P(p, tau - dt)) / (2 * dt)
+    fP = lambda pp: a * pp * P(pp, tau)
+    rhs = (fP(p + h) - 2 * fP(p) + fP(p - h)) / h**2
+    assert np.max(np.abs(lhs - rhs)) < 1e-5 * np.max(np.abs(lhs))
+    # mass leaving through p = 0 (flux d(a p Pr)/dp at 0+ = a Pr(0+)) fills the delta peak:
+    # d/dtau exp(-p0/(a tau)) = a Pr(0+, tau)  (central difference in tau, rel 1e-8)
+    dzw = (feller_zero_weight(p0, tau + dt, a) - feller_zero_weight(p0, tau - dt, a)) / (2 * dt)
+    assert dzw == pytest.approx(a * feller_density(0.0, p0, tau, a), rel=1e-8)
+
+
+def test_feller_vs_monte_carlo_sde():
+    # Ito SDE dp = sqrt(2 a p) dW absorbed at 0 (the process whose law is the Feller solution),
+    # 2e5 seeded paths, Milstein step p -> (sqrt p + sqrt(a/2) dW)^2 - a dt/2 (strong order 1;
+    # Euler gives the same within noise), 200 steps. Measured time-step bias (100 vs 1600 steps)
+    # < 1e-3, below the standard error; tolerance 5 standard errors + 1e-3.
+    rng = np.random.default_rng(11)
+    p0, tau, a = 1.0, 0.5, 1.0
+    npath, nstep = 200_000, 200
+    dt = tau / nstep
+    p = np.full(npath, p0)
+    idx = np.arange(npath)
+    for _ in range(nstep):
+        pa = p[idx]
+        new = (np.sqrt(pa) + math.sqrt(a / 2) * math.sqrt(dt) * rng.standard_normal(idx.size)) ** 2 - a * dt / 2
+        dead = new <= 0
+        new[dead] = 0.0
+        p[idx] = new
+        idx = idx[~dead]
+    zw = feller_zero_weight(p0, tau, a)
+    zw_mc = np.mean(p == 0)
+    assert zw_mc == pytest.approx(zw, abs=5 * math.sqrt(zw * (1 - zw) / npath) + 1e-3)
+    for x in (0.1, 0.25, 0.5, 1.0, 2.0, 4.0):
+        exact = zw + quad(lambda q: feller_density(q, p0, tau, a), 0, x, epsrel=1e-12)[0]
+        emp = np.mean(p <= x)
+        assert emp == pytest.approx(exact, abs=5 * math.sqrt(exact * (1 - exact) / npath) + 1e-3)
+    assert p.mean() == pytest.approx(p0, abs=5 * p.std() / math.sqrt(npath) + 1e-3)
+    assert p.var() == pytest.approx(2 * a * p0 * tau, rel=0.02)  # SE of a variance ~ sqrt(kurtosis/N) < 0.5 %
+
+
+def test_feller_small_tau_is_gaussian():
+    # for a tau << p0 the diffusivity is ~ a p0 over the peak: Pr -> Gaussian of variance 2 a p0 tau,
+    # relative deviation at the mean ~ O(sqrt(a tau/p0)) = 1e-3 here -> tolerance 5e-3.
+    p0, tau, a = 1.0, 1e-6, 1.0
+    V = 2 * a * p0 * tau
+    assert feller_density(p0, p0, tau, a) == pytest.approx(gaussian_density(p0, p0, V), rel=5e-3)
+
+
+# --------------------------------------------------------------------------- bad input
+@pytest.mark.parametrize(
+    "call,match",
+    [
+        (lambda: gaussian_density(0.0, 1.0, -1.0), "variance"),
+        (lambda: gaussian_density(0.0, 1.0, 0.0), "variance"),
+        (lambda: gaussian_density([0.0, np.nan], 1.0, 1.0), "p"),
+        (lambda: mirror_gaussian_density(0.5, 1.0, -1.0), "variance"),
+        (lambda: mirror_gaussian_density(0.5, -1.0, 1.0), "mean_pressure"),
+        (lambda: mirror_gaussian_density(0.5, np.nan, 1.0), "mean_pressure"),
+        (lambda: persson_zero_weight(1.0, -2.0), "variance"),
+        (lambda: persson_contact_fraction(0.0, 2.0), "mean_pressure"),
+        (lambda: mirror_gaussian_moments(1.0, np.inf), "variance"),
+        (lambda: feller_density(0.5, 1.0, -1.0, 1.0), "tau"),
+        (lambda: feller_density(0.5, 1.0, 1.0, 0.0), "slope"),
+        (lambda: feller_zero_weight(-1.0, 1.0, 1.0), "mean_pressure"),
+        (lambda: feller_moments(1.0, 1.0, np.nan), "slope"),
+        (lambda: gaussian_density(0.0, "a", 1.0), "mean_pressure"),
+    ],
+)
+def test_bad_input(call, match):
+    with pytest.raises(ValueError, match=match):
+        call()
