@@ -119,8 +119,16 @@ def stress_variance(
     q, w = spectrum.quadrature()
     base = w * (q * q) * (0.25 * E * E)
     k = E / (2.0 * p0)
-    g = 1.0 / (1.0 + np.multiply.outer(z.ravel() * k, q))
-    v = (g * g) @ base
+    zk = z.ravel() * k
+    v = np.empty(zk.size)
+    # blocks of <= 2^16 matrix entries keep the temporaries in cache (large discrete spectra)
+    step = max(1, (1 << 16) // max(q.size, 1))
+    for i in range(0, zk.size, step):
+        g = np.multiply.outer(zk[i : i + step], q)
+        g += 1.0
+        np.reciprocal(g, out=g)
+        g *= g
+        v[i : i + step] = g @ base
     return float(v[0]) if z.ndim == 0 else v.reshape(z.shape)
 
 

@@ -212,11 +212,15 @@ def test_feller_vs_monte_carlo_sde():
 
 
 def test_feller_small_tau_is_gaussian():
-    # for a tau << p0 the diffusivity is ~ a p0 over the peak: Pr -> Gaussian of variance 2 a p0 tau,
-    # relative deviation at the mean ~ O(sqrt(a tau/p0)) = 1e-3 here -> tolerance 5e-3.
+    # for a tau << p0 the diffusivity is ~ a p0 over the peak: Pr -> Gaussian of variance 2 a p0 tau.
+    # The leading correction is odd in (p - p0), of relative size ~ sqrt(a tau/p0) = 1e-3 one
+    # standard deviation out (tolerance 5e-3) and vanishing at the mean, where the next order
+    # is ~ a tau/p0 = 1e-6 (tolerance 1e-5). x = 2 sqrt(p p0)/(a tau) = 2e6: tests the ive form.
     p0, tau, a = 1.0, 1e-6, 1.0
     V = 2 * a * p0 * tau
-    assert feller_density(p0, p0, tau, a) == pytest.approx(gaussian_density(p0, p0, V), rel=5e-3)
+    assert feller_density(p0, p0, tau, a) == pytest.approx(gaussian_density(p0, p0, V), rel=1e-5)
+    for p in (p0 - math.sqrt(V), p0 + math.sqrt(V)):
+        assert feller_density(p, p0, tau, a) == pytest.approx(gaussian_density(p, p0, V), rel=5e-3)
 
 
 # --------------------------------------------------------------------------- bad input
