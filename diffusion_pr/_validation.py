@@ -1,8 +1,9 @@
 """Shared input checks for :mod:`diffusion_pr`.
 
-Every helper raises :class:`ValueError` (or :class:`TypeError` for a wrong kind
-of object) whose message names the parameter, shows the offending value and
-states the allowed range, e.g.::
+Every helper raises :class:`ValueError` (for a wrong kind of object its
+subclass :class:`InputTypeError`, which is also a :class:`TypeError`) whose
+message names the parameter, shows the offending value and states the allowed
+range, e.g.::
 
     ValueError: variance must be > 0 and finite; got -1.0
 
