@@ -82,7 +82,8 @@ def test_G1_values_and_broadcast():
 
 # --------------------------------------------------------------------------- continuum V(zeta)
 @pytest.mark.parametrize(
-    "H,qmin,qmax,qr", [(0.3, QL, QS, QL), (0.1, 1e-3, 10.0, 1e-3), (0.9, 1e-2, 1e2, 0.1), (0.5, 0.1, 0.2, 0.15)]
+    "H,qmin,qmax,qr",
+    [(0.3, QL, QS, QL), (0.1, 1e-3, 10.0, 1e-3), (0.9, 1e-4, 1.0, 1e-4), (0.9, 1e-2, 1e2, 0.1), (0.5, 0.1, 0.2, 0.15)],
 )
 def test_stress_variance_against_quad(H, qmin, qmax, qr):
     # Gauss-Legendre in ln q vs adaptive quad (epsrel 1e-13): 1e-10 relative; zeta 1e-4..10
@@ -172,8 +173,21 @@ def test_discrete_V_and_binned_D(rng):
 def test_variance_vs_magnification_against_quad(zeta):
     s = SelfAffineSpectrum(0.3, QL, QS, rms_slope=0.031, q_roll=4 * QL)
     eta = np.array([0.2, 1.0, 2.0, 4.0, 5.5, 17.0, 32.0, 50.0])
+    _check_V_eta(s, eta, zeta)
+
+
+@pytest.mark.parametrize("H", [0.1, 0.9])
+def test_variance_vs_magnification_wide_range(H):
+    # magnification 1e4 (hard-case range of issue 3), zeta 1e-4 and 10
+    s = SelfAffineSpectrum(H, 1e-4, 1.0, rms_slope=0.1)
+    eta = np.array([1.0, 3.0, 100.0, 2e3, 1e4])
+    for zeta in (1e-4, 10.0):
+        _check_V_eta(s, eta, zeta)
+
+
+def _check_V_eta(s, eta, zeta):
     v = variance_vs_magnification(s, eta, E_star=E_STAR, mean_pressure=P0, zeta=zeta)
-    ref = [quad_variance(s, zeta, upper=e * QL) if e > 1 else 0.0 for e in eta]
+    ref = [quad_variance(s, zeta, upper=e * s.q_min) if e > 1 else 0.0 for e in eta]
     np.testing.assert_allclose(v, ref, rtol=1e-10, atol=0)
     assert v[-1] == pytest.approx(stress_variance(s, E_star=E_STAR, mean_pressure=P0, zeta=zeta), rel=1e-12)
 

@@ -283,3 +283,26 @@ def test_bad_discrete_input():
         DiscreteSpectrum.from_modes([0.1], [1.0]).integrate(3.0)
     with pytest.raises(ValueError, match="q"):
         fig1().cumulative(None, [0.1, np.nan])
+
+
+# --------------------------------------------------------------------------- shared validators
+def test_validation_helpers_messages():
+    from diffusion_pr import _validation as v
+
+    with pytest.raises(ValueError, match=r"variance must be > 0 and finite; got -1\.0"):
+        v.check_positive("variance", -1.0)
+    with pytest.raises(ValueError, match=r"zeta must be >= 0.*-2\.0"):
+        v.check_nonnegative("zeta", [0.0, -2.0])
+    with pytest.raises(ValueError, match=r"hurst must lie in \(0\.0, 1\.0\); got 1\.0"):
+        v.check_in_range("hurst", 1.0, 0.0, 1.0, lo_inclusive=False, hi_inclusive=False)
+    with pytest.raises(ValueError, match="heights must be finite"):
+        v.check_finite_array("heights", [[1.0, np.inf]])
+    with pytest.raises(ValueError, match=r"must have shape \(2, 'any'\)"):
+        v.check_finite_array("x", np.ones((3, 2)), shape=(2, None))
+    with pytest.raises(TypeError, match="diffusivity must be callable"):  # also a ValueError
+        v.check_callable("diffusivity", 3.0)
+    with pytest.raises(ValueError, match="p0 must be a real number"):
+        v.check_positive("p0", "abc")
+    assert v.check_positive("a", 2) == 2.0 and isinstance(v.check_positive("a", 2), float)
+    np.testing.assert_array_equal(v.check_nonnegative("a", [0, 1]), [0.0, 1.0])
+    assert v.check_finite("x", -3) == -3.0
