@@ -127,7 +127,7 @@ class Spectrum(abc.ABC):
         """Continuum PSD ``C(q)`` [length^4]; not defined for every spectrum."""
         raise NotImplementedError(f"{type(self).__name__} has no continuum PSD C(q)")
 
-    def integrate(self, weight: Weight | None = None) -> float:
+    def integrate(self, weight: Weight | None = None, *, method: Literal["gauss", "quad"] = "gauss") -> float:
         r"""``2 pi \int q C(q) weight(q) dq`` (continuum) or ``sum |h~|^2 weight`` (discrete).
 
         Parameters
@@ -135,12 +135,18 @@ class Spectrum(abc.ABC):
         weight : callable or None
             Vectorized function of ``q`` [rad/length]; ``None`` means 1
             (giving ``h_rms^2``).
+        method : {"gauss", "quad"}
+            Quadrature choice for continuum spectra (see
+            :meth:`SelfAffineSpectrum.integrate`); discrete sums are exact and
+            ignore it.
 
         Returns
         -------
         float
             In length^2 x units of ``weight``.
         """
+        if method not in ("gauss", "quad"):
+            raise ValueError(f"method must be 'gauss' or 'quad'; got {method!r}")
         q, w = self.quadrature()
         return float(np.dot(w, _eval_weight(weight, q)))
 
