@@ -3,4 +3,27 @@
 A standalone (numpy, scipy, numba) solver for an elastic half-space pressed on a
 rigid, periodic rough surface, with hard-wall or exponential repulsion. It never
 imports :mod:`diffusion_pr`.
+
+Public API: :func:`self_affine_surface`, :class:`HardWall`,
+:class:`ExponentialRepulsion`, :func:`solve_contact` (-> :class:`ContactResult`),
+:class:`ConvergenceWarning`, :func:`pressure_histogram`, :func:`fig1_surface`.
 """
+from .histogram import PressureHistogram, pressure_histogram
+from .interactions import ExponentialRepulsion, HardWall
+from .scene import FIG1, fig1_surface
+from .solver import ContactResult, ConvergenceWarning, solve_contact
+from .surface import self_affine_surface, spectral_rms_slope
+
+__all__ = [
+    "self_affine_surface",
+    "spectral_rms_slope",
+    "HardWall",
+    "ExponentialRepulsion",
+    "solve_contact",
+    "ContactResult",
+    "ConvergenceWarning",
+    "pressure_histogram",
+    "PressureHistogram",
+    "fig1_surface",
+    "FIG1",
+]

@@ -1,0 +1,582 @@
+"""Contact solvers: GFMD (FIRE), constrained CG (hard wall), dual Newton-CG (exponential wall).
+
+Geometry and conventions (SPEC sections 1, 5): rigid rough surface ``h`` (zero mean
+not required), elastic half-space with contact modulus ``E*`` pressed on it with mean
+pressure ``p0``. Solid surface ``z = z0 + u`` (``<u> = 0``), gap ``g = z - h``.
+Each Fourier mode ``q != 0`` of ``u`` is a spring of stiffness ``q E*/2`` (per unit
+area): the elastic pressure is ``p_el = p0 + IFFT[(q E*/2) FFT(z)]`` and, inversely,
+``u = IFFT[(2/(q E*)) FFT(p)]``.
+
+Residual definitions (all dimensionless, "relative to p0"; ``h_s`` = standard
+deviation of the heights, or ``length`` for a flat surface):
+
+* hard wall, ``method="ccg"`` (pressure variables, the displacement is computed from
+  the pressure so the force balance of every mode holds by construction):
+  ``max(|<p> - p0|/p0, max|p g|/(p0 h_s), max(-g)_+/h_s)``: load error,
+  complementarity, penetration.
+* hard wall, ``method="fire"`` (displacement variables, ``z >= h`` by projection):
+  ``max(|<p> - p0|/p0, max over free nodes |p_el|/p0, max over contact nodes (-p_el)_+/p0)``:
+  the force residual of every node (a free node must carry no pressure, a contact
+  node no tension).
+* exponential wall, both methods: ``max_i |sigma(g_i) - p_el,i| / p0``: the force
+  residual of every node, where ``sigma = p0 exp(-g/zeta)`` (``v0 = zeta p0``).
+"""
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.fft as sfft
+
+from . import _kernels as kr
+from ._validation import check_heights, check_int, check_positive
+from .interactions import ExponentialRepulsion, HardWall
+
+__all__ = ["solve_contact", "ContactResult", "ConvergenceWarning", "METHODS"]
+
+#: methods available per interaction ("auto" picks the first, the fastest).
+METHODS = {
+    "HardWall": ("ccg", "fire"),
+    "ExponentialRepulsion": ("newton", "fire"),
+}
+
+#: exponential wall: contact means ``pressure > EXP_CONTACT_THRESHOLD * p0``.
+EXP_CONTACT_THRESHOLD = 0.01
+
+
+class ConvergenceWarning(UserWarning):
+    """A solver stopped before reaching the requested tolerance."""
+
+
+@dataclass(frozen=True, eq=False)
+class ContactResult:
+    """Solution of one contact problem.
+
+    ``pressure`` has mean ``mean_pressure`` to round-off (load control), ``gap =
+    displacement - heights``. ``contact_fraction``: hard wall, fraction of nodes with
+    ``pressure > 0``; exponential wall, fraction with ``pressure > contact_threshold``
+    (``EXP_CONTACT_THRESHOLD * p0 = 0.01 p0``). ``iterations`` counts the costly
+    operator applications (one FFT pair each: CG/FIRE steps, Newton line-search
+    evaluations). ``residual`` is relative to ``mean_pressure`` (see module doc).
+    """
+
+    pressure: np.ndarray
+    gap: np.ndarray
+    displacement: np.ndarray
+    contact_fraction: float
+    converged: bool
+    iterations: int
+    residual: float
+    wall_time: float
+    method: str
+    message: str
+    residual_history: np.ndarray
+    interaction: object
+    mean_pressure: float
+    E_star: float
+    length: float
+    tol: float
+    contact_threshold: float = 0.0
+    info: dict = field(default_factory=dict)
+
+
+class _Elastic:
+    """Half-space Green's function on the rfft2 grid."""
+
+    def __init__(self, n: int, length: float, E_star: float):
+        self.n = n
+        self.shape = (n, n)
+        self.length = length
+        self.E_star = E_star
+        kx = 2.0 * np.pi * np.fft.fftfreq(n, d=length / n)
+        ky = 2.0 * np.pi * np.fft.rfftfreq(n, d=length / n)
+        q = np.sqrt(kx[:, None] ** 2 + ky[None, :] ** 2)
+        self.q = q
+        self.K = 0.5 * E_star * q  # stiffness per unit area
+        with np.errstate(divide="ignore"):
+            G = np.where(q > 0, 2.0 / (E_star * np.where(q > 0, q, 1.0)), 0.0)
+        self.G = G
+        self.q1 = 2.0 * np.pi / length
+        # weights of the half spectrum in full-spectrum sums
+        w = np.full(q.shape, 2.0)
+        w[:, 0] = 1.0
+        if n % 2 == 0:
+            w[:, -1] = 1.0
+        self.w = w
+        # real-space diagonal of G: mean over the full spectrum of 2/(q E*)
+        self.g_diag = float(np.sum(w * G)) / (n * n)
+
+    def rfft(self, x):
+        return sfft.rfft2(x, workers=-1)
+
+    def irfft(self, X):
+        return sfft.irfft2(X, s=self.shape, workers=-1)
+
+    def apply(self, mult, x):
+        X = sfft.rfft2(x, workers=-1)
+        X *= mult
+        return sfft.irfft2(X, s=self.shape, workers=-1)
+
+
+def _progress(progress, total, desc):
+    if not progress:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="it", leave=False)
+
+
+# ----------------------------------------------------------------------------- CCG
+
+
+def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, refresh=50):
+    n2 = h.size
+    p = np.full(el.shape, p0)
+    u = np.zeros(el.shape)
+    g = np.empty(el.shape)
+    t = np.zeros(el.shape)
+    hist = []
+    delta = 0.0
+    gold = 1.0
+    converged = False
+    exact = True
+    it = 0
+    bar = _progress(progress, max_iter, "gfmd_ref ccg")
+    res = np.inf
+    while True:
+        nc, gn, comp, pen, _ = kr.pk_gap(u, h, p, g)
+        load = abs(p.sum() / n2 - p0) / p0
+        res = max(load, comp / (p0 * h_scale), pen / h_scale)
+        if res < tol and not exact:
+            u = el.apply(el.G, p)
+            exact = True
+            nc, gn, comp, pen, _ = kr.pk_gap(u, h, p, g)
+            res = max(load, comp / (p0 * h_scale), pen / h_scale)
+        hist.append(res)
+        if bar is not None and it % 5 == 0:
+            bar.set_postfix(residual=f"{res:.2e}", refresh=False)
+        if res < tol:
+            converged = True
+            break
+        if it >= max_iter:
+            break
+        beta = delta * gn / gold
+        kr.pk_direction(g, p, t, beta)
+        gold = gn
+        r = el.apply(el.G, t)
+        num, den = kr.pk_tau(g, t, r, p)
+        tau = num / den if den != 0 else 0.0
+        nproj, nol, scale = kr.pk_update(p, t, g, tau, p0)
+        delta = 0.0 if nol > 0 else 1.0
+        it += 1
+        if nproj == 0 and nol == 0 and it % refresh != 0:
+            kr.axpy_scale(u, r, tau, scale)
+            exact = False
+        else:
+            u = el.apply(el.G, p)
+            exact = True
+        if bar is not None:
+            bar.update(1)
+    if bar is not None:
+        bar.close()
+    # displacement: z0 such that the gap vanishes on the contact set
+    mask = p > 0
+    z0 = float(np.mean((h - u)[mask])) if np.any(mask) else float(np.max(h - u))
+    disp = u + z0
+    gap = disp - h
+    return dict(
+        pressure=p,
+        gap=gap,
+        displacement=disp,
+        converged=converged,
+        iterations=it,
+        residual=res,
+        history=np.asarray(hist),
+        info=dict(h_scale=h_scale),
+    )
+
+
+# ----------------------------------------------------------------------------- dual Newton
+
+
+def _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0, hist0=()):
+    """Newton-CG on the dual (pressure) energy of the exponential wall
+
+    ``Phi(p) = mean(p u/2 - p h + zeta p log(p/p0))``, ``u = G p``, ``mean(p) = p0``,
+
+    whose minimiser is the equilibrium pressure (``p = p0 exp(-(z0 + u - h)/zeta)``).
+    The Hessian ``G + diag(zeta/p)`` is inverted by projected CG (constraint
+    ``sum dp = 0``) with the diagonal preconditioner ``1/(G_ii + zeta/p)``; steps
+    that decrease ``p`` are taken multiplicatively (``p exp(dp/p)``) so ``p`` stays
+    positive, with an Armijo backtracking on ``Phi``.
+    """
+    n2 = h.size
+    pmin = max(p0 * 1e-300, 1e-300)
+    p = np.full(el.shape, p0) if p_init is None else np.maximum(p_init, pmin)
+    p *= p0 / p.mean()
+    u = el.apply(el.G, p)
+    grad = np.empty(el.shape)
+    minv = np.empty(el.shape)
+    ptry = np.empty(el.shape)
+    zr = np.empty(el.shape)
+    hist = list(hist0)
+    it = iters0
+    newton = 0
+    cg_total = 0
+    converged = False
+    bar = _progress(progress, max_iter, "gfmd_ref newton")
+    while True:
+        E = kr.dual_gradient(u, h, p, p0, zeta, grad)
+        z0 = kr.exp_log_mean(u, h, zeta)
+        res = kr.exp_residual(u, h, z0, p, p0, zeta)
+        hist.append(res)
+        if bar is not None:
+            bar.set_postfix(residual=f"{res:.2e}", refresh=False)
+        if res < tol:
+            converged = True
+            break
+        if it >= max_iter:
+            break
+        # --- inexact Newton direction by projected PCG
+        np.divide(1.0, el.g_diag + zeta / p, out=minv)
+        target = max(0.1 * res * min(1.0, res), 0.25 * tol)
+        x = np.zeros(el.shape)
+        r = -grad
+        rz = kr.proj_precond(r, minv, zr)
+        rz0 = rz
+        d = zr.copy()
+        wdiag = zeta / p
+        for _ in range(2000):
+            Ad = el.apply(el.G, d)
+            Ad += wdiag * d
+            it += 1
+            cg_total += 1
+            if bar is not None:
+                bar.update(1)
+            dAd = float(np.vdot(d, Ad))
+            if dAd <= 0:
+                break
+            a = rz / dAd
+            x += a * d
+            r -= a * Ad
+            rz_new = kr.proj_precond(r, minv, zr)
+            if it >= max_iter or kr.newton_pred_residual(r, p, zeta, p0) <= target:
+                break
+            d *= rz_new / rz
+            d += zr
+            rz = rz_new
+        # --- line search
+        slope = float(np.vdot(grad, x)) / n2
+        alpha = 1.0
+        accepted = False
+        for _ls in range(30):
+            kr.dual_step(p, x, alpha, p0, pmin, ptry)
+            utry = el.apply(el.G, ptry)
+            it += 1
+            Et = kr.dual_energy(utry, h, ptry, p0, zeta)
+            if Et <= E + 1e-4 * alpha * slope:
+                accepted = True
+                break
+            if abs(Et - E) <= 1e-11 * abs(E):
+                # energy differences at round-off: judge by the force residual instead
+                rt = kr.exp_residual(utry, h, kr.exp_log_mean(utry, h, zeta), ptry, p0, zeta)
+                if rt < (1.0 - 1e-4 * alpha) * res:
+                    accepted = True
+                    break
+            alpha *= 0.5
+        if not accepted:
+            break
+        p, ptry = ptry, p
+        u = utry
+        newton += 1
+    if bar is not None:
+        bar.close()
+    z0 = kr.exp_log_mean(u, h, zeta)
+    disp = u + z0
+    return dict(
+        pressure=p,
+        gap=disp - h,
+        displacement=disp,
+        converged=converged,
+        iterations=it,
+        residual=res,
+        history=np.asarray(hist),
+        info=dict(newton_steps=newton, cg_iterations=cg_total),
+    )
+
+
+# ----------------------------------------------------------------------------- FIRE GFMD
+
+
+def _fire(h, p0, interaction, el, tol, max_iter, progress, h_scale):
+    """Mass-weighted FIRE dynamics of the Fourier modes of the solid surface ``z``.
+
+    Mode masses ``m(q) = q E*/2 + kappa`` (every elastic mode has the same
+    frequency; ``kappa`` = mean interaction stiffness ``p0/zeta`` for the exponential
+    wall, ``q_1 E*/2`` for the hard wall and as a floor), FIRE velocity mixing in the
+    mass-weighted metric (Bitzek et al. 2006). The hard wall is a projection
+    ``z >= h`` with the inward velocity of clipped nodes removed.
+    """
+    n = el.n
+    n2 = n * n
+    hard = isinstance(interaction, HardWall)
+    zeta = None if hard else interaction.zeta
+    kfloor = el.q1 * el.E_star / 2.0
+    kappa = kfloor if hard else max(p0 / zeta, kfloor)
+    m = el.K + kappa
+    K = el.K
+    w = el.w
+    kbar = float(np.sum(w * K)) / n2 + kappa
+    # start: flat surface touching the highest point (hard) / carrying p0 (exp)
+    if hard:
+        z = np.full(el.shape, float(h.max()))
+    else:
+        z = np.full(el.shape, kr.exp_log_mean(np.zeros(el.shape), h, zeta))
+    Z = el.rfft(z)
+    V = np.zeros_like(Z)
+    sig = np.empty(el.shape)
+    freal = np.empty(el.shape)
+    eps = 1e-10 * h_scale  # contact detection tolerance (FFT round-off of z)
+    N_MIN, F_INC, F_DEC, A0, F_A = 5, 1.1, 0.5, 0.1, 0.99
+    dt_max = 0.5
+    dt = 0.1
+    alpha = A0
+    npos = 0
+    hist = []
+    it = 0
+    converged = False
+    res = np.inf
+    bar = _progress(progress, max_iter, "gfmd_ref fire")
+    while True:
+        # forces on the modes (unnormalised rfft units)
+        if hard:
+            pel = p0 + el.irfft(K * Z)
+            fr, s = kr.hard_force(z, h, pel, freal, eps)
+            load = abs(s / n2 - p0) / p0
+            res = max(fr / p0, load)
+            F = el.rfft(freal)
+        else:
+            smax = 0.0
+            kr.exp_pressure(z, h, p0, zeta, sig)
+            smax = float(sig.max())
+            F = el.rfft(sig)
+            F -= K * Z
+            F[0, 0] -= p0 * n2
+            fr = el.irfft(F)
+            res = float(np.max(np.abs(fr))) / p0
+            dt_max = min(0.5, 0.9 / math.sqrt(1.0 + (smax / zeta) / kbar))
+            dt = min(dt, dt_max)
+        hist.append(res)
+        if bar is not None and it % 5 == 0:
+            bar.set_postfix(residual=f"{res:.2e}", refresh=False)
+        if res < tol:
+            converged = True
+            break
+        if it >= max_iter or not math.isfinite(res):
+            break
+        P = float(np.sum(w * (F.real * V.real + F.imag * V.imag)))
+        if P > 0:
+            vn = math.sqrt(float(np.sum(w * m * (V.real**2 + V.imag**2))))
+            fn = math.sqrt(float(np.sum(w * (F.real**2 + F.imag**2) / m)))
+            V *= 1.0 - alpha
+            if fn > 0:
+                V += (alpha * vn / fn) * (F / m)
+            npos += 1
+            if npos > N_MIN:
+                dt = min(dt * F_INC, dt_max)
+                alpha *= F_A
+        else:
+            V[...] = 0.0
+            dt *= F_DEC
+            alpha = A0
+            npos = 0
+        V += (dt / m) * F
+        Z += dt * V
+        z = el.irfft(Z)
+        if hard and np.any(z < h):
+            v = el.irfft(V)
+            kr.project_above(z, h, v)
+            Z = el.rfft(z)
+            V = el.rfft(v)
+        it += 1
+        if bar is not None:
+            bar.update(1)
+    if bar is not None:
+        bar.close()
+    if hard:
+        pel = p0 + el.irfft(K * Z)
+        contact = z <= h + eps
+        p = np.where(contact & (pel > 0), pel, 0.0)
+        gap = np.where(contact, 0.0, z - h)
+        z = np.where(contact, h, z)
+    else:
+        kr.exp_pressure(z, h, p0, zeta, sig)
+        p = sig.copy()
+        gap = z - h
+    s = p.mean()
+    if s > 0:
+        p *= p0 / s
+    return dict(
+        pressure=p,
+        gap=gap,
+        displacement=z,
+        converged=converged,
+        iterations=it,
+        residual=res,
+        history=np.asarray(hist),
+        info=dict(load_rescale=float(p0 / s) if s > 0 else float("nan"), final_dt=dt),
+    )
+
+
+# ----------------------------------------------------------------------------- driver
+
+
+def _check_interaction(interaction):
+    if not isinstance(interaction, (HardWall, ExponentialRepulsion)):
+        raise ValueError(
+            "interaction must be gfmd_ref.HardWall() or gfmd_ref.ExponentialRepulsion(zeta); "
+            f"got {interaction!r}"
+        )
+    return type(interaction).__name__
+
+
+def default_max_iter(n: int, interaction, method: str) -> int:
+    if method == "fire":
+        base = 20000
+        if isinstance(interaction, ExponentialRepulsion):
+            base = 100000
+        return base
+    return 5000 + 20 * n
+
+
+def solve_contact(
+    heights,
+    *,
+    length,
+    E_star,
+    mean_pressure,
+    interaction,
+    tol: float = 1e-8,
+    max_iter: int | None = None,
+    method: str = "auto",
+    progress: bool = False,
+    warm_start: bool | None = None,
+) -> ContactResult:
+    """Equilibrium of an elastic half-space pressed on a rigid periodic rough surface.
+
+    Parameters
+    ----------
+    heights : (n, n) array
+        Rigid surface heights on one ``L x L`` periodic cell (square grids only;
+        any ``n >= 2``, not only powers of two). Contact happens where ``h`` is high.
+    length : float
+        Cell side ``L`` (> 0).
+    E_star : float
+        Contact modulus ``E* = E/(1 - nu^2)`` (> 0).
+    mean_pressure : float
+        Imposed mean pressure ``p0`` (> 0), load control.
+    interaction : HardWall or ExponentialRepulsion
+    tol : float
+        Convergence tolerance on the residual, relative to ``p0`` (see module doc).
+    max_iter : int, optional
+        Cap on operator applications (default depends on method and size).
+    method : {"auto", "ccg", "newton", "fire"}
+        ``"ccg"``: Polonsky-Keer constrained conjugate gradients (hard wall only);
+        ``"newton"``: dual Newton-CG (exponential wall only); ``"fire"``: GFMD with
+        mass-weighted FIRE (both). ``"auto"`` picks ``ccg`` / ``newton``.
+    progress : bool
+        Show a tqdm progress bar.
+    warm_start : bool, optional
+        Exponential wall with ``newton``: start from the hard-wall (CCG) solution.
+        Default: when ``zeta < 0.05 * std(heights)``.
+
+    Returns
+    -------
+    ContactResult
+        Warns :class:`ConvergenceWarning` (and has ``converged=False``) if the
+        tolerance was not reached.
+    """
+    t0 = time.perf_counter()
+    h = check_heights(heights)
+    length = check_positive("length", length)
+    E_star = check_positive("E_star", E_star)
+    p0 = check_positive("mean_pressure", mean_pressure)
+    tol = check_positive("tol", tol)
+    kind = _check_interaction(interaction)
+    allowed = ("auto",) + METHODS[kind]
+    if not isinstance(method, str) or method not in allowed:
+        raise ValueError(f"method must be one of {allowed} for {kind}; got {method!r}")
+    if method == "auto":
+        method = METHODS[kind][0]
+    n = h.shape[0]
+    if max_iter is None:
+        max_iter = default_max_iter(n, interaction, method)
+    max_iter = check_int("max_iter", max_iter, minimum=1)
+    el = _Elastic(n, length, E_star)
+    hs = float(np.std(h))
+    h_scale = hs if hs > 0 else length
+
+    if method == "ccg":
+        out = _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale)
+    elif method == "fire":
+        out = _fire(h, p0, interaction, el, tol, max_iter, progress, h_scale)
+    else:
+        zeta = interaction.zeta
+        if warm_start is None:
+            warm_start = zeta < 0.05 * h_scale
+        p_init = None
+        it0 = 0
+        hist0 = ()
+        if warm_start:
+            hw = _ccg_hard(h, p0, el, max(1e-6, tol), max_iter, False, h_scale)
+            it0 = hw["iterations"]
+            g = np.maximum(hw["gap"], 0.0)
+            p_init = np.where(
+                hw["pressure"] > 0, hw["pressure"], p0 * np.exp(-np.minimum(g / zeta, 740.0))
+            )
+        out = _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init, it0, hist0)
+        out["info"]["warm_start"] = bool(warm_start)
+        out["info"]["warm_start_iterations"] = it0
+
+    p = out["pressure"]
+    if isinstance(interaction, HardWall):
+        thr = 0.0
+        cf = float(np.count_nonzero(p > 0)) / p.size
+    else:
+        thr = EXP_CONTACT_THRESHOLD * p0
+        cf = float(np.count_nonzero(p > thr)) / p.size
+    wall = time.perf_counter() - t0
+    if out["converged"]:
+        msg = (
+            f"converged: residual {out['residual']:.3e} < tol {tol:.1e} "
+            f"after {out['iterations']} iterations ({method})"
+        )
+    else:
+        msg = (
+            f"NOT converged: residual {out['residual']:.3e} > tol {tol:.1e} "
+            f"after {out['iterations']} iterations (max_iter={max_iter}, {method})"
+        )
+        warnings.warn(msg, ConvergenceWarning, stacklevel=2)
+    return ContactResult(
+        pressure=p,
+        gap=out["gap"],
+        displacement=out["displacement"],
+        contact_fraction=cf,
+        converged=bool(out["converged"]),
+        iterations=int(out["iterations"]),
+        residual=float(out["residual"]),
+        wall_time=wall,
+        method=method,
+        message=msg,
+        residual_history=out["history"],
+        interaction=interaction,
+        mean_pressure=p0,
+        E_star=E_star,
+        length=length,
+        tol=tol,
+        contact_threshold=thr,
+        info=out["info"],
+    )

@@ -1,0 +1,141 @@
+"""Self-affine random rough surfaces (SPEC section 2).
+
+Fourier convention (SPEC section 2): ``h~(q) = (1/A) integral exp(i q.r) h(r) d^2r``,
+discretely ``h~ = numpy.fft.ifft2(h)`` (the ``1/N^2`` normalised sum with ``exp(+i q.r)``),
+with ``q = 2 pi (m, k) / length`` and ``<|h~(q)|^2> = C(|q|) (2 pi/length)^2``.
+With this convention Parseval reads ``mean(h^2) = sum_q |h~(q)|^2`` and
+``mean(|grad h|^2) = sum_q q^2 |h~(q)|^2``.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.fft as sfft
+
+from ._validation import check_positive, check_int
+
+__all__ = ["self_affine_surface", "wavevector_magnitude", "spectral_rms_slope"]
+
+
+def wavevector_magnitude(n: int, length: float) -> np.ndarray:
+    """|q| on the full ``(n, n)`` FFT grid, ``q = 2 pi (m, k)/length`` (numpy fftfreq order)."""
+    k = 2.0 * np.pi * np.fft.fftfreq(n, d=length / n)
+    return np.sqrt(k[:, None] ** 2 + k[None, :] ** 2)
+
+
+def spectral_rms_slope(heights: np.ndarray, length: float) -> float:
+    """Full rms gradient ``sqrt(<|grad h|^2>) = sqrt(sum_q q^2 |h~(q)|^2)`` of a periodic array."""
+    h = np.asarray(heights, dtype=np.float64)
+    n = h.shape[0]
+    ht = sfft.fft2(h) / h.size
+    q = wavevector_magnitude(n, length)
+    return float(np.sqrt(np.sum(q**2 * np.abs(ht) ** 2)))
+
+
+def self_affine_surface(
+    n: int,
+    *,
+    length: float,
+    hurst: float,
+    q_min: float,
+    q_max: float,
+    rms_slope: float | None = None,
+    h_rms: float | None = None,
+    q_roll: float | None = None,
+    seed,
+    rayleigh: bool = True,
+) -> np.ndarray:
+    """Gaussian, isotropic, self-affine random surface on a periodic ``n x n`` grid.
+
+    The power spectrum is ``C(q) ∝ q^(-2(1+H))`` for ``max(q_roll, q_min) <= |q| <= q_max``,
+    flat (``C(q_roll)``) for ``q_min <= |q| < q_roll`` when ``q_roll`` is given, and zero
+    elsewhere (in particular at ``q = 0``: the returned array has zero mean).
+
+    Parameters
+    ----------
+    n : int
+        Grid points per side (any integer >= 2; odd sizes work).
+    length : float
+        Side ``L`` of the periodic cell; wave vectors are ``2 pi (m, k)/L``.
+    hurst : float
+        Hurst exponent ``H`` in ``[0, 1]``.
+    q_min, q_max : float
+        Band limits ``0 < q_min < q_max`` (inclusive).
+    rms_slope, h_rms : float
+        Exactly one must be given. ``rms_slope`` is the full ``sqrt(<|grad h|^2>)``,
+        evaluated spectrally from the realised modes (``sum_q q^2 |h~(q)|^2``);
+        ``h_rms`` is the realised root-mean-square height.
+    q_roll : float, optional
+        Roll-off wavenumber (``q_min <= q_roll <= q_max``).
+    seed : int or numpy SeedSequence
+        Seed for :func:`numpy.random.default_rng`. Same seed, same array.
+    rayleigh : bool
+        If true (default) the mode amplitudes are Rayleigh distributed (Gaussian
+        field); if false every mode has the amplitude ``sqrt(C (2 pi/L)^2)`` and only
+        the phases are random.
+
+    Notes
+    -----
+    The realisation is built by filtering real-space white noise
+    ``w = rng.standard_normal((n, n))`` (C order, so the draw order is fixed):
+    ``h = irfft2(rfft2(w) * sqrt(C))``. This gives independent Gaussian modes with
+    Hermitian symmetry (``h`` real) for every ``n``, odd or even. Reproducibility
+    across platforms is exact up to the floating-point round-off of the FFT.
+    """
+    n = check_int("n", n, minimum=2)
+    length = check_positive("length", length)
+    if hurst is None or not np.isfinite(hurst) or not (0.0 <= hurst <= 1.0):
+        raise ValueError(f"hurst must be a finite number in [0, 1]; got {hurst!r}")
+    q_min = check_positive("q_min", q_min)
+    q_max = check_positive("q_max", q_max)
+    if not q_max > q_min:
+        raise ValueError(f"q_max must be > q_min (= {q_min!r}); got q_max={q_max!r}")
+    if (rms_slope is None) == (h_rms is None):
+        raise ValueError(
+            "exactly one of rms_slope and h_rms must be given; got "
+            f"rms_slope={rms_slope!r}, h_rms={h_rms!r}"
+        )
+    if rms_slope is not None:
+        rms_slope = check_positive("rms_slope", rms_slope)
+    if h_rms is not None:
+        h_rms = check_positive("h_rms", h_rms)
+    if q_roll is not None:
+        q_roll = check_positive("q_roll", q_roll)
+        if not (q_min <= q_roll <= q_max):
+            raise ValueError(
+                f"q_roll must lie in [q_min, q_max] = [{q_min!r}, {q_max!r}]; got {q_roll!r}"
+            )
+
+    kx = 2.0 * np.pi * np.fft.fftfreq(n, d=length / n)
+    ky = 2.0 * np.pi * np.fft.rfftfreq(n, d=length / n)
+    q = np.sqrt(kx[:, None] ** 2 + ky[None, :] ** 2)
+    band = (q >= q_min * (1 - 1e-12)) & (q <= q_max * (1 + 1e-12))
+    if not np.any(band):
+        raise ValueError(
+            f"no lattice wave vector 2 pi (m, k)/length lies in [q_min, q_max] = "
+            f"[{q_min!r}, {q_max!r}] for n={n}, length={length!r}"
+        )
+    qq = np.where(band, q, 1.0)
+    if q_roll is not None:
+        qq = np.maximum(qq, q_roll)
+    amp = np.where(band, qq ** (-(1.0 + hurst)), 0.0)  # sqrt(C(q)) up to a constant
+
+    rng = np.random.default_rng(seed)
+    white = rng.standard_normal((n, n))
+    wt = sfft.rfft2(white)
+    if not rayleigh:
+        mag = np.abs(wt)
+        wt = np.where(mag > 0, wt / np.where(mag > 0, mag, 1.0), 1.0) * n  # unit-variance modes
+    h = sfft.irfft2(wt * amp, s=(n, n))
+    h -= h.mean()
+    if rms_slope is not None:
+        cur = spectral_rms_slope(h, length)
+        target = rms_slope
+    else:
+        cur = float(np.sqrt(np.mean(h**2)))
+        target = h_rms
+    if not cur > 0 or not math.isfinite(cur):
+        raise ValueError("the requested band produced a zero surface; widen [q_min, q_max]")
+    h *= target / cur
+    return np.ascontiguousarray(h, dtype=np.float64)
