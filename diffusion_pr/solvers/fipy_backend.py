@@ -1,0 +1,389 @@
+"""FiPy backend for the Fokker-Planck problem (backend name ``"fipy"``).
+
+The Ito equation of :mod:`diffusion_pr.problem` is expanded the way FiPy can
+express it,
+
+    dP/dtau = d^2(f P)/dp^2 - d(a P)/dp
+            = d/dp( f dP/dp ) + d/dp( f' P ) - d/dp( a P ),
+
+and written term by term on a (non-uniform) :class:`fipy.Grid1D` from
+:func:`diffusion_pr.solvers._common.domain_edges`::
+
+    TransientTerm() == DiffusionTerm(coeff=f_face)
+                       + CentralDifferenceConvectionTerm(coeff=[f'_face])
+                       - CentralDifferenceConvectionTerm(coeff=[a_face])
+
+with the face values chosen so that the discrete flux is *exactly* the
+conservative Ito flux of the other backends, ``J = -(f_{i+1} P_{i+1} - f_i
+P_i) / d_i`` (``d_i`` the distance between cell centres):
+``f_face = (f_i + f_{i+1}) / 2`` and ``f'_face = (f_{i+1} - f_i) / d_i`` with
+``f`` sampled at the cell centres (FiPy's central-difference face value is the
+arithmetic mean ``(P_i + P_{i+1})/2`` on any grid).  Because ``f'`` is a
+difference quotient of cell values, a jump of ``f`` (the literal seed cutoff
+at ``p_c``, which ``_common`` puts on a cell edge) is handled exactly like in
+the ``Q = f P`` form: ``f P`` stays continuous, ``P`` jumps by ``f_-/f_+``; no
+``delta`` in ``f'`` is ever needed.  Unlike the ``Q``-form
+``TransientTerm(1/f, var=Q)`` this also works where ``f = 0`` in a cell.
+
+Boundaries: ``P`` is constrained to 0 on the left face (``p = 0``) with the
+face diffusivity set to the first cell's ``f_0``, giving the absorbing Ito
+flux ``f_0 P_0 / (h_0 / 2)`` out of the domain; the right face has FiPy's
+default zero flux (and zero convection coefficient).
+
+Time stepping: Crank-Nicolson by hand as a backward-Euler half step followed
+by extrapolation, ``P* = (1 - dt/2 L)^-1 P^n``, ``P^{n+1} = 2 P* - P^n``
+(algebraically identical to CN), with FiPy's sparse LU per solve.  The steps
+are uniform in ``sqrt(tau)`` from the short-time start ``tau0`` (dense early,
+where the peak is narrow); the first step is replaced by two backward-Euler
+half steps (Rannacher start) to damp CN's undamped high modes.
+
+The absorbed mass is the time-integrated boundary flux,
+``zero_weight = zero_weight0 + sum_n dt f_0 P*_0 / (h_0/2)`` (``P*`` the
+half-step value, i.e. the trapezoidal average of ``P^n`` and ``P^{n+1}``);
+``1 - mass - zero_weight`` is reported as ``diagnostics["mass_defect"]``
+(round-off: the interior fluxes telescope).
+
+The error estimate halves cells and steps together and uses the same L1
+metric and Richardson rule as the py-pde backend
+(:func:`diffusion_pr.solvers.pypde_backend.level_difference`).
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from typing import Any, Optional
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..problem import FokkerPlanckProblem
+from ..result import PressureDistribution
+from . import BackendUnavailableError
+from .pypde_backend import _bisect, _richardson, error_metric_name, level_difference, lump_pressure
+
+Array = NDArray[np.float64]
+
+__all__ = ["solve", "steps_for"]
+
+#: refinement stops before more cells than this (FiPy costs ~5-8 ms per step regardless of size)
+DEFAULT_MAX_CELLS = 8192
+#: and before more steps than this
+DEFAULT_MAX_STEPS = 1600
+
+_STATE: dict[str, Any] = {"warm": False}
+
+
+def _import_fipy() -> tuple[Any, float]:
+    """Import FiPy; return ``(module, seconds spent importing or 0 if cached)``."""
+    cached = sys.modules.get("fipy") is not None
+    t0 = time.perf_counter()
+    try:
+        import fipy  # noqa: PLC0415 - deliberately lazy (about 1 s)
+    except ImportError as exc:
+        raise BackendUnavailableError(
+            "backend 'fipy' needs the package 'fipy' (FiPy), which is not installed; "
+            "install it with: pip install 'diffusion-pr[fipy]'"
+        ) from exc
+    return fipy, (0.0 if cached else time.perf_counter() - t0)
+
+
+def steps_for(rtol: float, n_cells: int) -> int:
+    """Default number of CN steps for a first level (dimensionless).
+
+    The CN error in steps uniform in ``sqrt(tau)`` is second order like the
+    spatial one; ``n_cells / 2`` steps (at least 16) balances the two on the
+    stretched grids of ``_common`` (mirror Gaussian, measured: with
+    ``n_cells / 4`` the time error dominates and the observed order drops to
+    1.5 on coarse grids; with ``n_cells / 2`` it is 2.0 from 48 cells on).
+    """
+    return int(max(16, math.ceil(n_cells / 2)))
+
+
+def _face_coefficients(f: Array, x: Array, a_face: Optional[Array]) -> tuple[Array, Array]:
+    """Face diffusivity and convection velocity reproducing the Ito flux.
+
+    Returns ``(gamma, velocity)`` on the ``n + 1`` faces: ``gamma`` = mean of
+    the neighbouring ``f`` (left wall: ``f_0``; right wall: ``f_{n-1}``, unused
+    under zero flux) and ``velocity = f'_face - a_face`` (0 on both walls).
+    """
+    n = f.size
+    gamma = np.empty(n + 1)
+    gamma[1:-1] = 0.5 * (f[:-1] + f[1:])
+    gamma[0] = f[0]
+    gamma[-1] = f[-1]
+    vel = np.zeros(n + 1)
+    vel[1:-1] = np.diff(f) / np.diff(x)
+    if a_face is not None:
+        vel[1:-1] -= a_face[1:-1]
+    return gamma, vel
+
+
+def _solve_on_edges(fipy: Any, problem: FokkerPlanckProblem, edges: Array, n_steps: int) -> dict[str, Any]:
+    """One FiPy Crank-Nicolson run on ``edges`` with ``n_steps`` steps; no refinement."""
+    from fipy import CellVariable, CentralDifferenceConvectionTerm, DiffusionTerm, FaceVariable, Grid1D, TransientTerm
+    from fipy.solvers.scipy import LinearLUSolver
+
+    from ._common import short_time_start
+
+    h = np.diff(edges)
+    x = 0.5 * (edges[:-1] + edges[1:])
+    tau0, dens0, zw0 = short_time_start(problem, edges)
+    dens0 = np.asarray(dens0, dtype=float)
+    mesh = Grid1D(dx=h)
+    var = CellVariable(mesh=mesh, value=dens0.copy(), name="P")
+    var.constrain(0.0, mesh.facesLeft)
+    has_drift = problem.drift is not None
+    faces = np.asarray(mesh.faceCenters.value[0], dtype=float)
+
+    def coefficients(tau: float) -> tuple[Array, Array]:
+        f = problem.f(x, tau)
+        a_face = problem.a(faces, tau) if has_drift else None
+        return _face_coefficients(f, x, a_face)
+
+    gamma, vel = coefficients(tau0)
+    gamma_var = FaceVariable(mesh=mesh, value=gamma)
+    vel_var = FaceVariable(mesh=mesh, rank=1, value=vel[None, :])
+    # d/dtau P = d/dp(f dP/dp) + d/dp((f' - a) P)   (= d^2(fP)/dp^2 - d(aP)/dp)
+    eq = TransientTerm() == DiffusionTerm(coeff=gamma_var) + CentralDifferenceConvectionTerm(coeff=vel_var)
+    solver = LinearLUSolver()
+    static = problem.autonomous
+
+    s = np.linspace(math.sqrt(tau0), math.sqrt(problem.tau_end), int(n_steps) + 1)
+    taus = s * s
+    taus[0], taus[-1] = tau0, problem.tau_end
+    absorbed = 0.0
+    t0 = time.perf_counter()
+    error = None
+    solves = 0
+    try:
+        if tau0 < problem.tau_end:
+            for k in range(int(n_steps)):
+                t_a, t_b = float(taus[k]), float(taus[k + 1])
+                dt = t_b - t_a
+                if k == 0:  # Rannacher start: two backward-Euler half steps
+                    for sub in range(2):
+                        if not static:
+                            g, v = coefficients(t_a + (sub + 0.5) * 0.5 * dt)
+                            gamma_var.setValue(g)
+                            vel_var.setValue(v[None, :])
+                        eq.solve(var=var, dt=0.5 * dt, solver=solver)
+                        solves += 1
+                        absorbed += 0.5 * dt * float(gamma_var.value[0]) * float(var.value[0]) / (0.5 * h[0])
+                    continue
+                if not static:  # implicit midpoint: coefficients at the step's centre
+                    g, v = coefficients(0.5 * (t_a + t_b))
+                    gamma_var.setValue(g)
+                    vel_var.setValue(v[None, :])
+                old = np.array(var.value, dtype=float)
+                eq.solve(var=var, dt=0.5 * dt, solver=solver)  # P* = P^{n+1/2}
+                solves += 1
+                half = np.array(var.value, dtype=float)
+                absorbed += dt * float(gamma_var.value[0]) * half[0] / (0.5 * h[0])
+                var.setValue(2.0 * half - old)
+    except Exception as exc:  # reported, not raised
+        error = f"{type(exc).__name__}: {exc}"
+    elapsed = time.perf_counter() - t0
+    dens = np.array(var.value, dtype=float)
+    if not np.all(np.isfinite(dens)):
+        error = error or "non-finite density"
+    mass = float(np.sum(h * dens))
+    return {
+        "edges": edges,
+        "density": dens,
+        "zero_weight": float(zw0) + absorbed,
+        "zero_weight0": float(zw0),
+        "mass_defect": 1.0 - mass - float(zw0) - absorbed,
+        "tau0": float(tau0),
+        "steps": int(n_steps),
+        "linear_solves": solves,
+        "time": elapsed,
+        "error": error,
+    }
+
+
+def _warm_up(fipy: Any) -> float:
+    """One tiny run so FiPy's lazy imports / solver set-up are not billed to ``wall_time``."""
+    if _STATE["warm"]:
+        return 0.0
+    t0 = time.perf_counter()
+    _solve_on_edges(fipy, FokkerPlanckProblem(1.0, 0.1), np.linspace(0.0, 3.0, 17), 3)
+    _STATE["warm"] = True
+    return time.perf_counter() - t0
+
+
+def solve(
+    problem: FokkerPlanckProblem,
+    *,
+    rtol: float = 1e-4,
+    n_cells: Optional[int] = None,
+    n_steps: Optional[int] = None,
+    max_cells: int = DEFAULT_MAX_CELLS,
+    max_steps: int = DEFAULT_MAX_STEPS,
+    refine: bool = True,
+    uniform: bool = False,
+    **options: Any,
+) -> PressureDistribution:
+    """Solve the Fokker-Planck problem with FiPy (Crank-Nicolson, sparse LU).
+
+    Parameters
+    ----------
+    problem : FokkerPlanckProblem
+        The problem in diffusion time ``tau`` (pressure squared), from
+        ``delta(p - p0)`` to ``tau_end = V/2``.
+    rtol : float
+        Target L1 error of the density plus that of ``zero_weight``
+        (dimensionless); also the tolerance for mass and mean conservation.
+    n_cells, n_steps : int, optional
+        First (coarsest) grid size and number of CN steps; from ``rtol`` if
+        omitted (cells: about ``p_max / (3 sqrt(rtol) width)``, where ``width``
+        is the final diffusion length; steps: :func:`steps_for`).
+    max_cells, max_steps : int
+        Refinement stops (``success=False``) before exceeding these.
+    refine : bool
+        If False, one run on ``(n_cells, n_steps)`` without an error estimate.
+    uniform : bool
+        Uniform cells instead of ``_common``'s stretched grid.
+    **options
+        ``edges_kwargs``: extra keywords for ``_common.domain_edges``.
+
+    Returns
+    -------
+    PressureDistribution
+        On the finest level run (cell centres, cell averages, cell widths),
+        ``zero_weight`` = the time-integrated absorbing-boundary flux.
+
+    Raises
+    ------
+    BackendUnavailableError
+        FiPy is not installed.
+    """
+    if not isinstance(problem, FokkerPlanckProblem):
+        raise ValueError(f"problem must be a FokkerPlanckProblem; got {type(problem).__name__}")
+    rtol = float(rtol)
+    if not (np.isfinite(rtol) and 0.0 < rtol < 1.0):
+        raise ValueError(f"rtol must be a number in (0, 1); got rtol={rtol!r}")
+    unknown = set(options) - {"edges_kwargs"}
+    if unknown:
+        raise TypeError(f"unknown option(s) for the fipy backend: {sorted(unknown)}")
+    fipy, import_time = _import_fipy()
+    warm_time = _warm_up(fipy)
+    from ._common import domain_edges, tail_mass_for
+
+    t_start = time.perf_counter()
+    edges_kwargs = dict(options.get("edges_kwargs", {}))
+    if n_cells is None:
+        p_max = float(edges_kwargs.get("p_max", problem.upper_bound(tail_mass=tail_mass_for(rtol))))
+        f0 = float(problem.f(np.array([problem.mean_pressure]))[0])
+        width = min(math.sqrt(2.0 * problem.tau_end * max(f0, 1e-12)), math.sqrt(problem.variance))
+        # the stretched grid puts half its cells uniformly: count those
+        n0 = int(np.clip(math.ceil(p_max / (3.0 * math.sqrt(rtol) * width) / (1.0 if uniform else 2.0)), 32, 2048))
+        n0 += n0 % 2
+    else:
+        n0 = int(n_cells)
+    s0 = int(n_steps) if n_steps is not None else steps_for(rtol, n0)
+    edges = np.asarray(domain_edges(problem, n0, rtol=rtol, uniform=uniform, **edges_kwargs), dtype=float)
+    p_lump = lump_pressure(problem)
+
+    levels = [_solve_on_edges(fipy, problem, edges, s0)]
+    coarse = levels[0]
+    best = coarse
+    estimate = float("nan")
+    diffs: list[float] = []
+    orders: list[float] = []
+    history: list[tuple[int, int, float]] = []
+    while refine and coarse["error"] is None:
+        fine = _solve_on_edges(fipy, problem, _bisect(coarse["edges"]), 2 * coarse["steps"])
+        levels.append(fine)
+        best = fine
+        if fine["error"] is not None:
+            break
+        diff = level_difference(coarse, fine, p_lump)
+        estimate, order = _richardson(diff, diffs[-1] if diffs else None, 2.0 if p_lump == 0.0 else 1.0)
+        diffs.append(diff)
+        orders.append(order)
+        history.append((fine["edges"].size - 1, fine["steps"], estimate))
+        if estimate <= rtol or 2 * (fine["edges"].size - 1) > max_cells or 2 * fine["steps"] > max_steps:
+            break
+        coarse = fine
+    wall = time.perf_counter() - t_start
+    return _result(problem, best, rtol=rtol, estimate=estimate, refine=refine, wall=wall, levels=levels,
+                   history=history, orders=orders, import_time=import_time, warm_time=warm_time,
+                   p_lump=p_lump, limits=(max_cells, max_steps))
+
+
+def _result(problem: FokkerPlanckProblem, best: dict[str, Any], *, rtol: float, estimate: float, refine: bool,
+            wall: float, levels: list, history: list, orders: list, import_time: float, warm_time: float,
+            p_lump: float, limits: tuple[int, int]) -> PressureDistribution:
+    edges = best["edges"]
+    h = np.diff(edges)
+    p = 0.5 * (edges[:-1] + edges[1:])
+    dens = best["density"]
+    zw = best["zero_weight"]
+    mass = float(np.sum(h * dens) + zw)
+    mean = float(np.sum(h * p * dens))
+    neg = dens < 0.0
+    negative_mass = float(-np.sum(h[neg] * dens[neg]))
+    min_density = float(dens.min())
+    problems: list[str] = []
+    if best["error"] is not None:
+        problems.append(f"FiPy failed on {edges.size - 1} cells / {best['steps']} steps: {best['error']}")
+    if refine and not (estimate <= rtol):
+        problems.append(
+            f"error estimate {estimate:.2e} misses rtol={rtol:.1e} at {edges.size - 1} cells, {best['steps']} steps "
+            f"(max_cells={limits[0]}, max_steps={limits[1]})"
+        )
+    if abs(mass - 1.0) > rtol:
+        problems.append(f"mass {mass:.12g} not conserved to rtol")
+    if problem.drift is None and abs(mean - problem.mean_pressure) > rtol * problem.mean_pressure:
+        problems.append(f"mean {mean:.8g} differs from p0={problem.mean_pressure:.8g} by more than rtol")
+    neg_note = ""
+    if negative_mass > 0.0:
+        neg_note = f"negative densities (min {min_density:.2e}, negative mass {negative_mass:.2e}) kept, not clipped"
+        if negative_mass > rtol:
+            problems.append(neg_note)
+    success = not problems
+    if success:
+        message = (f"converged: L1 error estimate {estimate:.2e} <= rtol {rtol:.1e} on {edges.size - 1} cells, "
+                   f"{best['steps']} CN steps") if refine else \
+            f"solved on {edges.size - 1} cells, {best['steps']} CN steps without refinement (no error estimate)"
+        if neg_note:
+            message += "; " + neg_note
+    else:
+        message = "; ".join(problems + ([neg_note] if neg_note and neg_note not in problems else []))
+    diagnostics = {
+        "cells": int(edges.size - 1),
+        "steps": int(best["steps"]),
+        "linear_solves": int(best["linear_solves"]),
+        "levels": [(int(lv["edges"].size - 1), int(lv["steps"])) for lv in levels],
+        "level_times": [float(lv["time"]) for lv in levels],
+        "estimate_history": history,
+        "observed_orders": orders,
+        "error_metric": error_metric_name(p_lump),
+        "tau0": best["tau0"],
+        "zero_weight0": best["zero_weight0"],
+        "zero_weight_accounting": "short-time start's weight + time-integrated absorbing-boundary flux",
+        "mass_defect": best["mass_defect"],
+        "min_density": min_density,
+        "negative_mass": negative_mass,
+        "mass_error": mass - 1.0,
+        "mean_error": mean - problem.mean_pressure,
+        "import_time": import_time,
+        "first_call_time": warm_time,
+        "time_stepping": "Crank-Nicolson (BE half step + extrapolation), Rannacher start, steps uniform in sqrt(tau)",
+    }
+    return PressureDistribution(
+        p=p,
+        density=dens,
+        weights=h,
+        zero_weight=float(zw),
+        mean_pressure=problem.mean_pressure,
+        variance=problem.variance,
+        backend="fipy",
+        success=bool(success),
+        message=message,
+        error_estimate=float(estimate),
+        wall_time=float(wall),
+        diagnostics=diagnostics,
+        edges=edges,
+    )
