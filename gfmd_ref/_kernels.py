@@ -306,18 +306,39 @@ def project_above(z, h, v):
 
 
 @njit(cache=True)
-def hard_force(z, h, pel, f, eps):
-    """Hard-wall projected force of a displacement field: a contact node (``z <= h``)
-    (within ``eps``) carries ``max(p_el, 0)`` as wall reaction, so its net force is ``max(-p_el, 0)``
-    (no tension); a free node feels ``-p_el``. Returns ``(max |f|, sum of reactions)``."""
+def project_active(z, h, v, pel, contact):
+    """Active-set hard wall for FIRE. A contact node (``contact[i]``) that still carries
+    compression (``pel > 0``) stays on the wall (``z = h``, ``v = 0``): contact nodes
+    only detach under tension. A free node that penetrates (``z < h``) is put on the
+    wall and joins the contact set. Returns the number of contact nodes."""
     zf = z.ravel()
     hf = h.ravel()
+    vf = v.ravel()
+    pf = pel.ravel()
+    cf = contact.ravel()
+    nc = 0
+    for i in range(zf.size):
+        if (cf[i] and pf[i] > 0.0) or zf[i] < hf[i]:
+            zf[i] = hf[i]
+            vf[i] = 0.0
+            cf[i] = True
+            nc += 1
+        else:
+            cf[i] = False
+    return nc
+
+
+@njit(cache=True)
+def hard_force(contact, pel, f):
+    """Hard-wall projected force of a displacement field: a contact node carries ``max(p_el, 0)`` as wall reaction, so its net force is ``max(-p_el, 0)``
+    (no tension); a free node feels ``-p_el``. Returns ``(max |f|, sum of reactions)``."""
+    cf = contact.ravel()
     pf = pel.ravel()
     ff = f.ravel()
     r = 0.0
     s = 0.0
-    for i in range(zf.size):
-        if zf[i] <= hf[i] + eps and pf[i] > 0.0:
+    for i in range(pf.size):
+        if cf[i] and pf[i] > 0.0:
             s += pf[i]
             ff[i] = 0.0
         else:

@@ -31,6 +31,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.fft as sfft
 
+#: ``workers`` passed to scipy.fft (-1: all cores).
+FFT_WORKERS = -1
+
 from . import _kernels as kr
 from ._validation import check_heights, check_int, check_positive
 from .interactions import ExponentialRepulsion, HardWall
@@ -110,15 +113,15 @@ class _Elastic:
         self.g_diag = float(np.sum(w * G)) / (n * n)
 
     def rfft(self, x):
-        return sfft.rfft2(x, workers=-1)
+        return sfft.rfft2(x, workers=FFT_WORKERS)
 
     def irfft(self, X):
-        return sfft.irfft2(X, s=self.shape, workers=-1)
+        return sfft.irfft2(X, s=self.shape, workers=FFT_WORKERS)
 
     def apply(self, mult, x):
-        X = sfft.rfft2(x, workers=-1)
+        X = sfft.rfft2(x, workers=FFT_WORKERS)
         X *= mult
-        return sfft.irfft2(X, s=self.shape, workers=-1)
+        return sfft.irfft2(X, s=self.shape, workers=FFT_WORKERS, overwrite_x=True)
 
 
 def _progress(progress, total, desc):
@@ -139,6 +142,8 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, refresh=50):
     g = np.empty(el.shape)
     t = np.zeros(el.shape)
     hist = []
+    stamps = []
+    tstart = time.perf_counter()
     delta = 0.0
     gold = 1.0
     converged = False
@@ -156,6 +161,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, refresh=50):
             nc, gn, comp, pen, _ = kr.pk_gap(u, h, p, g)
             res = max(load, comp / (p0 * h_scale), pen / h_scale)
         hist.append(res)
+        stamps.append((it, time.perf_counter() - tstart))
         if bar is not None and it % 5 == 0:
             bar.set_postfix(residual=f"{res:.2e}", refresh=False)
         if res < tol:
@@ -195,7 +201,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, refresh=50):
         iterations=it,
         residual=res,
         history=np.asarray(hist),
-        info=dict(h_scale=h_scale),
+        info=dict(h_scale=h_scale, history_stamps=np.asarray(stamps)),
     )
 
 
@@ -223,6 +229,8 @@ def _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0,
     ptry = np.empty(el.shape)
     zr = np.empty(el.shape)
     hist = list(hist0)
+    stamps = []
+    tstart = time.perf_counter()
     it = iters0
     newton = 0
     cg_total = 0
@@ -233,6 +241,7 @@ def _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0,
         z0 = kr.exp_log_mean(u, h, zeta)
         res = kr.exp_residual(u, h, z0, p, p0, zeta)
         hist.append(res)
+        stamps.append((it, time.perf_counter() - tstart))
         if bar is not None:
             bar.set_postfix(residual=f"{res:.2e}", refresh=False)
         if res < tol:
@@ -304,7 +313,7 @@ def _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0,
         iterations=it,
         residual=res,
         history=np.asarray(hist),
-        info=dict(newton_steps=newton, cg_iterations=cg_total),
+        info=dict(newton_steps=newton, cg_iterations=cg_total, history_stamps=np.asarray(stamps)),
     )
 
 
@@ -339,13 +348,15 @@ def _fire(h, p0, interaction, el, tol, max_iter, progress, h_scale):
     V = np.zeros_like(Z)
     sig = np.empty(el.shape)
     freal = np.empty(el.shape)
-    eps = 1e-10 * h_scale  # contact detection tolerance (FFT round-off of z)
+    contact = np.zeros(el.shape, dtype=np.bool_)
     N_MIN, F_INC, F_DEC, A0, F_A = 5, 1.1, 0.5, 0.1, 0.99
     dt_max = 0.5
     dt = 0.1
     alpha = A0
     npos = 0
     hist = []
+    stamps = []
+    tstart = time.perf_counter()
     it = 0
     converged = False
     res = np.inf
@@ -354,7 +365,7 @@ def _fire(h, p0, interaction, el, tol, max_iter, progress, h_scale):
         # forces on the modes (unnormalised rfft units)
         if hard:
             pel = p0 + el.irfft(K * Z)
-            fr, s = kr.hard_force(z, h, pel, freal, eps)
+            fr, s = kr.hard_force(contact, pel, freal)
             load = abs(s / n2 - p0) / p0
             res = max(fr / p0, load)
             F = el.rfft(freal)
@@ -370,6 +381,7 @@ def _fire(h, p0, interaction, el, tol, max_iter, progress, h_scale):
             dt_max = min(0.5, 0.9 / math.sqrt(1.0 + (smax / zeta) / kbar))
             dt = min(dt, dt_max)
         hist.append(res)
+        stamps.append((it, time.perf_counter() - tstart))
         if bar is not None and it % 5 == 0:
             bar.set_postfix(residual=f"{res:.2e}", refresh=False)
         if res < tol:
@@ -396,9 +408,9 @@ def _fire(h, p0, interaction, el, tol, max_iter, progress, h_scale):
         V += (dt / m) * F
         Z += dt * V
         z = el.irfft(Z)
-        if hard and np.any(z < h):
+        if hard:
             v = el.irfft(V)
-            kr.project_above(z, h, v)
+            kr.project_active(z, h, v, pel, contact)
             Z = el.rfft(z)
             V = el.rfft(v)
         it += 1
@@ -408,7 +420,6 @@ def _fire(h, p0, interaction, el, tol, max_iter, progress, h_scale):
         bar.close()
     if hard:
         pel = p0 + el.irfft(K * Z)
-        contact = z <= h + eps
         p = np.where(contact & (pel > 0), pel, 0.0)
         gap = np.where(contact, 0.0, z - h)
         z = np.where(contact, h, z)
@@ -427,7 +438,11 @@ def _fire(h, p0, interaction, el, tol, max_iter, progress, h_scale):
         iterations=it,
         residual=res,
         history=np.asarray(hist),
-        info=dict(load_rescale=float(p0 / s) if s > 0 else float("nan"), final_dt=dt),
+        info=dict(
+            load_rescale=float(p0 / s) if s > 0 else float("nan"),
+            final_dt=dt,
+            history_stamps=np.asarray(stamps),
+        ),
     )
 
 
@@ -490,8 +505,9 @@ def solve_contact(
     progress : bool
         Show a tqdm progress bar.
     warm_start : bool, optional
-        Exponential wall with ``newton``: start from the hard-wall (CCG) solution.
-        Default: when ``zeta < 0.05 * std(heights)``.
+        Exponential wall with ``newton``: start from the hard-wall (CCG) solution
+        instead of the uniform pressure ``p0``. Default False: measured on the Fig. 1
+        surface, the cold start is faster for every zeta from 4 down to 0.001.
 
     Returns
     -------
@@ -526,10 +542,11 @@ def solve_contact(
     else:
         zeta = interaction.zeta
         if warm_start is None:
-            warm_start = zeta < 0.05 * h_scale
+            warm_start = False  # measured: the cold start is faster for every zeta
         p_init = None
         it0 = 0
         hist0 = ()
+        tw = time.perf_counter()
         if warm_start:
             hw = _ccg_hard(h, p0, el, max(1e-6, tol), max_iter, False, h_scale)
             it0 = hw["iterations"]
@@ -537,7 +554,10 @@ def solve_contact(
             p_init = np.where(
                 hw["pressure"] > 0, hw["pressure"], p0 * np.exp(-np.minimum(g / zeta, 740.0))
             )
+        tw = time.perf_counter() - tw
         out = _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init, it0, hist0)
+        if out["info"]["history_stamps"].size:
+            out["info"]["history_stamps"][:, 1] += tw
         out["info"]["warm_start"] = bool(warm_start)
         out["info"]["warm_start_iterations"] = it0
 
