@@ -33,9 +33,9 @@ def test_full_contact(method, n, tol):
     assert res.converged and res.contact_fraction == 1.0
     # Oracle: p - p0 = IFFT[(q E*/2) FFT(h)]. In full contact the solvers' residual
     # bounds the gap error by tol * h_s, i.e. a pressure error ~ tol * h_s * max(qE*/2)
-    # ~ tol * p0 * O(10); 1e3 * tol leaves room for that factor.
+    # ~ tol * p0 * O(10) (measured 8e-12 at tol 1e-10); 100 * tol leaves room.
     err = np.max(np.abs(res.pressure - p0 - dev)) / p0
-    assert err < 1e3 * tol
+    assert err < 100 * tol
     assert np.mean(res.pressure) == pytest.approx(p0, rel=1e-13)
     np.testing.assert_allclose(res.gap, 0.0, atol=1e3 * tol * h.std())
 

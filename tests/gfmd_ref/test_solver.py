@@ -1,0 +1,250 @@
+"""Convergence, load control, method agreement, robustness, bad input, histogram, CLI."""
+import warnings
+
+import numpy as np
+import pytest
+
+import gfmd_ref
+from gfmd_ref import (ConvergenceWarning, ExponentialRepulsion, HardWall, fig1_surface,
+                      pressure_histogram, solve_contact)
+
+E, P0 = 8.0 / 3.0, 0.004
+
+
+@pytest.fixture(scope="module")
+def fig1_64():
+    return fig1_surface(64, seed=2)
+
+
+def _solve(h, L, inter, **kw):
+    return solve_contact(h, length=L, E_star=E, mean_pressure=P0, interaction=inter, **kw)
+
+
+@pytest.mark.parametrize("inter", [HardWall(), ExponentialRepulsion(0.01)])
+def test_tighter_tol_changes_nothing_beyond_tol(fig1_64, inter):
+    """Solutions at tol 1e-5 and 1e-10 differ by O(tol) in pressure.
+
+    Bound: the residual is a relative force / complementarity error; converting it to
+    a pressure error involves the conditioning of the contact problem (the hard-wall
+    complementarity error is a gap error times a stiffness ~ E* q_max / p0 ~ 10^3 in
+    these units). We assert max|dp|/p0 < 1e3 * 1e-5 = 1e-2 and that the change is
+    much smaller than the pressure scale; measured values are ~1e-6 (hard) and 1e-6
+    (exp)."""
+    h, L = fig1_64
+    loose = _solve(h, L, inter, tol=1e-5)
+    tight = _solve(h, L, inter, tol=1e-10)
+    assert loose.converged and tight.converged
+    assert tight.residual < 1e-10
+    d = np.max(np.abs(loose.pressure - tight.pressure)) / P0
+    assert d < 1e-2
+    if isinstance(inter, HardWall):
+        assert loose.contact_fraction == pytest.approx(tight.contact_fraction, abs=2 / h.size)
+
+
+@pytest.mark.parametrize(
+    "inter, method",
+    [(HardWall(), "ccg"), (HardWall(), "fire"), (ExponentialRepulsion(0.1), "newton"),
+     (ExponentialRepulsion(0.1), "fire"), (ExponentialRepulsion(1e-3), "newton")],
+)
+def test_load_conserved(fig1_64, inter, method):
+    """Load control: mean pressure equals p0 to round-off (1e-13 relative: a sum of
+    4096 positive terms has a relative round-off ~1e-16 * sqrt(4096))."""
+    h, L = fig1_64
+    r = _solve(h, L, inter, method=method, tol=1e-7, max_iter=100000)
+    assert r.converged
+    assert np.mean(r.pressure) == pytest.approx(P0, rel=1e-13)
+    assert np.all(r.pressure >= 0)
+    np.testing.assert_allclose(r.gap, r.displacement - h, atol=1e-12 * np.ptp(h))
+
+
+def test_hard_wall_methods_agree(fig1_64):
+    """CCG (pressure variables) and FIRE GFMD (displacements) at tol 1e-8 give the same
+    contact set and pressures. Pressure tolerance 1e-4 p0: each solution is within
+    ~1e3 * tol of the exact one (see the tol test), so 1e-4 bounds their distance with
+    margin; measured ~1e-7."""
+    h, L = fig1_64
+    a = _solve(h, L, HardWall(), method="ccg", tol=1e-9)
+    b = _solve(h, L, HardWall(), method="fire", tol=1e-8)
+    assert a.converged and b.converged
+    assert a.contact_fraction == b.contact_fraction
+    assert np.max(np.abs(a.pressure - b.pressure)) / P0 < 1e-4
+    assert np.max(np.abs(a.gap - b.gap)) < 1e-6 * h.std()
+
+
+@pytest.mark.parametrize("zeta", [1.0, 0.05, 0.002])
+def test_exponential_methods_agree(fig1_64, zeta):
+    """Dual Newton-CG and primal FIRE GFMD: the exponential-wall residual is the force
+    residual itself, max|sigma - p_el|/p0, so two solutions at 1e-8 agree to a few
+    1e-8 p0 times the conditioning; we assert 1e-5 p0 (measured 1e-8...1e-7)."""
+    h, L = fig1_64
+    inter = ExponentialRepulsion(zeta)
+    a = _solve(h, L, inter, method="newton", tol=1e-10)
+    b = _solve(h, L, inter, method="fire", tol=1e-8, max_iter=200000)
+    assert a.converged and b.converged
+    assert np.max(np.abs(a.pressure - b.pressure)) / P0 < 1e-5
+    assert a.contact_fraction == pytest.approx(b.contact_fraction, abs=2 / h.size)
+
+
+def test_exponential_tends_to_hard_wall(fig1_64):
+    """zeta -> 0: the exponential wall approaches the hard wall. The gap scale of the
+    softness is ~zeta ln(p/p0) ~ 5 zeta, so at zeta = 1e-4 (1e-3 of h_rms) the
+    pressures differ by a few % of the peak; contact fractions (threshold 0.01 p0)
+    within 10 % relative."""
+    h, L = fig1_64
+    hw = _solve(h, L, HardWall())
+    ex = _solve(h, L, ExponentialRepulsion(1e-4), tol=1e-8)
+    assert ex.converged
+    assert np.max(np.abs(ex.pressure - hw.pressure)) < 0.1 * hw.pressure.max()
+    assert ex.contact_fraction == pytest.approx(hw.contact_fraction, rel=0.1)
+
+
+@pytest.mark.parametrize("zeta", [1e-4, 1e-3])
+def test_tiny_zeta_finite_no_overflow(fig1_64, zeta):
+    """Stiff walls: pressures finite, no overflow / RuntimeWarning (pytest turns
+    RuntimeWarnings from gfmd_ref into errors, see pyproject)."""
+    h, L = fig1_64
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        warnings.simplefilter("ignore", ConvergenceWarning)  # the FIRE run is capped
+        r = _solve(h, L, ExponentialRepulsion(zeta), tol=1e-8)
+        # a badly started FIRE run must stay finite as well
+        f = _solve(h, L, ExponentialRepulsion(zeta), method="fire", tol=1e-6, max_iter=300)
+    assert r.converged
+    for res in (r, f):
+        assert np.all(np.isfinite(res.pressure)) and np.all(np.isfinite(res.gap))
+        assert np.isfinite(res.residual)
+
+
+def test_not_converged_warns_and_says_so(fig1_64):
+    h, L = fig1_64
+    with pytest.warns(ConvergenceWarning, match="NOT converged"):
+        r = _solve(h, L, HardWall(), max_iter=3)
+    assert not r.converged
+    assert "NOT converged" in r.message and "residual" in r.message
+    assert r.residual > 1e-8 and r.iterations == 3
+    with pytest.warns(ConvergenceWarning):
+        r2 = _solve(h, L, ExponentialRepulsion(0.01), max_iter=2)
+    assert not r2.converged
+
+
+def test_result_fields(fig1_64):
+    h, L = fig1_64
+    r = _solve(h, L, HardWall(), progress=True)
+    assert r.converged and r.method == "ccg" and "converged" in r.message
+    assert r.residual < 1e-8 and r.residual == r.residual_history[-1]
+    assert r.wall_time > 0 and r.iterations > 0
+    assert r.pressure.shape == r.gap.shape == r.displacement.shape == h.shape
+    # contact where the rigid surface is high; gap ~ 0 there
+    c = r.pressure > 0
+    assert np.max(np.abs(r.gap[c])) < 1e-8 * h.std()
+    assert np.min(r.gap) > -1e-8 * h.std()
+    assert r.contact_fraction == np.count_nonzero(c) / h.size
+    assert np.mean(h[c]) > np.mean(h)
+
+
+@pytest.mark.parametrize("n", [30, 37])
+def test_non_power_of_two_and_loaded_array(tmp_path, n):
+    """Any periodic array works (saved and loaded from .npy), including odd sizes;
+    CCG and FIRE agree (same tolerance argument as above)."""
+    rng = np.random.default_rng(n)
+    h = np.fft.irfft2(np.fft.rfft2(rng.standard_normal((n, n)))
+                      * np.exp(-np.fft.rfftfreq(n)[None, :] * 8
+                               - np.abs(np.fft.fftfreq(n))[:, None] * 8), s=(n, n))
+    np.save(tmp_path / "topo.npy", h)
+    h = np.load(tmp_path / "topo.npy")
+    a = solve_contact(h, length=1.0, E_star=1.0, mean_pressure=0.05 * h.std(),
+                      interaction=HardWall())
+    b = solve_contact(h, length=1.0, E_star=1.0, mean_pressure=0.05 * h.std(),
+                      interaction=HardWall(), method="fire", tol=1e-8)
+    assert a.converged and b.converged and 0 < a.contact_fraction < 1
+    assert np.max(np.abs(a.pressure - b.pressure)) < 1e-4 * 0.05 * h.std()
+
+
+@pytest.mark.parametrize(
+    "kw, name",
+    [
+        (dict(heights=np.full((8, 8), np.nan)), "heights"),
+        (dict(heights=np.zeros((8, 6))), "heights"),
+        (dict(heights=np.zeros(8)), "heights"),
+        (dict(heights=np.zeros((2, 4, 4))), "heights"),
+        (dict(heights=np.where(np.eye(8) > 0, np.inf, 0.0)), "heights"),
+        (dict(length=0.0), "length"),
+        (dict(length=np.nan), "length"),
+        (dict(E_star=-1.0), "E_star"),
+        (dict(mean_pressure=0.0), "mean_pressure"),
+        (dict(interaction="hard"), "interaction"),
+        (dict(method="bogus"), "method"),
+        (dict(method="newton"), "method"),
+        (dict(interaction=ExponentialRepulsion(1.0), method="ccg"), "method"),
+        (dict(tol=-1e-8), "tol"),
+        (dict(max_iter=0), "max_iter"),
+    ],
+)
+def test_bad_input(kw, name):
+    args = dict(heights=np.random.default_rng(0).standard_normal((8, 8)), length=1.0,
+                E_star=1.0, mean_pressure=0.1, interaction=HardWall())
+    args.update(kw)
+    h = args.pop("heights")
+    with pytest.raises(ValueError, match=name):
+        solve_contact(h, **args)
+
+
+@pytest.mark.parametrize("zeta", [0.0, -1.0, np.nan, np.inf, "x"])
+def test_bad_zeta(zeta):
+    with pytest.raises(ValueError, match="zeta"):
+        ExponentialRepulsion(zeta)
+
+
+def test_interactions_are_frozen():
+    with pytest.raises(Exception):
+        ExponentialRepulsion(1.0).zeta = 2.0
+    assert ExponentialRepulsion(1) == ExponentialRepulsion(1.0)
+    assert HardWall() == HardWall()
+
+
+def test_pressure_histogram(fig1_64):
+    """zero_weight = fraction of exact zeros; integral(density) + zero_weight = 1
+    (exact up to round-off, 1e-12); counts add up to the non-zero values."""
+    h, L = fig1_64
+    r = _solve(h, L, HardWall())
+    hist = pressure_histogram(r, bins=20)
+    nz = np.count_nonzero(r.pressure)
+    assert hist.zero_weight == pytest.approx(1 - nz / h.size, abs=0)
+    assert hist.zero_weight == pytest.approx(1 - r.contact_fraction, abs=1e-15)
+    assert np.sum(hist.density * np.diff(hist.edges)) + hist.zero_weight == pytest.approx(1, abs=1e-12)
+    assert hist.counts.sum() == nz and hist.n_outside == 0
+    assert len(hist.centers) == 20
+    # array input and explicit range: values outside the range still count in the norm
+    h2 = pressure_histogram(np.array([0.0, 0.0, 1.0, 2.0, 3.0]), bins=2, range=(0.5, 2.5))
+    assert h2.zero_weight == pytest.approx(0.4)
+    assert h2.n_outside == 1
+    assert np.sum(h2.density * np.diff(h2.edges)) == pytest.approx(0.4)
+    with pytest.raises(ValueError, match="pressure"):
+        pressure_histogram(np.array([np.nan, 1.0]))
+
+
+def test_cli_run(tmp_path, capsys):
+    from gfmd_ref.cli import main, run_default_scene
+
+    assert main(["run", "--n", "64", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    for word in ("contact fraction", "iterations", "residual", "wall time"):
+        assert word in out
+    files = sorted(p.name for p in tmp_path.iterdir())
+    assert any(f.endswith(".png") for f in files) and any(f.endswith(".csv") for f in files)
+    d = np.load(next(tmp_path.glob("*.npz")))
+    assert np.sum(d["density"] * np.diff(d["edges"])) + d["zero_weight"] == pytest.approx(1)
+    res, hist, paths = run_default_scene(48, interaction="exp", zeta=0.1, out_dir=None,
+                                         verbose=False)
+    assert res.converged and paths == {}
+    assert gfmd_ref.FIG1["E_star"] == pytest.approx(8 / 3)
+
+
+def test_does_not_import_diffusion_pr():
+    import subprocess
+    import sys
+
+    code = ("import sys, gfmd_ref, gfmd_ref.cli; "
+            "print(any(m.startswith('diffusion_pr') for m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.stdout.strip() == "False"
