@@ -1,0 +1,348 @@
+"""Benchmarks of the gfmd_ref contact solvers on the paper's Fig. 1 surface.
+
+Parts (``--part``):
+
+* ``hard``: hard wall, CCG vs Tamaas (same surface, same run; Tamaas skipped if not
+  importable) to tol 1e-8, medians over ``--repeats``; plus FIRE GFMD. Work-precision
+  (residual vs time) plot, contact fractions, pressure-field differences.
+* ``exp``: exponential wall, every zeta in {4, 2, 1, 0.5, 0.25, 0.1, 0.01, 0.001} with
+  the dual Newton-CG to 1e-6 p0 (medians), and a work-precision plot Newton vs FIRE.
+* ``scaling``: CCG hard wall, n = 128 ... 2048 (``--n4096`` adds 4096), each size in a
+  fresh subprocess: iterations, time/iteration, total time, peak RSS.
+
+``--quick`` uses small sizes (256^2, scaling up to 512^2) so that a run takes about
+a minute. Outputs go to ``benchmarks/results/gfmd_*`` (PNG plots, JSON, Markdown).
+No assertions: this measures, the tests check correctness.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+RESULTS = os.path.join(HERE, "results")
+E_STAR, P0 = 8.0 / 3.0, 0.004
+ZETAS = [4.0, 2.0, 1.0, 0.5, 0.25, 0.1, 0.01, 0.001]
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+@contextlib.contextmanager
+def _capture_fd(fd=1):
+    """Capture C-level output written to a file descriptor (Tamaas logs there)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(fd)
+    with tempfile.TemporaryFile(mode="w+b") as tmp:
+        os.dup2(tmp.fileno(), fd)
+        box = {}
+        try:
+            yield box
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os.dup2(saved, fd)
+            os.close(saved)
+            tmp.seek(0)
+            box["text"] = tmp.read().decode(errors="replace")
+
+
+def tamaas_solve(h, length, tol):
+    try:
+        import tamaas as tm
+    except ImportError:
+        return None
+    n = h.shape[0]
+    model = tm.ModelFactory.createModel(tm.model_type.basic_2d, [length, length], [n, n])
+    model.E = E_STAR
+    model.nu = 0.0
+    hh = np.ascontiguousarray(h, dtype=np.float64)
+    solver = tm.PolonskyKeerRey(model, hh, tol)
+    with _capture_fd(1) as out1, _capture_fd(2) as out2:
+        t0 = time.perf_counter()
+        solver.solve(P0)
+        wall = time.perf_counter() - t0
+    text = out1.get("text", "") + out2.get("text", "")
+    its = [int(m.group(1)) for m in re.finditer(r"^\s*(\d+)\s+\S+\s+\S+\s*$", text, re.M)]
+    p = np.array(model.traction, dtype=np.float64).reshape(n, n)
+    d = np.array(model.displacement, dtype=np.float64).reshape(n, n)
+    return dict(pressure=p, gap=d - h, wall_time=wall, iterations=max(its) if its else -1)
+
+
+def hard_residual_of(p, gap, h):
+    """Our hard-wall residual (solver module doc) evaluated on any (p, gap) pair."""
+    hs = float(np.std(h))
+    c = p > 0
+    g = gap - np.mean(gap[c])  # same z0 convention: gap zero on average on contact
+    comp = np.max(np.abs(p * g)) / (P0 * hs)
+    pen = max(0.0, float(-np.min(g[~c]))) / hs if np.any(~c) else 0.0
+    load = abs(p.mean() - P0) / P0
+    return max(comp, pen, load)
+
+
+def part_hard(n, repeats, fire, seed=1):
+    import gfmd_ref as g
+
+    h, L = g.fig1_surface(n, seed=seed)
+    rows = []
+    ours = []
+    for _ in range(repeats):
+        r = g.solve_contact(h, length=L, E_star=E_STAR, mean_pressure=P0,
+                            interaction=g.HardWall(), tol=1e-8)
+        ours.append(r)
+        print(f"  ccg   n={n}: {r.wall_time:.2f} s, {r.iterations} it, res {r.residual:.2e}",
+              flush=True)
+    best = ours[0]
+    tam = []
+    for _ in range(repeats):
+        t = tamaas_solve(h, L, 1e-8)
+        if t is None:
+            print("  tamaas not importable: skipped")
+            break
+        tam.append(t)
+        print(f"  tamaas n={n}: {t['wall_time']:.2f} s, {t['iterations']} it", flush=True)
+    out = dict(n=n, seed=seed)
+    out["ccg"] = dict(
+        times=[r.wall_time for r in ours], median_time=float(np.median([r.wall_time for r in ours])),
+        iterations=best.iterations, residual=best.residual,
+        contact_fraction=best.contact_fraction,
+    )
+    if tam:
+        t = tam[0]
+        cf_t = float(np.count_nonzero(t["pressure"] > 0)) / h.size
+        out["tamaas"] = dict(
+            times=[x["wall_time"] for x in tam],
+            median_time=float(np.median([x["wall_time"] for x in tam])),
+            iterations=t["iterations"], contact_fraction=cf_t,
+            our_residual_metric=hard_residual_of(t["pressure"], t["gap"], h),
+        )
+        out["compare"] = dict(
+            time_ratio=out["ccg"]["median_time"] / out["tamaas"]["median_time"],
+            contact_fraction_rel_diff=abs(best.contact_fraction - cf_t) / cf_t,
+            max_pressure_diff_over_p0=float(np.max(np.abs(best.pressure - t["pressure"])) / P0),
+            rms_pressure_diff_over_p0=float(np.sqrt(np.mean((best.pressure - t["pressure"]) ** 2)) / P0),
+        )
+    if fire:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            rf = g.solve_contact(h, length=L, E_star=E_STAR, mean_pressure=P0,
+                                 interaction=g.HardWall(), tol=1e-8, method="fire",
+                                 max_iter=fire)
+        print(f"  fire  n={n}: {rf.wall_time:.2f} s, {rf.iterations} it, res {rf.residual:.2e}",
+              flush=True)
+        out["fire"] = dict(time=rf.wall_time, iterations=rf.iterations, residual=rf.residual,
+                           converged=rf.converged, contact_fraction=rf.contact_fraction,
+                           max_pressure_diff_vs_ccg_over_p0=float(
+                               np.max(np.abs(rf.pressure - best.pressure)) / P0))
+    # work-precision plot
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    st = best.info["history_stamps"]
+    ax.semilogy(st[:, 1], best.residual_history, label=f"gfmd_ref ccg ({best.iterations} it)")
+    if fire:
+        st = rf.info["history_stamps"]
+        ax.semilogy(st[:, 1], rf.residual_history, label=f"gfmd_ref fire ({rf.iterations} it)")
+    if tam:
+        ax.axvline(out["tamaas"]["median_time"], color="k", ls="--",
+                   label=f"Tamaas PKR to 1e-8 ({out['tamaas']['iterations']} it)")
+    ax.axhline(1e-8, color="gray", lw=0.5)
+    ax.set_xlabel("wall time [s]")
+    ax.set_ylabel("residual / p0")
+    ax.set_title(f"hard wall, Fig. 1 surface, {n}^2", fontsize=10)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(os.path.join(RESULTS, f"gfmd_hard_wp_n{n}.png"), dpi=110)
+    plt.close(fig)
+    rows.append(out)
+    return out
+
+
+def part_exp(n, repeats, n_fire, fire_cap, seed=1):
+    import gfmd_ref as g
+
+    h, L = g.fig1_surface(n, seed=seed)
+    out = dict(n=n, seed=seed, newton={})
+    hard = [g.solve_contact(h, length=L, E_star=E_STAR, mean_pressure=P0,
+                            interaction=g.HardWall(), tol=1e-8).wall_time for _ in range(repeats)]
+    out["hard_ccg_median_time"] = float(np.median(hard))
+    print(f"  hard ccg n={n}: median {out['hard_ccg_median_time']:.2f} s", flush=True)
+    for z in ZETAS:
+        ts = []
+        for _ in range(repeats):
+            r = g.solve_contact(h, length=L, E_star=E_STAR, mean_pressure=P0,
+                                interaction=g.ExponentialRepulsion(z), tol=1e-6)
+            ts.append(r.wall_time)
+        out["newton"][str(z)] = dict(
+            median_time=float(np.median(ts)), times=ts, iterations=r.iterations,
+            newton_steps=r.info["newton_steps"], residual=r.residual, converged=r.converged,
+            contact_fraction=r.contact_fraction,
+            ratio_to_hard=float(np.median(ts)) / out["hard_ccg_median_time"],
+        )
+        print(f"  newton zeta={z:g}: {np.median(ts):.2f} s, {r.iterations} it "
+              f"({r.info['newton_steps']} Newton), res {r.residual:.1e}, "
+              f"{np.median(ts) / out['hard_ccg_median_time']:.2f} x hard", flush=True)
+    # work precision Newton vs FIRE at n_fire
+    hf, Lf = g.fig1_surface(n_fire, seed=seed)
+    plt = _plt()
+    fig, axs = plt.subplots(1, 3, figsize=(12, 3.8), sharey=True)
+    out["work_precision"] = {}
+    for ax, z in zip(axs, [1.0, 0.01, 0.001]):
+        rn = g.solve_contact(hf, length=Lf, E_star=E_STAR, mean_pressure=P0,
+                             interaction=g.ExponentialRepulsion(z), tol=1e-8)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            rf = g.solve_contact(hf, length=Lf, E_star=E_STAR, mean_pressure=P0,
+                                 interaction=g.ExponentialRepulsion(z), tol=1e-8,
+                                 method="fire", max_iter=fire_cap)
+        out["work_precision"][str(z)] = dict(
+            newton=dict(time=rn.wall_time, iterations=rn.iterations, residual=rn.residual),
+            fire=dict(time=rf.wall_time, iterations=rf.iterations, residual=rf.residual,
+                      converged=rf.converged),
+            max_pressure_diff_over_p0=float(np.max(np.abs(rn.pressure - rf.pressure)) / P0),
+        )
+        print(f"  wp n={n_fire} zeta={z:g}: newton {rn.wall_time:.2f} s/{rn.iterations} it, "
+              f"fire {rf.wall_time:.2f} s/{rf.iterations} it (res {rf.residual:.1e})", flush=True)
+        ax.semilogy(rn.info["history_stamps"][:, 1], rn.residual_history, "o-", ms=3,
+                    label="dual Newton-CG")
+        ax.semilogy(rf.info["history_stamps"][:, 1], rf.residual_history, label="FIRE GFMD")
+        ax.set_title(f"zeta = {z:g}, {n_fire}^2", fontsize=10)
+        ax.set_xlabel("wall time [s]")
+        ax.legend(fontsize=8)
+    axs[0].set_ylabel("max |sigma - p_el| / p0")
+    fig.tight_layout()
+    fig.savefig(os.path.join(RESULTS, f"gfmd_exp_wp_n{n_fire}.png"), dpi=110)
+    plt.close(fig)
+    # times vs zeta
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    zs = np.array(ZETAS)
+    ax.loglog(zs, [out["newton"][str(z)]["median_time"] for z in ZETAS], "o-",
+              label="exp wall, Newton-CG, 1e-6")
+    ax.axhline(out["hard_ccg_median_time"], color="k", ls="--", label="hard wall CCG, 1e-8")
+    ax.axhline(3 * out["hard_ccg_median_time"], color="r", ls=":", label="3 x hard wall")
+    ax.set_xlabel("zeta")
+    ax.set_ylabel("wall time [s]")
+    ax.set_title(f"exponential wall, Fig. 1 surface, {n}^2", fontsize=10)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(os.path.join(RESULTS, f"gfmd_exp_times_n{n}.png"), dpi=110)
+    plt.close(fig)
+    return out
+
+
+def child_scaling(n):
+    import resource
+
+    import gfmd_ref as g
+
+    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    h, L = g.fig1_surface(n, seed=1)
+    # warm-up (numba cache / FFT plans) on a tiny problem
+    hs, Ls = g.fig1_surface(64, seed=1)
+    g.solve_contact(hs, length=Ls, E_star=E_STAR, mean_pressure=P0, interaction=g.HardWall())
+    base2 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    r = g.solve_contact(h, length=L, E_star=E_STAR, mean_pressure=P0,
+                        interaction=g.HardWall(), tol=1e-8)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    print(json.dumps(dict(n=n, iterations=r.iterations, time=r.wall_time,
+                          time_per_iteration=r.wall_time / max(r.iterations, 1),
+                          residual=r.residual, converged=r.converged,
+                          contact_fraction=r.contact_fraction,
+                          peak_rss_mb=peak / 1024, baseline_rss_mb=base2 / 1024,
+                          import_rss_mb=base / 1024)))
+
+
+def part_scaling(sizes, with_tamaas_small=False):
+    rows = []
+    for n in sizes:
+        cmd = [sys.executable, os.path.abspath(__file__), "--child-scaling", str(n)]
+        out = subprocess.run(cmd, capture_output=True, text=True)
+        line = [x for x in out.stdout.splitlines() if x.startswith("{")]
+        if not line:
+            print(out.stdout, out.stderr)
+            continue
+        row = json.loads(line[-1])
+        rows.append(row)
+        print(f"  n={n:5d}: {row['iterations']:4d} it, {row['time']:8.2f} s, "
+              f"{1e3 * row['time_per_iteration']:8.2f} ms/it, peak RSS {row['peak_rss_mb']:.0f} MB",
+              flush=True)
+    plt = _plt()
+    fig, axs = plt.subplots(1, 2, figsize=(10, 3.8))
+    ns = np.array([r["n"] for r in rows], dtype=float)
+    axs[0].loglog(ns**2, [r["time_per_iteration"] for r in rows], "o-", label="time / iteration")
+    axs[0].loglog(ns**2, [r["time"] for r in rows], "s-", label="total time")
+    ref = rows[0]["time_per_iteration"] * (ns**2 * np.log(ns**2)) / (ns[0] ** 2 * np.log(ns[0] ** 2))
+    axs[0].loglog(ns**2, ref, "k:", label="N log N")
+    axs[0].set_xlabel("grid points N = n^2")
+    axs[0].set_ylabel("seconds")
+    axs[0].legend(fontsize=8)
+    axs[1].loglog(ns**2, [r["peak_rss_mb"] for r in rows], "o-", label="peak RSS")
+    axs[1].loglog(ns**2, [r["peak_rss_mb"] - r["baseline_rss_mb"] for r in rows], "s-",
+                  label="peak RSS - baseline")
+    axs[1].set_xlabel("grid points N = n^2")
+    axs[1].set_ylabel("MB")
+    axs[1].legend(fontsize=8)
+    fig.suptitle("CCG hard wall, Fig. 1 surface, tol 1e-8", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(os.path.join(RESULTS, "gfmd_scaling.png"), dpi=110)
+    plt.close(fig)
+    return rows
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--part", choices=["hard", "exp", "scaling", "all"], default="all")
+    ap.add_argument("--quick", action="store_true", help="small sizes (about a minute)")
+    ap.add_argument("--n", type=int, default=None, help="size of the hard/exp runs")
+    ap.add_argument("--repeats", type=int, default=None)
+    ap.add_argument("--n4096", action="store_true", help="add 4096^2 to the scaling table")
+    ap.add_argument("--no-fire", action="store_true", help="skip the FIRE runs")
+    ap.add_argument("--child-scaling", type=int, default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.child_scaling:
+        child_scaling(args.child_scaling)
+        return 0
+    os.makedirs(RESULTS, exist_ok=True)
+    n = args.n or (256 if args.quick else 1024)
+    repeats = args.repeats or (3 if args.quick else 3)
+    tag = "quick" if args.quick else f"n{n}"
+    results = dict(machine=dict(cpus=os.cpu_count(), python=sys.version.split()[0],
+                                date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())))
+    if args.part in ("hard", "all"):
+        print(f"== hard wall, n={n}")
+        results["hard"] = part_hard(n, repeats, fire=0 if args.no_fire else 20000)
+    if args.part in ("exp", "all"):
+        print(f"== exponential wall, n={n}")
+        n_fire = 128 if args.quick else 512
+        results["exp"] = part_exp(n, repeats, n_fire, fire_cap=50000 if args.quick else 40000)
+    if args.part in ("scaling", "all"):
+        sizes = [128, 256, 512] if args.quick else [128, 256, 512, 1024, 2048]
+        if args.n4096:
+            sizes.append(4096)
+        print(f"== scaling {sizes}")
+        results["scaling"] = part_scaling(sizes)
+    path = os.path.join(RESULTS, f"gfmd_{args.part}_{tag}.json")
+    with open(path, "w") as fh:
+        json.dump(results, fh, indent=1, default=float)
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
