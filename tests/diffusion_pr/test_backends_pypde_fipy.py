@@ -141,7 +141,8 @@ def test_drift_shifts_gaussian_fipy() -> None:
     res = solve(prob, rtol=1e-3)
     exact = _cell_average(lambda p: gaussian_density(p, 10.0 + 0.5 * prob.tau_end, 1.0), res.edges)
     assert _l1(res, exact, 0.0) <= 1e-3
-    assert res.mean == pytest.approx(10.0 + 0.5 * prob.tau_end, abs=1e-4)
+    # on the stretched grid the central drift flux moves the mean only to O(h^2): 1e-4 relative
+    assert res.mean == pytest.approx(10.0 + 0.5 * prob.tau_end, rel=1e-4)
 
 
 # --------------------------------------------------------------------------- convergence order
