@@ -132,6 +132,40 @@ def pk_update(p, t, g, tau, p0):
 
 
 @njit(cache=True)
+def pk_update_lazy(p, t, g, tau, p0, D):
+    """As :func:`pk_update`, and accumulate the part of the change that is not
+    ``-tau t`` (projections and overlap fixes) into ``D = scale (D + Delta)``, so that
+    ``G p = scale (u - tau G t) + G D`` can be completed later by one FFT."""
+    pf = p.ravel()
+    tf = t.ravel()
+    gf = g.ravel()
+    df = D.ravel()
+    n = pf.size
+    nproj = 0
+    nol = 0
+    s = 0.0
+    for i in range(n):
+        if pf[i] > 0.0:
+            v = pf[i] - tau * tf[i]
+            if v <= 0.0:
+                df[i] -= v
+                v = 0.0
+                nproj += 1
+            pf[i] = v
+        elif gf[i] < 0.0:
+            v = -tau * gf[i]
+            pf[i] = v
+            df[i] += v
+            nol += 1
+        s += pf[i]
+    scale = p0 * n / s
+    for i in range(n):
+        pf[i] *= scale
+        df[i] *= scale
+    return nproj, nol, scale
+
+
+@njit(cache=True)
 def axpy_scale(u, r, tau, scale):
     """``u = scale * (u - tau r)`` in place."""
     uf = u.ravel()

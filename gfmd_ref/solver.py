@@ -135,31 +135,57 @@ def _progress(progress, total, desc):
 # ----------------------------------------------------------------------------- CCG
 
 
-def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, refresh=50):
+def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, lazy_frac=1e-4):
+    """Polonsky & Keer (1999) constrained conjugate gradients on the pressures.
+
+    ``u = G p`` is updated incrementally, ``u <- scale (u - tau G t)``; the part of a
+    step that is not along ``t`` (projections onto ``p >= 0``, overlap fixes) is
+    accumulated in ``D`` and folded in by one exact ``u = G p`` every ``lazy``
+    iterations, immediately when more than ``lazy_frac * N`` nodes changed in one
+    step, and always before convergence is declared (every convergence decision uses
+    an exact ``u``). Measured on the Fig. 1 surface at 1024^2: 296 instead of 367 FFT
+    pairs (221 vs 211 iterations). Deferring large active-set changes stalls the
+    search (seen on a sinusoid), hence the ``lazy_frac`` rule; as a further safeguard,
+    if the residual has not halved for ``5 lazy`` iterations the solver falls back to
+    an exact ``u`` every iteration. Grids below 512^2 always use the exact ``u``.
+    """
     n2 = h.size
     p = np.full(el.shape, p0)
     u = np.zeros(el.shape)
     g = np.empty(el.shape)
     t = np.zeros(el.shape)
+    D = np.zeros(el.shape)
     hist = []
     stamps = []
     tstart = time.perf_counter()
     delta = 0.0
     gold = 1.0
     converged = False
-    exact = True
+    pending = False  # u lacks G D
+    since_exact = 0
     it = 0
+    n_fft = 0
+    lazy_max_changes = max(4, int(lazy_frac * n2))
+    if n2 < 512 * 512:
+        lazy = 1  # FFTs are cheap on small grids: always exact u
     bar = _progress(progress, max_iter, "gfmd_ref ccg")
     res = np.inf
-    while True:
+    best, it_best = np.inf, 0
+
+    def residual():
         nc, gn, comp, pen, _ = kr.pk_gap(u, h, p, g)
         load = abs(p.sum() / n2 - p0) / p0
-        res = max(load, comp / (p0 * h_scale), pen / h_scale)
-        if res < tol and not exact:
+        return gn, max(load, comp / (p0 * h_scale), pen / h_scale)
+
+    while True:
+        gn, res = residual()
+        if res < tol and (pending or since_exact > 0):
             u = el.apply(el.G, p)
-            exact = True
-            nc, gn, comp, pen, _ = kr.pk_gap(u, h, p, g)
-            res = max(load, comp / (p0 * h_scale), pen / h_scale)
+            n_fft += 1
+            D[...] = 0.0
+            pending = False
+            since_exact = 0
+            gn, res = residual()
         hist.append(res)
         stamps.append((it, time.perf_counter() - tstart))
         if bar is not None and it % 5 == 0:
@@ -169,21 +195,33 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, refresh=50):
             break
         if it >= max_iter:
             break
+        if res < 0.5 * best:
+            best, it_best = res, it
+        elif lazy > 1 and it - it_best > 5 * lazy:
+            lazy = 1  # stagnation safeguard: fall back to exact u every iteration
+            lazy_max_changes = 0
+            delta = 0.0  # and restart the conjugate directions
         beta = delta * gn / gold
         kr.pk_direction(g, p, t, beta)
         gold = gn
         r = el.apply(el.G, t)
+        n_fft += 1
         num, den = kr.pk_tau(g, t, r, p)
         tau = num / den if den != 0 else 0.0
-        nproj, nol, scale = kr.pk_update(p, t, g, tau, p0)
+        nproj, nol, scale = kr.pk_update_lazy(p, t, g, tau, p0, D)
         delta = 0.0 if nol > 0 else 1.0
         it += 1
-        if nproj == 0 and nol == 0 and it % refresh != 0:
-            kr.axpy_scale(u, r, tau, scale)
-            exact = False
-        else:
+        kr.axpy_scale(u, r, tau, scale)
+        since_exact += 1
+        if nproj or nol:
+            pending = True
+        big = nproj + nol > lazy_max_changes
+        if (pending and (it % lazy == 0 or big)) or since_exact >= refresh:
             u = el.apply(el.G, p)
-            exact = True
+            n_fft += 1
+            D[...] = 0.0
+            pending = False
+            since_exact = 0
         if bar is not None:
             bar.update(1)
     if bar is not None:
@@ -201,7 +239,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, refresh=50):
         iterations=it,
         residual=res,
         history=np.asarray(hist),
-        info=dict(h_scale=h_scale, history_stamps=np.asarray(stamps)),
+        info=dict(h_scale=h_scale, fft_pairs=n_fft, history_stamps=np.asarray(stamps)),
     )
 
 
