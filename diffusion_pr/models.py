@@ -87,7 +87,8 @@ class MuserCutoff:
 
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         p = np.asarray(p, dtype=float)
-        below = 1.0 - np.cos(np.pi * p / self.p_c)
+        # 1 - cos(x) = 2 sin^2(x/2): no cancellation for small x (1 - cos underflows to 0 below x ~ 1e-8)
+        below = 2.0 * np.sin(0.5 * np.pi * p / self.p_c) ** 2
         return np.where(p < 0.0, 0.0, np.where(p < self.p_c, below, 1.0))
 
 
@@ -113,7 +114,7 @@ class RaisedCosineCutoff:
 
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         x = np.clip(np.asarray(p, dtype=float) / self.p_c, 0.0, 1.0)
-        return 0.5 * (1.0 - np.cos(np.pi * x))
+        return np.sin(0.5 * np.pi * x) ** 2  # = (1 - cos(pi x))/2 without cancellation near 0
 
 
 @dataclass(frozen=True)
@@ -274,3 +275,35 @@ class PressureFactor:
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         p = np.asarray(p, dtype=float)
         return np.asarray(self.cutoff(p), dtype=float) * np.asarray(self.tail(p), dtype=float)
+
+
+@dataclass(frozen=True)
+class ProportionalDiffusivity:
+    """Pure linear pressure factor ``f(p) = p / p_1`` (0 for ``p <= 0``).
+
+    The diffusivity ``D ∝ p`` of the paper's exponential-tail argument taken
+    literally down to ``p = 0``.  From ``delta(p - p0)`` the exact solution is
+    Feller's (W. Feller, Ann. Math. 54, 173 (1951)): see
+    :func:`diffusion_pr.closed_forms.feller_density` with ``slope = 1/p_1``.
+    ``p = 0`` is an exit boundary: mass ``exp(-p0 p_1 / tau)`` is absorbed.
+
+    Parameters
+    ----------
+    p_1 : float
+        Pressure (units of pressure), > 0, at which ``f = 1``.
+    """
+
+    p_1: float
+    continuity: int = 0  # continuous, kink at p = 0
+    absorbing: bool = True
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "p_1", _check_positive("p_1", self.p_1))
+
+    @property
+    def slope(self) -> float:
+        """``1 / p_1`` (1 / pressure)."""
+        return 1.0 / self.p_1
+
+    def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
+        return np.maximum(np.asarray(p, dtype=float), 0.0) / self.p_1

@@ -14,6 +14,7 @@ from typing import Callable, Dict, Tuple
 # name -> (module, function, pip extra that provides its dependency or None)
 _REGISTRY: Dict[str, Tuple[str, str, str | None]] = {
     "native": ("diffusion_pr.solvers.native", "solve", None),
+    "closed_form": ("diffusion_pr.solvers.closed_form", "solve", None),
     "pypde": ("diffusion_pr.solvers.pypde_backend", "solve", "pypde"),
     "fipy": ("diffusion_pr.solvers.fipy_backend", "solve", "fipy"),
 }

@@ -106,6 +106,46 @@ def is_absorbing(problem: FokkerPlanckProblem) -> bool:
     return bool(np.log(f2 / f1) / np.log(10.0) < 1.5)
 
 
+def wall_floor(problem: FokkerPlanckProblem) -> float:
+    """Pressure below which probability is treated as the non-contact peak.
+
+    For a non-absorbing pressure factor (``f ~ A p^k`` with ``k >= 2`` at the
+    wall, e.g. the seed cutoff and the C1/C2 switches) no mass reaches
+    ``p = 0`` in finite ``tau``, but it creeps towards it: for ``k = 2``,
+    ``ln p`` drifts down by ``A tau`` (geometric Brownian motion), for
+    ``k > 2`` ``p`` falls like ``(A tau)^(-1/(k-2))``.  The grid resolves this
+    creeping peak logarithmically down to the returned floor::
+
+        p_floor = max(FLOOR_REL * p_ref, p_ref * exp(-(A tau + 8 sqrt(2 A tau) + 10)))   (k ~ 2)
+        p_floor = max(FLOOR_REL * p_ref, 1e-3 (A tau_end)^(-1/(k-2)))                     (k > 2)
+
+    with ``p_ref = min(p0, final width, breakpoints)`` and ``A``, ``k`` from
+    two probes of ``f`` at ``1e-4`` and ``1e-3 p_ref``.  Mass that goes below
+    the floor drains into ``zero_weight`` through the first cell (``f P = 0``
+    at ``p = 0``): physically it lies below ``FLOOR_REL`` (1e-12) times the
+    cutoff scale, a non-contact region in any measurable sense.  Units of
+    pressure.
+    """
+    p0 = problem.mean_pressure
+    bps = [b for b in breakpoints_of(problem) if b > 0.0]
+    p_ref = min([p0, _final_width(problem)] + bps)
+    p1, p2 = 1e-4 * p_ref, 1e-3 * p_ref
+    f1, f2 = problem.f(np.array([p1, p2]), 0.0)
+    floor = FLOOR_REL * p_ref
+    if f1 <= 0.0 or f2 <= 0.0:
+        return floor
+    k = float(np.log(f2 / f1) / np.log(p2 / p1))
+    amp = f2 / p2 ** k
+    tau = problem.tau_end
+    if k < 1.5:
+        return floor
+    if k < 2.5:
+        at = amp * tau * p_ref ** (k - 2.0)
+        expo = at + 8.0 * np.sqrt(2.0 * at) + 10.0
+        return float(max(floor, p_ref * np.exp(-min(expo, 700.0))))
+    return float(max(floor, 1e-3 * (amp * tau) ** (-1.0 / (k - 2.0))))
+
+
 def _final_width(problem: FokkerPlanckProblem) -> float:
     """Width ``sqrt(2 tau_end f(p0))`` of the final distribution (pressure)."""
     p0 = problem.mean_pressure
@@ -118,6 +158,10 @@ def _final_width(problem: FokkerPlanckProblem) -> float:
 
 #: shares of the cells: uniform, logarithmic near 0, broad Gaussian, narrow peak
 GRID_WEIGHTS = (0.05, 0.2, 0.7, 0.05)
+#: the same for non-absorbing ``f`` (smooth cutoffs): more cells in the log share
+GRID_WEIGHTS_NON_ABSORBING = (0.05, 0.3, 0.6, 0.05)
+#: probability below ``FLOOR_REL`` times the cutoff scale counts as non-contact
+FLOOR_REL = 1e-12
 #: width of the broad Gaussian share in final widths (``sqrt(3)``: ``h ~ P^(-1/3)``)
 BROAD_WIDTH = 2.0
 #: width of the narrow share around ``p0`` in final widths
@@ -196,9 +240,11 @@ def domain_edges(
         Equal cells if True.  Otherwise (default) the smooth stretching of
         :func:`_stretch_map`: half the cells uniform, 20 % logarithmically
         graded towards ``p = 0`` down to the scale
-        ``p_s = 0.1 min(p0, width, breakpoints)``, 30 % concentrated within
-        ``max(width/4, ...)`` of ``p0`` where the early peak is narrow
-        (``width = sqrt(2 tau_end f)``, the final spread).
+        ``p_s = 0.1 min(p0, width, breakpoints)`` (non-absorbing ``f``:
+        down to :func:`wall_floor`, with 30 % of the cells), the rest in a
+        broad Gaussian share of width ``2 width`` and a narrow one of width
+        ``width/4`` around ``p0`` (``width = sqrt(2 tau_end f)``, the final
+        spread); see :data:`GRID_WEIGHTS`.
     breakpoints : iterable of float, optional
         Pressures (units of pressure) that must be cell edges, e.g. where
         ``f`` jumps; defaults to :func:`breakpoints_of`.  With the Ito flux
@@ -236,9 +282,13 @@ def domain_edges(
         width = _final_width(problem)
         scales = [p0, width] + bps
         p_s = 0.1 * min(scales)
+        weights = GRID_WEIGHTS
+        if not is_absorbing(problem):
+            p_s = min(p_s, 0.1 * wall_floor(problem))
+            weights = GRID_WEIGHTS_NON_ABSORBING
 
         def fun(p: Array) -> Array:
-            return _stretch_map(np.asarray(p, dtype=float), p_max, p0, p_s, width)
+            return _stretch_map(np.asarray(p, dtype=float), p_max, p0, p_s, width, weights)
 
     # piecewise-linear reparametrization of xi so that breakpoints hit aligned edges
     xi_b = [float(fun(np.array(b))) for b in bps]

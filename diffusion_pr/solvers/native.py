@@ -52,9 +52,12 @@ Accuracy control
         error_estimate = (sum_cells |M_fine - M_coarse| + |z_fine - z_coarse|) / 3
                          + clipped mass + tail mass beyond p_max,
 
-    (for cutoffs where ``f -> 0`` at the wall, the zero weight and the first
-    coarse cell are compared together, because the mass that collapses
-    towards ``p = 0`` there lies below any cell width).  The pair is refined
+    For non-absorbing ``f`` (the smooth cutoffs, ``f ~ p^k``, ``k >= 2``) no
+    mass reaches ``p = 0`` but it creeps exponentially close to it; the grid
+    resolves it logarithmically down to :func:`._common.wall_floor` (1e-12
+    times the cutoff scale or where the creeping peak ends), and the
+    probability below the floor (a coarse edge) is lumped into
+    ``zero_weight`` in both solutions of the pair (``diagnostics["floor_mass"]``).  The pair is refined
     until the estimate is below ``rtol`` or ``max_cells`` is reached, in
     which case ``success=False`` and the message gives the estimate, cells
     and steps.  The fine solution is returned; the Richardson-extrapolated
@@ -72,7 +75,7 @@ from numpy.typing import NDArray
 
 from ..problem import FokkerPlanckProblem
 from ..result import PressureDistribution
-from ._common import cell_centres, domain_edges, is_absorbing, short_time_start, tail_mass_for
+from ._common import cell_centres, domain_edges, is_absorbing, short_time_start, tail_mass_for, wall_floor
 
 Array = NDArray[np.float64]
 
@@ -407,6 +410,7 @@ def solve(
     p_max = problem.upper_bound(tail_mass=tail)
     absorbing = is_absorbing(problem)
     wall_closure = "quadratic" if absorbing else "linear"
+    floor = 0.0 if absorbing else wall_floor(problem)
     fixed = n_cells is not None
     if fixed:
         n_fine = int(n_cells) + int(n_cells) % 2
@@ -422,13 +426,17 @@ def solve(
         fine = _solve_on_grid(problem, edges, k_fine, wall_closure)
         coarse = _solve_on_grid(problem, edges[::2], k_fine // 2, wall_closure)
         h = np.diff(edges)
+        if floor > 0.0:  # lump the creeping peak below the floor into the zero weight
+            k = int(np.searchsorted(edges[::2], floor, side="right")) - 1
+            for sol, n_lump, hh in ((fine, 2 * k, h), (coarse, k, np.diff(edges[::2]))):
+                if n_lump > 0:
+                    sol["floor_mass"] = float(np.sum(sol["density"][:n_lump] * hh[:n_lump]))
+                    sol["zero_weight"] += sol["floor_mass"]
+                    sol["density"][:n_lump] = 0.0
         mf = _coarse_masses(fine["density"], h)
         mc = coarse["density"] * np.diff(edges[::2])
         zf, zc = fine["zero_weight"], coarse["zero_weight"]
-        if absorbing:
-            diff = float(np.sum(np.abs(mf - mc)) + abs(zf - zc))
-        else:
-            diff = float(np.sum(np.abs(mf[1:] - mc[1:])) + abs(mf[0] + zf - mc[0] - zc))
+        diff = float(np.sum(np.abs(mf - mc)) + abs(zf - zc))
         density, clipped = _make_nonnegative(fine["density"], h)
         estimate = diff / 3.0 + clipped + 2.0 * tail
         history.append({"cells": n_fine, "steps": k_fine, "estimate": estimate, "difference": diff,
@@ -464,6 +472,8 @@ def solve(
         "p_max": float(p_max),
         "tail_mass_bound": tail,
         "absorbing": absorbing,
+        "wall_floor": floor,
+        "floor_mass": float(fine.get("floor_mass", 0.0)),
         "clipped_mass": clipped,
         "min_density_during_run": fine["min_density"],
         "mass_error": mass - 1.0,

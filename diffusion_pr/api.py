@@ -1,0 +1,271 @@
+"""Public entry points: :func:`propagate` and :func:`pressure_distribution`.
+
+``propagate`` solves the factorized Fokker-Planck problem of SPEC section 4 in
+the diffusion time ``tau`` (from ``delta(p - p0)`` up to ``tau = V/2``);
+``pressure_distribution`` does the whole scene of Müser, PRL 100, 055504
+(2008), doi:10.1103/PhysRevLett.100.055504: the stress variance from the
+spectrum (with ``G1`` for ``zeta > 0``, Eqs. 9-10), the pressure factor
+``f(p) = c(p) t(p)``, optionally a magnification-dependent drift, and the
+solve.
+
+Backend choice (``backend="auto"``): the closed form wherever it is exact
+(constant ``f`` with the sharp or no cutoff: Persson's mirror Gaussian;
+``f ∝ p``: Feller's solution), otherwise ``"native"``, the fastest backend
+meeting ``rtol`` (the py-pde and FiPy backends are never faster; they are
+available by name for cross-checks).
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, Optional
+
+import numpy as np
+
+from ._validation import InputTypeError, check_nonnegative, check_positive
+from .models import PressureFactor, make_cutoff, make_tail
+from .problem import FokkerPlanckProblem
+from .result import PressureDistribution
+
+__all__ = ["propagate", "pressure_distribution", "solve_problem", "choose_backend", "BACKENDS"]
+
+#: names accepted by ``backend=`` (besides any registered later)
+BACKENDS = ("auto", "closed_form", "native", "pypde", "fipy")
+
+#: magnification nodes for a drift A(p, eta) (log-spaced from 1 to q_max/q_min)
+N_ETA = 513
+
+
+def _check_backend(backend: object) -> str:
+    from .solvers import backend_names
+
+    names = sorted(set(BACKENDS) | set(backend_names()))
+    if not isinstance(backend, str) or backend not in names:
+        raise ValueError(f"backend must be one of {names}; got backend={backend!r}")
+    return backend
+
+
+def _check_rtol(rtol: object) -> float:
+    value = check_positive("rtol", rtol)
+    if np.ndim(value) != 0 or not (1e-14 <= float(value) < 1.0):
+        raise ValueError(f"rtol must be a number in [1e-14, 1); got rtol={rtol!r}")
+    return float(value)
+
+
+def choose_backend(problem: FokkerPlanckProblem) -> str:
+    """The ``"auto"`` choice for ``problem``: ``"closed_form"`` if exact, else ``"native"``."""
+    from .solvers.closed_form import exact_kind
+
+    return "closed_form" if exact_kind(problem) is not None else "native"
+
+
+def solve_problem(problem: FokkerPlanckProblem, *, backend: str = "auto", rtol: float = 1e-6,
+                  **options: Any) -> PressureDistribution:
+    """Solve a :class:`FokkerPlanckProblem` with the named backend.
+
+    Parameters
+    ----------
+    problem : FokkerPlanckProblem
+        The problem in the diffusion time ``tau``.
+    backend : str
+        ``"auto"``, ``"closed_form"``, ``"native"``, ``"pypde"`` or ``"fipy"``.
+    rtol : float
+        Target L1 error of ``Pr`` (dimensionless).
+    **options
+        Passed to the backend's ``solve`` (e.g. ``n_cells`` for finite volumes).
+
+    Raises
+    ------
+    ValueError
+        Unknown backend, bad ``rtol``, or ``closed_form`` asked for a problem
+        without a closed form.
+    BackendUnavailableError
+        The backend's optional dependency is missing (the message names the
+        pip extra).
+    """
+    from .solvers import get_backend
+
+    backend = _check_backend(backend)
+    rtol = _check_rtol(rtol)
+    chosen = choose_backend(problem) if backend == "auto" else backend
+    solver = get_backend(chosen)
+    result = solver(problem, rtol=rtol, **options)
+    result.diagnostics.setdefault("backend_requested", backend)
+    return result
+
+
+def propagate(
+    mean_pressure: float,
+    variance: float,
+    *,
+    diffusivity: Optional[Callable[[np.ndarray], np.ndarray]] = None,
+    drift: Optional[Callable[[np.ndarray, float], np.ndarray]] = None,
+    backend: str = "auto",
+    rtol: float = 1e-6,
+    **options: Any,
+) -> PressureDistribution:
+    """Solve ``dPr/dtau = -d/dp[a Pr] + d^2/dp^2[f(p) Pr]`` from ``delta(p - p0)`` to ``tau = V/2``.
+
+    ``p = 0`` absorbs: what reaches it is ``zero_weight`` (the non-contact
+    peak).  With ``f = 1`` the answer is Persson's mirror Gaussian of
+    variance ``V`` plus ``erfc(p0/sqrt(2V)) delta(p)``.
+
+    Parameters
+    ----------
+    mean_pressure : float
+        ``p0`` (units of pressure), finite and > 0.
+    variance : float
+        ``V`` (pressure squared), finite and > 0: ``f = 1`` without the wall
+        would give a Gaussian of variance ``V``.
+    diffusivity : callable, optional
+        Vectorized ``f(p) >= 0`` (dimensionless) of the pressure; ``None``
+        means 1.  E.g. a :class:`~diffusion_pr.models.PressureFactor` or
+        :class:`~diffusion_pr.models.ProportionalDiffusivity`.
+    drift : callable, optional
+        Vectorized ``a(p, tau)`` (pressure per unit ``tau``).
+    backend : str
+        ``"auto"`` (closed form where exact, else ``"native"``),
+        ``"closed_form"``, ``"native"``, ``"pypde"``, ``"fipy"``.
+    rtol : float
+        Target L1 error (density integral plus zero weight), in [1e-14, 1).
+    **options
+        Backend options (e.g. ``n_cells``, ``max_cells`` for ``"native"``).
+
+    Returns
+    -------
+    PressureDistribution
+        ``p``, ``density``, ``weights``, ``zero_weight``, ``mass``, ``mean``,
+        ``success``, ``error_estimate``, ``wall_time``, ``backend``, ``plot()``.
+
+    Raises
+    ------
+    ValueError
+        Bad ``mean_pressure``/``variance``/``rtol`` (NaN, <= 0), a
+        non-callable ``diffusivity`` or ``drift``, an unknown backend.
+    BackendUnavailableError
+        Optional backend not installed.
+
+    Examples
+    --------
+    >>> r = propagate(1.0, 1.0)            # mirror Gaussian, exact
+    >>> round(r.zero_weight, 6)
+    0.317311
+    """
+    p0 = check_positive("mean_pressure", mean_pressure)
+    var = check_positive("variance", variance)
+    if np.ndim(p0) or np.ndim(var):
+        raise ValueError("mean_pressure and variance must be scalars")
+    if diffusivity is not None and not callable(diffusivity):
+        raise InputTypeError(f"diffusivity must be None or a vectorized callable f(p); got {diffusivity!r} "
+                             f"of type {type(diffusivity).__name__}")
+    if drift is not None and not callable(drift):
+        raise InputTypeError(f"drift must be None or a vectorized callable a(p, tau); got {drift!r} "
+                             f"of type {type(drift).__name__}")
+    _check_backend(backend)
+    _check_rtol(rtol)
+    problem = FokkerPlanckProblem(float(p0), float(var), diffusivity, drift=drift)
+    return solve_problem(problem, backend=backend, rtol=rtol, **options)
+
+
+def pressure_distribution(
+    spectrum: Any,
+    *,
+    E_star: float,
+    mean_pressure: float,
+    zeta: float = 0.0,
+    cutoff: Any = "sharp",
+    p_c: Optional[float] = None,
+    tail: Any = None,
+    p_t: Optional[float] = None,
+    drift: Optional[Callable[[np.ndarray, float], np.ndarray]] = None,
+    backend: str = "auto",
+    rtol: float = 1e-6,
+    **options: Any,
+) -> PressureDistribution:
+    """Pressure distribution of a rough contact (Müser 2008, SPEC sections 3-4).
+
+    Steps: ``V = stress_variance(spectrum, E_star, p0, zeta)`` (Eq. 9 with
+    ``G1`` of Eq. 10 for ``zeta > 0``; Persson's ``V0`` for ``zeta = 0``);
+    ``f(p) = c(p) t(p)`` from ``cutoff``/``tail``; without drift one solve of
+    ``dPr/dtau = d^2(f Pr)/dp^2`` to ``tau = V/2`` (closed form if exact);
+    with a drift ``A(p, eta)`` the problem is mapped onto ``tau`` through
+    ``V(eta)`` (:func:`~diffusion_pr.cumulants.variance_vs_magnification`,
+    ``eta = q/q_min`` from 1 to ``q_max/q_min``) and solved by a
+    finite-volume backend.
+
+    Parameters
+    ----------
+    spectrum : Spectrum
+        :class:`~diffusion_pr.spectra.SelfAffineSpectrum` or
+        :class:`~diffusion_pr.spectra.DiscreteSpectrum` (lengths in the unit
+        of ``zeta``).
+    E_star : float
+        Contact modulus (pressure), > 0.
+    mean_pressure : float
+        ``p0`` (pressure), > 0.
+    zeta : float
+        Range of the exponential repulsion (length), >= 0; 0 = hard wall.
+    cutoff : str or callable
+        ``"sharp"`` (default; exact mirror Gaussian), ``"muser"``/``"seed"``
+        (the paper's printed factor, discontinuous at ``p_c``),
+        ``"raised_cosine"`` (C1), ``"smoothstep"`` (C2), or a callable ``c(p)``.
+    p_c : float, optional
+        Cutoff pressure (pressure) for the smooth cutoffs, > 0.
+    tail : str or callable, optional
+        ``None``/``"gaussian"``, ``"linear"`` (``1 + p/p_t``),
+        ``"max_linear"`` (``max(1, p/p_t)``), or a callable ``t(p)``.
+    p_t : float, optional
+        Tail crossover pressure (pressure), > 0.
+    drift : callable, optional
+        ``A(p, eta)`` (pressure per unit magnification).
+    backend, rtol, **options
+        As in :func:`propagate`.
+
+    Returns
+    -------
+    PressureDistribution
+        With ``diagnostics["stress_variance"]`` (``V``, pressure squared),
+        ``diagnostics["zeta"]`` and, with a drift, the ``eta`` grid used.
+
+    Raises
+    ------
+    ValueError
+        Bad numbers (NaN, out of range) naming the parameter, NaN spectra,
+        ``p_c <= 0``, unknown cutoff/tail/backend names.
+    """
+    from .cumulants import stress_variance, variance_vs_magnification
+
+    E = check_positive("E_star", E_star)
+    p0 = check_positive("mean_pressure", mean_pressure)
+    z = check_nonnegative("zeta", zeta)
+    if np.ndim(z) or np.ndim(p0) or np.ndim(E):
+        raise ValueError("E_star, mean_pressure and zeta must be scalars here "
+                         "(stress_variance is vectorized over zeta; loop for several distributions)")
+    if p_c is not None:
+        check_positive("p_c", p_c)
+    if p_t is not None:
+        check_positive("p_t", p_t)
+    if drift is not None and not callable(drift):
+        raise InputTypeError(f"drift must be None or a vectorized callable A(p, eta); got {type(drift).__name__}")
+    _check_backend(backend)
+    _check_rtol(rtol)
+    factor = PressureFactor(make_cutoff(cutoff, p_c), make_tail(tail, p_t))
+    V = float(stress_variance(spectrum, E_star=E, mean_pressure=p0, zeta=z))
+    if not np.isfinite(V) or V <= 0.0:
+        raise ValueError(f"the stress variance of this spectrum is {V!r}; it must be finite and > 0 "
+                         "(check the spectrum for NaN or zero amplitude)")
+    extra: dict = {"stress_variance": V, "zeta": float(z), "E_star": float(E), "pressure_factor": factor}
+    if drift is None:
+        problem = FokkerPlanckProblem(float(p0), V, factor, label="pressure_distribution")
+    else:
+        eta_max = float(spectrum.q_max / spectrum.q_min)
+        eta = np.geomspace(1.0, eta_max, N_ETA)
+        v_eta = np.asarray(variance_vs_magnification(spectrum, eta, E_star=E, mean_pressure=p0, zeta=z), dtype=float)
+        if not np.all(np.isfinite(v_eta)):
+            raise ValueError("variance_vs_magnification returned non-finite values; check the spectrum")
+        v_eta = np.maximum.accumulate(v_eta)
+        problem = FokkerPlanckProblem.from_magnification(
+            mean_pressure=float(p0), eta=eta, variance_of_eta=v_eta, pressure_factor=factor,
+            drift_of_eta=drift, label="pressure_distribution")
+        extra.update({"eta": eta, "variance_of_eta": v_eta})
+    result = solve_problem(problem, backend=backend, rtol=rtol, **options)
+    result.diagnostics.update(extra)
+    return result
