@@ -154,11 +154,11 @@ class Comparison:
     Attributes
     ----------
     l1 : float
-        ``sum |Pr_theory - Pr_sim| * width`` over the bins plus
-        ``|zero_weight_theory - zero_weight_sim|`` (0 ... 2, dimensionless).
+        ``sum |m_theory - m_sim|`` over the bin masses, the ``delta(p)``
+        peaks counted in the first bin (0 ... 2, dimensionless); see
+        :func:`compare`.
     kolmogorov : float
-        ``max |F_theory - F_sim|`` over the stored quantiles (or bin edges),
-        both sides of every jump of the empirical CDF.
+        ``sup |F_theory - F_sim|`` over ``p >= edges[1]`` (dimensionless).
     moments_theory, moments_sim : dict
         ``mean``, ``variance``, ``third_central`` of both (pressure^k).
     contact_fraction_theory, contact_fraction_sim : float
@@ -174,17 +174,36 @@ class Comparison:
 
 
 def compare(theory: Any, hist: SimulatedHistogram) -> Comparison:
-    """Compare a :class:`~diffusion_pr.result.PressureDistribution` with a histogram."""
-    avg = bin_averaged_density(theory, hist.edges)
+    """Compare a :class:`~diffusion_pr.result.PressureDistribution` with a histogram.
+
+    Both distances are taken at the histogram's resolution: the ``delta(p)``
+    peaks (the theory's ``zero_weight`` and the simulation's exactly-zero
+    pressures) are counted in the first bin ``[0, edges[1])``.  A soft wall
+    has pressures of 1e-300 where a hard wall has 0, and a smooth cutoff
+    piles mass up at ``p -> 0+``; neither is distinguishable from ``p = 0``
+    below one bin width, so a comparison that separated them would measure
+    the convention, not the physics.  The contact fractions are reported
+    separately.
+
+    * ``l1 = sum_i |m_theory,i - m_sim,i|`` over bin masses, plus the theory's
+      mass beyond the last edge and the simulation's pressures outside the bins.
+    * ``kolmogorov = sup |F_theory(p) - F_sim(p)|`` over ``p >= edges[1]``,
+      from the stored quantile function when available (both sides of every
+      empirical jump), else at the bin edges.
+    """
+    widths = hist.widths
+    m_theory = bin_averaged_density(theory, hist.edges) * widths
+    m_sim = hist.density * widths
+    m_theory[0] += float(theory.zero_weight)
+    m_sim[0] += float(hist.zero_weight)
     beyond = max(0.0, 1.0 - float(theory.cdf(hist.edges[-1])))
-    l1 = float(np.sum(np.abs(avg - hist.density) * hist.widths))
-    l1 += abs(float(theory.zero_weight) - float(hist.zero_weight)) + beyond
-    l1 += float(hist.moments.get("outside_bins", 0.0))
+    l1 = float(np.sum(np.abs(m_theory - m_sim))) + beyond + float(hist.moments.get("outside_bins", 0.0))
+    p_floor = float(hist.edges[1])
     if hist.quantiles is not None and hist.quantile_levels is not None:
-        ks = _kolmogorov_from_quantiles(theory, hist.quantiles, hist.quantile_levels)
+        ks = _kolmogorov_from_quantiles(theory, hist.quantiles, hist.quantile_levels, p_floor)
     else:
-        f_sim = hist.zero_weight + np.concatenate(([0.0], np.cumsum(hist.density * hist.widths)))
-        ks = float(np.max(np.abs(np.asarray(theory.cdf(hist.edges)) - f_sim)))
+        f_sim = np.cumsum(m_sim)
+        ks = float(np.max(np.abs(np.asarray(theory.cdf(hist.edges[1:])) - f_sim)))
     moments_theory = {
         "mean": theory.mean,
         "variance": theory.moment(2, central=True),
@@ -193,8 +212,8 @@ def compare(theory: Any, hist: SimulatedHistogram) -> Comparison:
     return Comparison(l1, ks, moments_theory, dict(hist.moments), theory.contact_fraction, hist.contact_fraction)
 
 
-def _kolmogorov_from_quantiles(theory: Any, quantiles: Array, levels: Array) -> float:
-    """``sup |F_theory - F_sim|`` from the stored quantile function of the field.
+def _kolmogorov_from_quantiles(theory: Any, quantiles: Array, levels: Array, p_floor: float = 0.0) -> float:
+    """``sup |F_theory - F_sim|`` over ``p >= p_floor`` from the field's quantiles.
 
     At each distinct quantile value ``x`` the empirical CDF jumps from about
     the first to the last level whose quantile is ``x`` (ties: the delta peak
@@ -203,10 +222,16 @@ def _kolmogorov_from_quantiles(theory: Any, quantiles: Array, levels: Array) -> 
     """
     uniq, first = np.unique(quantiles, return_index=True)
     last = np.searchsorted(quantiles, uniq, side="right") - 1
+    keep = uniq >= p_floor
+    uniq, first, last = uniq[keep], first[keep], last[keep]
     f_after = np.asarray(theory.cdf(uniq), dtype=float)
     f_before = f_after - np.where(uniq == 0.0, float(theory.zero_weight), 0.0)
     before = np.maximum(first - 1, 0)
-    return float(max(np.max(np.abs(f_after - levels[last])), np.max(np.abs(f_before - levels[before]))))
+    k = int(np.searchsorted(quantiles, p_floor, side="right")) - 1
+    d_floor = abs(float(theory.cdf(p_floor)) - (float(levels[k]) if k >= 0 else 0.0))
+    if uniq.size == 0:
+        return d_floor
+    return float(max(d_floor, np.max(np.abs(f_after - levels[last])), np.max(np.abs(f_before - levels[before]))))
 
 
 def log_density_curvature(p: ArrayLike, density: ArrayLike, *, p_lo: float, p_hi: float,
