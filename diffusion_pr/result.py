@@ -98,16 +98,39 @@ class PressureDistribution:
         return np.interp(np.asarray(p, dtype=float), self.p, self.density, left=0.0, right=0.0)
 
     def cdf(self, p: Any) -> Array:
-        """Cumulative probability ``P(pressure <= p)`` including the delta at 0."""
-        if self.edges is not None:
-            nodes = self.edges
-            cum = np.concatenate(([0.0], np.cumsum(self.weights * self.density)))
-        else:
-            nodes = self.p
-            cum = np.cumsum(self.weights * self.density)
+        """Cumulative probability ``P(pressure <= p)`` including the delta at 0.
+
+        Finite-volume results integrate the cell averages exactly (piecewise
+        constant within a cell).  Point-wise results (closed forms on
+        quadrature nodes) integrate a shape-preserving cubic (PCHIP)
+        interpolant of the density, so bins narrower than the node spacing are
+        still integrated accurately; the segment ``[0, p[0]]`` is taken as
+        linear from ``density[0]`` at ``p[0]`` down to ``p = 0`` when the
+        density vanishes there, constant otherwise.
+        """
         p = np.asarray(p, dtype=float)
-        out = np.interp(p, nodes, cum, left=0.0, right=cum[-1])
+        if self.edges is not None:
+            cum = np.concatenate(([0.0], np.cumsum(self.weights * self.density)))
+            out = np.interp(p, self.edges, cum, left=0.0, right=cum[-1])
+        else:
+            out = self._pointwise_cdf(p)
         return np.where(p >= 0.0, out + self.zero_weight, 0.0)
+
+    def _pointwise_cdf(self, p: Array) -> Array:
+        from scipy.interpolate import PchipInterpolator
+
+        nodes, dens = self.p, self.density
+        if nodes.size < 2:
+            return np.zeros_like(p)
+        anti = PchipInterpolator(nodes, dens, extrapolate=False).antiderivative()
+        head = 0.5 * dens[0] * nodes[0]  # mass on [0, p[0]] (linear ramp from 0)
+        total = head + float(anti(nodes[-1]))
+        inside = head + np.nan_to_num(anti(np.clip(p, nodes[0], nodes[-1])))
+        ramp = 0.5 * dens[0] * np.clip(p, 0.0, nodes[0]) ** 2 / max(nodes[0], 1e-300)
+        out = np.where(p < nodes[0], ramp, inside)
+        # renormalize to the quadrature's own mass so cdf(inf) + zero_weight == mass
+        quad_mass = float(np.sum(self.weights * self.density))
+        return out * (quad_mass / total if total > 0 else 1.0)
 
     def plot(self, ax: Any = None, *, log: bool = True, **kwargs: Any) -> Any:
         """Plot the continuous density against ``p``; see :func:`diffusion_pr.plotting.plot_distribution`."""
