@@ -37,6 +37,8 @@ __all__ = [
     "is_absorbing",
     "tail_mass_for",
     "cell_centres",
+    "adapted_edges",
+    "wall_floor",
 ]
 
 #: width of the short-time Gaussian in units of the local cell width at ``p0``
@@ -290,30 +292,116 @@ def domain_edges(
         def fun(p: Array) -> Array:
             return _stretch_map(np.asarray(p, dtype=float), p_max, p0, p_s, width, weights)
 
-    # piecewise-linear reparametrization of xi so that breakpoints hit aligned edges
     xi_b = [float(fun(np.array(b))) for b in bps]
+    targets_x, snaps = _aligned_targets(xi_b, n_cells, align)
+    edges = _invert(targets_x[1:-1], fun, p_max, 0.1 * p_s)
+    edges = np.concatenate(([0.0], edges, [p_max]))
+    return _finish_edges(edges, snaps, bps, p_max)
+
+
+def _aligned_targets(xi_b: list, n_cells: int, align: int) -> Tuple[Array, list]:
+    """Map values of the edges so that breakpoints land on edges with index % align == 0.
+
+    ``xi_b``: the map value of each breakpoint.  Returns the ``n_cells + 1``
+    map values of the edges (a piecewise-linear reparametrization of a
+    uniform grid, cell widths change by ``1 + O(1/n_cells)``) and a list of
+    ``(edge index, breakpoint number)`` to set exactly afterwards.
+    """
     step = align / n_cells if n_cells % align == 0 else 1.0 / n_cells
-    nodes_x, nodes_t = [0.0], [0.0]
-    for xb in xi_b:
+    nodes_x, nodes_t, snaps = [0.0], [0.0], []
+    for j, xb in enumerate(xi_b):
         t = round(xb / step) * step
         if t <= nodes_t[-1] or t >= 1.0 or xb <= nodes_x[-1]:
             continue  # two breakpoints in one coarse cell: keep the first only
         nodes_x.append(xb)
         nodes_t.append(t)
+        snaps.append((int(round(t * n_cells)), j))
     nodes_x.append(1.0)
     nodes_t.append(1.0)
     targets_t = np.linspace(0.0, 1.0, n_cells + 1)
-    targets_x = np.interp(targets_t, nodes_t, nodes_x)
-    edges = _invert(targets_x[1:-1], fun, p_max, 0.1 * p_s)
-    edges = np.concatenate(([0.0], edges, [p_max]))
-    # exact breakpoints on their edges
-    for xb, t in zip(nodes_x[1:-1], nodes_t[1:-1]):
-        k = int(round(t * n_cells))
-        edges[k] = bps[xi_b.index(xb)]
+    return np.interp(targets_t, nodes_t, nodes_x), snaps
+
+
+def _finish_edges(edges: Array, snaps: list, bps: list, p_max: float) -> Array:
+    for k, j in snaps:
+        edges[k] = bps[j]
+    edges[0], edges[-1] = 0.0, p_max
     if np.any(np.diff(edges) <= 0.0):
-        raise ValueError("domain_edges: could not build a strictly increasing grid "
-                         f"(n_cells={n_cells}, p_max={p_max:.6g}, breakpoints={bps})")
+        raise ValueError("could not build a strictly increasing grid "
+                         f"(n_cells={edges.size - 1}, p_max={p_max:.6g}, breakpoints={bps})")
     return edges
+
+
+def adapted_edges(
+    coarse_edges: Array,
+    cell_error: Array,
+    target: float,
+    *,
+    breakpoints: Sequence[float] = (),
+    align: int = 2,
+    min_share: float = 0.15,
+    max_growth: float = 8.0,
+    max_cells: int = 2 ** 17,
+) -> Array:
+    """Fine edges of the next nested pair from the error of the last one.
+
+    Equidistribution for a second-order scheme: the error of a coarse cell of
+    width ``h`` behaves as ``w h^3`` (``w`` from the measured per-cell error
+    ``e_j``: ``w_j = e_j / h_j^3``), so the L1 error ``sum w h^3`` for a
+    given number of cells is smallest with the cell density
+    ``g = 1/h ∝ w^(1/3)``; then ``error = (sum_j e_j^(1/3))^3 / N^2`` and
+    ``N = sqrt((sum e^(1/3))^3 / target)`` coarse cells meet ``target``.  The
+    indicator is spread over neighbouring cells (maximum over 5 cells, then
+    a 5-cell mean of ``log g``) so that zero crossings of the error do not
+    starve cells and the width varies smoothly, and every old cell keeps at
+    least ``min_share`` of a uniform refinement.
+
+    Parameters
+    ----------
+    coarse_edges : ndarray
+        Coarse edges of the last pair (units of pressure).
+    cell_error : ndarray
+        Estimated L1 error of the fine solution in each coarse cell.
+    target : float
+        L1 error wanted from the next fine solution.
+    breakpoints : sequence of float
+        Pressures that must stay edges (with index % ``align`` == 0).
+    align : int
+        As in :func:`domain_edges`.
+    min_share, max_growth, max_cells : float, float, int
+        Floor of the cell density, cap on the growth of the cell count per
+        step, cap on the number of fine cells.
+
+    Returns
+    -------
+    ndarray
+        Edges of the next *fine* grid (its coarse grid is ``[::align]``).
+    """
+    from scipy.ndimage import maximum_filter1d, uniform_filter1d
+
+    edges = np.asarray(coarse_edges, dtype=float)
+    h = np.diff(edges)
+    n_old = h.size
+    e = np.maximum(np.asarray(cell_error, dtype=float), 0.0)
+    e = maximum_filter1d(e, size=5, mode="nearest")
+    e = np.maximum(e, 1e-6 * max(float(e.max()), 1e-300))
+    root = np.cbrt(e)
+    total = float(root.sum())
+    n_new = float(np.sqrt(total ** 3 / max(target, 1e-300)))
+    n_new = float(np.clip(n_new, 0.5 * n_old, max_growth * n_old))
+    n_new = int(min(n_new, max_cells // align))
+    n_new = max(n_new, 8)
+    g = n_new * root / (h * total)
+    g = np.maximum(g, min_share * (n_new / n_old) / h)
+    g = np.exp(uniform_filter1d(np.log(g), size=5, mode="nearest"))
+    cum = np.concatenate(([0.0], np.cumsum(g * h)))
+    cum /= cum[-1]
+    n_fine = align * n_new
+    bps = sorted(float(b) for b in breakpoints if 0.0 < float(b) < edges[-1])
+    xi_b = [float(np.interp(b, edges, cum)) for b in bps]
+    targets, snaps = _aligned_targets(xi_b, n_fine, align)
+    fine = np.interp(targets, cum, edges)
+    return _finish_edges(fine, snaps, bps, float(edges[-1]))
 
 
 def _normal_mass(a: Array, b: Array) -> Array:

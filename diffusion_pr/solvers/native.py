@@ -75,7 +75,8 @@ from numpy.typing import NDArray
 
 from ..problem import FokkerPlanckProblem
 from ..result import PressureDistribution
-from ._common import cell_centres, domain_edges, is_absorbing, short_time_start, tail_mass_for, wall_floor
+from ._common import (adapted_edges, breakpoints_of, cell_centres, domain_edges, is_absorbing, short_time_start,
+                      tail_mass_for, wall_floor)
 
 Array = NDArray[np.float64]
 
@@ -84,6 +85,10 @@ GAMMA = 2.0 - np.sqrt(2.0)
 STEPS_PER_CELL = 0.25
 #: steps grow geometrically in tau + TAU_C * tau_end
 TAU_C = 0.5
+#: the first pair uses this fraction of the cells expected to meet rtol (a pilot for the adaptation)
+PILOT_FRACTION = 1.0
+#: adapted grids aim at this fraction of rtol
+TARGET_FRACTION = 0.5
 
 _JIT: dict = {"compile_time": None}
 
@@ -356,7 +361,7 @@ def _initial_cells(rtol: float) -> int:
     ``N = sqrt(4 / rtol)`` (2000 cells for ``1e-6``) usually meets ``rtol``
     with the first pair.
     """
-    n = int(np.ceil(np.sqrt(4.0 / rtol) / 4.0) * 4)
+    n = int(np.ceil(PILOT_FRACTION * np.sqrt(4.0 / rtol) / 4.0) * 4)
     return int(np.clip(n, 64, 2 ** 16))
 
 
@@ -418,10 +423,12 @@ def solve(
         n_fine = _initial_cells(rtol)
     history = []
     best = None
+    edges = domain_edges(problem, n_fine, rtol=rtol, uniform=uniform, p_max=p_max, align=2)
+    bps = breakpoints_of(problem)
     for _level in range(1 if fixed else max_refinements):
+        n_fine = edges.size - 1
         k_fine = int(n_steps) if n_steps is not None else max(8, int(round(STEPS_PER_CELL * n_fine)))
         k_fine += k_fine % 2
-        edges = domain_edges(problem, n_fine, rtol=rtol, uniform=uniform, p_max=p_max, align=2)
         t_level = time.perf_counter()
         fine = _solve_on_grid(problem, edges, k_fine, wall_closure)
         coarse = _solve_on_grid(problem, edges[::2], k_fine // 2, wall_closure)
@@ -436,22 +443,20 @@ def solve(
         mf = _coarse_masses(fine["density"], h)
         mc = coarse["density"] * np.diff(edges[::2])
         zf, zc = fine["zero_weight"], coarse["zero_weight"]
-        diff = float(np.sum(np.abs(mf - mc)) + abs(zf - zc))
+        cell_diff = np.abs(mf - mc)
+        cell_diff[0] += abs(zf - zc)
+        diff = float(np.sum(cell_diff))
         density, clipped = _make_nonnegative(fine["density"], h)
         estimate = diff / 3.0 + clipped + 2.0 * tail
-        history.append({"cells": n_fine, "steps": k_fine, "estimate": estimate, "difference": diff,
+        history.append({"cells": n_fine, "steps": fine["n_steps"], "estimate": estimate, "difference": diff,
                         "seconds": time.perf_counter() - t_level})
         best = (edges, density, fine, coarse, mf, mc, clipped, estimate)
-        if estimate <= rtol or fixed:
+        if estimate <= rtol or fixed or n_fine >= max_cells:
             break
-        # second order: error ~ N^-2; aim at half of rtol, at least double
-        factor = max(1.25, min(8.0, np.sqrt(estimate / (0.6 * rtol))))
-        nxt = int(2 * np.ceil(n_fine * factor / 2))
-        if nxt > max_cells:
-            if n_fine >= max_cells:
-                break
-            nxt = int(max_cells)
-        n_fine = nxt
+        # equidistribute the measured error (second order), aiming at 60 % of rtol
+        target = max(TARGET_FRACTION * rtol - clipped - 2.0 * tail, 0.1 * rtol)
+        edges = adapted_edges(edges[::2], cell_diff / 3.0, target, breakpoints=bps, align=2,
+                              max_cells=max_cells)
     edges, density, fine, coarse, mf, mc, clipped, estimate = best
     h = np.diff(edges)
     x = cell_centres(edges)
