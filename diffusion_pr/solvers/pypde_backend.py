@@ -31,9 +31,16 @@ with BDF), the robust implicit one (py-pde's own ``implicit`` and
 with the tridiagonal Jacobian pattern passed as ``jac_sparsity``.
 
 The grid is refined (``n``, ``2n``, ... by bisection) until the Richardson
-estimate of the L1 error of the finer solution, ``||P_n - R P_2n||_1 / 3``
-(plus the change of ``zero_weight``), is below ``rtol``; ``R`` averages pairs
-of fine cells.
+estimate of the L1 error of the finer solution, ``d / (r - 1)`` with
+``d = ||P_n - R P_2n||_1 + |zero_weight_n - zero_weight_2n|`` (``R`` sums pairs
+of fine cells) and ``r = 4`` (second order) or the observed ratio of
+successive ``d`` (clipped to ``[sqrt 2, 4]``), is below ``rtol``
+(:func:`level_difference`, :func:`_richardson`).  For cutoffs that vanish at
+``p = 0`` like ``p^2`` or faster the mass below ``p_lump`` and ``zero_weight``
+are compared as one bin and first order is assumed (:func:`lump_pressure`).
+The grid is uniform on ``[0, p_max]``, ``p_max`` from
+``problem.upper_bound`` (extended so that the first breakpoint of ``f``, e.g.
+the seed cutoff's ``p_c``, is a cell edge of every level).
 
 py-pde is imported inside :func:`solve` only; the import time and a one-time
 warm-up solve (py-pde's lazy imports and operator caches) are reported in
