@@ -20,6 +20,11 @@ Three problems (SPEC section 4; issue 3):
     bin (the seed cutoff ``~ p^2`` near 0 sends mass to ever smaller ``p``,
     which no grid resolves; see ``pypde_backend.lump_pressure``).
 
+Backends: ``native``; ``pypde``; ``fipy`` (default: FiPy assembles the
+operator once, banded Crank-Nicolson); ``fipy-loop`` (``assemble_once=False``:
+FiPy's ``eq.solve`` every half step, the pure-FiPy path that non-autonomous
+problems take).
+
 Two kinds of measurement:
 
 1. Work-precision ladders at *fixed* resolution (``n_cells`` given; py-pde
@@ -62,7 +67,10 @@ from diffusion_pr.problem import FokkerPlanckProblem
 from diffusion_pr.solvers import get_backend
 
 RESULTS = Path(__file__).resolve().parent / "results"
-BACKENDS = ("native", "pypde", "fipy")
+BACKENDS = ("native", "pypde", "fipy", "fipy-loop")
+#: variants: benchmark name -> (registry backend, extra keywords)
+VARIANTS = {"native": ("native", {}), "pypde": ("pypde", {}), "fipy": ("fipy", {"assemble_once": True}),
+            "fipy-loop": ("fipy", {"assemble_once": False})}
 FIG1 = {"p0": 0.004, "p_c": 0.0027, "zeta": 0.25, "E_star": 8.0 / 3.0}
 FELLER_P1 = 1.0
 _XG, _WG = leggauss(8)
@@ -168,23 +176,31 @@ def ladders(quick: bool) -> dict[str, dict[str, list[int]]]:
         return {
             "native": {p: [128, 512, 2048] for p in ("mirror", "feller", "fig1")},
             "pypde": {"mirror": [64, 256, 1024], "feller": [256, 1024, 4096], "fig1": [512, 2048]},
-            "fipy": {"mirror": [32, 128], "feller": [64, 256], "fig1": [128, 256]},
+            "fipy": {p: [128, 512, 2048] for p in ("mirror", "feller", "fig1")},
+            "fipy-loop": {"mirror": [32, 128], "feller": [64, 128], "fig1": [64, 128]},
         }
     return {
         "native": {p: [64, 128, 256, 512, 1024, 2048, 4096, 8192] for p in ("mirror", "feller", "fig1")},
-        "pypde": {"mirror": [64, 128, 256, 512, 1024, 2048], "feller": [256, 512, 1024, 2048, 4096],
-                  "fig1": [256, 512, 1024, 2048, 4096]},
-        "fipy": {"mirror": [32, 64, 128, 256, 512], "feller": [64, 128, 256, 512], "fig1": [64, 128, 256, 512]},
+        "pypde": {"mirror": [64, 128, 256, 512, 1024, 2048, 4096], "feller": [256, 512, 1024, 2048, 4096, 8192],
+                  "fig1": [256, 512, 1024, 2048, 4096, 8192]},
+        "fipy": {p: [64, 128, 256, 512, 1024, 2048, 4096, 8192] for p in ("mirror", "feller", "fig1")},
+        "fipy-loop": {"mirror": [32, 64, 128, 256], "feller": [64, 128, 256], "fig1": [64, 128, 256]},
     }
 
 
-def run_fixed(backend: str, problem: FokkerPlanckProblem, n: int) -> Any:
+def run_fixed(variant: str, problem: FokkerPlanckProblem, n: int) -> Any:
+    backend, extra = VARIANTS[variant]
     solve = get_backend(backend)
     if backend == "native":
         return solve(problem, n_cells=n)
     if backend == "pypde":
         return solve(problem, rtol=1e-4, n_cells=n, refine=False)
-    return solve(problem, rtol=1e-4, n_cells=n, n_steps=max(16, n // 2), refine=False)
+    return solve(problem, rtol=1e-4, n_cells=n, n_steps=max(16, n // 2), refine=False, **extra)
+
+
+def run_adaptive(variant: str, problem: FokkerPlanckProblem, pname: str, rtol: float) -> Any:
+    backend, extra = VARIANTS[variant]
+    return get_backend(backend)(problem, rtol=rtol, **extra)
 
 
 def steps_of(res: Any) -> str:
@@ -208,12 +224,17 @@ def timed(fn: Callable[[], Any], repeats: int) -> tuple[Any, float, list[float]]
 
 
 def interp_native_time(native_pts: list[dict], err: float) -> tuple[float, bool]:
-    """Native's warm time at L1 error ``err`` (log-log interpolation; extrapolated at the ends)."""
+    """Native's warm time to reach L1 error ``err``.
+
+    The native points are reduced to their lower envelope (the time of the
+    cheapest native run whose error is ``<= e``, which removes timing noise
+    that makes a finer run look cheaper), then interpolated log-log;
+    extrapolated linearly in log-log beyond the ends (flagged).
+    """
     pts = sorted((p["error"], p["warm_time"]) for p in native_pts if p["error"] > 0)
-    le = np.log([e for e, _ in pts])
-    lt = np.log([t for _, t in pts])
-    order = np.argsort(le)
-    le, lt = le[order], lt[order]
+    errs = np.array([e for e, _ in pts])
+    times = np.minimum.accumulate(np.array([t for _, t in pts]))  # ascending error: cheapest run at least this good
+    le, lt = np.log(errs), np.log(times)
     x = math.log(err)
     if le[0] <= x <= le[-1]:
         return float(np.exp(np.interp(x, le, lt))), False
@@ -231,11 +252,12 @@ import bench_fokker_planck as B
 from diffusion_pr.solvers import get_backend
 t_pkg = time.perf_counter() - t0
 problem = B.make_problem({problem!r})
+backend, extra = B.VARIANTS[{backend!r}]
 t1 = time.perf_counter()
-solve = get_backend({backend!r})
+solve = get_backend(backend)
 t_import = time.perf_counter() - t1
 t2 = time.perf_counter()
-res = solve(problem, rtol={rtol!r})
+res = solve(problem, rtol={rtol!r}, **extra)
 t_call = time.perf_counter() - t2
 d = res.diagnostics
 first = d.get("first_call_time", d.get("jit_compile_time", 0.0))
@@ -316,10 +338,9 @@ def main(argv: list[str] | None = None) -> int:
                 pt["ratio_extrapolated"] = extrap
         # adaptive, user-facing calls
         for b in backends:
-            rtols = [1e-4, 1e-6] if b == "native" else [1e-4]
+            rtols = {"native": [1e-4, 1e-6], "fipy": [1e-4, 1e-6], "pypde": [1e-4, 1e-5]}.get(b, [1e-4])
             for rtol in rtols:
-                kw = {"max_cells": 2**14} if (b == "native" and pname == "fig1") else {}
-                res, med, times = timed(lambda: get_backend(b)(problem, rtol=rtol, **kw), repeats)
+                res, med, times = timed(lambda: run_adaptive(b, problem, pname, rtol), repeats)
                 entry["adaptive"][f"{b}@{rtol:g}"] = {
                     "backend": b, "rtol": rtol, "cells": int(res.p.size), "steps": steps_of(res), "error": meter(res),
                     "error_estimate": res.error_estimate, "success": res.success, "warm_time": med, "times": times,
@@ -362,7 +383,7 @@ def main(argv: list[str] | None = None) -> int:
         cold_problems = problems[:1] if args.quick else problems
         report["cold"] = {}
         for pname in cold_problems:
-            for b in backends:
+            for b in [x for x in backends if x != "fipy-loop" or pname == "mirror"]:
                 runs = [run_cold(b, pname, 1e-4) for _ in range(1 if args.quick else 3)]
                 ok = [r for r in runs if "error" not in r]
                 if not ok:
@@ -382,24 +403,30 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def _rtols(ads: list[dict]) -> str:
+    return ", ".join(format(a["rtol"], ".0e") for a in ads)
+
+
 def plot(report: dict[str, Any]) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    colors = {"native": "C0", "pypde": "C1", "fipy": "C2"}
+    colors = {"native": "C0", "pypde": "C1", "fipy": "C2", "fipy-loop": "C3"}
     for pname, entry in report["problems"].items():
         fig, ax = plt.subplots(figsize=(6.4, 4.6))
         for b, pts in entry["fixed"].items():
             t = [p["warm_time"] for p in pts]
             e = [p["error"] for p in pts]
-            ax.loglog(t, e, "o-", color=colors.get(b), label=f"{b} (fixed grids, warm)")
+            ax.loglog(t, e, "o-", color=colors.get(b), ms=4, label=f"{b} (fixed grids, warm)")
             cold = report.get("cold", {}).get(f"{b}/{pname}")
+            ads = [a for a in entry["adaptive"].values() if a["backend"] == b]
+            if ads:
+                ax.loglog([a["warm_time"] for a in ads], [max(a["error"], 1e-12) for a in ads], "s", color=colors.get(b),
+                          mfc="none", ms=9, label=f"{b} solve(rtol={_rtols(ads)}), warm")
             ad = entry["adaptive"].get(f"{b}@0.0001")
             if ad:
-                ax.loglog([ad["warm_time"]], [ad["error"]], "s", color=colors.get(b), mfc="none", ms=9,
-                          label=f"{b} solve(rtol=1e-4), warm")
                 if cold:
                     tc = cold["median"]["first_call_total"] + cold["median"]["import_time"]
                     ax.loglog([tc], [ad["error"]], "x", color=colors.get(b), ms=9,
