@@ -33,7 +33,7 @@ def _clamp_exp(x):
 @njit(cache=True)
 def pk_gap(u, h, p, g):
     """Gap ``g = u - h - gbar`` with ``gbar`` the mean of ``u - h`` over the contact set
-    ``p > 0``. Returns ``(n_contact, sum_c g^2, max |p g|, max(-g) on p == 0, sum p g)``."""
+    ``p > 0``. Returns ``(n_contact, sum_c g^2, max |p g|, max(-g) on p == 0, sum p)``."""
     uf = u.ravel()
     hf = h.ravel()
     pf = p.ravel()
@@ -42,28 +42,27 @@ def pk_gap(u, h, p, g):
     s = 0.0
     nc = 0
     for i in range(n):
-        d = uf[i] - hf[i]
-        gf[i] = d
         if pf[i] > 0.0:
-            s += d
+            s += uf[i] - hf[i]
             nc += 1
     gbar = s / nc if nc > 0 else 0.0
     gn = 0.0
     comp = 0.0
     pen = 0.0
-    pg = 0.0
+    ps = 0.0
     for i in range(n):
-        gi = gf[i] - gbar
+        gi = uf[i] - hf[i] - gbar
         gf[i] = gi
-        if pf[i] > 0.0:
+        pi = pf[i]
+        ps += pi
+        if pi > 0.0:
             gn += gi * gi
-            a = abs(pf[i] * gi)
-            pg += pf[i] * gi
+            a = abs(pi * gi)
             if a > comp:
                 comp = a
         elif -gi > pen:
             pen = -gi
-    return nc, gn, comp, pen, pg
+    return nc, gn, comp, pen, ps
 
 
 @njit(cache=True)
@@ -81,25 +80,27 @@ def pk_direction(g, p, t, beta):
 
 @njit(cache=True)
 def pk_tau(g, t, r, p):
-    """Step ``tau = sum_c g t / sum_c (r - rbar) t`` (contact set ``p > 0``)."""
+    """Step ``tau = sum_c g t / sum_c (r - rbar) t`` (contact set ``p > 0``), one pass:
+    ``sum_c (r - rbar) t = sum_c r t - rbar sum_c t``. Returns (numerator, denominator)."""
     gf = g.ravel()
     tf = t.ravel()
     rf = r.ravel()
     pf = p.ravel()
-    s = 0.0
+    sr = 0.0
+    st = 0.0
+    srt = 0.0
+    sgt = 0.0
     nc = 0
     for i in range(gf.size):
         if pf[i] > 0.0:
-            s += rf[i]
+            ti = tf[i]
+            sr += rf[i]
+            st += ti
+            srt += rf[i] * ti
+            sgt += gf[i] * ti
             nc += 1
-    rbar = s / nc if nc > 0 else 0.0
-    num = 0.0
-    den = 0.0
-    for i in range(gf.size):
-        if pf[i] > 0.0:
-            num += gf[i] * tf[i]
-            den += (rf[i] - rbar) * tf[i]
-    return num, den
+    rbar = sr / nc if nc > 0 else 0.0
+    return sgt, srt - rbar * st
 
 
 @njit(cache=True)

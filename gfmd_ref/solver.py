@@ -173,8 +173,8 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     best, it_best = np.inf, 0
 
     def residual():
-        nc, gn, comp, pen, _ = kr.pk_gap(u, h, p, g)
-        load = abs(p.sum() / n2 - p0) / p0
+        nc, gn, comp, pen, ps = kr.pk_gap(u, h, p, g)
+        load = abs(ps / n2 - p0) / p0
         return gn, max(load, comp / (p0 * h_scale), pen / h_scale)
 
     while True:
