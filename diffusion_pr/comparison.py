@@ -262,6 +262,51 @@ def log_density_curvature(p: ArrayLike, density: ArrayLike, *, p_lo: float, p_hi
     return float(2.0 * coeffs[0])
 
 
+def tail_curvatures(theory: Any, hist: SimulatedHistogram, *, decades: float = 2.0,
+                    rebin: Optional[int] = None) -> tuple[float, float, tuple[float, float]]:
+    """Curvature of ``ln Pr`` on the high-pressure side, simulation and theory.
+
+    The window starts at the mean pressure ``p0`` (taken from the histogram's
+    moments) and ends where the simulated density has dropped by ``decades``
+    decades below its value at ``p0``: the part of a log plot where the eye
+    judges "the curvature of ln Pr(p)".  Both curvatures come from the same
+    weighted quadratic fit (:func:`log_density_curvature`, weights
+    ``sqrt(simulated bin mass)``) on the same bins, the theory bin-averaged.
+
+    Parameters
+    ----------
+    theory : PressureDistribution
+    hist : SimulatedHistogram
+    decades : float
+        How far (in decades of density) the window reaches down the tail.
+    rebin : int, optional
+        Merge this many bins first; default: the coarsest of 4, 2, 1 that
+        leaves at least 8 bins in the window.
+
+    Returns
+    -------
+    (curvature_sim, curvature_theory, (p_lo, p_hi))
+        Curvatures in 1 / pressure^2; their ratio is the paper's measure.
+    """
+    for factor in ([rebin] if rebin is not None else [4, 2, 1]):
+        h = hist.rebinned(factor) if factor > 1 else hist
+        p0 = float(h.moments.get("mean", np.sum(h.centers * h.density * h.widths)))
+        centres = h.centers
+        start = int(np.searchsorted(centres, p0))
+        ref = h.density[min(start, centres.size - 1)]
+        below = np.nonzero(h.density[start:] < ref * 10.0 ** (-decades))[0]
+        stop = start + (int(below[0]) if below.size else centres.size - start - 1)
+        if stop - start >= 8:
+            break
+    else:
+        raise ValueError(f"fewer than 8 bins between p0={p0!r} and {decades} decades down the tail")
+    p_lo, p_hi = float(centres[start]), float(centres[stop])
+    w = np.sqrt(h.density * h.widths)
+    c_sim = log_density_curvature(centres, h.density, p_lo=p_lo, p_hi=p_hi, weights=w)
+    c_th = log_density_curvature(centres, bin_averaged_density(theory, h.edges), p_lo=p_lo, p_hi=p_hi, weights=w)
+    return c_sim, c_th, (p_lo, p_hi)
+
+
 @dataclass(frozen=True)
 class CutoffFit:
     """Least-squares fit of the cutoff pressure ``p_c``.
