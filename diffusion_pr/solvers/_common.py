@@ -384,6 +384,8 @@ def adapted_edges(
     n_old = h.size
     e = np.maximum(np.asarray(cell_error, dtype=float), 0.0)
     e = maximum_filter1d(e, size=5, mode="nearest")
+    if not np.all(np.isfinite(e)):
+        raise ValueError("adapted_edges: non-finite cell errors")
     e = np.maximum(e, 1e-6 * max(float(e.max()), 1e-300))
     root = np.cbrt(e)
     total = float(root.sum())
@@ -413,36 +415,54 @@ def _normal_mass(a: Array, b: Array) -> Array:
 
 
 def _tilt(mass: Array, x: Array, target_mass: float, target_mean: float) -> Array:
-    """Exponential tilt ``m_i exp(alpha + beta (x_i - xbar))`` with exact mass and mean.
+    """Exponential tilt ``m_i exp(alpha + beta (x_i - xbar)/s)`` with exact mass and mean.
 
-    Newton on the two moment equations; the tilt is tiny (the cell averages
-    are exact integrals, only the point-mean ``sum x_i m_i`` is off by
-    ``O(h^2)``), so 2-4 iterations reach round-off.  Keeps every cell positive.
+    Newton on the two moment equations in standardized units (``s`` the
+    spread of the cells holding mass), steps damped to ``|d beta| <= 0.5``;
+    the tilt is tiny (the cell averages are exact integrals, only the
+    point-mean ``sum x_i m_i`` is off by ``O(h^2)``), so 2-4 iterations reach
+    round-off.  Keeps every cell positive.  If Newton fails (degenerate
+    spreads) the masses are only rescaled to the target mass.
     """
     m = mass.copy()
     tot = m.sum()
-    if tot <= 0.0:
+    if tot <= 0.0 or target_mass <= 0.0:
         return m
-    xbar = target_mean / target_mass if target_mass > 0 else float(np.sum(x * m) / tot)
-    y = x - xbar
-    alpha = np.log(target_mass / tot)
-    beta = 0.0
-    scale = np.sqrt(max(np.sum(y * y * m) / tot, 1e-300))
-    for _ in range(20):
-        w = m * np.exp(alpha + beta * y)
-        s0, s1, s2 = w.sum(), np.sum(w * y), np.sum(w * y * y)
-        r0 = s0 - target_mass
-        r1 = s1 - (target_mean - xbar * target_mass)
+    xbar = target_mean / target_mass
+    mu = float(np.sum(x * m) / tot)
+    spread = float(np.sqrt(max(np.sum((x - mu) ** 2 * m) / tot, 0.0)))
+    if not spread > 0.0:
+        return m * (target_mass / tot)
+    y = (x - xbar) / spread
+    live = m > 0.0
+    m, y_l = m[live], y[live]
+    goal1 = 0.0  # mean of y under the target: (target_mean - xbar * target_mass) / spread = 0
+    alpha, beta = np.log(target_mass / tot), 0.0
+    ok = False
+    for _ in range(30):
+        w = m * np.exp(alpha + beta * y_l)
+        s0, s1, s2 = w.sum(), np.sum(w * y_l), np.sum(w * y_l * y_l)
+        r0, r1 = s0 - target_mass, s1 - goal1
         det = s0 * s2 - s1 * s1
-        if det <= 0.0:
+        if not np.isfinite(det) or det <= 0.0:
             break
         d_alpha = (s2 * r0 - s1 * r1) / det
         d_beta = (s0 * r1 - s1 * r0) / det
+        if abs(d_beta) > 0.5:
+            scale = 0.5 / abs(d_beta)
+            d_alpha, d_beta = d_alpha * scale, d_beta * scale
         alpha -= d_alpha
         beta -= d_beta
-        if abs(d_alpha) < 1e-15 and abs(d_beta) * scale < 1e-15:
+        if abs(d_alpha) < 1e-15 and abs(d_beta) < 1e-15:
+            ok = True
             break
-    return m * np.exp(alpha + beta * y)
+        ok = abs(r0) <= 1e-15 * target_mass and abs(r1) <= 1e-15 * target_mass
+    out = np.zeros_like(mass)
+    if ok or (np.isfinite(alpha) and np.isfinite(beta) and abs(beta) < 10.0):
+        out[live] = m * np.exp(alpha + beta * y_l)
+        if np.all(np.isfinite(out)):
+            return out
+    return mass * (target_mass / tot)
 
 
 def short_time_start(

@@ -309,12 +309,39 @@ def time_grid(tau0: float, tau_end: float, n_steps: int, tau_c: Optional[float] 
     return np.asarray(out)
 
 
+def drift_time_grid(problem: FokkerPlanckProblem, tau0: float, n_steps: int, p_max: float) -> Array:
+    """Step sizes for a problem with drift: half following :func:`time_grid`, half the drift.
+
+    The nodes are equidistributed in ``mu(tau) = (k(tau)/K + S(tau)/S_end)/2``
+    where ``k(tau)/K`` is the fraction of the :func:`time_grid` steps done and
+    ``S(tau) = integral max_p |a| dtau`` the drift displacement so far (a drift
+    mapped from magnification, ``A/D(eta)``, can be huge at small ``tau``).
+    Units: pressure squared.
+    """
+    base = np.concatenate(([tau0], tau0 + np.cumsum(time_grid(tau0, problem.tau_end, n_steps))))
+    mu1 = np.linspace(0.0, 1.0, base.size)
+    probe = np.linspace(0.0, p_max, 129)[1:]
+    table = np.unique(np.concatenate((base, tau0 + (problem.tau_end - tau0) * np.geomspace(1e-12, 1.0, 257))))
+    amax = np.array([float(np.max(np.abs(problem.a(probe, float(t))))) for t in table])
+    s_cum = np.concatenate(([0.0], np.cumsum(0.5 * (amax[1:] + amax[:-1]) * np.diff(table))))
+    mu = np.interp(table, base, mu1)
+    if s_cum[-1] > 0.0:
+        mu = 0.5 * mu + 0.5 * s_cum / s_cum[-1]
+    nodes = np.interp(np.linspace(0.0, 1.0, int(n_steps) + 1), mu, table)
+    nodes[0], nodes[-1] = tau0, problem.tau_end
+    dts = np.diff(nodes)
+    return dts[dts > 0.0]
+
+
 # ----------------------------------------------------------------------------- one solve
 def _solve_on_grid(problem: FokkerPlanckProblem, edges: Array, n_steps: int, wall: str = "linear") -> dict:
     """Integrate on one grid with about ``n_steps`` TR-BDF2 steps; no refinement."""
     tau0, p, z = short_time_start(problem, edges)
     p = p.copy()
-    dts = time_grid(tau0, problem.tau_end, n_steps)
+    if problem.drift is None:
+        dts = time_grid(tau0, problem.tau_end, n_steps)
+    else:
+        dts = drift_time_grid(problem, tau0, n_steps, float(edges[-1]))
     if problem.autonomous:
         lo, dg, up, w0, w1 = operator_bands(problem, edges, 0.0, wall=wall)
         z, pmin = _run_autonomous(lo, dg, up, w0, w1, p, float(z), dts, GAMMA)
