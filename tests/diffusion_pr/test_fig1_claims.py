@@ -1,0 +1,206 @@
+"""The paper's Fig. 1 claims, measured against the bundled 1024^2 GFMD data.
+
+Every number here was measured on the bundled reference data (two surface
+seeds; see ``docs/fig1.md`` for the full table).  Each test states the
+paper's claim, what we measure, and a margin wide enough for the theory's own
+solver tolerance (``rtol = 1e-5``) yet narrow enough that a regression in the
+variance, the solver, or the comparison metrics would fail it.  Where a claim
+does not reproduce, the test asserts what is true.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import diffusion_pr as dp
+from diffusion_pr.comparison import compare, fit_cutoff_pressure, fit_tail_pressure, tail_curvatures
+from diffusion_pr.fig1 import paper_cutoff_pressure
+from diffusion_pr.reference_data import FIG1_SCENE, case_name, load_reference
+
+E_STAR = FIG1_SCENE["E_star"]
+P0 = FIG1_SCENE["mean_pressure"]
+SEEDS = (1, 2)
+
+
+def _theory(case, cutoff="muser", p_c=None):
+    if case.zeta is None:
+        return dp.pressure_distribution(case.spectrum, E_star=E_STAR, mean_pressure=P0, zeta=0.0, cutoff="sharp")
+    return dp.pressure_distribution(case.spectrum, E_star=E_STAR, mean_pressure=P0, zeta=case.zeta, cutoff=cutoff,
+                                    p_c=paper_cutoff_pressure(case.zeta) if p_c is None else p_c, rtol=1e-5)
+
+
+@pytest.fixture(scope="module")
+def runs():
+    """(zeta, seed) -> (case, theory with the paper's cutoff and p_c, comparison)."""
+    out = {}
+    for seed in SEEDS:
+        for zeta in (None, 0.001, 0.01, 0.1, 0.25, 0.5, 1.0, 2.0, 4.0):
+            case = load_reference(case_name(zeta, seed))
+            theory = _theory(case)
+            out[zeta, seed] = (case, theory, compare(theory, case.histogram))
+    return out
+
+
+def _seed_to_seed_ks(h1, h2) -> float:
+    """Kolmogorov distance between two simulated fields (realization scatter)."""
+    floor = h1.edges[1]
+    x = np.union1d(h1.quantiles, h2.quantiles)
+    x = x[x >= floor]
+    f1 = np.interp(x, h1.quantiles, h1.quantile_levels, left=0.0, right=1.0)
+    f2 = np.interp(x, h2.quantiles, h2.quantile_levels, left=0.0, right=1.0)
+    return float(np.max(np.abs(f1 - f2)))
+
+
+def test_theory_solves_succeeded(runs):
+    for (zeta, seed), (_, theory, _) in runs.items():
+        assert theory.success, (zeta, seed, theory.message)
+        assert theory.mass == pytest.approx(1.0, abs=1e-5)
+        assert theory.mean == pytest.approx(P0, rel=1e-4)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_g1_variance_matches_gfmd_at_large_zeta(runs, seed):
+    """Claim: the second-order cumulant (G1) captures the stress fluctuations.
+
+    Measured sd_sim / sqrt(V_G1) at zeta = 0.25 ... 4: 0.99-1.02 (seed 1),
+    1.07-1.18 (seed 2; the realization's nonlinear terms, which vanish only on
+    average, Eq. 5).  Persson's V0 would be off by a factor 6-60.
+    """
+    for zeta in (0.25, 0.5, 1.0, 2.0, 4.0):
+        case, _, cmp = runs[zeta, seed]
+        sd_sim = np.sqrt(cmp.moments_sim["variance"])
+        v_g1 = float(dp.stress_variance(case.spectrum, E_star=E_STAR, mean_pressure=P0, zeta=zeta))
+        v0 = float(dp.stress_variance(case.spectrum, E_star=E_STAR, mean_pressure=P0, zeta=0.0))
+        assert 0.95 < sd_sim / np.sqrt(v_g1) < 1.25, (zeta, sd_sim / np.sqrt(v_g1))
+        assert np.sqrt(v0) / sd_sim > 5.0
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_agreement_degrades_at_intermediate_zeta(runs, seed):
+    """Claim: agreement degrades at intermediate zeta.  Reproduced.
+
+    Kolmogorov distance theory-GFMD (paper's p_c): 0.03 at zeta = 0.001,
+    0.35-0.37 at 0.25, 0.03-0.10 at 4.
+    """
+    ks = {z: runs[z, seed][2].kolmogorov for z in (0.001, 0.1, 0.25, 0.5, 4.0)}
+    assert ks[0.25] > 5.0 * ks[0.001]
+    assert ks[0.25] > 2.5 * ks[4.0]
+    assert max(ks[0.1], ks[0.25], ks[0.5]) == ks[0.25] or ks[0.25] > 0.3
+
+
+def test_large_zeta_agreement_is_within_realization_scatter(runs):
+    """Claim: 'for large zeta theory and simulations agree flawlessly'.
+
+    Measured at zeta = 4: theory-GFMD Kolmogorov distance 0.035 (seed 1) and
+    0.10 (seed 2) against a seed-to-seed GFMD distance of 0.069: within the
+    realization scatter (ratio 0.5 and 1.5).  At zeta -> 0 the theory misses by
+    6-7 times the scatter (0.025-0.033 against 0.004-0.005).
+    """
+    for zeta, lo, hi in ((4.0, 0.0, 2.0), (0.001, 4.0, np.inf), (None, 4.0, np.inf)):
+        scatter = _seed_to_seed_ks(runs[zeta, 1][0].histogram, runs[zeta, 2][0].histogram)
+        for seed in SEEDS:
+            ratio = runs[zeta, seed][2].kolmogorov / scatter
+            assert lo < ratio < hi, (zeta, seed, ratio)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_log_density_curvature_at_small_zeta(runs, seed):
+    """Claim: 'at very small zeta the curvature of ln Pr is off by about 20 %'.
+
+    Measured (p0 down two decades of the GFMD density): Persson against the
+    hard wall 23-27 % (reproduced in the zeta -> 0 limit); the theory at
+    zeta = 0.001 with the paper's p_c = 0.0068: 53-57 % (not 20 %).
+    """
+    c_sim, c_th, _ = tail_curvatures(runs[None, seed][1], runs[None, seed][0].histogram)
+    assert 1.10 < c_th / c_sim < 1.40
+    c_sim, c_th, _ = tail_curvatures(runs[0.001, seed][1], runs[0.001, seed][0].histogram)
+    assert 1.35 < c_th / c_sim < 1.80
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_intermediate_zeta_tails_are_convex(runs, seed):
+    """Why it degrades: at zeta = 0.1-0.25 GFMD's ln Pr is convex (exponential-like
+    tail: the exponential wall maps Gaussian gaps to log-normal-like pressures),
+    which a Gaussian-broadening theory cannot produce."""
+    for zeta in (0.1, 0.25):
+        c_sim, c_th, _ = tail_curvatures(runs[zeta, seed][1], runs[zeta, seed][0].histogram)
+        assert c_sim > 0 > c_th, (zeta, c_sim, c_th)
+
+
+def test_theory_tends_to_persson_as_zeta_vanishes(runs):
+    """Claim: as zeta -> 0 the theory goes to Persson's.  V(zeta)/V0 -> 1:
+    0.993 at 1e-4, 0.929 at 1e-3, 0.55 at 1e-2 (Eq. 10 on the surface's spectrum)."""
+    spectrum = runs[0.001, 1][0].spectrum
+    v = dp.stress_variance(spectrum, E_star=E_STAR, mean_pressure=P0, zeta=np.array([0.0, 1e-4, 1e-3, 1e-2]))
+    ratio = v / v[0]
+    assert np.all(np.diff(ratio) < 0)
+    assert ratio[1] > 0.99 and 0.90 < ratio[2] < 0.95
+    # with the sharp cutoff, zeta = 1e-5 is indistinguishable from Persson
+    persson = runs[None, 1][1]
+    tiny = dp.pressure_distribution(spectrum, E_star=E_STAR, mean_pressure=P0, zeta=1e-5, cutoff="sharp")
+    assert abs(tiny.zero_weight - persson.zero_weight) < 1e-3
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_hard_wall_contact_area_exceeds_persson(runs, seed):
+    """Independent numbers (Hyun et al. 2004; Prodanov et al. 2014): GFMD's
+    contact area exceeds Persson's, kappa ~ 2 against sqrt(8/pi) = 1.60.
+    Measured: a_GFMD / a_Persson = 1.38 (seed 1), 1.32 (seed 2); kappa = 2.19, 2.10."""
+    case, persson, cmp = runs[None, seed]
+    gbar = case.spectrum.rms_slope
+    kappa_sim = cmp.contact_fraction_sim * E_STAR * gbar / P0
+    kappa_persson = cmp.contact_fraction_theory * E_STAR * gbar / P0
+    assert 1.25 < cmp.contact_fraction_sim / cmp.contact_fraction_theory < 1.50
+    assert 1.9 < kappa_sim < 2.4
+    # Persson's small-load limit: a_r -> sqrt(8/pi) p0/(E* gbar); here p0/sqrt(V0)
+    # = 0.097, so the limit holds to O((p0/sqrt V0)^2) ~ 0.3 %
+    assert kappa_persson == pytest.approx(np.sqrt(8 / np.pi), rel=5e-3)
+
+
+def test_fitted_cutoff_pressure_at_zeta_0_01():
+    """p_c fitted by least squares on ln Pr, against the paper's 0.0082.
+
+    Measured (seed 1): Müser's literal cutoff 0.0167 (2.0 x the paper), raised
+    cosine 0.0111; the raised cosine fits best (objective 0.018 against 0.038).
+    The fit more than halves the Kolmogorov distance of the paper's p_c.
+    """
+    case = load_reference(case_name(0.01, 1))
+    hist = case.histogram.rebinned(2)
+    fits = {cut: fit_cutoff_pressure(hist, case.spectrum, E_star=E_STAR, mean_pressure=P0, zeta=0.01, cutoff=cut,
+                                     rtol=1e-4) for cut in ("muser", "raised_cosine")}
+    assert all(f.success for f in fits.values())
+    assert 1.5 < fits["muser"].p_c / 0.0082 < 2.5
+    assert fits["raised_cosine"].objective < fits["muser"].objective
+    ks_paper = compare(_theory(case), case.histogram).kolmogorov
+    ks_fit = compare(_theory(case, p_c=fits["muser"].p_c), case.histogram).kolmogorov
+    assert ks_fit < 0.5 * ks_paper
+
+
+def test_exponential_tail_fits_a_surface_that_is_not_coloured_noise():
+    """Claim: non-Gaussian tails of Pr(p) come from surfaces that are not
+    coloured noise and are rationalized by D growing with p.
+
+    Measured on the skewed surface (hard wall): Persson's Gaussian theory
+    Kolmogorov 0.031, L1 0.083; the linear-tail variant with fitted p_t
+    (about 0.018) 0.003 and 0.010.  On the coloured-noise surface the same fit
+    gains nothing (p_t runs to the bracket edge).
+    """
+    skew = load_reference("fig1-skewed_n1024_hard_s1")
+    hist = skew.histogram.rebinned(4)
+    gauss = compare(_theory(skew), hist)
+    p_t, _ = fit_tail_pressure(hist, skew.spectrum, E_star=E_STAR, mean_pressure=P0, tail="linear", rtol=1e-4)
+    tail = compare(dp.pressure_distribution(skew.spectrum, E_star=E_STAR, mean_pressure=P0, cutoff="sharp",
+                                            tail="linear", p_t=p_t, rtol=1e-4), hist)
+    assert tail.kolmogorov < gauss.kolmogorov / 5.0
+    assert tail.l1 < gauss.l1 / 4.0
+    assert 0.005 < p_t < 0.05
+    # the contact fraction follows: 0.044 against GFMD's 0.047 (Persson: 0.077)
+    assert abs(tail.contact_fraction_theory - tail.contact_fraction_sim) < 0.01
+
+    plain = load_reference(case_name(None, 1))
+    hist = plain.histogram.rebinned(4)
+    gauss = compare(_theory(plain), hist)
+    p_t, _ = fit_tail_pressure(hist, plain.spectrum, E_star=E_STAR, mean_pressure=P0, tail="linear", rtol=1e-4)
+    tail = compare(dp.pressure_distribution(plain.spectrum, E_star=E_STAR, mean_pressure=P0, cutoff="sharp",
+                                            tail="linear", p_t=p_t, rtol=1e-4), hist)
+    assert tail.kolmogorov > 0.8 * gauss.kolmogorov
