@@ -14,7 +14,8 @@ Three problems (SPEC section 4; issue 3):
     second-order cumulant stress variance of the Fig. 1 continuum spectrum at
     ``zeta = 0.25`` (``E* = 8/3``), ``f = MuserCutoff(p_c = 0.0027)`` (jumps
     2 -> 1 at ``p_c``).  No closed form; reference: the finest native run
-    (65536 cells, cached in ``results/fp_fig1_reference.npz``).  Error:
+    (65536 cells, cached in ``results/fp_fig1_reference_65536.npz`` together
+    with a hash of the native/_common source; recomputed when that changes).  Error:
     L1 of the cell masses on the backend's own grid against the reference's
     CDF, with the mass below ``p_lump = p_c/10`` plus ``zero_weight`` as one
     bin (the seed cutoff ``~ p^2`` near 0 sends mass to ever smaller ``p``,
@@ -124,6 +125,19 @@ def lumped_masses(edges_src: np.ndarray, cum_src: np.ndarray, zero: float, edges
     return np.concatenate(([m[:k].sum() + zero], m[k:]))
 
 
+def _source_stamp() -> str:
+    """Hash of the native backend's and ``_common``'s source (invalidates the cached reference)."""
+    import hashlib
+
+    import diffusion_pr.solvers._common as common
+    import diffusion_pr.solvers.native as native
+
+    digest = hashlib.sha256()
+    for mod in (native, common):
+        digest.update(Path(mod.__file__).read_bytes())
+    return digest.hexdigest()[:16]
+
+
 class ErrorMeter:
     """L1 error of a result for one problem (exact or against the fig1 reference)."""
 
@@ -137,18 +151,20 @@ class ErrorMeter:
     def _load_reference(self, quick: bool) -> None:
         n_ref = 2**14 if quick else 2**16
         path = RESULTS / f"fp_fig1_reference_{n_ref}.npz"
+        stamp = _source_stamp()
         if path.exists():
             data = np.load(path)
-            self.ref_edges, self.ref_cum, self.ref_zero = data["edges"], data["cum"], float(data["zero_weight"])
-            self.ref_info = {"cells": n_ref, "cached": str(path.name), "seconds": float(data["seconds"])}
-            return
+            if str(data["stamp"]) == stamp:  # same native/_common source: the cache is valid
+                self.ref_edges, self.ref_cum, self.ref_zero = data["edges"], data["cum"], float(data["zero_weight"])
+                self.ref_info = {"cells": n_ref, "cached": str(path.name), "seconds": float(data["seconds"])}
+                return
         t0 = time.perf_counter()
         ref = get_backend("native")(self.problem, n_cells=n_ref)
         sec = time.perf_counter() - t0
         cum = np.concatenate(([0.0], np.cumsum(ref.density * ref.weights)))
         self.ref_edges, self.ref_cum, self.ref_zero = ref.edges, cum, float(ref.zero_weight)
         RESULTS.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(path, edges=ref.edges, cum=cum, zero_weight=ref.zero_weight, seconds=sec)
+        np.savez_compressed(path, edges=ref.edges, cum=cum, zero_weight=ref.zero_weight, seconds=sec, stamp=stamp)
         self.ref_info = {"cells": n_ref, "cached": None, "seconds": sec}
 
     @property
