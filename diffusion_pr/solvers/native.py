@@ -447,7 +447,8 @@ def solve(
     if fixed:
         n_fine = int(n_cells) + int(n_cells) % 2
     else:
-        n_fine = _initial_cells(rtol)
+        n_fine = min(_initial_cells(rtol), int(max_cells))
+        n_fine -= n_fine % 2
     history = []
     best = None
     edges = domain_edges(problem, n_fine, rtol=rtol, uniform=uniform, p_max=p_max, align=2)
