@@ -278,6 +278,29 @@ def child_scaling(n):
                           import_rss_mb=base / 1024)))
 
 
+def plot_scaling(rows):
+    plt = _plt()
+    fig, axs = plt.subplots(1, 2, figsize=(10, 3.8))
+    ns = np.array([r["n"] for r in rows], dtype=float)
+    axs[0].loglog(ns**2, [r["time_per_iteration"] for r in rows], "o-", label="time / iteration")
+    axs[0].loglog(ns**2, [r["time"] for r in rows], "s-", label="total time")
+    ref = rows[0]["time_per_iteration"] * (ns**2 * np.log(ns**2)) / (ns[0] ** 2 * np.log(ns[0] ** 2))
+    axs[0].loglog(ns**2, ref, "k:", label="N log N")
+    axs[0].set_xlabel("grid points N = n^2")
+    axs[0].set_ylabel("seconds")
+    axs[0].legend(fontsize=8)
+    axs[1].loglog(ns**2, [r["peak_rss_mb"] for r in rows], "o-", label="peak RSS")
+    axs[1].loglog(ns**2, [r["peak_rss_mb"] - r["import_rss_mb"] for r in rows], "s-",
+                  label="peak RSS - RSS after imports (surface + solver)")
+    axs[1].set_xlabel("grid points N = n^2")
+    axs[1].set_ylabel("MB")
+    axs[1].legend(fontsize=8)
+    fig.suptitle("CCG hard wall, Fig. 1 surface, tol 1e-8", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(os.path.join(RESULTS, "gfmd_scaling.png"), dpi=110)
+    plt.close(fig)
+
+
 def part_scaling(sizes, with_tamaas_small=False):
     rows = []
     for n in sizes:
@@ -292,26 +315,7 @@ def part_scaling(sizes, with_tamaas_small=False):
         print(f"  n={n:5d}: {row['iterations']:4d} it, {row['time']:8.2f} s, "
               f"{1e3 * row['time_per_iteration']:8.2f} ms/it, peak RSS {row['peak_rss_mb']:.0f} MB",
               flush=True)
-    plt = _plt()
-    fig, axs = plt.subplots(1, 2, figsize=(10, 3.8))
-    ns = np.array([r["n"] for r in rows], dtype=float)
-    axs[0].loglog(ns**2, [r["time_per_iteration"] for r in rows], "o-", label="time / iteration")
-    axs[0].loglog(ns**2, [r["time"] for r in rows], "s-", label="total time")
-    ref = rows[0]["time_per_iteration"] * (ns**2 * np.log(ns**2)) / (ns[0] ** 2 * np.log(ns[0] ** 2))
-    axs[0].loglog(ns**2, ref, "k:", label="N log N")
-    axs[0].set_xlabel("grid points N = n^2")
-    axs[0].set_ylabel("seconds")
-    axs[0].legend(fontsize=8)
-    axs[1].loglog(ns**2, [r["peak_rss_mb"] for r in rows], "o-", label="peak RSS")
-    axs[1].loglog(ns**2, [r["peak_rss_mb"] - r["baseline_rss_mb"] for r in rows], "s-",
-                  label="peak RSS - baseline")
-    axs[1].set_xlabel("grid points N = n^2")
-    axs[1].set_ylabel("MB")
-    axs[1].legend(fontsize=8)
-    fig.suptitle("CCG hard wall, Fig. 1 surface, tol 1e-8", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(os.path.join(RESULTS, "gfmd_scaling.png"), dpi=110)
-    plt.close(fig)
+    plot_scaling(rows)
     return rows
 
 
@@ -327,7 +331,13 @@ def main(argv=None):
     ap.add_argument("--fire-cap", type=int, default=3000,
                     help="max FIRE iterations for the hard-wall run (default 3000)")
     ap.add_argument("--child-scaling", type=int, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--replot-scaling", default=None, metavar="JSON",
+                    help="redraw gfmd_scaling.png from a saved scaling JSON")
     args = ap.parse_args(argv)
+    if args.replot_scaling:
+        with open(args.replot_scaling) as fh:
+            plot_scaling(json.load(fh)["scaling"])
+        return 0
     if args.child_scaling:
         child_scaling(args.child_scaling)
         return 0
@@ -350,6 +360,8 @@ def main(argv=None):
             sizes.append(4096)
         print(f"== scaling {sizes}")
         results["scaling"] = part_scaling(sizes)
+    if args.part == "scaling":
+        tag = "quick" if args.quick else "sizes"
     path = os.path.join(RESULTS, f"gfmd_{args.part}_{tag}.json")
     with open(path, "w") as fh:
         json.dump(results, fh, indent=1, default=float)
