@@ -248,7 +248,7 @@ def _initial_cells(problem: FokkerPlanckProblem, rtol: float, p_max: float) -> i
 
 
 def _uniform_edges(problem: FokkerPlanckProblem, rtol: float, n_cells: Optional[int],
-                   edges_kwargs: dict) -> tuple[Array, Optional[float], list[float]]:
+                   edges_kwargs: dict, max_cells: int = DEFAULT_MAX_CELLS) -> tuple[Array, Optional[float], list[float]]:
     """Uniform edges on ``[0, p_max]`` with the first breakpoint of ``f`` on an edge.
 
     py-pde grids are uniform, so ``_common.domain_edges(uniform=True)`` would
@@ -256,7 +256,10 @@ def _uniform_edges(problem: FokkerPlanckProblem, rtol: float, n_cells: Optional[
     grid.  Instead the cell width is chosen as ``h = b / m`` (``b`` the first
     breakpoint, ``m`` an integer) and ``p_max`` is extended to ``n h`` (never
     shortened), so ``b`` is an edge of this grid and of every bisection of it.
-    Further breakpoints are left where they fall (listed in ``diagnostics``).
+    Further breakpoints are left where they fall (listed in ``diagnostics``),
+    and so is the first one when four cells below it would need more than
+    ``max_cells / 2`` cells (``p_c`` far below ``sqrt(V)``): then the jump
+    sits inside a cell, a first-order error there.
 
     Returns
     -------
@@ -272,7 +275,7 @@ def _uniform_edges(problem: FokkerPlanckProblem, rtol: float, n_cells: Optional[
         raise ValueError(f"n_cells must be >= 8; got n_cells={n_cells!r}")
     aligned: Optional[float] = None
     p_max = p_max0
-    if bps:
+    if bps and (n_cells is not None or 4.0 * p_max0 / bps[0] <= max_cells / 2):
         aligned = bps[0]
         if n_cells is None:
             n = max(n, int(math.ceil(4.0 * p_max0 / aligned)))  # at least 4 cells below the breakpoint
@@ -287,7 +290,7 @@ def _uniform_edges(problem: FokkerPlanckProblem, rtol: float, n_cells: Optional[
     if aligned is not None:
         k = int(round(aligned / (p_max / n)))
         edges[k] = aligned  # exactly, not up to round-off
-    return edges, aligned, bps[1:]
+    return edges, aligned, (bps[1:] if aligned is not None else bps)
 
 
 def _check_uniform(edges: Array) -> None:
@@ -439,7 +442,7 @@ def solve(
     ode_rtol = float(ode_rtol) if ode_rtol is not None else max(rtol / 50.0, 1e-10)
 
     t_start = time.perf_counter()
-    edges, aligned, unaligned = _uniform_edges(problem, rtol, n_cells, options.get("edges_kwargs", {}))
+    edges, aligned, unaligned = _uniform_edges(problem, rtol, n_cells, options.get("edges_kwargs", {}), max_cells)
 
     p_lump = lump_pressure(problem)
     levels: list[dict[str, Any]] = []
