@@ -27,16 +27,15 @@ def test_tighter_tol_changes_nothing_beyond_tol(fig1_64, inter):
     Bound: the residual is a relative force / complementarity error; converting it to
     a pressure error involves the conditioning of the contact problem (the hard-wall
     complementarity error is a gap error times a stiffness ~ E* q_max / p0 ~ 10^3 in
-    these units). We assert max|dp|/p0 < 1e3 * 1e-5 = 1e-2 and that the change is
-    much smaller than the pressure scale; measured values are ~1e-6 (hard) and 1e-6
-    (exp)."""
+    these units). We assert max|dp|/p0 < 100 * 1e-5 = 1e-3; measured 1.2e-5 (hard) and
+    4.9e-7 (exp, zeta = 0.01)."""
     h, L = fig1_64
     loose = _solve(h, L, inter, tol=1e-5)
     tight = _solve(h, L, inter, tol=1e-10)
     assert loose.converged and tight.converged
     assert tight.residual < 1e-10
     d = np.max(np.abs(loose.pressure - tight.pressure)) / P0
-    assert d < 1e-2
+    assert d < 1e-3
     if isinstance(inter, HardWall):
         assert loose.contact_fraction == pytest.approx(tight.contact_fraction, abs=2 / h.size)
 
@@ -59,42 +58,42 @@ def test_load_conserved(fig1_64, inter, method):
 
 def test_hard_wall_methods_agree(fig1_64):
     """CCG (pressure variables) and FIRE GFMD (displacements) at tol 1e-8 give the same
-    contact set and pressures. Pressure tolerance 1e-4 p0: each solution is within
-    ~1e3 * tol of the exact one (see the tol test), so 1e-4 bounds their distance with
-    margin; measured ~1e-7."""
+    contact set and pressures. Each solution is within ~100 * tol of the exact one (see
+    the tol test), so 1e-6 p0 bounds their distance; measured 1.6e-8 p0 (gap: 1e-9 h_s)."""
     h, L = fig1_64
     a = _solve(h, L, HardWall(), method="ccg", tol=1e-9)
     b = _solve(h, L, HardWall(), method="fire", tol=1e-8)
     assert a.converged and b.converged
     assert a.contact_fraction == b.contact_fraction
-    assert np.max(np.abs(a.pressure - b.pressure)) / P0 < 1e-4
-    assert np.max(np.abs(a.gap - b.gap)) < 1e-6 * h.std()
+    assert np.max(np.abs(a.pressure - b.pressure)) / P0 < 1e-6
+    assert np.max(np.abs(a.gap - b.gap)) < 1e-7 * h.std()
 
 
 @pytest.mark.parametrize("zeta", [1.0, 0.05, 0.002])
 def test_exponential_methods_agree(fig1_64, zeta):
     """Dual Newton-CG and primal FIRE GFMD: the exponential-wall residual is the force
     residual itself, max|sigma - p_el|/p0, so two solutions at 1e-8 agree to a few
-    1e-8 p0 times the conditioning; we assert 1e-5 p0 (measured 1e-8...1e-7)."""
+    1e-8 p0 times the conditioning; we assert 1e-6 p0 (measured 9e-11, 4e-9, 1.4e-8 for
+    zeta = 1, 0.05, 0.002)."""
     h, L = fig1_64
     inter = ExponentialRepulsion(zeta)
     a = _solve(h, L, inter, method="newton", tol=1e-10)
     b = _solve(h, L, inter, method="fire", tol=1e-8, max_iter=200000)
     assert a.converged and b.converged
-    assert np.max(np.abs(a.pressure - b.pressure)) / P0 < 1e-5
+    assert np.max(np.abs(a.pressure - b.pressure)) / P0 < 1e-6
     assert a.contact_fraction == pytest.approx(b.contact_fraction, abs=2 / h.size)
 
 
 def test_exponential_tends_to_hard_wall(fig1_64):
     """zeta -> 0: the exponential wall approaches the hard wall. The gap scale of the
-    softness is ~zeta ln(p/p0) ~ 5 zeta, so at zeta = 1e-4 (1e-3 of h_rms) the
-    pressures differ by a few % of the peak; contact fractions (threshold 0.01 p0)
-    within 10 % relative."""
+    softness is ~zeta ln(p/p0) ~ 5 zeta, so at zeta = 1e-4 (2e-3 of h_rms = 0.05) the
+    pressures differ by O(5 zeta / h_rms) ~ 1 % of the peak (measured 0.67 %: assert
+    3 %); contact fractions (threshold 0.01 p0) measured 3.7 % apart: assert 10 %."""
     h, L = fig1_64
     hw = _solve(h, L, HardWall())
     ex = _solve(h, L, ExponentialRepulsion(1e-4), tol=1e-8)
     assert ex.converged
-    assert np.max(np.abs(ex.pressure - hw.pressure)) < 0.1 * hw.pressure.max()
+    assert np.max(np.abs(ex.pressure - hw.pressure)) < 0.03 * hw.pressure.max()
     assert ex.contact_fraction == pytest.approx(hw.contact_fraction, rel=0.1)
 
 
