@@ -297,7 +297,8 @@ def plot_scaling(rows):
     axs[1].legend(fontsize=8)
     fig.suptitle("CCG hard wall, Fig. 1 surface, tol 1e-8", fontsize=10)
     fig.tight_layout()
-    fig.savefig(os.path.join(RESULTS, "gfmd_scaling.png"), dpi=110)
+    name = "gfmd_scaling.png" if len(rows) > 3 else "gfmd_scaling_quick.png"
+    fig.savefig(os.path.join(RESULTS, name), dpi=110)
     plt.close(fig)
 
 
