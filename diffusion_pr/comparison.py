@@ -307,6 +307,13 @@ def tail_curvatures(theory: Any, hist: SimulatedHistogram, *, decades: float = 2
     return c_sim, c_th, (p_lo, p_hi)
 
 
+#: In least-squares fits on ln Pr the theory density is floored at this fraction
+#: of the histogram's largest density, so that a bin where the theory's
+#: Gaussian tail has underflowed costs about ln(1e6)^2 instead of ln(1e-300)^2
+#: and cannot dominate the objective.
+LOG_FLOOR = 1e-6
+
+
 @dataclass(frozen=True)
 class CutoffFit:
     """Least-squares fit of the cutoff pressure ``p_c``.
@@ -347,7 +354,8 @@ def fit_cutoff_pressure(hist: SimulatedHistogram, spectrum: Any, *, E_star: floa
     the second-order cumulant theory of :func:`diffusion_pr.pressure_distribution`
     for the given spectrum (use the surface's own
     :class:`~diffusion_pr.spectra.DiscreteSpectrum`).  The 1-D minimisation is
-    a bounded Brent search in ``ln p_c``.
+    a bounded Brent search in ``ln p_c``.  With ``log_density`` the theory's
+    density is floored at ``LOG_FLOOR`` times the histogram's maximum.
 
     Parameters
     ----------
@@ -370,6 +378,7 @@ def fit_cutoff_pressure(hist: SimulatedHistogram, spectrum: Any, *, E_star: floa
         raise ValueError(f"bounds must satisfy 0 < lo < hi; got bounds={(lo, hi)!r}")
     mask = hist.density > 0
     width = hist.widths
+    floor = LOG_FLOOR * float(hist.density.max())
     calls = {"n": 0}
 
     def theory_for(p_c: float) -> Any:
@@ -380,7 +389,7 @@ def fit_cutoff_pressure(hist: SimulatedHistogram, spectrum: Any, *, E_star: floa
     def objective(log_pc: float) -> float:
         avg = bin_averaged_density(theory_for(float(np.exp(log_pc))), hist.edges)
         if log_density:
-            y_t = np.log(np.maximum(avg[mask], 1e-300))
+            y_t = np.log(np.maximum(avg[mask], floor))
             y_s = np.log(hist.density[mask])
             w = hist.density[mask] * width[mask]
         else:
@@ -412,13 +421,14 @@ def fit_tail_pressure(hist: SimulatedHistogram, spectrum: Any, *, E_star: float,
     lo, hi = bounds if bounds is not None else (0.05 * mean_pressure, 1e3 * mean_pressure)
     mask = hist.density > 0
     w = hist.density[mask] * hist.widths[mask]
+    floor = LOG_FLOOR * float(hist.density.max())
 
     def objective(log_pt: float) -> float:
         th = pressure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
                                    cutoff=cutoff, p_c=p_c, tail=tail, p_t=float(np.exp(log_pt)),
                                    backend=backend, rtol=rtol)
         avg = bin_averaged_density(th, hist.edges)
-        return float(np.sum(w * (np.log(np.maximum(avg[mask], 1e-300)) - np.log(hist.density[mask])) ** 2))
+        return float(np.sum(w * (np.log(np.maximum(avg[mask], floor)) - np.log(hist.density[mask])) ** 2))
 
     res = minimize_scalar(objective, bounds=(np.log(lo), np.log(hi)), method="bounded", options={"xatol": 1e-3})
     return float(np.exp(res.x)), float(res.fun)
