@@ -23,7 +23,7 @@ def _parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command")
 
     fig = sub.add_parser("fig1", help="GFMD against theory on the paper's Fig. 1 scene (the main job)")
-    fig.add_argument("--n", type=int, default=256, help="grid points per side (paper: 1024; default 256)")
+    fig.add_argument("--n", type=int, default=512, help="grid points per side (paper: 1024; default 512)")
     fig.add_argument("--zetas", type=str, default="0.001,0.01,0.25,1,4",
                      help="comma-separated exponential-wall ranges in grid units of the 1024^2 system")
     fig.add_argument("--no-hard-wall", action="store_true", help="skip the hard-wall / Persson comparison")
