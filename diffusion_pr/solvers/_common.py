@@ -339,7 +339,8 @@ def adapted_edges(
     *,
     breakpoints: Sequence[float] = (),
     align: int = 2,
-    min_share: float = 0.15,
+    min_share: float = 0.25,
+    min_growth: float = 0.5,
     max_growth: float = 8.0,
     max_cells: int = 2 ** 17,
 ) -> Array:
@@ -368,8 +369,9 @@ def adapted_edges(
         Pressures that must stay edges (with index % ``align`` == 0).
     align : int
         As in :func:`domain_edges`.
-    min_share, max_growth, max_cells : float, float, int
-        Floor of the cell density, cap on the growth of the cell count per
+    min_share, min_growth, max_growth, max_cells : float, float, float, int
+        Floor of the cell density (a share of the old grid's, so resolved
+        regions stay resolved), bounds on the growth of the cell count per
         step, cap on the number of fine cells.
 
     Returns
@@ -390,7 +392,7 @@ def adapted_edges(
     root = np.cbrt(e)
     total = float(root.sum())
     n_new = float(np.sqrt(total ** 3 / max(target, 1e-300)))
-    n_new = float(np.clip(n_new, 0.5 * n_old, max_growth * n_old))
+    n_new = float(np.clip(n_new, min_growth * n_old, max_growth * n_old))
     n_new = int(min(n_new, max_cells // align))
     n_new = max(n_new, 8)
     g = n_new * root / (h * total)

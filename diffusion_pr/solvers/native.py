@@ -87,6 +87,8 @@ STEPS_PER_CELL = 0.25
 TAU_C = 0.5
 #: the first pair uses this fraction of the cells expected to meet rtol (a pilot for the adaptation)
 PILOT_FRACTION = 1.0
+#: fewest fine cells of the first pair (a cheap floor: the pilot must see the features)
+MIN_CELLS = 800
 #: adapted grids aim at this fraction of rtol
 TARGET_FRACTION = 0.5
 
@@ -389,7 +391,7 @@ def _initial_cells(rtol: float) -> int:
     with the first pair.
     """
     n = int(np.ceil(PILOT_FRACTION * np.sqrt(4.0 / rtol) / 4.0) * 4)
-    return int(np.clip(n, 64, 2 ** 16))
+    return int(np.clip(n, MIN_CELLS, 2 ** 16))
 
 
 def solve(
@@ -483,8 +485,10 @@ def solve(
             break
         # equidistribute the measured error (second order), aiming at 60 % of rtol
         target = max(TARGET_FRACTION * rtol - clipped - 2.0 * tail, 0.1 * rtol)
+        # if the last adaptation did not cut the estimate by 3, the indicator was unreliable: grow
+        stalled = len(history) > 1 and estimate > history[-2]["estimate"] / 3.0
         edges = adapted_edges(edges[::2], cell_diff / 3.0, target, breakpoints=bps, align=2,
-                              max_cells=max_cells)
+                              max_cells=max_cells, min_growth=2.0 if stalled else 1.25)
     edges, density, fine, coarse, mf, mc, clipped, estimate = best
     h = np.diff(edges)
     x = cell_centres(edges)

@@ -1,0 +1,194 @@
+"""Public API: propagate, pressure_distribution, backend choice, closed-form backend, bad input."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import diffusion_pr as dp
+from diffusion_pr import closed_forms as cf
+from diffusion_pr.solvers import BackendUnavailableError
+
+FIG1 = dict(hurst=0.3, q_min=2 * np.pi / 1024, q_max=2 * np.pi / 32, rms_slope=0.031)
+
+
+def fig1_spectrum():
+    return dp.SelfAffineSpectrum(FIG1["hurst"], FIG1["q_min"], FIG1["q_max"], rms_slope=FIG1["rms_slope"])
+
+
+def test_import_is_light_and_lazy():
+    # a fresh interpreter: importing the package and solving must not load py-pde or FiPy
+    code = ("import sys, diffusion_pr as d; r = d.propagate(1.0, 1.0, diffusivity=d.MuserCutoff(0.5), rtol=1e-3); "
+            "assert r.success; assert 'pde' not in sys.modules and 'fipy' not in sys.modules, 'heavy import'")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
+    for name in ("SelfAffineSpectrum", "DiscreteSpectrum", "stress_variance", "G1", "propagate",
+                 "pressure_distribution", "PressureDistribution", "FokkerPlanckProblem",
+                 "mirror_gaussian_density", "feller_density", "MuserCutoff", "PressureFactor"):
+        assert name in dir(dp) and getattr(dp, name) is not None
+
+
+def test_propagate_default_is_the_exact_mirror_gaussian():
+    r = dp.propagate(1.0, 1.0)
+    assert r.backend == "closed_form" and r.success
+    # Gauss-Legendre panels integrate the closed form to round-off (independent: erfc, moments formula)
+    assert r.zero_weight == pytest.approx(cf.persson_zero_weight(1.0, 1.0), rel=1e-15)
+    assert abs(r.mass - 1.0) < 1e-13
+    assert abs(r.mean - 1.0) < 1e-13
+    m = cf.mirror_gaussian_moments(1.0, 1.0)
+    assert r.moment(2, central=True) == pytest.approx(m.variance, rel=1e-12)
+
+
+@pytest.mark.parametrize("p0, p1", [(1.0, 1.0), (0.01, 1.0), (3.0, 0.1), (1e-3, 1e3)])
+def test_closed_form_feller_moments(p0, p1):
+    r = dp.propagate(p0, 1.0, diffusivity=dp.ProportionalDiffusivity(p1))
+    m = cf.feller_moments(p0, 0.5, 1.0 / p1)
+    assert r.backend == "closed_form"
+    assert abs(r.mass - 1.0) < 1e-12  # quadrature of the exact density
+    assert r.mean == pytest.approx(p0, rel=1e-11)
+    assert r.moment(2, central=True) == pytest.approx(m.variance, rel=1e-10)  # 2 a p0 tau
+    assert r.zero_weight == pytest.approx(m.zero_weight, rel=1e-14)
+
+
+@pytest.mark.parametrize(
+    "kwargs, expected",
+    [
+        ({}, "closed_form"),
+        ({"diffusivity": dp.SharpCutoff()}, "closed_form"),
+        ({"diffusivity": dp.PressureFactor(dp.SharpCutoff(), dp.GaussianTail())}, "closed_form"),
+        ({"diffusivity": lambda p: 2.0 * np.ones_like(p)}, "closed_form"),  # constant: probed
+        ({"diffusivity": lambda p: 3.0 * p}, "closed_form"),  # proportional: probed
+        ({"diffusivity": dp.ProportionalDiffusivity(2.0)}, "closed_form"),
+        ({"diffusivity": dp.MuserCutoff(0.3)}, "native"),
+        ({"diffusivity": dp.PressureFactor(dp.SmoothstepCutoff(0.3), dp.GaussianTail())}, "native"),
+        ({"diffusivity": dp.PressureFactor(dp.SharpCutoff(), dp.LinearTail(1.0))}, "native"),
+        ({"drift": lambda p, t: 0.1 * np.ones_like(p)}, "native"),
+    ],
+)
+def test_auto_backend_choice(kwargs, expected):
+    r = dp.propagate(1.0, 1.0, rtol=1e-3, **kwargs)
+    assert r.backend == expected
+    assert r.diagnostics["backend_requested"] == "auto"
+
+
+def test_constant_diffusivity_closed_form_scales_the_variance():
+    # f = 2 is the mirror Gaussian of variance 2 V
+    r = dp.propagate(1.0, 1.0, diffusivity=lambda p: 2.0 * np.ones_like(p))
+    assert r.zero_weight == pytest.approx(cf.persson_zero_weight(1.0, 2.0), rel=1e-14)
+
+
+def test_native_and_closed_form_agree_through_the_api():
+    exact = dp.propagate(0.7, 1.0)
+    num = dp.propagate(0.7, 1.0, backend="native", rtol=1e-6)
+    q = np.linspace(0.0, 4.0, 41)
+    # CDFs differ by at most the L1 error (<= rtol) plus the interpolation of the FV CDF inside cells
+    assert np.max(np.abs(exact.cdf(q) - num.cdf(q))) < 2e-6
+    assert num.zero_weight == pytest.approx(exact.zero_weight, abs=1e-6)
+
+
+def test_fig1_persson_numbers():
+    # SPEC section 3: sqrt(V0) = 0.041333 and Persson a_r = 0.07709 for the Fig. 1 continuum spectrum
+    r = dp.pressure_distribution(fig1_spectrum(), E_star=8 / 3, mean_pressure=0.004)
+    assert r.backend == "closed_form"
+    assert np.sqrt(r.diagnostics["stress_variance"]) == pytest.approx(0.041333, rel=2e-5)
+    assert r.contact_fraction == pytest.approx(0.07709, abs=1e-5)
+
+
+def test_zeta_uses_G1_variance():
+    s = fig1_spectrum()
+    r = dp.pressure_distribution(s, E_star=8 / 3, mean_pressure=0.004, zeta=0.25)
+    V = dp.stress_variance(s, E_star=8 / 3, mean_pressure=0.004, zeta=0.25)
+    V0 = dp.stress_variance(s, E_star=8 / 3, mean_pressure=0.004)
+    assert r.diagnostics["stress_variance"] == V and V < V0
+    assert r.zero_weight == pytest.approx(cf.persson_zero_weight(0.004, V), rel=1e-13)
+
+
+def test_seed_cutoff_scene_converges():
+    r = dp.pressure_distribution(fig1_spectrum(), E_star=8 / 3, mean_pressure=0.004, zeta=0.0,
+                                 cutoff="muser", p_c=0.0068, rtol=1e-5)
+    assert r.backend == "native" and r.success and r.error_estimate <= 1e-5
+    assert abs(r.mass - 1.0) < 1e-11 and abs(r.mean - 0.004) < 1e-5 * 0.004
+    assert np.all(r.density >= 0.0)
+
+
+def test_zero_drift_in_magnification_equals_no_drift():
+    # the eta -> tau mapping with A = 0 must reproduce the autonomous solve
+    s = fig1_spectrum()
+    kw = dict(E_star=8 / 3, mean_pressure=0.004, cutoff="raised_cosine", p_c=0.003, rtol=1e-5)
+    a = dp.pressure_distribution(s, **kw)
+    b = dp.pressure_distribution(s, drift=lambda p, eta: np.zeros_like(p), **kw)
+    q = np.linspace(0.0, 0.2, 81)
+    assert np.max(np.abs(a.cdf(q) - b.cdf(q))) < 2e-5  # both within rtol of the truth
+
+
+def test_drift_proportional_to_D_shifts_the_mean():
+    # A(p, eta) = c D(eta) maps to a constant a = c in tau: far from the wall the mean moves by c V/2
+    s = fig1_spectrum()
+    c, p0 = 0.5, 0.5  # p0 = 12 sqrt(V0): the wall is irrelevant
+
+    def drift(p, eta):
+        return c * dp.diffusivity_vs_magnification(s, eta, E_star=8 / 3, mean_pressure=p0) * np.ones_like(p)
+
+    r = dp.pressure_distribution(s, E_star=8 / 3, mean_pressure=p0, drift=drift, rtol=1e-5)
+    V = r.diagnostics["stress_variance"]
+    assert r.backend == "native" and r.success
+    # tolerance: the tau(eta) map uses a 513-node gradient of V(eta) (relative error ~1e-4)
+    assert r.mean == pytest.approx(p0 + c * V / 2, rel=1e-5)
+    assert r.moment(2, central=True) == pytest.approx(V, rel=2e-3)
+
+
+@pytest.mark.parametrize(
+    "call, match",
+    [
+        (lambda: dp.propagate(1.0, -1.0), "variance"),
+        (lambda: dp.propagate(1.0, np.nan), "variance"),
+        (lambda: dp.propagate(0.0, 1.0), "mean_pressure"),
+        (lambda: dp.propagate(1.0, 1.0, diffusivity=3.0), "diffusivity"),
+        (lambda: dp.propagate(1.0, 1.0, drift="up"), "drift"),
+        (lambda: dp.propagate(1.0, 1.0, backend="bogus"), "backend"),
+        (lambda: dp.propagate(1.0, 1.0, rtol=0.0), "rtol"),
+        (lambda: dp.pressure_distribution(fig1_spectrum(), E_star=1.0, mean_pressure=0.01,
+                                          cutoff="muser", p_c=0.0), "p_c"),
+        (lambda: dp.pressure_distribution(fig1_spectrum(), E_star=1.0, mean_pressure=0.01,
+                                          cutoff="muser", p_c=-1.0), "p_c"),
+        (lambda: dp.pressure_distribution(fig1_spectrum(), E_star=1.0, mean_pressure=0.01, zeta=-1.0), "zeta"),
+        (lambda: dp.pressure_distribution(fig1_spectrum(), E_star=np.nan, mean_pressure=0.01), "E_star"),
+        (lambda: dp.pressure_distribution(fig1_spectrum(), E_star=1.0, mean_pressure=0.01, cutoff="nope"), "cutoff"),
+        (lambda: dp.SelfAffineSpectrum(0.3, 0.1, 1.0, rms_slope=np.nan), "rms_slope"),
+        (lambda: dp.propagate(1.0, 1.0, diffusivity=dp.MuserCutoff(0.5), backend="closed_form"), "closed_form"),
+    ],
+)
+def test_bad_input_gives_clear_errors(call, match):
+    with pytest.raises(ValueError, match=match):
+        call()
+
+
+def test_nan_spectrum_is_rejected():
+    class NaNSpectrum(dp.Spectrum):
+        q_min, q_max = 1.0, 10.0
+
+        def quadrature(self):
+            return np.array([1.0, 2.0]), np.array([np.nan, 1.0])
+
+        def cumulative(self, weight, q):
+            return np.full(np.shape(q), np.nan)
+
+    with pytest.raises(ValueError, match="variance"):
+        dp.pressure_distribution(NaNSpectrum(), E_star=1.0, mean_pressure=0.01)
+
+
+@pytest.mark.parametrize("name, module, extra", [("pypde", "pde", "pypde"), ("fipy", "fipy", "fipy")])
+def test_missing_optional_backend_names_the_extra(monkeypatch, name, module, extra):
+    monkeypatch.setitem(sys.modules, module, None)  # makes `import module` raise ImportError
+    with pytest.raises(BackendUnavailableError, match=rf"pip install 'diffusion-pr\[{extra}\]'"):
+        dp.propagate(1.0, 1.0, backend=name)
+    assert not dp.is_available(name)
+
+
+def test_plot_returns_axes():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    ax = dp.propagate(1.0, 1.0).plot()
+    assert ax is not None
