@@ -147,6 +147,24 @@ def test_drift_shifts_gaussian_fipy() -> None:
     assert res.mean == pytest.approx(10.0 + 0.5 * prob.tau_end, rel=1e-4)
 
 
+@pytest.mark.parametrize("name", BACKENDS)
+def test_time_dependent_diffusivity(name: str) -> None:
+    """f(p, tau) = 1/2 + tau/tau_end integrates to tau_end: the same mirror Gaussian as f = 1.
+
+    Exercises the non-autonomous paths (py-pde: f evaluated in every
+    right-hand side; FiPy: coefficients at each step's midpoint in the
+    ``eq.solve`` loop).  rtol = 1e-3, tolerance 1e-3.
+    """
+    solve = _solver(name)
+    prob = FokkerPlanckProblem(1.0, 1.0, diffusivity=lambda p, tau: np.full_like(p, 0.5 + tau / 0.5),
+                               time_dependent=True)
+    res = solve(prob, rtol=1e-3)
+    exact = _cell_average(lambda p: mirror_gaussian_density(p, 1.0, 1.0), res.edges)
+    assert res.success, res.message
+    assert _l1(res, exact, persson_zero_weight(1.0, 1.0)) <= 1e-3
+    assert abs(res.mass - 1.0) <= 1e-10
+
+
 # --------------------------------------------------------------------------- convergence order
 @pytest.mark.parametrize("name", BACKENDS)
 def test_observed_second_order(name: str) -> None:
