@@ -48,6 +48,7 @@ warm-up solve (py-pde's lazy imports and operator caches) are reported in
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import time
@@ -483,7 +484,7 @@ def solve(
                 "(order < 1 below ~1e-5, measured on the Fig. 1 scene); the estimate may understate the error "
                 "by up to ~2.5x there -- the fipy or native backends (graded grids) are the reliable choice")
         res.diagnostics["warning"] = note
-        object.__setattr__(res, "message", res.message + "; " + note)
+        res = dataclasses.replace(res, message=res.message + "; " + note)
     res.diagnostics["aligned_breakpoint"] = aligned
     res.diagnostics["unaligned_breakpoints"] = unaligned
     return res
