@@ -68,6 +68,7 @@ from numpy.typing import NDArray
 
 from ..problem import FokkerPlanckProblem
 from ..result import PressureDistribution
+from ._results import finite_volume_result
 from . import BackendUnavailableError
 from .pypde_backend import _richardson, error_metric_name, level_difference, lump_pressure
 
@@ -436,41 +437,6 @@ def _result(problem: FokkerPlanckProblem, best: dict[str, Any], *, rtol: float, 
             wall: float, levels: list, history: list, orders: list, import_time: float, warm_time: float,
             p_lump: float, limits: tuple[int, int]) -> PressureDistribution:
     edges = best["edges"]
-    h = np.diff(edges)
-    p = 0.5 * (edges[:-1] + edges[1:])
-    dens = best["density"]
-    zw = best["zero_weight"]
-    mass = float(np.sum(h * dens) + zw)
-    mean = float(np.sum(h * p * dens))
-    neg = dens < 0.0
-    negative_mass = float(-np.sum(h[neg] * dens[neg]))
-    min_density = float(dens.min())
-    problems: list[str] = []
-    if best["error"] is not None:
-        problems.append(f"FiPy failed on {edges.size - 1} cells / {best['steps']} steps: {best['error']}")
-    if refine and not (estimate <= rtol):
-        problems.append(
-            f"error estimate {estimate:.2e} misses rtol={rtol:.1e} at {edges.size - 1} cells, {best['steps']} steps "
-            f"(max_cells={limits[0]}, max_steps={limits[1]})"
-        )
-    if abs(mass - 1.0) > rtol:
-        problems.append(f"mass {mass:.12g} not conserved to rtol")
-    if problem.drift is None and abs(mean - problem.mean_pressure) > rtol * problem.mean_pressure:
-        problems.append(f"mean {mean:.8g} differs from p0={problem.mean_pressure:.8g} by more than rtol")
-    neg_note = ""
-    if negative_mass > 0.0:
-        neg_note = f"negative densities (min {min_density:.2e}, negative mass {negative_mass:.2e}) kept, not clipped"
-        if negative_mass > rtol:
-            problems.append(neg_note)
-    success = not problems
-    if success:
-        message = (f"converged: L1 error estimate {estimate:.2e} <= rtol {rtol:.1e} on {edges.size - 1} cells, "
-                   f"{best['steps']} CN steps") if refine else \
-            f"solved on {edges.size - 1} cells, {best['steps']} CN steps without refinement (no error estimate)"
-        if neg_note:
-            message += "; " + neg_note
-    else:
-        message = "; ".join(problems + ([neg_note] if neg_note and neg_note not in problems else []))
     diagnostics = {
         "cells": int(edges.size - 1),
         "steps": int(best["steps"]),
@@ -484,28 +450,13 @@ def _result(problem: FokkerPlanckProblem, best: dict[str, Any], *, rtol: float, 
         "zero_weight0": best["zero_weight0"],
         "zero_weight_accounting": "short-time start's weight + time-integrated absorbing-boundary flux",
         "mass_defect": best["mass_defect"],
-        "min_density": min_density,
-        "negative_mass": negative_mass,
-        "mass_error": mass - 1.0,
-        "mean_error": mean - problem.mean_pressure,
         "import_time": import_time,
         "first_call_time": warm_time,
         "time_stepping": "Crank-Nicolson (BE half step + extrapolation), Rannacher start, steps uniform in sqrt(tau)",
         "rannacher_steps": best.get("rannacher_steps"),
         "stepping": best.get("stepping"),
     }
-    return PressureDistribution(
-        p=p,
-        density=dens,
-        weights=h,
-        zero_weight=float(zw),
-        mean_pressure=problem.mean_pressure,
-        variance=problem.variance,
-        backend="fipy",
-        success=bool(success),
-        message=message,
-        error_estimate=float(estimate),
-        wall_time=float(wall),
-        diagnostics=diagnostics,
-        edges=edges,
-    )
+    return finite_volume_result(
+        problem, backend="fipy", edges=edges, density=best["density"], zero_weight=best["zero_weight"], rtol=rtol,
+        estimate=estimate, refine=refine, wall_time=wall, work=f"{edges.size - 1} cells, {best['steps']} CN steps",
+        failure=best["error"], budget=f"max_cells={limits[0]}, max_steps={limits[1]}", diagnostics=diagnostics)

@@ -59,6 +59,7 @@ from numpy.typing import NDArray
 
 from ..problem import FokkerPlanckProblem
 from ..result import PressureDistribution
+from ._results import finite_volume_result
 from . import BackendUnavailableError
 
 Array = NDArray[np.float64]
@@ -494,38 +495,6 @@ def _result(problem: FokkerPlanckProblem, best: dict[str, Any], *, rtol: float, 
             wall: float, levels: list, history: list, import_time: float, warm_time: float, ode_rtol: float,
             method: str, max_cells: int) -> PressureDistribution:
     edges = best["edges"]
-    h = np.diff(edges)
-    p = 0.5 * (edges[:-1] + edges[1:])
-    dens = best["density"]
-    zw = best["zero_weight"]
-    mass = float(np.sum(h * dens) + zw)
-    mean = float(np.sum(h * p * dens))
-    neg = dens < 0.0
-    negative_mass = float(-np.sum(h[neg] * dens[neg]))
-    min_density = float(dens.min()) if dens.size else 0.0
-    problems: list[str] = []
-    if best["error"] is not None:
-        problems.append(f"py-pde/solve_ivp failed on {edges.size - 1} cells: {best['error']}")
-    if refine and not (estimate <= rtol):
-        problems.append(
-            f"error estimate {estimate:.2e} misses rtol={rtol:.1e} at {edges.size - 1} cells "
-            f"(max_cells={max_cells})"
-        )
-    if abs(mass - 1.0) > rtol:
-        problems.append(f"mass {mass:.12g} not conserved to rtol")
-    if problem.drift is None and abs(mean - problem.mean_pressure) > rtol * problem.mean_pressure:
-        problems.append(f"mean {mean:.8g} differs from p0={problem.mean_pressure:.8g} by more than rtol")
-    if negative_mass > 0.0:
-        problems.append(f"negative densities (min {min_density:.2e}, negative mass {negative_mass:.2e}) kept, not clipped")
-    success = not any(m for m in problems if not m.startswith("negative")) and (negative_mass <= rtol)
-    if success:
-        message = f"converged: L1 error estimate {estimate:.2e} <= rtol {rtol:.1e} on {edges.size - 1} cells"
-        if not refine:
-            message = f"solved on {edges.size - 1} cells without refinement (no error estimate)"
-        if negative_mass > 0.0:
-            message += "; " + problems[-1]
-    else:
-        message = "; ".join(problems)
     diagnostics = {
         "cells": int(edges.size - 1),
         "levels": [int(lv["edges"].size - 1) for lv in levels],
@@ -535,28 +504,13 @@ def _result(problem: FokkerPlanckProblem, best: dict[str, Any], *, rtol: float, 
         "tau0": best["tau0"],
         "zero_weight0": best["zero_weight0"],
         "zero_weight_accounting": "1 - remaining continuous mass (plus the short-time start's own weight)",
-        "min_density": min_density,
-        "negative_mass": negative_mass,
-        "mass_error": mass - 1.0,
-        "mean_error": mean - problem.mean_pressure,
         "import_time": import_time,
         "first_call_time": warm_time,
         "ode_rtol": ode_rtol,
         "method": method,
         "solver_info": best["solver_info"],
     }
-    return PressureDistribution(
-        p=p,
-        density=dens,
-        weights=h,
-        zero_weight=float(zw),
-        mean_pressure=problem.mean_pressure,
-        variance=problem.variance,
-        backend="pypde",
-        success=bool(success),
-        message=message,
-        error_estimate=float(estimate),
-        wall_time=float(wall),
-        diagnostics=diagnostics,
-        edges=edges,
-    )
+    return finite_volume_result(
+        problem, backend="pypde", edges=edges, density=best["density"], zero_weight=best["zero_weight"], rtol=rtol,
+        estimate=estimate, refine=refine, wall_time=wall, work=f"{edges.size - 1} cells", failure=best["error"],
+        budget=f"max_cells={max_cells}", diagnostics=diagnostics)
