@@ -53,7 +53,15 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    """Entry point of the ``diffusion-pr`` command."""
+    """Entry point of the ``diffusion-pr`` command (bad input: message, exit code 2)."""
+    try:
+        return _main(argv)
+    except ValueError as exc:
+        print(f"diffusion-pr: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _main(argv: Optional[Sequence[str]] = None) -> int:
     args = _parser().parse_args(argv)
     command = args.command or "fig1"
     if args.command is None:  # bare `diffusion-pr` runs the default scene
