@@ -101,7 +101,7 @@ Array = NDArray[np.float64]
 
 GAMMA = 2.0 - np.sqrt(2.0)
 #: steps per cell of the coarse grid of a pair (tuned on the mirror Gaussian / Feller)
-STEPS_PER_CELL = 0.25
+STEPS_PER_CELL = 0.125
 #: steps grow geometrically in tau + TAU_C * tau_end
 TAU_C = 0.5
 #: the first pair uses this fraction of the cells expected to meet rtol (a pilot for the adaptation)
@@ -544,6 +544,7 @@ def solve(
             k_lump = max(int(np.searchsorted(levels[-1], floor, side="right")) - 1, 0)
             for j, (sol, hh) in enumerate(zip(sols, hs)):
                 _lump_below(sol, hh, k_lump * (2 ** (len(levels) - 1 - j)))
+        floor_edge = float(levels[-1][k_lump])
         fine, mid = sols[0], sols[1]
         mf = _coarse_masses(fine["density"], hs[0])
         mc = mid["density"] * hs[1]
@@ -552,7 +553,7 @@ def solve(
         density, clipped = _make_nonnegative(fine["density"], hs[0])
         estimate = diff / 3.0 + clipped + 2.0 * tail
         entry = {"cells": n_fine, "steps": fine["n_steps"], "estimate": estimate, "difference": diff}
-        cand = {"kind": "fine", "edges": edges, "density": density, "zero_weight": zf, "estimate": estimate,
+        cand = {"kind": "fine", "floor_edge": floor_edge, "edges": edges, "density": density, "zero_weight": zf, "estimate": estimate,
                 "clipped": clipped, "fine": fine, "coarse": mid, "mf": mf, "mc": mc}
         ok = estimate <= rtol
         if not fixed and not ok:
@@ -578,7 +579,7 @@ def solve(
             entry.update({"extrapolated_estimate": est_ext, "extrapolated_mean_defect": mean_defect})
             mean_ok = problem.drift is not None or mean_defect <= rtol
             if est_ext < estimate and mean_ok:
-                cand = {"kind": "extrapolated", "edges": levels[1], "density": dens_ext, "zero_weight": z_hi,
+                cand = {"kind": "extrapolated", "floor_edge": floor_edge, "edges": levels[1], "density": dens_ext, "zero_weight": z_hi,
                         "estimate": est_ext, "clipped": clipped_ext, "fine": fine, "coarse": mid,
                         "mf": mf, "mc": mc}
                 ok = est_ext <= rtol
@@ -627,6 +628,7 @@ def solve(
         "absorbing": absorbing,
         "wall_floor": floor,
         "floor_mass": float(fine.get("floor_mass", 0.0)),
+        "floor_edge": best["floor_edge"],
         "clipped_mass": clipped,
         "min_density_during_run": fine["min_density"],
         "mass_error": mass - 1.0,
