@@ -29,12 +29,9 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.fft as sfft
-
-#: ``workers`` passed to scipy.fft (-1: all cores).
-FFT_WORKERS = -1
 
 from . import _kernels as kr
+from ._fft import fft_pair
 from ._validation import check_heights, check_int, check_positive
 from .interactions import ExponentialRepulsion, HardWall
 
@@ -111,17 +108,11 @@ class _Elastic:
         self.w = w
         # real-space diagonal of G: mean over the full spectrum of 2/(q E*)
         self.g_diag = float(np.sum(w * G)) / (n * n)
-
-    def rfft(self, x):
-        return sfft.rfft2(x, workers=FFT_WORKERS)
-
-    def irfft(self, X):
-        return sfft.irfft2(X, s=self.shape, workers=FFT_WORKERS)
-
-    def apply(self, mult, x):
-        X = sfft.rfft2(x, workers=FFT_WORKERS)
-        X *= mult
-        return sfft.irfft2(X, s=self.shape, workers=FFT_WORKERS, overwrite_x=True)
+        # planned FFTW where available (about 4x faster at 1024^2), else scipy.fft
+        self.fft, self.fft_planning_time = fft_pair(self.shape)
+        self.rfft = self.fft.rfft
+        self.irfft = self.fft.irfft
+        self.apply = self.fft.apply
 
 
 def _progress(progress, total, desc):
@@ -636,5 +627,5 @@ def solve_contact(
         length=length,
         tol=tol,
         contact_threshold=thr,
-        info=out["info"],
+        info={**out["info"], "fft": el.fft.name, "fft_planning_time": el.fft_planning_time},
     )
