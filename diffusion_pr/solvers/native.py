@@ -119,8 +119,7 @@ from numpy.typing import NDArray
 
 from ..problem import FokkerPlanckProblem
 from ..result import PressureDistribution
-from ._common import (adapted_edges, breakpoints_of, cell_centres, domain_edges, is_absorbing, short_time_start,
-                      tail_mass_for, wall_floor)
+from ._common import cell_centres, domain_edges, is_absorbing, short_time_start, tail_mass_for, wall_floor
 
 Array = NDArray[np.float64]
 
