@@ -63,6 +63,32 @@ def get_backend(name: str) -> Callable:
     return getattr(importlib.import_module(module), function)
 
 
+def timed_import(module: str, backend: str, label: str) -> tuple[object, float]:
+    """Import a backend's third-party ``module``; return ``(module, seconds)``.
+
+    The seconds are 0 when it was already imported (so a result can report
+    its import cost separately from its solve time).
+
+    Raises
+    ------
+    BackendUnavailableError
+        When the package is missing; the message names the pip extra.
+    """
+    import sys
+    import time
+
+    cached = sys.modules.get(module) is not None
+    t0 = time.perf_counter()
+    try:
+        mod = importlib.import_module(module)
+    except ImportError as exc:
+        raise BackendUnavailableError(
+            f"backend {backend!r} needs the package {module!r} ({label}), which is not installed; "
+            f"install it with: pip install 'diffusion-pr[{_REGISTRY[backend][2]}]'"
+        ) from exc
+    return mod, (0.0 if cached else time.perf_counter() - t0)
+
+
 def is_available(name: str) -> bool:
     """Whether backend ``name`` can be imported here (imports its dependency)."""
     try:

@@ -59,7 +59,6 @@ for wall-avoiding cutoffs).
 from __future__ import annotations
 
 import math
-import sys
 import time
 from typing import Any, Optional
 
@@ -69,7 +68,7 @@ from numpy.typing import NDArray
 from ..problem import FokkerPlanckProblem
 from ..result import PressureDistribution
 from ._results import finite_volume_result
-from . import BackendUnavailableError
+from . import BackendUnavailableError, timed_import  # noqa: F401 (documented raise)
 from .pypde_backend import _richardson, error_metric_name, level_difference, lump_pressure
 
 Array = NDArray[np.float64]
@@ -84,17 +83,8 @@ _STATE: dict[str, Any] = {"warm": False}
 
 
 def _import_fipy() -> tuple[Any, float]:
-    """Import FiPy; return ``(module, seconds spent importing or 0 if cached)``."""
-    cached = sys.modules.get("fipy") is not None
-    t0 = time.perf_counter()
-    try:
-        import fipy  # noqa: PLC0415 - deliberately lazy (about 1 s)
-    except ImportError as exc:
-        raise BackendUnavailableError(
-            "backend 'fipy' needs the package 'fipy' (FiPy), which is not installed; "
-            "install it with: pip install 'diffusion-pr[fipy]'"
-        ) from exc
-    return fipy, (0.0 if cached else time.perf_counter() - t0)
+    """Import FiPy (lazily, about 1 s); return ``(module, seconds or 0 if cached)``."""
+    return timed_import("fipy", "fipy", "FiPy")
 
 
 def steps_for(rtol: float, n_cells: int) -> int:

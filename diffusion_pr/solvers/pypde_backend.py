@@ -50,7 +50,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import sys
 import time
 from typing import Any, Callable, Optional
 
@@ -60,7 +59,7 @@ from numpy.typing import NDArray
 from ..problem import FokkerPlanckProblem
 from ..result import PressureDistribution
 from ._results import finite_volume_result
-from . import BackendUnavailableError
+from . import BackendUnavailableError, timed_import  # noqa: F401 (documented raise)
 
 Array = NDArray[np.float64]
 
@@ -74,17 +73,8 @@ _STATE: dict[str, Any] = {"pde_class": None, "warm": False}
 
 # ---------------------------------------------------------------------- imports
 def _import_pde() -> tuple[Any, float]:
-    """Import py-pde; return ``(module, seconds spent importing or 0 if cached)``."""
-    cached = sys.modules.get("pde") is not None
-    t0 = time.perf_counter()
-    try:
-        import pde  # noqa: PLC0415 - deliberately lazy (about 1 s)
-    except ImportError as exc:
-        raise BackendUnavailableError(
-            "backend 'pypde' needs the package 'pde' (py-pde), which is not installed; "
-            "install it with: pip install 'diffusion-pr[pypde]'"
-        ) from exc
-    return pde, (0.0 if cached else time.perf_counter() - t0)
+    """Import py-pde (lazily, about 1 s); return ``(module, seconds or 0 if cached)``."""
+    return timed_import("pde", "pypde", "py-pde")
 
 
 def _common() -> tuple[Callable, Callable]:
