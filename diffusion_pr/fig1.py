@@ -99,7 +99,7 @@ def run_fig1(*, n: int = 512, zetas: Sequence[float] = DEFAULT_ZETAS, hard_wall:
     ----------
     n : int
         Grid points per side (the paper: 1024; the default 512 takes about
-        20 s on 2 cores).
+        10 s on 2 cores).
     zetas : sequence of float
         Exponential-wall ranges (units of the paper's grid spacing).
     hard_wall : bool
