@@ -36,14 +36,9 @@ from typing import Callable, Union
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._validation import check_positive
+
 PressureFunction = Callable[[NDArray[np.float64]], NDArray[np.float64]]
-
-
-def _check_positive(name: str, value: float) -> float:
-    value = float(value)
-    if not np.isfinite(value) or value <= 0.0:
-        raise ValueError(f"{name} must be a finite number > 0 (same units as the pressure); got {name}={value!r}")
-    return value
 
 
 @dataclass(frozen=True)
@@ -83,7 +78,7 @@ class MuserCutoff:
     absorbing: bool = False
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "p_c", _check_positive("p_c", self.p_c))
+        object.__setattr__(self, "p_c", check_positive("p_c", self.p_c))
 
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         p = np.asarray(p, dtype=float)
@@ -110,7 +105,7 @@ class RaisedCosineCutoff:
     absorbing: bool = False
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "p_c", _check_positive("p_c", self.p_c))
+        object.__setattr__(self, "p_c", check_positive("p_c", self.p_c))
 
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         x = np.clip(np.asarray(p, dtype=float) / self.p_c, 0.0, 1.0)
@@ -136,7 +131,7 @@ class SmoothstepCutoff:
     absorbing: bool = False
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "p_c", _check_positive("p_c", self.p_c))
+        object.__setattr__(self, "p_c", check_positive("p_c", self.p_c))
 
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         x = np.clip(np.asarray(p, dtype=float) / self.p_c, 0.0, 1.0)
@@ -164,7 +159,7 @@ class LinearTail:
     p_t: float
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "p_t", _check_positive("p_t", self.p_t))
+        object.__setattr__(self, "p_t", check_positive("p_t", self.p_t))
 
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         return 1.0 + np.maximum(np.asarray(p, dtype=float), 0.0) / self.p_t
@@ -183,7 +178,7 @@ class MaxLinearTail:
     p_t: float
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "p_t", _check_positive("p_t", self.p_t))
+        object.__setattr__(self, "p_t", check_positive("p_t", self.p_t))
 
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         return np.maximum(1.0, np.asarray(p, dtype=float) / self.p_t)
@@ -298,7 +293,7 @@ class ProportionalDiffusivity:
     absorbing: bool = True
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "p_1", _check_positive("p_1", self.p_1))
+        object.__setattr__(self, "p_1", check_positive("p_1", self.p_1))
 
     @property
     def slope(self) -> float:

@@ -87,6 +87,26 @@ class ReferenceCase:
         return float(self.provenance["mean_pressure"])
 
 
+def paper_theory(case: ReferenceCase, *, cutoff: str = "muser", p_c: Optional[float] = None,
+                 rtol: float = 1e-5) -> Any:
+    """The theory curve for a bundled case, as the paper draws it.
+
+    Hard wall: Persson's mirror Gaussian (sharp cutoff).  Exponential wall:
+    the second-order cumulant theory with ``G1`` from the case's own
+    spectrum, the given cutoff, and ``p_c`` defaulting to the paper's value
+    (:func:`diffusion_pr.fig1.paper_cutoff_pressure`).
+    """
+    from .api import pressure_distribution
+    from .fig1 import paper_cutoff_pressure
+
+    if case.zeta is None:
+        return pressure_distribution(case.spectrum, E_star=case.E_star, mean_pressure=case.mean_pressure,
+                                     zeta=0.0, cutoff="sharp")
+    return pressure_distribution(case.spectrum, E_star=case.E_star, mean_pressure=case.mean_pressure,
+                                 zeta=case.zeta, cutoff=cutoff,
+                                 p_c=paper_cutoff_pressure(case.zeta) if p_c is None else p_c, rtol=rtol)
+
+
 def available_references(data_dir: Path | str | None = None) -> list[str]:
     """Names of the bundled cases (file stems), sorted."""
     folder = Path(data_dir) if data_dir is not None else DATA_DIR
@@ -120,20 +140,6 @@ def load_reference(name: str, data_dir: Path | str | None = None) -> ReferenceCa
     return ReferenceCase(name, None if zeta is None else float(zeta), hist, spectrum, prov)
 
 
-def _spectrum_shells(heights: np.ndarray, length: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Shells of equal |q| of a height map: (|q|, summed |h~|^2, multiplicity)."""
-    n = heights.shape[0]
-    ht = np.fft.fft2(heights) / (n * n)
-    power = (ht.real**2 + ht.imag**2).ravel()
-    k = np.fft.fftfreq(n, d=1.0 / n).astype(np.int64)
-    k2 = (k[:, None] ** 2 + k[None, :] ** 2).ravel()
-    keep = (k2 > 0) & (power > 1e-24 * power.sum())
-    uk2, inv = np.unique(k2[keep], return_inverse=True)
-    return (2.0 * math.pi / length * np.sqrt(uk2.astype(float)),
-            np.bincount(inv, weights=power[keep], minlength=uk2.size),
-            np.bincount(inv, minlength=uk2.size))
-
-
 def save_case(path: Path, pressure: np.ndarray, heights: np.ndarray, provenance: dict,
               bin_width: float) -> SimulatedHistogram:
     """Histogram a pressure field and write one ``.npz`` case (compressed)."""
@@ -141,12 +147,14 @@ def save_case(path: Path, pressure: np.ndarray, heights: np.ndarray, provenance:
     n_bins = max(10, int(math.ceil(top / bin_width)))
     edges = np.arange(n_bins + 1) * bin_width
     hist = SimulatedHistogram.from_pressures(pressure, bins=edges, metadata=provenance)
-    q, power, mult = _spectrum_shells(heights, float(provenance["length"]))
+    from .spectra import DiscreteSpectrum
+
+    spectrum = DiscreteSpectrum.from_heights(heights, float(provenance["length"]))
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(
         path, edges=hist.edges, density=hist.density, zero_weight=hist.zero_weight,
         moments=json.dumps(hist.moments), quantile_levels=hist.quantile_levels, quantiles=hist.quantiles,
-        spectrum_q=q, spectrum_power=power, spectrum_multiplicity=mult,
+        spectrum_q=spectrum.q, spectrum_power=spectrum.power, spectrum_multiplicity=spectrum.multiplicity,
         provenance=json.dumps(provenance, sort_keys=True),
     )
     return hist
