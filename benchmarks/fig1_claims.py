@@ -17,28 +17,14 @@ from pathlib import Path
 import numpy as np
 
 import diffusion_pr as dp
-from diffusion_pr.comparison import compare, fit_cutoff_pressure, fit_tail_pressure, tail_curvatures
+from diffusion_pr.comparison import (compare, fit_cutoff_pressure, fit_tail_pressure, kolmogorov_between,
+                                     tail_curvatures)
 from diffusion_pr.fig1 import paper_cutoff_pressure
-from diffusion_pr.reference_data import FIG1_SCENE, case_name, load_reference
+from diffusion_pr.reference_data import FIG1_SCENE, case_name, load_reference, paper_theory
 
 E_STAR, P0 = FIG1_SCENE["E_star"], FIG1_SCENE["mean_pressure"]
 ZETAS = (None, 0.001, 0.01, 0.1, 0.25, 0.5, 1.0, 2.0, 4.0)
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def theory_for(case, cutoff="muser", p_c=None):
-    if case.zeta is None:
-        return dp.pressure_distribution(case.spectrum, E_star=E_STAR, mean_pressure=P0, zeta=0.0, cutoff="sharp")
-    return dp.pressure_distribution(case.spectrum, E_star=E_STAR, mean_pressure=P0, zeta=case.zeta, cutoff=cutoff,
-                                    p_c=paper_cutoff_pressure(case.zeta) if p_c is None else p_c, rtol=1e-5)
-
-
-def seed_scatter(h1, h2):
-    x = np.union1d(h1.quantiles, h2.quantiles)
-    x = x[x >= h1.edges[1]]
-    f1 = np.interp(x, h1.quantiles, h1.quantile_levels, left=0.0, right=1.0)
-    f2 = np.interp(x, h2.quantiles, h2.quantile_levels, left=0.0, right=1.0)
-    return float(np.max(np.abs(f1 - f2)))
 
 
 def main() -> None:
@@ -54,10 +40,10 @@ def main() -> None:
     results = {}
     for zeta in ZETAS:
         cases = {s: load_reference(case_name(zeta, s)) for s in (1, 2)}
-        scatter = seed_scatter(cases[1].histogram, cases[2].histogram)
+        scatter = kolmogorov_between(cases[1].histogram, cases[2].histogram)
         for seed, case in cases.items():
             t0 = time.perf_counter()
-            th = theory_for(case)
+            th = paper_theory(case)
             dt = time.perf_counter() - t0
             cmp = compare(th, case.histogram)
             v = float(dp.stress_variance(case.spectrum, E_star=E_STAR, mean_pressure=P0, zeta=zeta or 0.0))
@@ -81,8 +67,8 @@ def main() -> None:
             for cut in ("muser", "raised_cosine", "smoothstep"):
                 fit = fit_cutoff_pressure(hist, case.spectrum, E_star=E_STAR, mean_pressure=P0, zeta=zeta,
                                           cutoff=cut, rtol=1e-4)
-                ks_fit = compare(theory_for(case, cut, fit.p_c), case.histogram).kolmogorov
-                ks_paper = compare(theory_for(case, cut), case.histogram).kolmogorov
+                ks_fit = compare(paper_theory(case, cutoff=cut, p_c=fit.p_c), case.histogram).kolmogorov
+                ks_paper = compare(paper_theory(case, cutoff=cut), case.histogram).kolmogorov
                 print(f"| {zeta:g} | {paper_cutoff_pressure(zeta):.4f} | {cut} | {fit.p_c:.5f} | "
                       f"{fit.objective:.3g} | {ks_fit:.4f} | {ks_paper:.4f} |")
 
@@ -92,7 +78,7 @@ def main() -> None:
     for name in ("fig1-skewed_n1024_hard_s1", "fig1_n1024_hard_s1"):
         case = load_reference(name)
         hist = case.histogram.rebinned(4)
-        gauss = compare(theory_for(case), hist)
+        gauss = compare(paper_theory(case), hist)
         print(f"| {name} | Gaussian (Persson) | - | {gauss.kolmogorov:.4f} | {gauss.l1:.3f} | "
               f"{gauss.contact_fraction_theory:.4f} ({gauss.contact_fraction_sim:.4f}) |")
         for tail in ("linear", "max_linear"):

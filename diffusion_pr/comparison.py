@@ -10,7 +10,7 @@ numpy/scipy only: :mod:`diffusion_pr` does not need :mod:`gfmd_ref`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable, Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -232,6 +232,23 @@ def _kolmogorov_from_quantiles(theory: Any, quantiles: Array, levels: Array, p_f
     if uniq.size == 0:
         return d_floor
     return float(max(d_floor, np.max(np.abs(f_after - levels[last])), np.max(np.abs(f_before - levels[before]))))
+
+
+def kolmogorov_between(first: SimulatedHistogram, second: SimulatedHistogram) -> float:
+    """Kolmogorov distance between two simulated fields (e.g. two surface seeds).
+
+    ``sup |F_1 - F_2|`` over ``p >= first.edges[1]`` (the same resolution as
+    :func:`compare`), both empirical CDFs interpolated from their stored
+    quantile functions.  Used as the realization scatter a theory can be
+    expected to reach.
+    """
+    if first.quantiles is None or second.quantiles is None:
+        raise ValueError("both histograms need stored quantiles (SimulatedHistogram.from_pressures keeps them)")
+    x = np.union1d(first.quantiles, second.quantiles)
+    x = x[x >= first.edges[1]]
+    f1 = np.interp(x, first.quantiles, first.quantile_levels, left=0.0, right=1.0)
+    f2 = np.interp(x, second.quantiles, second.quantile_levels, left=0.0, right=1.0)
+    return float(np.max(np.abs(f1 - f2)))
 
 
 def log_density_curvature(p: ArrayLike, density: ArrayLike, *, p_lo: float, p_hi: float,

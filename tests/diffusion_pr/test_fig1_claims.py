@@ -13,20 +13,13 @@ import numpy as np
 import pytest
 
 import diffusion_pr as dp
-from diffusion_pr.comparison import compare, fit_cutoff_pressure, fit_tail_pressure, tail_curvatures
-from diffusion_pr.fig1 import paper_cutoff_pressure
-from diffusion_pr.reference_data import FIG1_SCENE, case_name, load_reference
+from diffusion_pr.comparison import (compare, fit_cutoff_pressure, fit_tail_pressure, kolmogorov_between,
+                                     tail_curvatures)
+from diffusion_pr.reference_data import FIG1_SCENE, case_name, load_reference, paper_theory
 
 E_STAR = FIG1_SCENE["E_star"]
 P0 = FIG1_SCENE["mean_pressure"]
 SEEDS = (1, 2)
-
-
-def _theory(case, cutoff="muser", p_c=None):
-    if case.zeta is None:
-        return dp.pressure_distribution(case.spectrum, E_star=E_STAR, mean_pressure=P0, zeta=0.0, cutoff="sharp")
-    return dp.pressure_distribution(case.spectrum, E_star=E_STAR, mean_pressure=P0, zeta=case.zeta, cutoff=cutoff,
-                                    p_c=paper_cutoff_pressure(case.zeta) if p_c is None else p_c, rtol=1e-5)
 
 
 @pytest.fixture(scope="module")
@@ -36,19 +29,9 @@ def runs():
     for seed in SEEDS:
         for zeta in (None, 0.001, 0.01, 0.1, 0.25, 0.5, 1.0, 2.0, 4.0):
             case = load_reference(case_name(zeta, seed))
-            theory = _theory(case)
+            theory = paper_theory(case)
             out[zeta, seed] = (case, theory, compare(theory, case.histogram))
     return out
-
-
-def _seed_to_seed_ks(h1, h2) -> float:
-    """Kolmogorov distance between two simulated fields (realization scatter)."""
-    floor = h1.edges[1]
-    x = np.union1d(h1.quantiles, h2.quantiles)
-    x = x[x >= floor]
-    f1 = np.interp(x, h1.quantiles, h1.quantile_levels, left=0.0, right=1.0)
-    f2 = np.interp(x, h2.quantiles, h2.quantile_levels, left=0.0, right=1.0)
-    return float(np.max(np.abs(f1 - f2)))
 
 
 def test_theory_solves_succeeded(runs):
@@ -97,7 +80,7 @@ def test_large_zeta_agreement_is_within_realization_scatter(runs):
     6-7 times the scatter (0.025-0.033 against 0.004-0.005).
     """
     for zeta, lo, hi in ((4.0, 0.0, 2.0), (0.001, 4.0, np.inf), (None, 4.0, np.inf)):
-        scatter = _seed_to_seed_ks(runs[zeta, 1][0].histogram, runs[zeta, 2][0].histogram)
+        scatter = kolmogorov_between(runs[zeta, 1][0].histogram, runs[zeta, 2][0].histogram)
         for seed in SEEDS:
             ratio = runs[zeta, seed][2].kolmogorov / scatter
             assert lo < ratio < hi, (zeta, seed, ratio)
@@ -171,8 +154,8 @@ def test_fitted_cutoff_pressure_at_zeta_0_01():
     assert all(f.success for f in fits.values())
     assert 1.5 < fits["muser"].p_c / 0.0082 < 2.5
     assert fits["raised_cosine"].objective < fits["muser"].objective
-    ks_paper = compare(_theory(case), case.histogram).kolmogorov
-    ks_fit = compare(_theory(case, p_c=fits["muser"].p_c), case.histogram).kolmogorov
+    ks_paper = compare(paper_theory(case), case.histogram).kolmogorov
+    ks_fit = compare(paper_theory(case, p_c=fits["muser"].p_c), case.histogram).kolmogorov
     assert ks_fit < 0.5 * ks_paper
 
 
@@ -187,7 +170,7 @@ def test_exponential_tail_fits_a_surface_that_is_not_coloured_noise():
     """
     skew = load_reference("fig1-skewed_n1024_hard_s1")
     hist = skew.histogram.rebinned(4)
-    gauss = compare(_theory(skew), hist)
+    gauss = compare(paper_theory(skew), hist)
     p_t, _ = fit_tail_pressure(hist, skew.spectrum, E_star=E_STAR, mean_pressure=P0, tail="linear", rtol=1e-4)
     tail = compare(dp.pressure_distribution(skew.spectrum, E_star=E_STAR, mean_pressure=P0, cutoff="sharp",
                                             tail="linear", p_t=p_t, rtol=1e-4), hist)
@@ -199,7 +182,7 @@ def test_exponential_tail_fits_a_surface_that_is_not_coloured_noise():
 
     plain = load_reference(case_name(None, 1))
     hist = plain.histogram.rebinned(4)
-    gauss = compare(_theory(plain), hist)
+    gauss = compare(paper_theory(plain), hist)
     p_t, _ = fit_tail_pressure(hist, plain.spectrum, E_star=E_STAR, mean_pressure=P0, tail="linear", rtol=1e-4)
     tail = compare(dp.pressure_distribution(plain.spectrum, E_star=E_STAR, mean_pressure=P0, cutoff="sharp",
                                             tail="linear", p_t=p_t, rtol=1e-4), hist)
