@@ -169,7 +169,7 @@ def save_case(path: Path, pressure: np.ndarray, heights: np.ndarray, provenance:
 
 
 def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS), seeds: Sequence[int] = (1,),
-                       n: int = 1024, tol: float = 1e-6, out_dir: Path | str | None = None,
+                       n: int = 1024, tol: float = 1e-6, out_dir: Path | str = "reference_out",
                        surface: str = "fig1", progress: bool = True, log: Any = print) -> list[Path]:
     """Run GFMD on the Fig. 1 system and write the bundled cases.
 
@@ -184,8 +184,10 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
         Grid points per side (the physical cell stays ``L = 1024``).
     tol : float
         GFMD tolerance relative to ``p0``.
-    out_dir : path, optional
-        Output folder (default: the package's ``data`` folder).
+    out_dir : path
+        Output folder (default: ``reference_out`` in the working directory;
+        the bundled cases live in :data:`DATA_DIR`, pass it explicitly to
+        replace them).  Checked for writability before any work.
     surface : str
         ``"fig1"`` (Gaussian coloured noise) or ``"fig1-skewed"`` (the same
         spectrum mapped through a non-Gaussian height transform, see
@@ -194,14 +196,26 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
     from importlib.metadata import PackageNotFoundError, version
 
     import gfmd_ref
+    from gfmd_ref._validation import check_int, check_positive, check_seed, check_writable_dir
 
+    if surface not in ("fig1", "fig1-skewed"):
+        raise ValueError(f"surface must be 'fig1' or 'fig1-skewed'; got surface={surface!r}")
+    n = check_int("n", n, minimum=2)
+    check_positive("tol", tol)
+    zetas = list(zetas)
+    for zeta in zetas:
+        if zeta is not None:
+            gfmd_ref.ExponentialRepulsion(check_positive("zeta", zeta))
+    seeds = [check_seed("seeds", seed) for seed in seeds]
+    if out_dir is None:
+        raise ValueError("out_dir must be a folder (the package's data folder only when given explicitly)")
+    folder = Path(check_writable_dir("out_dir", out_dir))
     try:
         code_version = version("diffusion-pr")
     except PackageNotFoundError:  # running from a source tree that is not installed
         code_version = "unknown"
     code_version += f" (git {_git_revision()})"
 
-    folder = Path(out_dir) if out_dir is not None else DATA_DIR
     scene = FIG1_SCENE
     written = []
     for seed in seeds:
@@ -210,8 +224,6 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
             rms_slope=scene["rms_slope"], seed=seed)
         if surface == "fig1-skewed":
             heights = skewed_surface(heights, length=scene["length"], rms_slope=scene["rms_slope"])
-        elif surface != "fig1":
-            raise ValueError(f"surface must be 'fig1' or 'fig1-skewed'; got surface={surface!r}")
         for zeta in zetas:
             interaction = gfmd_ref.HardWall() if zeta is None else gfmd_ref.ExponentialRepulsion(zeta)
             t0 = time.perf_counter()
