@@ -114,6 +114,8 @@ def cutoff_pressure(zeta: float) -> float:
         Decay length of the exponential wall (grid spacings), ``> 0``.
     """
     try:
+        if isinstance(zeta, (str, bytes, bool)):
+            raise TypeError
         z = float(zeta)
     except (TypeError, ValueError):
         raise ValueError(f"zeta must be a finite number > 0; got zeta={zeta!r}") from None
