@@ -222,9 +222,21 @@ def test_histogram_of_any_field_is_normalized(field, bins):
     assert 0.0 <= c.kolmogorov <= 1.0 and 0.0 <= c.l1 <= 2.0 + 1e-12
 
 
-@pytest.mark.xfail(reason="issue 7 item 1, engine's part: at p_c = 5 p0, sqrt(V)/p0 = 0.125 the smoothstep "
-                          "cutoff gives success=True with mean 7e-28 and zero_weight 1 (force balance violated)",
-                   strict=False)
+KNOWN_WRONG_SUCCESS = ("issue 7 item 1, engine's part: at p_c = 5 p0, sqrt(V)/p0 = 0.125 the smoothstep cutoff "
+                       "gives success=True with mean 7e-28 and zero_weight 1 (force balance violated); found by "
+                       "test_native_contract_wide")
+
+
+@pytest.mark.xfail(reason=KNOWN_WRONG_SUCCESS, strict=False)
+def test_native_known_wrong_success():
+    r = dp.propagate(1.0, 0.125**2, diffusivity=_diffusivity("smoothstep", 5.0, None, None), backend="native",
+                     rtol=1e-4)
+    if r.success:
+        check_contract(r, 1.0, 1e-4)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(reason=KNOWN_WRONG_SUCCESS, strict=False)
 @settings(max_examples=40, deadline=None, derandomize=True, phases=[Phase.explicit, Phase.generate],
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(p0=st.floats(1e-3, 10.0), width=st.floats(0.1, 3.0), cutoff=st.sampled_from(CUTOFFS[1:]),
