@@ -184,7 +184,7 @@ def test_another_theory_curve_goes_through_theory_curves(monkeypatch, tmp_path):
         return curves
 
     monkeypatch.setattr(fig1, "theory_curves", with_extra)
-    report = fig1.run_fig1(n=32, zetas=(0.25,), hard_wall=False, rtol=1e-3, out_dir=tmp_path, log=lambda s: None)
+    report = fig1.run_fig1(n=32, zetas=(0.25,), hard_wall=False, rtol=1e-4, out_dir=tmp_path, log=lambda s: None)
     (case,) = report.cases
     assert list(case.comparisons) == ["paper", "extra"]
     assert case.comparisons["extra"] == case.comparisons["paper"]
