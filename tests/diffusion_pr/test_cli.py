@@ -52,6 +52,9 @@ def test_bare_command_prints_help(capsys):
     assert main([]) == 0
     out = capsys.readouterr().out
     assert "usage: diffusion-pr" in out and "fig1" in out and "theory" in out and "make-reference" in out
+    assert gfmd_main([]) == 0
+    out = capsys.readouterr().out
+    assert "usage: gfmd-ref" in out and "run" in out and "writes the pressure histogram" in out
 
 
 @pytest.mark.parametrize("entry, prog", [(main, "diffusion-pr"), (gfmd_main, "gfmd-ref")])
