@@ -192,9 +192,9 @@ def main(argv=None) -> int:
     sub = parser.add_subparsers(dest="command")
     add_run_arguments(sub.add_parser("run", help="solve the Fig. 1 scene, write the histogram"))
     args = parser.parse_args(argv)
-    if args.command != "run":  # bare `gfmd-ref`: say what it can do
+    if args.command != "run":
         parser.print_help()
-        return 0
+        return 2
     with warnings.catch_warnings():
         warnings.simplefilter("always", ConvergenceWarning)
         return run_from_args(args)
