@@ -130,3 +130,10 @@ def test_the_papers_numbers_live_only_in_paper_py():
             continue
         found = _numbers_in_code(path) & {"0.0027", "0.0082", "0.0068", "0.031"}
         assert not found, f"{path.relative_to(ROOT)} hard-codes {found}; import them from diffusion_pr.paper"
+
+
+def test_reference_data_cutoffs_by_bundled_zeta():
+    from diffusion_pr.reference_data import PAPER_CUTOFF_PRESSURES
+
+    assert PAPER_CUTOFF_PRESSURES == {0.001: 0.0068, 0.01: 0.0082, 0.25: 0.0027, 0.5: 0.0027, 1.0: 0.0027,
+                                      2.0: 0.0027, 4.0: 0.0027}
