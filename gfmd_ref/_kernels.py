@@ -104,39 +104,14 @@ def pk_tau(g, t, r, p):
 
 
 @njit(cache=True)
-def pk_update(p, t, g, tau, p0):
+def pk_update_lazy(p, t, g, tau, p0, D):
     """Polonsky-Keer update: ``p -= tau t`` on the contact set, project on ``p >= 0``,
     add ``-tau g`` on non-contact points that overlap (``p == 0`` and ``g < 0``),
-    rescale to mean ``p0``. Returns ``(n_projected, n_overlap, scale)``."""
-    pf = p.ravel()
-    tf = t.ravel()
-    gf = g.ravel()
-    n = pf.size
-    nproj = 0
-    nol = 0
-    s = 0.0
-    for i in range(n):
-        if pf[i] > 0.0:
-            v = pf[i] - tau * tf[i]
-            if v <= 0.0:
-                v = 0.0
-                nproj += 1
-            pf[i] = v
-        elif gf[i] < 0.0:
-            pf[i] = -tau * gf[i]
-            nol += 1
-        s += pf[i]
-    scale = p0 * n / s
-    for i in range(n):
-        pf[i] *= scale
-    return nproj, nol, scale
+    rescale to mean ``p0``. Returns ``(n_projected, n_overlap, scale)``.
 
-
-@njit(cache=True)
-def pk_update_lazy(p, t, g, tau, p0, D):
-    """As :func:`pk_update`, and accumulate the part of the change that is not
-    ``-tau t`` (projections and overlap fixes) into ``D = scale (D + Delta)``, so that
-    ``G p = scale (u - tau G t) + G D`` can be completed later by one FFT."""
+    The part of the change that is not ``-tau t`` (projections and overlap fixes) is
+    accumulated into ``D = scale (D + Delta)``, so that ``G p = scale (u - tau G t) + G D``
+    can be completed later by one FFT."""
     pf = p.ravel()
     tf = t.ravel()
     gf = g.ravel()
@@ -321,23 +296,6 @@ def newton_pred_residual(r, p, zeta, p0):
 
 
 # --------------------------------------------------------------------------- FIRE helpers
-
-
-@njit(cache=True)
-def project_above(z, h, v):
-    """Hard wall for FIRE: ``z = max(z, h)``; zero ``v`` where a node was clipped.
-    Returns the number of clipped nodes."""
-    zf = z.ravel()
-    hf = h.ravel()
-    vf = v.ravel()
-    nc = 0
-    for i in range(zf.size):
-        if zf[i] < hf[i]:
-            zf[i] = hf[i]
-            if vf[i] < 0.0:
-                vf[i] = 0.0
-            nc += 1
-    return nc
 
 
 @njit(cache=True)
