@@ -15,7 +15,8 @@ Threads: ``DEFAULT_THREADS`` is 1, chosen by measurement on the 2-core
 development machine while other jobs kept it loaded (``benchmarks/bench_gfmd.py
 --part threads``, table in ``docs/gfmd.md``): one FFTW thread was faster than two
 at every size from 256^2 to 2048^2 (two threads compete with the other processes
-for the two cores).  On an idle multi-core machine pass ``threads=`` explicitly.
+for the two cores).  On an idle multi-core machine pass ``threads=`` explicitly
+(or set ``GFMD_REF_FFT_THREADS``).
 """
 from __future__ import annotations
 
@@ -36,12 +37,19 @@ FFTW_MIN_N = 256
 PLANNING_TIMELIMIT = 5.0
 
 
+def fft_threads() -> int:
+    """Threads per FFT when a caller does not say: ``GFMD_REF_FFT_THREADS`` if set (the
+    ensemble runner sets 1 per worker process), else :data:`DEFAULT_THREADS`."""
+    v = os.environ.get("GFMD_REF_FFT_THREADS", "")
+    return max(1, int(v)) if v.strip() else DEFAULT_THREADS
+
+
 def check_threads(threads: Optional[int]) -> int:
-    """``threads`` -> an int >= 1 (``None`` -> :data:`DEFAULT_THREADS`); ValueError otherwise."""
+    """``threads`` -> an int >= 1 (``None`` -> :func:`fft_threads`); ValueError otherwise."""
     if threads is None:
-        return DEFAULT_THREADS
+        return fft_threads()
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
-        raise ValueError(f"threads must be an integer >= 1 (or None for {DEFAULT_THREADS}); "
+        raise ValueError(f"threads must be an integer >= 1 (or None for the default); "
                          f"got {threads!r}")
     return int(threads)
 

@@ -39,7 +39,7 @@ __all__ = ["solve_contact", "ContactResult", "ConvergenceWarning", "METHODS"]
 
 #: methods available per interaction ("auto" picks the first, the fastest).
 METHODS = {
-    "HardWall": ("ccg", "fire"),
+    "HardWall": ("ccg", "pk", "fire"),
     "ExponentialRepulsion": ("newton", "fire"),
 }
 
@@ -204,12 +204,21 @@ def _full_contact_hard(h, p0, el):
 
 
 def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, lazy_frac=1e-4,
-              p_init=None, stall_window=CCG_STALL_WINDOW):
-    """Polonsky & Keer (1999) constrained conjugate gradients on the pressures.
+              p_init=None, stall_window=CCG_STALL_WINDOW, precond=False):
+    """Polonsky & Keer (1999) constrained conjugate gradients on the pressures
+    (Wear 231, 206, doi:10.1016/S0043-1648(99)00113-1).
+
+    ``precond=True``: the search direction is built from ``z = K (g on the contact
+    set)``, ``K = q E*/2`` the inverse of the Green's function (a Fourier-diagonal
+    preconditioner; one more FFT pair per iteration), restricted to the contact set
+    and shifted to zero mean there; ``beta = (g.z)_new / (g.z)_old``. Measured on the
+    Fig. 1 surface: 221 -> 49 iterations at 1024^2 (296 -> 139 FFT pairs), 162 -> 44 at
+    512^2. Used with ``lazy=1``: deferring the exact ``u`` (below) cost iterations
+    with the preconditioner (91 instead of 49 at 1024^2 with ``lazy=8``).
 
     ``u = G p`` is updated incrementally, ``u <- scale (u - tau G t)``; the part of a
     step that is not along ``t`` (projections onto ``p >= 0``, overlap fixes) is
-    accumulated in ``D`` and folded in by one exact ``u = G p`` every ``lazy``
+    folded in by one exact ``u = G p`` every ``lazy``
     iterations, immediately when more than ``lazy_frac * N`` nodes changed in one
     step, and always before convergence is declared (every convergence decision uses
     an exact ``u``). Measured on the Fig. 1 surface at 1024^2: 296 instead of 367 FFT
@@ -234,14 +243,15 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     g = np.empty(el.shape)
     t = np.zeros(el.shape)
     r = np.empty(el.shape)
-    D = np.zeros(el.shape)
+    z = np.empty(el.shape) if precond else None
+    Kn = el.K / (el.n * el.n) if precond else None
     hist = []
     stamps = []
     tstart = time.perf_counter()
     delta = 0.0
     gold = 1.0
     converged = False
-    pending = False  # u lacks G D
+    pending = False  # u lacks G of the projections and overlap fixes
     since_exact = 0
     it = 0
     lazy_max_changes = max(4, int(lazy_frac * n2))
@@ -263,7 +273,6 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         if (res < tol or it >= max_iter) and (pending or since_exact > 0):
             el.apply_into(el.Gn, p, u)
             n_fft += 1
-            D[...] = 0.0
             pending = False
             since_exact = 0
             gn, res = residual()
@@ -284,17 +293,22 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
             lazy = 1  # stagnation safeguard: fall back to exact u every iteration
             lazy_max_changes = 0
             delta = 0.0  # and restart the conjugate directions
-        beta = delta * gn / gold if gold > 0.0 else 0.0
-        kr.pk_direction(g, p, t, beta)
-        gold = gn
+        if precond:
+            kr.pk_masked(g, p, z)
+            el.apply_into(Kn, z, z)
+            n_fft += 1
+            gold = kr.pk_precond_direction(z, g, p, t, delta, gold)
+        else:
+            beta = delta * gn / gold if gold > 0.0 else 0.0
+            kr.pk_direction(g, p, t, beta)
+            gold = gn
         el.apply_into(el.Gn, t, r)
         n_fft += 1
         num, den = kr.pk_tau(g, t, r, p)
         tau = num / den if den != 0 else 0.0
-        nproj, nol, scale = kr.pk_update_lazy(p, t, g, tau, p0, D)
+        nproj, nol, scale = kr.pk_update(p, t, g, u, r, tau, p0)
         delta = 0.0 if nol > 0 else 1.0
         it += 1
-        kr.axpy_scale(u, r, tau, scale)
         since_exact += 1
         if nproj or nol:
             pending = True
@@ -302,7 +316,6 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         if (pending and (it % lazy == 0 or big)) or since_exact >= refresh:
             el.apply_into(el.Gn, p, u)
             n_fft += 1
-            D[...] = 0.0
             pending = False
             since_exact = 0
     bar.close()
@@ -641,11 +654,14 @@ def solve_contact(
         (see module doc).
     max_iter : int, optional
         Cap on operator applications (FFT pairs; default depends on method and size).
-    method : {"auto", "ccg", "newton", "fire"}
-        ``"ccg"``: Polonsky-Keer constrained conjugate gradients (hard wall only);
+    method : {"auto", "ccg", "pk", "newton", "fire"}
+        ``"ccg"``: Polonsky-Keer constrained conjugate gradients with a Fourier-diagonal
+        preconditioner (``q E*/2``, the inverse of the Green's function; hard wall only;
+        4x fewer iterations than ``"pk"`` at 1024^2); ``"pk"``: the same without the
+        preconditioner (the algorithm of Tamaas' ``PolonskyKeerRey``);
         ``"newton"``: dual Newton-CG (exponential wall only); ``"fire"``: GFMD with
         mass-weighted FIRE (both). ``"auto"`` picks ``ccg`` / ``newton``.
-        With ``ccg``, a load high enough for full contact is answered by the closed form
+        With ``ccg``/``pk``, a load high enough for full contact is answered by the closed form
         ``p = p0 + IFFT[(q E*/2) FFT(h)]`` (exact when it is ``>= 0`` everywhere;
         ``info["closed_form"] = True``, zero iterations).
     progress : bool
@@ -710,7 +726,7 @@ def solve_contact(
     h_scale = hs if hs > 0 else length
 
     closed = None
-    if method == "ccg":
+    if method in ("ccg", "pk"):
         closed = _full_contact_hard(h, p0, el)
     if closed is not None:
         load = abs(float(np.mean(closed)) - p0) / p0
@@ -719,8 +735,11 @@ def solve_contact(
                    history=np.array([load]), stop="converged" if load < tol else "max_iter",
                    info=dict(h_scale=h_scale, fft_pairs=1, closed_form=True,
                              history_stamps=np.array([[0.0, time.perf_counter() - t0]])))
-    elif method == "ccg":
-        out = _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale)
+    elif method in ("ccg", "pk"):
+        if method == "ccg":
+            out = _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, precond=True, lazy=1)
+        else:
+            out = _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, precond=False)
         out["info"]["closed_form"] = False
     elif method == "fire":
         out = _fire(h, p0, interaction, el, tol, max_iter, progress, h_scale)
