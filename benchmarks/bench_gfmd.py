@@ -619,6 +619,8 @@ def main(argv=None):
         results["scaling"] = part_scaling(sizes)
     if args.part == "scaling":
         tag = "quick" if args.quick else "sizes"
+    if args.part in ("threads", "breakdown", "match"):
+        tag = "_".join(str(m) for m in args.sizes) if args.sizes else "default"
     path = os.path.join(RESULTS, f"gfmd_{args.part}_{tag}.json")
     with open(path, "w") as fh:
         json.dump(results, fh, indent=1, default=float)

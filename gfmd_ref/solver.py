@@ -159,10 +159,12 @@ class _Stall:
     factor ``2`` within the last ``window`` iterations (and never when ``window`` is 0).
 
     Windows, measured on the Fig. 1 surface at tol 1e-10 (converging runs): the longest
-    stretch without halving the best residual was 8, 14, 15, 31, 33 CCG iterations at
-    64^2 ... 1024^2; 0-8 Newton steps (zeta = 1 ... 1e-4, 64^2 ... 512^2; the damped
+    stretch without halving the best residual was 5-10 preconditioned CCG iterations
+    (64^2 ... 512^2, two seeds) and 8, 14, 15, 31, 33 plain PK iterations at 64^2 ... 1024^2; 0-8 Newton steps (zeta = 1 ... 1e-4, 64^2 ... 512^2; the damped
     steps of a small-zeta start can raise the residual); 57-439 FIRE steps (64^2, 128^2,
-    zeta down to 1e-3). The windows below leave a factor >= 2.5 over those. At an
+    zeta down to 1e-3). The windows below leave a factor >= 2.5 over those. At 2048^2 the
+    preconditioned CCG flattens at a residual of 1.5e-10 (round-off of the max-norm
+    residual over 4M nodes), so tol 1e-10 stalls there. At an
     unreachable tol (1e-14) the residual flattens at round-off (1e-13 ... 1e-11) and
     never halves again, so the run stops one window after reaching round-off.
     """
@@ -187,8 +189,10 @@ def _stalled_message(stall: "_Stall", res: float) -> str:
 # ----------------------------------------------------------------------------- CCG
 
 
-#: CCG stall window (iterations without halving the best residual).
-CCG_STALL_WINDOW = 200
+#: CCG stall windows (iterations without halving the best residual): preconditioned
+#: ``ccg`` (longest stretch measured 5-10, 64^2-512^2) and plain ``pk`` (8-33).
+CCG_STALL_WINDOW = 50
+PK_STALL_WINDOW = 200
 #: Newton stall window (Newton steps without halving the best residual).
 NEWTON_STALL_STEPS = 20
 #: FIRE stall window (steps without halving the best residual).
@@ -746,7 +750,8 @@ def solve_contact(
         if method == "ccg":
             out = _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, precond=True, lazy=1)
         else:
-            out = _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, precond=False)
+            out = _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, precond=False,
+                            stall_window=PK_STALL_WINDOW)
         out["info"]["closed_form"] = False
     elif method == "fire":
         out = _fire(h, p0, interaction, el, tol, max_iter, progress, h_scale)
