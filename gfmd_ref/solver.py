@@ -211,7 +211,7 @@ def _full_contact_hard(h, p0, el):
 
 
 def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, lazy_frac=1e-4,
-              p_init=None, stall_window=CCG_STALL_WINDOW, precond=False):
+              stall_window=CCG_STALL_WINDOW, precond=False):
     """Polonsky & Keer (1999) constrained conjugate gradients on the pressures
     (Wear 231, 206, doi:10.1016/S0043-1648(99)00113-1).
 
@@ -234,19 +234,13 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     if the residual has not halved for ``5 lazy`` iterations the solver falls back to
     an exact ``u`` every iteration. Grids below 512^2 always use the exact ``u``.
 
-    ``p_init`` (>= 0, any mean: rescaled to ``p0``) replaces the uniform start.
+    Start: uniform ``p0`` (a coarse-grid start was measured slower, see docs/gfmd.md).
     Every FFT pair writes into preallocated arrays (:meth:`FFTWPair.apply_into`).
     """
     n2 = h.size
     u = np.zeros(el.shape)  # G p0 = 0: a uniform pressure does not deform
     n_fft = 0
-    if p_init is None:
-        p = np.full(el.shape, p0)
-    else:
-        p = np.maximum(np.asarray(p_init, dtype=np.float64), 0.0)
-        p *= p0 / p.mean()
-        el.apply_into(el.Gn, p, u)
-        n_fft = 1
+    p = np.full(el.shape, p0)
     g = np.empty(el.shape)
     t = np.zeros(el.shape)
     r = np.empty(el.shape)
