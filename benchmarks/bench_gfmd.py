@@ -464,9 +464,14 @@ def part_match(n, repeats, our_tols=(1e-6, 1e-7, 1e-8), tamaas_tol=1e-8, ref_tol
     comparison uses our loosest tol whose max error is <= Tamaas' max error."""
     import gfmd_ref as g
 
+    from gfmd_ref._fft import fft_pair
+
     h, L = g.fig1_surface(n, seed=seed)
     g.warm_up_fft(n)
-    out = dict(n=n, seed=seed, load_before=_uptime(), runs=[])
+    pair = fft_pair((n, n))[0]
+    xx = np.zeros((n, n))
+    pair_s = _median_time(lambda: pair.apply(np.ones((n, n // 2 + 1)), xx), 5)
+    out = dict(n=n, seed=seed, load_before=_uptime(), runs=[], fft_pair_seconds=pair_s)
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -491,12 +496,15 @@ def part_match(n, repeats, our_tols=(1e-6, 1e-7, 1e-8), tamaas_tol=1e-8, ref_tol
                     have_tamaas = False
                     continue
                 p, wall, its = t["pressure"], t["wall_time"], t["iterations"]
+                pairs = 2 * its  # PolonskyKeerRey: G t and G p per iteration (estimate)
             else:
                 r = g.solve_contact(h, length=L, E_star=E_STAR, mean_pressure=P0,
                                     interaction=g.HardWall(), tol=tol, method=solver)
                 p, wall, its = r.pressure, r.wall_time, r.iterations
+                pairs = r.info["fft_pairs"]
             emax, el2 = _field_error(p, ref.pressure)
-            row = dict(solver=solver, tol=tol, round=k, time=wall, iterations=its,
+            row = dict(solver=solver, tol=tol, round=k, time=wall, iterations=its, fft_pairs=pairs,
+                       fft_floor=pairs * pair_s,
                        max_err_p0=emax, l2_err_p0=el2, load=_uptime(),
                        contact_fraction=float(np.count_nonzero(p > 0)) / p.size)
             out["runs"].append(row)
@@ -510,6 +518,7 @@ def part_match(n, repeats, our_tols=(1e-6, 1e-7, 1e-8), tamaas_tol=1e-8, ref_tol
     for (solver, tol), rows in summ.items():
         table.append(dict(solver=solver, tol=tol, median_time=float(np.median([r["time"] for r in rows])),
                           times=[r["time"] for r in rows], iterations=rows[0]["iterations"],
+                          fft_pairs=rows[0]["fft_pairs"], fft_floor=rows[0]["fft_floor"],
                           max_err_p0=max(r["max_err_p0"] for r in rows),
                           l2_err_p0=max(r["l2_err_p0"] for r in rows)))
     out["table"] = table
@@ -525,10 +534,13 @@ def part_match(n, repeats, our_tols=(1e-6, 1e-7, 1e-8), tamaas_tol=1e-8, ref_tol
         out["cross_check_ref_vs_tamaas_max_err_p0"] = tm["max_err_p0"]
     out["load_after"] = _uptime()
     print(f"  n={n} (load before {out['load_before']}, after {out['load_after']}):")
-    print("    | solver | tol | median time [s] | iterations | s / iteration | max err [p0] | L2 err [p0] | / Tamaas |")
+    print(f"    (one FFT pair: {1e3 * pair_s:.1f} ms; Tamaas' pairs estimated as 2 per iteration)")
+    print("    | solver | tol | median time [s] | iterations | s / iteration | FFT pairs | FFT floor [s] "
+          "| max err [p0] | L2 err [p0] | / Tamaas |")
     for r in sorted(table, key=lambda r: (r["solver"], -r["tol"])):
         print(f"    | {r['solver']} | {r['tol']:.0e} | {r['median_time']:.2f} | {r['iterations']} | "
-              f"{r['median_time'] / max(r['iterations'], 1):.3f} | {r['max_err_p0']:.1e} | "
+              f"{r['median_time'] / max(r['iterations'], 1):.3f} | {r['fft_pairs']} | "
+              f"{r['fft_floor']:.2f} | {r['max_err_p0']:.1e} | "
               f"{r['l2_err_p0']:.1e} | {r.get('ratio_to_tamaas', float('nan')):.3f} |", flush=True)
     if out.get("matched"):
         m = out["matched"]
