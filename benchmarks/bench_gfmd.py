@@ -320,9 +320,259 @@ def part_scaling(sizes, with_tamaas_small=False):
     return rows
 
 
+def _median_time(fn, reps):
+    ts = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t0)
+    return float(np.median(ts))
+
+
+def _uptime():
+    try:
+        with open("/proc/loadavg") as fh:
+            return " ".join(fh.read().split()[:3])
+    except OSError:
+        return "n/a"
+
+
+def part_threads(sizes, rounds=5, reps=8, solve_n=1024, solve_rounds=2):
+    """FFTW pair time with 1 and 2 threads, interleaved (1, 2, 1, 2, ...), medians;
+    and the full CCG solve at ``solve_n`` with each thread count, interleaved."""
+    import gfmd_ref as g
+    from gfmd_ref._fft import fft_pair
+
+    out = dict(load_before=_uptime(), pairs=[], solves=[])
+    for n in sizes:
+        pairs = {th: fft_pair((n, n), th)[0] for th in (1, 2)}
+        x = np.random.default_rng(0).normal(size=(n, n))
+        for pr in pairs.values():
+            pr._real[...] = x
+        meds = {1: [], 2: []}
+        for _ in range(rounds):
+            for th, pr in pairs.items():
+                meds[th].append(_median_time(lambda: (pr._forward.execute(), pr._backward.execute()), reps))
+        row = dict(n=n, pair_ms_1=1e3 * float(np.median(meds[1])), pair_ms_2=1e3 * float(np.median(meds[2])))
+        out["pairs"].append(row)
+        print(f"  n={n:5d}: FFTW pair 1 thread {row['pair_ms_1']:8.2f} ms, 2 threads "
+              f"{row['pair_ms_2']:8.2f} ms  (load {_uptime()})", flush=True)
+    if solve_n:
+        h, L = g.fig1_surface(solve_n, seed=1)
+        times = {1: [], 2: []}
+        for _ in range(solve_rounds):
+            for th in (1, 2):
+                r = g.solve_contact(h, length=L, E_star=E_STAR, mean_pressure=P0,
+                                    interaction=g.HardWall(), tol=1e-8, threads=th)
+                times[th].append(r.wall_time - r.info["fft_planning_time"])
+                print(f"  solve n={solve_n} threads={th}: {times[th][-1]:.2f} s, {r.iterations} it",
+                      flush=True)
+        out["solves"] = dict(n=solve_n, times_1=times[1], times_2=times[2],
+                             median_1=float(np.median(times[1])), median_2=float(np.median(times[2])))
+    out["load_after"] = _uptime()
+    return out
+
+
+def part_breakdown(n, reps=15, threads=None):
+    """Where the time of one CCG iteration goes at ``n^2``: each kernel and FFT of the
+    iteration timed on the arrays of a converged solve (medians of ``reps``), against
+    the floor = (FFT pairs per iteration) x (one raw FFT pair, plan execution only) +
+    the unavoidable vector work (4 streaming passes: 8 array reads, 4 writes, the
+    memory traffic of the gap, direction, step and update of any Polonsky-Keer
+    iteration). Both ``ccg`` (preconditioned, about 2.8 pairs per iteration) and
+    ``pk`` (plain, about 1.3) are measured in the same run."""
+    import gfmd_ref as g
+    from gfmd_ref import _kernels as kr
+    from gfmd_ref.solver import _Elastic
+
+    h, L = g.fig1_surface(n, seed=1)
+    el = _Elastic(n, L, E_STAR, threads)
+    pr = el.fft
+    runs = {}
+    for method in ("ccg", "pk", "ccg", "pk"):  # interleaved; the second of each is kept
+        runs[method] = g.solve_contact(h, length=L, E_star=E_STAR, mean_pressure=P0,
+                                       interaction=g.HardWall(), tol=1e-8, threads=threads,
+                                       method=method)
+    p = runs["ccg"].pressure.copy()
+    u = el.apply(el.G, p)
+    gg = np.empty_like(p)
+    t = np.zeros_like(p)
+    rr = np.empty_like(p)
+    zz = np.empty_like(p)
+    kr.pk_gap(u, h, p, gg)
+    kr.pk_direction(gg, p, t, 0.5)
+    el.apply_into(el.Gn, t, rr)
+    ops = {}
+    if pr.name == "fftw":
+        ops["FFT pair (plan execution only)"] = lambda: (pr._forward.execute(), pr._backward.execute())
+    ops["apply_into (copy in, pair, multiplier, copy out)"] = lambda: el.apply_into(el.Gn, t, zz)
+    ops["pk_gap (gap + residual, 2 passes)"] = lambda: kr.pk_gap(u, h, p, gg)
+    ops["pk_direction (pk)"] = lambda: kr.pk_direction(gg, p, t, 0.5)
+    ops["pk_masked (ccg)"] = lambda: kr.pk_masked(gg, p, zz)
+    ops["pk_precond_direction (ccg, 2 passes)"] = lambda: kr.pk_precond_direction(zz, gg, p, t, 1.0, 1.0)
+    ops["pk_tau"] = lambda: kr.pk_tau(gg, t, rr, p)
+    pc, uc = p.copy(), u.copy()
+    ops["pk_update (p and u, 2 passes)"] = lambda: kr.pk_update(pc, t, gg, uc, rr, 0.0, P0)
+
+    a = [p.copy(), u.copy(), t.copy(), gg.copy()]
+
+    def traffic():  # 4 streaming passes: 8 reads, 4 writes
+        for k, src in enumerate((h, rr, p, u)):
+            np.add(src, a[k], out=a[k])
+
+    ops["vector floor (4 passes: 8 reads, 4 writes)"] = traffic
+    times = {}
+    for _ in range(2):  # two interleaved rounds, keep the smaller median of each op
+        for k, f in ops.items():
+            f()
+            v = 1e3 * _median_time(f, reps)
+            times[k] = min(times.get(k, np.inf), v)
+    raw = times.get("FFT pair (plan execution only)", times["apply_into (copy in, pair, multiplier, copy out)"])
+    vec = times["vector floor (4 passes: 8 reads, 4 writes)"]
+    out = dict(n=n, fft=pr.name, threads=pr.threads, load=_uptime(), op_ms=times, methods={})
+    print(f"  breakdown n={n} ({pr.name}, {pr.threads} thread(s), load {out['load']}):")
+    for k, v in times.items():
+        print(f"    {k:55s} {v:8.2f} ms")
+    for method, r in runs.items():
+        per_it = 1e3 * (r.wall_time - r.info["fft_planning_time"]) / r.iterations
+        ppi = r.info["fft_pairs"] / r.iterations
+        floor = ppi * raw + vec
+        out["methods"][method] = dict(
+            iterations=r.iterations, fft_pairs=r.info["fft_pairs"], wall_time=r.wall_time,
+            ms_per_iteration=per_it, fft_pairs_per_iteration=ppi, floor_ms_per_iteration=floor,
+            ratio_to_floor=per_it / floor, one_pair_plus_vector_ms=raw + vec,
+            ms_per_fft_pair=1e3 * r.wall_time / r.info["fft_pairs"])
+        print(f"    {method}: {r.iterations} it, {r.info['fft_pairs']} FFT pairs ({ppi:.2f}/it), "
+              f"{per_it:.2f} ms/it; floor {floor:.2f} ms/it ({ppi:.2f} x {raw:.2f} + {vec:.2f}); "
+              f"ratio {per_it / floor:.2f}; total {r.wall_time:.2f} s", flush=True)
+    return out
+
+
+def _field_error(p, ref):
+    d = p - ref
+    return float(np.max(np.abs(d)) / P0), float(np.sqrt(np.mean(d * d)) / P0)
+
+
+def part_match(n, repeats, our_tols=(1e-6, 1e-7, 1e-8), tamaas_tol=1e-8, ref_tol=1e-10,
+               seed=1, with_pk=True):
+    """Hard wall at matched final-field error against Tamaas.
+
+    Reference field: our ``ccg`` at ``ref_tol`` (cross-checked against Tamaas' own
+    result). Then ``repeats`` interleaved rounds (ours at every tol in ``our_tols``,
+    Tamaas at ``tamaas_tol``, ours ``pk`` at 1e-8, ...); each run's pressure field is
+    compared with the reference (max and L2 error in units of p0). The matched
+    comparison uses our loosest tol whose max error is <= Tamaas' max error."""
+    import gfmd_ref as g
+
+    from gfmd_ref._fft import fft_pair
+
+    h, L = g.fig1_surface(n, seed=seed)
+    g.warm_up_fft(n)
+    pair = fft_pair((n, n))[0]
+    xx = np.zeros((n, n))
+    pair_s = _median_time(lambda: pair.apply(np.ones((n, n // 2 + 1)), xx), 5)
+    out = dict(n=n, seed=seed, load_before=_uptime(), runs=[], fft_pair_seconds=pair_s)
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ref = g.solve_contact(h, length=L, E_star=E_STAR, mean_pressure=P0,
+                              interaction=g.HardWall(), tol=ref_tol)
+    out["reference"] = dict(tol=ref_tol, converged=ref.converged, residual=ref.residual,
+                            iterations=ref.iterations, time=time.perf_counter() - t0,
+                            message=ref.message, contact_fraction=ref.contact_fraction)
+    print(f"  reference n={n}: {ref.message} ({out['reference']['time']:.1f} s)", flush=True)
+    have_tamaas = True
+    for k in range(repeats):
+        plan = [("ccg", tol) for tol in our_tols] + [("tamaas", tamaas_tol)]
+        if with_pk and k == 0:
+            plan.append(("pk", 1e-8))
+        for solver, tol in plan:
+            if solver == "tamaas":
+                if not have_tamaas:
+                    continue
+                t = tamaas_solve(h, L, tol)
+                if t is None:
+                    print("  tamaas not importable: skipped")
+                    have_tamaas = False
+                    continue
+                p, wall, its = t["pressure"], t["wall_time"], t["iterations"]
+                pairs = 2 * its  # PolonskyKeerRey: G t and G p per iteration (estimate)
+            else:
+                r = g.solve_contact(h, length=L, E_star=E_STAR, mean_pressure=P0,
+                                    interaction=g.HardWall(), tol=tol, method=solver)
+                p, wall, its = r.pressure, r.wall_time, r.iterations
+                pairs = r.info["fft_pairs"]
+            emax, el2 = _field_error(p, ref.pressure)
+            row = dict(solver=solver, tol=tol, round=k, time=wall, iterations=its, fft_pairs=pairs,
+                       fft_floor=pairs * pair_s,
+                       max_err_p0=emax, l2_err_p0=el2, load=_uptime(),
+                       contact_fraction=float(np.count_nonzero(p > 0)) / p.size)
+            out["runs"].append(row)
+            print(f"  {solver:6s} tol {tol:.0e}: {wall:8.2f} s, {its:4d} it, max err "
+                  f"{emax:.2e} p0, L2 err {el2:.2e} p0 (load {row['load']})", flush=True)
+    # summary: medians per (solver, tol)
+    summ = {}
+    for row in out["runs"]:
+        summ.setdefault((row["solver"], row["tol"]), []).append(row)
+    table = []
+    for (solver, tol), rows in summ.items():
+        table.append(dict(solver=solver, tol=tol, median_time=float(np.median([r["time"] for r in rows])),
+                          times=[r["time"] for r in rows], iterations=rows[0]["iterations"],
+                          fft_pairs=rows[0]["fft_pairs"], fft_floor=rows[0]["fft_floor"],
+                          max_err_p0=max(r["max_err_p0"] for r in rows),
+                          l2_err_p0=max(r["l2_err_p0"] for r in rows)))
+    out["table"] = table
+    tam = [r for r in table if r["solver"] == "tamaas"]
+    if tam:
+        tm = tam[0]
+        ok = [r for r in table if r["solver"] == "ccg" and r["max_err_p0"] <= tm["max_err_p0"]]
+        matched = min(ok, key=lambda r: r["median_time"]) if ok else None
+        for r in table:
+            r["ratio_to_tamaas"] = r["median_time"] / tm["median_time"]
+        out["matched"] = dict(tamaas=tm, ours=matched,
+                              ratio=(matched["median_time"] / tm["median_time"]) if matched else None)
+        out["cross_check_ref_vs_tamaas_max_err_p0"] = tm["max_err_p0"]
+    out["load_after"] = _uptime()
+    print(f"  n={n} (load before {out['load_before']}, after {out['load_after']}):")
+    print(f"    (one FFT pair: {1e3 * pair_s:.1f} ms; Tamaas' pairs estimated as 2 per iteration)")
+    print("    | solver | tol | median time [s] | iterations | s / iteration | FFT pairs | FFT floor [s] "
+          "| max err [p0] | L2 err [p0] | / Tamaas |")
+    for r in sorted(table, key=lambda r: (r["solver"], -r["tol"])):
+        print(f"    | {r['solver']} | {r['tol']:.0e} | {r['median_time']:.2f} | {r['iterations']} | "
+              f"{r['median_time'] / max(r['iterations'], 1):.3f} | {r['fft_pairs']} | "
+              f"{r['fft_floor']:.2f} | {r['max_err_p0']:.1e} | "
+              f"{r['l2_err_p0']:.1e} | {r.get('ratio_to_tamaas', float('nan')):.3f} |", flush=True)
+    if out.get("matched"):
+        m = out["matched"]
+        if m["ours"]:
+            print(f"    matched error: ours ccg tol {m['ours']['tol']:.0e} ({m['ours']['max_err_p0']:.1e} p0) "
+                  f"{m['ours']['median_time']:.2f} s vs Tamaas {m['tamaas']['median_time']:.2f} s "
+                  f"({m['tamaas']['max_err_p0']:.1e} p0): ratio {m['ratio']:.3f}", flush=True)
+    return out
+
+
+def plot_match(results):
+    plt = _plt()
+    fig, axs = plt.subplots(1, len(results), figsize=(5.2 * len(results), 4), squeeze=False)
+    for ax, res in zip(axs[0], results):
+        for solver, mk in (("ccg", "o-"), ("pk", "s"), ("tamaas", "k^")):
+            rows = sorted([r for r in res["table"] if r["solver"] == solver], key=lambda r: r["max_err_p0"])
+            if rows:
+                ax.loglog([r["max_err_p0"] for r in rows], [r["median_time"] for r in rows], mk,
+                          label={"ccg": "gfmd_ref ccg (preconditioned)", "pk": "gfmd_ref pk (plain)",
+                                 "tamaas": "Tamaas PolonskyKeerRey"}[solver])
+        ax.set_xlabel("max |p - p_ref| / p0")
+        ax.set_ylabel("wall time [s] (median)")
+        ax.set_title(f"hard wall, Fig. 1 surface, {res['n']}^2", fontsize=10)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(os.path.join(RESULTS, "gfmd_match.png"), dpi=110)
+    plt.close(fig)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--part", choices=["hard", "exp", "scaling", "all"], default="all")
+    ap.add_argument("--part", choices=["hard", "exp", "scaling", "threads", "breakdown", "match", "all"], default="all")
     ap.add_argument("--quick", action="store_true", help="small sizes (about a minute)")
     ap.add_argument("--n", type=int, default=None, help="size of the hard/exp runs")
     ap.add_argument("--repeats", type=int, default=None)
@@ -334,7 +584,11 @@ def main(argv=None):
     ap.add_argument("--child-scaling", type=int, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--replot-scaling", default=None, metavar="JSON",
                     help="redraw gfmd_scaling.png from a saved scaling JSON")
+    ap.add_argument("--tamaas-threads", type=int, default=1,
+                    help="OMP_NUM_THREADS for Tamaas (default 1: faster than 2 on the loaded "
+                         "2-core machine, 7.1-8.7 s vs 9.8 s at 512^2; our FFTs also use 1)")
     args = ap.parse_args(argv)
+    os.environ.setdefault("OMP_NUM_THREADS", str(args.tamaas_threads))
     if args.replot_scaling:
         with open(args.replot_scaling) as fh:
             plot_scaling(json.load(fh)["scaling"])
@@ -348,6 +602,20 @@ def main(argv=None):
     tag = "quick" if args.quick else f"n{n}"
     results = dict(machine=dict(cpus=os.cpu_count(), python=sys.version.split()[0],
                                 date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())))
+    if args.part == "threads":
+        print("== FFT threads")
+        results["threads"] = part_threads(args.sizes or [256, 512, 1024, 2048])
+    if args.part == "match":
+        sizes = args.sizes or [1024, 2048]
+        results["match"] = []
+        for m in sizes:
+            print(f"== matched error, n={m}")
+            results["match"].append(part_match(m, args.repeats or (3 if m <= 1024 else 2)))
+            plot_match(results["match"])
+            with open(os.path.join(RESULTS, "gfmd_match.json"), "w") as fh:
+                json.dump(results, fh, indent=1, default=float)
+    if args.part == "breakdown":
+        results["breakdown"] = [part_breakdown(m) for m in (args.sizes or [1024, 2048])]
     if args.part in ("hard", "all"):
         print(f"== hard wall, n={n}")
         results["hard"] = part_hard(n, repeats, fire=0 if args.no_fire else args.fire_cap)
@@ -363,6 +631,8 @@ def main(argv=None):
         results["scaling"] = part_scaling(sizes)
     if args.part == "scaling":
         tag = "quick" if args.quick else "sizes"
+    if args.part in ("threads", "breakdown", "match"):
+        tag = "_".join(str(m) for m in args.sizes) if args.sizes else "default"
     path = os.path.join(RESULTS, f"gfmd_{args.part}_{tag}.json")
     with open(path, "w") as fh:
         json.dump(results, fh, indent=1, default=float)

@@ -1,68 +1,107 @@
 """Real 2-D FFT pairs for the solvers: planned FFTW where available, else scipy.
 
-At 1024^2 one ``rfft2`` + ``irfft2`` pair costs about 21 ms with scipy's
-pocketfft on this 2-core machine and 5.7 ms with an FFTW plan made with
-``FFTW_MEASURE`` (pyfftw); the FFTs dominate the constrained-CG iteration, so
-the planned pair makes the hard-wall solver about twice as fast.  Planning is
-a one-time, visible cost (about 2 s at 1024^2, bounded by
-``PLANNING_TIMELIMIT``), cached per grid size for the life of the process and
+The FFTs dominate every solver iteration (one ``rfft2`` + ``irfft2`` pair per
+constrained-CG step), so they are planned once per grid size and thread count
+(``FFTW_MEASURE`` with pyfftw), cached for the life of the process, and applied
+into preallocated output arrays: :meth:`FFTWPair.apply_into` costs one pair plus
+one copy in and one copy out, no allocation (a fresh 8 n^2-byte result array per
+call cost about 25 % of a pair at 1024^2 in page faults).  Planning is a
+one-time, visible cost (about 2 s at 1024^2, bounded by ``PLANNING_TIMELIMIT``)
 reported by :func:`fft_pair` so that a caller can warm it up.  Small grids
 (below ``FFTW_MIN_N``) and machines without pyfftw use scipy.fft.  Set the
 environment variable ``GFMD_REF_FFT=scipy`` to force scipy.
+
+Threads: ``DEFAULT_THREADS`` is 1, chosen by measurement on the 2-core
+development machine while other jobs kept it loaded (``benchmarks/bench_gfmd.py
+--part threads``, table in ``docs/gfmd.md``): one FFTW thread was faster than two
+at every size from 256^2 to 2048^2 (two threads compete with the other processes
+for the two cores).  On an idle multi-core machine pass ``threads=`` explicitly
+(or set ``GFMD_REF_FFT_THREADS``).
 """
 from __future__ import annotations
 
 import os
 import time
-from typing import Any, Dict, Tuple
+from typing import Any, Dict, Optional, Tuple
 
 import numpy as np
 import scipy.fft as sfft
 
-#: ``workers`` passed to scipy.fft (-1: all cores).
-FFT_WORKERS = -1
+#: FFT threads used when a caller does not say (see module doc for the measurement).
+DEFAULT_THREADS = 1
+#: kept for backward compatibility: ``workers`` of scipy.fft when no thread count is given.
+FFT_WORKERS = DEFAULT_THREADS
 #: grids smaller than this use scipy (planning would not pay off).
 FFTW_MIN_N = 256
 #: seconds FFTW may spend planning one transform (the best plan found so far is used).
 PLANNING_TIMELIMIT = 5.0
 
 
+def fft_threads() -> int:
+    """Threads per FFT when a caller does not say: ``GFMD_REF_FFT_THREADS`` if set (the
+    ensemble runner sets 1 per worker process), else :data:`DEFAULT_THREADS`."""
+    v = os.environ.get("GFMD_REF_FFT_THREADS", "")
+    return max(1, int(v)) if v.strip() else DEFAULT_THREADS
+
+
+def check_threads(threads: Optional[int]) -> int:
+    """``threads`` -> an int >= 1 (``None`` -> :func:`fft_threads`); ValueError otherwise."""
+    if threads is None:
+        return fft_threads()
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
+        raise ValueError(f"threads must be an integer >= 1 (or None for the default); "
+                         f"got {threads!r}")
+    return int(threads)
+
+
 class ScipyPair:
-    """``rfft2``/``irfft2`` on an ``(n, n)`` grid with scipy.fft (pocketfft, threaded)."""
+    """``rfft2``/``irfft2`` on an ``(n, n)`` grid with scipy.fft (pocketfft)."""
 
     name = "scipy"
 
-    def __init__(self, shape: Tuple[int, int]):
+    def __init__(self, shape: Tuple[int, int], threads: int = DEFAULT_THREADS):
         self.shape = shape
+        self.threads = threads
 
     def rfft(self, x: np.ndarray) -> np.ndarray:
-        return sfft.rfft2(x, workers=FFT_WORKERS)
+        return sfft.rfft2(x, workers=self.threads)
 
     def irfft(self, X: np.ndarray) -> np.ndarray:
-        return sfft.irfft2(X, s=self.shape, workers=FFT_WORKERS)
+        return sfft.irfft2(X, s=self.shape, workers=self.threads)
 
     def apply(self, mult: np.ndarray, x: np.ndarray) -> np.ndarray:
         """``irfft2(mult * rfft2(x))``: a Fourier multiplier applied to a real field."""
-        X = sfft.rfft2(x, workers=FFT_WORKERS)
+        X = sfft.rfft2(x, workers=self.threads)
         X *= mult
-        return sfft.irfft2(X, s=self.shape, workers=FFT_WORKERS, overwrite_x=True)
+        return sfft.irfft2(X, s=self.shape, workers=self.threads, overwrite_x=True)
+
+    def apply_into(self, mult_n: np.ndarray, x: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """``out = irfft2(mult_n * rfft2(x)) * n^2``: as :meth:`apply` with the
+        normalisation ``1/n^2`` folded into the multiplier ``mult_n = mult / n^2``."""
+        X = sfft.rfft2(x, workers=self.threads)
+        X *= mult_n
+        out[...] = sfft.irfft2(X, s=self.shape, workers=self.threads, overwrite_x=True,
+                               norm="forward")
+        return out
 
 
 class FFTWPair:
-    """The same three operations with FFTW plans (pyfftw) on aligned buffers.
+    """The same operations with FFTW plans (pyfftw) on aligned buffers.
 
-    Each call copies its input into the plan's buffer and returns a fresh
-    array, so results never alias the buffers.  The inverse is normalised by
-    ``1/n^2`` like scipy's.
+    :meth:`rfft`, :meth:`irfft` and :meth:`apply` copy their input into the plan's
+    buffer and return a fresh array, so results never alias the buffers; the
+    inverse is normalised by ``1/n^2`` like scipy's.  :meth:`apply_into` writes
+    into a caller's array.
     """
 
     name = "fftw"
 
-    def __init__(self, shape: Tuple[int, int], threads: int):
+    def __init__(self, shape: Tuple[int, int], threads: int = DEFAULT_THREADS):
         import pyfftw
 
         n0, n1 = shape
         self.shape = shape
+        self.threads = threads
         self._real = pyfftw.empty_aligned(shape, dtype="float64")
         self._spec = pyfftw.empty_aligned((n0, n1 // 2 + 1), dtype="complex128")
         flags = ("FFTW_MEASURE", "FFTW_DESTROY_INPUT")
@@ -89,8 +128,17 @@ class FFTWPair:
         self._backward.execute()
         return self._real * self._scale
 
+    def apply_into(self, mult_n: np.ndarray, x: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """``out = irfft2(mult_n * rfft2(x)) * n^2`` (``mult_n = mult / n^2``), no allocation."""
+        self._real[...] = x
+        self._forward.execute()
+        self._spec *= mult_n
+        self._backward.execute()
+        out[...] = self._real
+        return out
 
-_CACHE: Dict[Tuple[int, int], Any] = {}
+
+_CACHE: Dict[Tuple[Tuple[int, int], int], Any] = {}
 
 
 def _want_fftw(n: int) -> bool:
@@ -103,20 +151,28 @@ def _want_fftw(n: int) -> bool:
     return True
 
 
-def fft_pair(shape: Tuple[int, int]) -> Tuple[Any, float]:
+def fft_pair(shape: Tuple[int, int], threads: Optional[int] = None) -> Tuple[Any, float]:
     """The FFT pair for ``shape`` and the seconds spent planning it now (0 if cached).
+
+    Parameters
+    ----------
+    shape : (int, int)
+    threads : int, optional
+        FFT threads (default :data:`DEFAULT_THREADS`).
 
     Returns
     -------
     (pair, planning_time)
         ``pair.name`` is ``"fftw"`` or ``"scipy"``.
     """
-    if shape in _CACHE:
-        return _CACHE[shape], 0.0
+    threads = check_threads(threads)
+    key = (tuple(shape), threads)
+    if key in _CACHE:
+        return _CACHE[key], 0.0
     t0 = time.perf_counter()
     if _want_fftw(shape[0]):
-        pair: Any = FFTWPair(shape, threads=max(1, os.cpu_count() or 1))
+        pair: Any = FFTWPair(tuple(shape), threads=threads)
     else:
-        pair = ScipyPair(shape)
-    _CACHE[shape] = pair
+        pair = ScipyPair(tuple(shape), threads=threads)
+    _CACHE[key] = pair
     return pair, time.perf_counter() - t0

@@ -79,6 +79,48 @@ def pk_direction(g, p, t, beta):
 
 
 @njit(cache=True)
+def pk_masked(g, p, out):
+    """``out = g`` on the contact set ``p > 0``, 0 elsewhere."""
+    gf = g.ravel()
+    pf = p.ravel()
+    of = out.ravel()
+    for i in range(gf.size):
+        of[i] = gf[i] if pf[i] > 0.0 else 0.0
+
+
+@njit(cache=True)
+def pk_precond_direction(z, g, p, t, delta, gold):
+    """Preconditioned Polonsky-Keer direction from ``z = K (masked g)``: on the contact
+    set ``z' = z - mean_c(z)`` (so that a step along ``t`` keeps the load),
+    ``t = z' + beta t`` with ``beta = delta (g . z') / gold``, 0 elsewhere.
+    Returns ``g . z'`` (the next ``gold``)."""
+    zf = z.ravel()
+    gf = g.ravel()
+    pf = p.ravel()
+    tf = t.ravel()
+    n = zf.size
+    sz = 0.0
+    sg = 0.0
+    sgz = 0.0
+    nc = 0
+    for i in range(n):
+        if pf[i] > 0.0:
+            sz += zf[i]
+            sg += gf[i]
+            sgz += gf[i] * zf[i]
+            nc += 1
+    zbar = sz / nc if nc > 0 else 0.0
+    gz = sgz - zbar * sg  # sum_c g (z - zbar); sum_c g ~ 0 (g has zero mean there)
+    beta = delta * gz / gold if gold > 0.0 else 0.0
+    for i in range(n):
+        if pf[i] > 0.0:
+            tf[i] = zf[i] - zbar + beta * tf[i]
+        else:
+            tf[i] = 0.0
+    return gz
+
+
+@njit(cache=True)
 def pk_tau(g, t, r, p):
     """Step ``tau = sum_c g t / sum_c (r - rbar) t`` (contact set ``p > 0``), one pass:
     ``sum_c (r - rbar) t = sum_c r t - rbar sum_c t``. Returns (numerator, denominator)."""
@@ -104,13 +146,18 @@ def pk_tau(g, t, r, p):
 
 
 @njit(cache=True)
-def pk_update(p, t, g, tau, p0):
-    """Polonsky-Keer update: ``p -= tau t`` on the contact set, project on ``p >= 0``,
-    add ``-tau g`` on non-contact points that overlap (``p == 0`` and ``g < 0``),
-    rescale to mean ``p0``. Returns ``(n_projected, n_overlap, scale)``."""
+def pk_update(p, t, g, u, r, tau, p0):
+    """Polonsky-Keer update, fused with the incremental displacement update:
+    ``p -= tau t`` on the contact set, projected on ``p >= 0``; ``p = -tau g`` on
+    non-contact points that overlap (``p == 0`` and ``g < 0``); ``u -= tau r``
+    (``r = G t``); then ``p`` and ``u`` rescaled so that ``mean(p) = p0``.
+    Returns ``(n_projected, n_overlap, scale)``: with no projection and no overlap,
+    ``u = G p`` stays exact, otherwise ``u`` misses ``G`` of those changes."""
     pf = p.ravel()
     tf = t.ravel()
     gf = g.ravel()
+    uf = u.ravel()
+    rf = r.ravel()
     n = pf.size
     nproj = 0
     nol = 0
@@ -126,53 +173,12 @@ def pk_update(p, t, g, tau, p0):
             pf[i] = -tau * gf[i]
             nol += 1
         s += pf[i]
+        uf[i] = uf[i] - tau * rf[i]
     scale = p0 * n / s
     for i in range(n):
         pf[i] *= scale
+        uf[i] *= scale
     return nproj, nol, scale
-
-
-@njit(cache=True)
-def pk_update_lazy(p, t, g, tau, p0, D):
-    """As :func:`pk_update`, and accumulate the part of the change that is not
-    ``-tau t`` (projections and overlap fixes) into ``D = scale (D + Delta)``, so that
-    ``G p = scale (u - tau G t) + G D`` can be completed later by one FFT."""
-    pf = p.ravel()
-    tf = t.ravel()
-    gf = g.ravel()
-    df = D.ravel()
-    n = pf.size
-    nproj = 0
-    nol = 0
-    s = 0.0
-    for i in range(n):
-        if pf[i] > 0.0:
-            v = pf[i] - tau * tf[i]
-            if v <= 0.0:
-                df[i] -= v
-                v = 0.0
-                nproj += 1
-            pf[i] = v
-        elif gf[i] < 0.0:
-            v = -tau * gf[i]
-            pf[i] = v
-            df[i] += v
-            nol += 1
-        s += pf[i]
-    scale = p0 * n / s
-    for i in range(n):
-        pf[i] *= scale
-        df[i] *= scale
-    return nproj, nol, scale
-
-
-@njit(cache=True)
-def axpy_scale(u, r, tau, scale):
-    """``u = scale * (u - tau r)`` in place."""
-    uf = u.ravel()
-    rf = r.ravel()
-    for i in range(uf.size):
-        uf[i] = scale * (uf[i] - tau * rf[i])
 
 
 # --------------------------------------------------------------------------- exponential wall
@@ -321,23 +327,6 @@ def newton_pred_residual(r, p, zeta, p0):
 
 
 # --------------------------------------------------------------------------- FIRE helpers
-
-
-@njit(cache=True)
-def project_above(z, h, v):
-    """Hard wall for FIRE: ``z = max(z, h)``; zero ``v`` where a node was clipped.
-    Returns the number of clipped nodes."""
-    zf = z.ravel()
-    hf = h.ravel()
-    vf = v.ravel()
-    nc = 0
-    for i in range(zf.size):
-        if zf[i] < hf[i]:
-            zf[i] = hf[i]
-            if vf[i] < 0.0:
-                vf[i] = 0.0
-            nc += 1
-    return nc
 
 
 @njit(cache=True)

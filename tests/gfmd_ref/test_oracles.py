@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from gfmd_ref import ExponentialRepulsion, HardWall, self_affine_surface, solve_contact
+from gfmd_ref.solver import _ccg_hard, _Elastic
 
 
 def _surface(n, L, rms_slope=0.03, seed=7, nwaves=8):
@@ -20,7 +21,7 @@ def _apply(mult_fn, x, L):
 
 
 @pytest.mark.parametrize("method, n, tol", [("ccg", 64, 1e-10), ("ccg", 45, 1e-10),
-                                            ("fire", 32, 1e-8)])
+                                            ("pk", 64, 1e-10), ("fire", 32, 1e-8)])
 def test_full_contact(method, n, tol):
     """High load: everything in contact, sigma~(q) = (q E*/2) h~(q) for q != 0."""
     L, E = float(n), 2.0
@@ -38,6 +39,22 @@ def test_full_contact(method, n, tol):
     assert err < 100 * tol
     assert np.mean(res.pressure) == pytest.approx(p0, rel=1e-13)
     np.testing.assert_allclose(res.gap, 0.0, atol=1e3 * tol * h.std())
+    # ccg/pk answer full contact by the closed form, FIRE iterates
+    assert res.info.get("closed_form", False) == (method != "fire")
+
+
+@pytest.mark.parametrize("precond", [True, False])
+def test_full_contact_iterative_ccg(precond):
+    """The iterative CCG paths (bypassing the closed form) reach the same oracle:
+    p - p0 = IFFT[(q E*/2) FFT(h)] to 100 tol (see test_full_contact)."""
+    n, L, E, tol = 64, 64.0, 2.0, 1e-10
+    h = _surface(n, L)
+    dev = _apply(lambda q: 0.5 * E * q, h, L)
+    p0 = 3.0 * np.max(-dev)
+    out = _ccg_hard(h, p0, _Elastic(n, L, E), tol, 10000, False, float(h.std()),
+                    precond=precond, lazy=1 if precond else 8)
+    assert out["converged"] and np.all(out["pressure"] > 0)
+    assert np.max(np.abs(out["pressure"] - p0 - dev)) / p0 < 100 * tol
 
 
 @pytest.mark.parametrize("method", ["newton", "fire"])
@@ -63,13 +80,14 @@ def test_exponential_tiny_roughness(method, zeta):
     assert np.max(np.abs(h - u_th)) / np.max(np.abs(u_th)) > 0.05
 
 
-def _westergaard(n, frac, L=1.0, E=1.0, h0=0.01):
+def _westergaard(n, frac, L=1.0, E=1.0, h0=0.01, method="auto"):
     x = np.arange(n) * L / n
     X = np.where(x > L / 2, x - L, x)
     h = np.tile((h0 * np.cos(2 * np.pi * x / L))[:, None], (1, n))  # constant along y
     pstar = np.pi * E * h0 / L
     p0 = frac * pstar
-    res = solve_contact(h, length=L, E_star=E, mean_pressure=p0, interaction=HardWall())
+    res = solve_contact(h, length=L, E_star=E, mean_pressure=p0, interaction=HardWall(),
+                        method=method)
     s2 = p0 / pstar
     a = L / np.pi * np.arcsin(np.sqrt(s2))
     pex = np.where(np.abs(X) < a, 2 * p0 / s2 * np.cos(np.pi * X / L)
@@ -80,8 +98,9 @@ def _westergaard(n, frac, L=1.0, E=1.0, h0=0.01):
     return res, a, a_num, err_in, L / n
 
 
+@pytest.mark.parametrize("method", ["ccg", "pk"])
 @pytest.mark.parametrize("frac", [0.1, 0.3, 0.6])
-def test_westergaard(frac):
+def test_westergaard(frac, method):
     """Sinusoid (Johnson 13.2): contact half-width and pressure profile, refined grid.
 
     * half-width: the discrete contact set is counted node by node, so it is exact
@@ -91,8 +110,8 @@ def test_westergaard(frac):
       ~1e-3 (n=64) to ~1e-5..1e-4 (n=256); we assert < 2e-4 at n=256 and a factor >= 4
       improvement from n=64 to n=256.
     """
-    r64, a, a64, e64, dx64 = _westergaard(64, frac)
-    r256, _, a256, e256, dx256 = _westergaard(256, frac)
+    r64, a, a64, e64, dx64 = _westergaard(64, frac, method=method)
+    r256, _, a256, e256, dx256 = _westergaard(256, frac, method=method)
     assert r64.converged and r256.converged
     assert abs(a64 - a) <= dx64
     assert abs(a256 - a) <= dx256
@@ -116,7 +135,8 @@ def test_westergaard_full_contact_threshold():
     assert below.contact_fraction < 1.0
 
 
-def test_hertz():
+@pytest.mark.parametrize("method", ["ccg", "pk"])
+def test_hertz(method):
     """Paraboloid h = -r^2/(2R) in a periodic cell with a = 0.1 L.
 
     a^3 = 3 F R/(4 E*), p_max = 3F/(2 pi a^2). Tolerances: the contact radius from the
@@ -131,7 +151,7 @@ def test_hertz():
     a = 0.1 * L
     F = 4 * E * a**3 / (3 * R)
     res = solve_contact(-r2 / (2 * R), length=L, E_star=E, mean_pressure=F / L**2,
-                        interaction=HardWall())
+                        interaction=HardWall(), method=method)
     assert res.converged
     a_num = np.sqrt(res.contact_fraction * L * L / np.pi)
     assert a_num == pytest.approx(a, rel=0.02)

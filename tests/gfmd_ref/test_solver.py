@@ -247,3 +247,140 @@ def test_does_not_import_diffusion_pr():
             "print(any(m.startswith('diffusion_pr') for m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.stdout.strip() == "False"
+
+
+# ----------------------------------------------------------------- stall, progress, threads, E*
+
+
+@pytest.mark.parametrize("inter, method, n, max_iter", [
+    (HardWall(), "ccg", 64, 20000),
+    (HardWall(), "pk", 64, 20000),
+    (ExponentialRepulsion(0.001), "newton", 64, 20000),
+    (HardWall(), "fire", 32, 200000),
+])
+def test_unreachable_tol_stalls_early_and_says_so(inter, method, n, max_iter):
+    """tol 1e-18 is below the round-off of every residual (relative to p0, eps = 2e-16):
+    the solver must stop by stall detection, far before max_iter, with converged=False
+    and a message giving the residual reached, the iterations and the reason.
+    Budgets: the stall windows are 50 ccg / 200 pk iterations, 20 Newton steps, 5000
+    FIRE steps after the last halving of the residual; the runs reach round-off in
+    < 400 CCG iterations (64^2), < 30 Newton steps, < 1000 FIRE steps, so they must stop
+    within a quarter of max_iter."""
+    h, L = fig1_surface(n, seed=2)
+    with pytest.warns(ConvergenceWarning, match="stalled"):
+        r = _solve(h, L, inter, method=method, tol=1e-18, max_iter=max_iter)
+    assert not r.converged
+    assert r.iterations < max_iter / 4
+    assert r.info["stop"].startswith("stalled")
+    assert f"residual {r.residual:.3e}" in r.message
+    assert f"after {r.iterations} iterations" in r.message
+    # it got to round-off before stalling: the answer is still the converged one
+    assert r.residual < 1e-9
+
+
+def test_max_iter_still_reported_as_such(fig1_64):
+    h, L = fig1_64
+    with pytest.warns(ConvergenceWarning, match="max_iter=5 reached"):
+        r = _solve(h, L, HardWall(), max_iter=5)
+    assert r.info["stop"] == "max_iter" and r.iterations == 5
+
+
+class _RecordingBar:
+    bars = []
+
+    def __init__(self, total=None, **kw):
+        self.total = total
+        self.n = 0.0
+        self.closed = False
+        _RecordingBar.bars.append(self)
+
+    def update(self, k):
+        self.n += k
+
+    def set_postfix(self, **kw):
+        self.postfix = kw
+
+    def close(self):
+        self.closed = True
+
+
+@pytest.mark.parametrize("inter", [HardWall(), ExponentialRepulsion(0.01)])
+def test_progress_counts_decades_to_tol(fig1_64, monkeypatch, inter):
+    """The bar's total is the number of decades from the first residual down to tol
+    (what the run will really do), not max_iter; a converged run fills it."""
+    import tqdm.auto
+
+    monkeypatch.setattr(tqdm.auto, "tqdm", _RecordingBar)
+    _RecordingBar.bars = []
+    h, L = fig1_64
+    r = _solve(h, L, inter, tol=1e-8, progress=True, max_iter=10**6)
+    (bar,) = _RecordingBar.bars
+    expected = np.log10(r.residual_history[0] / 1e-8)
+    assert bar.total == pytest.approx(expected, abs=0.01)
+    assert bar.total < 20  # decades, nothing like max_iter = 1e6
+    assert r.converged and bar.n == pytest.approx(bar.total, abs=0.011) and bar.closed
+
+
+def test_threads_give_the_same_answer():
+    """FFTW (256^2) with 1 and 2 threads: identical contact set, pressures equal to
+    round-off amplified by the iteration (tol 1e-10; measured max difference
+    ~1e-14 p0), assert 1e-10 p0."""
+    pytest.importorskip("pyfftw")
+    h, L = fig1_surface(256, seed=3)
+    a = _solve(h, L, HardWall(), tol=1e-10, threads=1)
+    b = _solve(h, L, HardWall(), tol=1e-10, threads=2)
+    assert a.info["fft_threads"] == 1 and b.info["fft_threads"] == 2
+    assert a.info["fft"] == b.info["fft"] == "fftw"
+    assert np.array_equal(a.pressure > 0, b.pressure > 0)
+    assert np.max(np.abs(a.pressure - b.pressure)) < 1e-10 * P0
+
+
+@pytest.mark.parametrize("threads", [0, -1, 1.5, "2", True])
+def test_bad_threads(fig1_64, threads):
+    h, L = fig1_64
+    with pytest.raises(ValueError, match="threads"):
+        _solve(h, L, HardWall(), threads=threads)
+
+
+def test_tiny_modulus_hard_wall_is_full_contact(fig1_64):
+    """E* = 1e-300: an infinitely soft solid follows the surface, so the pressure is the
+    closed form p0 + (q E*/2) h~ = p0 to double precision (was a ZeroDivisionError)."""
+    h, L = fig1_64
+    r = solve_contact(h, length=L, E_star=1e-300, mean_pressure=P0, interaction=HardWall())
+    assert r.converged and r.contact_fraction == 1.0 and r.info["closed_form"]
+    assert np.max(np.abs(r.pressure - P0)) <= 1e-15 * P0
+    assert np.all(r.gap == 0.0)
+
+
+def test_tiny_modulus_exponential_wall_is_refused(fig1_64):
+    h, L = fig1_64
+    with pytest.raises(ValueError, match="E_star=1e-300 is too small"):
+        solve_contact(h, length=L, E_star=1e-300, mean_pressure=P0,
+                      interaction=ExponentialRepulsion(0.5))
+    # bound: eps p0 / (E* q1 zeta) < 1e-3; 10x above it the solver runs (and reports
+    # honestly whether it converged), 10x below it refuses
+    q1 = 2 * np.pi / L
+    bound = 2.2e-16 * P0 / (q1 * 0.5 * 1e-3)
+    with pytest.raises(ValueError, match="E_star"):
+        solve_contact(h, length=L, E_star=0.1 * bound, mean_pressure=P0,
+                      interaction=ExponentialRepulsion(0.5))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        r = solve_contact(h, length=L, E_star=10 * bound, mean_pressure=P0,
+                          interaction=ExponentialRepulsion(0.5), tol=1e-3)
+    assert np.all(np.isfinite(r.pressure)) and r.residual < 1e-2
+
+
+def test_preconditioned_ccg_agrees_with_plain_pk():
+    """ccg (preconditioned) and pk (plain Polonsky-Keer, the old path) at tol 1e-10 on a
+    128^2 Fig. 1 surface: same contact set up to a few edge nodes, pressures within
+    1e-7 p0 (both bound the gap error by tol h_s; the pressure near contact edges is
+    the least determined, measured 4e-8 p0), and the preconditioner needs at most
+    half the iterations (measured 35 vs 58 at tol 1e-10)."""
+    h, L = fig1_surface(128, seed=1)
+    a = _solve(h, L, HardWall(), tol=1e-10, method="ccg")
+    b = _solve(h, L, HardWall(), tol=1e-10, method="pk")
+    assert a.converged and b.converged
+    assert np.count_nonzero((a.pressure > 0) != (b.pressure > 0)) <= 4
+    assert np.max(np.abs(a.pressure - b.pressure)) < 1e-7 * P0
+    assert a.iterations <= b.iterations / 2
