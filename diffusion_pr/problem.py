@@ -219,3 +219,105 @@ class FokkerPlanckProblem:
 
         return cls(mean_pressure, variance, pressure_factor, drift=drift, label=label,
                    metadata={"eta": eta, "variance_of_eta": v})
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One magnification shell (or segment) of the diffusion time.
+
+    On the stage the distribution obeys (Ito form, SPEC sections 4 and 7)::
+
+        dPr/dtau = d^2/dp^2 [ f(p) Pr ] - d/dp [ (b(p) - A(tau) w(p)) Pr ],   p > 0,
+
+    with the scalar ``A(tau)`` chosen at every instant so that ``d<p>/dtau = 0``
+    when ``balance`` is given.  The callables may declare the model protocol of
+    :mod:`diffusion_pr.models` (``zero_power``, ``breakpoints()``).
+
+    Attributes
+    ----------
+    duration : float
+        Diffusion-time increment ``dtau >= 0`` (pressure squared).
+    diffusivity : callable
+        ``f(p) >= 0`` on this stage (dimensionless), vectorized.
+    drift : callable or None
+        ``b(p)`` (pressure per unit tau), vectorized; ``None`` means 0.
+    balance : callable or None
+        ``w(p)`` (pressure per unit tau per unit ``A``); the total drift is
+        ``b(p) - A(tau) w(p)``; ``None`` means no balance (``A = 0``).
+    """
+
+    duration: float
+    diffusivity: Callable[[Array], Array]
+    drift: Optional[Callable[[Array], Array]] = None
+    balance: Optional[Callable[[Array], Array]] = None
+
+    def __post_init__(self) -> None:
+        try:
+            d = float(self.duration)
+        except (TypeError, ValueError):
+            raise ValueError(f"Stage.duration must be a finite number >= 0 (pressure^2); got {self.duration!r}") from None
+        if not np.isfinite(d) or d < 0.0:
+            raise ValueError(f"Stage.duration must be a finite number >= 0 (pressure^2); got {self.duration!r}")
+        object.__setattr__(self, "duration", d)
+        for name in ("diffusivity", "drift", "balance"):
+            value = getattr(self, name)
+            if (value is not None or name == "diffusivity") and not callable(value):
+                raise ValueError(f"Stage.{name} must be a vectorized callable of the pressure"
+                                 f"{'' if name == 'diffusivity' else ' or None'}; got {value!r}")
+
+
+@dataclass(frozen=True)
+class StagedProblem:
+    """A sequence of :class:`Stage` s applied in order from ``delta(p - mean_pressure)``.
+
+    Attributes
+    ----------
+    mean_pressure : float
+        ``p0`` (pressure), > 0: the start ``delta(p - p0)``.
+    stages : tuple of Stage
+        Applied in order; the total diffusion time is ``sum(durations)``.
+    label : str
+        Free text carried into the result's diagnostics.
+    """
+
+    mean_pressure: float
+    stages: tuple
+    label: str = ""
+
+    def __post_init__(self) -> None:
+        try:
+            p0 = float(self.mean_pressure)
+        except (TypeError, ValueError):
+            raise ValueError(f"mean_pressure must be a finite number > 0 (pressure); got {self.mean_pressure!r}") from None
+        if not np.isfinite(p0) or p0 <= 0.0:
+            raise ValueError(f"mean_pressure must be a finite number > 0 (pressure); got {self.mean_pressure!r}")
+        object.__setattr__(self, "mean_pressure", p0)
+        stages = tuple(self.stages)
+        if not stages or not all(isinstance(s, Stage) for s in stages):
+            raise ValueError("stages must be a non-empty sequence of Stage objects")
+        if sum(s.duration for s in stages) <= 0.0:
+            raise ValueError("the stages' total duration must be > 0 (pressure^2)")
+        object.__setattr__(self, "stages", stages)
+
+    @property
+    def tau_end(self) -> float:
+        """Total diffusion time ``sum(duration)`` (pressure squared)."""
+        return float(sum(s.duration for s in self.stages))
+
+    @property
+    def variance(self) -> float:
+        """``2 tau_end`` (pressure squared): the variance ``f = 1`` would give."""
+        return 2.0 * self.tau_end
+
+    @classmethod
+    def from_problem(cls, problem: "FokkerPlanckProblem") -> "StagedProblem":
+        """One stage holding an autonomous :class:`FokkerPlanckProblem`.
+
+        Raises
+        ------
+        ValueError
+            For a time-dependent diffusivity or drift (those need explicit stages).
+        """
+        if not problem.autonomous:
+            raise ValueError("only autonomous problems (no drift, f independent of tau) convert to one stage")
+        return cls(problem.mean_pressure, (Stage(problem.tau_end, problem.diffusivity),), label=problem.label)
