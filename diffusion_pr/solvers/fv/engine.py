@@ -485,6 +485,7 @@ def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarr
         "time_integration": extra.get("time_integration", "cram16"), "n_stages": len(prep.pieces),
         "substeps": int(extra.get("substeps", 0)), "timings": dict(timings),
     }
+    diagnostics["knots"] = tuple(float(k) for k in prep.spec.knots)
     diagnostics.update({k: v for k, v in extra.items() if k not in diagnostics})
     if prep.label:
         diagnostics["label"] = prep.label
