@@ -120,8 +120,12 @@ def test_literal_cutoff_as_user_callable_equals_builtin(form):
                      backend="native", rtol=1e-6)
     assert a.success and b.success
     assert np.min(np.abs(a.edges - P_C)) < 1e-12 * P_C and a.p.size == b.p.size  # the jump located by bisection
-    assert abs(a.zero_weight - b.zero_weight) < 1e-6
-    assert np.sum(np.abs(a.density - b.density) * a.weights) < 1e-6
+    # 2 sin^2 is the built-in's formula: agreement to round-off.  1 - cos is a different function in floating
+    # point: it is exactly 0 below p = 1.3e-11 and a staircase up to about 1e-9 (far below the floor 4e-9),
+    # which moves 2e-6 of probability (measured); the solver's own error is 2e-7 here
+    tol = 1e-9 if form == "2sin2" else 5e-6
+    assert abs(a.zero_weight - b.zero_weight) < tol
+    assert np.sum(np.abs(a.density - b.density) * a.weights) < tol
 
 
 @pytest.mark.parametrize("call, match", [

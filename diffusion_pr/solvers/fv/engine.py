@@ -417,25 +417,24 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         r12 = (4.0 * _aggregate(y2) - y1) / 3.0
         fine = _aggregate(y3)
         r23 = (4.0 * fine - y2) / 3.0
-        # where extrapolation overshoots below 0 (far tails, 1e-17-level), keep the finest grid's own
-        # value (>= 0 up to CRAM round-off, which is then cut to 0); the change is added to the estimate
-        neg = r23 < 0.0
-        fix = 0.0
-        if np.any(neg):
-            repl = np.maximum(fine[neg], 0.0)
-            fix = float(np.sum(np.abs(r23[neg] - repl)))
-            r23 = r23.copy()
-            r23[neg] = repl
         # first moments per cell, extrapolated the same way: the cells' barycentres
         mom2 = centres(e2) * y2[1:]
         mom3 = centres(e3) * y3[1:]
         r_mom = (4.0 * (mom3[0::2] + mom3[1::2]) - mom2) / 3.0
         mean_full = float(np.sum(r_mom) + e2[0] * r23[0])
-        # the quantity reported: cells below the floor lumped into zero_weight
+        # the quantity reported: cells below the floor lumped into zero_weight (before any other step)
         j1 = int(np.searchsorted(e1, prep.lump_below)) if prep.lump_below > 0 else 0
-        est = float(np.sum(np.abs(_lump(_aggregate(r23), j1) - _lump(r12, j1)))) / RICHARDSON_DIVISOR + fix
         j2 = 2 * j1
-        out_edges, out_y, out_mom = e2[j2:], _lump(r23, j2), r_mom[j2:]
+        est = float(np.sum(np.abs(_lump(_aggregate(r23), j1) - _lump(r12, j1)))) / RICHARDSON_DIVISOR
+        out_edges, out_y, out_mom, fine_l = e2[j2:], _lump(r23, j2), r_mom[j2:], _lump(fine, j2)
+        # where extrapolation overshoots below 0 (far tails, 1e-17-level), keep the finest grid's own
+        # value (>= 0 up to CRAM round-off, which is then cut to 0); the change is added to the estimate
+        neg = out_y < 0.0
+        if np.any(neg):
+            repl = np.maximum(fine_l[neg], 0.0)
+            est += float(np.sum(np.abs(out_y[neg] - repl)))
+            out_y = out_y.copy()
+            out_y[neg] = repl
         history.append((n_base, est))
         best = (out_edges, out_y, out_mom, est, cnt, [n_base, 2 * n_base, 4 * n_base], mean_full)
         if est <= SAFETY * rtol or n_cells is not None:
