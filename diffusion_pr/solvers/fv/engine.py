@@ -60,9 +60,10 @@ DRIFT_SPLIT = 2.0
 MAX_DRIFT_SPLIT = 256
 #: cells per balance substep (the substeps double with the cells, so Richardson removes their O(dtau^2) error)
 SUBSTEP_CELLS = 16
-#: e-folds of p resolved below the floor where the wall is not reached: mass that goes further down
-#: returns above the floor with probability below exp(-BOTTOM_EFOLDS) for f ~ p^2 (ln p drifts down)
-BOTTOM_EFOLDS = 30.0
+#: e-folds of p resolved below the floor where the wall is not reached: ln(10/rtol), at least this many;
+#: mass that goes further down returns above the floor with probability below exp(-e-folds) = rtol/10
+#: for f ~ p^2 (ln p drifts down at the rate it diffuses)
+BOTTOM_EFOLDS_MIN = 8.0
 #: weight of the logarithmic grading towards the floor (Phi units per e-fold of p)
 C_WALL = 0.6
 #: keys every finite-volume result's diagnostics carry (same for every backend)
@@ -229,7 +230,7 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
     elif reached:
         floor_domain = 0.0
     else:  # the wall is not reached: resolve BOTTOM_EFOLDS e-folds below the floor (the floor is an edge)
-        floor_domain = floor * math.exp(-BOTTOM_EFOLDS)
+        floor_domain = floor * math.exp(-max(BOTTOM_EFOLDS_MIN, math.log(10.0 / rtol)))
     extra_knots = {floor} if (not reached and not truncated) else set()
     knots = sorted({float(b) for b in bps if floor_domain < b < p_max} | {p0} | extra_knots)
     pruned: list[float] = []
@@ -443,7 +444,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             failure = "refinement did not converge in 12 levels"
             break
         # the estimate falls like N^-4: predict the cells that meet rtol (x1.5 ... x8 per level)
-        need = 1.1 * (est / (SAFETY * rtol)) ** 0.25
+        need = 1.25 * (est / (SAFETY * rtol)) ** 0.25
         grow = float(np.clip(need, 1.5, 8.0))
         if 4 * n_base >= max_cells or 4 * n_base * need > 8 * max_cells:
             failure = (f"error estimate {est:.2e} misses rtol={rtol:.1e}: it would need about "

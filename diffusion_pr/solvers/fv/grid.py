@@ -98,17 +98,16 @@ def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float) -> np.ndarr
     x = np.interp(targets, spec.phi(table), table)
     lo = np.full_like(targets, a)
     hi = np.full_like(targets, b)
-    for _ in range(50):
+    tol = 1e-14 * np.maximum(np.abs(targets), 1.0)
+    for _ in range(40):
         r = spec.phi(x) - targets
+        if np.all(np.abs(r) <= tol):
+            break
         lo = np.where(r < 0, x, lo)
         hi = np.where(r > 0, x, hi)
         step = x - r / spec.dphi(x)
         bad = (step <= lo) | (step >= hi)
-        x_new = np.where(bad, 0.5 * (lo + hi), step)
-        done = np.all(np.abs(x_new - x) <= 4e-16 * np.abs(x) + 1e-300)
-        x = x_new
-        if done:
-            break
+        x = np.where(bad, 0.5 * (lo + hi), step)
     return x
 
 
