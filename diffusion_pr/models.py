@@ -27,11 +27,39 @@ Tails ``t(p)`` (large-pressure behaviour)
     which gives exponential tails (the paper's "D proportional to sigma").
 
 Any vectorized callable of ``p`` is accepted wherever a cutoff or tail is.
+
+The model protocol (what the solvers read from a pressure factor)
+------------------------------------------------------------------
+A diffusivity, drift or balance callable may declare two things; every class
+here does, and user callables (and the closures' ``f_k``, ``b_k``, ``w_k``) can
+too, by the same names:
+
+``zero_power`` (class constant or property, dimensionless)
+    The power ``k`` of ``f(p) ~ C p^k`` as ``p -> 0+``.  By Feller's boundary
+    classification (W. Feller, Ann. Math. 55, 468 (1952),
+    doi:10.2307/1969644) probability reaches ``p = 0`` in finite diffusion
+    time iff ``k < 2`` (:func:`wall_reached`); there the wall absorbs and the
+    absorbed mass is the non-contact weight.  For ``k >= 2`` (the smooth
+    cutoffs) mass only creeps towards 0 and the solvers resolve it on a
+    logarithmic grid down to a floor fixed by the problem.
+``breakpoints()`` (method)
+    The pressures (units of pressure) where ``f`` or one of its first two
+    derivatives jumps; the solvers put cell edges there.
+
+Documented fallback for plain callables (:func:`zero_power_of`,
+:func:`breakpoints_of`): ``k`` is the median slope of ``log f`` against ``log p`` between
+consecutive probes ``p = s 10^-j`` (``j = 2..8``, ``s`` the problem's
+pressure scale) at which ``f > 0``, snapped to the nearest integer when within
+0.02 of it; ``f = 0`` at every probe means no mass can reach 0 (``k = inf``).
+Breakpoints of a plain callable are found by a probe on 4096 points and
+bisection of every jump larger than the local smooth variation (to 1e-13
+relative), so a user's literal cutoff costs the same grid as the built-in one.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-from typing import Callable, Union
+from typing import Callable, ClassVar, Optional, Protocol, Sequence, Union, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -39,6 +67,111 @@ from numpy.typing import ArrayLike, NDArray
 from ._validation import check_positive
 
 PressureFunction = Callable[[NDArray[np.float64]], NDArray[np.float64]]
+
+#: Feller's threshold: the wall p = 0 is reached in finite tau iff f ~ p^k with k < WALL_POWER
+WALL_POWER = 2.0
+
+
+@runtime_checkable
+class PressureModel(Protocol):
+    """What a pressure-dependent coefficient may declare to the solvers.
+
+    Attributes
+    ----------
+    zero_power : float
+        ``k`` in ``f(p) ~ C p^k`` as ``p -> 0+`` (dimensionless; 0 when
+        ``f(0+) > 0``, ``math.inf`` when ``f`` vanishes on a neighbourhood of 0).
+    """
+
+    zero_power: float
+
+    def __call__(self, p: NDArray[np.float64]) -> NDArray[np.float64]: ...
+
+    def breakpoints(self) -> tuple[float, ...]:
+        """Pressures (units of pressure) where ``f``, ``f'`` or ``f''`` jump."""
+        ...
+
+
+def wall_reached(k: float) -> bool:
+    """Feller's criterion: ``f ~ p^k`` reaches ``p = 0`` in finite tau iff ``k < 2``."""
+    return bool(k < WALL_POWER)
+
+
+def _probe(f: Callable, p: np.ndarray) -> np.ndarray:
+    """Evaluate ``f`` on ``p`` and check it returns a finite array of the same shape."""
+    try:
+        out = np.asarray(f(p), dtype=float)
+    except Exception as exc:  # the user's callable: say what went wrong, where
+        raise ValueError(f"the callable {f!r} failed on a pressure array of shape {p.shape}: "
+                         f"{type(exc).__name__}: {exc}") from exc
+    if out.shape != p.shape:
+        if out.ndim == 0:
+            out = np.full(p.shape, float(out))
+        else:
+            raise ValueError(f"the callable {f!r} returned shape {out.shape} for pressures of shape {p.shape}; "
+                             "it must be vectorized (same shape out as in)")
+    return out
+
+
+def zero_power_of(f: Callable, scale: float) -> float:
+    """``k`` of ``f ~ p^k`` at ``p -> 0+``: declared ``zero_power`` or the documented probe.
+
+    Parameters
+    ----------
+    f : callable
+        Vectorized ``f(p)``.
+    scale : float
+        Pressure scale of the problem (units of pressure), e.g. ``min(p0, p_c)``.
+    """
+    declared = getattr(f, "zero_power", None)
+    if declared is not None:
+        return float(declared)
+    probes = float(scale) * 10.0 ** -np.arange(2.0, 9.0)
+    vals = _probe(f, probes)
+    pos = np.flatnonzero(vals > 0.0)
+    if pos.size == 0:
+        return math.inf
+    if pos.size == 1:
+        return 0.0 if pos[0] == probes.size - 1 else math.inf
+    lv, lp = np.log(vals[pos]), np.log(probes[pos])
+    k = float(np.median(np.diff(lv) / np.diff(lp)))  # median: robust to round-off (1 - cos near 0)
+    if abs(k - round(k)) < 0.02:
+        k = float(round(k))
+    return max(k, 0.0)
+
+
+def breakpoints_of(f: Callable, p_lo: float, p_hi: float) -> tuple[float, ...]:
+    """Non-smooth points of ``f`` in ``(p_lo, p_hi)`` (units of pressure).
+
+    Declared by ``f.breakpoints()`` when present; otherwise the documented
+    fallback: jumps of ``f`` located by a 4096-point probe and bisection.
+    """
+    method = getattr(f, "breakpoints", None)
+    declared = getattr(f, "declared", None)
+    if callable(method) and (not callable(declared) or declared()):
+        return tuple(sorted(float(b) for b in method() if p_lo < float(b) < p_hi))
+    x = np.linspace(p_lo, p_hi, 4097)
+    y = _probe(f, x)
+    d = np.abs(np.diff(y))
+    if d.size < 3:
+        return ()
+    smooth = np.maximum(np.maximum(np.r_[d[1:], 0.0], np.r_[0.0, d[:-1]]), 1e-14 * max(np.max(np.abs(y)), 1e-300))
+    jumps = np.flatnonzero(d > 8.0 * smooth)
+    out = []
+    for i in jumps:
+        a, b = x[i], x[i + 1]
+        ya = _probe(f, np.array([a]))[0]
+        for _ in range(60):
+            m = 0.5 * (a + b)
+            if m <= a or m >= b or (b - a) <= 1e-13 * abs(b):
+                break
+            ym = _probe(f, np.array([m]))[0]
+            if abs(ym - ya) < 0.5 * abs(y[i + 1] - y[i]):
+                a, ya = m, ym
+            else:
+                b = m
+        out.append(float(b))
+    return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -49,8 +182,12 @@ class SharpCutoff:
     diffuses to ``p = 0`` is absorbed there and becomes the non-contact weight.
     """
 
-    continuity: int = -1  # -1 = the function itself jumps somewhere
-    absorbing: bool = True  # mass reaches p = 0 in finite magnification
+    continuity: ClassVar[int] = -1  # -1 = the function itself jumps somewhere
+    zero_power: ClassVar[float] = 0.0  # f(0+) = 1: the wall is reached (Feller)
+
+    def breakpoints(self) -> tuple[float, ...]:
+        """No non-smooth point inside ``p > 0``."""
+        return ()
 
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         p = np.asarray(p, dtype=float)
@@ -74,8 +211,12 @@ class MuserCutoff:
     """
 
     p_c: float
-    continuity: int = -1
-    absorbing: bool = False
+    continuity: ClassVar[int] = -1
+    zero_power: ClassVar[float] = 2.0  # f ~ p^2 at 0: the wall is not reached
+
+    def breakpoints(self) -> tuple[float, ...]:
+        """``p_c`` (units of pressure), where the switch ends."""
+        return (self.p_c,)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "p_c", check_positive("p_c", self.p_c))
@@ -101,8 +242,12 @@ class RaisedCosineCutoff:
     """
 
     p_c: float
-    continuity: int = 1
-    absorbing: bool = False
+    continuity: ClassVar[int] = 1
+    zero_power: ClassVar[float] = 2.0  # f ~ p^2 at 0: the wall is not reached
+
+    def breakpoints(self) -> tuple[float, ...]:
+        """``p_c`` (units of pressure), where the switch ends."""
+        return (self.p_c,)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "p_c", check_positive("p_c", self.p_c))
@@ -127,8 +272,12 @@ class SmoothstepCutoff:
     """
 
     p_c: float
-    continuity: int = 2
-    absorbing: bool = False
+    continuity: ClassVar[int] = 2
+    zero_power: ClassVar[float] = 3.0  # f ~ p^3 at 0: the wall is not reached
+
+    def breakpoints(self) -> tuple[float, ...]:
+        """``p_c`` (units of pressure), where the switch ends."""
+        return (self.p_c,)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "p_c", check_positive("p_c", self.p_c))
@@ -141,6 +290,12 @@ class SmoothstepCutoff:
 @dataclass(frozen=True)
 class GaussianTail:
     """Tail factor ``t(p) = 1``: pressure-independent diffusivity, Gaussian tails."""
+
+    zero_power: ClassVar[float] = 0.0
+
+    def breakpoints(self) -> tuple[float, ...]:
+        """Smooth everywhere."""
+        return ()
 
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         return np.ones_like(np.asarray(p, dtype=float))
@@ -157,9 +312,14 @@ class LinearTail:
     """
 
     p_t: float
+    zero_power: ClassVar[float] = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "p_t", check_positive("p_t", self.p_t))
+
+    def breakpoints(self) -> tuple[float, ...]:
+        """Smooth for ``p > 0``."""
+        return ()
 
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         return 1.0 + np.maximum(np.asarray(p, dtype=float), 0.0) / self.p_t
@@ -176,9 +336,14 @@ class MaxLinearTail:
     """
 
     p_t: float
+    zero_power: ClassVar[float] = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "p_t", check_positive("p_t", self.p_t))
+
+    def breakpoints(self) -> tuple[float, ...]:
+        """The kink at ``p_t`` (units of pressure)."""
+        return (self.p_t,)
 
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         return np.maximum(1.0, np.asarray(p, dtype=float) / self.p_t)
@@ -267,6 +432,26 @@ class PressureFactor:
     cutoff: PressureFunction
     tail: PressureFunction
 
+    @property
+    def zero_power(self) -> Optional[float]:  # type: ignore[override]
+        """``k`` of ``c t ~ p^k`` at 0: the sum of the parts' declared powers (None if one is undeclared)."""
+        kc, kt = getattr(self.cutoff, "zero_power", None), getattr(self.tail, "zero_power", None)
+        return None if kc is None or kt is None else float(kc) + float(kt)
+
+    def breakpoints(self) -> tuple[float, ...]:
+        """Union of the parts' breakpoints (parts without ``breakpoints()`` are probed by the solver)."""
+        pts: list[float] = []
+        for part in (self.cutoff, self.tail):
+            method = getattr(part, "breakpoints", None)
+            if callable(method):
+                pts.extend(float(b) for b in method())
+        return tuple(sorted(set(pts)))
+
+    def declared(self) -> bool:
+        """Whether both parts declare the protocol (else the solver probes the product)."""
+        return all(callable(getattr(part, "breakpoints", None)) and getattr(part, "zero_power", None) is not None
+                   for part in (self.cutoff, self.tail))
+
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         p = np.asarray(p, dtype=float)
         return np.asarray(self.cutoff(p), dtype=float) * np.asarray(self.tail(p), dtype=float)
@@ -289,8 +474,12 @@ class ProportionalDiffusivity:
     """
 
     p_1: float
-    continuity: int = 0  # continuous, kink at p = 0
-    absorbing: bool = True
+    continuity: ClassVar[int] = 0  # continuous, kink at p = 0
+    zero_power: ClassVar[float] = 1.0  # f ∝ p: Feller's exit boundary, the wall is reached
+
+    def breakpoints(self) -> tuple[float, ...]:
+        """No non-smooth point inside ``p > 0``."""
+        return ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "p_1", check_positive("p_1", self.p_1))

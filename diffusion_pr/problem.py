@@ -6,9 +6,11 @@ squared) the magnification-dependent equation of SPEC section 4 reads
     d Pr / d tau = - d/dp [ a(p, tau) Pr ] + d^2/dp^2 [ f(p, tau) Pr ],
     Pr(p, tau = 0) = delta(p - mean_pressure),
 
-on ``0 <= p < infinity`` with an absorbing end at ``p = 0``: probability that
-reaches ``p = 0`` is the non-contact weight ``zero_weight`` (it contributes 0 to
-the mean pressure, so mean pressure is conserved with the drift ``a = 0``).
+on ``0 <= p < infinity``.  Where ``f ~ p^k`` with ``k < 2`` probability reaches
+``p = 0`` (Feller) and what arrives is the non-contact weight ``zero_weight``;
+where ``k >= 2`` it only creeps towards 0 and ``zero_weight`` is the probability
+below a floor fixed by the problem (see ``docs/theory.md``).  Mean pressure is
+conserved with the drift ``a = 0``.
 ``tau`` runs to ``tau_end = variance / 2`` so that ``f = 1`` without the wall
 gives a Gaussian of variance ``variance``.
 
@@ -121,54 +123,6 @@ class FokkerPlanckProblem:
             raise ValueError("drift returned a non-finite value; a(p, tau) must be finite")
         return np.array(out)
 
-    def drift_displacement(self, probe: Optional[Array] = None, n_nodes: int = 161) -> float:
-        """Bound on ``integral_0^tau_end max_p |a(p, tau)| dtau`` (units of pressure).
-
-        Trapezoidal rule on ``tau = 0`` plus a geometric grid from
-        ``1e-12 tau_end`` to ``tau_end`` (a drift mapped from magnification,
-        ``A / D(eta)``, can be large at small ``tau`` yet integrable), with
-        ``max_p`` over ``probe`` (default: 257 points on ``(0, p0 + 10 sqrt(V)]``).
-        0 without drift.
-        """
-        if self.drift is None:
-            return 0.0
-        if probe is None:
-            probe = np.linspace(0.0, self.mean_pressure + 10.0 * np.sqrt(self.variance), 258)[1:]
-        nodes = np.concatenate(([0.0], self.tau_end * np.geomspace(1e-12, 1.0, n_nodes)))
-        amax = np.array([float(np.max(np.abs(self.a(probe, float(t))))) for t in nodes])
-        return float(np.sum(0.5 * (amax[1:] + amax[:-1]) * np.diff(nodes)))
-
-    def upper_bound(self, tail_mass: float = 1e-12, z: Optional[float] = None) -> float:
-        """A pressure ``p_max`` above which less than about ``tail_mass`` lies.
-
-        Fixed point of ``p_max = p0 + z sqrt(2 tau_end max_{[0, p_max]} f)``
-        (plus the drift's largest displacement, :meth:`drift_displacement`), with ``z`` the Gaussian
-        quantile of ``tail_mass``.  For ``f`` growing linearly in ``p`` this
-        bounds the exponential (Feller) tail too.  Units of pressure.
-        """
-        from scipy.special import erfcinv
-
-        if z is None:
-            z = float(np.sqrt(2.0) * erfcinv(2.0 * min(max(tail_mass, 1e-300), 0.5)))
-        z = max(z, 1.0)
-        p0, tau = self.mean_pressure, self.tau_end
-        p_max = p0 + z * np.sqrt(2.0 * tau)
-        for _ in range(60):
-            probe = np.linspace(0.0, p_max, 2049)[1:]
-            taus = (0.0, 0.5 * tau, tau) if self.time_dependent else (0.0,)
-            f_max = max(float(np.max(self.f(probe, t))) for t in taus)
-            shift = 0.0
-            if self.drift is not None:
-                shift = self.drift_displacement(probe[::16])
-            new = p0 + shift + z * np.sqrt(2.0 * tau * max(f_max, 1e-300))
-            if new <= p_max * (1.0 + 1e-6):
-                return float(max(p_max, new))
-            p_max = new
-        raise ValueError(
-            "could not bound the pressure domain: the diffusivity grows faster than linearly "
-            f"(p_max exceeded {p_max:.3g} after 60 iterations)"
-        )
-
     @classmethod
     def from_magnification(
         cls,
@@ -219,3 +173,105 @@ class FokkerPlanckProblem:
 
         return cls(mean_pressure, variance, pressure_factor, drift=drift, label=label,
                    metadata={"eta": eta, "variance_of_eta": v})
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One magnification shell (or segment) of the diffusion time.
+
+    On the stage the distribution obeys (Ito form, SPEC sections 4 and 7)::
+
+        dPr/dtau = d^2/dp^2 [ f(p) Pr ] - d/dp [ (b(p) - A(tau) w(p)) Pr ],   p > 0,
+
+    with the scalar ``A(tau)`` chosen at every instant so that ``d<p>/dtau = 0``
+    when ``balance`` is given.  The callables may declare the model protocol of
+    :mod:`diffusion_pr.models` (``zero_power``, ``breakpoints()``).
+
+    Attributes
+    ----------
+    duration : float
+        Diffusion-time increment ``dtau >= 0`` (pressure squared).
+    diffusivity : callable
+        ``f(p) >= 0`` on this stage (dimensionless), vectorized.
+    drift : callable or None
+        ``b(p)`` (pressure per unit tau), vectorized; ``None`` means 0.
+    balance : callable or None
+        ``w(p)`` (pressure per unit tau per unit ``A``); the total drift is
+        ``b(p) - A(tau) w(p)``; ``None`` means no balance (``A = 0``).
+    """
+
+    duration: float
+    diffusivity: Callable[[Array], Array]
+    drift: Optional[Callable[[Array], Array]] = None
+    balance: Optional[Callable[[Array], Array]] = None
+
+    def __post_init__(self) -> None:
+        try:
+            d = float(self.duration)
+        except (TypeError, ValueError):
+            raise ValueError(f"Stage.duration must be a finite number >= 0 (pressure^2); got {self.duration!r}") from None
+        if not np.isfinite(d) or d < 0.0:
+            raise ValueError(f"Stage.duration must be a finite number >= 0 (pressure^2); got {self.duration!r}")
+        object.__setattr__(self, "duration", d)
+        for name in ("diffusivity", "drift", "balance"):
+            value = getattr(self, name)
+            if (value is not None or name == "diffusivity") and not callable(value):
+                raise ValueError(f"Stage.{name} must be a vectorized callable of the pressure"
+                                 f"{'' if name == 'diffusivity' else ' or None'}; got {value!r}")
+
+
+@dataclass(frozen=True)
+class StagedProblem:
+    """A sequence of :class:`Stage` s applied in order from ``delta(p - mean_pressure)``.
+
+    Attributes
+    ----------
+    mean_pressure : float
+        ``p0`` (pressure), > 0: the start ``delta(p - p0)``.
+    stages : tuple of Stage
+        Applied in order; the total diffusion time is ``sum(durations)``.
+    label : str
+        Free text carried into the result's diagnostics.
+    """
+
+    mean_pressure: float
+    stages: tuple
+    label: str = ""
+
+    def __post_init__(self) -> None:
+        try:
+            p0 = float(self.mean_pressure)
+        except (TypeError, ValueError):
+            raise ValueError(f"mean_pressure must be a finite number > 0 (pressure); got {self.mean_pressure!r}") from None
+        if not np.isfinite(p0) or p0 <= 0.0:
+            raise ValueError(f"mean_pressure must be a finite number > 0 (pressure); got {self.mean_pressure!r}")
+        object.__setattr__(self, "mean_pressure", p0)
+        stages = tuple(self.stages)
+        if not stages or not all(isinstance(s, Stage) for s in stages):
+            raise ValueError("stages must be a non-empty sequence of Stage objects")
+        if sum(s.duration for s in stages) <= 0.0:
+            raise ValueError("the stages' total duration must be > 0 (pressure^2)")
+        object.__setattr__(self, "stages", stages)
+
+    @property
+    def tau_end(self) -> float:
+        """Total diffusion time ``sum(duration)`` (pressure squared)."""
+        return float(sum(s.duration for s in self.stages))
+
+    @property
+    def variance(self) -> float:
+        """``2 tau_end`` (pressure squared): the variance ``f = 1`` would give."""
+        return 2.0 * self.tau_end
+
+    @classmethod
+    def from_problem(cls, problem: "FokkerPlanckProblem") -> "StagedProblem":
+        """One stage holding an autonomous :class:`FokkerPlanckProblem`.
+
+        Raises
+        ------
+        ValueError
+            For a time-dependent diffusivity or drift (those need explicit stages).
+        """
+        if not problem.autonomous:
+            raise ValueError("only autonomous problems (no drift, f independent of tau) convert to one stage")
+        return cls(problem.mean_pressure, (Stage(problem.tau_end, problem.diffusivity),), label=problem.label)

@@ -145,7 +145,7 @@ def test_fitted_cutoff_pressure_at_zeta_0_01():
 
     Measured (seed 1): Müser's literal cutoff 0.0167 (2.0 x the paper), raised
     cosine 0.0111; the raised cosine fits best (objective 0.018 against 0.038).
-    The fit more than halves the Kolmogorov distance of the paper's p_c.
+    The fit lowers the Kolmogorov distance of the paper's p_c (0.049 to 0.034).
     """
     case = load_reference(case_name(0.01, 1))
     hist = case.histogram.rebinned(2)
@@ -156,7 +156,10 @@ def test_fitted_cutoff_pressure_at_zeta_0_01():
     assert fits["raised_cosine"].objective < fits["muser"].objective
     ks_paper = compare(paper_theory(case), case.histogram).kolmogorov
     ks_fit = compare(paper_theory(case, p_c=fits["muser"].p_c), case.histogram).kolmogorov
-    assert ks_fit < 0.5 * ks_paper
+    # measured 0.034 against 0.049 since zero_weight is one definition for every backend (the mass below the
+    # problem's floor 1e-6 p0 for this cutoff); bin_averaged_density leaves zero_weight out of the first bin,
+    # so this ratio depends on that definition (it was 0.016 / 0.049 with the old grid-dependent floor)
+    assert ks_fit < 0.8 * ks_paper
 
 
 def test_exponential_tail_fits_a_surface_that_is_not_coloured_noise():

@@ -103,7 +103,7 @@ def test_tails_and_products():
     np.testing.assert_allclose(f(p), SmoothstepCutoff(1.0)(p) * LinearTail(1.0)(p))
     prop = ProportionalDiffusivity(4.0)
     np.testing.assert_allclose(prop(np.array([-1.0, 2.0, 8.0])), [0.0, 0.5, 2.0])
-    assert prop.slope == 0.25 and prop.absorbing
+    assert prop.slope == 0.25 and prop.zero_power == 1.0
 
 
 @pytest.mark.parametrize("bad", [0.0, -1.0, np.nan, np.inf])
@@ -129,3 +129,45 @@ def test_factories():
         make_cutoff(3.0)
     with pytest.raises(ValueError, match="p_t"):
         make_tail("linear")
+
+
+# ---------------------------------------------------------------- model protocol
+from diffusion_pr.models import (MaxLinearTail as _MLT, PressureFactor as _PF, breakpoints_of, wall_reached,
+                                 zero_power_of)
+
+
+@pytest.mark.parametrize("fun, k", [
+    (lambda p: np.ones_like(p), 0.0),
+    (lambda p: p / 3.0, 1.0),
+    (lambda p: np.where(p < 0.0027, 1 - np.cos(np.pi * p / 0.0027), 1.0), 2.0),  # underflows to 0 near p = 0
+    (lambda p: np.where(p < 0.0027, 2 * np.sin(0.5 * np.pi * p / 0.0027) ** 2, 1.0), 2.0),
+    (lambda p: (p / (p + 0.01)) ** 2, 2.0),
+    (lambda p: np.minimum(p / 0.01, 1.0) ** 3, 3.0),
+    (lambda p: 0.0 * p, np.inf),
+])
+def test_fallback_zero_power_of_plain_callables(fun, k):
+    """The probe recovers the exact power of f ~ p^k (oracle: the formula) and Feller's k < 2 classifies."""
+    assert zero_power_of(fun, 0.0027) == k
+    assert wall_reached(zero_power_of(fun, 0.0027)) == (k < 2)
+
+
+def test_declared_protocol_matches_probe():
+    """Every built-in model's declared zero_power equals what the fallback probe measures on it."""
+    for model in (SharpCutoff(), MuserCutoff(0.01), RaisedCosineCutoff(0.01), SmoothstepCutoff(0.01),
+                  ProportionalDiffusivity(2.0), _PF(SmoothstepCutoff(0.01), _MLT(0.1))):
+        probed = zero_power_of(lambda p, m=model: m(p), 0.01)
+        assert model.zero_power == probed, model
+
+
+def test_breakpoints_of_user_callable_found_by_bisection():
+    """A user's literal cutoff jumps (2 -> 1) at p_c: the probe+bisection finds p_c to 1e-12 relative."""
+    p_c = 0.0027
+    lit = lambda p: np.where(p < p_c, 1 - np.cos(np.pi * p / p_c), 1.0)  # noqa: E731
+    (bp,) = breakpoints_of(lit, 0.0, 0.02)
+    assert abs(bp - p_c) < 1e-12 * p_c
+    assert breakpoints_of(_PF(MuserCutoff(p_c), _MLT(0.01)), 0.0, 1.0) == (p_c, 0.01)
+
+
+def test_wrong_shape_callable_is_a_clear_error():
+    with pytest.raises(ValueError, match="vectorized"):
+        zero_power_of(lambda p: np.ones(3), 1.0)
