@@ -267,10 +267,10 @@ def pressure_distribution(
     if np.ndim(z) or np.ndim(p0) or np.ndim(E):
         raise ValueError("E_star, mean_pressure and zeta must be scalars here "
                          "(stress_variance is vectorized over zeta; loop for several distributions)")
-    if p_c is not None:
-        check_positive("p_c", p_c)
-    if p_t is not None:
-        check_positive("p_t", p_t)
+    for name, value in (("p_c", p_c), ("p_t", p_t)):
+        if value is not None and np.ndim(check_positive(name, value)) != 0:
+            raise ValueError(f"{name} must be one number > 0 (units of pressure); got {name}={value!r} "
+                             "(loop over values for several distributions)")
     if drift is not None and not callable(drift):
         raise InputTypeError(f"drift must be None or a vectorized callable A(p, eta); got {type(drift).__name__}")
     backend = _check_backend(backend)

@@ -97,8 +97,6 @@ def test_pressure_distribution_rejects_unknown_cutoff(bad):
                                                               zeta=0.25, cutoff=bad, p_c=0.0027))
 
 
-@pytest.mark.xfail(reason="engine's validation (issue 7 item 1): a list p_c gives a numpy broadcast error",
-                   strict=False)
 def test_pressure_distribution_rejects_list_p_c():
     _raises_naming("p_c", lambda: dp.pressure_distribution(SPECTRUM, E_star=8 / 3, mean_pressure=0.004, zeta=0.25,
                                                            cutoff="smoothstep", p_c=[0.001, 0.002]))
@@ -222,13 +220,10 @@ def test_histogram_of_any_field_is_normalized(field, bins):
     assert 0.0 <= c.kolmogorov <= 1.0 and 0.0 <= c.l1 <= 2.0 + 1e-12
 
 
-KNOWN_WRONG_SUCCESS = ("issue 7 item 1, engine's part: at p_c = 5 p0, sqrt(V)/p0 = 0.125 the smoothstep cutoff "
-                       "gives success=True with mean 7e-28 and zero_weight 1 (force balance violated); found by "
-                       "test_native_contract_wide")
-
-
-@pytest.mark.xfail(reason=KNOWN_WRONG_SUCCESS, strict=False)
 def test_native_known_wrong_success():
+    """Regression (issue 7): at p_c = 5 p0, sqrt(V)/p0 = 0.125 the smoothstep cutoff once gave
+    success=True with mean 7e-28 and zero_weight 1 (force balance violated); found by
+    test_native_contract_wide. A reported success must honour the contract."""
     r = dp.propagate(1.0, 0.125**2, diffusivity=_diffusivity("smoothstep", 5.0, None, None), backend="native",
                      rtol=1e-4)
     if r.success:
@@ -236,7 +231,6 @@ def test_native_known_wrong_success():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason=KNOWN_WRONG_SUCCESS, strict=False)
 @settings(max_examples=40, deadline=None, derandomize=True, phases=[Phase.explicit, Phase.generate],
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(p0=st.floats(1e-3, 10.0), width=st.floats(0.1, 3.0), cutoff=st.sampled_from(CUTOFFS[1:]),
