@@ -135,7 +135,7 @@ def _code_version_uncached() -> dict:
                              text=True, timeout=5)
         if out.returncode == 0:
             rev = out.stdout.strip()
-            dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain", "--", "gfmd_ref"],
+            dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain", "--", "."],
                                    capture_output=True, text=True, timeout=5)
             if dirty.returncode == 0 and dirty.stdout.strip():
                 rev += "+dirty"
