@@ -19,8 +19,17 @@ from typing import Any, Dict, Tuple
 import numpy as np
 import scipy.fft as sfft
 
-#: ``workers`` passed to scipy.fft (-1: all cores).
+#: ``workers`` passed to scipy.fft (-1: all cores; ``GFMD_REF_FFT_THREADS`` overrides).
 FFT_WORKERS = -1
+
+
+def fft_threads() -> int:
+    """Threads per FFT: ``GFMD_REF_FFT_THREADS`` if set (the ensemble runner sets 1 per
+    worker process), else all cores. Read when a grid size is first planned."""
+    v = os.environ.get("GFMD_REF_FFT_THREADS", "")
+    return max(1, int(v)) if v.strip() else max(1, os.cpu_count() or 1)
+
+
 #: grids smaller than this use scipy (planning would not pay off).
 FFTW_MIN_N = 256
 #: seconds FFTW may spend planning one transform (the best plan found so far is used).
@@ -34,18 +43,19 @@ class ScipyPair:
 
     def __init__(self, shape: Tuple[int, int]):
         self.shape = shape
+        self.workers = fft_threads() if os.environ.get("GFMD_REF_FFT_THREADS", "").strip() else FFT_WORKERS
 
     def rfft(self, x: np.ndarray) -> np.ndarray:
-        return sfft.rfft2(x, workers=FFT_WORKERS)
+        return sfft.rfft2(x, workers=self.workers)
 
     def irfft(self, X: np.ndarray) -> np.ndarray:
-        return sfft.irfft2(X, s=self.shape, workers=FFT_WORKERS)
+        return sfft.irfft2(X, s=self.shape, workers=self.workers)
 
     def apply(self, mult: np.ndarray, x: np.ndarray) -> np.ndarray:
         """``irfft2(mult * rfft2(x))``: a Fourier multiplier applied to a real field."""
-        X = sfft.rfft2(x, workers=FFT_WORKERS)
+        X = sfft.rfft2(x, workers=self.workers)
         X *= mult
-        return sfft.irfft2(X, s=self.shape, workers=FFT_WORKERS, overwrite_x=True)
+        return sfft.irfft2(X, s=self.shape, workers=self.workers, overwrite_x=True)
 
 
 class FFTWPair:
@@ -115,7 +125,7 @@ def fft_pair(shape: Tuple[int, int]) -> Tuple[Any, float]:
         return _CACHE[shape], 0.0
     t0 = time.perf_counter()
     if _want_fftw(shape[0]):
-        pair: Any = FFTWPair(shape, threads=max(1, os.cpu_count() or 1))
+        pair: Any = FFTWPair(shape, threads=fft_threads())
     else:
         pair = ScipyPair(shape)
     _CACHE[shape] = pair
