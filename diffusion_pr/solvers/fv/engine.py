@@ -1,0 +1,441 @@
+"""The shared finite-volume engine: problem -> nested grids -> exponential integration -> result.
+
+Every finite-volume backend (``native``, ``pypde``, ``fipy``) goes through
+:func:`solve_fv`; a backend contributes only its way of writing the operator
+(an ``assemble(edges, f_c, a_faces)`` returning the tridiagonal bands of
+:mod:`.operator`) and, optionally, its own time loop.  The engine owns
+
+* the classification of the wall by Feller's criterion (``f ~ p^k`` reaches
+  ``p = 0`` iff ``k < 2``; :func:`diffusion_pr.models.wall_reached`),
+* the non-contact weight: the absorbed mass at ``p = 0`` where the wall is
+  reached, else the mass that reached the floor ``p_floor = FLOOR * p0`` (fixed
+  by the problem, not by the grid; reported in the diagnostics),
+* the nested grids (:mod:`.grid`), the start (two cells around ``p0``
+  carrying mass 1 and mean ``p0`` exactly),
+* the time integration: per stage ``exp(dtau L)`` by CRAM-16
+  (:mod:`.cram`); a balance multiplier ``A(tau)`` is held constant over
+  substeps and chosen by a Newton step so that the mean is ``p0`` at every
+  substep end; a ``tau``-dependent coefficient is sampled at segment
+  midpoints (exponential midpoint rule),
+* the error control: three nested grids ``N, 2N, 4N`` (time substeps doubled
+  with the cells), Richardson extrapolation of order 2 on each pair, and the
+  estimate ``||R(2N,4N) - R(N,2N)||_1 / 15`` of the reported ``R(2N, 4N)``,
+  refined until it meets ``rtol``,
+* the one result builder and diagnostics schema (:func:`build_result`).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+
+from ...models import breakpoints_of, wall_reached, zero_power_of
+from ...problem import FokkerPlanckProblem, Stage, StagedProblem
+from ...result import PressureDistribution
+from .cram import expm_tridiagonal
+from .grid import GridSpec, edges_for, knot_indices
+from .operator import bands as fv_bands
+from .operator import centres
+
+__all__ = ["FLOOR", "MAX_CELLS", "Prepared", "prepare", "solve_fv", "build_result", "DIAGNOSTIC_KEYS"]
+
+#: floor of the grid where the wall is not reached, relative to p0 (dimensionless)
+FLOOR = 1e-6
+#: default cap on the cells of the finest grid
+MAX_CELLS = 65536
+#: largest p0 / spread whose distribution double precision can resolve
+MAX_RATIO = 1e12
+#: cells per balance substep (the substeps double with the cells, so Richardson removes their O(dtau^2) error)
+SUBSTEP_CELLS = 16
+#: weight of the logarithmic grading towards the floor (Phi units per e-fold of p)
+C_WALL = 0.6
+#: keys every finite-volume result's diagnostics carry (same for every backend)
+DIAGNOSTIC_KEYS = ("backend", "rtol", "n_cells", "levels", "zero_power", "wall", "p_floor", "p_max",
+                   "mass_error", "mean_error", "negative_mass", "min_density", "tail_mass",
+                   "time_integration", "n_stages", "substeps", "timings")
+
+#: ``assemble(edges, f_centres, a_faces, a_centres) -> (lower, diag, upper)`` on ``[z, m_0..m_{n-1}]``
+Assemble = Callable[[np.ndarray, np.ndarray, Optional[np.ndarray], Optional[np.ndarray]], tuple]
+
+
+@dataclass(frozen=True)
+class _Piece:
+    """A stage as the engine integrates it: coefficients constant in tau (pressure units)."""
+
+    duration: float
+    f: Callable
+    b: Optional[Callable]
+    w: Optional[Callable]
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """A problem classified and gridded, ready for the nested solves (see :func:`prepare`)."""
+
+    p0: float
+    tau_end: float
+    pieces: tuple  # of _Piece, or a function of the number of segments for tau-dependent problems
+    time_dependent: bool
+    spec: GridSpec
+    zero_power: float
+    reached: bool
+    p_floor: float
+    has_balance: bool
+    mean_conserved: bool
+    label: str = ""
+    segment_fn: Optional[Callable] = field(default=None, compare=False)
+
+
+def _check_f(f: Callable, p: np.ndarray, name: str) -> np.ndarray:
+    try:
+        out = np.asarray(f(p), dtype=float)
+    except Exception as exc:
+        raise ValueError(f"{name} failed on a pressure array of shape {p.shape}: {type(exc).__name__}: {exc}") from exc
+    if out.shape != p.shape:
+        if out.ndim == 0:
+            out = np.full(p.shape, float(out))
+        else:
+            raise ValueError(f"{name} returned shape {out.shape} for pressures of shape {p.shape}; "
+                             "it must be vectorized (same shape out as in)")
+    if not np.all(np.isfinite(out)):
+        bad = p[~np.isfinite(out)][0]
+        raise ValueError(f"{name} returned a non-finite value at p={bad!r}")
+    return out
+
+
+def _pieces_of(problem) -> tuple[float, list, bool, Optional[Callable]]:
+    """(p0, pieces, time_dependent, segment_fn) of a StagedProblem or FokkerPlanckProblem."""
+    if isinstance(problem, StagedProblem):
+        pieces = [_Piece(s.duration, s.diffusivity, s.drift, s.balance) for s in problem.stages if s.duration > 0]
+        return problem.mean_pressure, pieces, False, None
+    if isinstance(problem, FokkerPlanckProblem):
+        if problem.autonomous:
+            return problem.mean_pressure, [_Piece(problem.tau_end, problem.diffusivity, None, None)], False, None
+
+        def segments(m: int) -> list:
+            nodes = np.linspace(0.0, problem.tau_end, m + 1)
+            out = []
+            for t0, t1 in zip(nodes[:-1], nodes[1:]):
+                tm = 0.5 * (t0 + t1)
+                f = (lambda p, tm=tm: problem.diffusivity(p, tm)) if problem.time_dependent else problem.diffusivity
+                b = None if problem.drift is None else (lambda p, tm=tm: problem.drift(p, tm))
+                out.append(_Piece(t1 - t0, f, b, None))
+            return out
+
+        return problem.mean_pressure, segments(4), True, segments
+    raise ValueError(f"problem must be a FokkerPlanckProblem or StagedProblem; got {type(problem).__name__}")
+
+
+def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepared:
+    """Classify the wall, bound the domain and fix the grid family of ``problem``.
+
+    Raises
+    ------
+    ValueError
+        ``f = 0`` everywhere (the start never moves), ``p0/spread`` beyond
+        double precision (``> 1e12``), or a coefficient that is not a
+        vectorized finite callable.
+    """
+    p0, pieces, time_dependent, segment_fn = _pieces_of(problem)
+    tau_end = float(sum(pc.duration for pc in pieces))
+    # spread: sqrt(2 sum dtau max f) on an expanding probe, plus the drift displacement
+    p_hi = p0 * 4.0
+    for _ in range(60):
+        probe = np.linspace(0.0, p_hi, 1025)[1:]
+        var = 0.0
+        shift = 0.0
+        for k, pc in enumerate(pieces):
+            var += 2.0 * pc.duration * float(np.max(_check_f(pc.f, probe, f"the diffusivity of stage {k}")))
+            if pc.b is not None:
+                shift += pc.duration * float(np.max(np.abs(_check_f(pc.b, probe, f"the drift of stage {k}"))))
+            if pc.w is not None:
+                _check_f(pc.w, probe, f"the balance of stage {k}")
+        s = math.sqrt(var)
+        z = 7.5 + 0.6 * math.log10(1.0 / max(rtol, 1e-15))  # Gaussian quantile well beyond rtol's tail mass
+        new = p0 + shift + z * s
+        if new <= p_hi:
+            break
+        p_hi = 1.5 * new
+    if s <= 0.0 or not np.isfinite(s):
+        raise ValueError("the diffusivity is 0 on the whole domain (0, "
+                         f"{p_hi:.3g}]: Pr stays delta(p - p0) and has no density to resolve")
+    if p0 / s > MAX_RATIO:
+        raise ValueError(f"mean_pressure/spread = {p0 / s:.3g} exceeds {MAX_RATIO:.0e}: the distribution is narrower "
+                         "than double precision resolves at p0 (use the Gaussian limit)")
+    if p0 / s < 1.0 / MAX_RATIO:
+        raise ValueError(f"mean_pressure/spread = {p0 / s:.3g} is below {1 / MAX_RATIO:.0e}: the start sits at the wall "
+                         "to double precision (the contact is lost)")
+    p_max = new
+    # Feller's criterion on every stage: the wall absorbs if one of them reaches it
+    bps: list[float] = []
+    k_min = math.inf
+    scale = p0
+    for pc in pieces[:1] if time_dependent else pieces:
+        for g in (pc.f, pc.b, pc.w):
+            if g is not None:
+                bps.extend(breakpoints_of(g, 0.0, p_max))
+    if bps:
+        scale = min(p0, min(bps))
+    for pc in pieces[:1] if time_dependent else pieces:
+        k_min = min(k_min, zero_power_of(pc.f, scale))
+    reached = wall_reached(k_min)
+    floor = 0.0 if reached else (FLOOR * p0 if p_floor is None else float(p_floor))
+    if not reached and not (0.0 < floor < p0):
+        raise ValueError(f"p_floor must be in (0, mean_pressure); got p_floor={p_floor!r}")
+    knots = sorted({float(b) for b in bps if floor < b < p_max} | {p0})
+    pruned: list[float] = []
+    for x in knots:  # knots closer than 1e-9 of the domain would make degenerate cells
+        if not pruned or x - pruned[-1] > 1e-9 * p_max:
+            pruned.append(x)
+    if p0 not in pruned:
+        pruned = sorted([x for x in pruned if abs(x - p0) > 1e-9 * p_max] + [p0])
+    # grading towards p0 where the local spread is small compared with the global one
+    f0 = max(float(np.max([_check_f(pc.f, np.array([p0]), "diffusivity")[0] for pc in pieces])), 0.0)
+    w_loc = math.sqrt(2.0 * tau_end * f0)
+    c_0, w0 = (1.0, max(w_loc, 1e-3 * s)) if w_loc < 0.25 * s else (0.0, s)
+    c_wall = 0.0 if reached else C_WALL
+    spec = GridSpec(p_wall=floor, p_max=p_max, knots=tuple(pruned), scale=s, c_wall=c_wall, c_0=c_0, w0=w0, p0=p0)
+    has_balance = any(pc.w is not None for pc in pieces)
+    has_drift = any(pc.b is not None for pc in pieces)
+    return Prepared(mean_conserved=has_balance or not has_drift, p0=p0, tau_end=tau_end, pieces=tuple(pieces), time_dependent=time_dependent, spec=spec,
+                    zero_power=k_min, reached=reached, p_floor=floor, has_balance=has_balance,
+                    label=getattr(problem, "label", ""), segment_fn=segment_fn)
+
+
+def native_assemble(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray],
+                    a_centres: Optional[np.ndarray] = None) -> tuple:
+    """The engine's own operator (:func:`.operator.bands`; drift taken at the faces)."""
+    return fv_bands(edges, f_c, a_faces)
+
+
+def _mean(c: np.ndarray, y: np.ndarray, p_wall: float) -> float:
+    return float(c @ y[1:] + p_wall * y[0])
+
+
+def _substeps(prep: Prepared, piece: _Piece, n_base: int, refine: int) -> int:
+    """Balance substeps of ``piece``: ``refine`` times those of the coarsest grid (``n_base`` cells).
+
+    Doubling exactly with the cells keeps the O(dtau^2) error of the frozen ``A``
+    in step with the O(h^2) spatial error, so one Richardson step removes both.
+    """
+    return refine * max(1, int(round(n_base / SUBSTEP_CELLS * piece.duration / prep.tau_end)))
+
+
+def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = native_assemble,
+                  n_base: int = 64, refine: int = 1) -> tuple[np.ndarray, dict]:
+    """Integrate from the start to ``tau_end`` on one grid; return ``y = [z, m...]`` and counters.
+
+    ``n_base`` is the cell count of the coarsest grid of the nested triple and
+    ``refine`` (1, 2, 4) this grid's refinement factor: time segments and
+    balance substeps are ``refine`` times those of the coarsest grid.
+    """
+    c = centres(edges)
+    n = c.size
+    y = np.zeros(n + 1)
+    j = int(np.searchsorted(edges, prep.p0))  # p0 == edges[j]
+    cl, cr = c[j - 1], c[j]
+    y[j] = (cr - prep.p0) / (cr - cl)
+    y[j + 1] = (prep.p0 - cl) / (cr - cl)
+    faces = edges[:-1]
+    pieces = prep.segment_fn(refine * max(4, n_base // 8)) if prep.time_dependent else prep.pieces
+    counters = {"cram_applications": 0, "substeps": 0}
+    p_wall = edges[0]
+    for pc in pieces:
+        f_c = np.maximum(_check_f(pc.f, c, "diffusivity"), 0.0)
+        a = None if pc.b is None else _check_f(pc.b, faces, "drift")
+        a_c = None if pc.b is None else _check_f(pc.b, c, "drift")
+        base = assemble(edges, f_c, a, a_c)
+        if pc.w is None:
+            y = expm_tridiagonal(*base, pc.duration, y)
+            counters["cram_applications"] += 1
+            continue
+        wl, wd, wu = assemble(edges, np.zeros(n), _check_f(pc.w, faces, "balance"), _check_f(pc.w, c, "balance"))
+        m = _substeps(prep, pc, n_base, refine)
+        dt = pc.duration / m
+        for _ in range(m):
+            # instantaneous A from d<p>/dtau = 0: <c, L0 y> = A <c, Lw y>
+            cvec = np.r_[p_wall, c]
+            l0y = _matvec(base, y)
+            lwy = _matvec((wl, wd, wu), y)
+            denom = float(cvec @ lwy)
+            A = float(cvec @ l0y) / denom if denom != 0.0 else 0.0
+            trial = expm_tridiagonal(base[0] - A * wl, base[1] - A * wd, base[2] - A * wu, dt, y)
+            err = _mean(c, trial, p_wall) - prep.p0
+            for _newton in range(3):
+                if abs(err) <= 1e-15 * prep.p0 or denom == 0.0:
+                    break
+                A += err / (dt * denom)  # d mean / dA ~ -dt <c, Lw y>
+                trial = expm_tridiagonal(base[0] - A * wl, base[1] - A * wd, base[2] - A * wu, dt, y)
+                err = _mean(c, trial, p_wall) - prep.p0
+                counters["cram_applications"] += 1
+            y = trial
+            counters["cram_applications"] += 1
+            counters["substeps"] += 1
+    return y, counters
+
+
+def _matvec(b: tuple, y: np.ndarray) -> np.ndarray:
+    lower, diag, upper = b
+    out = diag * y
+    out[1:] += lower * y[:-1]
+    out[:-1] += upper * y[1:]
+    return out
+
+
+def _aggregate(y_fine: np.ndarray) -> np.ndarray:
+    """Sum the fine cells' masses (each coarse cell split in two) onto the coarse cells."""
+    return np.r_[y_fine[0], y_fine[1::2] + y_fine[2::2]]
+
+
+def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_assemble, n_cells: Optional[int] = None,
+             max_cells: int = MAX_CELLS, p_floor: Optional[float] = None,
+             time_integration: str = "cram16", loop: Optional[Callable] = None,
+             extra: Optional[dict] = None) -> PressureDistribution:
+    """Solve ``problem`` to ``rtol`` on nested grids (the engine's entry point).
+
+    Parameters
+    ----------
+    problem : FokkerPlanckProblem or StagedProblem
+    rtol : float
+        Target L1 error (already validated by the caller, in [1e-14, 1)).
+    backend : str
+        Name stored in the result.
+    assemble : callable
+        ``assemble(edges, f_centres, a_faces, a_centres) -> (lower, diag, upper)``: the
+        backend's operator on the state ``[z, m_0..m_{n-1}]``.
+    n_cells : int, optional
+        Cells of the coarsest grid (fixed: no adaptive refinement beyond the
+        three nested grids).  Default: chosen from ``rtol`` and refined.
+    max_cells : int
+        Cap on the cells of the finest grid.
+    p_floor : float, optional
+        Floor (pressure) where the wall is not reached; default ``FLOOR * p0``.
+    time_integration : str
+        Label of the integrator stored in the diagnostics.
+    loop : callable, optional
+        ``loop(prep, edges, n_base, refine) -> (y, counters)`` replacing the CRAM
+        integration (a library's own time loop).
+    extra : dict, optional
+        Backend-specific diagnostics added to the common ones.
+    """
+    t_start = time.perf_counter()
+    if n_cells is not None:
+        if isinstance(n_cells, bool) or not isinstance(n_cells, (int, np.integer)) or n_cells < 8:
+            raise ValueError(f"n_cells must be an integer >= 8; got n_cells={n_cells!r}")
+    if isinstance(max_cells, bool) or not isinstance(max_cells, (int, np.integer)) or max_cells < 32:
+        raise ValueError(f"max_cells must be an integer >= 32; got max_cells={max_cells!r}")
+    prep = prepare(problem, rtol=rtol, p_floor=p_floor)
+    t_prep = time.perf_counter() - t_start
+    integrate = loop if loop is not None else (
+        lambda pr, e, nb, rf: solve_on_grid(pr, e, assemble=assemble, n_base=nb, refine=rf))
+    n = int(n_cells) if n_cells is not None else int(np.clip(25.0 * (1e-4 / rtol) ** 0.25, 16, 4096))
+    history = []
+
+    failure = None
+    while True:
+        idx = knot_indices(prep.spec, n)
+        n_base = int(idx[-1])
+        if 4 * n_base > max_cells and history:
+            failure = f"refinement stopped at max_cells={max_cells} (the next grid needs {4 * n_base} cells)"
+            break
+        finest = edges_for(prep.spec, idx, 4)  # the coarser grids are every 2nd / 4th edge of it
+        e1, e2, e3 = finest[::4], finest[::2], finest
+        (y1, _), (y2, _), (y3, cnt) = (integrate(prep, e, n_base, rf) for e, rf in ((e1, 1), (e2, 2), (e3, 4)))
+        r12 = (4.0 * _aggregate(y2) - y1) / 3.0
+        r23 = (4.0 * _aggregate(y3) - y2) / 3.0
+        est = float(np.sum(np.abs(_aggregate(r23) - r12))) / 15.0
+        # first moments per cell, extrapolated the same way: the cells' barycentres
+        mom2 = centres(e2) * y2[1:]
+        mom3 = centres(e3) * y3[1:]
+        r_mom = (4.0 * (mom3[0::2] + mom3[1::2]) - mom2) / 3.0
+        history.append((n_base, est))
+        best = (e2, r23, r_mom, est, cnt, [n_base, 2 * n_base, 4 * n_base])
+        if est <= rtol or n_cells is not None:
+            break
+        if len(history) > 12:
+            failure = "refinement did not converge in 12 levels"
+            break
+        # the estimate falls like N^-4: predict the cells that meet rtol (x1.5 ... x8 per level)
+        grow = float(np.clip(1.15 * (est / rtol) ** 0.25, 1.5, 8.0))
+        if 4 * n_base >= max_cells:
+            failure = f"error estimate {est:.2e} misses rtol={rtol:.1e} at max_cells={max_cells}"
+            break
+        n = min(int(math.ceil(n_base * grow)), max_cells // 4)
+    edges, y, moments, est, cnt, cells = best
+    timings = {"setup": t_prep, "solve": time.perf_counter() - t_start - t_prep,
+               "total": time.perf_counter() - t_start}
+    return build_result(prep, backend=backend, edges=edges, y=y, moments=moments, estimate=est, rtol=rtol,
+                        timings=timings,
+                        extra={"levels": cells, "history": history, "time_integration": time_integration,
+                               "cram_applications": cnt["cram_applications"], "substeps": cnt["substeps"],
+                               **(extra or {})},
+                        failure=failure)
+
+
+def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarray, estimate: float, rtol: float,
+                 timings: dict, extra: dict, moments: Optional[np.ndarray] = None,
+                 failure: Optional[str] = None) -> PressureDistribution:
+    """The one place a finite-volume result is made (one meaning of ``success``).
+
+    ``p`` of the result holds each cell's barycentre ``moments / masses``
+    (clipped into the cell; the midpoint where the mass is not positive), so
+    that ``sum(weights * p * density)`` is the first moment the solver computed
+    (to the same order as the masses), not a midpoint-rule approximation.
+
+    ``success`` requires all of: the error estimate <= rtol, total probability
+    within rtol of 1, the mean (with the floor's mass counted at the floor)
+    within ``rtol p0`` of ``p0``, negative probability (kept, never clipped)
+    below rtol, and the probability in the top cell below rtol.
+    """
+    h = np.diff(edges)
+    m = np.asarray(y[1:], dtype=float)
+    c = centres(edges)
+    if moments is not None:
+        ok = m > 1e-300
+        bary = np.where(ok, moments / np.where(ok, m, 1.0), c)
+        c = np.clip(bary, edges[:-1], edges[1:])
+    z = float(y[0])
+    density = m / h
+    mass = float(m.sum() + z)
+    mean = float(c @ m + prep.p_floor * z)
+    neg = m < 0.0
+    negative_mass = float(-m[neg].sum())
+    tail = float(abs(m[-1]))
+    problems = []
+    if failure:
+        problems.append(failure)
+    if not estimate <= rtol:
+        problems.append(f"error estimate {estimate:.2e} misses rtol={rtol:.1e} on {c.size} cells")
+    if not abs(mass - 1.0) <= rtol:
+        problems.append(f"mass {mass:.12g} not conserved to rtol")
+    if prep.mean_conserved and not abs(mean - prep.p0) <= rtol * prep.p0:
+        problems.append(f"mean {mean:.10g} differs from p0={prep.p0:.10g} by more than rtol")
+    if negative_mass > rtol:
+        problems.append(f"negative probability {negative_mass:.2e} > rtol")
+    if tail > rtol:
+        problems.append(f"probability {tail:.2e} in the top cell: the domain is too short")
+    success = not problems
+    wall = "absorbing at p = 0" if prep.reached else f"floor at p_floor = {prep.p_floor:.6g}"
+    if success:
+        message = (f"converged: L1 error estimate {estimate:.2e} <= rtol {rtol:.1e} on {c.size} cells; "
+                   f"zero_weight = probability absorbed {'at p = 0' if prep.reached else 'at p_floor'}")
+    else:
+        message = "; ".join(problems)
+    diagnostics = {
+        "backend": backend, "rtol": float(rtol), "n_cells": int(c.size), "levels": extra.get("levels"),
+        "zero_power": float(prep.zero_power), "wall": wall, "p_floor": float(prep.p_floor),
+        "p_max": float(edges[-1]), "mass_error": mass - 1.0, "mean_error": mean - prep.p0,
+        "negative_mass": negative_mass, "min_density": float(density.min()), "tail_mass": tail,
+        "time_integration": extra.get("time_integration", "cram16"), "n_stages": len(prep.pieces),
+        "substeps": int(extra.get("substeps", 0)), "timings": dict(timings),
+    }
+    diagnostics.update({k: v for k, v in extra.items() if k not in diagnostics})
+    if prep.label:
+        diagnostics["label"] = prep.label
+    return PressureDistribution(p=c, density=density, weights=h, zero_weight=z, mean_pressure=prep.p0,
+                                variance=2.0 * prep.tau_end, backend=backend, success=bool(success), message=message,
+                                error_estimate=float(estimate), wall_time=float(timings["total"]),
+                                diagnostics=diagnostics, edges=edges)

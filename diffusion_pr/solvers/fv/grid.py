@@ -1,0 +1,170 @@
+"""Graded, nested finite-volume grids on ``[p_wall, p_max]``.
+
+The cell density is the derivative of a smooth monotone monitor function ::
+
+    Phi(p) = p / s  +  c_wall ln(p - p_wall + delta)  +  c_0 asinh((p - p0) / w0)
+
+(``s``: the width of the final distribution; the logarithm grades the cells
+geometrically towards the wall where the wall is not reached, ``f ~ p^k`` with
+``k >= 2``, so that the density creeping towards 0 is resolved down to the
+floor; the ``asinh`` grades towards the start ``p0`` where the local spread is
+small).  Knots -- the wall, every breakpoint of the coefficients, ``p0`` and
+``p_max`` -- are cell edges; between knots the edges are ``Phi^-1`` of equally
+spaced values, so the grid with ``2 n`` cells per segment nests in the one with
+``n`` (each cell split in two) and the grid spacing is smooth inside every
+segment: the conditions under which Richardson extrapolation on nested grids
+is valid.  Pressures in the units of ``p0``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["GridSpec", "edges_for"]
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    """Everything that fixes a family of nested grids (pressures in units of ``p0``).
+
+    Attributes
+    ----------
+    p_wall : float
+        Lower end: 0 where the wall is reached, the floor ``p_floor`` otherwise (pressure).
+    p_max : float
+        Upper end (pressure); the mass beyond it is below the tail tolerance.
+    knots : tuple of float
+        Interior edges every grid keeps: breakpoints and ``p0`` (pressure).
+    scale : float
+        ``s``, the spread of the final distribution (pressure).
+    c_wall : float
+        Weight of the logarithmic grading towards the wall (0 for none).
+    c_0, w0 : float
+        Weight and width (pressure) of the grading towards ``p0``.
+    p0 : float
+        The start (pressure), one of the knots.
+    """
+
+    p_wall: float
+    p_max: float
+    knots: tuple
+    scale: float
+    c_wall: float
+    c_0: float
+    w0: float
+    p0: float
+
+    @property
+    def all_knots(self) -> np.ndarray:
+        """Wall, interior knots and ``p_max``, increasing (pressure)."""
+        return np.array([self.p_wall, *self.knots, self.p_max], dtype=float)
+
+    def phi(self, p: np.ndarray) -> np.ndarray:
+        """The monitor function ``Phi`` (dimensionless)."""
+        p = np.asarray(p, dtype=float)
+        out = (p - self.p_wall) / self.scale
+        if self.c_wall > 0.0:
+            out = out + self.c_wall * np.log((p - self.p_wall + self._delta) / self._delta)
+        if self.c_0 > 0.0:
+            out = out + self.c_0 * np.arcsinh((p - self.p0) / self.w0)
+        return out
+
+    def dphi(self, p: np.ndarray) -> np.ndarray:
+        p = np.asarray(p, dtype=float)
+        out = np.full_like(p, 1.0 / self.scale)
+        if self.c_wall > 0.0:
+            out = out + self.c_wall / (p - self.p_wall + self._delta)
+        if self.c_0 > 0.0:
+            out = out + self.c_0 / np.sqrt((p - self.p0) ** 2 + self.w0**2)
+        return out
+
+    @property
+    def _delta(self) -> float:
+        # the logarithmic grading reaches down to p_wall itself when p_wall > 0 (the floor)
+        return self.p_wall if self.p_wall > 0.0 else 1e-12 * self.p_max
+
+    def segment_weights(self) -> np.ndarray:
+        """``Phi`` increments of the segments between knots (dimensionless)."""
+        return np.diff(self.phi(self.all_knots))
+
+
+def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float) -> np.ndarray:
+    """``Phi^-1(targets)`` on ``[a, b]``: a tabulated start, then safeguarded Newton (to round-off)."""
+    lo_t = a - spec.p_wall + spec._delta
+    table = np.unique(np.concatenate((spec.p_wall + np.geomspace(lo_t, b - spec.p_wall + spec._delta, 400)
+                                      - spec._delta, np.linspace(a, b, 400))))
+    table = table[(table >= a) & (table <= b)]
+    x = np.interp(targets, spec.phi(table), table)
+    lo = np.full_like(targets, a)
+    hi = np.full_like(targets, b)
+    for _ in range(50):
+        r = spec.phi(x) - targets
+        lo = np.where(r < 0, x, lo)
+        hi = np.where(r > 0, x, hi)
+        step = x - r / spec.dphi(x)
+        bad = (step <= lo) | (step >= hi)
+        x_new = np.where(bad, 0.5 * (lo + hi), step)
+        done = np.all(np.abs(x_new - x) <= 4e-16 * np.abs(x) + 1e-300)
+        x = x_new
+        if done:
+            break
+    return x
+
+
+def knot_indices(spec: GridSpec, n_cells: int) -> np.ndarray:
+    """Edge index of every knot (wall, interior knots, ``p_max``) on the grid of about ``n_cells`` cells.
+
+    ``round(n Phi(knot)/Phi_total)``, pushed apart to at least :data:`MIN_GAP`
+    cells between neighbouring knots.
+    """
+    k = spec.all_knots
+    ph = spec.phi(k)
+    frac = (ph - ph[0]) / (ph[-1] - ph[0])
+    idx = np.round(n_cells * frac).astype(int)
+    idx[0] = 0
+    for j in range(1, idx.size):
+        idx[j] = max(idx[j], idx[j - 1] + MIN_GAP)
+    return idx
+
+
+#: fewest cells between two knots
+MIN_GAP = 3
+
+
+def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1) -> np.ndarray:
+    """Edges of the grid whose knots sit at edge indices ``factor * idx`` (pressure).
+
+    The edge with index ``i`` is ``Phi^-1(T(i / (factor n)))`` with ``n = idx[-1]`` and
+    ``T(x) = Phi_0 + Phi_total x + r(x)``, ``r`` the natural cubic spline through
+    the knots' rounding residuals: ``T`` is smooth (C2) across the knots, so every
+    grid of the family is a smooth map of a uniform one (the condition for
+    Richardson extrapolation and for py-pde's uniform-grid operators), the grid
+    with ``factor = 2`` nests exactly in the one with ``factor = 1``, and every
+    knot is an edge.
+
+    Raises
+    ------
+    ValueError
+        When the knots are too crowded for a monotone map (increase the cells).
+    """
+    from scipy.interpolate import CubicSpline
+
+    k = spec.all_knots
+    ph = spec.phi(k)
+    n = int(idx[-1])
+    xk = idx / n
+    tot = ph[-1] - ph[0]
+    resid = ph - (ph[0] + tot * xk)
+    x = np.arange(n * factor + 1) / (n * factor)
+    if k.size > 2:
+        r = CubicSpline(xk, resid, bc_type="natural")
+        targets = ph[0] + tot * x + r(x)
+        slope_ok = np.all(tot + r(np.linspace(0.0, 1.0, 8 * n + 1), 1) > 0.0)
+        if not slope_ok:
+            raise ValueError("grid knots too crowded for a monotone smooth map; use more cells")
+    else:
+        targets = ph[0] + tot * x
+    edges = _invert(spec, targets, k[0], k[-1])
+    edges[factor * idx] = k  # knots exactly
+    return edges
