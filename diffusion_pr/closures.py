@@ -483,8 +483,12 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         See the module docstring and docs/closures.md.
     backend : str
         ``"second_order"``: as :func:`diffusion_pr.pressure_distribution`.
-        Shell-by-shell closures: ``"reference"`` (the independent reference
-        solver of :mod:`diffusion_pr._closure_reference`), or ``"auto"``.
+        Shell-by-shell closures: the closure is a
+        :class:`~diffusion_pr.problem.StagedProblem` (:func:`closure_problem`) solved
+        by :func:`diffusion_pr.api.solve_problem` (``"auto"``, ``"native"``,
+        ``"pypde"``, ``"fipy"``), or ``"reference"``: the independent reference
+        solver of :mod:`diffusion_pr._closure_reference` (the oracle the tests check
+        the engine against; options ``n_cells``, ``n_steps``).
     rtol : float
         Target L1 error (second order; the reference solver reports its estimate).
     n_shells : int, optional
@@ -513,11 +517,9 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
 
         if partition_q is not None or n_shells is not None:
             raise ValueError("partition_q and n_shells apply to the shell-by-shell closures, not to 'second_order'")
-        res = pressure_distribution(spectrum, E_star=E, mean_pressure=p0, zeta=z,
-                                    cutoff="sharp" if cutoff is None else cutoff, p_c=p_c, tail=tail, p_t=p_t,
-                                    backend=backend, rtol=rtol, **options)
-        res.diagnostics["closure"] = "second_order"
-        return res
+        return pressure_distribution(spectrum, E_star=E, mean_pressure=p0, zeta=z,
+                                     cutoff="sharp" if cutoff is None else cutoff, p_c=p_c, tail=tail, p_t=p_t,
+                                     backend=backend, rtol=rtol, **options)
     for name, value in (("cutoff", cutoff), ("p_c", p_c), ("tail", tail), ("p_t", p_t)):
         if value is not None and not (name == "cutoff" and value == "sharp" and z == 0.0):
             raise ValueError(f"{name} applies to closure='second_order' only; closure={closure!r} has no fitted "
@@ -531,7 +533,7 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
     if partition_q is not None and partition_q != "shell":
         check_positive("partition_q", partition_q)
     shells = spectrum_shells(spectrum, E_star=E, n_shells=n_shells)
-    if backend in ("auto", "reference"):
+    if backend == "reference":
         n_cells, n_steps = options.pop("n_cells", REFERENCE_RESOLUTION[0]), options.pop("n_steps", REFERENCE_RESOLUTION[1])
         if options:
             raise ValueError(f"unknown options for the reference solver: {sorted(options)}")

@@ -230,3 +230,68 @@ def test_bad_input(fig1, kwargs, match):
 
 def test_closure_names():
     assert CLOSURES == ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced")
+
+
+# ----------------------------------------------------------------------------- api and engine
+@pytest.mark.parametrize("closure", CLOSURES)
+def test_pressure_distribution_closure_keyword(fig1, closure):
+    r = dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.5, closure=closure,
+                                 **({"backend": "reference", **FAST} if closure.startswith("local") else {}))
+    assert r.diagnostics["closure"] == closure
+    assert r.success
+
+
+def test_pressure_distribution_closure_bad_input(fig1):
+    with pytest.raises(ValueError, match="closure must be one of"):
+        dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.5, closure="fourth")
+    with pytest.raises(ValueError, match="drift applies"):
+        dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.5, closure="local_g1",
+                                 drift=lambda p, eta: 0 * p)
+
+
+def test_plot_label_names_the_closure(fig1):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    r = lognormal_gap_distribution(fig1, E_star=E, mean_pressure=P0, zeta=1.0)
+    ax = r.plot()
+    assert ax.get_lines()[0].get_label().startswith("lognormal_gap")
+
+
+@pytest.mark.parametrize("closure, zeta", [("local_g1", 0.0), ("local_g1_balanced", 0.0), ("local_g1", 0.01)])
+def test_engine_native_agrees_with_the_reference(fig1, closure, zeta):
+    """The engine's staged solve (native, rtol 1e-6) against the reference solver (3200
+    cells and steps, its own error about 3e-5 above p0/20).  Measured: 1.5e-5 (hard wall),
+    5e-5 (local_g1, zeta = 0.01)."""
+    ref = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure, backend="reference",
+                               n_cells=3200, n_steps=3200)
+    eng = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure, backend="native",
+                               rtol=1e-6)
+    assert eng.success and eng.diagnostics["closure"] == closure
+    assert kolmogorov(eng, ref) < 1.5e-4
+    assert eng.mean == pytest.approx(P0, rel=1e-5)
+
+
+@pytest.mark.xfail(strict=True, reason="engine (e927005): at rtol 1e-6 its staged answer differs from its own "
+                   "rtol 1e-8 answer and from the reference by 2.3e-4 (sup CDF) at zeta = 0.25 and 4, while "
+                   "its error estimate says 6e-7: the estimate is optimistic for staged problems")
+@pytest.mark.parametrize("zeta", [0.25])
+def test_engine_native_agrees_with_the_reference_at_soft_walls(fig1, zeta):
+    ref = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure="local_g1", backend="reference",
+                               n_cells=3200, n_steps=3200)
+    eng = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure="local_g1", backend="native",
+                               rtol=1e-6)
+    assert kolmogorov(eng, ref) < 1.5e-4
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("backend", ["pypde", "fipy"])
+def test_engine_backends_agree_on_a_closure(fig1, backend):
+    """native, py-pde and FiPy on the same StagedProblem (rtol 1e-4).  Measured at zeta = 0.25
+    (local_g1): native - fipy 0 to round-off (same engine), native - pypde 1.5e-3, all three
+    1.2e-3 ... 3.6e-3 from the reference: the engine's estimate (7e-5) is optimistic."""
+    kw = dict(E_star=E, mean_pressure=P0, zeta=0.25, closure="local_g1", rtol=1e-4)
+    nat = closure_distribution(fig1, backend="native", **kw)
+    other = closure_distribution(fig1, backend=backend, **kw)
+    assert other.success and other.diagnostics["closure"] == "local_g1"
+    assert kolmogorov(nat, other) < 3e-3
