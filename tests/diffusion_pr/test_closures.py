@@ -63,7 +63,7 @@ def test_continuum_shells_sum_to_persson_variance(fig1, n):
 def test_continuum_shell_count_is_converged(fig1):
     """The default 96 shells against 384 (the same reference solver): the shell rule is
     second order in tau; measured K(48 vs 384) = 4x K(96 vs 384) within 30 %."""
-    runs = {n: closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.25, closure="local_g1_balanced",
+    runs = {n: closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.25, closure="local_g1",
                                     n_shells=n, **FAST) for n in (48, 96, 384)}
     k96 = kolmogorov(runs[96], runs[384])
     k48 = kolmogorov(runs[48], runs[384])
@@ -262,15 +262,14 @@ def test_plot_label_names_the_closure(fig1):
 
 @pytest.mark.parametrize("closure, zeta", [("local_g1", 0.0), ("local_g1_balanced", 0.0), ("local_g1", 0.01)])
 def test_engine_native_agrees_with_the_reference(fig1, closure, zeta):
-    """The engine's staged solve (native, rtol 1e-6) against the reference solver (3200
-    cells and steps, its own error about 3e-5 above p0/20).  Measured: 1.5e-5 (hard wall),
-    5e-5 (local_g1, zeta = 0.01)."""
-    ref = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure, backend="reference",
-                               n_cells=3200, n_steps=3200)
+    """The engine's staged solve (native, rtol 1e-6) against the reference solver (1600
+    cells and steps, its own error about 1e-4 above p0/20).  Measured against 3200 cells:
+    1.5e-5 (hard wall), 5e-5 (local_g1, zeta = 0.01)."""
+    ref = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure, backend="reference")
     eng = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure, backend="native",
                                rtol=1e-6)
     assert eng.success and eng.diagnostics["closure"] == closure
-    assert kolmogorov(eng, ref) < 1.5e-4
+    assert kolmogorov(eng, ref) < 2e-4
     assert eng.mean == pytest.approx(P0, rel=1e-5)
 
 
