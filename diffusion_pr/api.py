@@ -16,13 +16,14 @@ available by name for cross-checks).
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, Callable, Optional
 
 import numpy as np
 
 from ._validation import InputTypeError, check_nonnegative, check_positive
 from .models import PressureFactor, make_cutoff, make_tail
-from .problem import FokkerPlanckProblem
+from .problem import FokkerPlanckProblem, StagedProblem
 from .result import PressureDistribution
 
 __all__ = ["propagate", "pressure_distribution", "solve_problem", "choose_backend", "BACKENDS"]
@@ -50,46 +51,72 @@ def _check_rtol(rtol: object) -> float:
     return float(value)
 
 
-def choose_backend(problem: FokkerPlanckProblem) -> str:
-    """The ``"auto"`` choice for ``problem``: ``"closed_form"`` if exact, else ``"native"``."""
+def choose_backend(problem: Any, options: Optional[dict] = None) -> str:
+    """The ``"auto"`` choice: ``"closed_form"`` if exact (and no finite-volume option given), else ``"native"``."""
     from .solvers.closed_form import exact_kind
 
-    return "closed_form" if exact_kind(problem) is not None else "native"
+    if not isinstance(problem, FokkerPlanckProblem) or exact_kind(problem) is None:
+        return "native"
+    if options and set(options) - _accepted_options("closed_form"):
+        return "native"
+    return "closed_form"
 
 
-def solve_problem(problem: FokkerPlanckProblem, *, backend: str = "auto", rtol: float = 1e-6,
+def _accepted_options(name: str) -> set:
+    """Keyword options of backend ``name``'s ``solve`` (besides ``rtol``)."""
+    import inspect
+
+    from .solvers import get_backend
+
+    params = inspect.signature(get_backend(name)).parameters
+    return {k for k, v in params.items() if v.kind == v.KEYWORD_ONLY and k != "rtol"}
+
+
+def _solve(problem: Any, backend: str, rtol: float, options: dict) -> PressureDistribution:
+    """Solve with inputs already validated (``backend`` checked, ``rtol`` a float in range)."""
+    from .solvers import get_backend
+
+    chosen = choose_backend(problem, options) if backend == "auto" else backend
+    solver = get_backend(chosen)
+    unknown = set(options) - _accepted_options(chosen)
+    if unknown:
+        raise ValueError(f"unknown option(s) {sorted(unknown)} for backend {chosen!r}; it accepts "
+                         f"{sorted(_accepted_options(chosen))}")
+    result = solver(problem, rtol=rtol, **options)
+    return replace(result, diagnostics={**result.diagnostics, "backend_requested": backend})
+
+
+def solve_problem(problem: Any, *, backend: str = "auto", rtol: float = 1e-6,
                   **options: Any) -> PressureDistribution:
-    """Solve a :class:`FokkerPlanckProblem` with the named backend.
+    """Solve a :class:`FokkerPlanckProblem` or :class:`StagedProblem` with the named backend.
 
     Parameters
     ----------
-    problem : FokkerPlanckProblem
+    problem : FokkerPlanckProblem or StagedProblem
         The problem in the diffusion time ``tau``.
     backend : str
         ``"auto"``, ``"closed_form"``, ``"native"``, ``"pypde"`` or ``"fipy"``.
     rtol : float
-        Target L1 error of ``Pr`` (dimensionless).
+        Target L1 error of ``Pr`` (dimensionless), in [1e-14, 1).
     **options
-        Passed to the backend's ``solve`` (e.g. ``n_cells`` for finite volumes).
+        The backend's own options (e.g. ``n_cells``, ``max_cells``,
+        ``p_floor``; ``method="cram"|"loop"`` for py-pde and FiPy); an unknown
+        name is an error.
 
     Raises
     ------
     ValueError
-        Unknown backend, bad ``rtol``, or ``closed_form`` asked for a problem
-        without a closed form.
+        Unknown backend or option, bad ``rtol``, or ``closed_form`` asked for a
+        problem without a closed form.
     BackendUnavailableError
         The backend's optional dependency is missing (the message names the
         pip extra).
     """
-    from .solvers import get_backend
-
+    if not isinstance(problem, (FokkerPlanckProblem, StagedProblem)):
+        raise ValueError(f"problem must be a FokkerPlanckProblem or StagedProblem; got {type(problem).__name__}")
     backend = _check_backend(backend)
     rtol = _check_rtol(rtol)
-    chosen = choose_backend(problem) if backend == "auto" else backend
-    solver = get_backend(chosen)
-    result = solver(problem, rtol=rtol, **options)
-    result.diagnostics.setdefault("backend_requested", backend)
-    return result
+    return _solve(problem, backend, rtol, options)
 
 
 def propagate(
@@ -159,10 +186,10 @@ def propagate(
     if drift is not None and not callable(drift):
         raise InputTypeError(f"drift must be None or a vectorized callable a(p, tau); got {drift!r} "
                              f"of type {type(drift).__name__}")
-    _check_backend(backend)
-    _check_rtol(rtol)
+    backend = _check_backend(backend)
+    rtol = _check_rtol(rtol)
     problem = FokkerPlanckProblem(float(p0), float(var), diffusivity, drift=drift)
-    return solve_problem(problem, backend=backend, rtol=rtol, **options)
+    return _solve(problem, backend, rtol, options)
 
 
 def pressure_distribution(
@@ -261,8 +288,8 @@ def pressure_distribution(
         check_positive("p_t", p_t)
     if drift is not None and not callable(drift):
         raise InputTypeError(f"drift must be None or a vectorized callable A(p, eta); got {type(drift).__name__}")
-    _check_backend(backend)
-    _check_rtol(rtol)
+    backend = _check_backend(backend)
+    rtol = _check_rtol(rtol)
     factor = PressureFactor(make_cutoff(cutoff, p_c), make_tail(tail, p_t))
     V = float(stress_variance(spectrum, E_star=E, mean_pressure=p0, zeta=z))
     if not np.isfinite(V) or V <= 0.0:
@@ -283,6 +310,5 @@ def pressure_distribution(
             mean_pressure=float(p0), eta=eta, variance_of_eta=v_eta, pressure_factor=factor,
             drift_of_eta=drift, label="pressure_distribution")
         extra.update({"eta": eta, "variance_of_eta": v_eta})
-    result = solve_problem(problem, backend=backend, rtol=rtol, **options)
-    result.diagnostics.update(extra)
-    return result
+    result = _solve(problem, backend, rtol, options)
+    return replace(result, diagnostics={**result.diagnostics, **extra})

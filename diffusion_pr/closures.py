@@ -418,11 +418,26 @@ def _solve_reference(shells: Shells, *, zeta: float, E_star: float, p0: float, c
     balanced = closure == "local_g1_balanced"
     t0 = time.perf_counter()
     runs = []
-    for n, m in ((n_cells // 2, n_steps // 2), (n_cells, n_steps)):
+    # The wall floor (first edge) sits a factor `floor` below zeta q_min E*/2.  local_g1: ln p drifts
+    # down at rate 1/p*^2 there, mass never returns, 1e-2 is deep enough.  Balanced: its drift
+    # cancels that Ito drift, ln p random-walks over a wide range and mass comes back, so the floor
+    # goes 32 e-folds deeper (1e-16) with the cells scaled to keep the cell size (docs/closures.md).
+    floor = 1e-16 if balanced else 1e-2
+    scale_cells = 1.0
+    kz = 0.5 * zeta * E_star
+    if balanced and kz > 0:
+        pm = p0 + 10.0 * math.sqrt(shells.V0)
+        s_shallow = min(p0 / 20.0, 1e-2 * kz * shells.q_min)
+        s_deep = min(p0 / 20.0, floor * kz * shells.q_min)
+        scale_cells = math.asinh(pm / s_deep) / math.asinh(pm / s_shallow)
+    n_fine = 4 * int(math.ceil(n_cells * scale_cells / 4.0))
+    for n, m in ((n_fine // 2, n_steps // 2), (n_fine, n_steps)):
         runs.append(solve_reference(shells.q, shells.dV0, zeta=zeta, E_star=E_star, mean_pressure=p0,
                                     balanced=balanced, q_part=partition_q if partition_q else shells.q_min,
-                                    n_cells=n, n_steps=m, floor_factor=0.01))
+                                    n_cells=n, n_steps=m, floor_factor=floor))
     coarse, fine = runs
+    if fine["density"].size != 2 * coarse["density"].size:  # keep the grids nested
+        raise RuntimeError("reference solver: non-nested grids")
     m_f = fine["density"] * np.diff(fine["edges"])
     m_c = coarse["density"] * np.diff(coarse["edges"])
     # nested grids (x uniform, halved): merge fine pairs; BDF2 and the grid are second order
@@ -435,17 +450,16 @@ def _solve_reference(shells: Shells, *, zeta: float, E_star: float, p0: float, c
     err = diff / 3.0
     edges = fine["edges"]
     wall = time.perf_counter() - t0
-    kz = 0.5 * zeta * E_star
     floor = float(edges[1])
     res_mean = fine["mean_residual"]
     density = fine["density"]
     n_neg = int(np.count_nonzero(density < 0))
     ok = n_neg == 0 and (not balanced or res_mean < 1e-10)
-    msg = (f"reference solver: {n_cells} cells, {n_steps} BDF2 steps; estimated L1 error {err:.2e} "
-           f"(against {n_cells // 2} cells/{n_steps // 2} steps)")
+    msg = (f"reference solver: {n_fine} cells, {n_steps} BDF2 steps; estimated L1 error {err:.2e} "
+           f"(against {n_fine // 2} cells/{n_steps // 2} steps)")
     if n_neg:
         msg += f"; {n_neg} negative cell densities (min {density.min():.3g})"
-    diag = {"closure": closure, "n_cells": n_cells, "n_steps": n_steps, "n_shells": int(shells.q.size),
+    diag = {"closure": closure, "n_cells": int(edges.size - 1), "n_steps": n_steps, "n_shells": int(shells.q.size),
             "partition_q": partition_q if partition_q else shells.q_min, "wall_floor": floor if kz > 0 else 0.0,
             "balance_multiplier": fine["A"], "secant_iterations": fine["secant_iterations"],
             "mean_residual": res_mean, "shells_exact": shells.exact}

@@ -19,8 +19,10 @@ class PressureDistribution:
     Attributes
     ----------
     p : ndarray
-        Pressure grid (units of pressure): cell centres for finite-volume
-        backends, evaluation points for closed forms.
+        Pressure grid (units of pressure): for finite-volume backends each
+        cell's barycentre (the mean pressure of the probability in it, so that
+        ``sum(weights * p * density)`` is the solver's first moment), for
+        closed forms the quadrature nodes.
     density : ndarray
         Continuous part of ``Pr`` on ``p`` (1 / pressure), non-negative.
     weights : ndarray
@@ -28,8 +30,13 @@ class PressureDistribution:
         ``sum(weights * g(p) * density)`` integrates ``g`` against the
         continuous part (cell widths for finite volumes).
     zero_weight : float
-        Probability in the non-contact peak ``delta(p)`` (0 where the model
-        has none).  ``1 - zero_weight`` is the relative contact area.
+        The non-contact weight, one definition for every backend: where the
+        diffusivity reaches the wall (``f ~ p^k`` with ``k < 2``, Feller) the
+        probability absorbed at ``p = 0``; where it does not (``k >= 2``) the
+        probability that reached the floor ``diagnostics["p_floor"]`` (fixed by
+        the problem: ``1e-6 p0`` by default), below which the density is not
+        resolved.  ``1 - zero_weight`` is the relative contact area at that
+        resolution; a contact threshold ``p_t`` is ``1 - cdf(p_t)``.
     mean_pressure, variance : float
         The problem's ``p0`` and ``V`` (the inputs).
     backend : str
@@ -47,7 +54,11 @@ class PressureDistribution:
         Seconds spent in the solve (excluding imports / JIT compilation, which
         are in ``diagnostics``).
     diagnostics : dict
-        Backend-specific details (cells, steps, refinements, timings).
+        The same keys from every backend (``backend, rtol, n_cells, levels,
+        zero_power, wall, p_floor, p_max, mass_error, mean_error,
+        negative_mass, min_density, tail_mass, time_integration, n_stages,
+        substeps, timings``) plus backend-specific extras.  Never mutated
+        after the result is returned.
     edges : ndarray, optional
         Cell edges (length ``len(p) + 1``) for finite-volume results.
     """
@@ -78,8 +89,23 @@ class PressureDistribution:
 
     @property
     def second_moment(self) -> float:
-        """``integral p^2 Pr(p) dp`` (pressure squared)."""
-        return float(np.sum(self.weights * self.p**2 * self.density))
+        """``integral p^2 Pr(p) dp`` (pressure squared); see :meth:`moment`."""
+        return self.moment(2)
+
+    def _cell_moment(self, order: int, shift: float) -> float:
+        """``sum_i integral_cell (x - shift)^order rho_i(x) dx`` with ``rho_i`` the linear density
+        of mass ``m_i`` and barycentre ``p_i`` on cell ``i`` (3-point Gauss-Legendre: exact to order 4)."""
+        e = np.asarray(self.edges, dtype=float)
+        h = np.diff(e)
+        c = 0.5 * (e[:-1] + e[1:])
+        m = self.weights * self.density
+        slope = 12.0 * (self.p - c) / np.where(h > 0, h * h, 1.0)
+        x, w = np.polynomial.legendre.leggauss(3)
+        total = 0.0
+        for xi, wi in zip(x, w):
+            q = c + 0.5 * h * xi
+            total += float(np.sum(0.5 * wi * m * (1.0 + slope * (q - c)) * (q - shift) ** order))
+        return total
 
     @property
     def contact_fraction(self) -> float:
@@ -88,9 +114,17 @@ class PressureDistribution:
 
     def moment(self, order: int, central: bool = False) -> float:
         """Moment ``<p^k>`` (or ``<(p - mean)^k>`` if ``central``) of the full ``Pr``,
-        including the ``delta(p)`` peak at ``p = 0``."""
+        including the ``delta(p)`` peak at ``p = 0``.
+
+        Finite-volume results integrate, in every cell, the linear density with
+        the cell's mass and barycentre (so the within-cell spread, ``h^2/12`` for
+        the second moment, is not lost); closed forms use their quadrature.
+        """
         shift = self.mean if central else 0.0
-        value = float(np.sum(self.weights * (self.p - shift) ** order * self.density))
+        if self.edges is not None:
+            value = self._cell_moment(order, shift)
+        else:
+            value = float(np.sum(self.weights * (self.p - shift) ** order * self.density))
         return value + float(self.zero_weight) * (0.0 - shift) ** order
 
     def pdf(self, p: Any) -> Array:
@@ -100,8 +134,10 @@ class PressureDistribution:
     def cdf(self, p: Any) -> Array:
         """Cumulative probability ``P(pressure <= p)`` including the delta at 0.
 
-        Finite-volume results integrate the cell averages exactly (piecewise
-        constant within a cell).  Point-wise results (closed forms on
+        Finite-volume results: exact at the cell edges (the cumulative cell
+        masses), a cubic spline of them in between, clipped to the cell's two
+        edge values (fourth-order accurate for a smooth density; stays within
+        the cell's probability).  Point-wise results (closed forms on
         quadrature nodes) integrate a shape-preserving cubic (PCHIP)
         interpolant of the density, so bins narrower than the node spacing are
         still integrated accurately; the segment ``[0, p[0]]`` is taken as
@@ -110,8 +146,14 @@ class PressureDistribution:
         """
         p = np.asarray(p, dtype=float)
         if self.edges is not None:
+            from scipy.interpolate import CubicSpline
+
             cum = np.concatenate(([0.0], np.cumsum(self.weights * self.density)))
-            out = np.interp(p, self.edges, cum, left=0.0, right=cum[-1])
+            q = np.clip(p, self.edges[0], self.edges[-1])
+            i = np.clip(np.searchsorted(self.edges, q, side="right") - 1, 0, self.edges.size - 2)
+            inside = np.clip(CubicSpline(self.edges, cum)(q), np.minimum(cum[i], cum[i + 1]),
+                             np.maximum(cum[i], cum[i + 1]))
+            out = np.where(p <= self.edges[0], 0.0, np.where(p >= self.edges[-1], cum[-1], inside))
         else:
             out = self._pointwise_cdf(p)
         return np.where(p >= 0.0, out + self.zero_weight, 0.0)

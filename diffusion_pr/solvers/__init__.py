@@ -96,3 +96,17 @@ def is_available(name: str) -> bool:
     except BackendUnavailableError:
         return False
     return True
+
+
+def warm_up(name: str) -> float:
+    """Do backend ``name``'s one-time work now (imports, first assembly); return the seconds spent.
+
+    Solves never warm up silently: call this before timing a backend whose
+    first call carries a one-time cost (py-pde and FiPy imports).  The native
+    backend has none (no JIT) and returns 0.
+    """
+    if name not in _REGISTRY:
+        raise ValueError(f"backend must be one of {backend_names()}; got backend={name!r}")
+    module = importlib.import_module(_REGISTRY[name][0])
+    fn = getattr(module, "warm_up", None)
+    return float(fn()) if fn is not None else 0.0

@@ -74,12 +74,9 @@ def exact_kind(problem: FokkerPlanckProblem) -> Optional[Tuple[str, float]]:
             return ("mirror", 1.0)
         if isinstance(f.cutoff, ProportionalDiffusivity):
             return ("feller", f.cutoff.slope)
-    if isinstance(f, PressureFactor):
-        # a known smooth cutoff or linear tail is not exact; skip probing
-        known = (type(f.cutoff).__module__.endswith("models") and not isinstance(f.cutoff, SharpCutoff)) or \
-                (type(f.tail).__module__.endswith("models") and not isinstance(f.tail, GaussianTail))
-        if known:
-            return None
+    declared = getattr(f, "zero_power", None)
+    if declared is not None and (float(declared) not in (0.0, 1.0) or tuple(getattr(f, "breakpoints", tuple)())):
+        return None  # the model protocol says: neither constant nor linear (no probing needed)
     p = _probe_points(problem)
     try:
         v = problem.f(p, 0.0)
@@ -93,7 +90,7 @@ def exact_kind(problem: FokkerPlanckProblem) -> Optional[Tuple[str, float]]:
     return None
 
 
-def _panel_edges(p0: float, width: float, far: float, p_max: float) -> Array:
+def _panel_edges(p0: float, width: float, far: float, p_max: float, p_lo: float = 0.0) -> Array:
     """Panel edges on ``[0, p_max]``: ``width/4`` near ``p0``, growing away from it.
 
     The panel width at ``p`` is ``clip(|p - p0| / 4, width / 4, far)``:
@@ -101,8 +98,8 @@ def _panel_edges(p0: float, width: float, far: float, p_max: float) -> Array:
     deviation), up to ``far`` in the tails (Gaussian: ``width/2``; Feller's
     exponential tail: ``max(width, slope tau)/2``).
     """
-    edges = [0.0]
-    p = 0.0
+    edges = [float(p_lo)]
+    p = float(p_lo)
     lo_w = width / 4.0
     while p < p_max:
         w = float(np.clip(abs(p - p0) / 4.0, lo_w, far))
@@ -127,8 +124,7 @@ def gauss_legendre_grid(panel_edges: Array, n: int = NODES_PER_PANEL) -> Tuple[A
     return nodes, weights
 
 
-def solve(problem: FokkerPlanckProblem, *, rtol: float = 1e-6, tail_mass: float = 1e-16,
-          **options: object) -> PressureDistribution:
+def solve(problem: FokkerPlanckProblem, *, rtol: float = 1e-6, tail_mass: float = 1e-16) -> PressureDistribution:
     """Evaluate the exact solution of ``problem`` on a Gauss-Legendre grid.
 
     Parameters
@@ -140,15 +136,22 @@ def solve(problem: FokkerPlanckProblem, *, rtol: float = 1e-6, tail_mass: float 
         about 1e-13 regardless.
     tail_mass : float
         Probability allowed beyond the last panel (default 1e-16).
-    **options
-        Ignored (the common backend signature); unknown names are reported
-        in ``diagnostics["ignored_options"]``.
 
     Raises
     ------
     ValueError
-        If the problem has no closed form here.
+        If the problem has no closed form here, or ``p0/sqrt(V)`` is beyond
+        what double precision resolves (``> 1e12``: the distribution is
+        narrower than the spacing of doubles at ``p0``).
+
+    Notes
+    -----
+    The panels start at ``max(0, p0 - 12 sd)`` (the mirror Gaussian) or where
+    Feller's density is below ``tail_mass``, so the cost does not grow with
+    ``p0 / sqrt(V)``.
     """
+    from .fv.engine import MAX_RATIO
+
     t0 = time.perf_counter()
     kind = exact_kind(problem)
     if kind is None:
@@ -156,11 +159,15 @@ def solve(problem: FokkerPlanckProblem, *, rtol: float = 1e-6, tail_mass: float 
                          "without drift; use backend='native' (or 'auto') for this problem")
     name, coef = kind
     p0, tau = problem.mean_pressure, problem.tau_end
+    spread = np.sqrt(2.0 * coef * tau * (1.0 if name == "mirror" else p0))
+    if not p0 / spread <= MAX_RATIO:
+        raise ValueError(f"mean_pressure/sqrt(variance) = {p0 / spread:.3g} exceeds {MAX_RATIO:.0e}: the distribution "
+                         "is narrower than double precision resolves at p0 (it is the Gaussian limit, zero_weight 0)")
     if name == "mirror":
         var = 2.0 * coef * tau
         sd = np.sqrt(var)
         p_max = p0 + 10.0 * sd  # Gaussian tail beyond 10 sd: 7.6e-24
-        panels = _panel_edges(p0, sd, sd / 2.0, p_max)
+        panels = _panel_edges(p0, sd, sd / 2.0, p_max, p_lo=max(0.0, p0 - 12.0 * sd))
         p, w = gauss_legendre_grid(panels)
         dens = np.asarray(cf.mirror_gaussian_density(p, p0, var), dtype=float)
         zero = cf.persson_zero_weight(p0, var)
@@ -171,7 +178,8 @@ def solve(problem: FokkerPlanckProblem, *, rtol: float = 1e-6, tail_mass: float 
         # density ~ exp(-(sqrt p - sqrt p0)^2 / scale): beyond p_max < tail_mass
         z = np.sqrt(-np.log(max(tail_mass, 1e-300)))
         p_max = (np.sqrt(p0) + z * np.sqrt(scale)) ** 2 + 4.0 * scale
-        panels = _panel_edges(p0, min(sd, scale) if p0 < scale else sd, max(sd, scale) / 2.0, p_max)
+        p_lo = max(0.0, np.sqrt(p0) - z * np.sqrt(scale)) ** 2
+        panels = _panel_edges(p0, min(sd, scale) if p0 < scale else sd, max(sd, scale) / 2.0, p_max, p_lo=p_lo)
         p, w = gauss_legendre_grid(panels)
         dens = np.asarray(cf.feller_density(p, p0, tau, coef), dtype=float)
         zero = cf.feller_zero_weight(p0, tau, coef)
@@ -185,8 +193,12 @@ def solve(problem: FokkerPlanckProblem, *, rtol: float = 1e-6, tail_mass: float 
         variance=problem.variance, backend="closed_form", success=True,
         message=f"exact: {label} on {panels.size - 1} Gauss-Legendre panels x {NODES_PER_PANEL} nodes",
         error_estimate=float(defect), wall_time=wall,
-        diagnostics={"kind": name, "coefficient": coef, "panels": panels, "p_max": float(p_max),
-                     "quadrature_mass_defect": mass - 1.0, "mean_error": mean - p0,
-                     "ignored_options": sorted(options)},
+        diagnostics={"backend": "closed_form", "rtol": float(rtol), "n_cells": int(p.size), "levels": None,
+                     "zero_power": 0.0 if name == "mirror" else 1.0, "wall": "absorbing at p = 0", "p_floor": 0.0, "p_min": float(panels[0]),
+                     "p_max": float(p_max), "mass_error": mass - 1.0, "mean_error": mean - p0,
+                     "negative_mass": 0.0, "min_density": float(dens.min()), "tail_mass": float(tail_mass),
+                     "time_integration": "exact", "n_stages": 1, "substeps": 0,
+                     "timings": {"setup": 0.0, "solve": wall, "total": wall},
+                     "kind": name, "coefficient": coef, "panels": panels, "quadrature_mass_defect": mass - 1.0},
         edges=None,
     )

@@ -129,9 +129,6 @@ def test_fitted_cutoff_pressure_at_zeta_0_01():
     assert fits["raised_cosine"].objective < fits["muser"].objective
 
 
-@pytest.mark.xfail(strict=True, raises=ValueError,
-                   reason="engine e927005: fit_tail_pressure's bracket (p_t down to 0.05 p0) makes the new "
-                          "finite-volume grid raise 'grid knots too crowded'; passed before the engine merge")
 def test_exponential_tail_fits_a_surface_that_is_not_coloured_noise():
     """Claim: non-Gaussian tails of Pr(p) come from surfaces that are not
     coloured noise and are rationalized by D growing with p.

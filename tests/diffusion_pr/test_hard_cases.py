@@ -1,8 +1,8 @@
 """Hard cases: stable, conservative, non-negative over the ranges issue 3 names.
 
 Every case asserts: success with the estimate below rtol, total probability
-(continuous part + zero weight) 1 to round-off (1e-10: the outflow at p = 0 is
-booked exactly), mean pressure p0 to rtol when there is no drift (force
+(continuous part + zero weight) 1 to within the error estimate (the outflow at
+the wall is booked exactly; extrapolation may move tail mass), mean pressure p0 to rtol when there is no drift (force
 balance), no negative density.  Where a closed form exists (sharp cutoff) the
 zero weight is also compared with it.  rtol = 1e-4 keeps the file fast.
 """
@@ -20,7 +20,9 @@ RTOL = 1e-4
 def check_sound(r, p0: float, *, drift: bool = False) -> None:
     assert r.success, r.message
     assert r.error_estimate <= RTOL
-    assert abs(r.mass - 1.0) < 1e-10
+    # the exponential conserves mass to round-off; the Richardson step may move the tails' mass by
+    # at most what it adds to the estimate
+    assert abs(r.mass - 1.0) < 1e-10 + r.error_estimate
     assert np.all(r.density >= 0.0) and np.all(np.isfinite(r.density))
     assert 0.0 <= r.zero_weight <= 1.0
     if not drift:

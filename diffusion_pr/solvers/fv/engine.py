@@ -19,7 +19,7 @@ Every finite-volume backend (``native``, ``pypde``, ``fipy``) goes through
   midpoints (exponential midpoint rule),
 * the error control: three nested grids ``N, 2N, 4N`` (time substeps doubled
   with the cells), Richardson extrapolation of order 2 on each pair, and the
-  estimate ``||R(2N,4N) - R(N,2N)||_1 / 15`` of the reported ``R(2N, 4N)``,
+  estimate ``||R(2N,4N) - R(N,2N)||_1 / 7`` of the reported ``R(2N, 4N)``,
   refined until it meets ``rtol``,
 * the one result builder and diagnostics schema (:func:`build_result`).
 """
@@ -48,12 +48,21 @@ FLOOR = 1e-6
 MAX_CELLS = 65536
 #: largest p0 / spread whose distribution double precision can resolve
 MAX_RATIO = 1e12
+#: ||R(2N,4N) - R(N,2N)|| / RICHARDSON_DIVISOR estimates the error of R(2N,4N): 2^p - 1 for order p;
+#: 7 assumes third order (the extrapolated values converge at order 3-4: wall cells, knots), conservative by
+#: up to 2 where they converge at order 4
+RICHARDSON_DIVISOR = 7.0
+#: refinement stops when the estimate is below SAFETY * rtol (margin for the estimate's own error)
+SAFETY = 0.5
 #: cells per balance substep (the substeps double with the cells, so Richardson removes their O(dtau^2) error)
 SUBSTEP_CELLS = 16
+#: e-folds of p resolved below the floor where the wall is not reached: mass that goes further down
+#: returns above the floor with probability below exp(-BOTTOM_EFOLDS) for f ~ p^2 (ln p drifts down)
+BOTTOM_EFOLDS = 30.0
 #: weight of the logarithmic grading towards the floor (Phi units per e-fold of p)
 C_WALL = 0.6
 #: keys every finite-volume result's diagnostics carry (same for every backend)
-DIAGNOSTIC_KEYS = ("backend", "rtol", "n_cells", "levels", "zero_power", "wall", "p_floor", "p_max",
+DIAGNOSTIC_KEYS = ("backend", "rtol", "n_cells", "levels", "zero_power", "wall", "p_floor", "p_min", "p_max",
                    "mass_error", "mean_error", "negative_mass", "min_density", "tail_mass",
                    "time_integration", "n_stages", "substeps", "timings")
 
@@ -85,6 +94,7 @@ class Prepared:
     p_floor: float
     has_balance: bool
     mean_conserved: bool
+    lump_below: float = 0.0
     label: str = ""
     segment_fn: Optional[Callable] = field(default=None, compare=False)
 
@@ -159,6 +169,9 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
         if new <= p_hi:
             break
         p_hi = 1.5 * new
+    else:
+        raise ValueError("could not bound the pressure domain: the diffusivity (or drift) grows faster than "
+                         f"linearly in p (the spread estimate exceeded {p_hi:.3g} after 60 iterations)")
     if s <= 0.0 or not np.isfinite(s):
         raise ValueError("the diffusivity is 0 on the whole domain (0, "
                          f"{p_hi:.3g}]: Pr stays delta(p - p0) and has no density to resolve")
@@ -185,23 +198,39 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
     floor = 0.0 if reached else (FLOOR * p0 if p_floor is None else float(p_floor))
     if not reached and not (0.0 < floor < p0):
         raise ValueError(f"p_floor must be in (0, mean_pressure); got p_floor={p_floor!r}")
-    knots = sorted({float(b) for b in bps if floor < b < p_max} | {p0})
+    # far from the wall (p0 - z s above the floor) less than the tail tolerance gets below p0 - z s:
+    # the domain starts there (what arrives is booked into zero_weight, below the tail tolerance)
+    p_lo = p0 - (z * s + shift)
+    truncated = p_lo > floor
+    if truncated:
+        floor_domain = p_lo
+    elif reached:
+        floor_domain = 0.0
+    else:  # the wall is not reached: resolve BOTTOM_EFOLDS e-folds below the floor (the floor is an edge)
+        floor_domain = floor * math.exp(-BOTTOM_EFOLDS)
+    extra_knots = {floor} if (not reached and not truncated) else set()
+    knots = sorted({float(b) for b in bps if floor_domain < b < p_max} | {p0} | extra_knots)
     pruned: list[float] = []
-    for x in knots:  # knots closer than 1e-9 of the domain would make degenerate cells
-        if not pruned or x - pruned[-1] > 1e-9 * p_max:
+    for x in knots:
+        if x in extra_knots:
             pruned.append(x)
+            continue  # knots closer than 1e-9 of the domain would make degenerate cells
+        if not pruned or x - pruned[-1] > 1e-9 * x:
+            pruned.append(x)
+    pruned = sorted(set(pruned))
     if p0 not in pruned:
-        pruned = sorted([x for x in pruned if abs(x - p0) > 1e-9 * p_max] + [p0])
+        pruned = sorted([x for x in pruned if abs(x - p0) > 1e-9 * p0 or x in extra_knots] + [p0])
     # grading towards p0 where the local spread is small compared with the global one
     f0 = max(float(np.max([_check_f(pc.f, np.array([p0]), "diffusivity")[0] for pc in pieces])), 0.0)
     w_loc = math.sqrt(2.0 * tau_end * f0)
     c_0, w0 = (1.0, max(w_loc, 1e-3 * s)) if w_loc < 0.25 * s else (0.0, s)
-    c_wall = 0.0 if reached else C_WALL
-    spec = GridSpec(p_wall=floor, p_max=p_max, knots=tuple(pruned), scale=s, c_wall=c_wall, c_0=c_0, w0=w0, p0=p0)
+    c_wall = 0.0 if (reached or truncated) else C_WALL
+    spec = GridSpec(p_wall=floor_domain, p_max=p_max, knots=tuple(pruned), scale=s, c_wall=c_wall, c_0=c_0, w0=w0, p0=p0)
     has_balance = any(pc.w is not None for pc in pieces)
     has_drift = any(pc.b is not None for pc in pieces)
     return Prepared(mean_conserved=has_balance or not has_drift, p0=p0, tau_end=tau_end, pieces=tuple(pieces), time_dependent=time_dependent, spec=spec,
                     zero_power=k_min, reached=reached, p_floor=floor, has_balance=has_balance,
+                    lump_below=floor if extra_knots else 0.0,
                     label=getattr(problem, "label", ""), segment_fn=segment_fn)
 
 
@@ -285,6 +314,13 @@ def _matvec(b: tuple, y: np.ndarray) -> np.ndarray:
     return out
 
 
+def _lump(y: np.ndarray, j: int) -> np.ndarray:
+    """``[z + m_0 + .. + m_{j-1}, m_j, ...]``: the first ``j`` cells (below the floor) lumped into ``z``."""
+    if j <= 0:
+        return y
+    return np.r_[y[: j + 1].sum(), y[j + 1:]]
+
+
 def _aggregate(y_fine: np.ndarray) -> np.ndarray:
     """Sum the fine cells' masses (each coarse cell split in two) onto the coarse cells."""
     return np.r_[y_fine[0], y_fine[1::2] + y_fine[2::2]]
@@ -345,30 +381,45 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         e1, e2, e3 = finest[::4], finest[::2], finest
         (y1, _), (y2, _), (y3, cnt) = (integrate(prep, e, n_base, rf) for e, rf in ((e1, 1), (e2, 2), (e3, 4)))
         r12 = (4.0 * _aggregate(y2) - y1) / 3.0
-        r23 = (4.0 * _aggregate(y3) - y2) / 3.0
-        est = float(np.sum(np.abs(_aggregate(r23) - r12))) / 15.0
+        fine = _aggregate(y3)
+        r23 = (4.0 * fine - y2) / 3.0
+        # where extrapolation overshoots below 0 (far tails, 1e-17-level), keep the finest grid's own
+        # value (>= 0 up to CRAM round-off, which is then cut to 0); the change is added to the estimate
+        neg = r23 < 0.0
+        fix = 0.0
+        if np.any(neg):
+            repl = np.maximum(fine[neg], 0.0)
+            fix = float(np.sum(np.abs(r23[neg] - repl)))
+            r23 = r23.copy()
+            r23[neg] = repl
         # first moments per cell, extrapolated the same way: the cells' barycentres
         mom2 = centres(e2) * y2[1:]
         mom3 = centres(e3) * y3[1:]
         r_mom = (4.0 * (mom3[0::2] + mom3[1::2]) - mom2) / 3.0
+        mean_full = float(np.sum(r_mom) + e2[0] * r23[0])
+        # the quantity reported: cells below the floor lumped into zero_weight
+        j1 = int(np.searchsorted(e1, prep.lump_below)) if prep.lump_below > 0 else 0
+        est = float(np.sum(np.abs(_lump(_aggregate(r23), j1) - _lump(r12, j1)))) / RICHARDSON_DIVISOR + fix
+        j2 = 2 * j1
+        out_edges, out_y, out_mom = e2[j2:], _lump(r23, j2), r_mom[j2:]
         history.append((n_base, est))
-        best = (e2, r23, r_mom, est, cnt, [n_base, 2 * n_base, 4 * n_base])
-        if est <= rtol or n_cells is not None:
+        best = (out_edges, out_y, out_mom, est, cnt, [n_base, 2 * n_base, 4 * n_base], mean_full)
+        if est <= SAFETY * rtol or n_cells is not None:
             break
         if len(history) > 12:
             failure = "refinement did not converge in 12 levels"
             break
         # the estimate falls like N^-4: predict the cells that meet rtol (x1.5 ... x8 per level)
-        grow = float(np.clip(1.15 * (est / rtol) ** 0.25, 1.5, 8.0))
+        grow = float(np.clip(1.1 * (est / (SAFETY * rtol)) ** 0.25, 1.5, 8.0))
         if 4 * n_base >= max_cells:
             failure = f"error estimate {est:.2e} misses rtol={rtol:.1e} at max_cells={max_cells}"
             break
         n = min(int(math.ceil(n_base * grow)), max_cells // 4)
-    edges, y, moments, est, cnt, cells = best
+    edges, y, moments, est, cnt, cells, mean_full = best
     timings = {"setup": t_prep, "solve": time.perf_counter() - t_start - t_prep,
                "total": time.perf_counter() - t_start}
     return build_result(prep, backend=backend, edges=edges, y=y, moments=moments, estimate=est, rtol=rtol,
-                        timings=timings,
+                        timings=timings, mean_full=mean_full,
                         extra={"levels": cells, "history": history, "time_integration": time_integration,
                                "cram_applications": cnt["cram_applications"], "substeps": cnt["substeps"],
                                **(extra or {})},
@@ -377,7 +428,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
 
 def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarray, estimate: float, rtol: float,
                  timings: dict, extra: dict, moments: Optional[np.ndarray] = None,
-                 failure: Optional[str] = None) -> PressureDistribution:
+                 mean_full: Optional[float] = None, failure: Optional[str] = None) -> PressureDistribution:
     """The one place a finite-volume result is made (one meaning of ``success``).
 
     ``p`` of the result holds each cell's barycentre ``moments / masses``
@@ -400,7 +451,8 @@ def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarr
     z = float(y[0])
     density = m / h
     mass = float(m.sum() + z)
-    mean = float(c @ m + prep.p_floor * z)
+    # the mean checked is the solver's full first moment (the lumped mass below the floor included)
+    mean = float(c @ m + edges[0] * z) if mean_full is None else float(mean_full)
     neg = m < 0.0
     negative_mass = float(-m[neg].sum())
     tail = float(abs(m[-1]))
@@ -418,16 +470,17 @@ def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarr
     if tail > rtol:
         problems.append(f"probability {tail:.2e} in the top cell: the domain is too short")
     success = not problems
-    wall = "absorbing at p = 0" if prep.reached else f"floor at p_floor = {prep.p_floor:.6g}"
+    wall = "absorbing at p = 0" if prep.reached else f"not reached (k >= 2); floor at p_floor = {prep.p_floor:.6g}"
     if success:
-        message = (f"converged: L1 error estimate {estimate:.2e} <= rtol {rtol:.1e} on {c.size} cells; "
-                   f"zero_weight = probability absorbed {'at p = 0' if prep.reached else 'at p_floor'}")
+        message = (f"converged: L1 error estimate {estimate:.2e} <= rtol {rtol:.1e} on {c.size} cells"
+                   + ("; zero_weight = probability absorbed at p = 0" if prep.reached
+                      else f"; zero_weight = probability below p_floor = {prep.p_floor:.3g}"))
     else:
         message = "; ".join(problems)
     diagnostics = {
         "backend": backend, "rtol": float(rtol), "n_cells": int(c.size), "levels": extra.get("levels"),
         "zero_power": float(prep.zero_power), "wall": wall, "p_floor": float(prep.p_floor),
-        "p_max": float(edges[-1]), "mass_error": mass - 1.0, "mean_error": mean - prep.p0,
+        "p_min": float(edges[0]), "p_max": float(edges[-1]), "mass_error": mass - 1.0, "mean_error": mean - prep.p0,
         "negative_mass": negative_mass, "min_density": float(density.min()), "tail_mass": tail,
         "time_integration": extra.get("time_integration", "cram16"), "n_stages": len(prep.pieces),
         "substeps": int(extra.get("substeps", 0)), "timings": dict(timings),

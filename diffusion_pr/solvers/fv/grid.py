@@ -157,14 +157,14 @@ def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1) -> np.ndarray:
     tot = ph[-1] - ph[0]
     resid = ph - (ph[0] + tot * xk)
     x = np.arange(n * factor + 1) / (n * factor)
+    targets = ph[0] + tot * x
     if k.size > 2:
         r = CubicSpline(xk, resid, bc_type="natural")
-        targets = ph[0] + tot * x + r(x)
-        slope_ok = np.all(tot + r(np.linspace(0.0, 1.0, 8 * n + 1), 1) > 0.0)
-        if not slope_ok:
-            raise ValueError("grid knots too crowded for a monotone smooth map; use more cells")
-    else:
-        targets = ph[0] + tot * x
+        if np.all(tot + r(np.linspace(0.0, 1.0, 8 * n + 1), 1) > 0.2 * tot):
+            targets = targets + r(x)
+        else:  # knots crowded: equal Phi steps per segment (nested, piecewise smooth)
+            targets = np.concatenate([ph[j] + (ph[j + 1] - ph[j]) * np.arange(factor * (idx[j + 1] - idx[j])) /
+                                      (factor * (idx[j + 1] - idx[j])) for j in range(k.size - 1)] + [ph[-1:]])
     edges = _invert(spec, targets, k[0], k[-1])
     edges[factor * idx] = k  # knots exactly
     return edges
