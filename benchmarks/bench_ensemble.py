@@ -156,6 +156,31 @@ def check_ingest(field_dir, seed=3, walls=("hard", "0.25")):
     return rows
 
 
+def finite_size(stores, walls=("hard", 0.25), use_bundle=True):
+    """Finite-size table from stores (any grids) plus, if asked, the bundled 1024^2 ensemble."""
+    from gfmd_ref import bundled_ensemble, load_ensemble
+    from gfmd_ref.ensemble_stats import finite_size_table
+    from gfmd_ref.ensemble_store import Ensemble
+
+    recs = []
+    for s in stores:
+        recs.extend(load_ensemble(s).records)
+    if use_bundle:
+        recs.extend(bundled_ensemble("fig1_n1024").records)
+    ens = Ensemble(recs)
+    out = {}
+    for w in walls:
+        rows = finite_size_table(ens, w)
+        out[str(w)] = rows
+        print(f"wall {w}:")
+        print("    n  seeds  contact fraction     sd/p0            skewness         K to finest (noise)")
+        for r in rows:
+            print(f"{r['n']:5d} {r['seeds']:6d}  {r['contact_fraction']:.4f} +- {r['contact_fraction_sem']:.4f}  "
+                  f"{r['sd_over_p0']:.3f} +- {r['sd_over_p0_sem']:.3f}  {r['skewness']:.3f} +- {r['skewness_sem']:.3f}  "
+                  f"{r['k_to_finest']:.4f} ({r['k_noise']:.4f})")
+    return out
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[256, 1024, 2048])
@@ -165,9 +190,13 @@ def main(argv=None):
     ap.add_argument("--check-ingest", default=None, metavar="FIELD_DIR")
     ap.add_argument("--json", default=None, help="write the results here")
     ap.add_argument("--keep", default=None, help="keep the throughput stores under this directory")
+    ap.add_argument("--finite-size", nargs="+", default=None, metavar="STORE",
+                    help="finite-size table of these stores plus the bundled 1024^2 Fig. 1 ensemble")
     args = ap.parse_args(argv)
     res = {}
-    if args.check_ingest:
+    if args.finite_size:
+        res["finite_size"] = finite_size(args.finite_size)
+    elif args.check_ingest:
         res["check_ingest"] = check_ingest(args.check_ingest)
     elif args.overhead:
         res["overhead"] = overhead()
