@@ -216,6 +216,7 @@ def main(argv=None) -> int:
     pb.add_argument("--out", required=True, help="output .npz")
     pb.add_argument("--name", required=True, help="ensemble name stored in the file")
     pb.add_argument("--regenerate", default="", help="the commands that regenerate the stores (provenance)")
+    pb.add_argument("--seeds", default=None, help="only these seeds, e.g. 1-32 (default all)")
     args = parser.parse_args(argv)
     if args.command == "run":
         with warnings.catch_warnings():
@@ -244,12 +245,14 @@ def main(argv=None) -> int:
             return 2
         return 0 if run.success else 1
     if args.command == "ensemble-bundle":
+        from .ensemble import parse_seeds
         from .ensemble_data import write_bundle
 
         command = "gfmd-ref " + " ".join(sys.argv[1:] if argv is None else argv)
         try:
             path, size = write_bundle(args.stores, args.out, name=args.name, command=command,
-                                      regenerate=args.regenerate)
+                                      regenerate=args.regenerate,
+                                      seeds=None if args.seeds is None else parse_seeds(args.seeds))
         except ValueError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2

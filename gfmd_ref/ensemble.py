@@ -76,6 +76,8 @@ class EnsembleSurface:
         ``q_max / q_min`` with ``q_min = 2 pi / L``: the shortest wavelength is
         ``L / n_waves``; needs ``2 n_waves <= n`` (below the Nyquist wavenumber).
 
+    Notes
+    -----
     The Fig. 1 family (:data:`FIG1_SURFACE`) generates exactly
     :func:`~gfmd_ref.fig1_surface`. The same family at several ``n`` is the same
     physical system (all lengths in units of ``L``) at a finer discretisation.
@@ -498,14 +500,18 @@ def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), mean_pressures=
                 f = client.submit(solve_case, c, str(store.resolve()), prov, key=f"gfmd-case-{case_key(c)}",
                                   pure=False)
                 futs[f] = c
-            for f in as_completed(list(futs)):
-                c = futs[f]
-                try:
-                    _done(f.result())
-                except Exception as exc:
-                    failed[case_label(c)] = f"{type(exc).__name__}: {exc}"
-                    if bar is not None:
-                        bar.update(1)
+            try:
+                for f in as_completed(list(futs)):
+                    c = futs[f]
+                    try:
+                        _done(f.result())
+                    except Exception as exc:  # e.g. KilledWorker after repeated worker deaths
+                        failed[case_label(c)] = f"{type(exc).__name__}: {exc}"
+                        if bar is not None:
+                            bar.update(1)
+            except BaseException:
+                client.cancel(list(futs))  # interrupted: do not leave cases running on a shared cluster
+                raise
     finally:
         if bar is not None:
             bar.close()

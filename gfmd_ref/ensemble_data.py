@@ -47,16 +47,19 @@ def bundle_path(name: str) -> Path:
 
 
 def write_bundle(stores: Sequence[os.PathLike | str] | os.PathLike | str, out: os.PathLike | str, *, name: str,
-                 command: str = "", regenerate: str = "") -> tuple:
-    """Write the records of ``stores`` as a compact bundle; returns ``(path, bytes)``."""
+                 command: str = "", regenerate: str = "", seeds=None) -> tuple:
+    """Write the records of ``stores`` (only ``seeds`` if given) as a compact bundle;
+    returns ``(path, bytes)``."""
     if isinstance(stores, (str, os.PathLike)):
         stores = [stores]
     recs = []
     infos = []
     for s in stores:
         e = load_ensemble(s)
-        recs.extend(e.records)
+        recs.extend(e.records if seeds is None else [r for r in e.records if r.seed in set(seeds)])
         infos.append(dict(store=str(s), runs=e.info.get("runs", [])))
+    if not recs:
+        raise ValueError(f"no record to bundle (stores {list(map(str, stores))}, seeds {seeds})")
     step = (len(recs[0].levels) - 1) // (len(BUNDLE_LEVELS) - 1)
     for r in recs:
         if not np.allclose(r.levels[::step], BUNDLE_LEVELS, rtol=0, atol=1e-15):

@@ -219,3 +219,28 @@ def test_ingested_fields_give_the_live_records(tmp_path):
     again = run_ensemble(tmp_path / "ing", n=N, seeds="2", walls="hard,0.25", serial=True, progress=False,
                          verbose=False)
     assert again.n_skipped == 2 and again.n_computed == 0
+
+
+def test_scheduler_address(tmp_path, cluster):
+    """``scheduler=ADDRESS`` connects to a running cluster; same records as serial."""
+    addr = cluster.scheduler.address
+    run = run_ensemble(tmp_path / "addr", n=64, seeds="1-2", walls="hard", scheduler=addr, progress=False,
+                       verbose=False)
+    assert run.success and run.scheduler == f"scheduler {addr}"
+    ser = run_ensemble(tmp_path / "ser", n=64, seeds="1-2", walls="hard", serial=True, progress=False, verbose=False)
+    for a, b in zip(load_ensemble(tmp_path / "addr"), load_ensemble(ser.store)):
+        np.testing.assert_array_equal(a.quantiles, b.quantiles)
+        assert "run_ensemble" in a.provenance["command"]
+
+
+@pytest.mark.slow
+def test_cli_starts_and_closes_its_own_local_cluster(tmp_path, capsys):
+    from gfmd_ref.cli import main
+
+    assert main(["ensemble", "--n", "64", "--seeds", "1-2", "--walls", "hard", "--workers", "1",
+                 "--store", str(tmp_path / "own"), "--no-progress"]) == 0
+    assert "local cluster: 1 worker(s)" in capsys.readouterr().out
+    ser = run_ensemble(tmp_path / "ser", n=64, seeds="1-2", walls="hard", serial=True, progress=False, verbose=False)
+    for a, b in zip(load_ensemble(tmp_path / "own"), load_ensemble(ser.store)):
+        np.testing.assert_array_equal(a.quantiles, b.quantiles)
+        assert a.provenance["command"].startswith("gfmd-ref ensemble")

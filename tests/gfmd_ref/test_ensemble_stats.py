@@ -74,20 +74,30 @@ def test_record_cdf_inverts_the_quantiles(expo):
     r = recs[0]
     inner = (r.quantiles > r.quantiles[0]) & (r.quantiles < r.quantiles[-1])
     np.testing.assert_allclose(r.cdf(r.quantiles[inner]), r.levels[inner], atol=1e-12)
+    # the hard-wall delta peak: F(0) = zero weight (right-continuous), to one level step
+    rng = np.random.default_rng(4)
+    hard = _record(np.where(rng.random(M) < 0.37, 0.0, rng.exponential(P0, M)), 1)
+    assert float(hard.cdf(0.0)) == pytest.approx(hard.zero_weight, abs=1 / 2048)
+    assert float(hard.cdf(-1e-30)) == 0.0
 
 
-def test_noise_floor_matches_iid_theory(expo):
-    """For i.i.d. values the Kolmogorov distance of a pool of N seeds (N M values)
-    from the true law has mean about 0.8687/sqrt(N M) (Kolmogorov distribution mean
-    sqrt(pi/2) ln 2); the split-half estimator must recover it."""
-    samples, recs = expo
+def test_noise_floor_matches_iid_theory():
+    """For i.i.d. values the Kolmogorov distance of a pool of N seeds (N m values)
+    from the true law has mean 0.8687/sqrt(N m) asymptotically (Kolmogorov
+    distribution mean sqrt(pi/2) ln 2), a few per cent less at m = 1024 and over
+    p >= p0/20 (measured 0.85-0.97 x over three ensembles of 64 seeds); the
+    split-half estimator must recover it (a missing 1/sqrt 2 gives 1.3 x)."""
+    rng = np.random.default_rng(12)
+    m = 1024
+    recs = [_record(rng.exponential(P0, m), i + 1) for i in range(64)]
     nf = noise_floor(recs, repeats=100)
-    expected = 0.8687 / np.sqrt(nf.sizes * M)
-    np.testing.assert_allclose(nf.k_noise, expected, rtol=0.3)
-    assert nf.coefficient * np.sqrt(M) == pytest.approx(0.8687, rel=0.25)
-    assert nf.k_noise_full == pytest.approx(nf.coefficient / np.sqrt(S))
+    assert nf.sizes.tolist() == [1, 2, 4, 8, 16, 32]
+    ratio = nf.k_noise / (0.8687 / np.sqrt(nf.sizes * m))
+    assert np.all((ratio > 0.75) & (ratio < 1.1)), ratio
+    assert nf.coefficient * np.sqrt(m) == pytest.approx(0.8687, rel=0.2)
+    assert nf.k_noise_full == pytest.approx(nf.coefficient / np.sqrt(64))
     with pytest.raises(ValueError, match="sizes"):
-        noise_floor(recs, sizes=[9])
+        noise_floor(recs, sizes=[33])
 
 
 def test_bootstrap_bands_cover_the_truth(expo):
