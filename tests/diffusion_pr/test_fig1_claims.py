@@ -201,7 +201,7 @@ def _mean_spectrum(group):
     return DiscreteSpectrum(qs, power / len(recs), mult, float(recs[0].length))
 
 
-def _ensemble_compare(name, zeta, closure, *, paper_pc=False):
+def _ensemble_compare(name, zeta, closure, *, paper_pc=False, n_cells=800):
     from gfmd_ref.ensemble_data import bundled_ensemble
 
     from diffusion_pr.closures import closure_distribution
@@ -212,7 +212,8 @@ def _ensemble_compare(name, zeta, closure, *, paper_pc=False):
     E, p0 = float(rec.E_star), float(rec.mean_pressure)
     kw = {}
     if closure.startswith("local"):
-        kw = {"backend": "reference", "n_cells": 800, "n_steps": 800}  # K error ~5e-4, far below the noise
+        # reference solver: K error ~5e-4 (800 cells) / 1e-3 (400), far below the targets' margins
+        kw = {"backend": "reference", "n_cells": n_cells, "n_steps": n_cells}
     elif closure == "second_order" and paper_pc and zeta is not None:
         kw = {"cutoff": "muser", "p_c": paper_cutoff_pressure(zeta), "rtol": 1e-5}
     th = closure_distribution(_mean_spectrum(group), E_star=E, mean_pressure=p0, zeta=0.0 if zeta is None else zeta,
@@ -252,3 +253,58 @@ def test_offscene_second_order_is_far_worse_at_intermediate_zeta():
     assert so.kolmogorov - bal.kolmogorov > 10 * so.noise_bootstrap
     # skewness: GFMD 2.3 (pool), balanced 2.2, second order 0.8
     assert abs(bal.skewness_theory - bal.skewness_pool) < 0.3 < abs(so.skewness_theory - so.skewness_pool)
+
+
+# ----------------------------------------------------------------------------- the Fig. 1 ensemble
+#: issue 9's targets for K against the pooled ensemble (no fitted parameter)
+FIG1_TARGETS = {None: 0.04, 0.001: 0.04, 0.01: 0.04, 0.1: 0.05, 0.25: 0.025, 0.5: 0.025, 1.0: 0.01, 2.0: 0.01,
+                4.0: 0.01}
+
+
+@pytest.mark.parametrize("zeta", [None, 0.001, 0.25, 0.5, 1.0, 4.0])
+def test_fig1_balanced_closure_meets_the_targets(zeta):
+    """local_g1_balanced against the bundled Fig. 1 ensemble (K over p >= p0/20): within
+    target + 2 x the bootstrap noise.  Measured (docs/fig1.md): 0.027 (hard wall = Persson),
+    0.034 (0.001), 0.019 (0.25), 0.004 (0.5), 0.003 (1), 0.004 (4)."""
+    c = _ensemble_compare("fig1_n1024", zeta, "local_g1_balanced", n_cells=400)
+    assert c.kolmogorov < FIG1_TARGETS[zeta] + 2 * c.noise_bootstrap, (c.kolmogorov, c.noise_bootstrap)
+
+
+@pytest.mark.parametrize("zeta", [0.01, 0.1])
+def test_fig1_balanced_closure_misses_the_targets_at_small_zeta(zeta):
+    """Where the targets are missed, the test says so: zeta = 0.01 (K about 0.06 against
+    0.04) and 0.1 (about 0.075 against 0.05), beyond 2 x the ensemble noise."""
+    c = _ensemble_compare("fig1_n1024", zeta, "local_g1_balanced", n_cells=400)
+    assert c.kolmogorov > FIG1_TARGETS[zeta] + 2 * c.noise_bootstrap, (c.kolmogorov, c.noise_bootstrap)
+    assert c.kolmogorov < 0.1
+
+
+def test_fig1_second_order_is_not_flawless_at_large_zeta():
+    """Claim: 'for large zeta theory and simulation agree flawlessly'.  Not so on the
+    ensemble: at zeta = 4 the paper's second order misses by K = 0.034, several times the
+    noise and the balanced closure's 0.004; its skewness (-0.03) is not GFMD's (0.51)."""
+    so = _ensemble_compare("fig1_n1024", 4.0, "second_order", paper_pc=True)
+    bal = _ensemble_compare("fig1_n1024", 4.0, "local_g1_balanced", n_cells=400)
+    assert so.kolmogorov > 3 * so.noise_bootstrap
+    assert so.kolmogorov > 3 * bal.kolmogorov
+    assert abs(so.skewness_theory) < 0.1 and so.skewness_pool > 0.3
+    assert abs(bal.skewness_theory - bal.skewness_pool) < 0.1
+
+
+def test_fig1_agreement_degrades_at_intermediate_zeta():
+    """Claim: agreement degrades at intermediate zeta.  Reproduced on the ensemble: the
+    paper's second order K = 0.03 at zeta = 0.001, 0.35 at 0.25, 0.03 at 4."""
+    k = {z: _ensemble_compare("fig1_n1024", z, "second_order", paper_pc=True).kolmogorov for z in (0.001, 0.25, 4.0)}
+    assert k[0.25] > 5 * k[0.001] and k[0.25] > 5 * k[4.0]
+    assert k[0.25] > 0.25
+
+
+def test_fig1_hard_wall_contact_area_exceeds_persson_on_the_ensemble():
+    """Independent numbers (Hyun et al. 2004; Prodanov et al. 2014): kappa about 2 against
+    Persson's 1.60.  Pooled GFMD contact fraction 0.1045 against Persson's 0.0771 (13 raw
+    seeds): ratio 1.36, kappa 2.16; the seed-to-seed sd of the contact fraction is about 1 %."""
+    c = _ensemble_compare("fig1_n1024", None, "second_order")
+    gbar = 0.031
+    assert 1.25 < c.contact_fraction_gfmd / c.contact_fraction_theory < 1.5
+    assert 1.9 < c.contact_fraction_gfmd * E_STAR * gbar / P0 < 2.4
+    assert c.contact_fraction_gfmd_sd < 0.05 * c.contact_fraction_gfmd
