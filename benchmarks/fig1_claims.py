@@ -249,7 +249,8 @@ def bundle_report(name: str, closures, per_seed: bool = True) -> dict:
             opts = {"cutoff": "sharp"} if cl == "second_order" else (
                 {"backend": "reference"} if cl.startswith("local") else {})
             th = closure_distribution(mean_spec, E_star=E, mean_pressure=p0, zeta=z, closure=cl, **opts)
-            c = compare_ensemble(th, g)
+            top = max(float(np.asarray(r.quantiles)[-1]) for r in recs)
+            c = compare_ensemble(th, g, edges=np.arange(0.0, top + p0 / 20.0, p0 / 20.0))
             base = c
             per = []
             if per_seed:

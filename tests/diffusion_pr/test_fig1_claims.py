@@ -223,7 +223,7 @@ def _ensemble_compare(name, zeta, closure, *, paper_pc=False, n_cells=800):
 
 #: off-scene ensemble (512^2, H 0.7, slope 0.05, E* 1, p0 0.005, 16 seeds): measured K of
 #: local_g1_balanced against the pooled ensemble and the bootstrap noise beside it
-OFFSCENE_BALANCED = {None: (0.0390, 0.0009), 0.01: (0.0694, 0.0015), 0.1: (0.0485, 0.0061),
+OFFSCENE_BALANCED = {None: (0.0390, 0.0009), 0.01: (0.0621, 0.0015), 0.1: (0.0472, 0.0061),
                      0.5: (0.0028, 0.0116), 2.0: (0.0070, 0.0128)}
 TARGETS = {None: 0.04, 0.01: 0.04, 0.1: 0.05, 0.5: 0.025, 2.0: 0.01}
 
@@ -232,7 +232,7 @@ TARGETS = {None: 0.04, 0.01: 0.04, 0.1: 0.05, 0.5: 0.025, 2.0: 0.01}
 def test_offscene_balanced_closure_against_the_pooled_ensemble(zeta):
     """Off the paper's scene, no fitted number: local_g1_balanced meets issue 9's targets
     at zeta = 0.1, 0.5, 2 and the hard wall (where it is Persson: 0.039 against 0.04), and
-    misses at zeta = 0.01 (0.069).  Tolerance: 3 x the ensemble's bootstrap noise around
+    misses at zeta = 0.01 (0.062).  Tolerance: 3 x the ensemble's bootstrap noise around
     the measured value (plus 1e-3 for the reference solver at 800 cells)."""
     c = _ensemble_compare("offscene_n512", zeta, "local_g1_balanced")
     k_meas, noise = OFFSCENE_BALANCED[zeta]
