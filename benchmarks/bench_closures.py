@@ -3,8 +3,8 @@
 For each closure and wall (zeta = 0.01, 0.25, 4; continuum Fig. 1 spectrum with the
 default 96 shells, and one seed's DiscreteSpectrum), the warm wall time (median
 of repeats, after one warm-up call that also compiles numba kernels) and the
-error: sup |F - F_ref| over p >= p0/20 against a converged run of the reference
-solver (6400 cells, 6400 steps; its own error is about 1e-5 there).
+error: sup |F - F_ref| over p >= p0/20 against a fine run of the reference
+solver (3200 cells and steps; its own error is about 3e-5 there).
 
 Backends: ``reference`` (the independent solver of
 ``diffusion_pr._closure_reference`` at several resolutions) and, when the engine
@@ -46,7 +46,7 @@ def timed(fn, repeats):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--backends", default="reference")
+    ap.add_argument("--backends", default="reference,native")
     ap.add_argument("--zetas", default="0.01,0.25,4")
     args = ap.parse_args()
     spec = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
@@ -58,7 +58,7 @@ def main() -> None:
         refs = {}
         for cl in ("local_g1", "local_g1_balanced"):
             refs[cl] = closure_distribution(spec, E_star=E, mean_pressure=P0, zeta=zeta, closure=cl,
-                                            n_cells=6400, n_steps=6400)
+                                            backend="reference", n_cells=3200, n_steps=3200)
         # closed forms / second order
         t, r = timed(lambda: closure_distribution(spec, E_star=E, mean_pressure=P0, zeta=zeta,
                                                   closure="lognormal_gap"), args.repeats)
@@ -72,7 +72,8 @@ def main() -> None:
                 if be == "reference":
                     for n in (400, 800, 1600):
                         t, r = timed(lambda: closure_distribution(spec, E_star=E, mean_pressure=P0, zeta=zeta,
-                                                                  closure=cl, n_cells=n, n_steps=n), args.repeats)
+                                                                  closure=cl, backend="reference", n_cells=n,
+                                                                  n_steps=n), args.repeats)
                         # the reference solver runs twice (n/2 and n) for its error estimate
                         print(f"| {cl} | {zeta:g} | reference | {n} cells x {n} steps (+ half) | {1e3 * t:.1f} | "
                               f"{sup_cdf(r, refs[cl]):.1e} | {r.success} |")
