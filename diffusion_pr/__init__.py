@@ -59,6 +59,8 @@ _LAZY = {
     "make_tail": "models",
     # problem, result, solving
     "FokkerPlanckProblem": "problem",
+    "Stage": "problem",
+    "StagedProblem": "problem",
     "PressureDistribution": "result",
     "propagate": "api",
     "pressure_distribution": "api",

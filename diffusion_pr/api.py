@@ -10,9 +10,12 @@ solve.
 
 Backend choice (``backend="auto"``): the closed form wherever it is exact
 (constant ``f`` with the sharp or no cutoff: Persson's mirror Gaussian;
-``f ∝ p``: Feller's solution), otherwise ``"native"``, the fastest backend
-meeting ``rtol`` (the py-pde and FiPy backends are never faster; they are
-available by name for cross-checks).
+``f ∝ p``: Feller's solution) and no finite-volume option is given, otherwise
+``"native"``.  ``"pypde"`` and ``"fipy"`` write the same equation with their
+own operators on the shared engine (``docs/backends.md``); every backend
+returns the same ``zero_weight`` (one definition, ``docs/theory.md``) and
+density within ``rtol``.  ``rtol`` is validated once, here; an unknown
+keyword option is an error naming the options the backend accepts.
 """
 from __future__ import annotations
 
@@ -21,7 +24,7 @@ from typing import Any, Callable, Optional
 
 import numpy as np
 
-from ._validation import InputTypeError, check_nonnegative, check_positive
+from ._validation import InputTypeError, check_callable, check_nonnegative, check_positive
 from .models import PressureFactor, make_cutoff, make_tail
 from .problem import FokkerPlanckProblem, StagedProblem
 from .result import PressureDistribution
@@ -180,12 +183,10 @@ def propagate(
     var = check_positive("variance", variance)
     if np.ndim(p0) or np.ndim(var):
         raise ValueError("mean_pressure and variance must be scalars")
-    if diffusivity is not None and not callable(diffusivity):
-        raise InputTypeError(f"diffusivity must be None or a vectorized callable f(p); got {diffusivity!r} "
-                             f"of type {type(diffusivity).__name__}")
-    if drift is not None and not callable(drift):
-        raise InputTypeError(f"drift must be None or a vectorized callable a(p, tau); got {drift!r} "
-                             f"of type {type(drift).__name__}")
+    if diffusivity is not None:
+        check_callable("diffusivity", diffusivity)
+    if drift is not None:
+        check_callable("drift", drift)
     backend = _check_backend(backend)
     rtol = _check_rtol(rtol)
     problem = FokkerPlanckProblem(float(p0), float(var), diffusivity, drift=drift)

@@ -101,8 +101,8 @@ def stress_variance(
         Continuum or discrete height spectrum (lengths in the unit of ``zeta``).
     E_star : float
         Contact modulus [pressure], > 0.
-    mean_pressure : float
-        ``p0`` [pressure], > 0.
+    mean_pressure : float or array_like
+        ``p0`` [pressure], > 0; broadcast against ``zeta``.
     zeta : float or array_like, default 0
         Repulsion range(s) [length], >= 0, any shape (vectorized: one matrix
         product over all values).
@@ -110,16 +110,19 @@ def stress_variance(
     Returns
     -------
     float or numpy.ndarray
-        ``V`` [pressure^2], same shape as ``zeta`` (float for scalar input).
+        ``V`` [pressure^2], the broadcast shape of ``zeta`` and
+        ``mean_pressure`` (float when both are scalars).
     """
     _check_spectrum(spectrum)
     E = check_positive("E_star", E_star)
     p0 = check_positive("mean_pressure", mean_pressure)
     z = np.asarray(check_nonnegative("zeta", zeta), dtype=float)
+    if np.ndim(E) != 0:
+        raise ValueError(f"E_star must be a scalar (pressure); got an array of shape {np.shape(E)}")
+    z, p0 = np.broadcast_arrays(z, np.asarray(p0, dtype=float))  # vectorized over zeta and mean_pressure
     q, w = spectrum.quadrature()
     base = w * (q * q) * (0.25 * E * E)
-    k = E / (2.0 * p0)
-    zk = z.ravel() * k
+    zk = (z * (E / (2.0 * p0))).ravel()
     v = np.empty(zk.size)
     # blocks of <= 2^16 matrix entries keep the temporaries in cache (large discrete spectra)
     step = max(1, (1 << 16) // max(q.size, 1))

@@ -135,9 +135,10 @@ class PressureDistribution:
         """Cumulative probability ``P(pressure <= p)`` including the delta at 0.
 
         Finite-volume results: exact at the cell edges (the cumulative cell
-        masses), a cubic spline of them in between, clipped to the cell's two
-        edge values (fourth-order accurate for a smooth density; stays within
-        the cell's probability).  Point-wise results (closed forms on
+        masses), a cubic spline of them in between (one per segment between
+        the solver's knots, ``diagnostics["knots"]``, where the density may
+        jump), clipped to the cell's two edge values (fourth-order accurate
+        for a piecewise smooth density; stays within the cell's probability).  Point-wise results (closed forms on
         quadrature nodes) integrate a shape-preserving cubic (PCHIP)
         interpolant of the density, so bins narrower than the node spacing are
         still integrated accurately; the segment ``[0, p[0]]`` is taken as
@@ -151,8 +152,19 @@ class PressureDistribution:
             cum = np.concatenate(([0.0], np.cumsum(self.weights * self.density)))
             q = np.clip(p, self.edges[0], self.edges[-1])
             i = np.clip(np.searchsorted(self.edges, q, side="right") - 1, 0, self.edges.size - 2)
-            inside = np.clip(CubicSpline(self.edges, cum)(q), np.minimum(cum[i], cum[i + 1]),
-                             np.maximum(cum[i], cum[i + 1]))
+            # one spline per segment between the solver's knots (where the density may jump)
+            knots = [float(k) for k in self.diagnostics.get("knots", ()) if self.edges[0] < k < self.edges[-1]]
+            cuts = [0, *sorted(set(int(j) for j in np.searchsorted(self.edges, knots))), self.edges.size - 1]
+            spl = np.empty_like(q)
+            for a, b in zip(cuts[:-1], cuts[1:]):
+                if b - a < 1:
+                    continue
+                sel = (q >= self.edges[a]) & (q <= self.edges[b])
+                if b - a >= 2:
+                    spl[sel] = CubicSpline(self.edges[a:b + 1], cum[a:b + 1])(q[sel])
+                else:
+                    spl[sel] = np.interp(q[sel], self.edges[a:b + 1], cum[a:b + 1])
+            inside = np.clip(spl, np.minimum(cum[i], cum[i + 1]), np.maximum(cum[i], cum[i + 1]))
             out = np.where(p <= self.edges[0], 0.0, np.where(p >= self.edges[-1], cum[-1], inside))
         else:
             out = self._pointwise_cdf(p)

@@ -244,12 +244,17 @@ class SelfAffineSpectrum(Spectrum):
         object.__setattr__(self, "q_max", float(q_max))
         object.__setattr__(self, "q_roll", float(q_roll))
         object.__setattr__(self, "C0", 1.0)
-        if name == "C0":
-            c0 = value
-        elif name == "h_rms":
-            c0 = value**2 / (2 * math.pi * self._moment_unit(1))
-        else:
-            c0 = value**2 / (2 * math.pi * self._moment_unit(3))
+        try:
+            if name == "C0":
+                c0 = value
+                moments = (self._moment_unit(1), self._moment_unit(3))
+            elif name == "h_rms":
+                c0 = value**2 / (2 * math.pi * self._moment_unit(1))
+            else:
+                c0 = value**2 / (2 * math.pi * self._moment_unit(3))
+        except OverflowError:
+            raise ValueError(f"the spectrum's moments overflow double precision for q_min={q_min!r}, q_max={q_max!r}, "
+                             f"hurst={hurst!r}: use a narrower or less extreme band (|log10 q| below about 150)") from None
         if not (math.isfinite(c0) and c0 > 0):
             raise ValueError(f"derived C0 is not a positive finite number ({c0!r}); check {name}={value!r}")
         object.__setattr__(self, "C0", float(c0))

@@ -101,3 +101,72 @@ def test_seed_figure1_cutoffs_all_converge():
         r = dp.pressure_distribution(s, E_star=8 / 3, mean_pressure=0.004, zeta=zeta, cutoff="muser",
                                      p_c=p_c, rtol=RTOL)
         check_sound(r, 0.004)
+
+
+# ------------------------------------------------------------------ issue 7 item 3: hard cases and crash items
+P_C = 0.0027
+
+
+@pytest.mark.parametrize("form", ["1-cos", "2sin2"])
+def test_literal_cutoff_as_user_callable_equals_builtin(form):
+    """The user's literal cutoff (1 - cos underflows to 0 near p = 0) gives the built-in answer: the probe
+    finds k = 2 and the jump at p_c, so the grid is the same (oracle: the built-in MuserCutoff)."""
+    if form == "1-cos":
+        lit = lambda p: np.where(p < P_C, 1 - np.cos(np.pi * p / P_C), 1.0)  # noqa: E731
+    else:
+        lit = lambda p: np.where(p < P_C, 2 * np.sin(0.5 * np.pi * p / P_C) ** 2, 1.0)  # noqa: E731
+    a = dp.propagate(0.004, 0.03**2, diffusivity=lit, backend="native", rtol=1e-6)
+    b = dp.propagate(0.004, 0.03**2, diffusivity=dp.PressureFactor(dp.MuserCutoff(P_C), dp.GaussianTail()),
+                     backend="native", rtol=1e-6)
+    assert a.success and b.success
+    assert np.min(np.abs(a.edges - P_C)) < 1e-12 * P_C and a.p.size == b.p.size  # the jump located by bisection
+    # 2 sin^2 is the built-in's formula: agreement to round-off.  1 - cos is a different function in floating
+    # point: it is exactly 0 below p = 1.3e-11 and a staircase up to about 1e-9 (far below the floor 4e-9),
+    # which moves 2e-6 of probability (measured); the solver's own error is 2e-7 here
+    tol = 1e-9 if form == "2sin2" else 5e-6
+    assert abs(a.zero_weight - b.zero_weight) < tol
+    assert np.sum(np.abs(a.density - b.density) * a.weights) < tol
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: dp.propagate(1.0, 1.0, diffusivity=lambda p: 0 * p), "diffusivity is 0"),
+    (lambda: dp.propagate(1.0, 1.0, diffusivity=lambda p: np.ones(3)), "vectorized"),
+    (lambda: dp.propagate(1e-300, 1.0, backend="native"), "mean_pressure/spread"),
+    (lambda: dp.propagate(1e200, 1e300), "mean_pressure/sqrt"),
+    (lambda: dp.propagate(1e150, 1e-300, backend="native"), "mean_pressure/spread"),
+    (lambda: dp.propagate(1.0, 1.0, backend="native", n_cells=0), "n_cells"),
+    (lambda: dp.propagate(10.0, 1.0, drift=lambda p, t: 100 + 0 * p, backend="native"), "Peclet"),
+    (lambda: dp.propagate(1.0, 1.0, closure="local_g1"), "unknown option"),
+    (lambda: dp.SelfAffineSpectrum(0.3, 1.0, 1e300, rms_slope=0.1), "overflow"),
+])
+def test_clear_errors_fast(call, match):
+    import time
+
+    t0 = time.perf_counter()
+    with pytest.raises(ValueError, match=match):
+        call()
+    assert time.perf_counter() - t0 < 5.0  # generous on a loaded CI machine; measured < 0.1 s
+
+
+def test_extreme_but_valid_inputs_give_correct_results():
+    r = dp.propagate(1e-8, 1.0, backend="native", rtol=1e-6)  # nearly all absorbed at once
+    assert r.success and r.zero_weight == pytest.approx(cf.persson_zero_weight(1e-8, 1.0), abs=1e-6)
+    r = dp.propagate(1e6, 1.0)  # the closed form far from the wall: cost independent of p0/sqrt(V)
+    assert r.success and r.zero_weight == 0.0 and r.p.size < 2000
+    r = dp.propagate(1.0, 1.0, backend="native", rtol=1e-14)  # unreachable: a clear failure, not a hang
+    assert not r.success and "misses rtol" in r.message
+
+
+def test_stress_variance_vectorized_over_mean_pressure():
+    s = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+    v = dp.stress_variance(s, E_star=8 / 3, mean_pressure=[0.004, 0.008], zeta=0.25)
+    assert v.shape == (2,)
+    assert v[1] == pytest.approx(dp.stress_variance(s, E_star=8 / 3, mean_pressure=0.008, zeta=0.25), rel=1e-14)
+    assert v[0] == pytest.approx(dp.stress_variance(s, E_star=8 / 3, mean_pressure=0.004, zeta=0.25), rel=1e-14)
+
+
+def test_results_are_not_mutated_by_the_api():
+    r1 = dp.pressure_distribution(dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031),
+                                  E_star=8 / 3, mean_pressure=0.004, zeta=1.0, cutoff="smoothstep", p_c=0.0027,
+                                  rtol=1e-4)
+    assert "stress_variance" in r1.diagnostics and r1.diagnostics["backend_requested"] == "auto"

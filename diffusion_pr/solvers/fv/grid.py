@@ -98,18 +98,43 @@ def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float) -> np.ndarr
     x = np.interp(targets, spec.phi(table), table)
     lo = np.full_like(targets, a)
     hi = np.full_like(targets, b)
-    for _ in range(50):
+    tol = 1e-14 * np.maximum(np.abs(targets), 1.0)
+    for _ in range(40):
         r = spec.phi(x) - targets
+        if np.all(np.abs(r) <= tol):
+            break
         lo = np.where(r < 0, x, lo)
         hi = np.where(r > 0, x, hi)
         step = x - r / spec.dphi(x)
         bad = (step <= lo) | (step >= hi)
-        x_new = np.where(bad, 0.5 * (lo + hi), step)
-        done = np.all(np.abs(x_new - x) <= 4e-16 * np.abs(x) + 1e-300)
-        x = x_new
-        if done:
-            break
+        x = np.where(bad, 0.5 * (lo + hi), step)
     return x
+
+
+class _NaturalSpline:
+    """Natural cubic spline through a few points (numpy only: no scipy.interpolate import on the solve path)."""
+
+    def __init__(self, x: np.ndarray, y: np.ndarray) -> None:
+        n = x.size
+        h = np.diff(x)
+        a = np.zeros((n, n))
+        b = np.zeros(n)
+        a[0, 0] = a[-1, -1] = 1.0
+        for i in range(1, n - 1):
+            a[i, i - 1], a[i, i], a[i, i + 1] = h[i - 1], 2.0 * (h[i - 1] + h[i]), h[i]
+            b[i] = 6.0 * ((y[i + 1] - y[i]) / h[i] - (y[i] - y[i - 1]) / h[i - 1])
+        self.x, self.y, self.h, self.m = x, y, h, np.linalg.solve(a, b)  # m: second derivatives
+
+    def __call__(self, t: np.ndarray, nu: int = 0) -> np.ndarray:
+        x, y, h, m = self.x, self.y, self.h, self.m
+        i = np.clip(np.searchsorted(x, t, side="right") - 1, 0, x.size - 2)
+        a, b = x[i + 1] - t, t - x[i]
+        hi = h[i]
+        if nu == 1:
+            return (-m[i] * a * a / (2 * hi) + m[i + 1] * b * b / (2 * hi)
+                    + (y[i + 1] - y[i]) / hi - (m[i + 1] - m[i]) * hi / 6.0)
+        return (m[i] * a**3 / (6 * hi) + m[i + 1] * b**3 / (6 * hi)
+                + (y[i] / hi - m[i] * hi / 6.0) * a + (y[i + 1] / hi - m[i + 1] * hi / 6.0) * b)
 
 
 def knot_indices(spec: GridSpec, n_cells: int) -> np.ndarray:
@@ -148,8 +173,6 @@ def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1) -> np.ndarray:
     ValueError
         When the knots are too crowded for a monotone map (increase the cells).
     """
-    from scipy.interpolate import CubicSpline
-
     k = spec.all_knots
     ph = spec.phi(k)
     n = int(idx[-1])
@@ -159,7 +182,7 @@ def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1) -> np.ndarray:
     x = np.arange(n * factor + 1) / (n * factor)
     targets = ph[0] + tot * x
     if k.size > 2:
-        r = CubicSpline(xk, resid, bc_type="natural")
+        r = _NaturalSpline(xk, resid)
         if np.all(tot + r(np.linspace(0.0, 1.0, 8 * n + 1), 1) > 0.2 * tot):
             targets = targets + r(x)
         else:  # knots crowded: equal Phi steps per segment (nested, piecewise smooth)
