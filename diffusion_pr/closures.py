@@ -404,6 +404,9 @@ def lognormal_gap_distribution(spectrum: Spectrum, *, E_star: float, mean_pressu
 
 
 # --------------------------------------------------------------------------- solving
+#: floor of the balanced closure's non-contact region, relative to zeta q_min E*/2 (docs/closures.md)
+BALANCED_FLOOR = 1e-16
+
 #: default resolution of the reference solver (cells, BDF2 steps); the error estimate
 #: comes from a second run at half of both
 REFERENCE_RESOLUTION = (1600, 1600)
@@ -422,7 +425,7 @@ def _solve_reference(shells: Shells, *, zeta: float, E_star: float, p0: float, c
     # down at rate 1/p*^2 there, mass never returns, 1e-2 is deep enough.  Balanced: its drift
     # cancels that Ito drift, ln p random-walks over a wide range and mass comes back, so the floor
     # goes 32 e-folds deeper (1e-16) with the cells scaled to keep the cell size (docs/closures.md).
-    floor = 1e-16 if balanced else 1e-2
+    floor = BALANCED_FLOOR if balanced else 1e-2
     scale_cells = 1.0
     kz = 0.5 * zeta * E_star
     if balanced and kz > 0:
@@ -559,6 +562,11 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
     from .api import solve_problem
 
     problem = closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure, partition_q=partition_q)
+    if closure == "local_g1_balanced" and z > 0:
+        # part of the closure's definition, not an accuracy knob: its drift cancels the Ito drift of
+        # ln p below p* = zeta q_min E*/2, so mass returns from deep below p*; resolve down to
+        # BALANCED_FLOOR p* (docs/closures.md), as the reference solver does
+        options.setdefault("p_floor", BALANCED_FLOOR * 0.5 * z * E * shells.q_min)
     res = solve_problem(problem, backend=backend, rtol=rtol, **options)
     res.diagnostics["closure"] = closure
     res.diagnostics["n_shells"] = int(shells.q.size)

@@ -261,19 +261,22 @@ def test_plot_label_names_the_closure(fig1):
 
 
 @pytest.mark.parametrize("closure, zeta", [("local_g1", 0.0), ("local_g1_balanced", 0.0), ("local_g1", 0.01),
-                                           ("local_g1", 0.25), ("local_g1_balanced", 0.1)])
+                                           ("local_g1", 0.25), ("local_g1_balanced", 0.01)])
 def test_engine_native_agrees_with_the_reference(fig1, closure, zeta):
     """The engine's staged solve (native) against the reference solver (1600
     cells and steps, its own error about 1e-4 above p0/20).  Measured: 1.5e-5 (hard wall),
-    1e-6 (local_g1, zeta = 0.01), 7e-5 (local_g1, 0.25), 1.3e-5 (balanced, 0.1).  (Engine
-    e927005 missed by 2.3e-4 at zeta = 0.25 while estimating 6e-7; fixed in c67e627.)"""
+    1e-6 (local_g1, zeta = 0.01), 7e-5 (local_g1, 0.25), 1.3e-4 (balanced, 0.01, both with
+    the non-contact region resolved to 1e-16 zeta q_min E*/2).  (Engine e927005 missed by
+    2.3e-4 at zeta = 0.25 while estimating 6e-7; fixed in c67e627.  Engine 82ed32a tied
+    the depth below the floor to rtol: the balanced closure moved by 1.1e-3 at zeta = 0.01;
+    closures now pass the floor explicitly.)"""
     ref = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure, backend="reference")
-    # the balanced closure costs the engine 2-5 s at rtol 1e-6: checked at 1e-4 (measured 1.8e-5 off)
+    # the balanced closure costs the engine 2-5 s at rtol 1e-6: checked at 1e-4
     rtol = 1e-4 if closure == "local_g1_balanced" and zeta > 0 else 1e-6
     eng = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure, backend="native",
                                rtol=rtol)
     assert eng.success and eng.diagnostics["closure"] == closure
-    assert kolmogorov(eng, ref) < 2e-4
+    assert kolmogorov(eng, ref) < 3e-4
     assert eng.mean == pytest.approx(P0, rel=1e-5)
 
 
