@@ -76,9 +76,30 @@ class SimulatedHistogram:
         """``1 - zero_weight`` (meaningful for the hard wall)."""
         return 1.0 - float(self.zero_weight)
 
+    def fraction_above(self, threshold: float = 0.0) -> float:
+        """Fraction of the field with pressure ``> threshold`` (units of pressure).
+
+        Exact for ``threshold = 0`` (``1 - zero_weight``) and for the
+        threshold given to :meth:`from_pressures` (counted on the field);
+        otherwise interpolated in the stored quantile function (resolution
+        one quantile level, ``1/(len(quantile_levels) - 1)``).
+        """
+        threshold = float(threshold)
+        if not np.isfinite(threshold) or threshold < 0:
+            raise ValueError(f"threshold must be a finite number >= 0; got threshold={threshold!r}")
+        if threshold == 0.0:
+            return 1.0 - float(self.zero_weight)
+        if self.moments.get("contact_threshold") == threshold and "contact_fraction" in self.moments:
+            return float(self.moments["contact_fraction"])
+        if self.quantiles is None or self.quantile_levels is None:
+            raise ValueError("this histogram has no stored quantiles; give contact_threshold to from_pressures")
+        below = np.searchsorted(self.quantiles, threshold, side="right")
+        return float(1.0 - self.quantile_levels[max(int(below) - 1, 0)]) if below > 0 else 1.0
+
     @classmethod
     def from_pressures(cls, pressure: ArrayLike, *, bins: int | Sequence[float] = 200,
                        p_max: Optional[float] = None, n_quantiles: int = 2049,
+                       contact_threshold: Optional[float] = None,
                        metadata: Optional[dict] = None) -> "SimulatedHistogram":
         """Histogram a pressure field.
 
@@ -91,8 +112,20 @@ class SimulatedHistogram:
         p_max : float, optional
             Upper end of the uniform bins (default: the largest pressure).
         n_quantiles : int
-            Number of stored quantile levels of the field.
+            Number of stored quantile levels of the field (>= 2).
+        contact_threshold : float, optional
+            Also count the fraction of the field with ``p > contact_threshold``
+            (stored in ``moments``; see :meth:`fraction_above`).
         """
+        if isinstance(bins, (bool, np.bool_)) or (np.ndim(bins) == 0 and not isinstance(bins, (int, np.integer))):
+            raise ValueError(f"bins must be an integer >= 1 or a sequence of edges; got bins={bins!r}")
+        if np.ndim(bins) == 0 and int(bins) < 1:
+            raise ValueError(f"bins must be an integer >= 1 or a sequence of edges; got bins={bins!r}")
+        if isinstance(n_quantiles, (bool, np.bool_)) or not isinstance(n_quantiles, (int, np.integer)) \
+                or n_quantiles < 2:
+            raise ValueError(f"n_quantiles must be an integer >= 2; got n_quantiles={n_quantiles!r}")
+        if p_max is not None and (isinstance(p_max, (str, bytes, bool)) or not np.isfinite(p_max) or p_max <= 0):
+            raise ValueError(f"p_max must be a finite number > 0; got p_max={p_max!r}")
         values = np.asarray(pressure, dtype=float).ravel()
         if values.size == 0 or not np.all(np.isfinite(values)):
             raise ValueError("pressure must be a non-empty array of finite values")
@@ -107,6 +140,10 @@ class SimulatedHistogram:
             edges = np.linspace(0.0, top, int(bins) + 1)
         else:
             edges = np.asarray(bins, dtype=float)
+            if edges.ndim != 1 or edges.size < 2 or not np.all(np.isfinite(edges)) or np.any(np.diff(edges) <= 0) \
+                    or edges[0] < 0:
+                raise ValueError("bins given as edges must be finite, >= 0 and strictly increasing, at least two; "
+                                 f"got bins={bins!r}")
         counts, _ = np.histogram(positive, bins=edges)
         density = counts / (n * np.diff(edges))
         mean = float(values.mean())
@@ -117,6 +154,12 @@ class SimulatedHistogram:
             "third_central": float(np.mean(centred**3)),
             "outside_bins": float(positive.size - counts.sum()) / n,
         }
+        if contact_threshold is not None:
+            threshold = float(contact_threshold)
+            if not np.isfinite(threshold) or threshold < 0:
+                raise ValueError(f"contact_threshold must be a finite number >= 0; got {contact_threshold!r}")
+            moments["contact_threshold"] = threshold
+            moments["contact_fraction"] = float(np.count_nonzero(values > threshold)) / n
         levels = np.linspace(0.0, 1.0, n_quantiles)
         quantiles = np.quantile(values, levels)
         return cls(edges, density, zero_weight, moments, levels, quantiles, dict(metadata or {}))
@@ -162,7 +205,12 @@ class Comparison:
     moments_theory, moments_sim : dict
         ``mean``, ``variance``, ``third_central`` of both (pressure^k).
     contact_fraction_theory, contact_fraction_sim : float
-        ``1 - zero_weight`` of both.
+        Fraction of the area with ``p > contact_threshold`` on both sides:
+        ``1 - theory.cdf(threshold)`` and
+        :meth:`SimulatedHistogram.fraction_above` (``1 - zero_weight`` each
+        for the default threshold 0).
+    contact_threshold : float
+        The threshold (units of pressure).
     """
 
     l1: float
@@ -171,9 +219,10 @@ class Comparison:
     moments_sim: dict
     contact_fraction_theory: float
     contact_fraction_sim: float
+    contact_threshold: float = 0.0
 
 
-def compare(theory: Any, hist: SimulatedHistogram) -> Comparison:
+def compare(theory: Any, hist: SimulatedHistogram, *, contact_threshold: float = 0.0) -> Comparison:
     """Compare a :class:`~diffusion_pr.result.PressureDistribution` with a histogram.
 
     Both distances are taken at the histogram's resolution: the ``delta(p)``
@@ -190,7 +239,13 @@ def compare(theory: Any, hist: SimulatedHistogram) -> Comparison:
     * ``kolmogorov = sup |F_theory(p) - F_sim(p)|`` over ``p >= edges[1]``,
       from the stored quantile function when available (both sides of every
       empirical jump), else at the bin edges.
+    * contact fractions: the fraction with ``p > contact_threshold`` on both
+      sides (0: hard wall; the main job uses ``0.01 p0`` for exponential
+      walls, the definition of ``gfmd_ref``'s ``contact_fraction``).
     """
+    threshold = float(contact_threshold)
+    if not np.isfinite(threshold) or threshold < 0:
+        raise ValueError(f"contact_threshold must be a finite number >= 0; got {contact_threshold!r}")
     widths = hist.widths
     m_theory = bin_averaged_density(theory, hist.edges) * widths
     m_sim = hist.density * widths
@@ -209,7 +264,8 @@ def compare(theory: Any, hist: SimulatedHistogram) -> Comparison:
         "variance": theory.moment(2, central=True),
         "third_central": theory.moment(3, central=True),
     }
-    return Comparison(l1, ks, moments_theory, dict(hist.moments), theory.contact_fraction, hist.contact_fraction)
+    a_theory = 1.0 - float(theory.cdf(threshold))
+    return Comparison(l1, ks, moments_theory, dict(hist.moments), a_theory, hist.fraction_above(threshold), threshold)
 
 
 def _kolmogorov_from_quantiles(theory: Any, quantiles: Array, levels: Array, p_floor: float = 0.0) -> float:

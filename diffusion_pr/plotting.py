@@ -14,8 +14,32 @@ def _axes(ax: Any) -> Any:
     return ax
 
 
+#: Decades of density a log plot shows below its peak by default (a solver's far
+#: tail can reach 1e-300; drawing all of it would squash the visible curve).
+DECADES = 6.0
+
+
+def _readable_limits(ax: Any, p: np.ndarray, density: np.ndarray, decades: float, fresh: bool) -> None:
+    """y from ``peak * 10**-decades`` to twice the peak, x up to where the density is last that high."""
+    positive = density[np.isfinite(density) & (density > 0)]
+    if positive.size == 0:
+        return
+    top = float(positive.max())
+    bottom = max(float(positive.min()), top * 10.0 ** (-decades))
+    visible = np.nonzero(np.isfinite(density) & (density >= bottom))[0]
+    x_hi = float(p[visible[-1]]) if visible.size else float(p[-1])
+    if not fresh:  # several curves on one axes: widen, never cut an earlier curve
+        lo, hi = ax.get_ylim()
+        bottom, top = min(bottom, lo), max(2.0 * top, hi) / 2.0
+        x_hi = max(x_hi, ax.get_xlim()[1])
+    if bottom < top:
+        ax.set_ylim(bottom, 2.0 * top)
+    if x_hi > 0:
+        ax.set_xlim(0.0, 1.02 * x_hi)
+
+
 def plot_distribution(result: Any, ax: Optional[Any] = None, *, log: bool = True, label: Optional[str] = None,
-                      **kwargs: Any) -> Any:
+                      decades: float = DECADES, **kwargs: Any) -> Any:
     """Plot the continuous part of a :class:`~diffusion_pr.result.PressureDistribution`.
 
     Parameters
@@ -28,11 +52,16 @@ def plot_distribution(result: Any, ax: Optional[Any] = None, *, log: bool = True
         Logarithmic density axis (the paper's Fig. 1 style).
     label : str, optional
         Legend label; defaults to the backend name and the contact fraction.
+    decades : float
+        With ``log``, the y-axis spans this many decades below the peak
+        density and the x-axis ends where the density drops below that
+        (widened, never narrowed, when the axes already holds curves).
 
     Returns
     -------
     matplotlib Axes
     """
+    fresh = ax is None or not ax.get_lines()
     ax = _axes(ax)
     if label is None:
         closure = result.diagnostics.get("closure", "second_order")
@@ -43,8 +72,9 @@ def plot_distribution(result: Any, ax: Optional[Any] = None, *, log: bool = True
     ax.plot(result.p, density, label=label, **kwargs)
     if log:
         ax.set_yscale("log")
-    ax.set_xlabel("pressure p")
-    ax.set_ylabel("Pr(p)")
+        _readable_limits(ax, np.asarray(result.p, dtype=float), density, float(decades), fresh)
+    ax.set_xlabel("pressure p (units of E*)")
+    ax.set_ylabel("Pr(p) (1 / pressure)")
     return ax
 
 
@@ -61,6 +91,6 @@ def plot_histogram(centers: Any, density: Any, ax: Optional[Any] = None, *, log:
     ax.plot(centers, density, label=label, **kwargs)
     if log:
         ax.set_yscale("log")
-    ax.set_xlabel("pressure p")
-    ax.set_ylabel("Pr(p)")
+    ax.set_xlabel("pressure p (units of E*)")
+    ax.set_ylabel("Pr(p) (1 / pressure)")
     return ax

@@ -1,6 +1,7 @@
 """Bundled GFMD reference data for the paper's Fig. 1 system, and its generator.
 
-The Fig. 1 system of Müser, PRL 100, 055504 (2008) (SPEC section 6): a
+The Fig. 1 system of Müser, PRL 100, 055504 (2008) (its numbers and the
+paper's words they come from are in :mod:`diffusion_pr.paper`): a
 ``1024 x 1024`` grid with period ``L = 1024`` (the grid spacing is the length
 unit), roughness on wavelengths ``32 <= lambda <= 1024``, Hurst exponent
 ``H = 0.3``, rms slope ``0.031``, contact modulus ``E* = 8/3`` and mean pressure
@@ -27,26 +28,17 @@ from typing import Any, Iterable, Optional, Sequence
 import numpy as np
 
 from .comparison import SimulatedHistogram
+from .paper import FIG1_SCENE, LARGE_ZETA, cutoff_pressure  # noqa: F401  (FIG1_SCENE re-exported)
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
-
-#: The paper's Fig. 1 scene (lengths in grid units of the 1024^2 system).
-FIG1_SCENE: dict[str, float] = {
-    "length": 1024.0,
-    "hurst": 0.3,
-    "q_min": 2.0 * math.pi / 1024.0,
-    "q_max": 2.0 * math.pi / 32.0,
-    "rms_slope": 0.031,
-    "E_star": 8.0 / 3.0,
-    "mean_pressure": 0.004,
-}
 
 #: zeta values (units of the grid spacing) of the bundled exponential-wall cases.
 FIG1_ZETAS: tuple[float, ...] = (0.001, 0.01, 0.1, 0.25, 0.5, 1.0, 2.0, 4.0)
 
-#: the paper's fitted cutoff pressures (units of E*'s pressure unit).
-PAPER_CUTOFF_PRESSURES: dict[float, float] = {0.001: 0.0068, 0.01: 0.0082, 0.25: 0.0027, 0.5: 0.0027,
-                                               1.0: 0.0027, 2.0: 0.0027, 4.0: 0.0027}
+#: The paper's cutoff pressure for each bundled zeta it covers (0.1 lies between the
+#: paper's groups and is left out), derived from :mod:`diffusion_pr.paper`.
+PAPER_CUTOFF_PRESSURES: dict[float, float] = {
+    z: cutoff_pressure(z) for z in FIG1_ZETAS if z in (0.001, 0.01) or z >= LARGE_ZETA}
 
 
 def case_name(zeta: Optional[float], seed: int, n: int = 1024, surface: str = "fig1") -> str:
@@ -87,24 +79,45 @@ class ReferenceCase:
         return float(self.provenance["mean_pressure"])
 
 
-def paper_theory(case: ReferenceCase, *, cutoff: str = "muser", p_c: Optional[float] = None,
+def paper_theory(case: Any, *, cutoff: str = "muser", p_c: Optional[float] = None, backend: str = "auto",
                  rtol: float = 1e-5) -> Any:
-    """The theory curve for a bundled case, as the paper draws it.
+    """The paper's theory curve for one case: the one definition used everywhere.
 
-    Hard wall: Persson's mirror Gaussian (sharp cutoff).  Exponential wall:
-    the second-order cumulant theory with ``G1`` from the case's own
-    spectrum, the given cutoff, and ``p_c`` defaulting to the paper's value
-    (:func:`diffusion_pr.fig1.paper_cutoff_pressure`).
+    The main job (:func:`diffusion_pr.fig1.run_fig1`), the Fig. 1 claims
+    tests and the claims benchmark all call this function, so they draw the
+    same curve for the same case.
+
+    Hard wall (``case.zeta`` is None): Persson's mirror Gaussian (sharp
+    cutoff, ``zeta = 0``).  Exponential wall: the second-order cumulant theory
+    (the paper's Eq. 10 for ``G1`` inside the stress variance) with ``G1``
+    computed from the case's own spectrum, the given cutoff, and ``p_c``
+    defaulting to the paper's value (:func:`diffusion_pr.paper.cutoff_pressure`).
+
+    Parameters
+    ----------
+    case : ReferenceCase or any object with ``zeta``, ``spectrum``, ``E_star``, ``mean_pressure``
+        A bundled case (:func:`load_reference`) or one the main job just simulated.
+    cutoff : str
+        Cutoff variant for exponential walls (``"muser"`` = the paper's literal one).
+    p_c : float, optional
+        Cutoff pressure (units of pressure); default: the paper's.
+    backend, rtol
+        Passed to :func:`diffusion_pr.pressure_distribution` (exponential walls).
+
+    Returns
+    -------
+    PressureDistribution
     """
     from .api import pressure_distribution
-    from .fig1 import paper_cutoff_pressure
+    from .paper import cutoff_pressure
 
     if case.zeta is None:
         return pressure_distribution(case.spectrum, E_star=case.E_star, mean_pressure=case.mean_pressure,
                                      zeta=0.0, cutoff="sharp")
     return pressure_distribution(case.spectrum, E_star=case.E_star, mean_pressure=case.mean_pressure,
                                  zeta=case.zeta, cutoff=cutoff,
-                                 p_c=paper_cutoff_pressure(case.zeta) if p_c is None else p_c, rtol=rtol)
+                                 p_c=cutoff_pressure(case.zeta) if p_c is None else p_c, backend=backend,
+                                 rtol=rtol)
 
 
 def available_references(data_dir: Path | str | None = None) -> list[str]:
@@ -161,7 +174,7 @@ def save_case(path: Path, pressure: np.ndarray, heights: np.ndarray, provenance:
 
 
 def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS), seeds: Sequence[int] = (1,),
-                       n: int = 1024, tol: float = 1e-6, out_dir: Path | str | None = None,
+                       n: int = 1024, tol: float = 1e-6, out_dir: Path | str = "reference_out",
                        surface: str = "fig1", progress: bool = True, log: Any = print) -> list[Path]:
     """Run GFMD on the Fig. 1 system and write the bundled cases.
 
@@ -176,8 +189,10 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
         Grid points per side (the physical cell stays ``L = 1024``).
     tol : float
         GFMD tolerance relative to ``p0``.
-    out_dir : path, optional
-        Output folder (default: the package's ``data`` folder).
+    out_dir : path
+        Output folder (default: ``reference_out`` in the working directory;
+        the bundled cases live in :data:`DATA_DIR`, pass it explicitly to
+        replace them).  Checked for writability before any work.
     surface : str
         ``"fig1"`` (Gaussian coloured noise) or ``"fig1-skewed"`` (the same
         spectrum mapped through a non-Gaussian height transform, see
@@ -186,14 +201,26 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
     from importlib.metadata import PackageNotFoundError, version
 
     import gfmd_ref
+    from gfmd_ref._validation import check_int, check_positive, check_seed, check_writable_dir
 
+    if surface not in ("fig1", "fig1-skewed"):
+        raise ValueError(f"surface must be 'fig1' or 'fig1-skewed'; got surface={surface!r}")
+    n = check_int("n", n, minimum=2)
+    check_positive("tol", tol)
+    zetas = list(zetas)
+    for zeta in zetas:
+        if zeta is not None:
+            gfmd_ref.ExponentialRepulsion(check_positive("zeta", zeta))
+    seeds = [check_seed("seeds", seed) for seed in seeds]
+    if out_dir is None:
+        raise ValueError("out_dir must be a folder (the package's data folder only when given explicitly)")
+    folder = Path(check_writable_dir("out_dir", out_dir))
     try:
         code_version = version("diffusion-pr")
     except PackageNotFoundError:  # running from a source tree that is not installed
         code_version = "unknown"
     code_version += f" (git {_git_revision()})"
 
-    folder = Path(out_dir) if out_dir is not None else DATA_DIR
     scene = FIG1_SCENE
     written = []
     for seed in seeds:
@@ -202,8 +229,6 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
             rms_slope=scene["rms_slope"], seed=seed)
         if surface == "fig1-skewed":
             heights = skewed_surface(heights, length=scene["length"], rms_slope=scene["rms_slope"])
-        elif surface != "fig1":
-            raise ValueError(f"surface must be 'fig1' or 'fig1-skewed'; got surface={surface!r}")
         for zeta in zetas:
             interaction = gfmd_ref.HardWall() if zeta is None else gfmd_ref.ExponentialRepulsion(zeta)
             t0 = time.perf_counter()

@@ -20,7 +20,8 @@ import numpy as np
 
 from .histogram import pressure_histogram
 from .interactions import ExponentialRepulsion, HardWall
-from .scene import FIG1, fig1_surface
+from ._validation import check_int, check_writable_dir
+from .scene import FIG1, fig1_surface, zeta_on_grid
 from .solver import ConvergenceWarning, solve_contact
 
 __all__ = ["main", "run_default_scene", "add_run_arguments", "run_from_args"]
@@ -40,17 +41,38 @@ def run_default_scene(
     verbose: bool = True,
 ):
     """Solve the Fig. 1 scene (H = 0.3, rms slope 0.031, E* = 8/3, p0 = 0.004,
-    wavelengths L ... L/32, L = n grid units) and write the pressure histogram.
+    wavelengths L ... L/32) and write the pressure histogram.
+
+    Parameters
+    ----------
+    n : int
+        Grid points per side (>= 2).
+    interaction : str
+        ``"hard"`` or ``"exp"`` (exponential repulsion, the paper's Eq. 7).
+    zeta : float
+        Decay length of the exponential wall in grid spacings of the paper's
+        1024^2 Fig. 1 system (the unit ``diffusion-pr fig1 --zetas`` uses).  The
+        scene is solved on :func:`~gfmd_ref.scene.fig1_surface` (``L = n``), so
+        the solver gets ``zeta * n / 1024`` (:func:`~gfmd_ref.scene.zeta_on_grid`).
+    seed : int
+        Surface seed.
+    tol : float
+        Residual tolerance relative to p0.
+    out_dir : path or None
+        Output folder, checked for writability before the solve; None writes nothing.
 
     Returns ``(result, histogram, paths)``; ``paths`` maps "npz", "csv", "png" to the
     written files (empty if ``out_dir`` is None).
     """
+    n = check_int("n", n, minimum=2)
     if interaction in ("hard", "hardwall", "hard-wall"):
         inter = HardWall()
     elif interaction in ("exp", "exponential"):
-        inter = ExponentialRepulsion(zeta)
+        inter = ExponentialRepulsion(zeta_on_grid(zeta, n))
     else:
         raise ValueError(f"interaction must be 'hard' or 'exp'; got {interaction!r}")
+    if out_dir is not None:
+        out_dir = check_writable_dir("out_dir", out_dir)
     h, length = fig1_surface(n, seed=seed)
     p0 = FIG1["mean_pressure"]
     res = solve_contact(
@@ -66,12 +88,13 @@ def run_default_scene(
     pmax = float(res.pressure.max())
     hist = pressure_histogram(res, bins=bins, range=(0.0, pmax) if pmax > 0 else None)
     paths = {}
-    label = "hard" if isinstance(inter, HardWall) else f"exp_zeta{inter.zeta:g}"
+    label = "hard" if isinstance(inter, HardWall) else f"exp_zeta{zeta:g}"
     if out_dir is not None:
-        os.makedirs(out_dir, exist_ok=True)
         stem = os.path.join(out_dir, f"fig1_{label}_n{n}_seed{seed}")
         meta = dict(
             n=n, seed=seed, interaction=label, tol=tol, method=res.method,
+            zeta_fig1_units=None if isinstance(inter, HardWall) else zeta,
+            zeta_grid_units=None if isinstance(inter, HardWall) else inter.zeta,
             E_star=FIG1["E_star"], mean_pressure=p0, hurst=FIG1["hurst"],
             rms_slope=FIG1["rms_slope"], contact_fraction=res.contact_fraction,
             iterations=res.iterations, residual=res.residual, converged=res.converged,
@@ -122,18 +145,27 @@ def run_default_scene(
     return res, hist, paths
 
 
+#: The unit of ``--zeta``, worded identically in ``diffusion-pr fig1 --help``.
+ZETA_UNIT = "grid spacings of the paper's 1024^2 Fig. 1 system"
+
+
 def add_run_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add the ``run`` options to an (sub)parser."""
-    parser.add_argument("--n", type=int, default=256, help="grid points per side (default 256)")
-    parser.add_argument("--interaction", choices=["hard", "exp"], default="hard")
+    parser.add_argument("--n", type=int, default=256, help="grid points per side (default: 256)")
+    parser.add_argument("--interaction", choices=["hard", "exp"], default="hard",
+                        help="hard wall or exponential repulsion (default: hard)")
     parser.add_argument("--zeta", type=float, default=0.01,
-                        help="range of the exponential wall (with --interaction exp)")
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--tol", type=float, default=1e-8)
-    parser.add_argument("--method", choices=["auto", "ccg", "newton", "fire"], default="auto")
-    parser.add_argument("--bins", type=int, default=60)
-    parser.add_argument("--out", default="gfmd_out", help="output directory")
-    parser.add_argument("--progress", action="store_true", help="show a progress bar")
+                        help=f"decay length of the exponential wall, in {ZETA_UNIT}, "
+                             "with --interaction exp (default: 0.01)")
+    parser.add_argument("--seed", type=int, default=1, help="surface seed, integer >= 0 (default: 1)")
+    parser.add_argument("--tol", type=float, default=1e-8,
+                        help="residual tolerance, relative to p0 (dimensionless; default: 1e-8)")
+    parser.add_argument("--method", choices=["auto", "ccg", "newton", "fire"], default="auto",
+                        help="solver (default: auto)")
+    parser.add_argument("--bins", type=int, default=60, help="histogram bins on [0, max p] (default: 60)")
+    parser.add_argument("--out", default="gfmd_out",
+                        help="output folder, checked for writability before solving (default: gfmd_out)")
+    parser.add_argument("--progress", action="store_true", help="show a progress bar (default: off)")
     return parser
 
 
@@ -145,7 +177,7 @@ def run_from_args(args) -> int:
             progress=args.progress,
         )
     except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"gfmd-ref: error: {exc}", file=sys.stderr)
         return 2
     return 0 if res.converged else 1
 
@@ -200,7 +232,16 @@ def ensemble_from_args(args, argv=None) -> int:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="gfmd-ref", description=__doc__.splitlines()[0])
+    from importlib.metadata import PackageNotFoundError, version
+
+    parser = argparse.ArgumentParser(
+        prog="gfmd-ref", description="GFMD reference solver: `gfmd-ref run` solves the paper's Fig. 1 scene and "
+                                     "writes the pressure histogram (.npz, .csv, .png).")
+    try:
+        ver = version("diffusion-pr")
+    except PackageNotFoundError:  # pragma: no cover - source tree not installed
+        ver = "unknown"
+    parser.add_argument("--version", action="version", version=f"gfmd-ref (diffusion-pr {ver})")
     sub = parser.add_subparsers(dest="command")
     add_run_arguments(sub.add_parser("run", help="solve the Fig. 1 scene, write the histogram"))
     add_ensemble_arguments(sub.add_parser("ensemble", help="run or resume an ensemble on Dask into a store"))

@@ -1,17 +1,37 @@
-"""The paper's Fig. 1 scene (SPEC sections 2 and 6) at any grid size."""
+"""The paper's Fig. 1 scene at any grid size.
+
+Müser, Phys. Rev. Lett. 100, 055504 (2008), doi:10.1103/PhysRevLett.100.055504:
+"roughness on wavelengths 32 <= lambda <= 1024, the Hurst roughness exponent is
+H = 0.3, and the root-mean-square slope is 0.031. Furthermore, E' = 8/3 and
+p_0 = 0.004 in the same units. [...] The unit for length scale is defined by the
+distance between two grid points in the numerical solution."
+
+:mod:`gfmd_ref` never imports :mod:`diffusion_pr`, so it keeps its own copy of
+these numbers in :data:`FIG1`; ``diffusion_pr.paper`` holds the package's copy
+(with the quotes) and the test suite checks that the two agree.
+"""
 from __future__ import annotations
 
 import math
 
+from ._validation import check_int, check_real
 from .surface import self_affine_surface
 
-#: Fig. 1 parameters: grid spacing is the length unit, L = n, wavelengths L ... L/32.
-FIG1 = dict(hurst=0.3, rms_slope=0.031, E_star=8.0 / 3.0, mean_pressure=0.004, n_waves=32)
+#: Fig. 1 parameters: H, rms slope, E*, p0, the number of waves per period of the
+#: shortest wavelength (q_max = 32 q_min), and the paper's cell side in grid spacings.
+FIG1 = dict(hurst=0.3, rms_slope=0.031, E_star=8.0 / 3.0, mean_pressure=0.004, n_waves=32, length=1024.0)
 
 
 def fig1_surface(n: int = 1024, seed=1):
     """Fig. 1 surface on an ``n x n`` grid (``length = n``, ``q_min = 2 pi/n``,
-    ``q_max = 32 q_min``, ``H = 0.3``, rms slope 0.031). Returns ``(heights, length)``."""
+    ``q_max = 32 q_min``, ``H = 0.3``, rms slope 0.031). Returns ``(heights, length)``.
+
+    Lengths are in grid spacings of *this* grid (``length = n``).  The contact
+    problem is scale invariant (fixed rms slope, E* and p0), so this is the
+    paper's ``1024^2`` system scaled by ``n / 1024``; a wall range given in the
+    paper's unit converts with :func:`zeta_on_grid`.
+    """
+    n = check_int("n", n, minimum=2)
     length = float(n)
     qmin = 2.0 * math.pi / length
     h = self_affine_surface(
@@ -24,3 +44,12 @@ def fig1_surface(n: int = 1024, seed=1):
         seed=seed,
     )
     return h, length
+
+
+def zeta_on_grid(zeta: float, n: int) -> float:
+    """A wall range in grid spacings of the paper's 1024^2 system, converted to
+    grid spacings of the ``n x n`` grid of :func:`fig1_surface` (``zeta * n / 1024``)."""
+    zeta = check_real("zeta", zeta)
+    if zeta <= 0:
+        raise ValueError(f"zeta must be a finite real number > 0; got zeta={zeta!r}")
+    return zeta * check_int("n", n, minimum=2) / FIG1["length"]

@@ -1,6 +1,6 @@
-"""Self-affine random rough surfaces (SPEC section 2).
+"""Self-affine random rough surfaces (conventions: docs page ``gfmd``).
 
-Fourier convention (SPEC section 2): ``h~(q) = (1/A) integral exp(i q.r) h(r) d^2r``,
+Fourier convention: ``h~(q) = (1/A) integral exp(i q.r) h(r) d^2r``,
 discretely ``h~ = numpy.fft.ifft2(h)`` (the ``1/N^2`` normalised sum with ``exp(+i q.r)``),
 with ``q = 2 pi (m, k) / length`` and ``<|h~(q)|^2> = C(|q|) (2 pi/length)^2``.
 With this convention Parseval reads ``mean(h^2) = sum_q |h~(q)|^2`` and
@@ -13,7 +13,7 @@ import math
 import numpy as np
 import scipy.fft as sfft
 
-from ._validation import check_positive, check_int
+from ._validation import check_int, check_positive, check_real, check_seed
 
 __all__ = ["self_affine_surface", "wavevector_magnitude", "spectral_rms_slope"]
 
@@ -85,8 +85,10 @@ def self_affine_surface(
     """
     n = check_int("n", n, minimum=2)
     length = check_positive("length", length)
-    if hurst is None or not np.isfinite(hurst) or not (0.0 <= hurst <= 1.0):
-        raise ValueError(f"hurst must be a finite number in [0, 1]; got {hurst!r}")
+    hurst = check_real("hurst", hurst, low=0.0, high=1.0)
+    seed = check_seed("seed", seed)
+    if not isinstance(rayleigh, (bool, np.bool_)):
+        raise ValueError(f"rayleigh must be True or False; got rayleigh={rayleigh!r}")
     q_min = check_positive("q_min", q_min)
     q_max = check_positive("q_max", q_max)
     if not q_max > q_min:
@@ -107,19 +109,23 @@ def self_affine_surface(
                 f"q_roll must lie in [q_min, q_max] = [{q_min!r}, {q_max!r}]; got {q_roll!r}"
             )
 
-    kx = 2.0 * np.pi * np.fft.fftfreq(n, d=length / n)
-    ky = 2.0 * np.pi * np.fft.rfftfreq(n, d=length / n)
-    q = np.sqrt(kx[:, None] ** 2 + ky[None, :] ** 2)
-    band = (q >= q_min * (1 - 1e-12)) & (q <= q_max * (1 + 1e-12))
+    # work on the integer lattice (m, k) with q = (2 pi / length) |(m, k)|, so no
+    # length or band limit, however large or small, overflows
+    unit = 2.0 * np.pi / length
+    mx = np.fft.fftfreq(n, d=1.0 / n)
+    my = np.fft.rfftfreq(n, d=1.0 / n)
+    qhat = np.sqrt(mx[:, None] ** 2 + my[None, :] ** 2)
+    lo, hi = q_min / unit, q_max / unit
+    band = (qhat >= lo * (1 - 1e-12)) & (qhat <= hi * (1 + 1e-12))
     if not np.any(band):
         raise ValueError(
             f"no lattice wave vector 2 pi (m, k)/length lies in [q_min, q_max] = "
             f"[{q_min!r}, {q_max!r}] for n={n}, length={length!r}"
         )
-    qq = np.where(band, q, 1.0)
+    qq = np.where(band, qhat, 1.0)
     if q_roll is not None:
-        qq = np.maximum(qq, q_roll)
-    amp = np.where(band, qq ** (-(1.0 + hurst)), 0.0)  # sqrt(C(q)) up to a constant
+        qq = np.maximum(qq, q_roll / unit)
+    amp = np.where(band, (qq / qq[band].min()) ** (-(1.0 + hurst)), 0.0)  # sqrt(C(q)) up to a constant
 
     rng = np.random.default_rng(seed)
     white = rng.standard_normal((n, n))
@@ -130,12 +136,15 @@ def self_affine_surface(
     h = sfft.irfft2(wt * amp, s=(n, n))
     h -= h.mean()
     if rms_slope is not None:
-        cur = spectral_rms_slope(h, length)
-        target = rms_slope
+        cur = spectral_rms_slope(h, 2.0 * np.pi)  # slope on the integer lattice (length 2 pi: q = (m, k))
+        target = rms_slope / unit
     else:
         cur = float(np.sqrt(np.mean(h**2)))
         target = h_rms
     if not cur > 0 or not math.isfinite(cur):
         raise ValueError("the requested band produced a zero surface; widen [q_min, q_max]")
-    h *= target / cur
+    scale = target / cur
+    if not math.isfinite(scale):
+        raise ValueError(f"length={length!r} with rms_slope={rms_slope!r} gives heights outside the float range")
+    h *= scale
     return np.ascontiguousarray(h, dtype=np.float64)

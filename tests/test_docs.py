@@ -22,3 +22,32 @@ def test_docs_build_without_warnings(tmp_path: Path) -> None:
     )
     assert proc.returncode == 0, f"sphinx-build failed or warned:\n{proc.stdout}\n{proc.stderr}"
     assert (out / "index.html").exists()
+
+
+ROOT = DOCS.parent
+
+#: Files that still cite the project's SPEC.md / NOTES (documents outside the
+#: repository) and belong to modules being rewritten on other branches; each
+#: is to cite the paper's equations or a docs page instead.  The list may only
+#: shrink: a file not listed here fails the test below.
+OUTSIDE_REFERENCES_PENDING = {
+    "diffusion_pr/solvers/native.py", "diffusion_pr/solvers/closed_form.py", "diffusion_pr/cumulants.py",
+    "diffusion_pr/spectra.py", "diffusion_pr/problem.py", "diffusion_pr/api.py", "diffusion_pr/models.py",
+    "gfmd_ref/solver.py", "gfmd_ref/interactions.py",
+    "docs/gfmd.md", "docs/theory.md", "docs/fig1.md", "docs/backends.md",
+    # on the closures branch (not yet merged here)
+    "diffusion_pr/closures.py", "diffusion_pr/_closure_reference.py", "docs/closures.md",
+}
+
+
+def test_no_citation_of_documents_outside_the_repository() -> None:
+    """Docstrings and docs cite the paper or a docs page, never SPEC.md or the NOTES (not in the repository)."""
+    import re
+
+    pattern = re.compile(r"\bSPEC\b|SPEC\.md|NOTES")
+    files = [p for d in ("diffusion_pr", "gfmd_ref") for p in (ROOT / d).rglob("*.py")]
+    files += list(DOCS.glob("*.md")) + list(DOCS.glob("*.rst")) + [ROOT / "README.md"]
+    files += list((ROOT / "notebooks").glob("*.ipynb"))
+    offending = sorted(str(p.relative_to(ROOT)) for p in files if pattern.search(p.read_text(encoding="utf-8")))
+    new = [f for f in offending if f not in OUTSIDE_REFERENCES_PENDING]
+    assert not new, f"cite the paper's equations or a docs page instead of SPEC/NOTES in: {new}"

@@ -128,3 +128,100 @@ def test_kolmogorov_between_two_samples(rng):
     assert kolmogorov_between(a, b) < 1.95 * np.sqrt(2 / 2e5) + 1.0 / 2048
     # the exact distance of the two mirror Gaussians is > 0.1 (zero weights 0.317 vs 0.134)
     assert kolmogorov_between(a, c) > 0.1
+
+
+def test_uniform_bins_cover_the_field_exactly(rng):
+    """bins=int: that many equal bins from 0 to the largest pressure (or p_max), every pressure counted."""
+    field = np.concatenate([np.zeros(100), rng.exponential(1.0, 5000)])
+    for bins in (1, 7, 40):
+        hist = SimulatedHistogram.from_pressures(field, bins=bins)
+        assert hist.density.size == bins and hist.edges.size == bins + 1
+        assert hist.edges[0] == 0.0 and hist.edges[-1] == field.max()
+        np.testing.assert_allclose(np.diff(hist.edges), field.max() / bins, rtol=1e-12)
+        counts, _ = np.histogram(field[field > 0], bins=np.linspace(0, field.max(), bins + 1))
+        np.testing.assert_allclose(hist.density * hist.widths, counts / field.size, rtol=1e-12)
+        assert hist.moments["outside_bins"] == 0.0
+        assert np.sum(hist.density * hist.widths) + hist.zero_weight == pytest.approx(1.0, abs=1e-12)
+    capped = SimulatedHistogram.from_pressures(field, bins=10, p_max=2.0)
+    assert capped.edges[-1] == 2.0 and capped.density.size == 10
+    assert capped.moments["outside_bins"] == pytest.approx(np.count_nonzero(field > 2.0) / field.size)
+    for bad in (0, -3, 2.5, True, "10"):
+        with pytest.raises(ValueError, match="bins"):
+            SimulatedHistogram.from_pressures(field, bins=bad)
+    with pytest.raises(ValueError, match="bins"):
+        SimulatedHistogram.from_pressures(field, bins=[0.0, 2.0, 1.0])
+
+
+def ks_oracle(theory, field: np.ndarray, p_floor: float) -> float:
+    """Textbook one-sample Kolmogorov statistic sup |F_theory - F_n| over x >= p_floor."""
+    x = np.sort(field)
+    n = x.size
+    keep = x >= p_floor
+    xs = x[x >= p_floor]
+    f = np.asarray(theory.cdf(xs))
+    # just below x_i the theory's CDF lacks the delta peak when x_i == 0 (x_i >= p_floor > 0 here)
+    after = np.searchsorted(x, xs, side="right") / n  # F_n just after x_i
+    before = np.searchsorted(x, xs, side="left") / n  # F_n just before x_i
+    d = max(np.max(np.abs(f - after)), np.max(np.abs(f - before)))
+    d_floor = abs(float(theory.cdf(p_floor)) - np.searchsorted(x, p_floor, side="right") / n)
+    return float(max(d, d_floor))
+
+
+@pytest.mark.parametrize("p0_theory", [0.7, 1.4])
+def test_kolmogorov_is_the_absolute_sup_distance(rng, p0_theory):
+    """Theory below and above the sample's law: the same absolute statistic as the textbook formula."""
+    field = sample_mirror(rng, 1.0, 1.0, 50_000)
+    hist = SimulatedHistogram.from_pressures(field, bins=np.linspace(0, 7, 141))
+    theory = mirror_theory(p0_theory, 1.0)
+    expected = ks_oracle(theory, field, hist.edges[1])
+    assert expected > 0.05  # a real, one-signed difference (the test could fail)
+    # resolution of the stored quantile function: one level step 1/2048 (plus interpolation)
+    assert compare(theory, hist).kolmogorov == pytest.approx(expected, abs=2.0 / 2048)
+    # without quantiles: CDF at the bin edges, never above the full statistic
+    coarse = SimulatedHistogram(hist.edges, hist.density, hist.zero_weight, dict(hist.moments))
+    ks_edges = compare(theory, coarse).kolmogorov
+    assert 0.8 * expected < ks_edges <= expected + 1e-12
+
+
+def test_kolmogorov_between_is_symmetric_and_absolute(rng):
+    from diffusion_pr.comparison import kolmogorov_between
+
+    x = sample_mirror(rng, 1.0, 1.0, 40_000)
+    y = sample_mirror(rng, 1.5, 1.0, 40_000)
+    edges = np.linspace(0, 7, 141)
+    a, b = (SimulatedHistogram.from_pressures(v, bins=edges) for v in (x, y))
+    # textbook two-sample statistic over p >= edges[1]
+    grid = np.union1d(x, y)
+    grid = grid[grid >= edges[1]]
+    fx = np.searchsorted(np.sort(x), grid, side="right") / x.size
+    fy = np.searchsorted(np.sort(y), grid, side="right") / y.size
+    expected = float(np.max(np.abs(fx - fy)))
+    assert expected > 0.05
+    assert kolmogorov_between(a, b) == pytest.approx(expected, abs=2.0 / 2048)
+    assert kolmogorov_between(b, a) == pytest.approx(expected, abs=2.0 / 2048)
+
+
+def test_contact_fraction_at_a_threshold_on_both_sides(rng):
+    """compare(..., contact_threshold=t): theory 1 - cdf(t), field fraction above t (counted exactly)."""
+    field = sample_mirror(rng, 1.0, 1.0, 20_000)
+    t = 0.3
+    hist = SimulatedHistogram.from_pressures(field, bins=np.linspace(0, 7, 141), contact_threshold=t)
+    theory = mirror_theory(1.0, 1.0)
+    cmp = compare(theory, hist, contact_threshold=t)
+    assert cmp.contact_threshold == t
+    assert cmp.contact_fraction_sim == np.count_nonzero(field > t) / field.size
+    # theory: 1 - zero_weight - integral_0^t density, Simpson on a fine grid of the closed form
+    q = np.linspace(0.0, t, 2001)
+    w = np.full(q.size, 2.0)
+    w[1::2], w[0], w[-1] = 4.0, 1.0, 1.0
+    inner = float(np.sum(w * mirror_gaussian_density(q, 1.0, 1.0)) * (q[1] - q[0]) / 3)
+    assert cmp.contact_fraction_theory == pytest.approx(1.0 - persson_zero_weight(1.0, 1.0) - inner, abs=1e-8)
+    # default threshold 0: the hard-wall fractions, 1 - zero_weight on both sides
+    cmp0 = compare(theory, hist)
+    assert cmp0.contact_fraction_sim == 1.0 - hist.zero_weight
+    assert cmp0.contact_fraction_theory == pytest.approx(theory.contact_fraction, abs=1e-15)
+    # a histogram without the counted threshold falls back to its quantiles (one level step)
+    plain = SimulatedHistogram.from_pressures(field, bins=np.linspace(0, 7, 141))
+    assert plain.fraction_above(t) == pytest.approx(cmp.contact_fraction_sim, abs=1.0 / 2048)
+    with pytest.raises(ValueError, match="contact_threshold"):
+        compare(theory, hist, contact_threshold=-1.0)

@@ -1,4 +1,4 @@
-"""Surface generator: amplitude, spectrum slope, reproducibility (SPEC section 2)."""
+"""Surface generator: amplitude, spectrum slope, reproducibility (conventions: docs page gfmd)."""
 import numpy as np
 import pytest
 
@@ -6,7 +6,7 @@ from gfmd_ref import self_affine_surface, spectral_rms_slope
 
 
 def _radial_psd(h, length):
-    """Shell-averaged |h~(q)|^2 with h~ = ifft2(h) (SPEC convention)."""
+    """Shell-averaged |h~(q)|^2 with h~ = ifft2(h) (the package's Fourier convention)."""
     n = h.shape[0]
     ht = np.fft.ifft2(h)
     k = 2 * np.pi * np.fft.fftfreq(n, d=length / n)
@@ -94,6 +94,17 @@ def test_seed_reproducibility():
         (dict(rms_slope=-0.1), "rms_slope"),
         (dict(rms_slope=0.1, length=0.0), "length"),
         (dict(rms_slope=0.1, q_roll=10.0), "q_roll"),
+        # wrong types: a message naming the parameter, not a raw numpy error
+        (dict(rms_slope=0.1, hurst="0.3"), "hurst"),
+        (dict(rms_slope=0.1, hurst=float("nan")), "hurst"),
+        (dict(rms_slope=0.1, hurst=None), "hurst"),
+        (dict(rms_slope=0.1, seed=1.0), "seed"),
+        (dict(rms_slope=0.1, seed=-1), "seed"),
+        (dict(rms_slope=0.1, seed="1"), "seed"),
+        (dict(rms_slope=0.1, seed=True), "seed"),
+        (dict(rms_slope=0.1, length="16"), "length"),
+        (dict(rms_slope=0.1, q_min=None), "q_min"),
+        (dict(rms_slope=0.1, rayleigh="yes"), "rayleigh"),
     ],
 )
 def test_bad_input(kw, name):
@@ -101,3 +112,27 @@ def test_bad_input(kw, name):
     base.update(kw)
     with pytest.raises(ValueError, match=name):
         self_affine_surface(16, **base)
+
+
+@pytest.mark.parametrize("n", [0, 1, 2.0, "16", None])
+def test_bad_grid_size(n):
+    with pytest.raises(ValueError, match="n must be"):
+        self_affine_surface(n, length=16.0, hurst=0.3, q_min=0.4, q_max=3.0, rms_slope=0.1, seed=1)
+
+
+@pytest.mark.parametrize("length", [1e-200, 1.0, 1e200])
+def test_any_length_scale_without_overflow(length):
+    """The band is built on the integer lattice: same surface in units of length, any scale.
+
+    Oracle: the surface is scale-free apart from its amplitude, so h(length)/length is
+    the same array for every length (rms slope fixed), to FFT round-off.
+    """
+    import warnings
+
+    kw = dict(hurst=0.3, rms_slope=0.05, seed=7)
+    ref = self_affine_surface(32, length=1.0, q_min=2 * np.pi, q_max=16 * np.pi, **kw)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no overflow/underflow warnings on the way
+        h = self_affine_surface(32, length=length, q_min=2 * np.pi / length, q_max=16 * np.pi / length, **kw)
+    assert np.all(np.isfinite(h))
+    np.testing.assert_allclose(h / length, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
