@@ -7,7 +7,7 @@ Solves, shell by shell in the diffusion time ``tau`` (pressure^2),
 with ``f = g(q(tau); p)^2`` and, for the load-balanced closure,
 ``b = (1 - g(q_part; p)) (f / p - A(tau) p)`` where the scalar ``A(tau)`` is
 fixed at every step so that the discrete mean pressure stays exactly ``p0``
-(SPEC section 7).  ``g(q; p) = 1 / (1 + zeta q E* / (2 p))``; ``q(tau)`` is the
+(docs/closures.md).  ``g(q; p) = 1 / (1 + zeta q E* / (2 p))``; ``q(tau)`` is the
 shell schedule: shell ``k`` (wavenumber ``q_k``) occupies the ``tau`` interval of
 length ``dV0_k / 2``.
 

@@ -211,7 +211,7 @@ def pressure_distribution(
 ) -> PressureDistribution:
     """Pressure distribution of a rough contact (Müser 2008, SPEC sections 3-4).
 
-    ``closure`` picks the theory (SPEC section 7, docs/closures.md):
+    ``closure`` picks the theory (docs/closures.md):
     ``"second_order"`` (the paper, default; everything below), or the
     parameter-free ``"lognormal_gap"``, ``"local_g1"``, ``"local_g1_balanced"``
     (:func:`diffusion_pr.closures.closure_distribution`; no cutoff, tail or drift).

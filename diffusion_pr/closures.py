@@ -1,4 +1,4 @@
-r"""Parameter-free closures beyond the paper's second order (SPEC section 7, docs/closures.md).
+r"""Parameter-free closures beyond the paper's second order (docs/closures.md).
 
 The paper (M. H. Müser, Phys. Rev. Lett. 100, 055504 (2008),
 doi:10.1103/PhysRevLett.100.055504) broadens a Gaussian with the second-order
@@ -478,7 +478,7 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
                          n_shells: Optional[int] = None, cutoff: Any = None, p_c: Optional[float] = None,
                          tail: Any = None, p_t: Optional[float] = None, partition_q: Optional[float] = None,
                          **options: Any) -> Any:
-    r"""Pressure distribution of a rough contact with a named closure (SPEC section 7).
+    r"""Pressure distribution of a rough contact with a named closure (docs/closures.md).
 
     Parameters
     ----------
@@ -516,7 +516,7 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         tail factor; passing one raises ``ValueError``.
     partition_q : float, optional
         ``"local_g1_balanced"`` only: wavenumber of the partition factor
-        (default ``q_min``; SPEC section 7 explains why it must be ``q_min``).
+        (default ``q_min``; docs/closures.md explains why it must be ``q_min``).
     **options
         ``n_cells``, ``n_steps`` for the reference solver; backend options otherwise.
 

@@ -1,4 +1,4 @@
-"""The parameter-free closures of SPEC section 7 (diffusion_pr.closures).
+"""The parameter-free closures beyond the paper (diffusion_pr.closures).
 
 Oracles: Persson's mirror Gaussian (closed form) at the hard wall; exact sums
 of the spectrum (shell increments); closed-form log-normal moments; a finer run
@@ -52,7 +52,7 @@ def test_discrete_shells_are_the_spectrum_modes():
 @pytest.mark.parametrize("n", [8, 96])
 def test_continuum_shells_sum_to_persson_variance(fig1, n):
     sh = spectrum_shells(fig1, E_star=E, n_shells=n)
-    # closed form: V0 = (E*/2)^2 gbar^2 (SPEC section 3: sqrt(V0) = 0.041333)
+    # closed form: V0 = (E*/2)^2 gbar^2 (sqrt(V0) = 0.041333 for the Fig. 1 spectrum)
     assert sh.V0 == pytest.approx((0.5 * E * 0.031) ** 2, rel=1e-12)
     assert math.sqrt(sh.V0) == pytest.approx(0.041333, abs=1e-6)
     edges = np.geomspace(fig1.q_min, fig1.q_max, n + 1)
@@ -127,7 +127,7 @@ def test_balanced_zeta_to_zero_limit_is_continuous_and_persson(fig1, persson):
 
 
 def test_partition_at_the_shell_q_is_worse_at_small_zeta(fig1, persson):
-    """Mutation of SPEC section 7: the partition 1 - g(q_k; p) at the shell's own q instead of
+    """Mutation of the balanced closure: the partition 1 - g(q_k; p) at the shell's own q instead of
     q_min.  Measured here: K to Persson 6.4e-3 at zeta = 1e-3 (against 1.0e-3 with q_min),
     6x further from the limit.  (Issue 9 reported K = 0.48 for this mutation; with this
     implementation it stays continuous, only slower: see docs/closures.md.)"""
