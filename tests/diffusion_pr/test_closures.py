@@ -291,3 +291,19 @@ def test_engine_backends_agree_on_a_closure(fig1, backend):
     other = closure_distribution(fig1, backend=backend, **kw)
     assert other.success and other.diagnostics["closure"] == "local_g1"
     assert kolmogorov(nat, other) < 3e-3
+
+
+def test_main_job_draws_the_best_closure_beside_the_paper(tmp_path):
+    """diffusion-pr fig1: the balanced closure is a theory curve of every wall, compared,
+    reported, written to the CSV and named in the figure's legend."""
+    from diffusion_pr import fig1
+
+    report = fig1.run_fig1(n=32, zetas=(0.25,), hard_wall=False, rtol=1e-4, out_dir=tmp_path, log=lambda s: None)
+    (case,) = report.cases
+    th = case.theories[fig1.BEST_CLOSURE]
+    assert fig1.BEST_CLOSURE == "local_g1_balanced" and th.diagnostics["closure"] == "local_g1_balanced"
+    assert th.success and th.mean == pytest.approx(P0, rel=1e-10)
+    assert list(case.comparisons)[:2] == ["paper", "local_g1_balanced"]
+    assert "local_g1_balanced" in report.text()
+    header = (tmp_path / "fig1_curves.csv").read_text().splitlines()[0].split(",")
+    assert "local_g1_balanced_zeta0.25" in header
