@@ -526,6 +526,10 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         ``diagnostics["closure"]`` names the closure.
     """
     closure = check_closure(closure)
+    for name, value in (("E_star", E_star), ("mean_pressure", mean_pressure), ("zeta", zeta)):
+        if np.ndim(value) != 0:
+            raise ValueError(f"{name} must be a scalar (loop for several distributions); got an array of shape "
+                             f"{np.shape(value)}")
     E = float(check_positive("E_star", E_star))
     p0 = float(check_positive("mean_pressure", mean_pressure))
     z = float(check_nonnegative("zeta", zeta))

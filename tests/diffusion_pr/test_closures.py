@@ -222,6 +222,8 @@ def test_closure_problem_stages(fig1):
     ({"closure": "local_g1", "partition_q": 0.1}, "partition_q applies"),
     ({"closure": "local_g1", "n_shells": 1}, "n_shells must be an integer >= 2"),
     ({"closure": "local_g1", "zeta": -1.0}, "zeta"),
+    ({"closure": "local_g1", "zeta": np.array([0.1, 0.2])}, "zeta must be a scalar"),
+    ({"closure": "lognormal_gap", "zeta": float("nan")}, "zeta"),
     ({"closure": "local_g1", "n_cells": 15, "backend": "reference"}, "n_cells must be an even integer"),
 ])
 def test_bad_input(fig1, kwargs, match):
