@@ -343,7 +343,8 @@ def lognormal_gap_distribution(spectrum: Spectrum, *, E_star: float, mean_pressu
     mean is fixed to ``p0`` (force balance), so ``<ln p> = ln p0 - s^2/2``.
 
     The result is given on ``n_cells`` cells uniform in ``ln p`` over
-    ``<ln p> +- 9.5 s`` (plus ``[0, p_lo]``) with the exact cell masses (normal CDF)
+    ``[<ln p> - 9.5 s, <ln p> + s^2 + 9.5 s]`` (plus ``[0, p_lo]``; the upper end
+    covers where ``p Pr(p)`` lives) with the exact cell masses (normal CDF)
     and, as each cell's point, the exact conditional mean of ``p`` in the cell, so
     mass and mean are exact to round-off (the mass beyond ``9.5 s``, below 1e-20, is dropped).
 
@@ -383,11 +384,23 @@ def lognormal_gap_distribution(spectrum: Spectrum, *, E_star: float, mean_pressu
     s2 = V / (p0 * p0)
     s = math.sqrt(s2)
     mu = math.log(p0) - 0.5 * s2
-    x = np.linspace(mu - 9.5 * s, mu + 9.5 * s, int(n_cells))
+    # the mass lies within mu +- 9.5 s; the mean's integrand p Pr(p) is the same Gaussian in ln p
+    # shifted by s^2, so the grid reaches mu + s^2 + 9.5 s
+    top = mu + s2 + 9.5 * s
+    if top - math.log(p0) > 690.0:
+        raise ValueError(f"closure='lognormal_gap' is not defined here: its ln-variance s^2 = V/p0^2 = {s2:.4g} "
+                         f"(zeta={z!r}, p0={p0!r}) puts the mean-carrying pressures exp({s2:.3g}/2) times above p0, "
+                         "beyond floating point; the log-normal picture of the gap does not apply at such small "
+                         "zeta / load (use 'local_g1_balanced')")
+    x = np.linspace(mu - 9.5 * s, top, int(n_cells))
     edges = np.concatenate(([0.0], np.exp(x)))
     u = (x - mu) / s
-    cdf = np.concatenate(([0.0], ndtr(u)))
-    mass = np.diff(cdf)
+    # cell masses from the CDF below the median and from the survival function above it
+    # (differences of numbers near 1 would lose the far tail that carries the mean when s is large)
+    lo_c, hi_c = ndtr(u[:-1]), ndtr(u[1:])
+    lo_s, hi_s = ndtr(-u[:-1]), ndtr(-u[1:])
+    upper = 0.5 * (u[:-1] + u[1:]) > 0
+    mass = np.concatenate(([ndtr(u[0])], np.where(upper, lo_s - hi_s, hi_c - lo_c)))
     # partial expectations E[p; p < e] = exp(mu + s^2/2) Phi((ln e - mu - s^2)/s)
     pe = np.concatenate(([0.0], np.exp(mu + 0.5 * s2 + log_ndtr(u - s))))
     pm = np.diff(pe)
@@ -462,6 +475,8 @@ def _solve_reference(shells: Shells, *, zeta: float, E_star: float, p0: float, c
            f"(against {n_fine // 2} cells/{n_steps // 2} steps)")
     if n_neg:
         msg += f"; {n_neg} negative cell densities (min {density.min():.3g})"
+    if balanced and not res_mean < 1e-10:
+        msg += f"; the multiplier A did not hold the mean (relative residual {res_mean:.3g}): NOT converged"
     diag = {"closure": closure, "n_cells": int(edges.size - 1), "n_steps": n_steps, "n_shells": int(shells.q.size),
             "partition_q": partition_q if partition_q else shells.q_min, "wall_floor": floor if kz > 0 else 0.0,
             "balance_multiplier": fine["A"], "secant_iterations": fine["secant_iterations"],

@@ -309,3 +309,16 @@ def test_main_job_draws_the_best_closure_beside_the_paper(tmp_path):
     assert "local_g1_balanced" in report.text()
     header = (tmp_path / "fig1_curves.csv").read_text().splitlines()[0].split(",")
     assert "local_g1_balanced_zeta0.25" in header
+
+
+def test_lognormal_gap_mean_at_small_zeta(fig1):
+    """At zeta = 0.001 the ln-variance is s^2 = 99: the mean is carried by pressures
+    exp(s^2/2) above p0, far in the tail (an earlier grid of <ln p> +- 9.5 s gave a mean of
+    0.06 p0).  Mean, mass and median exact; and a clear error where s^2 overflows."""
+    r = lognormal_gap_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.001)
+    s2 = r.diagnostics["ln_variance"]
+    assert s2 == pytest.approx(99.1, abs=0.1)
+    assert r.mean == pytest.approx(P0, rel=1e-10) and r.mass == pytest.approx(1.0, abs=1e-12)
+    assert float(r.cdf(P0 * math.exp(-0.5 * s2))) == pytest.approx(0.5, abs=1e-5)
+    with pytest.raises(ValueError, match="lognormal_gap' is not defined here"):
+        lognormal_gap_distribution(fig1, E_star=1.0, mean_pressure=1e-5, zeta=1e-4)
