@@ -142,6 +142,9 @@ def test_compare_ensemble_oracles(expo):
     c_far = compare_ensemble(Expo(atom=0.05), recs, n_boot=50, n_split=20)
     assert c_far.kolmogorov == pytest.approx(0.05, abs=4 * iid + 1e-3)
     assert "p >= " in c.summary()
+    # the plotted band holds the pool and (almost everywhere) the truth
+    assert np.all((c.cdf_lo <= c.cdf_pool + 1e-15) & (c.cdf_pool <= c.cdf_hi + 1e-15))
+    assert np.mean((c.cdf_theory >= c.cdf_lo) & (c.cdf_theory <= c.cdf_hi)) > 0.8
 
 
 def test_compare_ensemble_contact_fraction_uses_gfmd_threshold():
