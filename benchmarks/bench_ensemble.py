@@ -170,9 +170,9 @@ def finite_size(stores, walls=("hard", 0.25), use_bundle=True):
     ens = Ensemble(recs)
     out = {}
     for w in walls:
-        rows = finite_size_table(ens, w)
+        rows = finite_size_table(ens, w, n_ref=1024)
         out[str(w)] = rows
-        print(f"wall {w}:")
+        print(f"wall {w} (zeta in grid units of 1024^2, scaled as n/1024):")
         print("    n  seeds  contact fraction     sd/p0            skewness         K to finest (noise)")
         for r in rows:
             print(f"{r['n']:5d} {r['seeds']:6d}  {r['contact_fraction']:.4f} +- {r['contact_fraction_sem']:.4f}  "
