@@ -170,14 +170,34 @@ def finite_size(stores, walls=("hard", 0.25), use_bundle=True):
     ens = Ensemble(recs)
     out = {}
     for w in walls:
-        rows = finite_size_table(ens, w)
+        rows = finite_size_table(ens, w, n_ref=1024)
         out[str(w)] = rows
-        print(f"wall {w}:")
+        print(f"wall {w} (zeta in grid units of 1024^2, scaled as n/1024):")
         print("    n  seeds  contact fraction     sd/p0            skewness         K to finest (noise)")
         for r in rows:
             print(f"{r['n']:5d} {r['seeds']:6d}  {r['contact_fraction']:.4f} +- {r['contact_fraction_sem']:.4f}  "
                   f"{r['sd_over_p0']:.3f} +- {r['sd_over_p0_sem']:.3f}  {r['skewness']:.3f} +- {r['skewness_sem']:.3f}  "
                   f"{r['k_to_finest']:.4f} ({r['k_noise']:.4f})")
+    return out
+
+
+def noise_table(name="fig1_n1024"):
+    """K(N) of a bundled ensemble per wall (split halves), against 0.037/sqrt(N)."""
+    from gfmd_ref import bundled_ensemble
+    from gfmd_ref.ensemble_stats import noise_floor
+
+    ens = bundled_ensemble(name)
+    out = []
+    for g in ens.groups():
+        nf = noise_floor(g, repeats=200)
+        out.append(dict(wall=g.wall, seeds=g.n_seeds, sizes=nf.sizes.tolist(), k_noise=nf.k_noise.tolist(),
+                        coefficient=nf.coefficient, k_full=nf.k_noise_full,
+                        median_wall_time=float(np.median([r.provenance["wall_time"] for r in g])),
+                        median_iterations=float(np.median([r.provenance["iterations"] for r in g]))))
+        print(f"{g.wall:>10} {g.n_seeds:3d} seeds: K(N) " + " ".join(f"N={k}:{v:.4f}" for k, v in
+                                                             zip(nf.sizes, nf.k_noise))
+              + f"  c={nf.coefficient:.4f} (0.037 in the issue), K(all)={nf.k_noise_full:.4f}; median case "
+                f"{out[-1]['median_wall_time']:.1f} s, {out[-1]['median_iterations']:.0f} it")
     return out
 
 
@@ -190,11 +210,14 @@ def main(argv=None):
     ap.add_argument("--check-ingest", default=None, metavar="FIELD_DIR")
     ap.add_argument("--json", default=None, help="write the results here")
     ap.add_argument("--keep", default=None, help="keep the throughput stores under this directory")
+    ap.add_argument("--noise", action="store_true", help="K(N) of the bundled Fig. 1 ensemble per wall")
     ap.add_argument("--finite-size", nargs="+", default=None, metavar="STORE",
                     help="finite-size table of these stores plus the bundled 1024^2 Fig. 1 ensemble")
     args = ap.parse_args(argv)
     res = {}
-    if args.finite_size:
+    if args.noise:
+        res["noise"] = noise_table()
+    elif args.finite_size:
         res["finite_size"] = finite_size(args.finite_size)
     elif args.check_ingest:
         res["check_ingest"] = check_ingest(args.check_ingest)

@@ -577,6 +577,9 @@ class EnsembleComparison:
         Standard deviation (pressure units) and skewness; GFMD: mean and
         seed-to-seed sd of the per-seed values. ``sd_pool``/``skewness_pool`` are
         those of the pooled distribution.
+    p, cdf_theory, cdf_pool, cdf_lo, cdf_hi : ndarray
+        For plots: pressures ``>= p_min`` (at most 2000), the theory's and the pooled
+        CDF there, and the pool's 95 % bootstrap band.
     """
 
     kolmogorov: float
@@ -603,6 +606,11 @@ class EnsembleComparison:
     skewness_gfmd: float
     skewness_gfmd_sd: float
     skewness_pool: float
+    p: Array = field(default_factory=lambda: np.zeros(0))
+    cdf_theory: Array = field(default_factory=lambda: np.zeros(0))
+    cdf_pool: Array = field(default_factory=lambda: np.zeros(0))
+    cdf_lo: Array = field(default_factory=lambda: np.zeros(0))
+    cdf_hi: Array = field(default_factory=lambda: np.zeros(0))
 
     def summary(self) -> str:
         """Multi-line text report."""
@@ -682,8 +690,11 @@ def compare_ensemble(theory: Any, records_or_group: Any, *, p_min: Optional[floa
     per_seed = np.max(np.abs(C - T), axis=1)
     rng = np.random.default_rng(seed)
     boot_idx = [rng.integers(0, S, S) for _ in range(n_boot)]
-    k_boot = np.array([np.max(np.abs(T - C[i].mean(0))) for i in boot_idx])
-    noise_b = float(np.median([np.max(np.abs(C[i].mean(0) - F)) for i in boot_idx]))
+    pools = np.array([C[i].mean(0) for i in boot_idx])
+    k_boot = np.max(np.abs(T - pools), axis=1)
+    noise_b = float(np.median(np.max(np.abs(pools - F), axis=1)))
+    sub = np.unique(np.linspace(0, x.size - 1, min(2000, x.size)).astype(int))
+    band = np.percentile(pools[:, sub], [2.5, 97.5], axis=0)
     h = S // 2
     splits = []
     for _ in range(n_split):
@@ -730,4 +741,5 @@ def compare_ensemble(theory: Any, records_or_group: Any, *, p_min: Optional[floa
         sd_theory=sd_t, sd_gfmd=float(sd_s.mean()), sd_gfmd_sd=float(sd_s.std(ddof=1)), sd_pool=float(np.sqrt(var_p)),
         skewness_theory=float(tt / sd_t**3) if sd_t > 0 else 0.0, skewness_gfmd=float(sk_s.mean()),
         skewness_gfmd_sd=float(sk_s.std(ddof=1)), skewness_pool=float(th_p / var_p**1.5) if var_p > 0 else 0.0,
+        p=x[sub], cdf_theory=T[sub], cdf_pool=F[sub], cdf_lo=band[0], cdf_hi=band[1],
     )

@@ -163,18 +163,34 @@ def scatter(recs, attr: str) -> tuple:
     return float(v.mean()), sd, sd / np.sqrt(v.size)
 
 
-def finite_size_table(ensemble, wall, *, mean_pressure=None, p_min: Optional[float] = None) -> list:
+def finite_size_table(ensemble, wall, *, n_ref: int = 1024, mean_pressure=None, p_min: Optional[float] = None) -> list:
     """The same physical system at several grids (same surface family, ``L = n``).
 
-    One row per grid size present for ``wall``: seeds, contact fraction, sd/p0 and
-    skewness (mean +- sem over seeds), and K between this grid's pooled CDF and the
-    finest grid's, beside the noise of those two pools (the quadrature sum of
-    their split-half noise estimates; 0 when a pool has fewer than 2 seeds).
+    ``wall`` is ``"hard"`` or a zeta in grid units *of the grid* ``n_ref``: all
+    lengths scale with ``L = n``, so the same physical wall has ``zeta n / n_ref``
+    grid units on an ``n x n`` grid (records with that zeta are used). One row per
+    grid size present: seeds, contact fraction, sd/p0 and skewness (mean +- sem over
+    seeds), and K between this grid's pooled CDF and the finest grid's, beside the
+    noise of those two pools (the quadrature sum of their split-half noise
+    estimates; 0 when a pool has fewer than 2 seeds).
     """
-    recs = ensemble.select(wall=wall, mean_pressure=mean_pressure, converged=True)
+    from .ensemble_store import _parse_wall
+
+    z_ref = _parse_wall(wall)
+    recs = []
+    for r in ensemble.records:
+        if not r.converged:
+            continue
+        if mean_pressure is not None and not np.isclose(r.mean_pressure, mean_pressure, rtol=1e-12):
+            continue
+        if z_ref is None:
+            if r.zeta is None:
+                recs.append(r)
+        elif r.zeta is not None and np.isclose(r.zeta, z_ref * r.n / n_ref, rtol=1e-9):
+            recs.append(r)
     ns = sorted({r.n for r in recs})
     if not ns:
-        raise ValueError(f"no converged records for wall={wall!r}")
+        raise ValueError(f"no converged records for wall={wall!r} (zeta scaled as n/{n_ref})")
     pools = {n: [r for r in recs if r.n == n] for n in ns}
     finest = pools[ns[-1]]
 

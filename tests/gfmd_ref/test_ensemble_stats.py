@@ -142,6 +142,9 @@ def test_compare_ensemble_oracles(expo):
     c_far = compare_ensemble(Expo(atom=0.05), recs, n_boot=50, n_split=20)
     assert c_far.kolmogorov == pytest.approx(0.05, abs=4 * iid + 1e-3)
     assert "p >= " in c.summary()
+    # the plotted band holds the pool and (almost everywhere) the truth
+    assert np.all((c.cdf_lo <= c.cdf_pool + 1e-15) & (c.cdf_pool <= c.cdf_hi + 1e-15))
+    assert np.mean((c.cdf_theory >= c.cdf_lo) & (c.cdf_theory <= c.cdf_hi)) > 0.8
 
 
 def test_compare_ensemble_contact_fraction_uses_gfmd_threshold():
@@ -186,6 +189,12 @@ def test_finite_size_table_sees_a_resolution_effect():
     coarse = [_record(rng.exponential(1.1 * P0, M), s, n=32) for s in range(1, 9)]
     fine = [_record(rng.exponential(P0, M), s, n=64) for s in range(1, 9)]
     rows = finite_size_table(Ensemble(coarse + fine), "hard")
+    # exponential walls: the same physical zeta is zeta n / n_ref grid units
+    soft = [_record(rng.exponential(P0, M), s, n=32, zeta=0.5) for s in range(1, 3)]
+    soft += [_record(rng.exponential(P0, M), s, n=64, zeta=1.0) for s in range(1, 3)]
+    soft += [_record(rng.exponential(P0, M), s, n=64, zeta=0.5) for s in range(1, 3)]
+    srows = finite_size_table(Ensemble(soft), 1.0, n_ref=64)
+    assert [(r["n"], r["seeds"]) for r in srows] == [(32, 2), (64, 2)]
     assert [r["n"] for r in rows] == [32, 64] and rows[1]["k_to_finest"] == 0.0
     x = np.linspace(P0 / 20, 10 * P0, 10001)
     shift = np.max(np.exp(-x / (1.1 * P0)) - np.exp(-x / P0))
