@@ -43,7 +43,7 @@ CACHE = Path("/tmp/closures_summaries")
 WALLS = (None, 0.001, 0.01, 0.1, 0.25, 0.5, 1.0, 2.0, 4.0)
 N_LEVELS = 4097
 E_STAR, P0 = 8.0 / 3.0, 0.004
-CLOSURE_NAMES = ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced")
+CLOSURE_NAMES = ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced", "local_g1_shell_balanced")
 #: targets of issue 9 (K against the pooled ensemble, no fitted parameter)
 TARGETS = {None: 0.04, 0.001: 0.04, 0.01: 0.04, 0.1: 0.05, 0.25: 0.025, 0.5: 0.025, 1.0: 0.01, 2.0: 0.01, 4.0: 0.01}
 

@@ -21,6 +21,10 @@ cutoff pressure ``p_c`` near ``p = 0``.  The closures here need no fitted number
 ``"local_g1_balanced"``
     As ``local_g1`` plus the drift ``b = (1 - g(q_min; p)) (g(q_k; p)^2/p - A p)``,
     ``A(tau)`` the one number per instant that keeps ``<p> = p0``.
+``"local_g1_shell_balanced"``
+    As ``local_g1_balanced`` with the partition at the shell's own wavenumber:
+    ``b = (1 - g(q_k; p)) (g(q_k; p)^2/p - A p)``.  Found here; the best on the
+    GFMD ensembles (docs/fig1.md).
 
 Units: pressures in the unit of ``E_star`` and ``mean_pressure``; lengths
 (``zeta``, ``1/q``) in the unit of the spectrum; ``tau`` in pressure^2.
@@ -49,7 +53,11 @@ __all__ = [
 ]
 
 #: the closures by name; "second_order" is the paper's theory
-CLOSURES: tuple[str, ...] = ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced")
+CLOSURES: tuple[str, ...] = ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced",
+                             "local_g1_shell_balanced")
+
+#: the balanced closures and their partition wavenumber ("shell": each shell's own q_k)
+_BALANCED = {"local_g1_balanced": None, "local_g1_shell_balanced": "shell"}
 
 #: shells of a continuum spectrum (uniform in ln q, tau-midpoint nodes); converged in the tests
 DEFAULT_CONTINUUM_SHELLS = 96
@@ -308,7 +316,7 @@ def closure_problem(shells: Shells, *, zeta: float, E_star: float, mean_pressure
         Wall range [length], >= 0.
     E_star, mean_pressure : float
         ``E*`` and ``p0`` [pressure], > 0.
-    closure : {"local_g1", "local_g1_balanced"}
+    closure : {"local_g1", "local_g1_balanced", "local_g1_shell_balanced"}
     partition_q : float or "shell", optional
         Wavenumber of the partition factor (default ``shells.q_min``; ``"shell"``
         takes each shell's own ``q_k``, which breaks the ``zeta -> 0`` limit and is
@@ -316,8 +324,13 @@ def closure_problem(shells: Shells, *, zeta: float, E_star: float, mean_pressure
     """
     from .problem import Stage, StagedProblem
 
-    if closure not in ("local_g1", "local_g1_balanced"):
-        raise ValueError(f"closure_problem builds 'local_g1' or 'local_g1_balanced'; got closure={closure!r}")
+    if closure not in ("local_g1", *_BALANCED):
+        raise ValueError("closure_problem builds 'local_g1', 'local_g1_balanced' or 'local_g1_shell_balanced'; "
+                         f"got closure={closure!r}")
+    if closure == "local_g1_shell_balanced":
+        if partition_q is not None:
+            raise ValueError("partition_q is fixed ('shell') for closure='local_g1_shell_balanced'")
+        partition_q = "shell"
     kz = 0.5 * float(check_nonnegative("zeta", zeta)) * float(check_positive("E_star", E_star))
     stages = []
     for q, dv in zip(shells.q, shells.dV0):
@@ -431,7 +444,9 @@ def _solve_reference(shells: Shells, *, zeta: float, E_star: float, p0: float, c
     from ._closure_reference import solve_reference
     from .result import PressureDistribution
 
-    balanced = closure == "local_g1_balanced"
+    balanced = closure in _BALANCED
+    if closure == "local_g1_shell_balanced":
+        partition_q = "shell"
     t0 = time.perf_counter()
     runs = []
     # The wall floor (first edge) sits a factor `floor` below zeta q_min E*/2.  local_g1: ln p drifts
@@ -508,10 +523,10 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         ``p0`` [pressure], > 0.
     zeta : float
         Wall range [length], >= 0; 0 is the hard wall.  At ``zeta = 0``:
-        ``"second_order"``, ``"local_g1"`` and ``"local_g1_balanced"`` are all
+        ``"second_order"`` (sharp cutoff) and the three shell closures are all
         Persson's mirror Gaussian (``g = 1``, no drift, absorbing wall);
         ``"lognormal_gap"`` raises.
-    closure : {"second_order", "lognormal_gap", "local_g1", "local_g1_balanced"}
+    closure : {"second_order", "lognormal_gap", "local_g1", "local_g1_balanced", "local_g1_shell_balanced"}
         See the module docstring and docs/closures.md.
     backend : str
         ``"second_order"``: as :func:`diffusion_pr.pressure_distribution`.
@@ -565,7 +580,8 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
             raise ValueError("partition_q and n_shells do not apply to closure='lognormal_gap' (closed form)")
         return lognormal_gap_distribution(spectrum, E_star=E, mean_pressure=p0, zeta=z)
     if partition_q is not None and closure != "local_g1_balanced":
-        raise ValueError("partition_q applies to closure='local_g1_balanced' only")
+        raise ValueError("partition_q applies to closure='local_g1_balanced' only "
+                         "('local_g1_shell_balanced' is the partition at each shell's q_k)")
     if partition_q is not None and partition_q != "shell":
         check_positive("partition_q", partition_q)
     shells = spectrum_shells(spectrum, E_star=E, n_shells=n_shells)
@@ -581,7 +597,7 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
     from .api import solve_problem
 
     problem = closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure, partition_q=partition_q)
-    if closure == "local_g1_balanced" and z > 0:
+    if closure in _BALANCED and z > 0:
         # part of the closure's definition, not an accuracy knob: its drift cancels the Ito drift of
         # ln p below p* = zeta q_min E*/2, so mass returns from deep below p*; resolve down to
         # BALANCED_FLOOR p* (docs/closures.md), as the reference solver does

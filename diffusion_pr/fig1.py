@@ -34,7 +34,7 @@ DEFAULT_ZETAS: tuple[float, ...] = (0.001, 0.01, 0.25, 1.0, 4.0)
 PAPER = "paper"
 
 #: The best parameter-free closure (docs/closures.md, docs/fig1.md), drawn beside the paper's curve.
-BEST_CLOSURE = "local_g1_balanced"
+BEST_CLOSURE = "local_g1_shell_balanced"
 
 #: Bin width of the main job's histograms, in units of p0.
 BIN_WIDTH_P0 = 0.1

@@ -72,7 +72,7 @@ def test_continuum_shell_count_is_converged(fig1):
 
 
 # ----------------------------------------------------------------------------- hard wall
-@pytest.mark.parametrize("closure", ["local_g1", "local_g1_balanced", "second_order"])
+@pytest.mark.parametrize("closure", ["local_g1", "local_g1_balanced", "local_g1_shell_balanced", "second_order"])
 def test_hard_wall_is_persson(fig1, persson, closure):
     """zeta = 0: g = 1, no drift, absorbing wall: every shell closure is Persson's mirror Gaussian."""
     r = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.0, closure=closure,
@@ -88,7 +88,7 @@ def test_lognormal_gap_refuses_the_hard_wall(fig1):
 
 
 # ----------------------------------------------------------------------------- conservation
-@pytest.mark.parametrize("closure", ["local_g1", "local_g1_balanced"])
+@pytest.mark.parametrize("closure", ["local_g1", "local_g1_balanced", "local_g1_shell_balanced"])
 @pytest.mark.parametrize("zeta", [0.001, 0.1, 1.0])
 def test_mass_mean_positivity(fig1, closure, zeta):
     r = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure, **FAST)
@@ -117,7 +117,7 @@ def test_reference_solver_converges(fig1, closure):
 
 # ----------------------------------------------------------------------------- zeta -> 0
 def test_balanced_zeta_to_zero_limit_is_continuous_and_persson(fig1, persson):
-    """K to Persson falls linearly with zeta (measured 1.0e-3, 1.0e-4, 1.0e-5 at zeta =
+    """K to Persson falls linearly with zeta (measured 1.6e-3, 1.6e-4, 1.3e-5 at zeta =
     1e-3, 1e-4, 1e-5) and is the solver's own error at zeta = 0."""
     k = {z: kolmogorov(closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=z, closure="local_g1_balanced",
                                             **FAST), persson) for z in (1e-3, 1e-4, 1e-5)}
@@ -126,15 +126,21 @@ def test_balanced_zeta_to_zero_limit_is_continuous_and_persson(fig1, persson):
     assert k[1e-5] < 3e-5
 
 
-def test_partition_at_the_shell_q_is_worse_at_small_zeta(fig1, persson):
-    """Mutation of the balanced closure: the partition 1 - g(q_k; p) at the shell's own q instead of
-    q_min.  Measured here: K to Persson 6.4e-3 at zeta = 1e-3 (against 1.0e-3 with q_min),
-    6x further from the limit.  (Issue 9 reported K = 0.48 for this mutation; with this
-    implementation it stays continuous, only slower: see docs/closures.md.)"""
+def test_partition_at_the_shell_q_is_continuous_too(fig1, persson):
+    """The partition 1 - g(q_k; p) at the shell's own q (closure 'local_g1_shell_balanced',
+    also reachable as partition_q="shell") against q_min: both tend to Persson linearly in
+    zeta; the shell partition is 10x further at a given zeta (K = 0.017, 1.8e-3, 1.9e-4,
+    1.6e-5 at zeta = 1e-3 ... 1e-6, against 1.6e-3, 1.6e-4, 1.3e-5 with q_min).  Issue 9 reported K = 0.48 at zeta = 0.001 for this
+    variant and called the limit lost; that is not reproduced here (docs/closures.md)."""
     good = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=1e-3, closure="local_g1_balanced", **FAST)
-    bad = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=1e-3, closure="local_g1_balanced",
-                               partition_q="shell", **FAST)
-    assert kolmogorov(good, persson) < 2e-3 < 4e-3 < kolmogorov(bad, persson)
+    shell = {z: closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=z, closure="local_g1_shell_balanced",
+                                     **FAST) for z in (1e-3, 1e-4)}
+    same = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=1e-3, closure="local_g1_balanced",
+                                partition_q="shell", **FAST)
+    assert kolmogorov(same, shell[1e-3]) < 1e-12  # one closure, two spellings
+    assert kolmogorov(good, persson) < 3e-3 < 0.01 < kolmogorov(shell[1e-3], persson) < 0.03
+    assert 5.0 < kolmogorov(shell[1e-3], persson) / kolmogorov(shell[1e-4], persson) < 20.0
+    assert shell[1e-3].diagnostics["partition_q"] == "shell"
 
 
 # ----------------------------------------------------------------------------- lognormal
@@ -211,6 +217,9 @@ def test_closure_problem_stages(fig1):
     assert st.diffusivity.zero_power == 2.0
     hard = closure_problem(sh, zeta=0.0, E_star=E, mean_pressure=P0, closure="local_g1_balanced")
     assert hard.stages[0].drift is None and hard.stages[0].diffusivity.zero_power == 0.0
+    shell = closure_problem(sh, zeta=0.5, E_star=E, mean_pressure=P0, closure="local_g1_shell_balanced")
+    np.testing.assert_allclose(shell.stages[-1].drift(p), (1 - g) * g**2 / p, rtol=1e-12)
+    np.testing.assert_allclose(shell.stages[-1].balance(p), (1 - g) * p, rtol=1e-12)
 
 
 # ----------------------------------------------------------------------------- bad input
@@ -220,6 +229,7 @@ def test_closure_problem_stages(fig1):
     ({"closure": "local_g1_balanced", "tail": "linear", "p_t": 0.01}, "tail applies"),
     ({"closure": "lognormal_gap", "n_shells": 10}, "do not apply"),
     ({"closure": "local_g1", "partition_q": 0.1}, "partition_q applies"),
+    ({"closure": "local_g1_shell_balanced", "partition_q": 0.1}, "partition_q applies"),
     ({"closure": "local_g1", "n_shells": 1}, "n_shells must be an integer >= 2"),
     ({"closure": "local_g1", "zeta": -1.0}, "zeta"),
     ({"closure": "local_g1", "zeta": np.array([0.1, 0.2])}, "zeta must be a scalar"),
@@ -233,12 +243,12 @@ def test_bad_input(fig1, kwargs, match):
 
 
 def test_closure_names():
-    assert CLOSURES == ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced")
+    assert CLOSURES == ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced", "local_g1_shell_balanced")
 
 
 # ----------------------------------------------------------------------------- api and engine
 @pytest.mark.parametrize("closure", CLOSURES)
-def test_pressure_distribution_closure_keyword(fig1, closure):
+def test_pressure_distribution_closure_keyword(fig1, closure):  # noqa: D103
     r = dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.5, closure=closure,
                                  **({"backend": "reference", **FAST} if closure.startswith("local") else {}))
     assert r.diagnostics["closure"] == closure
@@ -263,7 +273,8 @@ def test_plot_label_names_the_closure(fig1):
 
 
 @pytest.mark.parametrize("closure, zeta", [("local_g1", 0.0), ("local_g1_balanced", 0.0), ("local_g1", 0.01),
-                                           ("local_g1", 0.25), ("local_g1_balanced", 0.01)])
+                                           ("local_g1", 0.25), ("local_g1_balanced", 0.01),
+                                           ("local_g1_shell_balanced", 0.1)])
 def test_engine_native_agrees_with_the_reference(fig1, closure, zeta):
     """The engine's staged solve (native) against the reference solver (1600
     cells and steps, its own error about 1e-4 above p0/20).  Measured: 1.5e-5 (hard wall),
@@ -274,7 +285,7 @@ def test_engine_native_agrees_with_the_reference(fig1, closure, zeta):
     closures now pass the floor explicitly.)"""
     ref = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure, backend="reference")
     # the balanced closure costs the engine 2-5 s at rtol 1e-6: checked at 1e-4
-    rtol = 1e-4 if closure == "local_g1_balanced" and zeta > 0 else 1e-6
+    rtol = 1e-4 if "balanced" in closure and zeta > 0 else 1e-6
     eng = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure, backend="native",
                                rtol=rtol)
     assert eng.success and eng.diagnostics["closure"] == closure
@@ -303,12 +314,13 @@ def test_main_job_draws_the_best_closure_beside_the_paper(tmp_path):
     report = fig1.run_fig1(n=32, zetas=(0.25,), hard_wall=False, rtol=1e-4, out_dir=tmp_path, log=lambda s: None)
     (case,) = report.cases
     th = case.theories[fig1.BEST_CLOSURE]
-    assert fig1.BEST_CLOSURE == "local_g1_balanced" and th.diagnostics["closure"] == "local_g1_balanced"
+    best = "local_g1_shell_balanced"
+    assert fig1.BEST_CLOSURE == best and th.diagnostics["closure"] == best
     assert th.success and th.mean == pytest.approx(P0, rel=1e-10)
-    assert list(case.comparisons)[:2] == ["paper", "local_g1_balanced"]
-    assert "local_g1_balanced" in report.text()
+    assert list(case.comparisons)[:2] == ["paper", best]
+    assert best in report.text()
     header = (tmp_path / "fig1_curves.csv").read_text().splitlines()[0].split(",")
-    assert "local_g1_balanced_zeta0.25" in header
+    assert f"{best}_zeta0.25" in header
 
 
 def test_lognormal_gap_mean_at_small_zeta(fig1):
