@@ -192,3 +192,22 @@ def test_plot_returns_axes():
     matplotlib.use("Agg")
     ax = dp.propagate(1.0, 1.0).plot()
     assert ax is not None
+
+
+# ---------------------------------------------------------------- StagedProblem contract (CONTRACT.md)
+def test_staged_problem_validation_and_auto_backend():
+    one = lambda p: np.ones_like(p)  # noqa: E731
+    with pytest.raises(ValueError, match="duration"):
+        dp.Stage(-1.0, one)
+    with pytest.raises(ValueError, match="diffusivity"):
+        dp.Stage(1.0, 3.0)
+    with pytest.raises(ValueError, match="stages"):
+        dp.StagedProblem(1.0, ())
+    with pytest.raises(ValueError, match="mean_pressure"):
+        dp.StagedProblem(-1.0, (dp.Stage(1.0, one),))
+    # two stages of f = 1 are one stage of the summed duration: the mirror Gaussian (oracle: closed form)
+    staged = dp.StagedProblem(1.0, (dp.Stage(0.2, one), dp.Stage(0.3, one)))
+    assert staged.variance == pytest.approx(1.0)
+    r = dp.solve_problem(staged, rtol=1e-6)
+    assert r.backend == "native" and r.success
+    assert r.zero_weight == pytest.approx(dp.persson_zero_weight(1.0, 1.0), abs=1e-6)

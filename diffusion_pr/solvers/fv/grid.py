@@ -101,13 +101,14 @@ def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float) -> np.ndarr
     tol = 1e-14 * np.maximum(np.abs(targets), 1.0)
     for _ in range(40):
         r = spec.phi(x) - targets
-        if np.all(np.abs(r) <= tol):
+        done = np.abs(r) <= tol
+        if np.all(done):
             break
         lo = np.where(r < 0, x, lo)
         hi = np.where(r > 0, x, hi)
         step = x - r / spec.dphi(x)
         bad = (step <= lo) | (step >= hi)
-        x = np.where(bad, 0.5 * (lo + hi), step)
+        x = np.where(done, x, np.where(bad, 0.5 * (lo + hi), step))  # converged points stay
     return x
 
 
