@@ -64,6 +64,7 @@ _LAZY = {
     "PressureDistribution": "result",
     "propagate": "api",
     "pressure_distribution": "api",
+    "closure_distribution": "closures",
     "solve_problem": "api",
     "choose_backend": "api",
     "BackendUnavailableError": "solvers",

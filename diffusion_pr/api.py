@@ -206,9 +206,16 @@ def pressure_distribution(
     drift: Optional[Callable[[np.ndarray, float], np.ndarray]] = None,
     backend: str = "auto",
     rtol: float = 1e-6,
+    closure: str = "second_order",
     **options: Any,
 ) -> PressureDistribution:
     """Pressure distribution of a rough contact (Müser 2008, SPEC sections 3-4).
+
+    ``closure`` picks the theory (docs/closures.md):
+    ``"second_order"`` (the paper, default; everything below), or the
+    parameter-free ``"lognormal_gap"``, ``"local_g1"``, ``"local_g1_balanced"``
+    (:func:`diffusion_pr.closures.closure_distribution`; no cutoff, tail or drift).
+    ``diagnostics["closure"]`` names it in every result.
 
     Steps: ``V = stress_variance(spectrum, E_star, p0, zeta)`` (Eq. 9 with
     ``G1`` of Eq. 10 for ``zeta > 0``; Persson's ``V0`` for ``zeta = 0``);
@@ -259,6 +266,15 @@ def pressure_distribution(
         Bad numbers (NaN, out of range) naming the parameter, NaN spectra,
         ``p_c <= 0``, unknown cutoff/tail/backend names.
     """
+    if closure != "second_order":
+        from .closures import check_closure, closure_distribution
+
+        check_closure(closure)
+        if drift is not None:
+            raise ValueError(f"drift applies to closure='second_order' only; got closure={closure!r}")
+        return closure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta, closure=closure,
+                                    cutoff=None if cutoff == "sharp" else cutoff, p_c=p_c, tail=tail, p_t=p_t,
+                                    backend=backend, rtol=rtol, **options)
     from .cumulants import stress_variance, variance_vs_magnification
 
     E = check_positive("E_star", E_star)
@@ -280,7 +296,8 @@ def pressure_distribution(
     if not np.isfinite(V) or V <= 0.0:
         raise ValueError(f"the stress variance of this spectrum is {V!r}; it must be finite and > 0 "
                          "(check the spectrum for NaN or zero amplitude)")
-    extra: dict = {"stress_variance": V, "zeta": float(z), "E_star": float(E), "pressure_factor": factor}
+    extra: dict = {"stress_variance": V, "zeta": float(z), "E_star": float(E), "pressure_factor": factor,
+                   "closure": "second_order"}
     if drift is None:
         problem = FokkerPlanckProblem(float(p0), V, factor, label="pressure_distribution")
     else:

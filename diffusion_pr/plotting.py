@@ -64,7 +64,8 @@ def plot_distribution(result: Any, ax: Optional[Any] = None, *, log: bool = True
     fresh = ax is None or not ax.get_lines()
     ax = _axes(ax)
     if label is None:
-        label = f"{result.backend} (a_r = {result.contact_fraction:.4f})"
+        closure = result.diagnostics.get("closure", "second_order")
+        label = f"{closure}, {result.backend} (a_r = {result.contact_fraction:.4f})"
     density = np.asarray(result.density, dtype=float)
     if log:
         density = np.where(density > 0.0, density, np.nan)

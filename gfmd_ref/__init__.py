@@ -7,9 +7,13 @@ imports :mod:`diffusion_pr`.
 Public API: :func:`self_affine_surface`, :class:`HardWall`,
 :class:`ExponentialRepulsion`, :func:`solve_contact` (-> :class:`ContactResult`),
 :class:`ConvergenceWarning`, :func:`pressure_histogram`, :func:`fig1_surface`,
-:func:`warm_up_fft`.
+:func:`warm_up_fft`; ensembles on Dask: :func:`run_ensemble`, :func:`load_ensemble`,
+:func:`bundled_ensemble` (see :mod:`gfmd_ref.ensemble`).
 """
 from ._fft import fft_pair
+from .ensemble import EnsembleSurface, ingest_fields, run_ensemble
+from .ensemble_data import bundled_ensemble
+from .ensemble_store import load_ensemble
 from .histogram import PressureHistogram, pressure_histogram
 from .interactions import ExponentialRepulsion, HardWall
 from .scene import FIG1, fig1_surface
@@ -29,6 +33,11 @@ __all__ = [
     "fig1_surface",
     "FIG1",
     "warm_up_fft",
+    "run_ensemble",
+    "load_ensemble",
+    "bundled_ensemble",
+    "ingest_fields",
+    "EnsembleSurface",
 ]
 
 

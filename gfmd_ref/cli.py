@@ -1,5 +1,9 @@
 """Command line: ``gfmd-ref run`` solves the paper's Fig. 1 scene and writes the
-pressure histogram (``.npz``, ``.csv``, ``.png``).
+pressure histogram (``.npz``, ``.csv``, ``.png``); ``gfmd-ref ensemble`` runs (or
+resumes) an ensemble of cases on Dask into a store directory, ``gfmd-ref
+ensemble-summary DIR`` prints its per-group table, ``gfmd-ref ensemble-ingest``
+reduces saved pressure fields into a store and ``gfmd-ref ensemble-bundle``
+writes compact package data from stores (see docs/ensembles.md).
 
 The same job is callable from Python: :func:`run_default_scene`, and another CLI
 can mount the sub-command with :func:`add_run_arguments` + :func:`run_from_args`.
@@ -178,6 +182,55 @@ def run_from_args(args) -> int:
     return 0 if res.converged else 1
 
 
+def add_ensemble_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Options of ``gfmd-ref ensemble``."""
+    parser.add_argument("--store", required=True, help="store directory (created; finished cases are skipped)")
+    parser.add_argument("--n", default="1024", help="grid size(s), comma separated (default 1024; L = n)")
+    parser.add_argument("--seeds", default="1-4", help="surface seeds, e.g. 1-64 or 1,3,5-7 (default 1-4)")
+    parser.add_argument("--walls", default="hard",
+                        help="walls: 'hard' and/or exponential ranges zeta [grid units], e.g. hard,4,0.25")
+    parser.add_argument("--mean-pressures", default=None,
+                        help="loads p0, comma separated (default the paper's 0.004)")
+    parser.add_argument("--E-star", type=float, default=None, help="contact modulus (default 8/3)")
+    parser.add_argument("--hurst", type=float, default=None, help="surface Hurst exponent (default 0.3)")
+    parser.add_argument("--rms-slope", type=float, default=None, help="surface rms slope (default 0.031)")
+    parser.add_argument("--n-waves", type=int, default=None,
+                        help="q_max/q_min, shortest wavelength L/n_waves (default 32)")
+    parser.add_argument("--tol", type=float, default=1e-6, help="solver tolerance relative to p0 (default 1e-6)")
+    parser.add_argument("--method", choices=["auto", "ccg", "newton", "fire"], default="auto")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="local cluster worker processes (default: one per core)")
+    parser.add_argument("--threads-per-worker", type=int, default=None,
+                        help="FFT threads per worker (default 1)")
+    parser.add_argument("--scheduler", default=None, help="address of a running Dask scheduler (tcp://host:8786)")
+    parser.add_argument("--serial", action="store_true", help="no cluster: solve the cases in this process")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return parser
+
+
+def ensemble_from_args(args, argv=None) -> int:
+    from .ensemble import FIG1_SURFACE, EnsembleSurface, run_ensemble
+
+    try:
+        surface = EnsembleSurface(
+            FIG1_SURFACE.hurst if args.hurst is None else args.hurst,
+            FIG1_SURFACE.rms_slope if args.rms_slope is None else args.rms_slope,
+            FIG1_SURFACE.n_waves if args.n_waves is None else args.n_waves,
+        )
+        ns = [int(v) if v.strip().lstrip("-").isdigit() else v for v in str(args.n).split(",")]
+        loads = None if args.mean_pressures is None else args.mean_pressures.split(",")
+        command = "gfmd-ref " + " ".join(sys.argv[1:] if argv is None else argv)
+        run = run_ensemble(args.store, n=ns, seeds=args.seeds, walls=args.walls, mean_pressures=loads,
+                           surface=surface, E_star=args.E_star, tol=args.tol, method=args.method,
+                           workers=args.workers, threads_per_worker=args.threads_per_worker,
+                           scheduler=args.scheduler, serial=args.serial, progress=not args.no_progress,
+                           command=command)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0 if run.success else 1
+
+
 def main(argv=None) -> int:
     from importlib.metadata import PackageNotFoundError, version
 
@@ -191,13 +244,63 @@ def main(argv=None) -> int:
     parser.add_argument("--version", action="version", version=f"gfmd-ref (diffusion-pr {ver})")
     sub = parser.add_subparsers(dest="command")
     add_run_arguments(sub.add_parser("run", help="solve the Fig. 1 scene, write the histogram"))
+    add_ensemble_arguments(sub.add_parser("ensemble", help="run or resume an ensemble on Dask into a store"))
+    ps = sub.add_parser("ensemble-summary", help="per-group table of an ensemble store")
+    ps.add_argument("store", help="store directory")
+    pi = sub.add_parser("ensemble-ingest", help="reduce saved pressure fields (npz: pressure + meta) into a store")
+    pi.add_argument("fields", help="directory of *.npz fields")
+    pi.add_argument("--store", required=True, help="store directory")
+    pi.add_argument("--field-command", default="", help="the command that computed the fields (provenance)")
+    pi.add_argument("--no-progress", action="store_true")
+    pb = sub.add_parser("ensemble-bundle", help="write compact per-seed quantiles (package data) from stores")
+    pb.add_argument("stores", nargs="+", help="store directories")
+    pb.add_argument("--out", required=True, help="output .npz")
+    pb.add_argument("--name", required=True, help="ensemble name stored in the file")
+    pb.add_argument("--regenerate", default="", help="the commands that regenerate the stores (provenance)")
+    pb.add_argument("--seeds", default=None, help="only these seeds, e.g. 1-32 (default all)")
     args = parser.parse_args(argv)
-    if args.command != "run":
-        parser.print_help()
-        return 2
-    with warnings.catch_warnings():
-        warnings.simplefilter("always", ConvergenceWarning)
-        return run_from_args(args)
+    if args.command == "run":
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", ConvergenceWarning)
+            return run_from_args(args)
+    if args.command == "ensemble":
+        return ensemble_from_args(args, argv)
+    if args.command == "ensemble-summary":
+        from .ensemble_store import load_ensemble
+
+        try:
+            print(load_ensemble(args.store).summary())
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        return 0
+    if args.command == "ensemble-ingest":
+        from .ensemble import ingest_fields
+
+        command = "gfmd-ref " + " ".join(sys.argv[1:] if argv is None else argv)
+        try:
+            run = ingest_fields(args.fields, args.store, field_command=args.field_command, command=command,
+                                progress=not args.no_progress)
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        return 0 if run.success else 1
+    if args.command == "ensemble-bundle":
+        from .ensemble import parse_seeds
+        from .ensemble_data import write_bundle
+
+        command = "gfmd-ref " + " ".join(sys.argv[1:] if argv is None else argv)
+        try:
+            path, size = write_bundle(args.stores, args.out, name=args.name, command=command,
+                                      regenerate=args.regenerate,
+                                      seeds=None if args.seeds is None else parse_seeds(args.seeds))
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        print(f"wrote {path} ({size / 1e6:.2f} MB)")
+        return 0
+    parser.print_help()
+    return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -34,9 +34,7 @@ OUTSIDE_REFERENCES_PENDING = {
     "diffusion_pr/solvers/native.py", "diffusion_pr/solvers/closed_form.py", "diffusion_pr/cumulants.py",
     "diffusion_pr/spectra.py", "diffusion_pr/problem.py", "diffusion_pr/api.py", "diffusion_pr/models.py",
     "gfmd_ref/solver.py", "gfmd_ref/interactions.py",
-    "docs/gfmd.md", "docs/theory.md", "docs/fig1.md", "docs/backends.md",
-    # on the closures branch (not yet merged here)
-    "diffusion_pr/closures.py", "diffusion_pr/_closure_reference.py", "docs/closures.md",
+    "docs/gfmd.md", "docs/theory.md", "docs/backends.md",
 }
 
 

@@ -1,11 +1,13 @@
-"""The paper's Fig. 1 claims, measured against the bundled 1024^2 GFMD data.
+"""The paper's Fig. 1 claims and the closures, measured on GFMD ensembles.
 
-Every number here was measured on the bundled reference data (two surface
-seeds; see ``docs/fig1.md`` for the full table).  Each test states the
-paper's claim, what we measure, and a margin wide enough for the theory's own
-solver tolerance (``rtol = 1e-5``) yet narrow enough that a regression in the
-variance, the solver, or the comparison metrics would fail it.  Where a claim
-does not reproduce, the test asserts what is true.
+Distances between a theory and GFMD are asserted only against pooled ensembles
+(``gfmd_ref.bundled_ensemble``: compact per-seed quantiles), with tolerances
+derived from the ensemble's own bootstrap noise
+(:func:`diffusion_pr.comparison.compare_ensemble`, K over ``p >= p0/20``); no test
+asserts a single seed's K below its noise (about 0.07 at the 95th percentile).
+Single-seed checks that remain (curvature, moments, fits, the gap-field mapping)
+compare quantities far above that noise.  Numbers: ``docs/fig1.md``,
+``benchmarks/fig1_claims.py``.
 """
 from __future__ import annotations
 
@@ -13,8 +15,7 @@ import numpy as np
 import pytest
 
 import diffusion_pr as dp
-from diffusion_pr.comparison import (compare, fit_cutoff_pressure, fit_tail_pressure, kolmogorov_between,
-                                     tail_curvatures)
+from diffusion_pr.comparison import compare, compare_ensemble, fit_cutoff_pressure, fit_tail_pressure, tail_curvatures
 from diffusion_pr.reference_data import FIG1_SCENE, case_name, load_reference, paper_theory
 
 E_STAR = FIG1_SCENE["E_star"]
@@ -56,34 +57,6 @@ def test_g1_variance_matches_gfmd_at_large_zeta(runs, seed):
         v0 = float(dp.stress_variance(case.spectrum, E_star=E_STAR, mean_pressure=P0, zeta=0.0))
         assert 0.95 < sd_sim / np.sqrt(v_g1) < 1.25, (zeta, sd_sim / np.sqrt(v_g1))
         assert np.sqrt(v0) / sd_sim > 5.0
-
-
-@pytest.mark.parametrize("seed", SEEDS)
-def test_agreement_degrades_at_intermediate_zeta(runs, seed):
-    """Claim: agreement degrades at intermediate zeta.  Reproduced.
-
-    Kolmogorov distance theory-GFMD (paper's p_c): 0.03 at zeta = 0.001,
-    0.35-0.37 at 0.25, 0.03-0.10 at 4.
-    """
-    ks = {z: runs[z, seed][2].kolmogorov for z in (0.001, 0.1, 0.25, 0.5, 4.0)}
-    assert ks[0.25] > 5.0 * ks[0.001]
-    assert ks[0.25] > 2.5 * ks[4.0]
-    assert max(ks[0.1], ks[0.25], ks[0.5]) == ks[0.25] or ks[0.25] > 0.3
-
-
-def test_large_zeta_agreement_is_within_realization_scatter(runs):
-    """Claim: 'for large zeta theory and simulations agree flawlessly'.
-
-    Measured at zeta = 4: theory-GFMD Kolmogorov distance 0.035 (seed 1) and
-    0.10 (seed 2) against a seed-to-seed GFMD distance of 0.069: within the
-    realization scatter (ratio 0.5 and 1.5).  At zeta -> 0 the theory misses by
-    6-7 times the scatter (0.025-0.033 against 0.004-0.005).
-    """
-    for zeta, lo, hi in ((4.0, 0.0, 2.0), (0.001, 4.0, np.inf), (None, 4.0, np.inf)):
-        scatter = kolmogorov_between(runs[zeta, 1][0].histogram, runs[zeta, 2][0].histogram)
-        for seed in SEEDS:
-            ratio = runs[zeta, seed][2].kolmogorov / scatter
-            assert lo < ratio < hi, (zeta, seed, ratio)
 
 
 @pytest.mark.parametrize("seed", SEEDS)
@@ -145,7 +118,7 @@ def test_fitted_cutoff_pressure_at_zeta_0_01():
 
     Measured (seed 1): Müser's literal cutoff 0.0167 (2.0 x the paper), raised
     cosine 0.0111; the raised cosine fits best (objective 0.018 against 0.038).
-    The fit lowers the Kolmogorov distance of the paper's p_c (0.049 to 0.034).
+    (No assertion on this single seed's K: its noise is about 0.07.)
     """
     case = load_reference(case_name(0.01, 1))
     hist = case.histogram.rebinned(2)
@@ -154,12 +127,6 @@ def test_fitted_cutoff_pressure_at_zeta_0_01():
     assert all(f.success for f in fits.values())
     assert 1.5 < fits["muser"].p_c / 0.0082 < 2.5
     assert fits["raised_cosine"].objective < fits["muser"].objective
-    ks_paper = compare(paper_theory(case), case.histogram).kolmogorov
-    ks_fit = compare(paper_theory(case, p_c=fits["muser"].p_c), case.histogram).kolmogorov
-    # measured 0.034 against 0.049 since zero_weight is one definition for every backend (the mass below the
-    # problem's floor 1e-6 p0 for this cutoff); bin_averaged_density leaves zero_weight out of the first bin,
-    # so this ratio depends on that definition (it was 0.016 / 0.049 with the old grid-dependent floor)
-    assert ks_fit < 0.8 * ks_paper
 
 
 def test_exponential_tail_fits_a_surface_that_is_not_coloured_noise():
@@ -215,3 +182,142 @@ def test_first_three_moments(runs, seed):
             # variance: within 25 % at zeta >= 1, where the cutoff does not bite
             if zeta >= 1.0:
                 assert m_th["variance"] / m_sim["variance"] == pytest.approx(1.0, abs=0.3)
+
+
+# ----------------------------------------------------------------------------- ensembles
+def _mean_spectrum(group):
+    """Average power per lattice shell over the group's seeds (same lattice): the expected
+    spectrum of the pooled ensemble (docs/closures.md)."""
+    from diffusion_pr.spectra import DiscreteSpectrum
+
+    recs = list(group.records)
+    qs = np.unique(np.concatenate([np.asarray(r.spectrum_q, float) for r in recs]))
+    power = np.zeros(qs.size)
+    mult = np.ones(qs.size, dtype=np.int64)
+    for r in recs:
+        idx = np.searchsorted(qs, np.asarray(r.spectrum_q, float))
+        power[idx] += np.asarray(r.spectrum_power, float)
+        mult[idx] = np.maximum(mult[idx], np.asarray(r.spectrum_multiplicity))
+    return DiscreteSpectrum(qs, power / len(recs), mult, float(recs[0].length))
+
+
+def _ensemble_compare(name, zeta, closure, *, paper_pc=False, n_cells=800):
+    from gfmd_ref.ensemble_data import bundled_ensemble
+
+    from diffusion_pr.closures import closure_distribution
+    from diffusion_pr.fig1 import paper_cutoff_pressure
+
+    group = bundled_ensemble(name).group(zeta)
+    rec = group.records[0]
+    E, p0 = float(rec.E_star), float(rec.mean_pressure)
+    kw = {}
+    if closure.startswith("local"):
+        # reference solver: K error ~5e-4 (800 cells) / 1e-3 (400), far below the targets' margins
+        kw = {"backend": "reference", "n_cells": n_cells, "n_steps": n_cells}
+    elif closure == "second_order" and paper_pc and zeta is not None:
+        kw = {"cutoff": "muser", "p_c": paper_cutoff_pressure(zeta), "rtol": 1e-5}
+    th = closure_distribution(_mean_spectrum(group), E_star=E, mean_pressure=p0, zeta=0.0 if zeta is None else zeta,
+                              closure=closure, **kw)
+    return compare_ensemble(th, group, n_boot=200, n_split=50)
+
+
+#: off-scene ensemble (512^2, H 0.7, slope 0.05, E* 1, p0 0.005, 16 seeds): measured K of
+#: local_g1_balanced against the pooled ensemble and the bootstrap noise beside it
+OFFSCENE_BALANCED = {None: (0.0390, 0.0009), 0.01: (0.0621, 0.0015), 0.1: (0.0472, 0.0061),
+                     0.5: (0.0028, 0.0116), 2.0: (0.0070, 0.0128)}
+TARGETS = {None: 0.04, 0.01: 0.04, 0.1: 0.05, 0.5: 0.025, 2.0: 0.01}
+
+
+@pytest.mark.parametrize("zeta", [None, 0.01, 0.1, 0.5, 2.0])
+def test_offscene_balanced_closure_against_the_pooled_ensemble(zeta):
+    """Off the paper's scene, no fitted number: local_g1_balanced meets issue 9's targets
+    at zeta = 0.1, 0.5, 2 and the hard wall (where it is Persson: 0.039 against 0.04), and
+    misses at zeta = 0.01 (0.062).  Tolerance: 3 x the ensemble's bootstrap noise around
+    the measured value (plus 1e-3 for the reference solver at 800 cells)."""
+    c = _ensemble_compare("offscene_n512", zeta, "local_g1_balanced")
+    k_meas, noise = OFFSCENE_BALANCED[zeta]
+    assert c.noise_bootstrap == pytest.approx(noise, rel=0.5)
+    assert abs(c.kolmogorov - k_meas) < 3 * c.noise_bootstrap + 1e-3
+    if zeta == 0.01:
+        assert c.kolmogorov > TARGETS[zeta] + 3 * c.noise_bootstrap  # the miss is real
+    else:
+        assert c.kolmogorov < TARGETS[zeta] + 2 * c.noise_bootstrap
+
+
+def test_offscene_second_order_is_far_worse_at_intermediate_zeta():
+    """The parameter-free second order (sharp cutoff) at zeta = 0.5 off-scene: K = 0.33,
+    a hundred times the balanced closure's 0.003 and 30x the noise."""
+    so = _ensemble_compare("offscene_n512", 0.5, "second_order")
+    bal = _ensemble_compare("offscene_n512", 0.5, "local_g1_balanced")
+    assert so.kolmogorov > 0.25
+    assert so.kolmogorov - bal.kolmogorov > 10 * so.noise_bootstrap
+    # skewness: GFMD 2.3 (pool), balanced 2.2, second order 0.8
+    assert abs(bal.skewness_theory - bal.skewness_pool) < 0.3 < abs(so.skewness_theory - so.skewness_pool)
+
+
+# ----------------------------------------------------------------------------- the Fig. 1 ensemble
+#: issue 9's targets for K against the pooled ensemble (no fitted parameter)
+FIG1_TARGETS = {None: 0.04, 0.001: 0.04, 0.01: 0.04, 0.1: 0.05, 0.25: 0.025, 0.5: 0.025, 1.0: 0.01, 2.0: 0.01,
+                4.0: 0.01}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("zeta", [None, 0.001, 0.25, 0.5, 1.0, 4.0])
+def test_fig1_balanced_closure_meets_the_targets(zeta):
+    """local_g1_balanced against the bundled Fig. 1 ensemble (K over p >= p0/20): within
+    target + 2 x the bootstrap noise.  Measured on 16 seeds (docs/fig1.md): 0.027 (hard wall
+    = Persson), 0.033 (0.001), 0.021 (0.25), 0.005 (0.5), 0.002 (1), 0.0025 (4)."""
+    c = _ensemble_compare("fig1_n1024", zeta, "local_g1_balanced", n_cells=400)
+    assert c.kolmogorov < FIG1_TARGETS[zeta] + 2 * c.noise_bootstrap, (c.kolmogorov, c.noise_bootstrap)
+
+
+@pytest.mark.parametrize("zeta", [0.01, 0.1])
+def test_fig1_balanced_closure_misses_the_targets_at_small_zeta(zeta):
+    """Where the targets are missed, the test says so: zeta = 0.01 (K about 0.06 against
+    0.04; noise 0.0007) and 0.1 (0.077 against 0.05; noise 0.005), beyond 2 x the noise."""
+    c = _ensemble_compare("fig1_n1024", zeta, "local_g1_balanced", n_cells=400)
+    assert c.kolmogorov > FIG1_TARGETS[zeta] + 2 * c.noise_bootstrap, (c.kolmogorov, c.noise_bootstrap)
+    assert c.kolmogorov < 0.1
+
+
+def test_fig1_second_order_is_not_flawless_at_large_zeta():
+    """Claim: 'for large zeta theory and simulation agree flawlessly'.  Not so on the
+    ensemble: at zeta = 4 the paper's second order misses by K = 0.031, 3x the noise (0.009)
+    and 12x the balanced closure's 0.0025; its skewness (-0.03) is not GFMD's (0.50)."""
+    so = _ensemble_compare("fig1_n1024", 4.0, "second_order", paper_pc=True)
+    bal = _ensemble_compare("fig1_n1024", 4.0, "local_g1_balanced", n_cells=400)
+    assert so.kolmogorov > 3 * so.noise_bootstrap
+    assert so.kolmogorov > 3 * bal.kolmogorov
+    assert abs(so.skewness_theory) < 0.1 and so.skewness_pool > 0.3
+    assert abs(bal.skewness_theory - bal.skewness_pool) < 0.1
+
+
+def test_fig1_agreement_degrades_at_intermediate_zeta():
+    """Claim: agreement degrades at intermediate zeta.  Reproduced on the ensemble: the
+    paper's second order K = 0.031 at zeta = 0.001, 0.35 at 0.25, 0.031 at 4."""
+    k = {z: _ensemble_compare("fig1_n1024", z, "second_order", paper_pc=True).kolmogorov for z in (0.001, 0.25, 4.0)}
+    assert k[0.25] > 5 * k[0.001] and k[0.25] > 5 * k[4.0]
+    assert k[0.25] > 0.25
+
+
+def test_fig1_hard_wall_contact_area_exceeds_persson_on_the_ensemble():
+    """Independent numbers (Hyun et al. 2004; Prodanov et al. 2014): kappa about 2 against
+    Persson's 1.60.  Pooled GFMD contact fraction 0.1044 against Persson's 0.0771 (16
+    seeds): ratio 1.35, kappa 2.16; the seed-to-seed sd of the contact fraction is about 1 %."""
+    c = _ensemble_compare("fig1_n1024", None, "second_order")
+    gbar = 0.031
+    assert 1.25 < c.contact_fraction_gfmd / c.contact_fraction_theory < 1.5
+    assert 1.9 < c.contact_fraction_gfmd * E_STAR * gbar / P0 < 2.4
+    assert c.contact_fraction_gfmd_sd < 0.05 * c.contact_fraction_gfmd
+
+
+@pytest.mark.parametrize("name, zeta", [("fig1_n1024", z) for z in (None, 0.001, 0.01, 0.1, 0.25, 0.5, 1.0, 2.0, 4.0)]
+                         + [("offscene_n512", z) for z in (None, 0.01, 0.1, 0.5, 2.0)])
+def test_shell_balanced_closure_meets_every_target(name, zeta):
+    """The closure found here, local_g1_shell_balanced (partition at each shell's q_k), meets
+    issue 9's targets at every wall of both ensembles, no fitted number: K within target +
+    2 x the bootstrap noise.  Measured (16 seeds each): Fig. 1 0.027 (hard), 0.017 (0.001),
+    0.027 (0.01), 0.034 (0.1), 0.014 (0.25), 0.004 (0.5), 0.002 (1, 2), 0.0025 (4);
+    off-scene 0.039 (hard), 0.032 (0.01), 0.047 (0.1), 0.015 (0.5), 0.0075 (2)."""
+    c = _ensemble_compare(name, zeta, "local_g1_shell_balanced", n_cells=400)
+    assert c.kolmogorov < FIG1_TARGETS[zeta] + 2 * c.noise_bootstrap, (c.kolmogorov, c.noise_bootstrap)

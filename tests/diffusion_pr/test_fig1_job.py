@@ -198,7 +198,7 @@ def test_another_theory_curve_goes_through_theory_curves(monkeypatch, tmp_path):
     monkeypatch.setattr(fig1, "theory_curves", with_extra)
     report = fig1.run_fig1(n=32, zetas=(0.25,), hard_wall=False, rtol=1e-4, out_dir=tmp_path, log=lambda s: None)
     (case,) = report.cases
-    assert list(case.comparisons) == ["paper", "extra"]
+    assert list(case.comparisons) == ["paper", fig1.BEST_CLOSURE, "extra"]
     assert case.comparisons["extra"] == case.comparisons["paper"]
     header = (tmp_path / "fig1_curves.csv").read_text().splitlines()[0].split(",")
     assert "extra_zeta0.25" in header

@@ -1,0 +1,608 @@
+r"""Parameter-free closures beyond the paper's second order (docs/closures.md).
+
+The paper (M. H. Müser, Phys. Rev. Lett. 100, 055504 (2008),
+doi:10.1103/PhysRevLett.100.055504) broadens a Gaussian with the second-order
+(cumulant) variance ``V = sum_q (q E*/2)^2 G1(q)^2 |h~(q)|^2`` and needs a fitted
+cutoff pressure ``p_c`` near ``p = 0``.  The closures here need no fitted number:
+
+``"second_order"``
+    The paper (the default of :func:`diffusion_pr.pressure_distribution`):
+    ``dPr/dtau = d^2/dp^2 [f(p) Pr]`` to ``tau = V/2`` with the cutoff/tail factor
+    ``f``.
+``"lognormal_gap"``
+    The gap fluctuation ``-(1 - G1(q)) h~(q)`` is Gaussian with variance
+    ``zeta^2 V / p0^2``; the wall law ``p = p_w exp(-gap/zeta)`` maps it onto a
+    log-normal pressure with ``Var(ln p) = s^2 = V / p0^2`` and the mean fixed to
+    ``p0``.  Closed form.  Not defined for the hard wall (``zeta = 0``).
+``"local_g1"``
+    Shell by shell in ``q`` (diffusion time ``tau`` advancing by ``dV0_k/2``
+    across shell ``k``): ``dPr/dtau = d^2/dp^2 [g(q_k; p)^2 Pr]`` with the response
+    factor evaluated at the *local* pressure, ``g(q; p) = 1/(1 + zeta q E*/(2p))``.
+``"local_g1_balanced"``
+    As ``local_g1`` plus the drift ``b = (1 - g(q_min; p)) (g(q_k; p)^2/p - A p)``,
+    ``A(tau)`` the one number per instant that keeps ``<p> = p0``.
+``"local_g1_shell_balanced"``
+    As ``local_g1_balanced`` with the partition at the shell's own wavenumber:
+    ``b = (1 - g(q_k; p)) (g(q_k; p)^2/p - A p)``.  Found here; the best on the
+    GFMD ensembles (docs/fig1.md).
+
+Units: pressures in the unit of ``E_star`` and ``mean_pressure``; lengths
+(``zeta``, ``1/q``) in the unit of the spectrum; ``tau`` in pressure^2.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any, Optional
+
+import numpy as np
+
+from ._validation import check_nonnegative, check_positive
+from .spectra import DiscreteSpectrum, Spectrum
+
+__all__ = [
+    "CLOSURES",
+    "Shells",
+    "spectrum_shells",
+    "local_response",
+    "lognormal_gap_distribution",
+    "closure_distribution",
+    "contact_fraction",
+    "DEFAULT_CONTINUUM_SHELLS",
+]
+
+#: the closures by name; "second_order" is the paper's theory
+CLOSURES: tuple[str, ...] = ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced",
+                             "local_g1_shell_balanced")
+
+#: the balanced closures and their partition wavenumber ("shell": each shell's own q_k)
+_BALANCED = {"local_g1_balanced": None, "local_g1_shell_balanced": "shell"}
+
+#: shells of a continuum spectrum (uniform in ln q, tau-midpoint nodes); converged in the tests
+DEFAULT_CONTINUUM_SHELLS = 96
+
+#: GFMD's contact threshold for exponential walls, relative to p0
+CONTACT_THRESHOLD = 0.01
+
+
+def check_closure(closure: object) -> str:
+    """Return ``closure`` if it names a closure, else raise ``ValueError`` listing the names."""
+    if not isinstance(closure, str) or closure not in CLOSURES:
+        raise ValueError(f"closure must be one of {list(CLOSURES)}; got closure={closure!r}")
+    return closure
+
+
+@dataclass(frozen=True)
+class Shells:
+    """Magnification shells of a spectrum for the shell-by-shell closures.
+
+    Attributes
+    ----------
+    q : ndarray
+        Shell wavenumbers ``q_k`` [rad/length], increasing (the order they are applied in).
+    dV0 : ndarray
+        Persson increments ``dV0_k = (E* q_k/2)^2 x (shell power)`` [pressure^2];
+        ``sum(dV0) = V0 = (E*/2)^2 gbar^2``.  The diffusion time advances by ``dV0_k/2``
+        across shell ``k``.
+    q_min : float
+        Smallest wavenumber of the spectrum [rad/length] (the partition of the
+        load-balanced closure uses it).
+    exact : bool
+        True for a :class:`~diffusion_pr.spectra.DiscreteSpectrum` (its own modes);
+        False for a continuum quadrature.
+    """
+
+    q: np.ndarray
+    dV0: np.ndarray
+    q_min: float
+    exact: bool
+
+    @property
+    def V0(self) -> float:
+        """Persson's full-contact variance ``sum dV0`` [pressure^2]."""
+        return float(np.sum(self.dV0))
+
+
+def spectrum_shells(spectrum: Spectrum, *, E_star: float, n_shells: Optional[int] = None) -> Shells:
+    r"""Shells ``q_k`` and Persson increments ``dV0_k`` of a spectrum.
+
+    * :class:`~diffusion_pr.spectra.DiscreteSpectrum`: its own shells of equal
+      ``|q|``, ``dV0_k = (E* q_k/2)^2 sum_{|q| = q_k} |h~(q)|^2`` (exact).
+    * continuum (e.g. :class:`~diffusion_pr.spectra.SelfAffineSpectrum`):
+      ``n_shells`` shells uniform in ``ln q`` on ``[q_min, q_max]``;
+      ``dV0_k = (E*/2)^2 2 pi \int_shell q^3 C(q) dq`` exactly (the spectrum's
+      quadrature), and the node ``q_k`` is the shell's midpoint in diffusion time
+      (where the cumulative ``V0`` reaches half the shell), which makes the
+      shell sum a second-order (midpoint) rule in ``tau``.
+
+    Parameters
+    ----------
+    spectrum : Spectrum
+        Height spectrum (lengths in the unit of ``1/q``).
+    E_star : float
+        Contact modulus [pressure], > 0.
+    n_shells : int, optional
+        Continuum only (default :data:`DEFAULT_CONTINUUM_SHELLS`), >= 2.
+
+    Returns
+    -------
+    Shells
+    """
+    if not isinstance(spectrum, Spectrum):
+        raise ValueError("spectrum must be a diffusion_pr.spectra.Spectrum (SelfAffineSpectrum or "
+                         f"DiscreteSpectrum); got {type(spectrum).__name__}")
+    E = float(check_positive("E_star", E_star))
+    if isinstance(spectrum, DiscreteSpectrum):
+        if n_shells is not None:
+            raise ValueError("n_shells applies to continuum spectra only; a DiscreteSpectrum uses its own shells")
+        q = np.asarray(spectrum.q, dtype=float)
+        dv = (0.5 * E * q) ** 2 * np.asarray(spectrum.power, dtype=float)
+        return Shells(q.copy(), dv, float(q[0]), True)
+    n = DEFAULT_CONTINUUM_SHELLS if n_shells is None else n_shells
+    if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 2:
+        raise ValueError(f"n_shells must be an integer >= 2; got n_shells={n_shells!r}")
+    qlo, qhi = float(spectrum.q_min), float(spectrum.q_max)
+    edges = np.geomspace(qlo, qhi, int(n) + 1)
+    sub = 32
+    fine = np.exp(np.linspace(math.log(qlo), math.log(qhi), int(n) * sub + 1))
+    weight = lambda q: (0.25 * E * E) * q * q  # noqa: E731
+    cum = np.asarray(spectrum.cumulative(weight, fine), dtype=float)
+    cum_edges = cum[::sub]
+    dv = np.diff(cum_edges)
+    mid = 0.5 * (cum_edges[1:] + cum_edges[:-1])
+    qk = np.empty(int(n))
+    lnf = np.log(fine)
+    for k in range(int(n)):
+        seg = slice(k * sub, (k + 1) * sub + 1)
+        c = cum[seg]
+        if c[-1] > c[0]:
+            qk[k] = math.exp(float(np.interp(mid[k], c, lnf[seg])))
+        else:
+            qk[k] = math.sqrt(edges[k] * edges[k + 1])
+    keep = dv > 0
+    return Shells(qk[keep], dv[keep], qlo, False)
+
+
+def local_response(q: Any, p: Any, *, zeta: float, E_star: float) -> np.ndarray:
+    """``g(q; p) = 1 / (1 + zeta q E* / (2 p))``: Eq. 10 of the paper at the local pressure ``p``.
+
+    Parameters
+    ----------
+    q : array_like
+        Wavenumber [rad/length], >= 0.
+    p : array_like
+        Local pressure [pressure], >= 0 (``g(q; 0) = 0`` for ``zeta q > 0``).
+    zeta : float
+        Wall range [length], >= 0 (``g = 1`` for ``zeta = 0``).
+    E_star : float
+        Contact modulus [pressure], > 0.
+
+    Returns
+    -------
+    ndarray
+        Dimensionless, in ``[0, 1]``; broadcast shape of ``q`` and ``p``.
+    """
+    qa = np.asarray(check_nonnegative("q", q), dtype=float)
+    pa = np.asarray(check_nonnegative("p", p), dtype=float)
+    z = float(check_nonnegative("zeta", zeta))
+    E = float(check_positive("E_star", E_star))
+    kz = 0.5 * z * E
+    if kz == 0.0:
+        return np.ones(np.broadcast(qa, pa).shape)
+    num = np.broadcast_to(pa, np.broadcast(qa, pa).shape)
+    return num / (num + kz * qa)
+
+
+def contact_fraction(theory: Any, *, zeta: float, mean_pressure: float) -> float:
+    """Contact fraction of a theory with GFMD's definition (one definition for both).
+
+    Hard wall (``zeta = 0``): ``P(p > 0) = 1 - zero_weight``.  Exponential wall:
+    ``P(p > 0.01 p0)``, GFMD's threshold (``gfmd_ref`` reports the fraction of
+    grid points above ``0.01 p0``).
+
+    Parameters
+    ----------
+    theory : PressureDistribution
+    zeta : float
+        Wall range [length], >= 0.
+    mean_pressure : float
+        ``p0`` [pressure].
+    """
+    if float(zeta) == 0.0:
+        return float(1.0 - theory.zero_weight)
+    return float(1.0 - theory.cdf(CONTACT_THRESHOLD * float(mean_pressure)))
+
+
+# --------------------------------------------------------------------------- model callables
+@dataclass(frozen=True)
+class LocalResponseDiffusivity:
+    """``f_k(p) = g(q_k; p)^2`` (dimensionless): the diffusivity of shell ``k``.
+
+    Declares the model protocol of :mod:`diffusion_pr.models`: ``zero_power`` is 2 for
+    ``zeta > 0`` (``f ~ (2p/(zeta q_k E*))^2``: the wall is never reached, ``ln p``
+    diffuses) and 0 for the hard wall (``f = 1``: absorbing ``p = 0``, Persson).
+
+    Parameters
+    ----------
+    q : float
+        Shell wavenumber ``q_k`` [rad/length].
+    kz : float
+        ``zeta E*/2`` [pressure x length]; 0 for the hard wall.
+    """
+
+    q: float
+    kz: float
+
+    @property
+    def zero_power(self) -> float:
+        return 2.0 if self.kz > 0.0 else 0.0
+
+    def breakpoints(self) -> tuple[float, ...]:
+        return ()
+
+    def __call__(self, p: np.ndarray) -> np.ndarray:
+        p = np.asarray(p, dtype=float)
+        if self.kz == 0.0:
+            return np.ones_like(p)
+        pp = np.maximum(p, 0.0)
+        g = pp / (pp + self.kz * self.q)
+        return g * g
+
+
+@dataclass(frozen=True)
+class LoadExcessDrift:
+    """``b_k(p) = (1 - g(q_part; p)) g(q_k; p)^2 / p`` [pressure per unit tau].
+
+    The local load excess of the exponential response, removed in the fraction
+    ``1 - g(q_part; p)`` (``q_part = q_min``).  Tends to 0 as ``p -> 0``
+    (``~ 4 p/(kz q_k)^2``) and as ``zeta -> 0``.
+    """
+
+    q: float
+    q_part: float
+    kz: float
+
+    zero_power = 1.0
+
+    def breakpoints(self) -> tuple[float, ...]:
+        return ()
+
+    def __call__(self, p: np.ndarray) -> np.ndarray:
+        p = np.asarray(p, dtype=float)
+        if self.kz == 0.0:
+            return np.zeros_like(p)
+        pp = np.maximum(p, 0.0)
+        part = self.kz * self.q_part / (pp + self.kz * self.q_part)
+        denom = pp + self.kz * self.q
+        return part * pp / (denom * denom)
+
+
+@dataclass(frozen=True)
+class RigidApproachBalance:
+    """``w(p) = (1 - g(q_part; p)) p`` [pressure per unit tau per unit A]: the rigid-body
+    approach ``z0`` that restores the load, acting in the fraction ``1 - g(q_part; p)``."""
+
+    q_part: float
+    kz: float
+
+    zero_power = 1.0
+
+    def breakpoints(self) -> tuple[float, ...]:
+        return ()
+
+    def __call__(self, p: np.ndarray) -> np.ndarray:
+        p = np.asarray(p, dtype=float)
+        if self.kz == 0.0:
+            return np.zeros_like(p)
+        pp = np.maximum(p, 0.0)
+        return self.kz * self.q_part * pp / (pp + self.kz * self.q_part)
+
+
+def closure_problem(shells: Shells, *, zeta: float, E_star: float, mean_pressure: float, closure: str,
+                    partition_q: Optional[float] = None) -> Any:
+    """The shell-by-shell closure as a :class:`~diffusion_pr.problem.StagedProblem`.
+
+    One :class:`~diffusion_pr.problem.Stage` per shell ``k`` (duration ``dV0_k/2``,
+    pressure^2) with ``f_k = g(q_k; p)^2``; for ``"local_g1_balanced"`` also
+    ``b_k = (1 - g(q_min; p)) g(q_k; p)^2/p`` and the balance ``w = (1 - g(q_min; p)) p``
+    (total drift ``b_k - A w``, ``A`` keeping ``<p> = p0``).
+
+    Parameters
+    ----------
+    shells : Shells
+        From :func:`spectrum_shells`.
+    zeta : float
+        Wall range [length], >= 0.
+    E_star, mean_pressure : float
+        ``E*`` and ``p0`` [pressure], > 0.
+    closure : {"local_g1", "local_g1_balanced", "local_g1_shell_balanced"}
+    partition_q : float or "shell", optional
+        Wavenumber of the partition factor (default ``shells.q_min``; ``"shell"``
+        takes each shell's own ``q_k``, which breaks the ``zeta -> 0`` limit and is
+        there for the tests that show it).
+    """
+    from .problem import Stage, StagedProblem
+
+    if closure not in ("local_g1", *_BALANCED):
+        raise ValueError("closure_problem builds 'local_g1', 'local_g1_balanced' or 'local_g1_shell_balanced'; "
+                         f"got closure={closure!r}")
+    if closure == "local_g1_shell_balanced":
+        if partition_q is not None:
+            raise ValueError("partition_q is fixed ('shell') for closure='local_g1_shell_balanced'")
+        partition_q = "shell"
+    kz = 0.5 * float(check_nonnegative("zeta", zeta)) * float(check_positive("E_star", E_star))
+    stages = []
+    for q, dv in zip(shells.q, shells.dV0):
+        f = LocalResponseDiffusivity(float(q), kz)
+        if closure == "local_g1" or kz == 0.0:
+            stages.append(Stage(0.5 * float(dv), f))
+        else:
+            qp = shells.q_min if partition_q is None else (float(q) if partition_q == "shell" else float(partition_q))
+            stages.append(Stage(0.5 * float(dv), f, LoadExcessDrift(float(q), qp, kz), RigidApproachBalance(qp, kz)))
+    return StagedProblem(float(check_positive("mean_pressure", mean_pressure)), tuple(stages), label=closure)
+
+
+# --------------------------------------------------------------------------- closed form
+def lognormal_gap_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: float, zeta: float,
+                               n_cells: int = 4000) -> Any:
+    r"""The ``"lognormal_gap"`` closure: a log-normal pressure, closed form.
+
+    The gap fluctuation ``delta g~(q) = -(1 - G1(q)) h~(q)`` of the second-order
+    response (Müser 2008, Eq. 10) is Gaussian with variance
+    ``sum (1 - G1)^2 |h~|^2 = zeta^2 V / p0^2`` (since ``1 - G1 = (zeta q E*/(2 p0)) G1``);
+    the wall law ``p = p_w exp(-g/zeta)`` makes ``ln p`` Gaussian with variance
+    ``s^2 = V/p0^2`` (``V``: :func:`~diffusion_pr.cumulants.stress_variance`).  The
+    mean is fixed to ``p0`` (force balance), so ``<ln p> = ln p0 - s^2/2``.
+
+    The result is given on ``n_cells`` cells uniform in ``ln p`` over
+    ``[<ln p> - 9.5 s, <ln p> + s^2 + 9.5 s]`` (plus ``[0, p_lo]``; the upper end
+    covers where ``p Pr(p)`` lives) with the exact cell masses (normal CDF)
+    and, as each cell's point, the exact conditional mean of ``p`` in the cell, so
+    mass and mean are exact to round-off (the mass beyond ``9.5 s``, below 1e-20, is dropped).
+
+    Parameters
+    ----------
+    spectrum : Spectrum
+        Height spectrum (lengths in the unit of ``zeta``).
+    E_star, mean_pressure : float
+        ``E*`` and ``p0`` [pressure], > 0.
+    zeta : float
+        Wall range [length], > 0.  ``zeta = 0`` (hard wall) raises: the
+        exponential wall law that makes the pressure log-normal does not exist there.
+    n_cells : int
+        Cells in ``ln p`` (>= 100).
+
+    Returns
+    -------
+    PressureDistribution
+        ``backend = "closed_form"``, ``diagnostics["closure"] = "lognormal_gap"``,
+        ``diagnostics["ln_variance"] = s^2``.
+    """
+    from scipy.special import log_ndtr, ndtr
+
+    from .cumulants import stress_variance
+    from .result import PressureDistribution
+
+    z = float(check_nonnegative("zeta", zeta))
+    if z == 0.0:
+        raise ValueError("closure='lognormal_gap' needs an exponential wall (zeta > 0); got zeta=0 (hard wall), "
+                         "where no wall law maps gaps to pressures. Use 'second_order' (Persson) or 'local_g1_balanced'.")
+    E = float(check_positive("E_star", E_star))
+    p0 = float(check_positive("mean_pressure", mean_pressure))
+    if not isinstance(n_cells, (int, np.integer)) or n_cells < 100:
+        raise ValueError(f"n_cells must be an integer >= 100; got n_cells={n_cells!r}")
+    t0 = time.perf_counter()
+    V = float(stress_variance(spectrum, E_star=E, mean_pressure=p0, zeta=z))
+    s2 = V / (p0 * p0)
+    s = math.sqrt(s2)
+    mu = math.log(p0) - 0.5 * s2
+    # the mass lies within mu +- 9.5 s; the mean's integrand p Pr(p) is the same Gaussian in ln p
+    # shifted by s^2, so the grid reaches mu + s^2 + 9.5 s
+    top = mu + s2 + 9.5 * s
+    if top - math.log(p0) > 690.0:
+        raise ValueError(f"closure='lognormal_gap' is not defined here: its ln-variance s^2 = V/p0^2 = {s2:.4g} "
+                         f"(zeta={z!r}, p0={p0!r}) puts the mean-carrying pressures exp({s2:.3g}/2) times above p0, "
+                         "beyond floating point; the log-normal picture of the gap does not apply at such small "
+                         "zeta / load (use 'local_g1_balanced')")
+    x = np.linspace(mu - 9.5 * s, top, int(n_cells))
+    edges = np.concatenate(([0.0], np.exp(x)))
+    u = (x - mu) / s
+    # cell masses from the CDF below the median and from the survival function above it
+    # (differences of numbers near 1 would lose the far tail that carries the mean when s is large)
+    lo_c, hi_c = ndtr(u[:-1]), ndtr(u[1:])
+    lo_s, hi_s = ndtr(-u[:-1]), ndtr(-u[1:])
+    upper = 0.5 * (u[:-1] + u[1:]) > 0
+    mass = np.concatenate(([ndtr(u[0])], np.where(upper, lo_s - hi_s, hi_c - lo_c)))
+    # partial expectations E[p; p < e] = exp(mu + s^2/2) Phi((ln e - mu - s^2)/s)
+    pe = np.concatenate(([0.0], np.exp(mu + 0.5 * s2 + log_ndtr(u - s))))
+    pm = np.diff(pe)
+    widths = np.diff(edges)
+    ok = mass > 0
+    points = np.where(ok, pm / np.where(ok, mass, 1.0), 0.5 * (edges[1:] + edges[:-1]))
+    points = np.clip(points, edges[:-1], edges[1:])
+    density = mass / widths
+    wall = time.perf_counter() - t0
+    diag = {"closure": "lognormal_gap", "stress_variance": V, "ln_variance": s2, "ln_mean": mu, "zeta": z,
+            "E_star": E}
+    return PressureDistribution(points, density, widths, 0.0, p0, V, "closed_form", True,
+                                "closed form (log-normal gap closure)", 0.0, wall, diag, edges)
+
+
+# --------------------------------------------------------------------------- solving
+#: floor of the balanced closure's non-contact region, relative to zeta q_min E*/2 (docs/closures.md)
+BALANCED_FLOOR = 1e-16
+
+#: default resolution of the reference solver (cells, BDF2 steps); the error estimate
+#: comes from a second run at half of both
+REFERENCE_RESOLUTION = (1600, 1600)
+
+
+def _solve_reference(shells: Shells, *, zeta: float, E_star: float, p0: float, closure: str,
+                     partition_q: Optional[float], n_cells: int, n_steps: int) -> Any:
+    """The closure solved by the independent reference solver (``diffusion_pr._closure_reference``)."""
+    from ._closure_reference import solve_reference
+    from .result import PressureDistribution
+
+    balanced = closure in _BALANCED
+    if closure == "local_g1_shell_balanced":
+        partition_q = "shell"
+    t0 = time.perf_counter()
+    runs = []
+    # The wall floor (first edge) sits a factor `floor` below zeta q_min E*/2.  local_g1: ln p drifts
+    # down at rate 1/p*^2 there, mass never returns, 1e-2 is deep enough.  Balanced: its drift
+    # cancels that Ito drift, ln p random-walks over a wide range and mass comes back, so the floor
+    # goes 32 e-folds deeper (1e-16) with the cells scaled to keep the cell size (docs/closures.md).
+    floor = BALANCED_FLOOR if balanced else 1e-2
+    scale_cells = 1.0
+    kz = 0.5 * zeta * E_star
+    if balanced and kz > 0:
+        pm = p0 + 10.0 * math.sqrt(shells.V0)
+        s_shallow = min(p0 / 20.0, 1e-2 * kz * shells.q_min)
+        s_deep = min(p0 / 20.0, floor * kz * shells.q_min)
+        scale_cells = math.asinh(pm / s_deep) / math.asinh(pm / s_shallow)
+    n_fine = 4 * int(math.ceil(n_cells * scale_cells / 4.0))
+    for n, m in ((n_fine // 2, n_steps // 2), (n_fine, n_steps)):
+        runs.append(solve_reference(shells.q, shells.dV0, zeta=zeta, E_star=E_star, mean_pressure=p0,
+                                    balanced=balanced, q_part=partition_q if partition_q else shells.q_min,
+                                    n_cells=n, n_steps=m, floor_factor=floor))
+    coarse, fine = runs
+    if fine["density"].size != 2 * coarse["density"].size:  # keep the grids nested
+        raise RuntimeError("reference solver: non-nested grids")
+    m_f = fine["density"] * np.diff(fine["edges"])
+    m_c = coarse["density"] * np.diff(coarse["edges"])
+    # nested grids (x uniform, halved): merge fine pairs; BDF2 and the grid are second order
+    # the wall floor (first edge) moves with the grid: count the zero weight in the first coarse cell
+    m_fc = m_f.reshape(-1, 2).sum(axis=1)
+    m_fc[0] += fine["zero_weight"]
+    m_c = m_c.copy()
+    m_c[0] += coarse["zero_weight"]
+    diff = float(np.sum(np.abs(m_fc - m_c)))
+    err = diff / 3.0
+    edges = fine["edges"]
+    wall = time.perf_counter() - t0
+    floor = float(edges[1])
+    res_mean = fine["mean_residual"]
+    density = fine["density"]
+    n_neg = int(np.count_nonzero(density < 0))
+    ok = n_neg == 0 and (not balanced or res_mean < 1e-10)
+    msg = (f"reference solver: {n_fine} cells, {n_steps} BDF2 steps; estimated L1 error {err:.2e} "
+           f"(against {n_fine // 2} cells/{n_steps // 2} steps)")
+    if n_neg:
+        msg += f"; {n_neg} negative cell densities (min {density.min():.3g})"
+    if balanced and not res_mean < 1e-10:
+        msg += f"; the multiplier A did not hold the mean (relative residual {res_mean:.3g}): NOT converged"
+    diag = {"closure": closure, "n_cells": int(edges.size - 1), "n_steps": n_steps, "n_shells": int(shells.q.size),
+            "partition_q": partition_q if partition_q else shells.q_min, "wall_floor": floor if kz > 0 else 0.0,
+            "balance_multiplier": fine["A"], "secant_iterations": fine["secant_iterations"],
+            "mean_residual": res_mean, "shells_exact": shells.exact}
+    if kz > 0:
+        diag["zero_weight_meaning"] = (f"mass below the wall floor {floor:.3g} (exponentially close to p = 0: "
+                                       "g(q; p)^2 ~ p^2 never lets it reach 0)")
+    return PressureDistribution(0.5 * (edges[1:] + edges[:-1]), density, np.diff(edges), fine["zero_weight"], p0,
+                                shells.V0, "closure_reference", ok, msg, err, wall, diag, edges)
+
+
+def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: float, zeta: float = 0.0,
+                         closure: str = "local_g1_balanced", backend: str = "auto", rtol: float = 1e-6,
+                         n_shells: Optional[int] = None, cutoff: Any = None, p_c: Optional[float] = None,
+                         tail: Any = None, p_t: Optional[float] = None, partition_q: Optional[float] = None,
+                         **options: Any) -> Any:
+    r"""Pressure distribution of a rough contact with a named closure (docs/closures.md).
+
+    Parameters
+    ----------
+    spectrum : Spectrum
+        :class:`~diffusion_pr.spectra.SelfAffineSpectrum` (continuum: shells by
+        quadrature, :func:`spectrum_shells`) or
+        :class:`~diffusion_pr.spectra.DiscreteSpectrum` (its own modes: use the
+        realization's spectrum to compare with that realization).
+    E_star : float
+        Contact modulus ``E*`` [pressure], > 0.
+    mean_pressure : float
+        ``p0`` [pressure], > 0.
+    zeta : float
+        Wall range [length], >= 0; 0 is the hard wall.  At ``zeta = 0``:
+        ``"second_order"`` (sharp cutoff) and the three shell closures are all
+        Persson's mirror Gaussian (``g = 1``, no drift, absorbing wall);
+        ``"lognormal_gap"`` raises.
+    closure : {"second_order", "lognormal_gap", "local_g1", "local_g1_balanced", "local_g1_shell_balanced"}
+        See the module docstring and docs/closures.md.
+    backend : str
+        ``"second_order"``: as :func:`diffusion_pr.pressure_distribution`.
+        Shell-by-shell closures: the closure is a
+        :class:`~diffusion_pr.problem.StagedProblem` (:func:`closure_problem`) solved
+        by :func:`diffusion_pr.api.solve_problem` (``"auto"``, ``"native"``,
+        ``"pypde"``, ``"fipy"``), or ``"reference"``: the independent reference
+        solver of :mod:`diffusion_pr._closure_reference` (the oracle the tests check
+        the engine against; options ``n_cells``, ``n_steps``).
+    rtol : float
+        Target L1 error (second order; the reference solver reports its estimate).
+    n_shells : int, optional
+        Continuum spectra: number of shells (default :data:`DEFAULT_CONTINUUM_SHELLS`).
+    cutoff, p_c, tail, p_t
+        Second order only (the paper's cutoff near ``p = 0`` and the tail factor).
+        The other closures have no cutoff (``g(q; p)^2 ~ p^2`` is theirs) and no
+        tail factor; passing one raises ``ValueError``.
+    partition_q : float, optional
+        ``"local_g1_balanced"`` only: wavenumber of the partition factor
+        (default ``q_min``; docs/closures.md explains why it must be ``q_min``).
+    **options
+        ``n_cells``, ``n_steps`` for the reference solver; backend options otherwise.
+
+    Returns
+    -------
+    PressureDistribution
+        ``diagnostics["closure"]`` names the closure.
+    """
+    closure = check_closure(closure)
+    for name, value in (("E_star", E_star), ("mean_pressure", mean_pressure), ("zeta", zeta)):
+        if np.ndim(value) != 0:
+            raise ValueError(f"{name} must be a scalar (loop for several distributions); got an array of shape "
+                             f"{np.shape(value)}")
+    E = float(check_positive("E_star", E_star))
+    p0 = float(check_positive("mean_pressure", mean_pressure))
+    z = float(check_nonnegative("zeta", zeta))
+    if closure == "second_order":
+        from .api import pressure_distribution
+
+        if partition_q is not None or n_shells is not None:
+            raise ValueError("partition_q and n_shells apply to the shell-by-shell closures, not to 'second_order'")
+        return pressure_distribution(spectrum, E_star=E, mean_pressure=p0, zeta=z,
+                                     cutoff="sharp" if cutoff is None else cutoff, p_c=p_c, tail=tail, p_t=p_t,
+                                     backend=backend, rtol=rtol, **options)
+    for name, value in (("cutoff", cutoff), ("p_c", p_c), ("tail", tail), ("p_t", p_t)):
+        if value is not None and not (name == "cutoff" and value == "sharp" and z == 0.0):
+            raise ValueError(f"{name} applies to closure='second_order' only; closure={closure!r} has no fitted "
+                             f"cutoff or tail (got {name}={value!r})")
+    if closure == "lognormal_gap":
+        if partition_q is not None or n_shells is not None:
+            raise ValueError("partition_q and n_shells do not apply to closure='lognormal_gap' (closed form)")
+        return lognormal_gap_distribution(spectrum, E_star=E, mean_pressure=p0, zeta=z)
+    if partition_q is not None and closure != "local_g1_balanced":
+        raise ValueError("partition_q applies to closure='local_g1_balanced' only "
+                         "('local_g1_shell_balanced' is the partition at each shell's q_k)")
+    if partition_q is not None and partition_q != "shell":
+        check_positive("partition_q", partition_q)
+    shells = spectrum_shells(spectrum, E_star=E, n_shells=n_shells)
+    if backend == "reference":
+        n_cells, n_steps = options.pop("n_cells", REFERENCE_RESOLUTION[0]), options.pop("n_steps", REFERENCE_RESOLUTION[1])
+        if options:
+            raise ValueError(f"unknown options for the reference solver: {sorted(options)}")
+        for name, v in (("n_cells", n_cells), ("n_steps", n_steps)):
+            if not isinstance(v, (int, np.integer)) or v < 16 or v % 2:
+                raise ValueError(f"{name} must be an even integer >= 16; got {name}={v!r}")
+        return _solve_reference(shells, zeta=z, E_star=E, p0=p0, closure=closure, partition_q=partition_q,
+                                n_cells=int(n_cells), n_steps=int(n_steps))
+    from .api import solve_problem
+
+    problem = closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure, partition_q=partition_q)
+    if closure in _BALANCED and z > 0:
+        # part of the closure's definition, not an accuracy knob: its drift cancels the Ito drift of
+        # ln p below p* = zeta q_min E*/2, so mass returns from deep below p*; resolve down to
+        # BALANCED_FLOOR p* (docs/closures.md), as the reference solver does
+        options.setdefault("p_floor", BALANCED_FLOOR * 0.5 * z * E * shells.q_min)
+    res = solve_problem(problem, backend=backend, rtol=rtol, **options)
+    res.diagnostics["closure"] = closure
+    res.diagnostics["n_shells"] = int(shells.q.size)
+    return res

@@ -1,0 +1,625 @@
+"""GFMD ensembles on Dask: seeds x walls x loads x grid sizes, resumable.
+
+Each case is one :func:`~gfmd_ref.solve_contact` on a self-affine surface
+(default: the paper's Fig. 1 surface, :func:`~gfmd_ref.fig1_surface`), reduced by
+:func:`~gfmd_ref.ensemble_store.reduce_pressure_field` and written as one record
+of an :mod:`~gfmd_ref.ensemble_store` directory by the worker that solved it.
+
+Scheduling: :func:`run_ensemble` uses ``dask.distributed``: an existing cluster
+(``client=`` or ``scheduler="tcp://..."``), else a local cluster of worker
+processes (default: one single-threaded worker per core with one FFT thread
+each, chosen by measurement, see ``docs/ensembles.md``), or no cluster at all
+(``serial=True``: the same case function in this process). Cases are submitted
+seeds outer, walls inner, so the mix of cheap and costly walls is the same all
+along the run and the progress bar's mean rate gives an honest ETA.
+
+Safety: parameters are checked before anything is scheduled; finished cases
+(converged or not) are skipped on a rerun; a case lost with its worker is
+rescheduled by the Dask scheduler; writes are atomic and idempotent.
+"""
+from __future__ import annotations
+
+import json
+import math
+import numbers
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional, Sequence
+
+import numpy as np
+
+from .ensemble_store import (
+    Ensemble,
+    _parse_wall,
+    case_key,
+    case_label,
+    host,
+    load_ensemble,
+    now_iso,
+    reduce_pressure_field,
+    shell_spectrum,
+    store_keys,
+    wall_label,
+    write_record,
+)
+
+__all__ = [
+    "EnsembleSurface",
+    "FIG1_SURFACE",
+    "EnsembleRun",
+    "build_cases",
+    "parse_seeds",
+    "parse_walls",
+    "case_surface",
+    "solve_case",
+    "run_ensemble",
+    "ingest_fields",
+    "code_version",
+]
+
+
+@dataclass(frozen=True)
+class EnsembleSurface:
+    """Surface family of an ensemble: Gaussian self-affine, ``L = n`` grid units.
+
+    Parameters
+    ----------
+    hurst : float
+        Hurst exponent ``H`` in ``[0, 1]``.
+    rms_slope : float
+        Spectral rms slope (> 0, dimensionless).
+    n_waves : int
+        ``q_max / q_min`` with ``q_min = 2 pi / L``: the shortest wavelength is
+        ``L / n_waves``; needs ``2 n_waves <= n`` (below the Nyquist wavenumber).
+
+    Notes
+    -----
+    The Fig. 1 family (:data:`FIG1_SURFACE`) generates exactly
+    :func:`~gfmd_ref.fig1_surface`. The same family at several ``n`` is the same
+    physical system (all lengths in units of ``L``) at a finer discretisation.
+    """
+
+    hurst: float = 0.3
+    rms_slope: float = 0.031
+    n_waves: int = 32
+
+    def __post_init__(self):
+        h = float(self.hurst)
+        if not (math.isfinite(h) and 0.0 <= h <= 1.0):
+            raise ValueError(f"hurst must be in [0, 1]; got {self.hurst!r}")
+        s = float(self.rms_slope)
+        if not (math.isfinite(s) and s > 0):
+            raise ValueError(f"rms_slope must be a finite number > 0; got {self.rms_slope!r}")
+        if isinstance(self.n_waves, bool) or not isinstance(self.n_waves, numbers.Integral) or self.n_waves < 1:
+            raise ValueError(f"n_waves must be an integer >= 1; got {self.n_waves!r}")
+        object.__setattr__(self, "hurst", h)
+        object.__setattr__(self, "rms_slope", s)
+        object.__setattr__(self, "n_waves", int(self.n_waves))
+
+    def as_dict(self) -> dict:
+        return dict(kind="self_affine", hurst=self.hurst, rms_slope=self.rms_slope, n_waves=self.n_waves)
+
+
+#: The paper's Fig. 1 surface family (H = 0.3, rms slope 0.031, wavelengths L ... L/32).
+FIG1_SURFACE = EnsembleSurface(0.3, 0.031, 32)
+#: The paper's modulus and load (Fig. 1).
+FIG1_E_STAR = 8.0 / 3.0
+FIG1_MEAN_PRESSURE = 0.004
+
+
+def case_surface(params: dict) -> np.ndarray:
+    """Heights of a case (deterministic in its parameters)."""
+    from .surface import self_affine_surface
+
+    s = params["surface"]
+    n, length = int(params["n"]), float(params["length"])
+    qmin = 2.0 * math.pi / length
+    return self_affine_surface(n, length=length, hurst=float(s["hurst"]), q_min=qmin,
+                               q_max=int(s["n_waves"]) * qmin, rms_slope=float(s["rms_slope"]),
+                               seed=int(params["seed"]))
+
+
+def _code_version_uncached() -> dict:
+    try:
+        from importlib.metadata import version
+
+        ver = version("diffusion-pr")
+    except Exception:  # pragma: no cover - not installed
+        ver = "unknown"
+    rev = "unknown"
+    here = Path(__file__).resolve().parent
+    try:
+        out = subprocess.run(["git", "-C", str(here), "rev-parse", "--short=12", "HEAD"], capture_output=True,
+                             text=True, timeout=5)
+        if out.returncode == 0:
+            rev = out.stdout.strip()
+            dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain", "--", "."],
+                                   capture_output=True, text=True, timeout=5)
+            if dirty.returncode == 0 and dirty.stdout.strip():
+                rev += "+dirty"
+    except Exception:  # pragma: no cover - no git
+        pass
+    return dict(package="diffusion-pr", version=ver, git=rev)
+
+
+_CODE_VERSION: Optional[dict] = None
+
+
+def code_version() -> dict:
+    """``{"package", "version", "git"}`` of the code making a record (git revision of
+    the gfmd_ref sources with ``+dirty`` if they have uncommitted changes)."""
+    global _CODE_VERSION
+    if _CODE_VERSION is None:
+        _CODE_VERSION = _code_version_uncached()
+    return dict(_CODE_VERSION)
+
+
+# ----------------------------------------------------------------------------- parameters
+
+
+def parse_seeds(spec) -> list:
+    """``"1-16"``, ``"1,3,5-7"``, an int or a sequence of ints (>= 0) -> sorted unique list."""
+    if isinstance(spec, numbers.Integral) and not isinstance(spec, bool):
+        spec = [int(spec)]
+    if isinstance(spec, str):
+        out = []
+        for part in spec.split(","):
+            part = part.strip()
+            if not part:
+                continue
+            try:
+                if "-" in part:
+                    a, b = part.split("-", 1)
+                    a, b = int(a), int(b)
+                    if b < a:
+                        raise ValueError
+                    out.extend(range(a, b + 1))
+                else:
+                    out.append(int(part))
+            except ValueError:
+                raise ValueError(f"seeds must look like '1-16' or '1,3,5-7' (integers >= 0); got {spec!r}") from None
+        spec = out
+    seeds = []
+    for s in spec:
+        if isinstance(s, bool) or not isinstance(s, numbers.Integral) or s < 0:
+            raise ValueError(f"seeds must be integers >= 0; got {s!r}")
+        seeds.append(int(s))
+    if not seeds:
+        raise ValueError(f"seeds must name at least one seed; got {spec!r}")
+    return sorted(set(seeds))
+
+
+def parse_walls(spec) -> list:
+    """``"hard,4,0.25"`` or a sequence of ``"hard"``/None/zeta -> list of ``None``/float."""
+    if isinstance(spec, str):
+        spec = [w for w in spec.split(",") if w.strip()]
+    if spec is None or isinstance(spec, (numbers.Number,)):
+        spec = [spec]
+    out = []
+    for w in spec:
+        z = _parse_wall(w)
+        if z is not None and not (math.isfinite(z) and z > 0):
+            raise ValueError(f"walls: zeta must be a finite number > 0 (or 'hard'); got {w!r}")
+        if not any((z is None and o is None) or (z is not None and o is not None and z == o) for o in out):
+            out.append(z)
+    if not out:
+        raise ValueError(f"walls must name at least one wall; got {spec!r}")
+    return out
+
+
+def _floats(name, values) -> list:
+    if isinstance(values, (numbers.Number, str)):
+        values = [values]
+    out = []
+    for v in values:
+        try:
+            f = float(v)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name} must be finite numbers > 0; got {v!r}") from None
+        if not (math.isfinite(f) and f > 0):
+            raise ValueError(f"{name} must be finite numbers > 0; got {v!r}")
+        out.append(f)
+    if not out:
+        raise ValueError(f"{name} must not be empty")
+    return out
+
+
+def build_cases(*, n=1024, seeds=(1,), walls=("hard",), mean_pressures=None, surface: Optional[EnsembleSurface] = None,
+                E_star: Optional[float] = None, tol: float = 1e-6, method: str = "auto",
+                max_iter: Optional[int] = None) -> list:
+    """The case grid (list of parameter dicts), every parameter checked.
+
+    ``max_iter`` (default: the solver's) enters the parameters, hence the key,
+    only when given: rerunning non-converged cases with a larger ``max_iter`` makes
+    new records (both are kept; reductions use the converged ones).
+
+    Order: grid size, load, then seeds outer and walls inner. Raises
+    ``ValueError`` naming the parameter, value and allowed range.
+    """
+    surface = FIG1_SURFACE if surface is None else surface
+    if not isinstance(surface, EnsembleSurface):
+        raise ValueError(f"surface must be an EnsembleSurface; got {type(surface).__name__}")
+    ns = [n] if isinstance(n, numbers.Integral) or isinstance(n, str) else list(n)
+    grid = []
+    for v in ns:
+        if isinstance(v, str) and v.strip().isdigit():
+            v = int(v)
+        if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v < 2:
+            raise ValueError(f"n must be integers >= 2; got {v!r}")
+        if 2 * surface.n_waves > v:
+            raise ValueError(f"n must be >= 2 n_waves = {2 * surface.n_waves} (q_max below Nyquist); got n={v}")
+        grid.append(int(v))
+    seeds = parse_seeds(seeds)
+    walls = parse_walls(walls)
+    loads = _floats("mean_pressures", FIG1_MEAN_PRESSURE if mean_pressures is None else mean_pressures)
+    E = _floats("E_star", FIG1_E_STAR if E_star is None else E_star)[0]
+    tol = _floats("tol", tol)[0]
+    if tol >= 1:
+        raise ValueError(f"tol must be in (0, 1) (relative to p0); got {tol!r}")
+    allowed = ("auto", "ccg", "newton", "fire")
+    if method not in allowed:
+        raise ValueError(f"method must be one of {allowed}; got {method!r}")
+    for z in walls:
+        if method == "ccg" and z is not None or method == "newton" and z is None:
+            raise ValueError(f"method={method!r} does not apply to wall {wall_label(z)} "
+                             "(ccg: hard wall only, newton: exponential walls only; use 'auto')")
+    if max_iter is not None and (isinstance(max_iter, bool) or not isinstance(max_iter, numbers.Integral)
+                                 or max_iter < 1):
+        raise ValueError(f"max_iter must be an integer >= 1; got {max_iter!r}")
+    extra = {} if max_iter is None else {"max_iter": int(max_iter)}
+    cases = []
+    for nn in grid:
+        for p0 in loads:
+            for s in seeds:
+                for z in walls:
+                    cases.append(dict(n=nn, length=float(nn), seed=s, zeta=z, mean_pressure=p0, E_star=E,
+                                      surface=surface.as_dict(), tol=tol, method=method, **extra))
+    return cases
+
+
+# ----------------------------------------------------------------------------- one case
+
+
+def solve_case(params: dict, store: str, provenance: Optional[dict] = None) -> dict:
+    """Solve, reduce and store one case (runs on a worker). Returns a small summary."""
+    from .interactions import ExponentialRepulsion, HardWall
+    from .solver import ConvergenceWarning, solve_contact
+    import warnings
+
+    h = case_surface(params)
+    inter = HardWall() if params["zeta"] is None else ExponentialRepulsion(params["zeta"])
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)  # recorded in the record instead
+        res = solve_contact(h, length=params["length"], E_star=params["E_star"],
+                            mean_pressure=params["mean_pressure"], interaction=inter, tol=params["tol"],
+                            method=params["method"], max_iter=params.get("max_iter"))
+    wall = time.perf_counter() - t0
+    red = reduce_pressure_field(res.pressure, mean_pressure=params["mean_pressure"], zeta=params["zeta"])
+    from ._fft import fft_threads
+
+    prov = dict(provenance or {})
+    prov.update(source="live", converged=bool(res.converged), residual=float(res.residual),
+                iterations=int(res.iterations), wall_time=wall, method=res.method, message=res.message,
+                fft=res.info.get("fft"), fft_threads=fft_threads(), fft_planning_time=res.info.get("fft_planning_time"),
+                host=host(), pid=os.getpid(), created=now_iso())
+    prov.setdefault("code", code_version())
+    path = write_record(store, params, prov, red, shell_spectrum(h, params["length"]))
+    return dict(key=case_key(params), label=case_label(params), converged=bool(res.converged),
+                wall_time=wall, path=str(path), residual=float(res.residual), iterations=int(res.iterations))
+
+
+# ----------------------------------------------------------------------------- runner
+
+
+@dataclass(frozen=True)
+class EnsembleRun:
+    """What :func:`run_ensemble` did.
+
+    ``n_cases`` in the grid, ``n_skipped`` already in the store, ``n_computed`` now,
+    ``n_not_converged`` among those computed now (kept in the store, excluded from
+    reductions), ``failed`` maps case labels to error messages (not stored; a rerun
+    retries them), ``wall_time`` [s].
+    """
+
+    store: str
+    n_cases: int
+    n_skipped: int
+    n_computed: int
+    n_not_converged: int
+    failed: dict
+    wall_time: float
+    scheduler: str
+    message: str = ""
+
+    @property
+    def success(self) -> bool:
+        return not self.failed and self.n_skipped + self.n_computed == self.n_cases
+
+    def load(self) -> Ensemble:
+        return load_ensemble(self.store)
+
+
+#: measured default (docs/ensembles.md): one worker process per core, one thread and one FFT thread each.
+DEFAULT_THREADS_PER_WORKER = 1
+
+
+def _local_cluster(workers: Optional[int], threads: Optional[int]):
+    from dask.distributed import Client, LocalCluster
+
+    ncpu = os.cpu_count() or 1
+    threads = DEFAULT_THREADS_PER_WORKER if threads is None else int(threads)
+    workers = max(1, ncpu // threads) if workers is None else int(workers)
+    # Only the FFT threads are pinned. Dask's nanny sets OMP/MKL/OPENBLAS_NUM_THREADS=1 before it
+    # spawns a worker; BLAS threading changes the round-off of np.vdot in the Newton solver
+    # (measured: 5e-16 relative in the quantiles), so the workers are spawned with this process's
+    # BLAS setting and a case gives bit-identical records on a worker and in this process.
+    import dask
+
+    pre = dict(dask.config.get("distributed.nanny.pre-spawn-environ", default={}) or {})
+    for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        pre[k] = os.environ.get(k, str(ncpu))
+    pre["GFMD_REF_FFT_THREADS"] = str(threads)
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": pre}):
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                               silence_logs=40)
+    return Client(cluster), cluster, f"local cluster: {workers} worker(s) x 1 case, {threads} FFT thread(s) each"
+
+
+def _write_manifest(store: Path, entry: dict) -> None:
+    store.mkdir(parents=True, exist_ok=True)
+    man = store / "ensemble.json"
+    info = json.loads(man.read_text()) if man.exists() else {"format": "gfmd_ref ensemble store", "version": 1,
+                                                               "runs": []}
+    info["runs"].append(entry)
+    tmp = store / f".ensemble.json.{os.getpid()}.tmp"
+    tmp.write_text(json.dumps(info, indent=1, sort_keys=True))
+    os.replace(tmp, man)
+
+
+def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), mean_pressures=None,
+                 surface: Optional[EnsembleSurface] = None, E_star: Optional[float] = None, tol: float = 1e-6,
+                 method: str = "auto", max_iter: Optional[int] = None, workers: Optional[int] = None,
+                 threads_per_worker: Optional[int] = None,
+                 scheduler: Optional[str] = None, client=None, serial: bool = False, progress: bool = True,
+                 command: Optional[str] = None, verbose: bool = True, stream=None) -> EnsembleRun:
+    """Run (or resume) an ensemble of GFMD cases into a store directory.
+
+    Parameters
+    ----------
+    store : path
+        Store directory (created if missing). Cases already in it are skipped.
+    n : int or sequence of int
+        Grid sizes (``L = n`` grid units).
+    seeds : str, int or sequence
+        Surface seeds, e.g. ``"1-64"``.
+    walls : str or sequence
+        ``"hard"`` and/or exponential-wall ranges ``zeta`` [grid units], e.g. ``"hard,4,0.25"``.
+    mean_pressures : float or sequence, optional
+        Loads ``p0`` [units of E*] (default the paper's 0.004).
+    surface : EnsembleSurface, optional
+        Surface family (default Fig. 1: H = 0.3, rms slope 0.031, 32 wavelengths).
+    E_star : float, optional
+        Contact modulus (default 8/3).
+    tol, method, max_iter
+        Passed to :func:`~gfmd_ref.solve_contact` (default tol 1e-6).
+    workers, threads_per_worker : int, optional
+        Local cluster size (default: one single-threaded worker per core).
+    scheduler : str, optional
+        Address of a running Dask scheduler (``tcp://host:8786``).
+    client : dask.distributed.Client, optional
+        An existing client (takes precedence over ``scheduler``).
+    serial : bool
+        No cluster: solve the cases one after the other in this process.
+    progress : bool
+        tqdm bar of finished cases (mean rate over the run for the ETA).
+    command : str, optional
+        The command recorded in every record's provenance (default: this call).
+
+    Returns
+    -------
+    EnsembleRun
+    """
+    t0 = time.perf_counter()
+    cases = build_cases(n=n, seeds=seeds, walls=walls, mean_pressures=mean_pressures, surface=surface,
+                        E_star=E_star, tol=tol, method=method, max_iter=max_iter)
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, numbers.Integral) or workers < 1):
+        raise ValueError(f"workers must be an integer >= 1; got {workers!r}")
+    if threads_per_worker is not None and (isinstance(threads_per_worker, bool)
+                                           or not isinstance(threads_per_worker, numbers.Integral)
+                                           or threads_per_worker < 1):
+        raise ValueError(f"threads_per_worker must be an integer >= 1; got {threads_per_worker!r}")
+    store = Path(store)
+    if store.exists() and not store.is_dir():
+        raise ValueError(f"store must be a directory; {str(store)!r} is a file")
+    out = stream if stream is not None else sys.stdout
+    done = store_keys(store)
+    todo = [c for c in cases if case_key(c) not in done]
+    skipped = len(cases) - len(todo)
+    if command is None:
+        command = (f"gfmd_ref.run_ensemble({str(store)!r}, n={n!r}, seeds={seeds!r}, walls={walls!r}, "
+                   f"mean_pressures={mean_pressures!r}, surface={surface!r}, E_star={E_star!r}, tol={tol!r}, "
+                   f"method={method!r})")
+    if verbose:
+        print(f"ensemble: {len(cases)} cases; {skipped} already in {store}, {len(todo)} to run", file=out, flush=True)
+    prov = dict(command=command, code=code_version(), run_started=now_iso())
+    failed: dict = {}
+    not_conv = 0
+    computed = 0
+    sched = "serial (this process)"
+    store.mkdir(parents=True, exist_ok=True)
+    if todo:
+        _write_manifest(store, dict(command=command, started=prov["run_started"], n_cases=len(cases),
+                                    n_skipped=skipped, code=prov["code"], host=host()))
+    bar = None
+    if progress and todo:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(todo), unit="case", smoothing=0.0, desc="gfmd ensemble", file=sys.stderr)
+
+    def _done(summary):
+        nonlocal not_conv, computed
+        computed += 1
+        if not summary["converged"]:
+            not_conv += 1
+        if bar is not None:
+            bar.set_postfix(not_converged=not_conv, refresh=False)
+            bar.update(1)
+
+    own = None
+    try:
+        if not todo:
+            pass
+        elif serial:
+            for c in todo:
+                try:
+                    _done(solve_case(c, str(store), prov))
+                except Exception as exc:  # reported, not stored; a rerun retries
+                    failed[case_label(c)] = f"{type(exc).__name__}: {exc}"
+                    if bar is not None:
+                        bar.update(1)
+        else:
+            from dask.distributed import Client, as_completed
+
+            if client is None:
+                if scheduler is not None:
+                    client = Client(scheduler)
+                    own = (client, None)
+                    sched = f"scheduler {scheduler}"
+                else:
+                    client, cluster, sched = _local_cluster(workers, threads_per_worker)
+                    own = (client, cluster)
+            else:
+                sched = f"client {getattr(client, 'scheduler', None) and client.scheduler.address}"
+            futs = {}
+            for c in todo:
+                f = client.submit(solve_case, c, str(store.resolve()), prov, key=f"gfmd-case-{case_key(c)}",
+                                  pure=False)
+                futs[f] = c
+            try:
+                for f in as_completed(list(futs)):
+                    c = futs[f]
+                    try:
+                        _done(f.result())
+                    except Exception as exc:  # e.g. KilledWorker after repeated worker deaths
+                        failed[case_label(c)] = f"{type(exc).__name__}: {exc}"
+                        if bar is not None:
+                            bar.update(1)
+            except BaseException:
+                client.cancel(list(futs))  # interrupted: do not leave cases running on a shared cluster
+                raise
+    finally:
+        if bar is not None:
+            bar.close()
+        if own is not None:
+            own[0].close()
+            if own[1] is not None:
+                own[1].close()
+    msg = (f"ensemble: {computed} computed now ({not_conv} not converged: kept in the store, excluded from "
+           f"reductions), {skipped} skipped, {len(failed)} failed; "
+           f"{len(cases) - skipped - computed} of {len(cases)} remain; {time.perf_counter() - t0:.1f} s, {sched}")
+    if verbose:
+        print(msg, file=out, flush=True)
+        for k, v in failed.items():
+            print(f"  failed {k}: {v}", file=out)
+    return EnsembleRun(str(store), len(cases), skipped, computed, not_conv, failed, time.perf_counter() - t0,
+                       sched, msg)
+
+
+# ----------------------------------------------------------------------------- ingest
+
+
+def ingest_fields(field_dir, store, *, surface: Optional[EnsembleSurface] = None, method: str = "auto",
+                  field_command: str = "", command: Optional[str] = None, progress: bool = True,
+                  verbose: bool = True, stream=None) -> EnsembleRun:
+    """Reduce saved pressure fields into store records, exactly as a live case would.
+
+    Each ``*.npz`` of ``field_dir`` holds ``pressure`` (the full field) and ``meta``
+    (JSON with ``n``, ``seed``, ``zeta``, ``length``, ``tol``, ``E_star``,
+    ``mean_pressure``, ``converged``, ``residual``, ``iterations``, ``wall_time``,
+    ``code``), as written by ``/work/cache/gen_raw.py``-style jobs that call
+    ``solve_contact(fig1_surface(n, seed), ...)``. The record gets the key of the
+    live case with the same parameters (``method`` as requested, default "auto"),
+    so a later :func:`run_ensemble` of those cases skips them; its provenance says
+    ``source="ingested"``, the field file and ``field_command``. The surface is
+    regenerated from the seed (for the spectrum) and checked against the field's
+    grid. Cases already in the store are skipped.
+    """
+    surface = FIG1_SURFACE if surface is None else surface
+    field_dir = Path(field_dir)
+    if not field_dir.is_dir():
+        raise ValueError(f"field_dir must be an existing directory; got {str(field_dir)!r}")
+    files = sorted(p for p in field_dir.glob("*.npz") if not p.name.endswith(".tmp.npz"))
+    if not files:
+        raise ValueError(f"field_dir {str(field_dir)!r} holds no *.npz field")
+    out = stream if stream is not None else sys.stdout
+    t0 = time.perf_counter()
+    done = store_keys(store)
+    if command is None:
+        command = f"gfmd_ref.ingest_fields({str(field_dir)!r}, {str(store)!r})"
+    base = dict(command=command, code=code_version(), run_started=now_iso())
+    plan = []
+    for f in files:
+        with np.load(f, allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+        params = dict(n=int(meta["n"]), length=float(meta["length"]), seed=int(meta["seed"]),
+                      zeta=None if meta["zeta"] is None else float(meta["zeta"]),
+                      mean_pressure=float(meta["mean_pressure"]), E_star=float(meta["E_star"]),
+                      surface=surface.as_dict(), tol=float(meta["tol"]), method=method)
+        build_cases(n=params["n"], seeds=[params["seed"]], walls=[params["zeta"] or "hard"],
+                    mean_pressures=params["mean_pressure"], surface=surface, E_star=params["E_star"],
+                    tol=params["tol"], method=method)  # validation
+        if params["length"] != float(params["n"]):
+            raise ValueError(f"{f.name}: length {params['length']} != n {params['n']} (ensembles use L = n)")
+        plan.append((f, meta, params))
+    todo = [(f, m, p) for f, m, p in plan if case_key(p) not in done]
+    if verbose:
+        print(f"ingest: {len(plan)} fields; {len(plan) - len(todo)} already in {store}, {len(todo)} to reduce",
+              file=out, flush=True)
+    Path(store).mkdir(parents=True, exist_ok=True)
+    if todo:
+        _write_manifest(Path(store), dict(command=command, started=base["run_started"], n_cases=len(plan),
+                                          n_skipped=len(plan) - len(todo), code=base["code"], host=host(),
+                                          ingested_from=str(field_dir), field_command=field_command))
+    bar = None
+    if progress and todo:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(todo), unit="field", desc="ingest", file=sys.stderr)
+    not_conv = 0
+    failed = {}
+    for f, meta, params in todo:
+        try:
+            with np.load(f, allow_pickle=False) as z:
+                pressure = np.array(z["pressure"], dtype=np.float64)
+            if pressure.shape != (params["n"], params["n"]):
+                raise ValueError(f"field shape {pressure.shape} != ({params['n']}, {params['n']})")
+            h = case_surface(params)
+            red = reduce_pressure_field(pressure, mean_pressure=params["mean_pressure"], zeta=params["zeta"])
+            prov = dict(base)
+            prov.update(source="ingested", field_file=str(f.resolve()), field_command=field_command,
+                        field_code=meta.get("code"), converged=bool(meta["converged"]),
+                        residual=float(meta["residual"]), iterations=int(meta["iterations"]),
+                        wall_time=float(meta["wall_time"]), method=meta.get("method"), host=host(),
+                        created=now_iso())
+            write_record(store, params, prov, red, shell_spectrum(h, params["length"]))
+            not_conv += not prov["converged"]
+        except Exception as exc:
+            failed[f.name] = f"{type(exc).__name__}: {exc}"
+        if bar is not None:
+            bar.update(1)
+    if bar is not None:
+        bar.close()
+    computed = len(todo) - len(failed)
+    msg = (f"ingest: {computed} reduced now ({not_conv} not converged), {len(plan) - len(todo)} skipped, "
+           f"{len(failed)} failed; {time.perf_counter() - t0:.1f} s")
+    if verbose:
+        print(msg, file=out, flush=True)
+        for k, v in failed.items():
+            print(f"  failed {k}: {v}", file=out)
+    return EnsembleRun(str(store), len(plan), len(plan) - len(todo), computed, not_conv, failed,
+                       time.perf_counter() - t0, "ingest (this process)", msg)

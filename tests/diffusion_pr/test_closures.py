@@ -1,0 +1,336 @@
+"""The parameter-free closures beyond the paper (diffusion_pr.closures).
+
+Oracles: Persson's mirror Gaussian (closed form) at the hard wall; exact sums
+of the spectrum (shell increments); closed-form log-normal moments; a finer run
+of the same solver (convergence); the seed's own GFMD field (bundled) for the
+gap-field physics behind the log-normal and local closures.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import diffusion_pr as dp
+from diffusion_pr.closures import (CLOSURES, closure_distribution, closure_problem, contact_fraction,
+                                   lognormal_gap_distribution, spectrum_shells)
+
+E, P0 = 8.0 / 3.0, 0.004
+FAST = {"backend": "reference", "n_cells": 800, "n_steps": 800}
+REF = {"backend": "reference"}
+
+
+@pytest.fixture(scope="module")
+def fig1():
+    return dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+
+
+@pytest.fixture(scope="module")
+def persson(fig1):
+    return dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.0)
+
+
+def kolmogorov(a, b, p_min=P0 / 20, p_max=0.3):
+    x = np.linspace(p_min, p_max, 6000)
+    return float(np.max(np.abs(np.asarray(a.cdf(x)) - np.asarray(b.cdf(x)))))
+
+
+# ----------------------------------------------------------------------------- shells
+def test_discrete_shells_are_the_spectrum_modes():
+    from diffusion_pr.reference_data import case_name, load_reference
+
+    spec = load_reference(case_name(4.0, 1)).spectrum
+    sh = spectrum_shells(spec, E_star=E)
+    assert sh.exact and sh.q.size == spec.q.size and sh.q_min == spec.q_min
+    # sum dV0 = Persson's V0 of the same spectrum (exact sum, round-off)
+    v0 = dp.stress_variance(spec, E_star=E, mean_pressure=P0, zeta=0.0)
+    assert sh.V0 == pytest.approx(v0, rel=1e-12)
+    np.testing.assert_allclose(sh.dV0, (0.5 * E * spec.q) ** 2 * spec.power, rtol=1e-14)
+
+
+@pytest.mark.parametrize("n", [8, 96])
+def test_continuum_shells_sum_to_persson_variance(fig1, n):
+    sh = spectrum_shells(fig1, E_star=E, n_shells=n)
+    # closed form: V0 = (E*/2)^2 gbar^2 (sqrt(V0) = 0.041333 for the Fig. 1 spectrum)
+    assert sh.V0 == pytest.approx((0.5 * E * 0.031) ** 2, rel=1e-12)
+    assert math.sqrt(sh.V0) == pytest.approx(0.041333, abs=1e-6)
+    edges = np.geomspace(fig1.q_min, fig1.q_max, n + 1)
+    assert np.all((sh.q > edges[:-1]) & (sh.q < edges[1:]))  # tau-midpoint inside its shell
+    assert not sh.exact
+
+
+def test_continuum_shell_count_is_converged(fig1):
+    """The default 96 shells against 384 (the same reference solver): the shell rule is
+    second order in tau; measured K(48 vs 384) = 4x K(96 vs 384) within 30 %."""
+    runs = {n: closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.25, closure="local_g1",
+                                    n_shells=n, **FAST) for n in (48, 96, 384)}
+    k96 = kolmogorov(runs[96], runs[384])
+    k48 = kolmogorov(runs[48], runs[384])
+    assert k96 < 2e-4
+    assert 2.5 < k48 / k96 < 6.0
+
+
+# ----------------------------------------------------------------------------- hard wall
+@pytest.mark.parametrize("closure", ["local_g1", "local_g1_balanced", "local_g1_shell_balanced", "second_order"])
+def test_hard_wall_is_persson(fig1, persson, closure):
+    """zeta = 0: g = 1, no drift, absorbing wall: every shell closure is Persson's mirror Gaussian."""
+    r = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.0, closure=closure,
+                             **({} if closure == "second_order" else REF))
+    assert r.diagnostics["closure"] == closure
+    assert kolmogorov(r, persson, p_min=0.0) < 2e-6  # measured 5e-7 (1600 cells)
+    assert r.zero_weight == pytest.approx(persson.zero_weight, abs=2e-6)
+
+
+def test_lognormal_gap_refuses_the_hard_wall(fig1):
+    with pytest.raises(ValueError, match="zeta > 0"):
+        closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.0, closure="lognormal_gap")
+
+
+# ----------------------------------------------------------------------------- conservation
+@pytest.mark.parametrize("closure", ["local_g1", "local_g1_balanced", "local_g1_shell_balanced"])
+@pytest.mark.parametrize("zeta", [0.001, 0.1, 1.0])
+def test_mass_mean_positivity(fig1, closure, zeta):
+    r = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure, **FAST)
+    assert r.success, r.message
+    assert r.mass == pytest.approx(1.0, abs=1e-10)
+    # the mean: exact for the balanced closure (multiplier), and by the flux form of
+    # the diffusion operator with an absorbing floor for local_g1
+    assert r.mean == pytest.approx(P0, rel=1e-10)
+    assert np.all(r.density >= 0.0)
+    assert r.diagnostics["closure"] == closure
+
+
+@pytest.mark.parametrize("closure", ["local_g1", pytest.param("local_g1_balanced", marks=pytest.mark.slow)])
+def test_reference_solver_converges(fig1, closure):
+    """Doubling cells and steps: the distance above p0/20 falls about 4x (second order; the
+    BDF2 time error dominates).  Measured at zeta = 1: 1.2e-3 (400 vs 800), 3.6e-4 (800 vs
+    1600), 1.1e-4 (1600 vs 3200); the error estimate (L1, from the half-resolution run) bounds
+    the sup-distance of the CDFs."""
+    runs = [closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=1.0, closure=closure, n_cells=n, n_steps=n,
+                                 backend="reference") for n in (400, 800, 1600)]
+    d1, d2 = kolmogorov(runs[0], runs[1]), kolmogorov(runs[1], runs[2])
+    assert d2 < 5e-4
+    assert d1 / d2 > 2.8
+    assert runs[2].error_estimate > d2 / 3.0
+
+
+# ----------------------------------------------------------------------------- zeta -> 0
+def test_balanced_zeta_to_zero_limit_is_continuous_and_persson(fig1, persson):
+    """K to Persson falls linearly with zeta (measured 1.6e-3, 1.6e-4, 1.3e-5 at zeta =
+    1e-3, 1e-4, 1e-5) and is the solver's own error at zeta = 0."""
+    k = {z: kolmogorov(closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=z, closure="local_g1_balanced",
+                                            **FAST), persson) for z in (1e-3, 1e-4, 1e-5)}
+    assert k[1e-3] < 2e-3
+    assert 5.0 < k[1e-3] / k[1e-4] < 20.0
+    assert k[1e-5] < 3e-5
+
+
+def test_partition_at_the_shell_q_is_continuous_too(fig1, persson):
+    """The partition 1 - g(q_k; p) at the shell's own q (closure 'local_g1_shell_balanced',
+    also reachable as partition_q="shell") against q_min: both tend to Persson linearly in
+    zeta; the shell partition is 10x further at a given zeta (K = 0.017, 1.8e-3, 1.9e-4,
+    1.6e-5 at zeta = 1e-3 ... 1e-6, against 1.6e-3, 1.6e-4, 1.3e-5 with q_min).  Issue 9 reported K = 0.48 at zeta = 0.001 for this
+    variant and called the limit lost; that is not reproduced here (docs/closures.md)."""
+    good = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=1e-3, closure="local_g1_balanced", **FAST)
+    shell = {z: closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=z, closure="local_g1_shell_balanced",
+                                     **FAST) for z in (1e-3, 1e-4)}
+    same = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=1e-3, closure="local_g1_balanced",
+                                partition_q="shell", **FAST)
+    assert kolmogorov(same, shell[1e-3]) < 1e-12  # one closure, two spellings
+    assert kolmogorov(good, persson) < 3e-3 < 0.01 < kolmogorov(shell[1e-3], persson) < 0.03
+    assert 5.0 < kolmogorov(shell[1e-3], persson) / kolmogorov(shell[1e-4], persson) < 20.0
+    assert shell[1e-3].diagnostics["partition_q"] == "shell"
+
+
+# ----------------------------------------------------------------------------- lognormal
+@pytest.mark.parametrize("zeta", [0.25, 4.0])
+def test_lognormal_gap_moments(fig1, zeta):
+    r = lognormal_gap_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta)
+    V = dp.stress_variance(fig1, E_star=E, mean_pressure=P0, zeta=zeta)
+    s2 = V / P0**2
+    assert r.mass == pytest.approx(1.0, abs=1e-12)
+    assert r.mean == pytest.approx(P0, rel=1e-12)
+    # <p^2> = p0^2 exp(s^2) (log-normal); the cell rule integrates p^2 to O(cell^2)
+    assert r.second_moment == pytest.approx(P0**2 * math.exp(s2), rel=1e-5)
+    # median exp(<ln p>) = p0 exp(-s^2/2)
+    # (the CDF is linear inside a cell: 2e-6 interpolation error at 4000 cells)
+    assert float(r.cdf(P0 * math.exp(-0.5 * s2))) == pytest.approx(0.5, abs=1e-5)
+    assert r.diagnostics["closure"] == "lognormal_gap"
+
+
+def test_gfmd_large_zeta_is_its_own_gap_field_through_the_wall_law():
+    """The physics behind the log-normal and local closures, sharp on one seed: GFMD at
+    zeta = 4 equals the seed's Gaussian gap field -(1 - G1) h mapped through p ~ exp(-g/zeta)
+    to K = 0.0011 (over p >= p0/20, the bundled field's quantiles).  Mutations measured:
+    dropping G1 (the rigid gap -h) 0.020; G1 with 2 p0 or p0/2 in place of p0 0.017 / 0.0097;
+    the wall range 10 % off in the exponent 0.028-0.031."""
+    import gfmd_ref
+
+    from diffusion_pr.reference_data import case_name, load_reference
+
+    case = load_reference(case_name(4.0, 1))
+    h, length = gfmd_ref.fig1_surface(1024, 1)
+    n = h.shape[0]
+    k = 2 * np.pi / length * np.fft.fftfreq(n, 1.0 / n)
+    q = np.hypot(k[:, None], k[None, :])
+    x = np.unique(case.histogram.quantiles)
+    x = x[x >= P0 / 20]
+    f_sim = np.interp(x, case.histogram.quantiles, case.histogram.quantile_levels)
+
+    def k_of(response):
+        gap = np.real(np.fft.ifft2(-(1.0 - response) * np.fft.fft2(h)))
+        p = np.exp(-(gap - gap.min()) / 4.0)
+        p = np.sort((p * (P0 / p.mean())).ravel())
+        return float(np.max(np.abs(np.searchsorted(p, x, side="right") / p.size - f_sim)))
+
+    g1 = 1.0 / (1.0 + 4.0 * q * E / (2 * P0))
+    assert k_of(g1) < 0.003
+    assert k_of(np.zeros_like(q)) > 0.01
+    assert k_of(1.0 / (1.0 + 4.0 * q * E / P0)) > 0.006
+
+
+# ----------------------------------------------------------------------------- contact fraction
+def test_contact_fraction_definition(fig1, persson):
+    assert contact_fraction(persson, zeta=0.0, mean_pressure=P0) == pytest.approx(persson.contact_fraction)
+    r = lognormal_gap_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.25)
+    s2 = r.diagnostics["ln_variance"]
+    from scipy.special import ndtr
+
+    expect = 1.0 - ndtr((math.log(0.01) + 0.5 * s2) / math.sqrt(s2))
+    assert contact_fraction(r, zeta=0.25, mean_pressure=P0) == pytest.approx(expect, abs=1e-4)
+
+
+# ----------------------------------------------------------------------------- staged problem
+def test_closure_problem_stages(fig1):
+    sh = spectrum_shells(fig1, E_star=E)
+    pb = closure_problem(sh, zeta=0.5, E_star=E, mean_pressure=P0, closure="local_g1_balanced")
+    assert len(pb.stages) == sh.q.size
+    assert pb.variance == pytest.approx(sh.V0, rel=1e-12)
+    st = pb.stages[-1]
+    p = np.array([1e-9, P0, 1.0])
+    g = p / (p + 0.5 * 0.5 * E * sh.q[-1])
+    gm = p / (p + 0.5 * 0.5 * E * sh.q_min)
+    np.testing.assert_allclose(st.diffusivity(p), g**2, rtol=1e-14)
+    np.testing.assert_allclose(st.drift(p), (1 - gm) * g**2 / p, rtol=1e-12)
+    np.testing.assert_allclose(st.balance(p), (1 - gm) * p, rtol=1e-12)
+    assert st.diffusivity.zero_power == 2.0
+    hard = closure_problem(sh, zeta=0.0, E_star=E, mean_pressure=P0, closure="local_g1_balanced")
+    assert hard.stages[0].drift is None and hard.stages[0].diffusivity.zero_power == 0.0
+    shell = closure_problem(sh, zeta=0.5, E_star=E, mean_pressure=P0, closure="local_g1_shell_balanced")
+    np.testing.assert_allclose(shell.stages[-1].drift(p), (1 - g) * g**2 / p, rtol=1e-12)
+    np.testing.assert_allclose(shell.stages[-1].balance(p), (1 - g) * p, rtol=1e-12)
+
+
+# ----------------------------------------------------------------------------- bad input
+@pytest.mark.parametrize("kwargs, match", [
+    ({"closure": "third_order"}, "closure must be one of"),
+    ({"closure": "local_g1", "cutoff": "muser", "p_c": 0.003}, "cutoff applies to closure='second_order'"),
+    ({"closure": "local_g1_balanced", "tail": "linear", "p_t": 0.01}, "tail applies"),
+    ({"closure": "lognormal_gap", "n_shells": 10}, "do not apply"),
+    ({"closure": "local_g1", "partition_q": 0.1}, "partition_q applies"),
+    ({"closure": "local_g1_shell_balanced", "partition_q": 0.1}, "partition_q applies"),
+    ({"closure": "local_g1", "n_shells": 1}, "n_shells must be an integer >= 2"),
+    ({"closure": "local_g1", "zeta": -1.0}, "zeta"),
+    ({"closure": "local_g1", "zeta": np.array([0.1, 0.2])}, "zeta must be a scalar"),
+    ({"closure": "lognormal_gap", "zeta": float("nan")}, "zeta"),
+    ({"closure": "local_g1", "n_cells": 15, "backend": "reference"}, "n_cells must be an even integer"),
+])
+def test_bad_input(fig1, kwargs, match):
+    kw = {"zeta": 0.1, **kwargs}
+    with pytest.raises(ValueError, match=match):
+        closure_distribution(fig1, E_star=E, mean_pressure=P0, **kw)
+
+
+def test_closure_names():
+    assert CLOSURES == ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced", "local_g1_shell_balanced")
+
+
+# ----------------------------------------------------------------------------- api and engine
+@pytest.mark.parametrize("closure", CLOSURES)
+def test_pressure_distribution_closure_keyword(fig1, closure):  # noqa: D103
+    r = dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.5, closure=closure,
+                                 **({"backend": "reference", **FAST} if closure.startswith("local") else {}))
+    assert r.diagnostics["closure"] == closure
+    assert r.success
+
+
+def test_pressure_distribution_closure_bad_input(fig1):
+    with pytest.raises(ValueError, match="closure must be one of"):
+        dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.5, closure="fourth")
+    with pytest.raises(ValueError, match="drift applies"):
+        dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.5, closure="local_g1",
+                                 drift=lambda p, eta: 0 * p)
+
+
+def test_plot_label_names_the_closure(fig1):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    r = lognormal_gap_distribution(fig1, E_star=E, mean_pressure=P0, zeta=1.0)
+    ax = r.plot()
+    assert ax.get_lines()[0].get_label().startswith("lognormal_gap")
+
+
+@pytest.mark.parametrize("closure, zeta", [("local_g1", 0.0), ("local_g1_balanced", 0.0), ("local_g1", 0.01),
+                                           ("local_g1", 0.25), ("local_g1_balanced", 0.01),
+                                           ("local_g1_shell_balanced", 0.1)])
+def test_engine_native_agrees_with_the_reference(fig1, closure, zeta):
+    """The engine's staged solve (native) against the reference solver (1600
+    cells and steps, its own error about 1e-4 above p0/20).  Measured: 1.5e-5 (hard wall),
+    1e-6 (local_g1, zeta = 0.01), 7e-5 (local_g1, 0.25), 1.3e-4 (balanced, 0.01, both with
+    the non-contact region resolved to 1e-16 zeta q_min E*/2).  (Engine e927005 missed by
+    2.3e-4 at zeta = 0.25 while estimating 6e-7; fixed in c67e627.  Engine 82ed32a tied
+    the depth below the floor to rtol: the balanced closure moved by 1.1e-3 at zeta = 0.01;
+    closures now pass the floor explicitly.)"""
+    ref = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure, backend="reference")
+    # the balanced closure costs the engine 2-5 s at rtol 1e-6: checked at 1e-4
+    rtol = 1e-4 if "balanced" in closure and zeta > 0 else 1e-6
+    eng = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure, backend="native",
+                               rtol=rtol)
+    assert eng.success and eng.diagnostics["closure"] == closure
+    assert kolmogorov(eng, ref) < 3e-4
+    assert eng.mean == pytest.approx(P0, rel=1e-5)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("backend", ["pypde", "fipy"])
+def test_engine_backends_agree_on_a_closure(fig1, backend):
+    """native, py-pde and FiPy on the same StagedProblem (rtol 1e-4).  Measured at zeta = 0.25
+    (local_g1): native - fipy 0 to round-off (same engine), native - pypde 1.5e-3, all three
+    1.2e-3 ... 3.6e-3 from the reference: the engine's estimate (7e-5) is optimistic."""
+    kw = dict(E_star=E, mean_pressure=P0, zeta=0.25, closure="local_g1", rtol=1e-4)
+    nat = closure_distribution(fig1, backend="native", **kw)
+    other = closure_distribution(fig1, backend=backend, **kw)
+    assert other.success and other.diagnostics["closure"] == "local_g1"
+    assert kolmogorov(nat, other) < 3e-3
+
+
+def test_main_job_draws_the_best_closure_beside_the_paper(tmp_path):
+    """diffusion-pr fig1: the balanced closure is a theory curve of every wall, compared,
+    reported, written to the CSV and named in the figure's legend."""
+    from diffusion_pr import fig1
+
+    report = fig1.run_fig1(n=32, zetas=(0.25,), hard_wall=False, rtol=1e-4, out_dir=tmp_path, log=lambda s: None)
+    (case,) = report.cases
+    th = case.theories[fig1.BEST_CLOSURE]
+    best = "local_g1_shell_balanced"
+    assert fig1.BEST_CLOSURE == best and th.diagnostics["closure"] == best
+    assert th.success and th.mean == pytest.approx(P0, rel=1e-10)
+    assert list(case.comparisons)[:2] == ["paper", best]
+    assert best in report.text()
+    header = (tmp_path / "fig1_curves.csv").read_text().splitlines()[0].split(",")
+    assert f"{best}_zeta0.25" in header
+
+
+def test_lognormal_gap_mean_at_small_zeta(fig1):
+    """At zeta = 0.001 the ln-variance is s^2 = 99: the mean is carried by pressures
+    exp(s^2/2) above p0, far in the tail (an earlier grid of <ln p> +- 9.5 s gave a mean of
+    0.06 p0).  Mean, mass and median exact; and a clear error where s^2 overflows."""
+    r = lognormal_gap_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.001)
+    s2 = r.diagnostics["ln_variance"]
+    assert s2 == pytest.approx(99.1, abs=0.1)
+    assert r.mean == pytest.approx(P0, rel=1e-10) and r.mass == pytest.approx(1.0, abs=1e-12)
+    assert float(r.cdf(P0 * math.exp(-0.5 * s2))) == pytest.approx(0.5, abs=1e-5)
+    with pytest.raises(ValueError, match="lognormal_gap' is not defined here"):
+        lognormal_gap_distribution(fig1, E_star=1.0, mean_pressure=1e-5, zeta=1e-4)
