@@ -244,3 +244,23 @@ def test_cli_starts_and_closes_its_own_local_cluster(tmp_path, capsys):
     for a, b in zip(load_ensemble(tmp_path / "own"), load_ensemble(ser.store)):
         np.testing.assert_array_equal(a.quantiles, b.quantiles)
         assert a.provenance["command"].startswith("gfmd-ref ensemble")
+
+
+def test_bundle_is_the_store_subsampled(tmp_path):
+    """write_bundle keeps every other store level (i/1024) as float32 and the
+    float64 scalars and spectra exactly; a bundle refuses duplicate cases."""
+    from gfmd_ref.ensemble_data import BUNDLE_LEVELS, _load_bundle, write_bundle
+
+    run_ensemble(tmp_path / "s", n=64, seeds="1-2", walls="hard,0.5", serial=True, progress=False, verbose=False)
+    path, size = write_bundle(tmp_path / "s", tmp_path / "b.npz", name="test", command="pytest")
+    recs, info = _load_bundle(str(path))
+    assert info["command"] == "pytest" and info["n_records"] == 4 and size == path.stat().st_size
+    for a, b in zip(recs, load_ensemble(tmp_path / "s")):
+        assert a.key == b.key and a.converged == b.converged
+        np.testing.assert_array_equal(a.levels, BUNDLE_LEVELS)
+        np.testing.assert_array_equal(a.quantiles, b.quantiles[::2].astype(np.float32).astype(np.float64))
+        assert (a.contact_fraction, a.sd, a.skewness, a.zero_weight) == (b.contact_fraction, b.sd, b.skewness,
+                                                                          b.zero_weight)
+        np.testing.assert_array_equal(a.spectrum_power, b.spectrum_power)
+    with pytest.raises(ValueError, match="twice"):
+        write_bundle([tmp_path / "s", tmp_path / "s"], tmp_path / "c.npz", name="test")
