@@ -134,20 +134,25 @@ class Fig1Report:
     def text(self) -> str:
         """A short human-readable report."""
         lines = [
-            "Fig. 1 of Müser, PRL 100, 055504 (2008): GFMD against second-order cumulant theory",
+            "Fig. 1 of Müser, PRL 100, 055504 (2008): GFMD against the second-order cumulant theory "
+            "and the best parameter-free closure",
             "scene: " + ", ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}"
                                   for k, v in self.scene.items()),
             f"Persson (zeta -> 0): sqrt(V0) = {np.sqrt(self.variance_persson):.6f}, "
             f"contact fraction a_r = {self.persson.contact_fraction:.5f}",
             "",
-            f"{'wall':>12} {'theory':>8} {'p_c':>8} {'L1':>8} {'Kolmog.':>8} {'a_sim':>8} {'a_theory':>8} "
-            f"{'sd_sim':>9} {'sd_theory':>9} {'GFMD it':>8} {'resid':>8} {'GFMD s':>7} {'theory s':>8}",
         ]
+        width = max([6] + [len(label) for c in self.cases for label in c.comparisons])
+        lines.append(f"{'wall':>12} {'theory':>{width}} {'p_c':>8} {'L1':>8} {'Kolmog.':>8} {'a_sim':>8} "
+                     f"{'a_theory':>8} {'sd_sim':>9} {'sd_theory':>9} {'GFMD it':>8} {'resid':>8} {'GFMD s':>7} "
+                     f"{'theory s':>8}")
         for c in self.cases:
             p_c = c.gfmd_info.get("p_c")
             for label, cmp in c.comparisons.items():
+                # p_c is the paper's fitted cutoff: it belongs to the paper's curve only
+                p_c_text = "-" if (p_c is None or label != PAPER) else f"{p_c:.4f}"
                 lines.append(
-                    f"{c.wall:>12} {label:>8} {('-' if p_c is None else f'{p_c:.4f}'):>8} {cmp.l1:8.4f} "
+                    f"{c.wall:>12} {label:>{width}} {p_c_text:>8} {cmp.l1:8.4f} "
                     f"{cmp.kolmogorov:8.4f} {cmp.contact_fraction_sim:8.4f} {cmp.contact_fraction_theory:8.4f} "
                     f"{np.sqrt(cmp.moments_sim['variance']):9.5f} {np.sqrt(cmp.moments_theory['variance']):9.5f} "
                     f"{c.gfmd_info.get('iterations', 0):8d} {c.gfmd_info.get('residual', np.nan):8.1e} "
@@ -155,7 +160,8 @@ class Fig1Report:
         lines.append("")
         lines.append("a_sim, a_theory: fraction of the area with p above the contact threshold, the same on both "
                      "sides: p > 0 for the hard wall, p > 0.01 p0 for exponential walls (gfmd_ref's definition; "
-                     "for the theory 1 - cdf(threshold)).")
+                     "for the theory 1 - cdf(threshold)). p_c: the paper's fitted cutoff pressure (paper curve "
+                     "only; the closures have no fitted parameter). theory s: all theory curves of that wall.")
         return "\n".join(lines)
 
 
