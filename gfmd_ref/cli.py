@@ -188,7 +188,10 @@ def add_ensemble_arguments(parser: argparse.ArgumentParser) -> argparse.Argument
     parser.add_argument("--n", default="1024", help="grid size(s), comma separated (default 1024; L = n)")
     parser.add_argument("--seeds", default="1-4", help="surface seeds, e.g. 1-64 or 1,3,5-7 (default 1-4)")
     parser.add_argument("--walls", default="hard",
-                        help="walls: 'hard' and/or exponential ranges zeta [grid units], e.g. hard,4,0.25")
+                        help="walls: 'hard' and/or exponential ranges zeta, in grid spacings of the solved n^2 grid "
+                             "(L = n; the same as the run command's unit at n = 1024, where the paper's system "
+                             "is solved; the same physical wall at another n is zeta * n / 1024), "
+                             "e.g. hard,4,0.25 (default: hard)")
     parser.add_argument("--mean-pressures", default=None,
                         help="loads p0, comma separated (default the paper's 0.004)")
     parser.add_argument("--E-star", type=float, default=None, help="contact modulus (default 8/3)")
