@@ -160,8 +160,9 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParse
     parser.add_argument("--seed", type=int, default=1, help="surface seed, integer >= 0 (default: 1)")
     parser.add_argument("--tol", type=float, default=1e-8,
                         help="residual tolerance, relative to p0 (dimensionless; default: 1e-8)")
-    parser.add_argument("--method", choices=["auto", "ccg", "newton", "fire"], default="auto",
-                        help="solver (default: auto)")
+    parser.add_argument("--method", choices=["auto", "ccg", "pk", "newton", "fire"], default="auto",
+                        help="solver: ccg (preconditioned constrained CG), pk (plain Polonsky-Keer), fire "
+                             "(hard wall); newton, fire (exponential wall) (default: auto = ccg / newton)")
     parser.add_argument("--bins", type=int, default=60, help="histogram bins on [0, max p] (default: 60)")
     parser.add_argument("--out", default="gfmd_out",
                         help="output folder, checked for writability before solving (default: gfmd_out)")
@@ -200,7 +201,8 @@ def add_ensemble_arguments(parser: argparse.ArgumentParser) -> argparse.Argument
     parser.add_argument("--n-waves", type=int, default=None,
                         help="q_max/q_min, shortest wavelength L/n_waves (default 32)")
     parser.add_argument("--tol", type=float, default=1e-6, help="solver tolerance relative to p0 (default 1e-6)")
-    parser.add_argument("--method", choices=["auto", "ccg", "newton", "fire"], default="auto")
+    parser.add_argument("--method", choices=["auto", "ccg", "pk", "newton", "fire"], default="auto",
+                        help="solver, as for the run command (default: auto = ccg / newton)")
     parser.add_argument("--workers", type=int, default=None,
                         help="local cluster worker processes (default: one per core)")
     parser.add_argument("--threads-per-worker", type=int, default=None,
