@@ -1,6 +1,6 @@
 """Work-precision benchmark of the finite-volume engine and its backends (issue 10 items 1-3, 5).
 
-Problems (SPEC sections 4 and 6):
+Problems (docs/theory.md, docs/fig1.md):
 
 ``mirror``   ``f = 1``, ``p0 = V = 1``: Persson's mirror Gaussian (exact L1 of cell masses + zero weight).
 ``feller``   ``f = p``, ``p0 = V = 1``: Feller's Bessel solution (exact, same metric).

@@ -1,6 +1,6 @@
 """Public entry points: :func:`propagate` and :func:`pressure_distribution`.
 
-``propagate`` solves the factorized Fokker-Planck problem of SPEC section 4 in
+``propagate`` solves the factorized Fokker-Planck problem of docs/theory.md in
 the diffusion time ``tau`` (from ``delta(p - p0)`` up to ``tau = V/2``);
 ``pressure_distribution`` does the whole scene of Müser, PRL 100, 055504
 (2008), doi:10.1103/PhysRevLett.100.055504: the stress variance from the
@@ -209,7 +209,7 @@ def pressure_distribution(
     closure: str = "second_order",
     **options: Any,
 ) -> PressureDistribution:
-    """Pressure distribution of a rough contact (Müser 2008, SPEC sections 3-4).
+    """Pressure distribution of a rough contact (Müser 2008, Eqs. 2, 9, 10; docs/theory.md).
 
     ``closure`` picks the theory (docs/closures.md):
     ``"second_order"`` (the paper, default; everything below), or the

@@ -18,7 +18,7 @@ and, since ``sigma~(q) = (q E*/2) u~(q)`` (Eq. 3), the stress variance::
 
 Magnification ``eta = q / q_min``: ``V(eta)`` accumulates the modes with
 ``|q| <= eta q_min`` and ``D(eta) = (1/2) dV/deta`` is the diffusivity of the
-magnification-dependent Fokker-Planck equation (SPEC section 4).
+magnification-dependent Fokker-Planck equation (docs/theory.md).
 
 Units: ``E_star`` and ``mean_pressure`` in one pressure unit, ``zeta`` and
 wavelengths in one length unit; variances come out in pressure^2.

@@ -1,7 +1,7 @@
 """Pressure dependence of the diffusivity: cutoffs ``c(p)`` and tails ``t(p)``.
 
 The magnification-dependent diffusivity of the Fokker-Planck equation
-(SPEC section 4) is ``D(p, eta) = D(eta) * c(p) * t(p)``.  This module holds the
+(docs/theory.md) is ``D(p, eta) = D(eta) * c(p) * t(p)``.  This module holds the
 pressure factors as small frozen dataclasses that are vectorized callables of a
 pressure array (same units as ``mean_pressure`` and ``E_star``):
 

@@ -1,7 +1,7 @@
 """The Fokker-Planck problem every backend solves.
 
 In the diffusion "time" ``tau = integral D(eta) d eta`` (units of pressure
-squared) the magnification-dependent equation of SPEC section 4 reads
+squared) the magnification-dependent equation of docs/theory.md reads
 
     d Pr / d tau = - d/dp [ a(p, tau) Pr ] + d^2/dp^2 [ f(p, tau) Pr ],
     Pr(p, tau = 0) = delta(p - mean_pressure),
@@ -179,7 +179,7 @@ class FokkerPlanckProblem:
 class Stage:
     """One magnification shell (or segment) of the diffusion time.
 
-    On the stage the distribution obeys (Ito form, SPEC sections 4 and 7)::
+    On the stage the distribution obeys (Ito form, docs/theory.md and docs/closures.md)::
 
         dPr/dtau = d^2/dp^2 [ f(p) Pr ] - d/dp [ (b(p) - A(tau) w(p)) Pr ],   p > 0,
 

@@ -1,6 +1,6 @@
 r"""Isotropic height spectra of randomly rough surfaces.
 
-Conventions (SPEC section 2; M. H. Müser, Phys. Rev. Lett. 100, 055504 (2008),
+Conventions (docs/theory.md; M. H. Müser, Phys. Rev. Lett. 100, 055504 (2008),
 doi:10.1103/PhysRevLett.100.055504; B. N. J. Persson, J. Chem. Phys. 115, 3840
 (2001), doi:10.1063/1.1388626):
 

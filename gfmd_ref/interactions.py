@@ -1,4 +1,4 @@
-"""Wall interactions (SPEC section 1)."""
+"""Wall interactions (Müser 2008, Eq. 7; docs/gfmd.md)."""
 from __future__ import annotations
 
 import math

@@ -1,6 +1,6 @@
 """Contact solvers: GFMD (FIRE), constrained CG (hard wall), dual Newton-CG (exponential wall).
 
-Geometry and conventions (SPEC sections 1, 5): rigid rough surface ``h`` (zero mean
+Geometry and conventions (docs/gfmd.md): rigid rough surface ``h`` (zero mean
 not required), elastic half-space with contact modulus ``E*`` pressed on it with mean
 pressure ``p0``. Solid surface ``z = z0 + u`` (``<u> = 0``), gap ``g = z - h``.
 Each Fourier mode ``q != 0`` of ``u`` is a spring of stiffness ``q E*/2`` (per unit

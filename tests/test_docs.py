@@ -26,16 +26,9 @@ def test_docs_build_without_warnings(tmp_path: Path) -> None:
 
 ROOT = DOCS.parent
 
-#: Files that still cite the project's SPEC.md / NOTES (documents outside the
-#: repository) and belong to modules being rewritten on other branches; each
-#: is to cite the paper's equations or a docs page instead.  The list may only
-#: shrink: a file not listed here fails the test below.
-OUTSIDE_REFERENCES_PENDING = {
-    "diffusion_pr/solvers/native.py", "diffusion_pr/solvers/closed_form.py", "diffusion_pr/cumulants.py",
-    "diffusion_pr/spectra.py", "diffusion_pr/problem.py", "diffusion_pr/api.py", "diffusion_pr/models.py",
-    "gfmd_ref/solver.py", "gfmd_ref/interactions.py",
-    "docs/gfmd.md", "docs/theory.md", "docs/backends.md",
-}
+#: Files allowed to cite the project's SPEC.md / NOTES (documents outside the
+#: repository): none; cite the paper's equations or a docs page instead.
+OUTSIDE_REFERENCES_PENDING: set = set()
 
 
 def test_no_citation_of_documents_outside_the_repository() -> None:

@@ -1,6 +1,6 @@
 """Closed-form backend: the exact solutions, on a Gauss-Legendre grid.
 
-Two factorized problems have exact solutions (SPEC sections 3-4):
+Two factorized problems have exact solutions (Müser 2008, Eq. 2 and docs/theory.md):
 
 * ``f = c`` constant (with the sharp cutoff, i.e. absorbing ``p = 0``):
   Persson's mirror Gaussian of variance ``c V`` plus the non-contact weight
