@@ -204,3 +204,36 @@ def test_one_diagnostics_schema_and_no_jit():
 def test_n_cells_validated(n_cells):
     with pytest.raises(ValueError, match="n_cells"):
         native.solve(FokkerPlanckProblem(1.0, 1.0), n_cells=n_cells)
+
+
+def test_balance_newton_skip_matches_always_newton(monkeypatch):
+    """A balance substep skips its Newton step on A only when the midpoint-predicted A already holds the mean
+    to MEAN_TOL_FRACTION * rtol * p0 (1e-9 p0 here); oracle: the same solve with the Newton step forced on every
+    substep (fraction 0 -> the 1e-13 floor).  The two must agree far inside rtol (5e-8 = rtol/20 in L1)."""
+    from diffusion_pr.solvers.fv import engine
+
+    problem = closure_like_problem()
+    r = native.solve(problem, rtol=1e-6)
+    monkeypatch.setattr(engine, "MEAN_TOL_FRACTION", 0.0)
+    ref = native.solve(problem, rtol=1e-6)
+    assert r.success and ref.success
+    assert ref.diagnostics["levels"] == r.diagnostics["levels"]
+    assert r.diagnostics["newton_steps"] <= ref.diagnostics["newton_steps"]
+    diff = float(np.sum(np.abs(r.density * r.weights - ref.density * ref.weights))) + abs(r.zero_weight - ref.zero_weight)
+    assert diff < 5e-8
+    assert abs(r.diagnostics["mean_error"]) < 1e-6 * 0.004
+
+
+def test_staged_grid_grades_towards_p0_by_the_accumulated_variance():
+    """The local_g1 closure at zeta = 4 (Fig. 1 scene): sd about 0.2 p0, while max_k f_k on the domain is ~1.
+    Grading towards p0 by sqrt(2 sum_k dtau_k f_k(p0)) meets rtol = 1e-6 on 410 base cells; grading by
+    sqrt(2 tau max_k f_k(p0)) (the lowest shell's response) needed 1868 (cell counts are deterministic)."""
+    import diffusion_pr as dp
+    from diffusion_pr.closures import closure_problem, spectrum_shells
+
+    shells = spectrum_shells(dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031),
+                             E_star=8 / 3)
+    r = native.solve(closure_problem(shells, zeta=4.0, E_star=8 / 3, mean_pressure=0.004, closure="local_g1"),
+                     rtol=1e-6)
+    assert r.success, r.message
+    assert r.diagnostics["levels"][0] < 800

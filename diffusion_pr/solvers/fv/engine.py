@@ -58,6 +58,9 @@ SAFETY = 0.5
 DRIFT_SPLIT = 2.0
 #: at most this many exponential steps per drift stage
 MAX_DRIFT_SPLIT = 256
+#: a balance substep keeps the mean within MEAN_TOL_FRACTION * rtol * p0 of p0 (else a Newton step on A);
+#: the distribution then moves by about that much in L1, far below the error estimate
+MEAN_TOL_FRACTION = 1e-3
 #: cells per balance substep (the substeps double with the cells, so Richardson removes their O(dtau^2) error)
 SUBSTEP_CELLS = 16
 #: e-folds of p resolved below the floor where the wall is not reached: ln(10/rtol), at least this many;
@@ -244,8 +247,11 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
     if p0 not in pruned:
         pruned = sorted([x for x in pruned if abs(x - p0) > 1e-9 * p0 or x in extra_knots] + [p0])
     # grading towards p0 where the local spread is small compared with the global one
-    f0 = max(float(np.max([_check_f(pc.f, np.array([p0]), "diffusivity")[0] for pc in pieces])), 0.0)
-    w_loc = math.sqrt(2.0 * tau_end * f0)
+    f_p0 = [max(float(_check_f(pc.f, np.array([p0]), "diffusivity")[0]), 0.0) for pc in pieces]
+    if time_dependent:
+        w_loc = math.sqrt(2.0 * tau_end * max(f_p0))
+    else:  # stages: the variance a start at p0 accumulates, sum_k 2 dtau_k f_k(p0) (not 2 tau_end max_k f_k)
+        w_loc = math.sqrt(2.0 * sum(pc.duration * fk for pc, fk in zip(pieces, f_p0)))
     c_0, w0 = (1.0, max(w_loc, 1e-3 * s)) if w_loc < 0.25 * s else (0.0, s)
     c_wall = 0.0 if (reached or truncated) else C_WALL
     spec = GridSpec(p_wall=floor_domain, p_max=p_max, knots=tuple(pruned), scale=s, c_wall=c_wall, c_0=c_0, w0=w0, p0=p0)
@@ -277,12 +283,14 @@ def _substeps(prep: Prepared, piece: _Piece, n_base: int, refine: int) -> int:
 
 
 def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = native_assemble,
-                  n_base: int = 64, refine: int = 1) -> tuple[np.ndarray, dict]:
+                  n_base: int = 64, refine: int = 1, mean_tol: float = 1e-13) -> tuple[np.ndarray, dict]:
     """Integrate from the start to ``tau_end`` on one grid; return ``y = [z, m...]`` and counters.
 
     ``n_base`` is the cell count of the coarsest grid of the nested triple and
     ``refine`` (1, 2, 4) this grid's refinement factor: time segments and
-    balance substeps are ``refine`` times those of the coarsest grid.
+    balance substeps are ``refine`` times those of the coarsest grid.  A balance
+    substep whose mean misses ``p0`` by more than ``mean_tol p0`` after the
+    predicted ``A`` takes one Newton step on ``A`` (a second exponential).
     """
     c = centres(edges)
     n = c.size
@@ -293,7 +301,7 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     y[j + 1] = (prep.p0 - cl) / (cr - cl)
     faces = edges[:-1]
     pieces = prep.segment_fn(refine * max(4, n_base // 8)) if prep.time_dependent else prep.pieces
-    counters = {"cram_applications": 0, "substeps": 0}
+    counters = {"cram_applications": 0, "substeps": 0, "newton_steps": 0}
     p_wall = edges[0]
     for pc in pieces:
         f_c = np.maximum(_check_f(pc.f, c, "diffusivity"), 0.0)
@@ -319,20 +327,29 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
         wl, wd, wu = assemble(edges, np.zeros(n), _check_f(pc.w, faces, "balance"), _check_f(pc.w, c, "balance"))
         m = _substeps(prep, pc, n_base, refine)
         dt = pc.duration / m
+        cvec = np.r_[p_wall, c]
         for _ in range(m):
-            # instantaneous A from d<p>/dtau = 0: <c, L0 y> = A <c, Lw y>
-            cvec = np.r_[p_wall, c]
+            # A from d<p>/dtau = 0, <c, L0 u> = A <c, Lw u>, at the substep's midpoint state
+            # u = y + dt/2 (L0 - A0 Lw) y (A0 the same condition at y): the mean then misses p0 by O(dt^3)
             l0y = _matvec(base, y)
             lwy = _matvec((wl, wd, wu), y)
             denom = float(cvec @ lwy)
             A = float(cvec @ l0y) / denom if denom != 0.0 else 0.0
+            if denom != 0.0:
+                u = y + (0.5 * dt) * (l0y - A * lwy)
+                l0u = _matvec(base, u)
+                lwu = _matvec((wl, wd, wu), u)
+                den_u = float(cvec @ lwu)
+                if den_u != 0.0:
+                    A = float(cvec @ l0u) / den_u
             trial = expm_tridiagonal(base[0] - A * wl, base[1] - A * wd, base[2] - A * wu, dt, y)
             err = _mean(c, trial, p_wall) - prep.p0
-            if abs(err) > 1e-13 * prep.p0 and denom != 0.0:
+            if abs(err) > mean_tol * prep.p0 and denom != 0.0:
                 # one Newton step (d mean / dA = -dt <c, Lw y>): the mean is linear in A to O(dt^2 dA^2)
                 A += err / (dt * denom)
                 trial = expm_tridiagonal(base[0] - A * wl, base[1] - A * wd, base[2] - A * wu, dt, y)
                 counters["cram_applications"] += 1
+                counters["newton_steps"] += 1
             y = trial
             counters["cram_applications"] += 1
             counters["substeps"] += 1
@@ -399,7 +416,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     prep = prepare(problem, rtol=rtol, p_floor=p_floor)
     t_prep = time.perf_counter() - t_start
     integrate = loop if loop is not None else (
-        lambda pr, e, nb, rf: solve_on_grid(pr, e, assemble=assemble, n_base=nb, refine=rf))
+        lambda pr, e, nb, rf: solve_on_grid(pr, e, assemble=assemble, n_base=nb, refine=rf,
+                                            mean_tol=max(1e-13, MEAN_TOL_FRACTION * rtol)))
     n = int(n_cells) if n_cells is not None else int(np.clip(25.0 * (1e-4 / rtol) ** 0.25, 16, 4096))
     history = []
 
@@ -456,6 +474,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                         timings=timings, mean_full=mean_full,
                         extra={"levels": cells, "history": history, "time_integration": time_integration,
                                "cram_applications": cnt["cram_applications"], "substeps": cnt["substeps"],
+                               "newton_steps": cnt.get("newton_steps", 0),
                                **(extra or {})},
                         failure=failure)
 
