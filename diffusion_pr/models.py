@@ -97,20 +97,27 @@ def wall_reached(k: float) -> bool:
     return bool(k < WALL_POWER)
 
 
-def _probe(f: Callable, p: np.ndarray) -> np.ndarray:
-    """Evaluate ``f`` on ``p`` and check it returns a finite array of the same shape."""
+def evaluate_vectorized(f: Callable, p: np.ndarray, name: str | None = None) -> np.ndarray:
+    """Evaluate a pressure function ``f`` on ``p``; check it returns one value per pressure.
+
+    A scalar result is broadcast (a constant ``f``); any other shape, or an
+    exception inside ``f``, becomes a ``ValueError`` naming ``name`` (default:
+    the callable's repr) and the shapes.
+    """
+    who = f"the callable {f!r}" if name is None else name
     try:
         out = np.asarray(f(p), dtype=float)
     except Exception as exc:  # the user's callable: say what went wrong, where
-        raise ValueError(f"the callable {f!r} failed on a pressure array of shape {p.shape}: "
+        raise ValueError(f"{who} failed on a pressure array of shape {p.shape}: "
                          f"{type(exc).__name__}: {exc}") from exc
     if out.shape != p.shape:
         if out.ndim == 0:
             out = np.full(p.shape, float(out))
         else:
-            raise ValueError(f"the callable {f!r} returned shape {out.shape} for pressures of shape {p.shape}; "
+            raise ValueError(f"{who} returned shape {out.shape} for pressures of shape {p.shape}; "
                              "it must be vectorized (same shape out as in)")
     return out
+
 
 
 def zero_power_of(f: Callable, scale: float) -> float:
@@ -127,7 +134,7 @@ def zero_power_of(f: Callable, scale: float) -> float:
     if declared is not None:
         return float(declared)
     probes = float(scale) * 10.0 ** -np.arange(2.0, 9.0)
-    vals = _probe(f, probes)
+    vals = evaluate_vectorized(f, probes)
     pos = np.flatnonzero(vals > 0.0)
     if pos.size == 0:
         return math.inf
@@ -151,7 +158,7 @@ def breakpoints_of(f: Callable, p_lo: float, p_hi: float) -> tuple[float, ...]:
     if callable(method) and (not callable(declared) or declared()):
         return tuple(sorted(float(b) for b in method() if p_lo < float(b) < p_hi))
     x = np.linspace(p_lo, p_hi, 4097)
-    y = _probe(f, x)
+    y = evaluate_vectorized(f, x)
     d = np.abs(np.diff(y))
     if d.size < 3:
         return ()
@@ -160,12 +167,12 @@ def breakpoints_of(f: Callable, p_lo: float, p_hi: float) -> tuple[float, ...]:
     out = []
     for i in jumps:
         a, b = x[i], x[i + 1]
-        ya = _probe(f, np.array([a]))[0]
+        ya = evaluate_vectorized(f, np.array([a]))[0]
         for _ in range(60):
             m = 0.5 * (a + b)
             if m <= a or m >= b or (b - a) <= 1e-13 * abs(b):
                 break
-            ym = _probe(f, np.array([m]))[0]
+            ym = evaluate_vectorized(f, np.array([m]))[0]
             if abs(ym - ya) < 0.5 * abs(y[i + 1] - y[i]):
                 a, ya = m, ym
             else:

@@ -32,7 +32,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from ...models import breakpoints_of, wall_reached, zero_power_of
+from ...models import breakpoints_of, evaluate_vectorized, wall_reached, zero_power_of
 from ...problem import FokkerPlanckProblem, Stage, StagedProblem
 from ...result import PressureDistribution
 from .cram import expm_tridiagonal
@@ -108,16 +108,8 @@ class Prepared:
 
 
 def _check_f(f: Callable, p: np.ndarray, name: str) -> np.ndarray:
-    try:
-        out = np.asarray(f(p), dtype=float)
-    except Exception as exc:
-        raise ValueError(f"{name} failed on a pressure array of shape {p.shape}: {type(exc).__name__}: {exc}") from exc
-    if out.shape != p.shape:
-        if out.ndim == 0:
-            out = np.full(p.shape, float(out))
-        else:
-            raise ValueError(f"{name} returned shape {out.shape} for pressures of shape {p.shape}; "
-                             "it must be vectorized (same shape out as in)")
+    """``f(p)`` checked vectorized (:func:`~diffusion_pr.models.evaluate_vectorized`) and finite."""
+    out = evaluate_vectorized(f, p, name)
     if not np.all(np.isfinite(out)):
         bad = p[~np.isfinite(out)][0]
         raise ValueError(f"{name} returned a non-finite value at p={bad!r}")
