@@ -475,10 +475,15 @@ class Ensemble:
         out.sort(key=lambda g: (g.n, g.mean_pressure, -1.0 if g.zeta is None else g.zeta))
         return out
 
-    def group(self, wall="hard", *, mean_pressure=None, n=None, seeds=None) -> EnsembleGroup:
-        """The single group of ``wall`` (``"hard"``/None or a zeta); ``mean_pressure``
-        and ``n`` are needed only when the ensemble has several."""
-        recs = self.select(wall=wall, mean_pressure=mean_pressure, n=n, seeds=seeds)
+    def group(self, wall=..., *, zeta=..., mean_pressure=None, n=None, seeds=None) -> EnsembleGroup:
+        """The single group of ``wall`` (``"hard"``/None or a zeta; default the hard
+        wall), or equivalently of ``zeta`` (None = hard wall), as in :meth:`select`;
+        ``mean_pressure`` and ``n`` are needed only when the ensemble has several."""
+        if wall is ... and zeta is ...:
+            wall = "hard"
+        recs = self.select(wall=wall, zeta=zeta, mean_pressure=mean_pressure, n=n, seeds=seeds)
+        if wall is ...:
+            wall = "hard" if zeta is None else zeta
         if not recs:
             raise ValueError(f"no records for wall={wall!r}, mean_pressure={mean_pressure!r}, n={n!r}; "
                              f"walls present: {[wall_label(z) for z in self.zetas]}")

@@ -97,3 +97,19 @@ def test_offscene_bundle():
 def test_bundled_ensemble_rejects_unknown_name():
     with pytest.raises(ValueError, match="fig1_n1024"):
         bundled_ensemble("fig2")
+
+
+def test_group_by_zeta_is_group_by_wall():
+    """``group(zeta=z)`` selects exactly the records of ``group(z)`` (and ``zeta=None``
+    the hard wall); giving both is refused."""
+    import gfmd_ref
+
+    e = gfmd_ref.bundled_ensemble("fig1_n1024")
+    for z in (None, 0.25, 4.0):
+        by_wall = e.group("hard" if z is None else z)
+        by_zeta = e.group(zeta=z)
+        assert [(r.seed, r.zeta) for r in by_zeta.records] == [(r.seed, r.zeta) for r in by_wall.records]
+        assert all(r.zeta == z for r in by_zeta.records)
+    assert [r.seed for r in e.group().records] == [r.seed for r in e.group("hard").records]
+    with pytest.raises(ValueError, match="not both"):
+        e.group(0.25, zeta=0.25)
