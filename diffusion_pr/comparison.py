@@ -612,6 +612,9 @@ class EnsembleComparison:
     cdf_lo: Array = field(default_factory=lambda: np.zeros(0))
     cdf_hi: Array = field(default_factory=lambda: np.zeros(0))
 
+    def __repr__(self) -> str:  # the report, not the arrays
+        return "EnsembleComparison(\n  " + self.summary().replace("\n", "\n  ") + "\n)"
+
     def summary(self) -> str:
         """Multi-line text report."""
         ps = self.kolmogorov_per_seed
