@@ -518,6 +518,58 @@ class DiscreteSpectrum(Spectrum):
         return cls(uq, shell_power, mult, length)
 
     @classmethod
+    def on_lattice(cls, spectrum: "Spectrum", n: int, length: float, *,
+                   rms_slope: float | None = None) -> "DiscreteSpectrum":
+        r"""The expected spectrum of ``spectrum`` on the modes of an ``n x n`` periodic cell.
+
+        Every lattice mode ``q = 2 pi (m, k)/L`` (``-n/2 <= m, k < n/2``, ``q != 0``)
+        gets its expected power ``<|h~(q)|^2> = C(|q|) (2 pi/L)^2`` (the Fourier
+        convention of the theory page); modes of equal ``|q|`` are merged into
+        shells.  This is what the mean of :meth:`from_heights` over many
+        random realizations converges to, and the spectrum to use when a theory is
+        compared with simulations of such cells: the continuum integral spreads the
+        power of the few lowest shells (4 modes at exactly ``q_min``, 4 at
+        ``sqrt(2) q_min``, ...) over ``[q_min, 1.5 q_min]``, which matters where
+        ``G1`` leaves only the lowest shells (large ``zeta``; docs/fig1.md).
+
+        Parameters
+        ----------
+        spectrum : Spectrum
+            A continuum spectrum with ``psd(q)`` [length^4].
+        n : int
+            Grid points per side (>= 2).
+        length : float
+            Period ``L`` [length] (> 0).
+        rms_slope : float, optional
+            If given, the powers are rescaled so that the lattice sum
+            ``sum q^2 |h~|^2`` equals ``rms_slope^2`` (dimensionless), as
+            ``gfmd_ref.self_affine_surface`` normalizes each realization; by default
+            the continuum spectrum's own amplitude is kept.
+
+        Returns
+        -------
+        DiscreteSpectrum
+        """
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
+            raise ValueError(f"n must be an integer >= 2 (grid points per side); got n={n!r}")
+        L = check_positive("length", length)
+        unit = 2.0 * np.pi / L
+        k = np.fft.fftfreq(int(n), d=1.0 / int(n)).astype(np.int64)
+        k2 = (k[:, None] ** 2 + k[None, :] ** 2).ravel()
+        k2 = k2[k2 > 0]
+        uk2, mult = np.unique(k2, return_counts=True)
+        q = unit * np.sqrt(uk2.astype(float))
+        power = np.asarray(spectrum.psd(q), dtype=float) * unit**2 * mult
+        keep = power > 0
+        if not np.any(keep):
+            raise ValueError(f"no lattice mode of an n={n}, length={length!r} cell carries power of this spectrum")
+        q, power, mult = q[keep], power[keep], mult[keep]
+        if rms_slope is not None:
+            target = check_positive("rms_slope", rms_slope)
+            power = power * (target**2 / float(np.sum(q**2 * power)))
+        return cls(q, power, mult, L)
+
+    @classmethod
     def from_heights(cls, heights: ArrayLike, length: float, *, empty_tol: float = 1e-24) -> "DiscreteSpectrum":
         r"""Spectrum of one periodic ``(n, n)`` height map of period ``length``.
 

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
+import diffusion_pr as dp
 from diffusion_pr.spectra import DiscreteSpectrum, SelfAffineSpectrum, Spectrum
 
 # The paper's Fig. 1 surface (SPEC section 2), lengths in grid units.
@@ -306,3 +307,47 @@ def test_validation_helpers_messages():
     assert v.check_positive("a", 2) == 2.0 and isinstance(v.check_positive("a", 2), float)
     np.testing.assert_array_equal(v.check_nonnegative("a", [0, 1]), [0.0, 1.0])
     assert v.check_finite("x", -3) == -3.0
+
+
+def test_on_lattice_is_a_fixed_amplitude_realization_exactly():
+    """Oracle: a gfmd_ref surface with fixed (non-Rayleigh) amplitudes has, mode by mode,
+    exactly the expected lattice power ``C(|q|) (2 pi/L)^2`` normalized to its rms slope;
+    ``DiscreteSpectrum.on_lattice`` must reproduce its shells and powers to round-off."""
+    import gfmd_ref
+
+    n, L = 64, 64.0
+    spec = SelfAffineSpectrum(0.3, 2 * np.pi / L, 2 * np.pi / 8, rms_slope=0.031)
+    lattice = DiscreteSpectrum.on_lattice(spec, n, L, rms_slope=0.031)
+    h = gfmd_ref.self_affine_surface(n, length=L, hurst=0.3, q_min=2 * np.pi / L, q_max=2 * np.pi / 8,
+                                     rms_slope=0.031, seed=3, rayleigh=False)
+    real = DiscreteSpectrum.from_heights(h, L)
+    np.testing.assert_array_equal(lattice.q, real.q)
+    np.testing.assert_array_equal(lattice.multiplicity, real.multiplicity)
+    np.testing.assert_allclose(lattice.power, real.power, rtol=1e-12)
+    # without rms_slope the continuum amplitude is kept: power = C(q) (2 pi/L)^2 per mode
+    raw = DiscreteSpectrum.on_lattice(spec, n, L)
+    np.testing.assert_allclose(raw.power, spec.psd(raw.q) * (2 * np.pi / L) ** 2 * raw.multiplicity, rtol=1e-14)
+    with pytest.raises(ValueError, match="n must be an integer"):
+        DiscreteSpectrum.on_lattice(spec, 1, L)
+
+
+def test_on_lattice_spectrum_brings_large_zeta_theory_to_the_ensemble():
+    """At zeta = 4 the log-normal gap closure on the continuum spectrum misses the pooled
+    32-seed Fig. 1 ensemble by K = 0.029 (the continuum misplaces the lowest shells' power);
+    on the expected lattice spectrum K = 0.0055, within the ensemble's bootstrap noise (0.006).
+    Tolerances: the lattice K below the issue's target 0.01 plus the noise, the continuum
+    K above 3x the noise (a real, not a sampling, difference)."""
+    import gfmd_ref
+
+    from diffusion_pr.comparison import compare_ensemble
+
+    group = gfmd_ref.bundled_ensemble("fig1_n1024").group(zeta=4.0)
+    spec = SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+    lattice = DiscreteSpectrum.on_lattice(spec, 1024, 1024.0, rms_slope=0.031)
+    ks = {}
+    for name, sp in (("continuum", spec), ("lattice", lattice)):
+        th = dp.pressure_distribution(sp, E_star=8 / 3, mean_pressure=0.004, zeta=4.0, closure="lognormal_gap")
+        ks[name] = compare_ensemble(th, group, n_boot=200, n_split=50)
+    noise = ks["lattice"].noise_bootstrap
+    assert ks["lattice"].kolmogorov < 0.01 + noise
+    assert ks["continuum"].kolmogorov > 3.0 * noise
