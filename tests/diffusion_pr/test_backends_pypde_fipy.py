@@ -25,7 +25,7 @@ import pytest
 import diffusion_pr as dp
 from diffusion_pr import closed_forms as cf
 from diffusion_pr.models import PressureFactor, ProportionalDiffusivity, GaussianTail, make_cutoff
-from diffusion_pr.problem import FokkerPlanckProblem, Stage, StagedProblem
+from diffusion_pr.problem import FokkerPlanckProblem
 from diffusion_pr.solvers import BackendUnavailableError, get_backend
 from diffusion_pr.solvers.fv import DIAGNOSTIC_KEYS
 
@@ -117,20 +117,9 @@ def test_same_answer_on_fig1_scenes(zeta):
         assert distance(r, ref) <= 2e-5, name
 
 
-def staged_problem(n: int = 4) -> StagedProblem:
-    stages = []
-    g_min = lambda p: p / (p + 0.002)  # noqa: E731
-    for q in np.geomspace(1.0, 30.0, n):
-        g = (lambda p, c=0.002 * q: p / (p + c))
-        stages.append(Stage(4.5e-4 / n, lambda p, g=g: g(p) ** 2,
-                            drift=lambda p, g=g: (1 - g_min(p)) * g(p) ** 2 / np.maximum(p, 1e-300),
-                            balance=lambda p: (1 - g_min(p)) * p))
-    return StagedProblem(P0, tuple(stages))
-
-
 @pytest.mark.parametrize("name", BACKENDS)
-def test_staged_problem_with_drift_and_balance_agrees(name):
-    problem = staged_problem()
+def test_staged_problem_with_drift_and_balance_agrees(name, closure_like_problem):
+    problem = closure_like_problem(4, P0)
     ref = dp.solve_problem(problem, backend="native", rtol=1e-7)
     b = dp.solve_problem(problem, backend=name, rtol=1e-4)
     assert ref.success and b.success, (ref.message, b.message)
@@ -148,9 +137,9 @@ def test_plain_library_loop_against_closed_form(name):
 
 
 @pytest.mark.parametrize("name", BACKENDS)
-def test_loop_refuses_balance(name):
+def test_loop_refuses_balance(name, closure_like_problem):
     with pytest.raises(ValueError, match="balance"):
-        _solver(name)(staged_problem(), rtol=1e-3, method="loop", n_cells=16)
+        _solver(name)(closure_like_problem(4, P0), rtol=1e-3, method="loop", n_cells=16)
 
 
 @pytest.mark.parametrize("name,module,extra", [("pypde", "pde", "pypde"), ("fipy", "fipy", "fipy")])

@@ -120,19 +120,7 @@ def test_staged_balance_oracle_and_drift_oracle():
     assert r.mean == pytest.approx(10.0 + 0.5 * beta, rel=1e-7)
 
 
-def closure_like_problem(n_stages: int = 12) -> StagedProblem:
-    """Local-G1 + load balance shaped stages (SPEC section 7): f ~ p^2 at 0, b and w vanish at 0."""
-    stages = []
-    g_min = lambda p: p / (p + 0.002)  # noqa: E731
-    for q in np.geomspace(1.0, 30.0, n_stages):
-        g = (lambda p, c=0.002 * q: p / (p + c))
-        stages.append(Stage(4.5e-4 / n_stages, lambda p, g=g: g(p) ** 2,
-                            drift=lambda p, g=g: (1 - g_min(p)) * g(p) ** 2 / np.maximum(p, 1e-300),
-                            balance=lambda p: (1 - g_min(p)) * p))
-    return StagedProblem(0.004, tuple(stages))
-
-
-def test_staged_balance_converges_to_a_finer_run_and_holds_the_mean():
+def test_staged_balance_converges_to_a_finer_run_and_holds_the_mean(closure_like_problem):
     problem = closure_like_problem()
     r = native.solve(problem, rtol=1e-5)
     ref = native.solve(problem, rtol=1e-8)
@@ -206,7 +194,7 @@ def test_n_cells_validated(n_cells):
         native.solve(FokkerPlanckProblem(1.0, 1.0), n_cells=n_cells)
 
 
-def test_balance_newton_skip_matches_always_newton(monkeypatch):
+def test_balance_newton_skip_matches_always_newton(monkeypatch, closure_like_problem):
     """A balance substep skips its Newton step on A only when the midpoint-predicted A already holds the mean
     to MEAN_TOL_FRACTION * rtol * p0 (1e-9 p0 here); oracle: the same solve with the Newton step forced on every
     substep (fraction 0 -> the 1e-13 floor).  The two must agree far inside rtol (5e-8 = rtol/20 in L1)."""
