@@ -198,7 +198,6 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
         spectrum mapped through a non-Gaussian height transform, see
         :func:`skewed_surface`).
     """
-    from importlib.metadata import PackageNotFoundError, version
 
     import gfmd_ref
     from gfmd_ref._validation import check_int, check_positive, check_seed, check_writable_dir
@@ -215,11 +214,10 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
     if out_dir is None:
         raise ValueError("out_dir must be a folder (the package's data folder only when given explicitly)")
     folder = Path(check_writable_dir("out_dir", out_dir))
-    try:
-        code_version = version("diffusion-pr")
-    except PackageNotFoundError:  # running from a source tree that is not installed
-        code_version = "unknown"
-    code_version += f" (git {_git_revision()})"
+    from gfmd_ref.ensemble import code_version as gfmd_code_version
+
+    made_by = gfmd_code_version()  # package version and git revision (+dirty), as the ensemble records
+    code_version = f"{made_by['version']} (git {made_by['git']})"
 
     scene = FIG1_SCENE
     written = []
@@ -253,18 +251,6 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
                 f"a={res.contact_fraction:.5f} {wall:.1f} s")
             written.append(folder / f"{name}.npz")
     return written
-
-
-def _git_revision() -> str:
-    """Short git revision of the source tree, or ``"unknown"``."""
-    import subprocess
-
-    try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=Path(__file__).parent,
-                             capture_output=True, text=True, timeout=10)
-        return out.stdout.strip() or "unknown"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
 
 
 def skewed_surface(heights: np.ndarray, *, length: float, rms_slope: float, skew: float = 1.0) -> np.ndarray:
