@@ -69,6 +69,12 @@ SUBSTEP_CELLS = 16
 BOTTOM_EFOLDS_MIN = 8.0
 #: weight of the logarithmic grading towards the floor (Phi units per e-fold of p)
 C_WALL = 0.6
+#: a problem with at least this many pieces (stages, time segments) or a balance is integrated by the
+#: compiled kernels of :mod:`._kernels` (numba); fewer pieces go through LAPACK (no numba import)
+COMPILED_MIN_PIECES = 4
+#: staged problems (at least COMPILED_MIN_PIECES stages) bound the upper tail in the Lamperti coordinate
+#: ``int dp / sqrt(2 sum dtau_k f_k)`` instead of ``p0 + z sqrt(2 sum dtau_k max f_k)`` (see :func:`prepare`)
+LAMPERTI = True
 #: keys every finite-volume result's diagnostics carry (same for every backend)
 DIAGNOSTIC_KEYS = ("backend", "rtol", "n_cells", "levels", "zero_power", "wall", "p_floor", "p_min", "p_max",
                    "mass_error", "mean_error", "negative_mass", "min_density", "tail_mass",
@@ -200,6 +206,19 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
         raise ValueError(f"mean_pressure/spread = {p0 / s:.3g} is below {1 / MAX_RATIO:.0e}: the start sits at the wall "
                          "to double precision (the contact is lost)")
     p_max = new
+    if LAMPERTI and not time_dependent and len(pieces) >= COMPILED_MIN_PIECES:
+        # the upper tail in the Lamperti coordinate Y = int dp / sqrt(2 F), F = sum dtau_k f_k: Y - Y(p0) is
+        # a unit-variance diffusion whose Ito drift -F'/(2 sqrt(2F)) points down where F grows, so z units of
+        # Y bound the tail like z spreads do for constant f (checked after the solve: the top cell's mass)
+        nodes = np.linspace(p0, p_max, 2049)
+        F = np.zeros_like(nodes)
+        for pc in pieces:
+            F += pc.duration * np.maximum(_check_f(pc.f, nodes, "diffusivity"), 0.0)
+        if np.all(np.diff(F) >= 0.0) and F[0] > 0.0:
+            rho = 1.0 / np.sqrt(2.0 * F)
+            y_l = np.concatenate(([0.0], np.cumsum(0.5 * np.diff(nodes) * (rho[1:] + rho[:-1]))))
+            if y_l[-1] > z:
+                p_max = min(p_max, float(np.interp(z, y_l, nodes)) + shift)
     # Feller's criterion on every stage: the wall absorbs if one of them reaches it
     bps: list[float] = []
     k_min = math.inf
@@ -295,6 +314,11 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     pieces = prep.segment_fn(refine * max(4, n_base // 8)) if prep.time_dependent else prep.pieces
     counters = {"cram_applications": 0, "substeps": 0, "newton_steps": 0}
     p_wall = edges[0]
+    kern = _staged_kernels() if (len(pieces) >= COMPILED_MIN_PIECES or prep.has_balance) else None
+    if kern is not None:
+        expm = kern.expm
+    else:
+        expm = expm_tridiagonal
     for pc in pieces:
         f_c = np.maximum(_check_f(pc.f, c, "diffusivity"), 0.0)
         a = None if pc.b is None else _check_f(pc.b, faces, "drift")
@@ -313,13 +337,19 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
                                      f"spread) needs {k_split} exponential steps, more than {MAX_DRIFT_SPLIT}; "
                                      "split the problem into shorter stages or reduce the drift")
             for _ in range(k_split):
-                y = expm_tridiagonal(*base, pc.duration / k_split, y)
+                y = expm(*base, pc.duration / k_split, y)
             counters["cram_applications"] += k_split
             continue
         wl, wd, wu = assemble(edges, np.zeros(n), _check_f(pc.w, faces, "balance"), _check_f(pc.w, c, "balance"))
         m = _substeps(prep, pc, n_base, refine)
         dt = pc.duration / m
         cvec = np.r_[p_wall, c]
+        if kern is not None:
+            y, n_cram, n_newton = kern.balanced(base, (wl, wd, wu), cvec, y, dt, m, prep.p0, mean_tol)
+            counters["cram_applications"] += n_cram
+            counters["newton_steps"] += n_newton
+            counters["substeps"] += m
+            continue
         for _ in range(m):
             # A from d<p>/dtau = 0, <c, L0 u> = A <c, Lw u>, at the substep's midpoint state
             # u = y + dt/2 (L0 - A0 Lw) y (A0 the same condition at y): the mean then misses p0 by O(dt^3)
@@ -346,6 +376,43 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
             counters["cram_applications"] += 1
             counters["substeps"] += 1
     return y, counters
+
+
+class _Kernels:
+    """The compiled staged integration (:mod:`._kernels`), loaded on first use."""
+
+    def __init__(self) -> None:
+        from . import _kernels as k
+
+        self._k = k
+        self._coef = (np.ascontiguousarray(k.ALPHA), np.ascontiguousarray(k.THETA), float(k.ALPHA0))
+
+    def expm(self, lower, diag, upper, t, y):
+        out, info = self._k.cram_apply(np.ascontiguousarray(lower, dtype=float), np.ascontiguousarray(diag, dtype=float),
+                                       np.ascontiguousarray(upper, dtype=float), float(t),
+                                       np.ascontiguousarray(y, dtype=float), *self._coef)
+        if info != 0:
+            raise FloatingPointError(f"CRAM: singular shifted tridiagonal system (zero pivot at row {info})")
+        return out
+
+    def balanced(self, base, wband, cvec, y, dt, m, p0, mean_tol):
+        f = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731
+        y, n_cram, n_newton, info = self._k.balanced_stage(f(base[0]), f(base[1]), f(base[2]), f(wband[0]), f(wband[1]),
+                                                          f(wband[2]), f(cvec), f(y), float(dt), int(m), float(p0),
+                                                          float(mean_tol), *self._coef)
+        if info != 0:
+            raise FloatingPointError(f"CRAM: singular shifted tridiagonal system (zero pivot at row {info})")
+        return y, int(n_cram), int(n_newton)
+
+
+_KERNELS: Optional[_Kernels] = None
+
+
+def _staged_kernels() -> _Kernels:
+    global _KERNELS
+    if _KERNELS is None:
+        _KERNELS = _Kernels()
+    return _KERNELS
 
 
 def _matvec(b: tuple, y: np.ndarray) -> np.ndarray:
