@@ -79,3 +79,25 @@ def test_lamperti_domain_keeps_the_answer(monkeypatch, zeta):
     assert short.diagnostics["p_max"] < 0.8 * long.diagnostics["p_max"]
     x = np.linspace(0.0, long.diagnostics["p_max"], 4001)
     assert np.max(np.abs(short.cdf(x) - long.cdf(x))) < 2e-6  # both within rtol = 1e-6 of the truth
+
+
+@pytest.mark.parametrize("zeta", [0.001, 0.01])
+def test_balanced_closure_answer_does_not_follow_rtol(zeta):
+    """Same question, same answer: a balanced closure at rtol 1e-4 and 1e-5 agrees within 1e-4.
+
+    Its drift cancels the Ito drift of ln p below the floor, so probability
+    returns from below and the answer depends on the depth of the domain; the
+    depth used to be ln(10/rtol) e-folds and the two answers differed by 7e-4 in
+    F(p0/20) at zeta = 0.001 (70x the looser rtol).  Now the depth is fixed
+    (engine.BOTTOM_EFOLDS_DRIFT).
+    """
+    from diffusion_pr.closures import closure_distribution
+
+    spec = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+    runs = [closure_distribution(spec, E_star=8 / 3, mean_pressure=0.004, zeta=zeta,
+                                 closure="local_g1_shell_balanced", rtol=rtol, n_shells=32) for rtol in (1e-4, 1e-5)]
+    assert all(r.success for r in runs)
+    assert runs[0].diagnostics["domain_bottom"] == runs[1].diagnostics["domain_bottom"]
+    x = np.geomspace(1e-6, 0.05, 400)
+    assert abs(runs[0].zero_weight - runs[1].zero_weight) < 1e-4
+    assert np.max(np.abs(runs[0].cdf(x) - runs[1].cdf(x))) < 1e-4

@@ -67,6 +67,10 @@ SUBSTEP_CELLS = 16
 #: mass that goes further down returns above the floor with probability below exp(-e-folds) = rtol/10
 #: for f ~ p^2 (ln p drifts down at the rate it diffuses)
 BOTTOM_EFOLDS_MIN = 8.0
+#: e-folds resolved below the floor where a drift is present, whatever rtol (ln 1e7: the depth of rtol = 1e-6):
+#: a drift can cancel the Ito drift of ln p below the floor (the balanced closures), probability then returns
+#: from below and the answer depends on the depth (docs/closures.md), which therefore may not follow rtol
+BOTTOM_EFOLDS_DRIFT = math.log(1e7)
 #: weight of the logarithmic grading towards the floor (Phi units per e-fold of p)
 C_WALL = 0.6
 #: a problem with at least this many pieces (stages, time segments) or a balance is integrated by the
@@ -244,7 +248,11 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
     elif reached:
         floor_domain = 0.0
     else:  # the wall is not reached: resolve BOTTOM_EFOLDS e-folds below the floor (the floor is an edge)
-        floor_domain = floor * math.exp(-max(BOTTOM_EFOLDS_MIN, math.log(10.0 / rtol)))
+        drifting = any(pc.b is not None or pc.w is not None for pc in pieces)
+        # with a drift the depth is part of the problem (fixed): a drift may cancel the downward Ito drift of
+        # ln p (the balanced closures), so what returns from below depends on the depth and must not on rtol
+        depth = BOTTOM_EFOLDS_DRIFT if drifting else max(BOTTOM_EFOLDS_MIN, math.log(10.0 / rtol))
+        floor_domain = floor * math.exp(-depth)
     extra_knots = {floor} if (not reached and not truncated) else set()
     knots = sorted({float(b) for b in bps if floor_domain < b < p_max} | {p0} | extra_knots)
     pruned: list[float] = []
@@ -598,6 +606,7 @@ def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarr
         "substeps": int(extra.get("substeps", 0)), "timings": dict(timings),
     }
     diagnostics["knots"] = tuple(float(k) for k in prep.spec.knots)
+    diagnostics["domain_bottom"] = float(prep.spec.p_wall)  # the absorbing lower end of the grids (pressure)
     diagnostics.update({k: v for k, v in extra.items() if k not in diagnostics})
     if prep.label:
         diagnostics["label"] = prep.label
