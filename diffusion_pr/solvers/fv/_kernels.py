@@ -115,6 +115,16 @@ def _matvec(lower, diag, upper, y, out):  # pragma: no cover - numba
 
 
 @njit(cache=True)
+def _shifted(lower, diag, upper, wl, wd, wu, A, lo, di, up):  # pragma: no cover - numba
+    """``(lo, di, up) <- L0 - A Lw``: the bands of the stage operator at the multiplier ``A``."""
+    for i in range(diag.size - 1):
+        lo[i] = lower[i] - A * wl[i]
+        up[i] = upper[i] - A * wu[i]
+    for i in range(diag.size):
+        di[i] = diag[i] - A * wd[i]
+
+
+@njit(cache=True)
 def _dot(a, b):  # pragma: no cover - numba
     s = 0.0
     for i in range(a.size):
@@ -156,11 +166,7 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
             den_u = _dot(cvec, lwy)
             if den_u != 0.0:
                 A = _dot(cvec, l0y) / den_u
-        for i in range(n - 1):
-            lo[i] = lower[i] - A * wl[i]
-            up[i] = upper[i] - A * wu[i]
-        for i in range(n):
-            di[i] = diag[i] - A * wd[i]
+        _shifted(lower, diag, upper, wl, wd, wu, A, lo, di, up)
         trial, info = cram_apply(lo, di, up, dt, y, alpha, theta, alpha0)
         n_cram += 1
         if info != 0:
@@ -168,11 +174,7 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
         err = _dot(cvec, trial) - p0
         if abs(err) > mean_tol * p0 and denom != 0.0:
             A += err / (dt * denom)
-            for i in range(n - 1):
-                lo[i] = lower[i] - A * wl[i]
-                up[i] = upper[i] - A * wu[i]
-            for i in range(n):
-                di[i] = diag[i] - A * wd[i]
+            _shifted(lower, diag, upper, wl, wd, wu, A, lo, di, up)
             trial, info = cram_apply(lo, di, up, dt, y, alpha, theta, alpha0)
             n_cram += 1
             n_newton += 1
