@@ -239,6 +239,8 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
     floor = 0.0 if reached else (FLOOR * p0 if p_floor is None else float(p_floor))
     if not reached and not (0.0 < floor < p0):
         raise ValueError(f"p_floor must be in (0, mean_pressure); got p_floor={p_floor!r}")
+    has_balance = any(pc.w is not None for pc in pieces)
+    has_drift = any(pc.b is not None for pc in pieces)
     # far from the wall (p0 - z s above the floor) less than the tail tolerance gets below p0 - z s:
     # the domain starts there (what arrives is booked into zero_weight, below the tail tolerance)
     p_lo = p0 - (z * s + shift)
@@ -248,10 +250,9 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
     elif reached:
         floor_domain = 0.0
     else:  # the wall is not reached: resolve BOTTOM_EFOLDS e-folds below the floor (the floor is an edge)
-        drifting = any(pc.b is not None or pc.w is not None for pc in pieces)
         # with a drift the depth is part of the problem (fixed): a drift may cancel the downward Ito drift of
         # ln p (the balanced closures), so what returns from below depends on the depth and must not on rtol
-        depth = BOTTOM_EFOLDS_DRIFT if drifting else max(BOTTOM_EFOLDS_MIN, math.log(10.0 / rtol))
+        depth = BOTTOM_EFOLDS_DRIFT if (has_drift or has_balance) else max(BOTTOM_EFOLDS_MIN, math.log(10.0 / rtol))
         floor_domain = floor * math.exp(-depth)
     extra_knots = {floor} if (not reached and not truncated) else set()
     knots = sorted({float(b) for b in bps if floor_domain < b < p_max} | {p0} | extra_knots)
@@ -274,8 +275,6 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
     c_0, w0 = (1.0, max(w_loc, 1e-3 * s)) if w_loc < 0.25 * s else (0.0, s)
     c_wall = 0.0 if (reached or truncated) else C_WALL
     spec = GridSpec(p_wall=floor_domain, p_max=p_max, knots=tuple(pruned), scale=s, c_wall=c_wall, c_0=c_0, w0=w0, p0=p0)
-    has_balance = any(pc.w is not None for pc in pieces)
-    has_drift = any(pc.b is not None for pc in pieces)
     return Prepared(mean_conserved=has_balance or not has_drift, p0=p0, tau_end=tau_end, pieces=tuple(pieces), time_dependent=time_dependent, spec=spec,
                     zero_power=k_min, reached=reached, p_floor=floor, has_balance=has_balance,
                     lump_below=floor if extra_knots else 0.0,
@@ -286,10 +285,6 @@ def native_assemble(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.nda
                     a_centres: Optional[np.ndarray] = None) -> tuple:
     """The engine's own operator (:func:`.operator.bands`; drift taken at the faces)."""
     return fv_bands(edges, f_c, a_faces)
-
-
-def _mean(c: np.ndarray, y: np.ndarray, p_wall: float) -> float:
-    return float(c @ y[1:] + p_wall * y[0])
 
 
 def _substeps(prep: Prepared, piece: _Piece, n_base: int, refine: int) -> int:
@@ -322,11 +317,9 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     pieces = prep.segment_fn(refine * max(4, n_base // 8)) if prep.time_dependent else prep.pieces
     counters = {"cram_applications": 0, "substeps": 0, "newton_steps": 0}
     p_wall = edges[0]
+    # a balance always runs in the kernel (its substep loop is compiled); a few plain stages stay on LAPACK
     kern = _staged_kernels() if (len(pieces) >= COMPILED_MIN_PIECES or prep.has_balance) else None
-    if kern is not None:
-        expm = kern.expm
-    else:
-        expm = expm_tridiagonal
+    expm = kern.expm if kern is not None else expm_tridiagonal
     for pc in pieces:
         f_c = np.maximum(_check_f(pc.f, c, "diffusivity"), 0.0)
         a = None if pc.b is None else _check_f(pc.b, faces, "drift")
@@ -352,38 +345,15 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
         m = _substeps(prep, pc, n_base, refine)
         dt = pc.duration / m
         cvec = np.r_[p_wall, c]
-        if kern is not None:
-            y, n_cram, n_newton = kern.balanced(base, (wl, wd, wu), cvec, y, dt, m, prep.p0, mean_tol)
-            counters["cram_applications"] += n_cram
-            counters["newton_steps"] += n_newton
-            counters["substeps"] += m
-            continue
-        for _ in range(m):
-            # A from d<p>/dtau = 0, <c, L0 u> = A <c, Lw u>, at the substep's midpoint state
-            # u = y + dt/2 (L0 - A0 Lw) y (A0 the same condition at y): the mean then misses p0 by O(dt^3)
-            l0y = _matvec(base, y)
-            lwy = _matvec((wl, wd, wu), y)
-            denom = float(cvec @ lwy)
-            A = float(cvec @ l0y) / denom if denom != 0.0 else 0.0
-            if denom != 0.0:
-                u = y + (0.5 * dt) * (l0y - A * lwy)
-                l0u = _matvec(base, u)
-                lwu = _matvec((wl, wd, wu), u)
-                den_u = float(cvec @ lwu)
-                if den_u != 0.0:
-                    A = float(cvec @ l0u) / den_u
-            trial = expm_tridiagonal(base[0] - A * wl, base[1] - A * wd, base[2] - A * wu, dt, y)
-            err = _mean(c, trial, p_wall) - prep.p0
-            if abs(err) > mean_tol * prep.p0 and denom != 0.0:
-                # one Newton step (d mean / dA = -dt <c, Lw y>): the mean is linear in A to O(dt^2 dA^2)
-                A += err / (dt * denom)
-                trial = expm_tridiagonal(base[0] - A * wl, base[1] - A * wd, base[2] - A * wu, dt, y)
-                counters["cram_applications"] += 1
-                counters["newton_steps"] += 1
-            y = trial
-            counters["cram_applications"] += 1
-            counters["substeps"] += 1
+        y, n_cram, n_newton = kern.balanced(base, (wl, wd, wu), cvec, y, dt, m, prep.p0, mean_tol)
+        counters["cram_applications"] += n_cram
+        counters["newton_steps"] += n_newton
+        counters["substeps"] += m
     return y, counters
+
+
+def _f64(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=float)
 
 
 class _Kernels:
@@ -396,15 +366,14 @@ class _Kernels:
         self._coef = (np.ascontiguousarray(k.ALPHA), np.ascontiguousarray(k.THETA), float(k.ALPHA0))
 
     def expm(self, lower, diag, upper, t, y):
-        out, info = self._k.cram_apply(np.ascontiguousarray(lower, dtype=float), np.ascontiguousarray(diag, dtype=float),
-                                       np.ascontiguousarray(upper, dtype=float), float(t),
-                                       np.ascontiguousarray(y, dtype=float), *self._coef)
+        f = _f64
+        out, info = self._k.cram_apply(f(lower), f(diag), f(upper), float(t), f(y), *self._coef)
         if info != 0:
             raise FloatingPointError(f"CRAM: singular shifted tridiagonal system (zero pivot at row {info})")
         return out
 
     def balanced(self, base, wband, cvec, y, dt, m, p0, mean_tol):
-        f = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731
+        f = _f64
         y, n_cram, n_newton, info = self._k.balanced_stage(f(base[0]), f(base[1]), f(base[2]), f(wband[0]), f(wband[1]),
                                                           f(wband[2]), f(cvec), f(y), float(dt), int(m), float(p0),
                                                           float(mean_tol), *self._coef)
@@ -421,14 +390,6 @@ def _staged_kernels() -> _Kernels:
     if _KERNELS is None:
         _KERNELS = _Kernels()
     return _KERNELS
-
-
-def _matvec(b: tuple, y: np.ndarray) -> np.ndarray:
-    lower, diag, upper = b
-    out = diag * y
-    out[1:] += lower * y[:-1]
-    out[:-1] += upper * y[1:]
-    return out
 
 
 def _lump(y: np.ndarray, j: int) -> np.ndarray:
