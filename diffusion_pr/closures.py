@@ -340,7 +340,8 @@ def closure_problem(shells: Shells, *, zeta: float, E_star: float, mean_pressure
         else:
             qp = shells.q_min if partition_q is None else (float(q) if partition_q == "shell" else float(partition_q))
             stages.append(Stage(0.5 * float(dv), f, LoadExcessDrift(float(q), qp, kz), RigidApproachBalance(qp, kz)))
-    return StagedProblem(float(check_positive("mean_pressure", mean_pressure)), tuple(stages), label=closure)
+    return StagedProblem(float(check_positive("mean_pressure", mean_pressure)), tuple(stages), label=closure,
+                         balance_per_stage=True)
 
 
 # --------------------------------------------------------------------------- closed form

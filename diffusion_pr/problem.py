@@ -184,7 +184,9 @@ class Stage:
         dPr/dtau = d^2/dp^2 [ f(p) Pr ] - d/dp [ (b(p) - A(tau) w(p)) Pr ],   p > 0,
 
     with the scalar ``A(tau)`` chosen at every instant so that ``d<p>/dtau = 0``
-    when ``balance`` is given.  The callables may declare the model protocol of
+    when ``balance`` is given (or, for a :class:`StagedProblem` with
+    ``balance_per_stage``, one number ``A`` per stage that brings ``<p>`` back to
+    ``p0`` at the stage's end).  The callables may declare the model protocol of
     :mod:`diffusion_pr.models` (``zero_power``, ``breakpoints()``).
 
     Attributes
@@ -232,11 +234,18 @@ class StagedProblem:
         Applied in order; the total diffusion time is ``sum(durations)``.
     label : str
         Free text carried into the result's diagnostics.
+    balance_per_stage : bool
+        How a stage's balance multiplier ``A`` is defined.  False (default):
+        ``A(tau)`` at every instant, so that ``d<p>/dtau = 0`` throughout (the
+        engine resolves it by substeps refined with the grids).  True: one
+        number ``A`` per stage, the one with ``<p> = p0`` at the stage's end
+        (the closures: the rigid-body approach restores the load shell by shell).
     """
 
     mean_pressure: float
     stages: tuple
     label: str = ""
+    balance_per_stage: bool = False
 
     def __post_init__(self) -> None:
         try:
@@ -252,6 +261,8 @@ class StagedProblem:
         if sum(s.duration for s in stages) <= 0.0:
             raise ValueError("the stages' total duration must be > 0 (pressure^2)")
         object.__setattr__(self, "stages", stages)
+        if not isinstance(self.balance_per_stage, (bool, np.bool_)):
+            raise ValueError(f"balance_per_stage must be True or False; got {self.balance_per_stage!r}")
 
     @property
     def tau_end(self) -> float:

@@ -13,10 +13,13 @@ Every finite-volume backend (``native``, ``pypde``, ``fipy``) goes through
 * the nested grids (:mod:`.grid`), the start (two cells around ``p0``
   carrying mass 1 and mean ``p0`` exactly),
 * the time integration: per stage ``exp(dtau L)`` by CRAM-16
-  (:mod:`.cram`); a balance multiplier ``A(tau)`` is held constant over
-  substeps and chosen by a Newton step so that the mean is ``p0`` at every
-  substep end; a ``tau``-dependent coefficient is sampled at segment
-  midpoints (exponential midpoint rule),
+  (:mod:`.cram`); a balance multiplier ``A`` is held constant over a substep
+  (one per stage for ``balance_per_stage`` problems such as the closures, else
+  substeps refined with the grids) and found by Newton steps with the exact
+  derivative of the CRAM map so that the mean is ``p0`` at every substep end;
+  all stages of a grid run in one compiled call (:mod:`._kernels`); a
+  ``tau``-dependent coefficient is sampled at segment midpoints (exponential
+  midpoint rule),
 * the error control: three nested grids ``N, 2N, 4N`` (time substeps doubled
   with the cells), Richardson extrapolation of order 2 on each pair, and the
   estimate ``||R(2N,4N) - R(N,2N)||_1 / 7`` of the reported ``R(2N, 4N)``,
@@ -58,9 +61,16 @@ SAFETY = 0.5
 DRIFT_SPLIT = 2.0
 #: at most this many exponential steps per drift stage
 MAX_DRIFT_SPLIT = 256
-#: a balance substep keeps the mean within MEAN_TOL_FRACTION * rtol * p0 of p0 (else a Newton step on A);
-#: the distribution then moves by about that much in L1, far below the error estimate
-MEAN_TOL_FRACTION = 1e-3
+#: a balance substep keeps the mean within MEAN_TOL_FRACTION * rtol * p0 of p0 (else Newton steps on A); the
+#: distribution then moves by about that much in L1, far below the error estimate (1e-2: answers moved by <= 6e-9
+#: against 1e-3 and 1e-4 on the balanced closures at rtol 1e-6)
+MEAN_TOL_FRACTION = 1e-2
+#: Newton steps on the balance multiplier of one substep before the solve reports failure
+MAX_BALANCE_ITERATIONS = 30
+#: the last Newton step on A is taken to first order on the state (no further exponential) once the mean misses
+#: p0 by less than sqrt(LINEAR_FRACTION * rtol) p0: its O(miss^2) state error is then about LINEAR_FRACTION * rtol
+#: (measured on the closures: 96 stages at a miss of 5e-5 moved the answer by 2e-9)
+LINEAR_FRACTION = 1e-2
 #: cells per balance substep (the substeps double with the cells, so Richardson removes their O(dtau^2) error)
 SUBSTEP_CELLS = 16
 #: e-folds of p resolved below the floor where the wall is not reached: ln(10/rtol), at least this many;
@@ -114,6 +124,7 @@ class Prepared:
     mean_conserved: bool
     lump_below: float = 0.0
     label: str = ""
+    balance_per_stage: bool = False
     segment_fn: Optional[Callable] = field(default=None, compare=False)
 
 
@@ -278,7 +289,8 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
     return Prepared(mean_conserved=has_balance or not has_drift, p0=p0, tau_end=tau_end, pieces=tuple(pieces), time_dependent=time_dependent, spec=spec,
                     zero_power=k_min, reached=reached, p_floor=floor, has_balance=has_balance,
                     lump_below=floor if extra_knots else 0.0,
-                    label=getattr(problem, "label", ""), segment_fn=segment_fn)
+                    label=getattr(problem, "label", ""), segment_fn=segment_fn,
+                    balance_per_stage=bool(getattr(problem, "balance_per_stage", False)))
 
 
 def native_assemble(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray],
@@ -292,19 +304,83 @@ def _substeps(prep: Prepared, piece: _Piece, n_base: int, refine: int) -> int:
 
     Doubling exactly with the cells keeps the O(dtau^2) error of the frozen ``A``
     in step with the O(h^2) spatial error, so one Richardson step removes both.
+    A problem whose ``A`` is one number per stage (``balance_per_stage``) has one
+    substep per stage on every grid: there the frozen ``A`` is the definition.
     """
+    if prep.balance_per_stage:
+        return 1
     return refine * max(1, int(round(n_base / SUBSTEP_CELLS * piece.duration / prep.tau_end)))
 
 
+def _coefficients(pieces: Sequence, c: np.ndarray, faces: np.ndarray, centre_drift: bool) -> dict:
+    """Every stage's ``f`` (centres), drift and balance (faces; centres too if ``centre_drift``), as rows."""
+    k_stages, n = len(pieces), c.size
+    out = {"f": np.empty((k_stages, n)), "b": np.zeros((k_stages, n)), "w": np.zeros((k_stages, n)),
+           "has_b": np.zeros(k_stages, dtype=bool), "has_w": np.zeros(k_stages, dtype=bool)}
+    if centre_drift:
+        out["b_c"], out["w_c"] = np.zeros((k_stages, n)), np.zeros((k_stages, n))
+    for k, pc in enumerate(pieces):
+        out["f"][k] = np.maximum(_check_f(pc.f, c, "diffusivity"), 0.0)
+        for key, g, name in (("b", pc.b, "drift"), ("w", pc.w, "balance")):
+            if g is not None:
+                out["has_" + key][k] = True
+                out[key][k] = _check_f(g, faces, name)
+                if centre_drift:
+                    out[key + "_c"][k] = _check_f(g, c, name)
+    return out
+
+
+def _stage_bands(edges: np.ndarray, coef: dict, assemble: Assemble) -> tuple:
+    """Rows of the stages' bands ``L_k`` and of their balance operators (0 where a stage has none)."""
+    n_stages, n = coef["f"].shape
+    if assemble is native_assemble:  # vectorized over the stages
+        base = fv_bands(edges, coef["f"], coef["b"] if coef["has_b"].any() else None)
+        wb = fv_bands(edges, np.zeros((n_stages, n)), coef["w"])
+        return base, wb
+    rows = []
+    wrows = []
+    zero = np.zeros(n)
+    for k in range(n_stages):
+        has_b, has_w = coef["has_b"][k], coef["has_w"][k]
+        rows.append(assemble(edges, coef["f"][k], coef["b"][k] if has_b else None,
+                             coef["b_c"][k] if has_b else None))
+        wrows.append(assemble(edges, zero, coef["w"][k], coef["w_c"][k]) if has_w
+                     else (np.zeros(n), np.zeros(n + 1), np.zeros(n)))
+    stack = lambda rs: tuple(np.array([r[i] for r in rs], dtype=float) for i in range(3))  # noqa: E731
+    return stack(rows), stack(wrows)
+
+
+def _drift_splits(pieces: Sequence, coef: dict) -> np.ndarray:
+    """Exponential steps per plain drift stage: the drift moves Pr by at most DRIFT_SPLIT spreads per step.
+
+    CRAM is accurate near the negative real axis; a drift adds imaginary parts ~ a k.
+    """
+    splits = np.ones(len(pieces), dtype=np.int64)
+    for k, pc in enumerate(pieces):
+        if coef["has_b"][k] and not coef["has_w"][k]:
+            peclet = pc.duration * float(np.abs(coef["b"][k]).max()) / math.sqrt(
+                2.0 * pc.duration * max(float(coef["f"][k].max()), 1e-300))
+            splits[k] = max(1, math.ceil((peclet / DRIFT_SPLIT) ** 2))
+            if splits[k] > MAX_DRIFT_SPLIT:
+                raise ValueError(f"drift-dominated stage: Peclet number {peclet:.3g} (drift shift over diffusive "
+                                 f"spread) needs {splits[k]} exponential steps, more than {MAX_DRIFT_SPLIT}; "
+                                 "split the problem into shorter stages or reduce the drift")
+    return splits
+
+
 def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = native_assemble,
-                  n_base: int = 64, refine: int = 1, mean_tol: float = 1e-13) -> tuple[np.ndarray, dict]:
+                  n_base: int = 64, refine: int = 1, mean_tol: float = 1e-13,
+                  lin_tol: float = 0.0) -> tuple[np.ndarray, dict]:
     """Integrate from the start to ``tau_end`` on one grid; return ``y = [z, m...]`` and counters.
 
     ``n_base`` is the cell count of the coarsest grid of the nested triple and
     ``refine`` (1, 2, 4) this grid's refinement factor: time segments and
-    balance substeps are ``refine`` times those of the coarsest grid.  A balance
-    substep whose mean misses ``p0`` by more than ``mean_tol p0`` after the
-    predicted ``A`` takes one Newton step on ``A`` (a second exponential).
+    balance substeps are ``refine`` times those of the coarsest grid (one
+    substep per stage for a ``balance_per_stage`` problem).  A balance substep
+    takes Newton steps on ``A`` (one exponential each) until the mean is within
+    ``mean_tol p0`` of ``p0``, the last one to first order on the state once the
+    miss is below ``lin_tol p0``; after MAX_BALANCE_ITERATIONS the counters carry
+    ``"balance_failure"`` and ``y`` is not a result.
     """
     c = centres(edges)
     n = c.size
@@ -313,42 +389,34 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     cl, cr = c[j - 1], c[j]
     y[j] = (cr - prep.p0) / (cr - cl)
     y[j + 1] = (prep.p0 - cl) / (cr - cl)
-    faces = edges[:-1]
     pieces = prep.segment_fn(refine * max(4, n_base // 8)) if prep.time_dependent else prep.pieces
-    counters = {"cram_applications": 0, "substeps": 0, "newton_steps": 0}
-    p_wall = edges[0]
+    coef = _coefficients(pieces, c, edges[:-1], centre_drift=assemble is not native_assemble)
+    (lower, diag, upper), (wl, wd, wu) = _stage_bands(edges, coef, assemble)
+    balanced = coef["has_w"]
+    reps = _drift_splits(pieces, coef)
+    for k in np.flatnonzero(balanced):
+        reps[k] = _substeps(prep, pieces[k], n_base, refine)
+    dt = np.array([pc.duration for pc in pieces]) / reps
+    counters = {"cram_applications": 0, "substeps": int(reps[balanced].sum()), "newton_steps": 0}
     # a balance always runs in the kernel (its substep loop is compiled); a few plain stages stay on LAPACK
-    kern = _staged_kernels() if (len(pieces) >= COMPILED_MIN_PIECES or prep.has_balance) else None
-    expm = kern.expm if kern is not None else expm_tridiagonal
-    for pc in pieces:
-        f_c = np.maximum(_check_f(pc.f, c, "diffusivity"), 0.0)
-        a = None if pc.b is None else _check_f(pc.b, faces, "drift")
-        a_c = None if pc.b is None else _check_f(pc.b, c, "drift")
-        base = assemble(edges, f_c, a, a_c)
-        if pc.w is None:
-            # CRAM is accurate near the negative real axis; a drift adds imaginary parts ~ a k: split the
-            # stage so the drift moves the distribution by at most DRIFT_SPLIT spreads per application
-            k_split = 1
-            if a is not None:  # per application: drift shift <= DRIFT_SPLIT * diffusive spread (Peclet number)
-                peclet = pc.duration * float(np.abs(a).max()) / math.sqrt(
-                    2.0 * pc.duration * max(float(f_c.max()), 1e-300))
-                k_split = max(1, math.ceil((peclet / DRIFT_SPLIT) ** 2))
-                if k_split > MAX_DRIFT_SPLIT:
-                    raise ValueError(f"drift-dominated stage: Peclet number {peclet:.3g} (drift shift over diffusive "
-                                     f"spread) needs {k_split} exponential steps, more than {MAX_DRIFT_SPLIT}; "
-                                     "split the problem into shorter stages or reduce the drift")
-            for _ in range(k_split):
-                y = expm(*base, pc.duration / k_split, y)
-            counters["cram_applications"] += k_split
-            continue
-        wl, wd, wu = assemble(edges, np.zeros(n), _check_f(pc.w, faces, "balance"), _check_f(pc.w, c, "balance"))
-        m = _substeps(prep, pc, n_base, refine)
-        dt = pc.duration / m
-        cvec = np.r_[p_wall, c]
-        y, n_cram, n_newton = kern.balanced(base, (wl, wd, wu), cvec, y, dt, m, prep.p0, mean_tol)
-        counters["cram_applications"] += n_cram
-        counters["newton_steps"] += n_newton
-        counters["substeps"] += m
+    if len(pieces) >= COMPILED_MIN_PIECES or prep.has_balance:
+        y, n_cram, n_newton, info, stage, residual = _staged_kernels().run(
+            lower, diag, upper, wl, wd, wu, balanced, dt, reps, np.r_[edges[0], c], y, prep.p0, mean_tol,
+            max(mean_tol, lin_tol))
+        counters["cram_applications"] = n_cram
+        counters["newton_steps"] = n_newton
+        if info > 0:
+            raise FloatingPointError(f"CRAM: singular shifted tridiagonal system (zero pivot at row {info}, "
+                                     f"stage {stage})")
+        if info < 0:
+            counters["balance_failure"] = (f"the balance multiplier A of stage {stage} did not converge: the mean "
+                                           f"still missed p0 by {residual:.2e} p0 after {MAX_BALANCE_ITERATIONS} "
+                                           f"Newton steps (tolerance {mean_tol:.1e} p0) on {n} cells")
+        return y, counters
+    for k in range(len(pieces)):
+        for _ in range(reps[k]):
+            y = expm_tridiagonal(lower[k], diag[k], upper[k], dt[k], y)
+        counters["cram_applications"] += int(reps[k])
     return y, counters
 
 
@@ -365,21 +433,14 @@ class _Kernels:
         self._k = k
         self._coef = (np.ascontiguousarray(k.ALPHA), np.ascontiguousarray(k.THETA), float(k.ALPHA0))
 
-    def expm(self, lower, diag, upper, t, y):
+    def run(self, lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol):
+        """Every stage on one grid: ``(y, n_cram, n_newton, info, stage, residual)`` (:func:`._kernels.staged_run`)."""
         f = _f64
-        out, info = self._k.cram_apply(f(lower), f(diag), f(upper), float(t), f(y), *self._coef)
-        if info != 0:
-            raise FloatingPointError(f"CRAM: singular shifted tridiagonal system (zero pivot at row {info})")
-        return out
-
-    def balanced(self, base, wband, cvec, y, dt, m, p0, mean_tol):
-        f = _f64
-        y, n_cram, n_newton, info = self._k.balanced_stage(f(base[0]), f(base[1]), f(base[2]), f(wband[0]), f(wband[1]),
-                                                          f(wband[2]), f(cvec), f(y), float(dt), int(m), float(p0),
-                                                          float(mean_tol), *self._coef)
-        if info != 0:
-            raise FloatingPointError(f"CRAM: singular shifted tridiagonal system (zero pivot at row {info})")
-        return y, int(n_cram), int(n_newton)
+        y, n_cram, n_newton, info, stage, res = self._k.staged_run(
+            f(lower), f(diag), f(upper), f(wl), f(wd), f(wu), np.ascontiguousarray(balanced, dtype=np.bool_),
+            f(dt), np.ascontiguousarray(reps, dtype=np.int64), f(cvec), f(y), float(p0), float(mean_tol),
+            float(lin_tol), int(MAX_BALANCE_ITERATIONS), *self._coef)
+        return y, int(n_cram), int(n_newton), int(info), int(stage), float(res)
 
 
 _KERNELS: Optional[_Kernels] = None
@@ -445,7 +506,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     t_prep = time.perf_counter() - t_start
     integrate = loop if loop is not None else (
         lambda pr, e, nb, rf: solve_on_grid(pr, e, assemble=assemble, n_base=nb, refine=rf,
-                                            mean_tol=max(1e-13, MEAN_TOL_FRACTION * rtol)))
+                                            mean_tol=max(1e-13, MEAN_TOL_FRACTION * rtol),
+                                            lin_tol=math.sqrt(LINEAR_FRACTION * rtol)))
     n = int(n_cells) if n_cells is not None else int(np.clip(25.0 * (1e-4 / rtol) ** 0.25, 16, 4096))
     history = []
 
@@ -458,7 +520,13 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             break
         finest = edges_for(prep.spec, idx, 4)  # the coarser grids are every 2nd / 4th edge of it
         e1, e2, e3 = finest[::4], finest[::2], finest
-        (y1, _), (y2, _), (y3, cnt) = (integrate(prep, e, n_base, rf) for e, rf in ((e1, 1), (e2, 2), (e3, 4)))
+        (y1, c1), (y2, c2), (y3, cnt) = (integrate(prep, e, n_base, rf) for e, rf in ((e1, 1), (e2, 2), (e3, 4)))
+        broken = [cc["balance_failure"] for cc in (c1, c2, cnt) if "balance_failure" in cc]
+        if broken:
+            failure = broken[0]
+            if not history:  # nothing to report: the coarsest level failed
+                raise RuntimeError(failure)
+            break
         r12 = (4.0 * _aggregate(y2) - y1) / 3.0
         fine = _aggregate(y3)
         r23 = (4.0 * fine - y2) / 3.0

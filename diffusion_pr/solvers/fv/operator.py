@@ -34,48 +34,52 @@ def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = No
     ----------
     edges : ndarray, shape (n+1,)
         Cell edges (pressure), ``edges[0]`` the wall.
-    f_c : ndarray, shape (n,)
-        ``f`` at the cell centres (dimensionless), >= 0.
-    a_faces : ndarray, shape (n,), optional
+    f_c : ndarray, shape (..., n)
+        ``f`` at the cell centres (dimensionless), >= 0.  Leading axes (e.g. one
+        row per stage) give one operator per row.
+    a_faces : ndarray, shape (..., n), optional
         Drift at the faces ``edges[0..n-1]`` (the wall face and the interior
         faces; pressure per unit tau); the top face carries no flux.
+
+    Returns
+    -------
+    lower, diag, upper : ndarray, shapes (..., n), (..., n+1), (..., n)
     """
+    f_c = np.asarray(f_c, dtype=float)
     h = np.diff(edges)
     c = centres(edges)
     n = c.size
+    lead = f_c.shape[:-1]
     g = f_c / h  # m -> f u
-    d_int = np.diff(c)  # centre distances of the interior faces
-    lower = np.zeros(n)  # entry (row r+1, col r) of the (n+1)x(n+1) matrix
-    diag = np.zeros(n + 1)
-    upper = np.zeros(n)  # entry (row r, col r+1)
-    # interior faces: diffusive flux J = -(g_{i+1} m_{i+1} - g_i m_i)/d ; m_i' -= J, m_{i+1}' += J
-    k_int = 1.0 / d_int
-    # contribution of face i+1/2 to rows i (index i+1 in y) and i+1 (index i+2)
-    # m_i'   += (g_{i+1} m_{i+1} - g_i m_i)/d
-    # m_{i+1}' -= (g_{i+1} m_{i+1} - g_i m_i)/d
-    diag[1:-1] -= k_int * g[:-1]
-    upper[1:] += k_int * g[1:]
-    diag[2:] -= k_int * g[1:]
-    lower[1:] += k_int * g[:-1]
+    k_int = 1.0 / np.diff(c)  # inverse centre distances of the interior faces
+    lower = np.zeros(lead + (n,))  # entry (row r+1, col r) of the (n+1)x(n+1) matrix
+    diag = np.zeros(lead + (n + 1,))
+    upper = np.zeros(lead + (n,))  # entry (row r, col r+1)
+    # interior face i+1/2: diffusive flux J = -(g_{i+1} m_{i+1} - g_i m_i)/d; m_i' -= J, m_{i+1}' += J
+    left = k_int * g[..., :-1]
+    right = k_int * g[..., 1:]
+    diag[..., 1:-1] -= left
+    upper[..., 1:] += right
+    diag[..., 2:] -= right
+    lower[..., 1:] += left
     # wall face: outflow f_0 u_0 / (c_0 - p_wall) from m_0 into z
-    out = g[0] / (c[0] - edges[0])
-    diag[1] -= out
-    upper[0] += out
+    out = g[..., 0] / (c[0] - edges[0])
+    diag[..., 1] -= out
+    upper[..., 0] += out
     if a_faces is not None:
         a_faces = np.asarray(a_faces, dtype=float)
         # interior faces: G = a (u_i + u_{i+1}) / 2, u = m / h; m_i' -= G, m_{i+1}' += G
-        wl = wr = 0.5
-        ai = a_faces[1:]
-        cl = ai * wl / h[:-1]
-        cr = ai * wr / h[1:]
-        diag[1:-1] -= cl
-        upper[1:] -= cr
-        lower[1:] += cl
-        diag[2:] += cr
+        ai = a_faces[..., 1:]
+        cl = ai * (0.5 / h[:-1])
+        cr = ai * (0.5 / h[1:])
+        diag[..., 1:-1] -= cl
+        upper[..., 1:] -= cr
+        lower[..., 1:] += cl
+        diag[..., 2:] += cr
         # wall face: outflow only
-        aw = min(float(a_faces[0]), 0.0)
-        diag[1] += aw / h[0]
-        upper[0] -= aw / h[0]
+        aw = np.minimum(a_faces[..., 0], 0.0)
+        diag[..., 1] += aw / h[0]
+        upper[..., 0] -= aw / h[0]
     return lower, diag, upper
 
 
