@@ -15,24 +15,10 @@ from scipy.linalg import get_lapack_funcs
 import diffusion_pr as dp
 from diffusion_pr.closures import closure_problem, spectrum_shells
 from diffusion_pr.solvers.fv import engine
-from diffusion_pr.solvers.fv._kernels import ALPHA, ALPHA0, THETA, cram_apply, cram_apply_d, gtsv, gttrf, gttrs
+from diffusion_pr.solvers.fv._kernels import (ALPHA, ALPHA0, PFD_RESIDUES, THETA, bands_rows, cram_apply, cram_apply_d,
+                                              cram_pfd, gttrf, gttrs)
+from diffusion_pr.solvers.fv.operator import bands
 from diffusion_pr.solvers.fv.cram import expm_tridiagonal
-
-
-@pytest.mark.parametrize("weak_diagonal", [False, True])
-def test_gtsv_matches_lapack(rng, weak_diagonal):
-    """Random complex systems; with a weak diagonal every row needs LAPACK's row interchange."""
-    n = 57
-    dl = rng.normal(size=n - 1) + 1j * rng.normal(size=n - 1)
-    du = rng.normal(size=n - 1) + 1j * rng.normal(size=n - 1)
-    d = rng.normal(size=n) + 1j * rng.normal(size=n)
-    if weak_diagonal:
-        d *= 1e-3
-    b = rng.normal(size=n) + 1j * rng.normal(size=n)
-    ref = get_lapack_funcs("gtsv", dtype=np.complex128)(dl.copy(), d.copy(), du.copy(), b.copy())[3]
-    x = b.copy()
-    assert gtsv(dl.copy(), d.copy(), du.copy(), x) == 0
-    assert np.max(np.abs(x - ref)) <= 1e-12 * np.max(np.abs(ref))
 
 
 @pytest.mark.parametrize("weak_diagonal", [False, True])
@@ -73,10 +59,47 @@ def test_cram_derivative_matches_finite_differences(rng):
     assert np.max(np.abs(dout - fd)) <= 1e-7 * np.max(np.abs(fd))
 
 
-def test_gtsv_reports_singular():
+@pytest.mark.parametrize("with_drift", [False, True])
+def test_bands_rows_match_the_numpy_operator(rng, with_drift):
+    """The compiled band assembly of all stages equals operator.bands (its formula, row by row)."""
+    edges = np.r_[1e-9, np.cumsum(rng.uniform(0.01, 1.0, 200))]
+    f_rows, a_rows = rng.uniform(0.0, 1.0, (5, 200)), rng.normal(size=(5, 200))
+    ref = bands(edges, f_rows, a_rows if with_drift else None)
+    for r, x in zip(ref, bands_rows(edges, f_rows, a_rows, with_drift)):
+        assert np.max(np.abs(r - x)) <= 1e-15 * np.max(np.abs(r))
+
+
+def test_gttrf_reports_singular():
     d = np.array([0.0, 1.0, 1.0], dtype=complex)
     z = np.zeros(2, dtype=complex)
-    assert gtsv(z.copy(), d, z.copy(), np.ones(3, dtype=complex)) == 1
+    assert gttrf(z.copy(), d, z.copy(), np.zeros(1, dtype=complex), np.zeros(3, dtype=np.int64)) == 1
+
+
+def test_partial_fraction_residues_give_the_same_rational_function():
+    """r(x) = alpha0 + 2 Re sum c_j/(x - theta_j) equals the IPF product and exp(x) on (-inf, 0]."""
+    x = -np.geomspace(1e-4, 1e4, 400)
+    pfd = ALPHA0 + 2.0 * np.real(np.sum(PFD_RESIDUES[None, :] / (x[:, None] - THETA[None, :]), axis=1))
+    ipf = ALPHA0 * np.prod(1.0 + 2.0 * np.real(ALPHA[None, :] / (x[:, None] - THETA[None, :])), axis=1)
+    # residues up to 2.3e2 summed to O(1): round-off ~ 2.3e2 * 1e-16 * a few (measured 4.5e-14; IPF 1e-15)
+    assert np.max(np.abs(pfd - ipf)) < 1e-13
+    assert np.max(np.abs(pfd - np.exp(x))) < 1e-13
+
+
+@pytest.mark.parametrize("n", [2, 3, 57, 1500, 3001])
+def test_cram_pfd_matches_ipf(rng, n):
+    """Partial fractions (poles eliminated together, blocks of 4 or 2) against the IPF form and its derivative."""
+    lo, up = rng.uniform(0.1, 2.0, n - 1) * 100, rng.uniform(0.1, 2.0, n - 1) * 100
+    diag = -(np.r_[lo, 0.0] + np.r_[0.0, up])
+    wl, wu = rng.uniform(0.0, 1.0, n - 1), -rng.uniform(0.0, 1.0, n - 1)
+    wd = -(np.r_[wl, 0.0] + np.r_[0.0, wu])
+    y = rng.uniform(size=n)
+    ref, dref, _ = cram_apply_d(lo, diag, up, wl, wd, wu, 0.01, y, ALPHA, THETA, ALPHA0)
+    for want_d in (False, True):
+        out, dout, info = cram_pfd(lo, diag, up, wl, wd, wu, 0.01, y, PFD_RESIDUES, THETA, ALPHA0, want_d)
+        assert info == 0
+        assert np.max(np.abs(out - ref)) <= 1e-12 * np.max(np.abs(ref))  # PFD round-off ~3e-14 relative
+        if want_d:
+            assert np.max(np.abs(dout - dref)) <= 1e-12 * np.max(np.abs(dref))
 
 
 def test_cram_apply_matches_lapack_cram(rng):
@@ -99,9 +122,21 @@ def _matvec(b, y):
     return out
 
 
-def _cram_d(base, wband, t, y):
-    """``exp(t L) y`` and its derivative in ``A`` (``L = L0 - A W`` given as ``base``) with LAPACK gttrf/gttrs."""
+def _cram_d(base, wband, t, y, pfd=False):
+    """``exp(t L) y`` and its derivative in ``A`` (``L = L0 - A W`` given as ``base``) with LAPACK gttrf/gttrs.
+
+    IPF form, or partial fractions (``pfd``: every pole solved from ``y``).
+    """
     gttrf, gttrs = get_lapack_funcs(("gttrf", "gttrs"), dtype=np.complex128)
+    if pfd:
+        out, dout = ALPHA0 * np.array(y, dtype=float), np.zeros(len(y))
+        for c, th in zip(PFD_RESIDUES, THETA):
+            dl, d, du, du2, ipiv, info = gttrf(t * base[0] + 0j, t * base[1] - th, t * base[2] + 0j)
+            assert info == 0
+            b, info = gttrs(dl, d, du, du2, ipiv, np.asarray(y, dtype=complex))
+            r, info = gttrs(dl, d, du, du2, ipiv, t * _matvec(wband, b))
+            out, dout = out + 2.0 * (c * b).real, dout + 2.0 * (c * r).real
+        return out, dout
     out, dout = np.array(y, dtype=float), np.zeros(len(y))
     for a, th in zip(ALPHA, THETA):
         dl, d, du, du2, ipiv, info = gttrf(t * base[0] + 0j, t * base[1] - th, t * base[2] + 0j)
@@ -144,9 +179,9 @@ class _PythonKernels:
             a_pred = A
             if self.use_d:
                 A = a_pred * self.ratio
-                trial, dtrial = _cram_d(at(A), wband, dt, y)
+                trial, dtrial = _cram_d(at(A), wband, dt, y, self.pfd)
             else:
-                trial, dtrial = expm_tridiagonal(*at(A), dt, y), None
+                trial, dtrial = self._expm(at(A), dt, y), None
             n_cram += 1
             err = float(cvec @ trial) - p0
             self.use_d = abs(err) > mean_tol * p0 and denom != 0.0
@@ -156,7 +191,7 @@ class _PythonKernels:
             while abs(err) > mean_tol * p0 and denom != 0.0:
                 assert it < max_iter
                 if dtrial is None:
-                    trial, dtrial = _cram_d(at(A), wband, dt, y)
+                    trial, dtrial = _cram_d(at(A), wband, dt, y, self.pfd)
                     n_cram += 1
                 slope = float(cvec @ dtrial)
                 n_newton += 1
@@ -172,7 +207,7 @@ class _PythonKernels:
                     a_new = A + (1.0 if err > 0 else -1.0) * (abs(A) + 1.0)
                 if lo and hi and not (min(lo[0], hi[0]) < a_new < max(lo[0], hi[0])):
                     a_new = (lo[0] * hi[1] - hi[0] * lo[1]) / (hi[1] - lo[1])
-                trial, dtrial = _cram_d(at(a_new), wband, dt, y)
+                trial, dtrial = _cram_d(at(a_new), wband, dt, y, self.pfd)
                 n_cram += 1
                 err = float(cvec @ trial) - p0
                 if err > 0:
@@ -185,9 +220,14 @@ class _PythonKernels:
             y = trial
         return y, n_cram, n_newton
 
-    def run(self, lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol):
+    def _expm(self, base, t, y):
+        if self.pfd:
+            return _cram_d(base, (np.zeros(len(y) - 1), np.zeros(len(y)), np.zeros(len(y) - 1)), t, y, True)[0]
+        return expm_tridiagonal(*base, t, y)
+
+    def run(self, lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, pfd):
         n_cram = n_newton = 0
-        self.use_d, self.ratio = False, 1.0
+        self.use_d, self.ratio, self.pfd = False, 1.0, pfd
         for k in range(diag.shape[0]):
             base = (lower[k], diag[k], upper[k])
             if balanced[k]:
@@ -197,7 +237,7 @@ class _PythonKernels:
                 n_newton += nn
             else:
                 for _ in range(int(reps[k])):
-                    y = expm_tridiagonal(*base, dt[k], y)
+                    y = self._expm(base, dt[k], y)
                     n_cram += 1
         return y, n_cram, n_newton, 0, -1, 0.0
 

@@ -71,6 +71,10 @@ MAX_BALANCE_ITERATIONS = 30
 #: p0 by less than sqrt(LINEAR_FRACTION * rtol) p0: its O(miss^2) state error is then about LINEAR_FRACTION * rtol
 #: (measured on the closures: 96 stages at a miss of 5e-5 moved the answer by 2e-9)
 LINEAR_FRACTION = 1e-2
+#: the compiled stages use CRAM in partial fractions (all poles eliminated together, 2-3x faster than the
+#: IPF form) down to this rtol; its round-off, about 1e-13 of max|y| per application against 1e-15, would
+#: matter below (docs/backends.md)
+PFD_MIN_RTOL = 1e-10
 #: cells per balance substep (the substeps double with the cells, so Richardson removes their O(dtau^2) error)
 SUBSTEP_CELLS = 16
 #: e-folds of p resolved below the floor where the wall is not reached: ln(10/rtol), at least this many;
@@ -312,30 +316,51 @@ def _substeps(prep: Prepared, piece: _Piece, n_base: int, refine: int) -> int:
     return refine * max(1, int(round(n_base / SUBSTEP_CELLS * piece.duration / prep.tau_end)))
 
 
-def _coefficients(pieces: Sequence, c: np.ndarray, faces: np.ndarray, centre_drift: bool) -> dict:
-    """Every stage's ``f`` (centres), drift and balance (faces; centres too if ``centre_drift``), as rows."""
-    k_stages, n = len(pieces), c.size
-    out = {"f": np.empty((k_stages, n)), "b": np.zeros((k_stages, n)), "w": np.zeros((k_stages, n)),
-           "has_b": np.zeros(k_stages, dtype=bool), "has_w": np.zeros(k_stages, dtype=bool)}
+def _coefficients(pieces: Sequence, grids: Sequence[np.ndarray], centre_drift: bool) -> list:
+    """Every stage's ``f`` (centres), drift and balance (faces; centres too if ``centre_drift``) as rows, per grid.
+
+    Each callable is evaluated once, on the points of all ``grids`` (edge arrays) together.
+    """
+    cs = [centres(e) for e in grids]
+    faces = [e[:-1] for e in grids]
+    cut = np.cumsum([0] + [c.size for c in cs])
+    c_all, f_all = np.concatenate(cs), np.concatenate(faces)
+    k_stages = len(pieces)
+    rows = {"f": np.empty((k_stages, c_all.size)), "b": np.zeros((k_stages, c_all.size)),
+            "w": np.zeros((k_stages, c_all.size))}
     if centre_drift:
-        out["b_c"], out["w_c"] = np.zeros((k_stages, n)), np.zeros((k_stages, n))
+        rows["b_c"], rows["w_c"] = np.zeros((k_stages, c_all.size)), np.zeros((k_stages, c_all.size))
+    has = {"b": np.zeros(k_stages, dtype=bool), "w": np.zeros(k_stages, dtype=bool)}
     for k, pc in enumerate(pieces):
-        out["f"][k] = np.maximum(_check_f(pc.f, c, "diffusivity"), 0.0)
+        rows["f"][k] = np.maximum(_check_f(pc.f, c_all, "diffusivity"), 0.0)
         for key, g, name in (("b", pc.b, "drift"), ("w", pc.w, "balance")):
             if g is not None:
-                out["has_" + key][k] = True
-                out[key][k] = _check_f(g, faces, name)
+                has[key][k] = True
+                rows[key][k] = _check_f(g, f_all, name)
                 if centre_drift:
-                    out[key + "_c"][k] = _check_f(g, c, name)
-    return out
+                    rows[key + "_c"][k] = _check_f(g, c_all, name)
+    return [{**{key: np.ascontiguousarray(v[:, cut[g]:cut[g + 1]]) for key, v in rows.items()},
+             "has_b": has["b"], "has_w": has["w"]} for g in range(len(grids))]
 
 
-def _stage_bands(edges: np.ndarray, coef: dict, assemble: Assemble) -> tuple:
-    """Rows of the stages' bands ``L_k`` and of their balance operators (0 where a stage has none)."""
+def _stage_bands(edges: np.ndarray, coef: dict, assemble: Assemble, compiled: bool) -> tuple:
+    """Rows of the stages' bands ``L_k`` and of their balance operators (0 where a stage has none).
+
+    Without a balance the balance rows are a single row of zeros (never read).
+    """
     n_stages, n = coef["f"].shape
-    if assemble is native_assemble:  # vectorized over the stages
-        base = fv_bands(edges, coef["f"], coef["b"] if coef["has_b"].any() else None)
-        wb = fv_bands(edges, np.zeros((n_stages, n)), coef["w"])
+    any_w = bool(coef["has_w"].any())
+    if assemble is native_assemble:  # all stages at once
+        any_b = bool(coef["has_b"].any())
+        if compiled:
+            from . import _kernels as k  # numba: loaded with the compiled stages
+
+            base = k.bands_rows(edges, coef["f"], coef["b"], any_b)
+            wb = k.bands_rows(edges, np.zeros((n_stages if any_w else 1, n)), coef["w"] if any_w else coef["w"][:1],
+                              True)
+        else:
+            base = fv_bands(edges, coef["f"], coef["b"] if any_b else None)
+            wb = fv_bands(edges, np.zeros((n_stages if any_w else 1, n)), coef["w"] if any_w else coef["w"][:1])
         return base, wb
     rows = []
     wrows = []
@@ -344,8 +369,11 @@ def _stage_bands(edges: np.ndarray, coef: dict, assemble: Assemble) -> tuple:
         has_b, has_w = coef["has_b"][k], coef["has_w"][k]
         rows.append(assemble(edges, coef["f"][k], coef["b"][k] if has_b else None,
                              coef["b_c"][k] if has_b else None))
-        wrows.append(assemble(edges, zero, coef["w"][k], coef["w_c"][k]) if has_w
-                     else (np.zeros(n), np.zeros(n + 1), np.zeros(n)))
+        if has_w or (k == 0 and not any_w):
+            wrows.append(assemble(edges, zero, coef["w"][k], coef["w_c"][k]) if has_w
+                         else (np.zeros(n), np.zeros(n + 1), np.zeros(n)))
+        elif any_w:
+            wrows.append((np.zeros(n), np.zeros(n + 1), np.zeros(n)))
     stack = lambda rs: tuple(np.array([r[i] for r in rs], dtype=float) for i in range(3))  # noqa: E731
     return stack(rows), stack(wrows)
 
@@ -370,7 +398,7 @@ def _drift_splits(pieces: Sequence, coef: dict) -> np.ndarray:
 
 def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = native_assemble,
                   n_base: int = 64, refine: int = 1, mean_tol: float = 1e-13,
-                  lin_tol: float = 0.0) -> tuple[np.ndarray, dict]:
+                  lin_tol: float = 0.0, coef: Optional[dict] = None) -> tuple[np.ndarray, dict]:
     """Integrate from the start to ``tau_end`` on one grid; return ``y = [z, m...]`` and counters.
 
     ``n_base`` is the cell count of the coarsest grid of the nested triple and
@@ -390,8 +418,10 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     y[j] = (cr - prep.p0) / (cr - cl)
     y[j + 1] = (prep.p0 - cl) / (cr - cl)
     pieces = prep.segment_fn(refine * max(4, n_base // 8)) if prep.time_dependent else prep.pieces
-    coef = _coefficients(pieces, c, edges[:-1], centre_drift=assemble is not native_assemble)
-    (lower, diag, upper), (wl, wd, wu) = _stage_bands(edges, coef, assemble)
+    if coef is None:
+        coef = _coefficients(pieces, [edges], centre_drift=assemble is not native_assemble)[0]
+    compiled = len(pieces) >= COMPILED_MIN_PIECES or prep.has_balance
+    (lower, diag, upper), (wl, wd, wu) = _stage_bands(edges, coef, assemble, compiled)
     balanced = coef["has_w"]
     reps = _drift_splits(pieces, coef)
     for k in np.flatnonzero(balanced):
@@ -399,10 +429,10 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     dt = np.array([pc.duration for pc in pieces]) / reps
     counters = {"cram_applications": 0, "substeps": int(reps[balanced].sum()), "newton_steps": 0}
     # a balance always runs in the kernel (its substep loop is compiled); a few plain stages stay on LAPACK
-    if len(pieces) >= COMPILED_MIN_PIECES or prep.has_balance:
+    if compiled:
         y, n_cram, n_newton, info, stage, residual = _staged_kernels().run(
             lower, diag, upper, wl, wd, wu, balanced, dt, reps, np.r_[edges[0], c], y, prep.p0, mean_tol,
-            max(mean_tol, lin_tol))
+            max(mean_tol, lin_tol), lin_tol >= math.sqrt(LINEAR_FRACTION * PFD_MIN_RTOL))
         counters["cram_applications"] = n_cram
         counters["newton_steps"] = n_newton
         if info > 0:
@@ -431,15 +461,16 @@ class _Kernels:
         from . import _kernels as k
 
         self._k = k
-        self._coef = (np.ascontiguousarray(k.ALPHA), np.ascontiguousarray(k.THETA), float(k.ALPHA0))
+        self._coef = (np.ascontiguousarray(k.ALPHA), np.ascontiguousarray(k.THETA), float(k.ALPHA0),
+                      np.ascontiguousarray(k.PFD_RESIDUES))
 
-    def run(self, lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol):
+    def run(self, lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, pfd):
         """Every stage on one grid: ``(y, n_cram, n_newton, info, stage, residual)`` (:func:`._kernels.staged_run`)."""
         f = _f64
         y, n_cram, n_newton, info, stage, res = self._k.staged_run(
             f(lower), f(diag), f(upper), f(wl), f(wd), f(wu), np.ascontiguousarray(balanced, dtype=np.bool_),
             f(dt), np.ascontiguousarray(reps, dtype=np.int64), f(cvec), f(y), float(p0), float(mean_tol),
-            float(lin_tol), int(MAX_BALANCE_ITERATIONS), *self._coef)
+            float(lin_tol), int(MAX_BALANCE_ITERATIONS), bool(pfd), *self._coef)
         return y, int(n_cram), int(n_newton), int(info), int(stage), float(res)
 
 
@@ -505,7 +536,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     prep = prepare(problem, rtol=rtol, p_floor=p_floor)
     t_prep = time.perf_counter() - t_start
     integrate = loop if loop is not None else (
-        lambda pr, e, nb, rf: solve_on_grid(pr, e, assemble=assemble, n_base=nb, refine=rf,
+        lambda pr, e, nb, rf, cf=None: solve_on_grid(pr, e, assemble=assemble, n_base=nb, refine=rf, coef=cf,
                                             mean_tol=max(1e-13, MEAN_TOL_FRACTION * rtol),
                                             lin_tol=math.sqrt(LINEAR_FRACTION * rtol)))
     n = int(n_cells) if n_cells is not None else int(np.clip(25.0 * (1e-4 / rtol) ** 0.25, 16, 4096))
@@ -520,7 +551,12 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             break
         finest = edges_for(prep.spec, idx, 4)  # the coarser grids are every 2nd / 4th edge of it
         e1, e2, e3 = finest[::4], finest[::2], finest
-        (y1, c1), (y2, c2), (y3, cnt) = (integrate(prep, e, n_base, rf) for e, rf in ((e1, 1), (e2, 2), (e3, 4)))
+        if loop is None and not prep.time_dependent:  # each coefficient evaluated once for the three grids
+            coefs = _coefficients(prep.pieces, [e1, e2, e3], centre_drift=assemble is not native_assemble)
+            (y1, c1), (y2, c2), (y3, cnt) = (integrate(prep, e, n_base, rf, cf) for e, rf, cf in
+                                             ((e1, 1, coefs[0]), (e2, 2, coefs[1]), (e3, 4, coefs[2])))
+        else:
+            (y1, c1), (y2, c2), (y3, cnt) = (integrate(prep, e, n_base, rf) for e, rf in ((e1, 1), (e2, 2), (e3, 4)))
         broken = [cc["balance_failure"] for cc in (c1, c2, cnt) if "balance_failure" in cc]
         if broken:
             failure = broken[0]
