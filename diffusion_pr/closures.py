@@ -164,6 +164,31 @@ def spectrum_shells(spectrum: Spectrum, *, E_star: float, n_shells: Optional[int
     return Shells(qk[keep], dv[keep], qlo, False)
 
 
+_SHELL_CACHE: dict = {}
+#: shells kept for repeated solves on the same (hashable) spectrum, modulus and shell count
+_SHELL_CACHE_SIZE = 32
+
+
+def _cached_shells(spectrum: Spectrum, E: float, n_shells: Optional[int]) -> Shells:
+    """:func:`spectrum_shells`, remembered for hashable spectra (a sweep over zeta, p0 or closures reuses them).
+
+    The cached arrays are read-only (the shells of a frozen spectrum never change).
+    """
+    try:
+        key = (spectrum, float(E), n_shells)
+        hit = _SHELL_CACHE.get(key)
+    except TypeError:  # an unhashable spectrum (e.g. one holding arrays): no cache
+        return spectrum_shells(spectrum, E_star=E, n_shells=n_shells)
+    if hit is None:
+        hit = spectrum_shells(spectrum, E_star=E, n_shells=n_shells)
+        for a in (hit.q, hit.dV0):
+            a.setflags(write=False)
+        if len(_SHELL_CACHE) >= _SHELL_CACHE_SIZE:
+            _SHELL_CACHE.pop(next(iter(_SHELL_CACHE)))
+        _SHELL_CACHE[key] = hit
+    return hit
+
+
 def local_response(q: Any, p: Any, *, zeta: float, E_star: float) -> np.ndarray:
     """``g(q; p) = 1 / (1 + zeta q E* / (2 p))``: Eq. 10 of the paper at the local pressure ``p``.
 
@@ -585,7 +610,7 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
                          "('local_g1_shell_balanced' is the partition at each shell's q_k)")
     if partition_q is not None and partition_q != "shell":
         check_positive("partition_q", partition_q)
-    shells = spectrum_shells(spectrum, E_star=E, n_shells=n_shells)
+    shells = _cached_shells(spectrum, E, n_shells)
     if backend == "reference":
         n_cells, n_steps = options.pop("n_cells", REFERENCE_RESOLUTION[0]), options.pop("n_steps", REFERENCE_RESOLUTION[1])
         if options:

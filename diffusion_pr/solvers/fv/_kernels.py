@@ -212,23 +212,32 @@ def bands_rows(edges, f_rows, a_rows, with_drift):  # pragma: no cover - numba
     for i in range(n):
         h[i] = edges[i + 1] - edges[i]
         c[i] = 0.5 * (edges[i + 1] + edges[i])
+    k_int = np.empty(max(n - 1, 1))
+    for i in range(n - 1):
+        k_int[i] = 1.0 / (c[i + 1] - c[i])
+    wall = 1.0 / (c[0] - edges[0])
+    half_inv_h = np.empty(n)
+    for i in range(n):
+        half_inv_h[i] = 0.5 / h[i]
     for r in range(k_rows):
+        g_prev = f_rows[r, 0] / h[0]
         for i in range(n - 1):
-            k_int = 1.0 / (c[i + 1] - c[i])
-            left = k_int * (f_rows[r, i] / h[i])
-            right = k_int * (f_rows[r, i + 1] / h[i + 1])
+            g_next = f_rows[r, i + 1] / h[i + 1]
+            left = k_int[i] * g_prev
+            right = k_int[i] * g_next
             diag[r, i + 1] -= left
             upper[r, i + 1] += right
             diag[r, i + 2] -= right
             lower[r, i + 1] += left
-        out = (f_rows[r, 0] / h[0]) / (c[0] - edges[0])
+            g_prev = g_next
+        out = (f_rows[r, 0] / h[0]) * wall
         diag[r, 1] -= out
         upper[r, 0] += out
         if with_drift:
             for i in range(n - 1):
                 ai = a_rows[r, i + 1]
-                cl = ai * (0.5 / h[i])
-                cr = ai * (0.5 / h[i + 1])
+                cl = ai * half_inv_h[i]
+                cr = ai * half_inv_h[i + 1]
                 diag[r, i + 1] -= cl
                 upper[r, i + 1] -= cr
                 lower[r, i + 1] += cl
@@ -239,10 +248,11 @@ def bands_rows(edges, f_rows, a_rows, with_drift):  # pragma: no cover - numba
     return lower, diag, upper
 
 
-#: poles per block of :func:`cram_pfd` (their eliminations interleave) and the cells up to which a block of
-#: 4 keeps its arrays in a 1 MB L2 cache (measured: 8.3 ns per cell and pole up to 2528 cells, 18 at 5000;
-#: blocks of 2: 11.8 at every size; the IPF form: 27)
-_PFD_BLOCK_CELLS = 2800
+#: poles per block of :func:`cram_pfd` (their eliminations interleave): 4 while the block's arrays (4 per row,
+#: 7 with the derivative; 64 bytes per row and array) stay within 20000 row-arrays (1.3 MB, about the L2 cache),
+#: else 2.  Measured per cell and pole: 8.8-9.2 ns plain up to 5000 cells, 16 ns with the derivative up to 2528
+#: cells (blocks of 2: 12 and 23 ns); the IPF form 27 and 40 ns
+_PFD_BLOCK_WORDS = 20000
 
 
 @njit(cache=True)
@@ -259,7 +269,7 @@ def cram_pfd(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  #
     """
     n = diag.size
     m = theta.size
-    g_size = 4 if n * (2 if want_d else 1) <= _PFD_BLOCK_CELLS else 2
+    g_size = 4 if n * (7 if want_d else 4) <= _PFD_BLOCK_WORDS else 2
     d = np.empty((n, g_size), dtype=np.complex128)
     du = np.empty((n, g_size), dtype=np.complex128)
     du2 = np.empty((n, g_size), dtype=np.complex128)
@@ -331,24 +341,23 @@ def cram_pfd(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  #
             out[i] += 2.0 * s
         if not want_d:
             continue
-        # r = t W b, then the forward elimination with the stored multipliers and interchanges
-        for i in range(n):
-            for jj in range(g_size):
-                v = wd[i] * b[i, jj]
-                if i > 0:
-                    v += wl[i - 1] * b[i - 1, jj]
-                if i < n - 1:
-                    v += wu[i] * b[i + 1, jj]
-                r[i, jj] = t * v
+        # r = t W b row by row, eliminated in the same sweep with the stored multipliers and interchanges
+        for jj in range(g_size):
+            r[0, jj] = t * (wd[0] * b[0, jj] + (wu[0] * b[1, jj] if n > 1 else 0.0))
         for i in range(n - 1):
+            last = i + 2 >= n
             for jj in range(g_size):
+                raw = wl[i] * b[i, jj] + wd[i + 1] * b[i + 1, jj]
+                if not last:
+                    raw += wu[i + 1] * b[i + 2, jj]
+                raw *= t
                 f = fl[i, jj]
                 if piv[i, jj]:
                     tb = r[i, jj]
-                    r[i, jj] = r[i + 1, jj]
-                    r[i + 1, jj] = tb - f * r[i, jj]
+                    r[i, jj] = raw
+                    r[i + 1, jj] = tb - f * raw
                 else:
-                    r[i + 1, jj] = r[i + 1, jj] - f * r[i, jj]
+                    r[i + 1, jj] = raw - f * r[i, jj]
         _back(d, du, du2, r, n, g_size)
         for i in range(n):
             s = 0.0

@@ -204,8 +204,6 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
             var += 2.0 * pc.duration * float(np.max(_check_f(pc.f, probe, f"the diffusivity of stage {k}")))
             if pc.b is not None:
                 shift += pc.duration * float(np.max(np.abs(_check_f(pc.b, probe, f"the drift of stage {k}"))))
-            if pc.w is not None:
-                _check_f(pc.w, probe, f"the balance of stage {k}")
         s = math.sqrt(var)
         z = 7.5 + 0.6 * math.log10(1.0 / max(rtol, 1e-15))  # Gaussian quantile well beyond rtol's tail mass
         new = p0 + shift + z * s
@@ -224,6 +222,9 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
     if p0 / s < 1.0 / MAX_RATIO:
         raise ValueError(f"mean_pressure/spread = {p0 / s:.3g} is below {1 / MAX_RATIO:.0e}: the start sits at the wall "
                          "to double precision (the contact is lost)")
+    for k, pc in enumerate(pieces):  # the balance does not set the spread: checked once, on the final probe
+        if pc.w is not None:
+            _check_f(pc.w, probe, f"the balance of stage {k}")
     p_max = new
     if LAMPERTI and not time_dependent and len(pieces) >= COMPILED_MIN_PIECES:
         # the upper tail in the Lamperti coordinate Y = int dp / sqrt(2 F), F = sum dtau_k f_k: Y - Y(p0) is
@@ -339,7 +340,7 @@ def _coefficients(pieces: Sequence, grids: Sequence[np.ndarray], centre_drift: b
                 rows[key][k] = _check_f(g, f_all, name)
                 if centre_drift:
                     rows[key + "_c"][k] = _check_f(g, c_all, name)
-    return [{**{key: np.ascontiguousarray(v[:, cut[g]:cut[g + 1]]) for key, v in rows.items()},
+    return [{**{key: v[:, cut[g]:cut[g + 1]] for key, v in rows.items()},  # views: no copies
              "has_b": has["b"], "has_w": has["w"]} for g in range(len(grids))]
 
 
