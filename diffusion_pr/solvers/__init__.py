@@ -102,8 +102,8 @@ def warm_up(name: str) -> float:
     """Do backend ``name``'s one-time work now (imports, first assembly); return the seconds spent.
 
     Solves never warm up silently: call this before timing a backend whose
-    first call carries a one-time cost (py-pde and FiPy imports).  The native
-    backend has none (no JIT) and returns 0.
+    first call carries a one-time cost (py-pde and FiPy imports; the native
+    backend's numba kernels for staged problems such as the closures).
     """
     if name not in _REGISTRY:
         raise ValueError(f"backend must be one of {backend_names()}; got backend={name!r}")

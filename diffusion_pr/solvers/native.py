@@ -3,16 +3,21 @@
 Autonomous problems (``D(p, eta) = D(eta) f(p)``) are one matrix exponential
 of the tridiagonal finite-volume operator applied to the start, computed by
 CRAM-16 (:mod:`diffusion_pr.solvers.fv.cram`: eight complex tridiagonal
-solves); staged and ``tau``-dependent problems by one exponential per stage
-or midpoint segment (a balance multiplier by substeps with a Newton step on
-``A``).  Three nested grids give a Richardson-extrapolated answer and an
-error estimate of it (:mod:`diffusion_pr.solvers.fv.engine`).  No JIT: scipy's
-LAPACK tridiagonal solver, so the first solve in a fresh process costs no
-compilation.
+solves, scipy's LAPACK: no JIT, so the paper's solve in a fresh process costs
+no compilation).  Staged and ``tau``-dependent problems (the closures) apply
+one exponential per stage or midpoint segment, a balance multiplier by Newton
+steps on ``A``; from four stages on (or with a balance) they run in the numba
+kernels of :mod:`diffusion_pr.solvers.fv._kernels` (compiled once per
+installation, about 15-20 s, then cached on disk; loading them costs about
+0.5 s per process: :func:`warm_up` does both where you choose).  Three nested
+grids give a Richardson-extrapolated answer and an error estimate of it
+(:mod:`diffusion_pr.solvers.fv.engine`).
 """
 from __future__ import annotations
 
+import time
 from typing import Optional
+
 
 from ..result import PressureDistribution
 from .fv.engine import MAX_CELLS, native_assemble, solve_fv
@@ -21,11 +26,23 @@ __all__ = ["solve", "warm_up"]
 
 
 def warm_up() -> float:
-    """Nothing to compile (LAPACK through scipy); returns 0.0 seconds.
+    """Compile (first run after installing) or load (later runs) the staged kernels; return the seconds spent.
 
-    Kept so every backend has the same visible ``warm_up()``.
+    Solves a small staged problem with a drift and a balance, so that every
+    compiled path a closure uses is ready.  Single-stage problems (the
+    paper's theory) need no warm-up.
     """
-    return 0.0
+    from ..problem import Stage, StagedProblem
+
+    t0 = time.perf_counter()
+    stages = []
+    for q in (1.0, 2.0, 4.0, 8.0):
+        stages.append(Stage(1e-4, lambda p, c=0.002 * q: (p / (p + c)) ** 2,
+                            drift=lambda p, c=0.002 * q: p / (p + c) ** 2,
+                            balance=lambda p: p * 0.002 / (p + 0.002)))
+    solve_fv(StagedProblem(0.004, tuple(stages), balance_per_stage=True), rtol=1e-3, backend="native",
+             assemble=native_assemble, n_cells=16)
+    return time.perf_counter() - t0
 
 
 def solve(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cells: int = MAX_CELLS,

@@ -182,10 +182,24 @@ def test_unreachable_tolerance_is_reported_not_hidden():
     assert not r.success and "misses rtol" in r.message and r.error_estimate > 1e-12
 
 
-def test_one_diagnostics_schema_and_no_jit():
+def test_one_diagnostics_schema():
     r = native.solve(FokkerPlanckProblem(1.0, 1.0, PressureFactor(MuserCutoff(0.3), GaussianTail())), rtol=1e-5)
     assert set(DIAGNOSTIC_KEYS) <= set(r.diagnostics)
-    assert r.diagnostics["time_integration"] == "cram16" and native.warm_up() == 0.0
+    assert r.diagnostics["time_integration"] == "cram16"
+
+
+def test_single_stage_solve_needs_no_jit_and_warm_up_loads_the_staged_kernels():
+    """The paper's (autonomous) solve in a fresh process never imports numba; warm_up() loads the
+    staged kernels (compiling them on the first run after installing) and reports the seconds."""
+    import subprocess
+    import sys
+
+    code = ("import sys; import diffusion_pr as dp; from diffusion_pr.problem import FokkerPlanckProblem; "
+            "r = dp.solve_problem(FokkerPlanckProblem(1.0, 1.0), rtol=1e-6); "
+            "print(r.success, 'numba' in sys.modules); "
+            "from diffusion_pr.solvers import warm_up; s = warm_up('native'); print(s > 0, 'numba' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["True", "False", "True", "True"]
 
 
 @pytest.mark.parametrize("n_cells", [0, 7, 2.5, True])
