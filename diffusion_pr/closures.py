@@ -274,6 +274,20 @@ class LocalResponseDiffusivity:
         g = pp / (pp + self.kz * self.q)
         return g * g
 
+    @classmethod
+    def rows(cls, items: tuple, p: np.ndarray) -> np.ndarray:
+        """``[f_k(p) for k]`` as a 2-D array in one vectorized pass (same values as calling each)."""
+        kz = {it.kz for it in items}
+        if len(kz) != 1:
+            return np.array([it(p) for it in items])
+        kz = kz.pop()
+        p = np.asarray(p, dtype=float)
+        if kz == 0.0:
+            return np.ones((len(items), p.size))
+        pp = np.maximum(p, 0.0)[None, :]
+        g = pp / (pp + kz * np.array([it.q for it in items])[:, None])
+        return g * g
+
 
 @dataclass(frozen=True)
 class LoadExcessDrift:
@@ -302,6 +316,20 @@ class LoadExcessDrift:
         denom = pp + self.kz * self.q
         return part * pp / (denom * denom)
 
+    @classmethod
+    def rows(cls, items: tuple, p: np.ndarray) -> np.ndarray:
+        """``[b_k(p) for k]`` as a 2-D array in one vectorized pass (same values as calling each)."""
+        kz = {it.kz for it in items}
+        p = np.asarray(p, dtype=float)
+        if len(kz) != 1 or kz == {0.0}:
+            return np.array([it(p) for it in items])
+        kz = kz.pop()
+        pp = np.maximum(p, 0.0)[None, :]
+        kq_part = kz * np.array([it.q_part for it in items])[:, None]
+        part = kq_part / (pp + kq_part)
+        denom = pp + kz * np.array([it.q for it in items])[:, None]
+        return part * pp / (denom * denom)
+
 
 @dataclass(frozen=True)
 class RigidApproachBalance:
@@ -322,6 +350,18 @@ class RigidApproachBalance:
             return np.zeros_like(p)
         pp = np.maximum(p, 0.0)
         return self.kz * self.q_part * pp / (pp + self.kz * self.q_part)
+
+    @classmethod
+    def rows(cls, items: tuple, p: np.ndarray) -> np.ndarray:
+        """``[w_k(p) for k]`` as a 2-D array in one vectorized pass (same values as calling each)."""
+        kz = {it.kz for it in items}
+        p = np.asarray(p, dtype=float)
+        if len(kz) != 1 or kz == {0.0}:
+            return np.array([it(p) for it in items])
+        kz = kz.pop()
+        pp = np.maximum(p, 0.0)[None, :]
+        kq_part = kz * np.array([it.q_part for it in items])[:, None]
+        return kq_part * pp / (pp + kq_part)
 
 
 def closure_problem(shells: Shells, *, zeta: float, E_star: float, mean_pressure: float, closure: str,

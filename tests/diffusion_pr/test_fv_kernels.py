@@ -65,8 +65,12 @@ def test_bands_rows_match_the_numpy_operator(rng, with_drift):
     edges = np.r_[1e-9, np.cumsum(rng.uniform(0.01, 1.0, 200))]
     f_rows, a_rows = rng.uniform(0.0, 1.0, (5, 200)), rng.normal(size=(5, 200))
     ref = bands(edges, f_rows, a_rows if with_drift else None)
-    for r, x in zip(ref, bands_rows(edges, f_rows, a_rows, with_drift)):
+    for r, x in zip(ref, bands_rows(edges, f_rows, a_rows, with_drift, True)):
         assert np.max(np.abs(r - x)) <= 1e-15 * np.max(np.abs(r))
+    if with_drift:  # the drift alone (the balance operator): f = 0
+        ref = bands(edges, np.zeros_like(f_rows), a_rows)
+        for r, x in zip(ref, bands_rows(edges, f_rows[:1], a_rows, True, False)):
+            assert x.shape == r.shape and np.max(np.abs(r - x)) <= 1e-15 * np.max(np.abs(r))
 
 
 def test_gttrf_reports_singular():

@@ -196,14 +196,17 @@ def cram_apply_d(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0):  #
 
 
 @njit(cache=True)
-def bands_rows(edges, f_rows, a_rows, with_drift):  # pragma: no cover - numba
+def bands_rows(edges, f_rows, a_rows, with_drift, with_diffusion):  # pragma: no cover - numba
     """The bands of :func:`.operator.bands` for every row of ``f_rows`` / ``a_rows`` in one pass.
 
     Same formula and order of operations per entry as the numpy version (its
-    test oracle), without the temporaries of 2-D numpy expressions.  Returns
-    ``(lower, diag, upper)`` of shapes ``(k, n)``, ``(k, n+1)``, ``(k, n)``.
+    test oracle), without the temporaries of 2-D numpy expressions.  Without
+    ``with_diffusion`` the rows are the drift's alone (``f = 0``; ``f_rows`` not
+    read) and their count is that of ``a_rows``.  Returns ``(lower, diag, upper)``
+    of shapes ``(k, n)``, ``(k, n+1)``, ``(k, n)``.
     """
-    k_rows, n = f_rows.shape
+    n = f_rows.shape[1]
+    k_rows = f_rows.shape[0] if with_diffusion else a_rows.shape[0]
     lower = np.zeros((k_rows, n))
     diag = np.zeros((k_rows, n + 1))
     upper = np.zeros((k_rows, n))
@@ -220,8 +223,8 @@ def bands_rows(edges, f_rows, a_rows, with_drift):  # pragma: no cover - numba
     for i in range(n):
         half_inv_h[i] = 0.5 / h[i]
     for r in range(k_rows):
-        g_prev = f_rows[r, 0] / h[0]
-        for i in range(n - 1):
+        g_prev = f_rows[r, 0] / h[0] if with_diffusion else 0.0
+        for i in range(n - 1 if with_diffusion else 0):
             g_next = f_rows[r, i + 1] / h[i + 1]
             left = k_int[i] * g_prev
             right = k_int[i] * g_next
@@ -230,9 +233,10 @@ def bands_rows(edges, f_rows, a_rows, with_drift):  # pragma: no cover - numba
             diag[r, i + 2] -= right
             lower[r, i + 1] += left
             g_prev = g_next
-        out = (f_rows[r, 0] / h[0]) * wall
-        diag[r, 1] -= out
-        upper[r, 0] += out
+        if with_diffusion:
+            out = (f_rows[r, 0] / h[0]) * wall
+            diag[r, 1] -= out
+            upper[r, 0] += out
         if with_drift:
             for i in range(n - 1):
                 ai = a_rows[r, i + 1]

@@ -73,6 +73,8 @@ MAX_BALANCE_ITERATIONS = 30
 #: p0 by less than sqrt(LINEAR_FRACTION * rtol) p0: its O(miss^2) state error is then about LINEAR_FRACTION * rtol
 #: (measured on the closures: 96 stages at a miss of 5e-5 moved the answer by 2e-9)
 LINEAR_FRACTION = 1e-2
+#: values per block when stage coefficients are evaluated as rows (:func:`_rows`): temporaries of ~256 kB
+ROWS_CHUNK = 32768
 #: the compiled stages use CRAM in partial fractions (all poles eliminated together, 2-3x faster than the
 #: IPF form) down to this rtol; its round-off, about 1e-13 of max|y| per application against 1e-15, would
 #: matter below (docs/backends.md)
@@ -143,6 +145,33 @@ def _check_f(f: Callable, p: np.ndarray, name: str) -> np.ndarray:
     return out
 
 
+def _rows(funcs: Sequence, p: np.ndarray, name: str, out: Optional[np.ndarray] = None) -> np.ndarray:
+    """``[g(p) for g in funcs]`` as rows, checked like :func:`_check_f`.
+
+    Callables of one type that offers ``rows(items, p)`` (the closures' models)
+    are evaluated in one vectorized pass; the values are the same.
+    """
+    kinds = {type(g) for g in funcs}
+    if len(kinds) == 1 and callable(getattr(next(iter(kinds)), "rows", None)):
+        rows = next(iter(kinds)).rows
+        out = np.empty((len(funcs), p.size)) if out is None else out
+        step = max(1, ROWS_CHUNK // max(p.size, 1))  # blocks of rows whose temporaries stay in cache
+        ok = True
+        for k0 in range(0, len(funcs), step):
+            block = np.asarray(rows(tuple(funcs[k0:k0 + step]), p), dtype=float)
+            if block.shape != (len(funcs[k0:k0 + step]), p.size):
+                ok = False
+                break
+            out[k0:k0 + step] = block
+        if ok and np.all(np.isfinite(out)):
+            return out
+    res = np.array([_check_f(g, p, f"{name} of stage {k}") for k, g in enumerate(funcs)]).reshape(len(funcs), p.size)
+    if out is None:
+        return res
+    out[...] = res
+    return out
+
+
 def _tau_independent(problem: FokkerPlanckProblem) -> bool:
     """Whether the drift ``a(p, tau)`` returns identical values at nine probe times (then one stage).
 
@@ -202,10 +231,13 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
         probe = np.linspace(0.0, p_hi, 1025)[1:]
         var = 0.0
         shift = 0.0
-        for k, pc in enumerate(pieces):
-            var += 2.0 * pc.duration * float(np.max(_check_f(pc.f, probe, f"the diffusivity of stage {k}")))
-            if pc.b is not None:
-                shift += pc.duration * float(np.max(np.abs(_check_f(pc.b, probe, f"the drift of stage {k}"))))
+        f_max = _rows([pc.f for pc in pieces], probe, "the diffusivity").max(axis=1)
+        with_b = [pc for pc in pieces if pc.b is not None]
+        b_max = _rows([pc.b for pc in with_b], probe, "the drift").__abs__().max(axis=1) if with_b else []
+        for pc, fm in zip(pieces, f_max):
+            var += 2.0 * pc.duration * float(fm)
+        for pc, bm in zip(with_b, b_max):
+            shift += pc.duration * float(bm)
         s = math.sqrt(var)
         z = 7.5 + 0.6 * math.log10(1.0 / max(rtol, 1e-15))  # Gaussian quantile well beyond rtol's tail mass
         new = p0 + shift + z * s
@@ -224,9 +256,9 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
     if p0 / s < 1.0 / MAX_RATIO:
         raise ValueError(f"mean_pressure/spread = {p0 / s:.3g} is below {1 / MAX_RATIO:.0e}: the start sits at the wall "
                          "to double precision (the contact is lost)")
-    for k, pc in enumerate(pieces):  # the balance does not set the spread: checked once, on the final probe
-        if pc.w is not None:
-            _check_f(pc.w, probe, f"the balance of stage {k}")
+    with_w = [pc.w for pc in pieces if pc.w is not None]  # the balance does not set the spread: checked once
+    if with_w:
+        _rows(with_w, probe, "the balance")
     p_max = new
     if LAMPERTI and not time_dependent and len(pieces) >= COMPILED_MIN_PIECES:
         # the upper tail in the Lamperti coordinate Y = int dp / sqrt(2 F), F = sum dtau_k f_k: Y - Y(p0) is
@@ -234,8 +266,8 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
         # Y bound the tail like z spreads do for constant f (checked after the solve: the top cell's mass)
         nodes = np.linspace(p0, p_max, 2049)
         F = np.zeros_like(nodes)
-        for pc in pieces:
-            F += pc.duration * np.maximum(_check_f(pc.f, nodes, "diffusivity"), 0.0)
+        for pc, f_row in zip(pieces, _rows([pc.f for pc in pieces], nodes, "the diffusivity")):
+            F += pc.duration * np.maximum(f_row, 0.0)
         if np.all(np.diff(F) >= 0.0) and F[0] > 0.0:
             rho = 1.0 / np.sqrt(2.0 * F)
             y_l = np.concatenate(([0.0], np.cumsum(0.5 * np.diff(nodes) * (rho[1:] + rho[:-1]))))
@@ -285,7 +317,7 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
     if p0 not in pruned:
         pruned = sorted([x for x in pruned if abs(x - p0) > 1e-9 * p0 or x in extra_knots] + [p0])
     # grading towards p0 where the local spread is small compared with the global one
-    f_p0 = [max(float(_check_f(pc.f, np.array([p0]), "diffusivity")[0]), 0.0) for pc in pieces]
+    f_p0 = [max(float(v), 0.0) for v in _rows([pc.f for pc in pieces], np.array([p0]), "the diffusivity")[:, 0]]
     if time_dependent:
         w_loc = math.sqrt(2.0 * tau_end * max(f_p0))
     else:  # stages: the variance a start at p0 accumulates, sum_k 2 dtau_k f_k(p0) (not 2 tau_end max_k f_k)
@@ -334,14 +366,19 @@ def _coefficients(pieces: Sequence, grids: Sequence[np.ndarray], centre_drift: b
     if centre_drift:
         rows["b_c"], rows["w_c"] = np.zeros((k_stages, c_all.size)), np.zeros((k_stages, c_all.size))
     has = {"b": np.zeros(k_stages, dtype=bool), "w": np.zeros(k_stages, dtype=bool)}
-    for k, pc in enumerate(pieces):
-        rows["f"][k] = np.maximum(_check_f(pc.f, c_all, "diffusivity"), 0.0)
-        for key, g, name in (("b", pc.b, "drift"), ("w", pc.w, "balance")):
-            if g is not None:
-                has[key][k] = True
-                rows[key][k] = _check_f(g, f_all, name)
-                if centre_drift:
-                    rows[key + "_c"][k] = _check_f(g, c_all, name)
+    np.maximum(_rows([pc.f for pc in pieces], c_all, "the diffusivity", out=rows["f"]), 0.0, out=rows["f"])
+    for key, name in (("b", "the drift"), ("w", "the balance")):
+        idx = [k for k, pc in enumerate(pieces) if getattr(pc, key) is not None]
+        if not idx:
+            continue
+        has[key][idx] = True
+        funcs = [getattr(pieces[k], key) for k in idx]
+        every = len(idx) == k_stages  # all stages: write in place
+        for suffix, pts in (("", f_all), ("_c", c_all)) if centre_drift else (("", f_all),):
+            if every:
+                _rows(funcs, pts, name, out=rows[key + suffix])
+            else:
+                rows[key + suffix][idx] = _rows(funcs, pts, name)
     return [{**{key: v[:, cut[g]:cut[g + 1]] for key, v in rows.items()},  # views: no copies
              "has_b": has["b"], "has_w": has["w"]} for g in range(len(grids))]
 
@@ -358,9 +395,8 @@ def _stage_bands(edges: np.ndarray, coef: dict, assemble: Assemble, compiled: bo
         if compiled:
             from . import _kernels as k  # numba: loaded with the compiled stages
 
-            base = k.bands_rows(edges, coef["f"], coef["b"], any_b)
-            wb = k.bands_rows(edges, np.zeros((n_stages if any_w else 1, n)), coef["w"] if any_w else coef["w"][:1],
-                              True)
+            base = k.bands_rows(edges, coef["f"], coef["b"], any_b, True)
+            wb = k.bands_rows(edges, coef["f"][:1], coef["w"] if any_w else coef["w"][:1], True, False)
         else:
             base = fv_bands(edges, coef["f"], coef["b"] if any_b else None)
             wb = fv_bands(edges, np.zeros((n_stages if any_w else 1, n)), coef["w"] if any_w else coef["w"][:1])
