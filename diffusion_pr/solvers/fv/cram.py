@@ -17,8 +17,13 @@ is at most that times the condition number of ``L``'s eigenvector matrix
 """
 from __future__ import annotations
 
+import glob
+import importlib.machinery
+import importlib.util
+import os
+import sys
+
 import numpy as np
-from scipy.linalg import get_lapack_funcs
 
 __all__ = ["ALPHA", "THETA", "ALPHA0", "PFD_RESIDUES", "ERROR_BOUND", "expm_tridiagonal"]
 
@@ -66,7 +71,38 @@ def _partial_fraction_residues() -> np.ndarray:
 #: against 1e-15 for the IPF form, since the residues reach 2e2)
 PFD_RESIDUES = _partial_fraction_residues()
 
-_GTSV = get_lapack_funcs("gtsv", dtype=np.complex128)
+
+
+def _zgtsv():
+    """LAPACK ``zgtsv`` from scipy's compiled LAPACK module, without importing ``scipy.linalg``.
+
+    ``import scipy.linalg`` costs about 0.2 s (its package imports ``numpy.f2py``
+    and the array-API layer), most of the first solve in a fresh process; the
+    f2py extension ``scipy/linalg/_flapack`` itself loads in about 10 ms.  It is
+    loaded from its file under its own name (so a later ``import scipy.linalg``
+    reuses it); if that fails for any reason, the documented
+    ``scipy.linalg.get_lapack_funcs`` is used.
+    """
+    if "scipy.linalg" not in sys.modules:
+        try:
+            flapack = sys.modules.get("scipy.linalg._flapack")
+            if flapack is None:
+                spec = importlib.util.find_spec("scipy")
+                path = sorted(glob.glob(os.path.join(spec.submodule_search_locations[0], "linalg", "_flapack*")))[0]
+                loader = importlib.machinery.ExtensionFileLoader("scipy.linalg._flapack", path)
+                flapack = importlib.util.module_from_spec(
+                    importlib.util.spec_from_file_location("scipy.linalg._flapack", path, loader=loader))
+                loader.exec_module(flapack)
+                sys.modules["scipy.linalg._flapack"] = flapack
+            return flapack.zgtsv
+        except Exception:  # pragma: no cover - an unusual scipy layout: the public route
+            pass
+    from scipy.linalg import get_lapack_funcs
+
+    return get_lapack_funcs("gtsv", dtype=np.complex128)
+
+
+_GTSV = _zgtsv()
 
 
 def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: float, y: np.ndarray) -> np.ndarray:
