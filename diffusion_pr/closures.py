@@ -240,6 +240,33 @@ def contact_fraction(theory: Any, *, zeta: float, mean_pressure: float) -> float
 
 
 # --------------------------------------------------------------------------- model callables
+def _common_wall(items: tuple, p: Any) -> Optional[tuple]:
+    """``(kz, max(p, 0) as a row)`` when all ``items`` share one ``kz > 0`` (their rows vectorize), else None."""
+    kz = {it.kz for it in items}
+    if len(kz) != 1 or kz == {0.0}:
+        return None
+    return kz.pop(), np.maximum(np.asarray(p, dtype=float), 0.0)[None, :]
+
+
+class _LoadModel:
+    """A drift-type model that vanishes on the hard wall (``kz = 0``), evaluated row-wise by ``_formula``."""
+
+    def __call__(self, p: np.ndarray) -> np.ndarray:
+        p = np.asarray(p, dtype=float)
+        if self.kz == 0.0:
+            return np.zeros_like(p)
+        return type(self).rows((self,), p.reshape(-1))[0].reshape(p.shape)
+
+    @classmethod
+    def rows(cls, items: tuple, p: np.ndarray) -> np.ndarray:
+        """``[m(p) for m in items]`` as a 2-D array in one vectorized pass (same values as calling each)."""
+        common = _common_wall(items, p)
+        if common is None:
+            return np.array([it(p) for it in items])
+        kz, pp = common
+        return cls._formula(items, kz, pp)
+
+
 @dataclass(frozen=True)
 class LocalResponseDiffusivity:
     """``f_k(p) = g(q_k; p)^2`` (dimensionless): the diffusivity of shell ``k``.
@@ -290,7 +317,7 @@ class LocalResponseDiffusivity:
 
 
 @dataclass(frozen=True)
-class LoadExcessDrift:
+class LoadExcessDrift(_LoadModel):
     """``b_k(p) = (1 - g(q_part; p)) g(q_k; p)^2 / p`` [pressure per unit tau].
 
     The local load excess of the exponential response, removed in the fraction
@@ -307,24 +334,8 @@ class LoadExcessDrift:
     def breakpoints(self) -> tuple[float, ...]:
         return ()
 
-    def __call__(self, p: np.ndarray) -> np.ndarray:
-        p = np.asarray(p, dtype=float)
-        if self.kz == 0.0:
-            return np.zeros_like(p)
-        pp = np.maximum(p, 0.0)
-        part = self.kz * self.q_part / (pp + self.kz * self.q_part)
-        denom = pp + self.kz * self.q
-        return part * pp / (denom * denom)
-
-    @classmethod
-    def rows(cls, items: tuple, p: np.ndarray) -> np.ndarray:
-        """``[b_k(p) for k]`` as a 2-D array in one vectorized pass (same values as calling each)."""
-        kz = {it.kz for it in items}
-        p = np.asarray(p, dtype=float)
-        if len(kz) != 1 or kz == {0.0}:
-            return np.array([it(p) for it in items])
-        kz = kz.pop()
-        pp = np.maximum(p, 0.0)[None, :]
+    @staticmethod
+    def _formula(items: tuple, kz: float, pp: np.ndarray) -> np.ndarray:
         kq_part = kz * np.array([it.q_part for it in items])[:, None]
         part = kq_part / (pp + kq_part)
         denom = pp + kz * np.array([it.q for it in items])[:, None]
@@ -332,7 +343,7 @@ class LoadExcessDrift:
 
 
 @dataclass(frozen=True)
-class RigidApproachBalance:
+class RigidApproachBalance(_LoadModel):
     """``w(p) = (1 - g(q_part; p)) p`` [pressure per unit tau per unit A]: the rigid-body
     approach ``z0`` that restores the load, acting in the fraction ``1 - g(q_part; p)``."""
 
@@ -344,22 +355,8 @@ class RigidApproachBalance:
     def breakpoints(self) -> tuple[float, ...]:
         return ()
 
-    def __call__(self, p: np.ndarray) -> np.ndarray:
-        p = np.asarray(p, dtype=float)
-        if self.kz == 0.0:
-            return np.zeros_like(p)
-        pp = np.maximum(p, 0.0)
-        return self.kz * self.q_part * pp / (pp + self.kz * self.q_part)
-
-    @classmethod
-    def rows(cls, items: tuple, p: np.ndarray) -> np.ndarray:
-        """``[w_k(p) for k]`` as a 2-D array in one vectorized pass (same values as calling each)."""
-        kz = {it.kz for it in items}
-        p = np.asarray(p, dtype=float)
-        if len(kz) != 1 or kz == {0.0}:
-            return np.array([it(p) for it in items])
-        kz = kz.pop()
-        pp = np.maximum(p, 0.0)[None, :]
+    @staticmethod
+    def _formula(items: tuple, kz: float, pp: np.ndarray) -> np.ndarray:
         kq_part = kz * np.array([it.q_part for it in items])[:, None]
         return kq_part * pp / (pp + kq_part)
 

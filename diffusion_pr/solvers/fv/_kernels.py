@@ -52,34 +52,8 @@ def _rec(z):  # pragma: no cover - numba
 @njit(cache=True)
 def cram_apply(lower, diag, upper, t, y, alpha, theta, alpha0):  # pragma: no cover - numba
     """``exp(t L) y`` (CRAM-16, IPF form) for the tridiagonal ``L``; returns ``(y_new, info)``."""
-    n = diag.size
-    out = y.copy()
-    if t == 0.0:
-        return out, 0
-    dl = np.empty(n - 1, dtype=np.complex128)
-    du = np.empty(n - 1, dtype=np.complex128)
-    du2 = np.empty(max(n - 2, 1), dtype=np.complex128)
-    d = np.empty(n, dtype=np.complex128)
-    ipiv = np.empty(n, dtype=np.int64)
-    b = np.empty(n, dtype=np.complex128)
-    for j in range(alpha.size):
-        for i in range(n - 1):
-            dl[i] = t * lower[i]
-            du[i] = t * upper[i]
-        th = theta[j]
-        for i in range(n):
-            d[i] = t * diag[i] - th
-            b[i] = out[i]
-        info = gttrf(dl, d, du, du2, ipiv)
-        if info != 0:
-            return out, info
-        gttrs(dl, d, du, du2, ipiv, b)
-        a = alpha[j]
-        for i in range(n):
-            out[i] += 2.0 * (a * b[i]).real
-    for i in range(n):
-        out[i] *= alpha0
-    return out, 0
+    out, _, info = _ipf(lower, diag, upper, lower, diag, upper, t, y, alpha, theta, alpha0, False)
+    return out, info
 
 
 @njit(cache=True)
@@ -154,6 +128,12 @@ def cram_apply_d(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0):  #
     (:func:`gttrf`) and two solves per pole, the exact derivative of the
     computed map.  Returns ``(x, dx, info)``.
     """
+    return _ipf(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0, True)
+
+
+@njit(cache=True)
+def _ipf(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0, want_d):  # pragma: no cover - numba
+    """CRAM-16 in IPF form, with the ``A``-derivative of :func:`cram_apply_d` if ``want_d``."""
     n = diag.size
     out = y.copy()
     dout = np.zeros(n)
@@ -178,17 +158,18 @@ def cram_apply_d(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0):  #
         if info != 0:
             return out, dout, info
         gttrs(dl, d, du, du2, ipiv, b)
-        # r = dx + t W b
-        for i in range(n):
-            r[i] = dout[i] + t * wd[i] * b[i]
-        for i in range(n - 1):
-            r[i + 1] += t * wl[i] * b[i]
-            r[i] += t * wu[i] * b[i + 1]
-        gttrs(dl, d, du, du2, ipiv, r)
         a = alpha[j]
+        if want_d:  # r = dx + t W b, solved with the same factors
+            for i in range(n):
+                r[i] = dout[i] + t * wd[i] * b[i]
+            for i in range(n - 1):
+                r[i + 1] += t * wl[i] * b[i]
+                r[i] += t * wu[i] * b[i + 1]
+            gttrs(dl, d, du, du2, ipiv, r)
+            for i in range(n):
+                dout[i] += 2.0 * (a * r[i]).real
         for i in range(n):
             out[i] += 2.0 * (a * b[i]).real
-            dout[i] += 2.0 * (a * r[i]).real
     for i in range(n):
         out[i] *= alpha0
         dout[i] *= alpha0
@@ -337,12 +318,7 @@ def cram_pfd(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  #
                 return out, dout, n
             d[n - 1, jj] = _rec(d[n - 1, jj])
         _back(d, du, du2, b, n, g_size)
-        for i in range(n):
-            s = 0.0
-            for jj in range(g_size):
-                cj = c[g0 + jj]
-                s += cj.real * b[i, jj].real - cj.imag * b[i, jj].imag
-            out[i] += 2.0 * s
+        _accumulate(out, c, g0, b, n, g_size)
         if not want_d:
             continue
         # r = t W b row by row, eliminated in the same sweep with the stored multipliers and interchanges
@@ -363,13 +339,19 @@ def cram_pfd(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  #
                 else:
                     r[i + 1, jj] = raw - f * r[i, jj]
         _back(d, du, du2, r, n, g_size)
-        for i in range(n):
-            s = 0.0
-            for jj in range(g_size):
-                cj = c[g0 + jj]
-                s += cj.real * r[i, jj].real - cj.imag * r[i, jj].imag
-            dout[i] += 2.0 * s
+        _accumulate(dout, c, g0, r, n, g_size)
     return out, dout, 0
+
+
+@njit(cache=True)
+def _accumulate(out, c, g0, x, n, g_size):  # pragma: no cover - numba
+    """``out += 2 Re sum_j c_j x_j`` over the block of poles starting at ``g0``."""
+    for i in range(n):
+        s = 0.0
+        for jj in range(g_size):
+            cj = c[g0 + jj]
+            s += cj.real * x[i, jj].real - cj.imag * x[i, jj].imag
+        out[i] += 2.0 * s
 
 
 @njit(cache=True)
