@@ -229,6 +229,12 @@ class _PythonKernels:
             return _cram_d(base, (np.zeros(len(y) - 1), np.zeros(len(y)), np.zeros(len(y) - 1)), t, y, True)[0]
         return expm_tridiagonal(*base, t, y)
 
+    def run_rows(self, edges, f_rows, b_rows, w_rows, any_b, *rest):
+        """The native bands from the rows with numpy (operator.bands), then :meth:`run`."""
+        lower, diag, upper = bands(edges, f_rows, b_rows if any_b else None)
+        wl, wd, wu = bands(edges, np.zeros_like(w_rows), w_rows)
+        return self.run(lower, diag, upper, wl, wd, wu, *rest)
+
     def run(self, lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, pfd):
         n_cram = n_newton = 0
         self.use_d, self.ratio, self.pfd = False, 1.0, pfd

@@ -28,7 +28,7 @@ from numba import njit
 
 from .cram import ALPHA, ALPHA0, PFD_RESIDUES, THETA
 
-__all__ = ["bands_rows", "cram_pfd", "gttrf", "gttrs", "cram_apply", "cram_apply_d", "balanced_stage", "staged_run", "ALPHA", "THETA", "ALPHA0", "PFD_RESIDUES"]
+__all__ = ["bands_rows", "cram_pfd", "gttrf", "gttrs", "cram_apply", "cram_apply_d", "balanced_stage", "staged_run", "staged_run_rows", "ALPHA", "THETA", "ALPHA0", "PFD_RESIDUES"]
 
 
 @njit(cache=True)
@@ -177,20 +177,9 @@ def _ipf(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0, want_d):  #
 
 
 @njit(cache=True)
-def bands_rows(edges, f_rows, a_rows, with_drift, with_diffusion):  # pragma: no cover - numba
-    """The bands of :func:`.operator.bands` for every row of ``f_rows`` / ``a_rows`` in one pass.
-
-    Same formula and order of operations per entry as the numpy version (its
-    test oracle), without the temporaries of 2-D numpy expressions.  Without
-    ``with_diffusion`` the rows are the drift's alone (``f = 0``; ``f_rows`` not
-    read) and their count is that of ``a_rows``.  Returns ``(lower, diag, upper)``
-    of shapes ``(k, n)``, ``(k, n+1)``, ``(k, n)``.
-    """
-    n = f_rows.shape[1]
-    k_rows = f_rows.shape[0] if with_diffusion else a_rows.shape[0]
-    lower = np.zeros((k_rows, n))
-    diag = np.zeros((k_rows, n + 1))
-    upper = np.zeros((k_rows, n))
+def _geometry(edges):  # pragma: no cover - numba
+    """Per-grid factors of the bands: ``(h, 1/(c_{i+1} - c_i), 1/(c_0 - p_wall), 1/(2h))``."""
+    n = edges.size - 1
     h = np.empty(n)
     c = np.empty(n)
     for i in range(n):
@@ -199,37 +188,68 @@ def bands_rows(edges, f_rows, a_rows, with_drift, with_diffusion):  # pragma: no
     k_int = np.empty(max(n - 1, 1))
     for i in range(n - 1):
         k_int[i] = 1.0 / (c[i + 1] - c[i])
-    wall = 1.0 / (c[0] - edges[0])
     half_inv_h = np.empty(n)
     for i in range(n):
         half_inv_h[i] = 0.5 / h[i]
-    for r in range(k_rows):
-        g_prev = f_rows[r, 0] / h[0] if with_diffusion else 0.0
-        for i in range(n - 1 if with_diffusion else 0):
-            g_next = f_rows[r, i + 1] / h[i + 1]
+    return h, k_int, 1.0 / (c[0] - edges[0]), half_inv_h
+
+
+@njit(cache=True)
+def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusion,
+              lower, diag, upper):  # pragma: no cover - numba
+    """One operator's bands (:func:`.operator.bands`'s formula) into ``lower, diag, upper`` (overwritten)."""
+    n = h.size
+    for i in range(n):
+        lower[i] = 0.0
+        upper[i] = 0.0
+    for i in range(n + 1):
+        diag[i] = 0.0
+    if with_diffusion:
+        g_prev = f_row[0] / h[0]
+        for i in range(n - 1):
+            g_next = f_row[i + 1] / h[i + 1]
             left = k_int[i] * g_prev
             right = k_int[i] * g_next
-            diag[r, i + 1] -= left
-            upper[r, i + 1] += right
-            diag[r, i + 2] -= right
-            lower[r, i + 1] += left
+            diag[i + 1] -= left
+            upper[i + 1] += right
+            diag[i + 2] -= right
+            lower[i + 1] += left
             g_prev = g_next
-        if with_diffusion:
-            out = (f_rows[r, 0] / h[0]) * wall
-            diag[r, 1] -= out
-            upper[r, 0] += out
-        if with_drift:
-            for i in range(n - 1):
-                ai = a_rows[r, i + 1]
-                cl = ai * half_inv_h[i]
-                cr = ai * half_inv_h[i + 1]
-                diag[r, i + 1] -= cl
-                upper[r, i + 1] -= cr
-                lower[r, i + 1] += cl
-                diag[r, i + 2] += cr
-            aw = min(a_rows[r, 0], 0.0)
-            diag[r, 1] += aw / h[0]
-            upper[r, 0] -= aw / h[0]
+        out = (f_row[0] / h[0]) * wall
+        diag[1] -= out
+        upper[0] += out
+    if with_drift:
+        for i in range(n - 1):
+            ai = a_row[i + 1]
+            cl = ai * half_inv_h[i]
+            cr = ai * half_inv_h[i + 1]
+            diag[i + 1] -= cl
+            upper[i + 1] -= cr
+            lower[i + 1] += cl
+            diag[i + 2] += cr
+        aw = min(a_row[0], 0.0)
+        diag[1] += aw / h[0]
+        upper[0] -= aw / h[0]
+
+
+@njit(cache=True)
+def bands_rows(edges, f_rows, a_rows, with_drift, with_diffusion):  # pragma: no cover - numba
+    """The bands of :func:`.operator.bands` for every row of ``f_rows`` / ``a_rows``.
+
+    Same formula and order of operations per entry as the numpy version (its
+    test oracle).  Without ``with_diffusion`` the rows are the drift's alone
+    (``f = 0``; ``f_rows`` not read) and their count is that of ``a_rows``.
+    Returns ``(lower, diag, upper)`` of shapes ``(k, n)``, ``(k, n+1)``, ``(k, n)``.
+    """
+    n = f_rows.shape[1]
+    k_rows = f_rows.shape[0] if with_diffusion else a_rows.shape[0]
+    h, k_int, wall, half_inv_h = _geometry(edges)
+    lower = np.empty((k_rows, n))
+    diag = np.empty((k_rows, n + 1))
+    upper = np.empty((k_rows, n))
+    for r in range(k_rows):
+        _fill_row(h, k_int, wall, half_inv_h, f_rows[r if with_diffusion else 0], a_rows[r], with_drift,
+                  with_diffusion, lower[r], diag[r], upper[r])
     return lower, diag, upper
 
 
@@ -519,14 +539,61 @@ def staged_run(lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, 
     Returns ``(y, n_cram, n_newton, info, stage, residual)``; on ``info != 0``
     ``stage`` is the failing stage and ``y`` the state before it.
     """
+    empty = np.zeros((1, 1))
+    return _run(lower, diag, upper, wl, wd, wu, empty[0], empty, empty, empty, False, balanced, dt, reps, cvec, y,
+                p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c)
+
+
+@njit(cache=True)
+def staged_run_rows(edges, f_rows, b_rows, w_rows, any_b, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol,
+                    max_iter, pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
+    """:func:`staged_run` for the native operator, its bands made stage by stage from the coefficient rows.
+
+    ``f_rows`` (centres), ``b_rows`` and ``w_rows`` (faces) hold every stage's
+    diffusivity, drift and balance; no band array of all stages is formed.
+    """
+    empty = np.zeros((1, 1))
+    return _run(empty, empty, empty, empty, empty, empty, edges, f_rows, b_rows, w_rows, any_b, balanced, dt, reps,
+                cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c)
+
+
+@njit(cache=True)
+def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, balanced, dt, reps, cvec, y, p0,
+         mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
+    """The stage loop of :func:`staged_run` (bands given) and :func:`staged_run_rows` (bands made per stage)."""
+    from_rows = edges.size > 1
+    n_stages = f_rows.shape[0] if from_rows else diag.shape[0]
+    n = cvec.size
+    lo = np.empty(n - 1)
+    di = np.empty(n)
+    up = np.empty(n - 1)
+    wlo = np.empty(n - 1)
+    wdi = np.empty(n)
+    wup = np.empty(n - 1)
+    if from_rows:
+        h, k_int, wall, half_inv_h = _geometry(edges)
+    else:
+        h, k_int, wall, half_inv_h = np.empty(1), np.empty(1), 0.0, np.empty(1)
     n_cram = 0
     n_newton = 0
     use_d = False
     ratio = 1.0
-    for k in range(diag.shape[0]):
+    for k in range(n_stages):
+        if from_rows:
+            _fill_row(h, k_int, wall, half_inv_h, f_rows[k], b_rows[k], any_b, True, lo, di, up)
+            if balanced[k]:
+                _fill_row(h, k_int, wall, half_inv_h, f_rows[k], w_rows[k], True, False, wlo, wdi, wup)
+        else:
+            lo[:] = lower[k]
+            di[:] = diag[k]
+            up[:] = upper[k]
+            if balanced[k]:
+                wlo[:] = wl[k]
+                wdi[:] = wd[k]
+                wup[:] = wu[k]
         if balanced[k]:
             y_new, nc, nn, info, res, use_d, ratio = balanced_stage(
-                lower[k], diag[k], upper[k], wl[k], wd[k], wu[k], cvec, y, dt[k], reps[k], p0, mean_tol, lin_tol,
+                lo, di, up, wlo, wdi, wup, cvec, y, dt[k], reps[k], p0, mean_tol, lin_tol,
                 max_iter, use_d, ratio, pfd, alpha, theta, alpha0, c)
             n_cram += nc
             n_newton += nn
@@ -535,8 +602,7 @@ def staged_run(lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, 
             y = y_new
         else:
             for _ in range(reps[k]):
-                y_new, _, info = _expm(lower[k], diag[k], upper[k], wl[0], wd[0], wu[0], dt[k], y, pfd, False,
-                                       alpha, theta, alpha0, c)
+                y_new, _, info = _expm(lo, di, up, wlo, wdi, wup, dt[k], y, pfd, False, alpha, theta, alpha0, c)
                 n_cram += 1
                 if info != 0:
                     return y, n_cram, n_newton, info, k, 0.0

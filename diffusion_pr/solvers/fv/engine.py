@@ -383,23 +383,17 @@ def _coefficients(pieces: Sequence, grids: Sequence[np.ndarray], centre_drift: b
              "has_b": has["b"], "has_w": has["w"]} for g in range(len(grids))]
 
 
-def _stage_bands(edges: np.ndarray, coef: dict, assemble: Assemble, compiled: bool) -> tuple:
+def _stage_bands(edges: np.ndarray, coef: dict, assemble: Assemble) -> tuple:
     """Rows of the stages' bands ``L_k`` and of their balance operators (0 where a stage has none).
 
     Without a balance the balance rows are a single row of zeros (never read).
     """
     n_stages, n = coef["f"].shape
     any_w = bool(coef["has_w"].any())
-    if assemble is native_assemble:  # all stages at once
+    if assemble is native_assemble:  # all stages at once (the compiled path makes them in its kernel)
         any_b = bool(coef["has_b"].any())
-        if compiled:
-            from . import _kernels as k  # numba: loaded with the compiled stages
-
-            base = k.bands_rows(edges, coef["f"], coef["b"], any_b, True)
-            wb = k.bands_rows(edges, coef["f"][:1], coef["w"] if any_w else coef["w"][:1], True, False)
-        else:
-            base = fv_bands(edges, coef["f"], coef["b"] if any_b else None)
-            wb = fv_bands(edges, np.zeros((n_stages if any_w else 1, n)), coef["w"] if any_w else coef["w"][:1])
+        base = fv_bands(edges, coef["f"], coef["b"] if any_b else None)
+        wb = fv_bands(edges, np.zeros((n_stages if any_w else 1, n)), coef["w"] if any_w else coef["w"][:1])
         return base, wb
     rows = []
     wrows = []
@@ -460,7 +454,9 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     if coef is None:
         coef = _coefficients(pieces, [edges], centre_drift=assemble is not native_assemble)[0]
     compiled = len(pieces) >= COMPILED_MIN_PIECES or prep.has_balance
-    (lower, diag, upper), (wl, wd, wu) = _stage_bands(edges, coef, assemble, compiled)
+    rows_in_kernel = compiled and assemble is native_assemble  # the kernel makes each stage's bands itself
+    if not rows_in_kernel:
+        (lower, diag, upper), (wl, wd, wu) = _stage_bands(edges, coef, assemble)
     balanced = coef["has_w"]
     reps = _drift_splits(pieces, coef)
     for k in np.flatnonzero(balanced):
@@ -469,9 +465,14 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     counters = {"cram_applications": 0, "substeps": int(reps[balanced].sum()), "newton_steps": 0}
     # a balance always runs in the kernel (its substep loop is compiled); a few plain stages stay on LAPACK
     if compiled:
-        y, n_cram, n_newton, info, stage, residual = _staged_kernels().run(
-            lower, diag, upper, wl, wd, wu, balanced, dt, reps, np.r_[edges[0], c], y, prep.p0, mean_tol,
-            max(mean_tol, lin_tol), lin_tol >= math.sqrt(LINEAR_FRACTION * PFD_MIN_RTOL))
+        common = (balanced, dt, reps, np.r_[edges[0], c], y, prep.p0, mean_tol, max(mean_tol, lin_tol),
+                  lin_tol >= math.sqrt(LINEAR_FRACTION * PFD_MIN_RTOL))
+        if rows_in_kernel:
+            y, n_cram, n_newton, info, stage, residual = _staged_kernels().run_rows(
+                edges, coef["f"], coef["b"], coef["w"], bool(coef["has_b"].any()), *common)
+        else:
+            y, n_cram, n_newton, info, stage, residual = _staged_kernels().run(lower, diag, upper, wl, wd, wu,
+                                                                              *common)
         counters["cram_applications"] = n_cram
         counters["newton_steps"] = n_newton
         if info > 0:
@@ -502,6 +503,16 @@ class _Kernels:
         self._k = k
         self._coef = (np.ascontiguousarray(k.ALPHA), np.ascontiguousarray(k.THETA), float(k.ALPHA0),
                       np.ascontiguousarray(k.PFD_RESIDUES))
+
+    def run_rows(self, edges, f_rows, b_rows, w_rows, any_b, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol,
+                 pfd):
+        """:meth:`run` with the native operator's bands made in the kernel (:func:`._kernels.staged_run_rows`)."""
+        f = _f64
+        y, n_cram, n_newton, info, stage, res = self._k.staged_run_rows(
+            f(edges), f_rows, b_rows, w_rows, bool(any_b), np.ascontiguousarray(balanced, dtype=np.bool_),
+            f(dt), np.ascontiguousarray(reps, dtype=np.int64), f(cvec), f(y), float(p0), float(mean_tol),
+            float(lin_tol), int(MAX_BALANCE_ITERATIONS), bool(pfd), *self._coef)
+        return y, int(n_cram), int(n_newton), int(info), int(stage), float(res)
 
     def run(self, lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, pfd):
         """Every stage on one grid: ``(y, n_cram, n_newton, info, stage, residual)`` (:func:`._kernels.staged_run`)."""
