@@ -184,7 +184,10 @@ def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1) -> np.ndarray:
     targets = ph[0] + tot * x
     if k.size > 2:
         r = _NaturalSpline(xk, resid)
-        if np.all(tot + r(np.linspace(0.0, 1.0, 8 * n + 1), 1) > 0.2 * tot):
+        # T' = tot + r' must stay positive: r' is quadratic on each segment between knots, so 33 samples per
+        # segment find its minimum far inside the 0.2 tot margin
+        probe = np.concatenate([np.linspace(a, b, 33) for a, b in zip(xk[:-1], xk[1:])])
+        if np.all(tot + r(probe, 1) > 0.2 * tot):
             targets = targets + r(x)
         else:  # knots crowded: equal Phi steps per segment (nested, piecewise smooth)
             targets = np.concatenate([ph[j] + (ph[j + 1] - ph[j]) * np.arange(factor * (idx[j + 1] - idx[j])) /
