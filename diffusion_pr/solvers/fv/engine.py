@@ -59,6 +59,8 @@ RICHARDSON_DIVISOR = 7.0
 SAFETY = 0.5
 #: the next level's cells: NEED_MARGIN times those the N^-4 law predicts for SAFETY * rtol
 NEED_MARGIN = 1.25
+#: ... but at least MIN_GROWTH times the current level's
+MIN_GROWTH = 1.5
 #: a drift stage is split so that each exponential moves the distribution by at most this many spreads
 DRIFT_SPLIT = 2.0
 #: at most this many exponential steps per drift stage
@@ -643,7 +645,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             break
         # the estimate falls like N^-4: predict the cells that meet rtol (x1.5 ... x8 per level)
         need = NEED_MARGIN * (est / (SAFETY * rtol)) ** 0.25
-        grow = float(np.clip(need, 1.5, 8.0))
+        grow = float(np.clip(need, MIN_GROWTH, 8.0))
         if 4 * n_base >= max_cells or 4 * n_base * need > 8 * max_cells:
             failure = (f"error estimate {est:.2e} misses rtol={rtol:.1e}: it would need about "
                        f"{int(4 * n_base * need)} cells, max_cells={max_cells}")
