@@ -433,7 +433,8 @@ def _drift_splits(pieces: Sequence, coef: dict) -> np.ndarray:
 
 def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = native_assemble,
                   n_base: int = 64, refine: int = 1, mean_tol: float = 1e-13,
-                  lin_tol: float = 0.0, coef: Optional[dict] = None) -> tuple[np.ndarray, dict]:
+                  lin_tol: float = 0.0, coef: Optional[dict] = None,
+                  partial_fractions: bool = True) -> tuple[np.ndarray, dict]:
     """Integrate from the start to ``tau_end`` on one grid; return ``y = [z, m...]`` and counters.
 
     ``n_base`` is the cell count of the coarsest grid of the nested triple and
@@ -443,7 +444,9 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     takes Newton steps on ``A`` (one exponential each) until the mean is within
     ``mean_tol p0`` of ``p0``, the last one to first order on the state once the
     miss is below ``lin_tol p0``; after MAX_BALANCE_ITERATIONS the counters carry
-    ``"balance_failure"`` and ``y`` is not a result.
+    ``"balance_failure"`` and ``y`` is not a result.  ``partial_fractions``: the
+    compiled stages use CRAM in partial fractions (else the IPF form; see
+    PFD_MIN_RTOL); ``coef``: the stage coefficients on this grid, if already evaluated.
     """
     c = centres(edges)
     n = c.size
@@ -468,7 +471,7 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     # a balance always runs in the kernel (its substep loop is compiled); a few plain stages stay on LAPACK
     if compiled:
         common = (balanced, dt, reps, np.r_[edges[0], c], y, prep.p0, mean_tol, max(mean_tol, lin_tol),
-                  lin_tol >= math.sqrt(LINEAR_FRACTION * PFD_MIN_RTOL))
+                  bool(partial_fractions))
         if rows_in_kernel:
             y, n_cram, n_newton, info, stage, residual = _staged_kernels().run_rows(
                 edges, coef["f"], coef["b"], coef["w"], bool(coef["has_b"].any()), *common)
@@ -590,7 +593,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     integrate = loop if loop is not None else (
         lambda pr, e, nb, rf, cf=None: solve_on_grid(pr, e, assemble=assemble, n_base=nb, refine=rf, coef=cf,
                                             mean_tol=max(1e-13, MEAN_TOL_FRACTION * rtol),
-                                            lin_tol=math.sqrt(LINEAR_FRACTION * rtol)))
+                                            lin_tol=math.sqrt(LINEAR_FRACTION * rtol),
+                                            partial_fractions=rtol >= PFD_MIN_RTOL))
     n = int(n_cells) if n_cells is not None else int(np.clip(25.0 * (1e-4 / rtol) ** 0.25, 16, 4096))
     history = []
 
