@@ -249,7 +249,15 @@ def _common_wall(items: tuple, p: Any) -> Optional[tuple]:
 
 
 class _LoadModel:
-    """A drift-type model that vanishes on the hard wall (``kz = 0``), evaluated row-wise by ``_formula``."""
+    """A drift-type model that vanishes on the hard wall (``kz = 0``), evaluated row-wise by ``_formula``.
+
+    Model protocol (:mod:`diffusion_pr.models`): linear at ``p -> 0`` (``zero_power`` 1), smooth (no breakpoints).
+    """
+
+    zero_power = 1.0
+
+    def breakpoints(self) -> tuple[float, ...]:
+        return ()
 
     def __call__(self, p: np.ndarray) -> np.ndarray:
         p = np.asarray(p, dtype=float)
@@ -329,11 +337,6 @@ class LoadExcessDrift(_LoadModel):
     q_part: float
     kz: float
 
-    zero_power = 1.0
-
-    def breakpoints(self) -> tuple[float, ...]:
-        return ()
-
     @staticmethod
     def _formula(items: tuple, kz: float, pp: np.ndarray) -> np.ndarray:
         kq_part = kz * np.array([it.q_part for it in items])[:, None]
@@ -349,11 +352,6 @@ class RigidApproachBalance(_LoadModel):
 
     q_part: float
     kz: float
-
-    zero_power = 1.0
-
-    def breakpoints(self) -> tuple[float, ...]:
-        return ()
 
     @staticmethod
     def _formula(items: tuple, kz: float, pp: np.ndarray) -> np.ndarray:

@@ -15,8 +15,8 @@ from scipy.linalg import get_lapack_funcs
 import diffusion_pr as dp
 from diffusion_pr.closures import closure_problem, spectrum_shells
 from diffusion_pr.solvers.fv import engine
-from diffusion_pr.solvers.fv._kernels import (ALPHA, ALPHA0, PFD_RESIDUES, THETA, bands_rows, cram_apply, cram_apply_d,
-                                              cram_pfd, gttrf, gttrs)
+from diffusion_pr.solvers.fv._kernels import (ALPHA, ALPHA0, PFD_RESIDUES, THETA, _fill_row, _geometry, cram_apply,
+                                              cram_apply_d, cram_pfd, gttrf, gttrs)
 from diffusion_pr.solvers.fv.operator import bands
 from diffusion_pr.solvers.fv.cram import expm_tridiagonal
 
@@ -59,17 +59,27 @@ def test_cram_derivative_matches_finite_differences(rng):
     assert np.max(np.abs(dout - fd)) <= 1e-7 * np.max(np.abs(fd))
 
 
+def _kernel_bands(edges, f_rows, a_rows, with_drift, with_diffusion):
+    geometry = _geometry(edges)
+    n = edges.size - 1
+    out = (np.empty((len(a_rows), n)), np.empty((len(a_rows), n + 1)), np.empty((len(a_rows), n)))
+    for r in range(len(a_rows)):
+        _fill_row(*geometry, f_rows[r if with_diffusion else 0], a_rows[r], with_drift, with_diffusion,
+                  out[0][r], out[1][r], out[2][r])
+    return out
+
+
 @pytest.mark.parametrize("with_drift", [False, True])
-def test_bands_rows_match_the_numpy_operator(rng, with_drift):
-    """The compiled band assembly of all stages equals operator.bands (its formula, row by row)."""
+def test_kernel_bands_match_the_numpy_operator(rng, with_drift):
+    """The bands the compiled stage loop makes (``_fill_row``) equal operator.bands (its formula)."""
     edges = np.r_[1e-9, np.cumsum(rng.uniform(0.01, 1.0, 200))]
     f_rows, a_rows = rng.uniform(0.0, 1.0, (5, 200)), rng.normal(size=(5, 200))
     ref = bands(edges, f_rows, a_rows if with_drift else None)
-    for r, x in zip(ref, bands_rows(edges, f_rows, a_rows, with_drift, True)):
+    for r, x in zip(ref, _kernel_bands(edges, f_rows, a_rows, with_drift, True)):
         assert np.max(np.abs(r - x)) <= 1e-15 * np.max(np.abs(r))
     if with_drift:  # the drift alone (the balance operator): f = 0
         ref = bands(edges, np.zeros_like(f_rows), a_rows)
-        for r, x in zip(ref, bands_rows(edges, f_rows[:1], a_rows, True, False)):
+        for r, x in zip(ref, _kernel_bands(edges, f_rows[:1], a_rows, True, False)):
             assert x.shape == r.shape and np.max(np.abs(r - x)) <= 1e-15 * np.max(np.abs(r))
 
 

@@ -28,7 +28,7 @@ from numba import njit
 
 from .cram import ALPHA, ALPHA0, PFD_RESIDUES, THETA
 
-__all__ = ["bands_rows", "cram_pfd", "gttrf", "gttrs", "cram_apply", "cram_apply_d", "balanced_stage", "staged_run", "staged_run_rows", "ALPHA", "THETA", "ALPHA0", "PFD_RESIDUES"]
+__all__ = ["cram_pfd", "gttrf", "gttrs", "cram_apply", "cram_apply_d", "balanced_stage", "staged_run", "staged_run_rows", "ALPHA", "THETA", "ALPHA0", "PFD_RESIDUES"]
 
 
 @njit(cache=True)
@@ -230,27 +230,6 @@ def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusi
         aw = min(a_row[0], 0.0)
         diag[1] += aw / h[0]
         upper[0] -= aw / h[0]
-
-
-@njit(cache=True)
-def bands_rows(edges, f_rows, a_rows, with_drift, with_diffusion):  # pragma: no cover - numba
-    """The bands of :func:`.operator.bands` for every row of ``f_rows`` / ``a_rows``.
-
-    Same formula and order of operations per entry as the numpy version (its
-    test oracle).  Without ``with_diffusion`` the rows are the drift's alone
-    (``f = 0``; ``f_rows`` not read) and their count is that of ``a_rows``.
-    Returns ``(lower, diag, upper)`` of shapes ``(k, n)``, ``(k, n+1)``, ``(k, n)``.
-    """
-    n = f_rows.shape[1]
-    k_rows = f_rows.shape[0] if with_diffusion else a_rows.shape[0]
-    h, k_int, wall, half_inv_h = _geometry(edges)
-    lower = np.empty((k_rows, n))
-    diag = np.empty((k_rows, n + 1))
-    upper = np.empty((k_rows, n))
-    for r in range(k_rows):
-        _fill_row(h, k_int, wall, half_inv_h, f_rows[r if with_diffusion else 0], a_rows[r], with_drift,
-                  with_diffusion, lower[r], diag[r], upper[r])
-    return lower, diag, upper
 
 
 #: poles per block of :func:`cram_pfd` (their eliminations interleave): 4 while the block's arrays (4 per row,
