@@ -248,21 +248,16 @@ def _common_wall(items: tuple, p: Any) -> Optional[tuple]:
     return kz.pop(), np.maximum(np.asarray(p, dtype=float), 0.0)[None, :]
 
 
-class _LoadModel:
-    """A drift-type model that vanishes on the hard wall (``kz = 0``), evaluated row-wise by ``_formula``.
+class _ShellModel:
+    """A shell model of ``p`` that is the constant ``_HARD_WALL`` for the hard wall (``kz = 0``) and
+    ``_formula(items, kz, max(p, 0))`` otherwise, evaluated row-wise for many shells at once."""
 
-    Model protocol (:mod:`diffusion_pr.models`): linear at ``p -> 0`` (``zero_power`` 1), smooth (no breakpoints).
-    """
-
-    zero_power = 1.0
-
-    def breakpoints(self) -> tuple[float, ...]:
-        return ()
+    _HARD_WALL = 0.0
 
     def __call__(self, p: np.ndarray) -> np.ndarray:
         p = np.asarray(p, dtype=float)
         if self.kz == 0.0:
-            return np.zeros_like(p)
+            return np.full_like(p, self._HARD_WALL)
         return type(self).rows((self,), p.reshape(-1))[0].reshape(p.shape)
 
     @classmethod
@@ -275,8 +270,20 @@ class _LoadModel:
         return cls._formula(items, kz, pp)
 
 
+class _LoadModel(_ShellModel):
+    """A drift-type shell model: 0 on the hard wall.
+
+    Model protocol (:mod:`diffusion_pr.models`): linear at ``p -> 0`` (``zero_power`` 1), smooth (no breakpoints).
+    """
+
+    zero_power = 1.0
+
+    def breakpoints(self) -> tuple[float, ...]:
+        return ()
+
+
 @dataclass(frozen=True)
-class LocalResponseDiffusivity:
+class LocalResponseDiffusivity(_ShellModel):
     """``f_k(p) = g(q_k; p)^2`` (dimensionless): the diffusivity of shell ``k``.
 
     Declares the model protocol of :mod:`diffusion_pr.models`: ``zero_power`` is 2 for
@@ -294,6 +301,8 @@ class LocalResponseDiffusivity:
     q: float
     kz: float
 
+    _HARD_WALL = 1.0  # f = 1: Persson
+
     @property
     def zero_power(self) -> float:
         return 2.0 if self.kz > 0.0 else 0.0
@@ -301,25 +310,8 @@ class LocalResponseDiffusivity:
     def breakpoints(self) -> tuple[float, ...]:
         return ()
 
-    def __call__(self, p: np.ndarray) -> np.ndarray:
-        p = np.asarray(p, dtype=float)
-        if self.kz == 0.0:
-            return np.ones_like(p)
-        pp = np.maximum(p, 0.0)
-        g = pp / (pp + self.kz * self.q)
-        return g * g
-
-    @classmethod
-    def rows(cls, items: tuple, p: np.ndarray) -> np.ndarray:
-        """``[f_k(p) for k]`` as a 2-D array in one vectorized pass (same values as calling each)."""
-        kz = {it.kz for it in items}
-        if len(kz) != 1:
-            return np.array([it(p) for it in items])
-        kz = kz.pop()
-        p = np.asarray(p, dtype=float)
-        if kz == 0.0:
-            return np.ones((len(items), p.size))
-        pp = np.maximum(p, 0.0)[None, :]
+    @staticmethod
+    def _formula(items: tuple, kz: float, pp: np.ndarray) -> np.ndarray:
         g = pp / (pp + kz * np.array([it.q for it in items])[:, None])
         return g * g
 
