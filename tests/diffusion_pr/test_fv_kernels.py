@@ -322,11 +322,45 @@ def _closure(zeta, n_shells, per_stage=True):
     return prob if per_stage else StagedProblem(prob.mean_pressure, prob.stages, balance_per_stage=False)
 
 
-def test_balance_that_does_not_converge_is_reported(monkeypatch):
-    """No Newton step allowed: the balance cannot hold the mean and the solve says so (never a result)."""
+@pytest.mark.parametrize("threads", [1, 2])
+def test_balance_that_does_not_converge_is_reported(monkeypatch, threads):
+    """No Newton step allowed: the balance cannot hold the mean and the solve says so (never a result),
+    also when the finest grid ran in the second thread."""
     monkeypatch.setattr(engine, "MAX_BALANCE_ITERATIONS", 0)
     with pytest.raises(RuntimeError, match="balance multiplier A of stage .* did not converge"):
-        engine.solve_fv(_closure(0.01, 24), rtol=1e-4, backend="native", n_cells=40)
+        engine.solve_fv(_closure(0.01, 24), rtol=1e-4, backend="native", n_cells=40, threads=threads)
+
+
+@pytest.mark.parametrize("zeta", [0.01, 1.0])
+def test_second_thread_runs_the_finest_grid_and_keeps_the_answer(monkeypatch, zeta):
+    """threads=2: the finest grid is integrated in the worker thread, the two coarser ones here, and the
+    answer is identical to threads=1 bit for bit (each grid's operations are the same either way)."""
+    import threading
+
+    prob = _closure(zeta, 24)
+    one = engine.solve_fv(prob, rtol=1e-5, backend="native", threads=1)
+    kernels = engine._staged_kernels()
+    seen = []
+
+    class Recording:
+        def run_rows(self, edges, *rest):
+            seen.append((edges.size - 1, threading.current_thread() is threading.main_thread()))
+            return kernels.run_rows(edges, *rest)
+
+    monkeypatch.setattr(engine, "_staged_kernels", lambda: Recording())
+    two = engine.solve_fv(prob, rtol=1e-5, backend="native", threads=2)
+    assert one.success and two.success
+    assert np.array_equal(one.density, two.density) and one.zero_weight == two.zero_weight
+    assert one.error_estimate == two.error_estimate
+    for level in range(len(seen) // 3):
+        cells = sorted(seen[3 * level:3 * level + 3])
+        assert [main for _, main in cells] == [True, True, False]  # the finest grid (most cells) in the worker
+
+
+@pytest.mark.parametrize("threads", [0, 3, 1.0, True])
+def test_threads_must_be_one_or_two(threads):
+    with pytest.raises(ValueError, match="threads must be 1 or 2"):
+        engine.solve_fv(_closure(1.0, 8), rtol=1e-3, backend="native", threads=threads)
 
 
 @pytest.mark.parametrize("zeta", [0.001, 0.01, 0.25])

@@ -31,12 +31,12 @@ from .cram import ALPHA, ALPHA0, PFD_RESIDUES, THETA
 __all__ = ["cram_pfd", "gttrf", "gttrs", "cram_apply", "cram_apply_d", "balanced_stage", "staged_run", "staged_run_rows", "ALPHA", "THETA", "ALPHA0", "PFD_RESIDUES"]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _cabs1(z):  # pragma: no cover - numba
     return abs(z.real) + abs(z.imag)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _rec(z):  # pragma: no cover - numba
     """``1/z`` by one real division (``conj(z)/|z|^2``); numba's complex division where that could over/underflow."""
     x = z.real
@@ -49,14 +49,14 @@ def _rec(z):  # pragma: no cover - numba
     return 1.0 / z
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def cram_apply(lower, diag, upper, t, y, alpha, theta, alpha0):  # pragma: no cover - numba
     """``exp(t L) y`` (CRAM-16, IPF form) for the tridiagonal ``L``; returns ``(y_new, info)``."""
     out, _, info = _ipf(lower, diag, upper, lower, diag, upper, t, y, alpha, theta, alpha0, False)
     return out, info
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def gttrf(dl, d, du, du2, ipiv):  # pragma: no cover - numba
     """LU factorization with partial pivoting of the tridiagonal ``(dl, d, du)``, in place; LAPACK ``zgttrf``.
 
@@ -99,7 +99,7 @@ def gttrf(dl, d, du, du2, ipiv):  # pragma: no cover - numba
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def gttrs(dl, d, du, du2, ipiv, b):  # pragma: no cover - numba
     """Solve with the factors of :func:`gttrf`, ``b <- A^-1 b`` in place; LAPACK ``zgttrs`` (no transpose)."""
     n = d.size
@@ -117,7 +117,7 @@ def gttrs(dl, d, du, du2, ipiv, b):  # pragma: no cover - numba
         b[i] = (b[i] - du[i] * b[i + 1] - du2[i] * b[i + 2]) * d[i]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def cram_apply_d(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0):  # pragma: no cover - numba
     """``exp(t (L - A W)) y`` (CRAM-16, IPF form, as :func:`cram_apply`) and its derivative in ``A``.
 
@@ -131,7 +131,7 @@ def cram_apply_d(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0):  #
     return _ipf(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0, True)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _ipf(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0, want_d):  # pragma: no cover - numba
     """CRAM-16 in IPF form, with the ``A``-derivative of :func:`cram_apply_d` if ``want_d``."""
     n = diag.size
@@ -176,7 +176,7 @@ def _ipf(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0, want_d):  #
     return out, dout, 0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _geometry(edges):  # pragma: no cover - numba
     """Per-grid factors of the bands: ``(h, 1/(c_{i+1} - c_i), 1/(c_0 - p_wall), 1/(2h))``."""
     n = edges.size - 1
@@ -194,7 +194,7 @@ def _geometry(edges):  # pragma: no cover - numba
     return h, k_int, 1.0 / (c[0] - edges[0]), half_inv_h
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusion,
               lower, diag, upper):  # pragma: no cover - numba
     """One operator's bands (:func:`.operator.bands`'s formula) into ``lower, diag, upper`` (overwritten)."""
@@ -239,7 +239,7 @@ def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusi
 _PFD_BLOCK_WORDS = 20000
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def cram_pfd(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  # pragma: no cover - numba
     """``exp(t L) y`` by CRAM-16 in partial fractions, ``alpha0 y + 2 Re sum_j c_j (t L - theta_j)^-1 y``.
 
@@ -342,7 +342,7 @@ def cram_pfd(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  #
     return out, dout, 0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _accumulate(out, c, g0, x, n, g_size):  # pragma: no cover - numba
     """``out += 2 Re sum_j c_j x_j`` over the block of poles starting at ``g0``."""
     for i in range(n):
@@ -353,7 +353,7 @@ def _accumulate(out, c, g0, x, n, g_size):  # pragma: no cover - numba
         out[i] += 2.0 * s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _back(d, du, du2, b, n, g_size):  # pragma: no cover - numba
     """Back substitution of :func:`cram_pfd` for a block of poles (``d`` holds reciprocal pivots)."""
     for jj in range(g_size):
@@ -365,7 +365,7 @@ def _back(d, du, du2, b, n, g_size):  # pragma: no cover - numba
             b[i, jj] = (b[i, jj] - du[i, jj] * b[i + 1, jj] - du2[i, jj] * b[i + 2, jj]) * d[i, jj]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _matvec(lower, diag, upper, y, out):  # pragma: no cover - numba
     n = diag.size
     for i in range(n):
@@ -375,7 +375,7 @@ def _matvec(lower, diag, upper, y, out):  # pragma: no cover - numba
         out[i] += upper[i] * y[i + 1]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _shifted(lower, diag, upper, wl, wd, wu, A, lo, di, up):  # pragma: no cover - numba
     """``(lo, di, up) <- L0 - A Lw``: the bands of the stage operator at the multiplier ``A``."""
     for i in range(diag.size - 1):
@@ -385,7 +385,7 @@ def _shifted(lower, diag, upper, wl, wd, wu, A, lo, di, up):  # pragma: no cover
         di[i] = diag[i] - A * wd[i]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _dot(a, b):  # pragma: no cover - numba
     s = 0.0
     for i in range(a.size):
@@ -393,7 +393,7 @@ def _dot(a, b):  # pragma: no cover - numba
     return s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _expm(lo, di, up, wl, wd, wu, t, y, pfd, want_d, alpha, theta, alpha0, c):  # pragma: no cover - numba
     """One CRAM application, partial fractions (``pfd``) or IPF, with its ``A``-derivative if ``want_d``."""
     if pfd:
@@ -404,7 +404,7 @@ def _expm(lo, di, up, wl, wd, wu, t, y, pfd, want_d, alpha, theta, alpha0, c):  
     return x, x, info
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol, lin_tol, max_iter, use_d, ratio,
                    pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
     """``m`` balance substeps of length ``dt`` on ``dy/dtau = (L0 - A Lw) y``, one ``A`` per substep.
@@ -506,7 +506,7 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
     return y, n_cram, n_newton, 0, 0.0, use_d, ratio
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def staged_run(lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, max_iter,
                pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
     """All stages of one grid in one call: row ``k`` of the band arrays is stage ``k``'s operator.
@@ -523,7 +523,7 @@ def staged_run(lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, 
                 p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def staged_run_rows(edges, f_rows, b_rows, w_rows, any_b, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol,
                     max_iter, pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
     """:func:`staged_run` for the native operator, its bands made stage by stage from the coefficient rows.
@@ -536,7 +536,7 @@ def staged_run_rows(edges, f_rows, b_rows, w_rows, any_b, balanced, dt, reps, cv
                 cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, balanced, dt, reps, cvec, y, p0,
          mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
     """The stage loop of :func:`staged_run` (bands given) and :func:`staged_run_rows` (bands made per stage)."""

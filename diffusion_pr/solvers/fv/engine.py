@@ -29,6 +29,7 @@ Every finite-volume backend (``native``, ``pypde``, ``fipy``) goes through
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Optional, Sequence
@@ -96,6 +97,10 @@ C_WALL = 0.6
 #: a problem with at least this many pieces (stages, time segments) or a balance is integrated by the
 #: compiled kernels of :mod:`._kernels` (numba); fewer pieces go through LAPACK (no numba import)
 COMPILED_MIN_PIECES = 4
+#: threads for the three nested grids of a compiled (staged) solve: the finest grid (4/7 of the work) runs in a
+#: second thread while this one does the two coarser grids; the kernels release the GIL (numba ``nogil``).  The
+#: answer does not depend on it (each grid's integration is the same sequence of operations either way)
+DEFAULT_THREADS = min(2, os.cpu_count() or 1)
 #: staged problems (at least COMPILED_MIN_PIECES stages) bound the upper tail in the Lamperti coordinate
 #: ``int dp / sqrt(2 sum dtau_k f_k)`` instead of ``p0 + z sqrt(2 sum dtau_k max f_k)`` (see :func:`prepare`)
 LAMPERTI = True
@@ -385,6 +390,21 @@ def _coefficients(pieces: Sequence, grids: Sequence[np.ndarray], centre_drift: b
              "has_b": has["b"], "has_w": has["w"]} for g in range(len(grids))]
 
 
+def _coefficients_lazy(pieces: Sequence, grids: Sequence[np.ndarray], groups: Sequence[tuple],
+                       centre_drift: bool) -> Callable:
+    """``coef(g)``: :func:`_coefficients` of ``grids[g]``, evaluated for its whole group (a tuple of grid
+    indices) when the first grid of the group is asked for; each group is asked for from one thread."""
+    cache: dict = {}
+
+    def coef(g: int) -> dict:
+        if g not in cache:
+            grp = next(grp for grp in groups if g in grp)
+            cache.update(zip(grp, _coefficients(pieces, [grids[k] for k in grp], centre_drift)))
+        return cache[g]
+
+    return coef
+
+
 def _stage_bands(edges: np.ndarray, coef: dict, assemble: Assemble) -> tuple:
     """Rows of the stages' bands ``L_k`` and of their balance operators (0 where a stage has none).
 
@@ -495,6 +515,37 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     return y, counters
 
 
+def _compiled(prep: Prepared) -> bool:
+    """Whether :func:`solve_on_grid` integrates ``prep`` with the compiled kernels (as it decides there)."""
+    # a time-dependent problem has at least 4 segments (``max(4, n_base // 8)``) on every grid
+    return prep.has_balance or prep.time_dependent or len(prep.pieces) >= COMPILED_MIN_PIECES
+
+
+_POOL = None
+
+
+def _run_grids(tasks: Sequence[Callable], parallel: bool) -> list:
+    """Run the three grids' integrations; with ``parallel`` the last (finest) in a worker thread.
+
+    The compiled kernels release the GIL, so the finest grid (4/7 of the cells)
+    overlaps the two coarser ones.  An exception of the worker is re-raised here.
+    """
+    if not parallel:
+        return [t() for t in tasks]
+    global _POOL
+    if _POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="diffusion_pr-grid")
+    _staged_kernels()  # import the kernels in this thread (numba's first load is not for two threads at once)
+    finest = _POOL.submit(tasks[-1])
+    try:
+        out = [t() for t in tasks[:-1]]
+    finally:
+        last = finest.result()
+    return out + [last]
+
+
 def _f64(a) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=float)
 
@@ -554,7 +605,7 @@ def _aggregate(y_fine: np.ndarray) -> np.ndarray:
 def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_assemble, n_cells: Optional[int] = None,
              max_cells: int = MAX_CELLS, p_floor: Optional[float] = None,
              time_integration: str = "cram16", loop: Optional[Callable] = None,
-             extra: Optional[dict] = None) -> PressureDistribution:
+             extra: Optional[dict] = None, threads: Optional[int] = None) -> PressureDistribution:
     """Solve ``problem`` to ``rtol`` on nested grids (the engine's entry point).
 
     Parameters
@@ -581,6 +632,10 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         integration (a library's own time loop).
     extra : dict, optional
         Backend-specific diagnostics added to the common ones.
+    threads : int, optional
+        1 or 2: with 2 the finest grid of a compiled (staged, native) solve runs
+        in a second thread (default :data:`DEFAULT_THREADS`; the answer is the
+        same bit for bit).
     """
     t_start = time.perf_counter()
     if n_cells is not None:
@@ -588,6 +643,9 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             raise ValueError(f"n_cells must be an integer >= 8; got n_cells={n_cells!r}")
     if isinstance(max_cells, bool) or not isinstance(max_cells, (int, np.integer)) or max_cells < 32:
         raise ValueError(f"max_cells must be an integer >= 32; got max_cells={max_cells!r}")
+    threads = DEFAULT_THREADS if threads is None else threads
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads not in (1, 2):
+        raise ValueError(f"threads must be 1 or 2; got threads={threads!r}")
     prep = prepare(problem, rtol=rtol, p_floor=p_floor)
     t_prep = time.perf_counter() - t_start
     integrate = loop if loop is not None else (
@@ -607,12 +665,17 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             break
         finest = edges_for(prep.spec, idx, 4)  # the coarser grids are every 2nd / 4th edge of it
         e1, e2, e3 = finest[::4], finest[::2], finest
-        if loop is None and not prep.time_dependent:  # each coefficient evaluated once for the three grids
-            coefs = _coefficients(prep.pieces, [e1, e2, e3], centre_drift=assemble is not native_assemble)
-            (y1, c1), (y2, c2), (y3, cnt) = (integrate(prep, e, n_base, rf, cf) for e, rf, cf in
-                                             ((e1, 1, coefs[0]), (e2, 2, coefs[1]), (e3, 4, coefs[2])))
+        parallel = threads > 1 and loop is None and assemble is native_assemble and _compiled(prep)
+        if loop is None and not prep.time_dependent:
+            # each coefficient evaluated once for the grids of one thread (the worker's finest grid apart, so that
+            # it is evaluated and integrated while this thread evaluates and integrates the coarser two)
+            coefs = _coefficients_lazy(prep.pieces, (e1, e2, e3), ((2,), (0, 1)) if parallel else ((0, 1, 2),),
+                                       centre_drift=assemble is not native_assemble)
+            tasks = [lambda e=e, rf=rf, g=g: integrate(prep, e, n_base, rf, coefs(g))
+                     for e, rf, g in ((e1, 1, 0), (e2, 2, 1), (e3, 4, 2))]
         else:
-            (y1, c1), (y2, c2), (y3, cnt) = (integrate(prep, e, n_base, rf) for e, rf in ((e1, 1), (e2, 2), (e3, 4)))
+            tasks = [lambda e=e, rf=rf: integrate(prep, e, n_base, rf) for e, rf in ((e1, 1), (e2, 2), (e3, 4))]
+        (y1, c1), (y2, c2), (y3, cnt) = _run_grids(tasks, parallel)
         broken = [cc["balance_failure"] for cc in (c1, c2, cnt) if "balance_failure" in cc]
         if broken:
             failure = broken[0]
