@@ -244,3 +244,26 @@ def test_staged_grid_grades_towards_p0_by_the_accumulated_variance():
                      rtol=1e-6)
     assert r.success, r.message
     assert r.diagnostics["levels"][0] < 800
+
+
+def test_a_doubling_level_reuses_two_grids_and_keeps_the_answer():
+    """Fig. 1 scene at zeta = 1, rtol 1e-6: the second level misses rtol/2 narrowly, so the third doubles it and
+    integrates only its new finest grid (3 + 3 + 1 grids), reusing the two finer grids of the level before.
+    Oracle: the same scene at rtol 1e-10; the answer must be within rtol of it and its estimate honest (a
+    reused grid paired with the wrong level's solution moves the answer by ~1e-3)."""
+    import math
+
+    from diffusion_pr.spectra import SelfAffineSpectrum
+    from diffusion_pr.cumulants import stress_variance
+
+    spec = SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+    V = float(stress_variance(spec, E_star=8 / 3, mean_pressure=0.004, zeta=1.0))
+    prob = FokkerPlanckProblem(0.004, V, PressureFactor(MuserCutoff(0.0027), GaussianTail()))
+    r = native.solve(prob, rtol=1e-6)
+    ref = native.solve(prob, rtol=1e-10)
+    levels = [n for n, _ in r.diagnostics["history"]]
+    assert r.success and len(levels) == 3 and levels[2] == 2 * levels[1]
+    assert r.diagnostics["grids_integrated"] == 7
+    err = float(np.sum(np.abs(np.diff(ref.cdf(r.edges)) - r.density * r.weights)) + abs(r.zero_weight - ref.zero_weight))
+    assert err <= 1e-6 and err <= r.error_estimate <= 10 * err + 1e-9
+    assert math.isclose(float(np.sum(r.density * r.weights)) + r.zero_weight, 1.0, abs_tol=1e-9)
