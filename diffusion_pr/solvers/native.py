@@ -46,7 +46,8 @@ def warm_up() -> float:
 
 
 def solve(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cells: int = MAX_CELLS,
-          p_floor: Optional[float] = None, threads: Optional[int] = None) -> PressureDistribution:
+          p_floor: Optional[float] = None, threads: Optional[int] = None,
+          n_start: Optional[int] = None) -> PressureDistribution:
     """Solve a :class:`~diffusion_pr.problem.FokkerPlanckProblem` or :class:`~diffusion_pr.problem.StagedProblem`.
 
     Parameters
@@ -62,10 +63,16 @@ def solve(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cel
         Cap on the cells of the finest grid.
     p_floor : float, optional
         Floor (pressure) where the wall is not reached (default ``1e-6 p0``).
+    n_start : int, optional
+        Cells of the first level's coarsest grid; the refinement continues
+        from there until the estimate meets ``rtol``.  In a sweep over
+        neighbouring problems pass the previous result's
+        ``diagnostics["levels"][0]``: the first level then usually suffices.
     threads : int, optional
         1 or 2 (default 2 where the machine has two cores): a staged problem's
         finest grid is integrated in a second thread, alongside the two coarser
         ones; the answer is the same bit for bit.
     """
     return solve_fv(problem, rtol=rtol, backend="native", assemble=native_assemble, n_cells=n_cells,
-                    max_cells=max_cells, p_floor=p_floor, time_integration="cram16", threads=threads)
+                    max_cells=max_cells, p_floor=p_floor, time_integration="cram16", threads=threads,
+                    n_start=n_start)

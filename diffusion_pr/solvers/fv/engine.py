@@ -605,7 +605,8 @@ def _aggregate(y_fine: np.ndarray) -> np.ndarray:
 def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_assemble, n_cells: Optional[int] = None,
              max_cells: int = MAX_CELLS, p_floor: Optional[float] = None,
              time_integration: str = "cram16", loop: Optional[Callable] = None,
-             extra: Optional[dict] = None, threads: Optional[int] = None) -> PressureDistribution:
+             extra: Optional[dict] = None, threads: Optional[int] = None,
+             n_start: Optional[int] = None) -> PressureDistribution:
     """Solve ``problem`` to ``rtol`` on nested grids (the engine's entry point).
 
     Parameters
@@ -632,6 +633,10 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         integration (a library's own time loop).
     extra : dict, optional
         Backend-specific diagnostics added to the common ones.
+    n_start : int, optional
+        Cells of the first level's coarsest grid, refined from there as usual
+        (a sweep passes the previous solve's ``levels[0]``: a neighbouring
+        problem needs about as many).  Default: from ``rtol``.
     threads : int, optional
         1 or 2: with 2 the finest grid of a compiled (staged, native) solve runs
         in a second thread (default :data:`DEFAULT_THREADS`; the answer is the
@@ -643,6 +648,13 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             raise ValueError(f"n_cells must be an integer >= 8; got n_cells={n_cells!r}")
     if isinstance(max_cells, bool) or not isinstance(max_cells, (int, np.integer)) or max_cells < 32:
         raise ValueError(f"max_cells must be an integer >= 32; got max_cells={max_cells!r}")
+    if n_start is not None:
+        if n_cells is not None:
+            raise ValueError("n_start and n_cells exclude each other (n_cells fixes the grids)")
+        if (isinstance(n_start, bool) or not isinstance(n_start, (int, np.integer))
+                or not 8 <= n_start <= max_cells // 4):
+            raise ValueError(f"n_start must be an integer in [8, max_cells/4 = {max_cells // 4}]; "
+                             f"got n_start={n_start!r}")
     threads = DEFAULT_THREADS if threads is None else threads
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads not in (1, 2):
         raise ValueError(f"threads must be 1 or 2; got threads={threads!r}")
@@ -653,7 +665,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                             mean_tol=max(1e-13, MEAN_TOL_FRACTION * rtol),
                                             lin_tol=math.sqrt(LINEAR_FRACTION * rtol),
                                             partial_fractions=rtol >= PFD_MIN_RTOL))
-    n = int(n_cells) if n_cells is not None else int(np.clip(25.0 * (1e-4 / rtol) ** 0.25, 16, 4096))
+    n = int(n_cells) if n_cells is not None else (
+        int(n_start) if n_start is not None else int(np.clip(25.0 * (1e-4 / rtol) ** 0.25, 16, 4096)))
     history = []
 
     failure = None
