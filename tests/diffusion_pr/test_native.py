@@ -314,3 +314,31 @@ def test_domain_ends_where_the_gaussian_bound_puts_the_tail_below_its_share_of_r
         err = float(np.sum(np.abs(np.diff(cdf) - r.density * r.weights))
                     + abs(r.zero_weight - cf.persson_zero_weight(1.0, 1.0)))
         assert err <= rtol
+
+
+@pytest.mark.parametrize("zeta, trims", [(1.0, True), (0.25, False)])
+def test_depth_below_the_floor_follows_the_probability_that_sinks_there(monkeypatch, zeta, trims):
+    """The ln(10/rtol) e-folds below the floor are shortened after the first level to ln(10 w/rtol), w the
+    probability below the floor (first level's weight plus its estimate): at zeta = 1 (w ~ 1e-14) the domain
+    ends about 4.5 e-folds below the floor instead of 16; at zeta = 0.25 (w = 0.18) it keeps its depth.  Oracle: the same scene with
+    the depth never trimmed, at rtol 1e-9; both answers within rtol of it (trimming to 3 e-folds whatever w
+    moves the zeta = 0.25 answer by ~1e-2)."""
+    from diffusion_pr.cumulants import stress_variance
+    from diffusion_pr.solvers.fv import engine
+    from diffusion_pr.spectra import SelfAffineSpectrum
+
+    spec = SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+    V = float(stress_variance(spec, E_star=8 / 3, mean_pressure=0.004, zeta=zeta))
+    prob = FokkerPlanckProblem(0.004, V, PressureFactor(MuserCutoff(0.0027), GaussianTail()))
+    r = native.solve(prob, rtol=1e-6)
+    floor = r.diagnostics["p_floor"]
+    depth = np.log(floor / r.diagnostics["domain_bottom"])
+    if trims:  # ln(10 (w + estimate)/rtol): the first level's estimate (~1e-5) dominates w here
+        assert engine.BOTTOM_EFOLDS_TRIMMED <= depth <= np.log(10.0 / 1e-6) - 2.0
+    else:
+        assert depth == pytest.approx(np.log(10.0 / 1e-6))
+    monkeypatch.setattr(engine, "_trimmed_depth", lambda *a: None)
+    ref = native.solve(prob, rtol=1e-9)
+    assert np.log(floor / ref.diagnostics["domain_bottom"]) == pytest.approx(np.log(10.0 / 1e-9))
+    err = float(np.sum(np.abs(np.diff(ref.cdf(r.edges)) - r.density * r.weights)) + abs(r.zero_weight - ref.zero_weight))
+    assert r.success and err <= 1e-6

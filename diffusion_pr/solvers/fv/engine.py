@@ -95,6 +95,8 @@ BOTTOM_EFOLDS_MIN = 8.0
 #: a drift can cancel the Ito drift of ln p below the floor (the balanced closures), probability then returns
 #: from below and the answer depends on the depth (docs/closures.md), which therefore may not follow rtol
 BOTTOM_EFOLDS_DRIFT = math.log(1e7)
+#: fewest e-folds below the floor after the first level's trim (:func:`_trimmed_depth`)
+BOTTOM_EFOLDS_TRIMMED = 3.0
 #: weight of the logarithmic grading towards the floor (Phi units per e-fold of p)
 C_WALL = 0.6
 #: a problem with at least this many pieces (stages, time segments) or a balance is integrated by the
@@ -144,6 +146,9 @@ class Prepared:
     label: str = ""
     balance_per_stage: bool = False
     segment_fn: Optional[Callable] = field(default=None, compare=False)
+    #: the depth below the floor is an accuracy knob (ln(10/rtol) e-folds: no drift, no balance), which the first
+    #: level may shorten to what its probability below the floor needs (:func:`_trimmed_depth`)
+    depth_adaptive: bool = False
 
 
 def _check_f(f: Callable, p: np.ndarray, name: str) -> np.ndarray:
@@ -347,13 +352,15 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
     else:  # stages: the variance a start at p0 accumulates, sum_k 2 dtau_k f_k(p0) (not 2 tau_end max_k f_k)
         w_loc = math.sqrt(2.0 * sum(pc.duration * fk for pc, fk in zip(pieces, f_p0)))
     c_0, w0 = (1.0, max(w_loc, 1e-3 * s)) if w_loc < 0.25 * s else (0.0, s)
+    depth_adaptive = not (reached or truncated or has_drift or has_balance)
     c_wall = 0.0 if (reached or truncated) else C_WALL
     spec = GridSpec(p_wall=floor_domain, p_max=p_max, knots=tuple(pruned), scale=s, c_wall=c_wall, c_0=c_0, w0=w0, p0=p0)
     return Prepared(mean_conserved=has_balance or not has_drift, p0=p0, tau_end=tau_end, pieces=tuple(pieces), time_dependent=time_dependent, spec=spec,
                     zero_power=k_min, reached=reached, p_floor=floor, has_balance=has_balance,
                     lump_below=floor if extra_knots else 0.0,
                     label=getattr(problem, "label", ""), segment_fn=segment_fn,
-                    balance_per_stage=bool(getattr(problem, "balance_per_stage", False)))
+                    balance_per_stage=bool(getattr(problem, "balance_per_stage", False)),
+                    depth_adaptive=depth_adaptive)
 
 
 def native_assemble(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray],
@@ -530,6 +537,29 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
             y = expm_tridiagonal(lower[k], diag[k], upper[k], dt[k], y)
         counters["cram_applications"] += int(reps[k])
     return y, counters
+
+
+def _trimmed_depth(prep: Prepared, below_floor: float, rtol: float) -> Optional[Prepared]:
+    """``prep`` with a shallower domain below the floor, or None (keep it).
+
+    Where the depth is an accuracy knob (:attr:`Prepared.depth_adaptive`), it is
+    there so that what sinks below the floor does not come back: from ``d``
+    e-folds down, ``ln p`` returns with probability ``exp(-d)`` (it drifts down
+    at the rate it diffuses for ``f ~ p^2``).  The probability that goes below the
+    floor at all is at most ``below_floor`` (the first level's lumped weight plus
+    its error estimate), so ``d = ln(10 below_floor / rtol)`` keeps the returning
+    probability below ``rtol/10``, as ``ln(10/rtol)`` does for a weight of 1
+    (at least :data:`BOTTOM_EFOLDS_TRIMMED`).  Trimmed when that saves at least two e-folds.
+    """
+    if not prep.depth_adaptive:
+        return None
+    depth = math.log(prep.p_floor / prep.spec.p_wall)
+    new = max(BOTTOM_EFOLDS_TRIMMED, math.log(10.0 * max(below_floor, 1e-300) / rtol))
+    if new > depth - 2.0:
+        return None
+    from dataclasses import replace
+
+    return replace(prep, spec=replace(prep.spec, p_wall=prep.p_floor * math.exp(-new)), depth_adaptive=False)
 
 
 def _compiled(prep: Prepared) -> bool:
@@ -759,6 +789,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         est = max(est, mean_miss / float(out_edges[-1]))
         history.append((n_base, est))
         best = (out_edges, out_y, out_mom, est, cnt, [n_base, 2 * n_base, 4 * n_base], mean_full)
+        trimmed = _trimmed_depth(prep, float(out_y[0]) + est, rtol) if len(history) == 1 else None
         if (est <= SAFETY * rtol and mean_miss <= SAFETY * rtol * prep.p0) or n_cells is not None:
             break
         if len(history) > 12:
@@ -771,6 +802,12 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             failure = (f"error estimate {est:.2e} misses rtol={rtol:.1e}: it would need about "
                        f"{int(4 * n_base * need)} cells, max_cells={max_cells}")
             break
+        if trimmed is not None:  # a shallower domain below the floor for the next levels (a new grid family)
+            # the same cells per unit of Phi as predicted for the old domain
+            ratio = float(np.sum(trimmed.spec.segment_weights()) / np.sum(prep.spec.segment_weights()))
+            prep = trimmed
+            n = min(max(int(math.ceil(n_base * need * ratio)), n_base + 1), max_cells // 4)
+            continue
         if reusable and grow <= 2.0 and 8 * n_base <= max_cells:  # cheaper to double: one new grid (8 n_base cells) instead of three
             reuse = (idx, e2, e3, (y2, c2), (y3, cnt))
         n = min(int(math.ceil(n_base * grow)), max_cells // 4)
