@@ -61,6 +61,8 @@ MAX_RATIO = 1e12
 RICHARDSON_DIVISOR = 7.0
 #: refinement stops when the estimate is below SAFETY * rtol (margin for the estimate's own error)
 SAFETY = 0.5
+#: cells of the first level's coarsest grid at rtol 1e-4 (times (1e-4/rtol)^(1/4), at least 16)
+START_CELLS = 25.0
 #: the next level's cells: NEED_MARGIN times those the N^-4 law predicts for SAFETY * rtol
 NEED_MARGIN = 1.25
 #: ... but at least MIN_GROWTH times the current level's
@@ -713,7 +715,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                             lin_tol=math.sqrt(LINEAR_FRACTION * rtol),
                                             partial_fractions=rtol >= PFD_MIN_RTOL))
     n = int(n_cells) if n_cells is not None else (
-        int(n_start) if n_start is not None else int(np.clip(25.0 * (1e-4 / rtol) ** 0.25, 16, 4096)))
+        int(n_start) if n_start is not None else int(np.clip(START_CELLS * (1e-4 / rtol) ** 0.25, 16, 4096)))
     history = []
 
     failure = None
