@@ -411,3 +411,26 @@ def test_partial_fraction_and_ipf_stages_agree(monkeypatch, zeta):
     assert runs[0].diagnostics["levels"] == runs[1].diagnostics["levels"]
     assert np.max(np.abs(runs[0].cdf(x) - runs[1].cdf(x))) < 1e-7
     assert abs(runs[0].zero_weight - runs[1].zero_weight) < 1e-7
+
+
+def _child_solve(queue):
+    r = engine.solve_fv(_closure(1.0, 8), rtol=1e-3, backend="native", threads=2)
+    queue.put(bool(r.success))
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="needs fork")
+def test_threaded_solve_works_in_a_forked_child():
+    """A process forked after a two-thread solve inherits the pool object but not its worker thread: the
+    child's two-thread solve must start its own (it hung before the pool remembered its process)."""
+    import multiprocessing as mp
+
+    engine.solve_fv(_closure(1.0, 8), rtol=1e-3, backend="native", threads=2)  # the parent's pool exists
+    ctx = mp.get_context("fork")
+    queue = ctx.Queue()
+    child = ctx.Process(target=_child_solve, args=(queue,))
+    child.start()
+    child.join(60)
+    alive = child.is_alive()
+    if alive:
+        child.kill()
+    assert not alive and child.exitcode == 0 and queue.get(timeout=5)

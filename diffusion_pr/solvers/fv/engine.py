@@ -571,6 +571,7 @@ def _compiled(prep: Prepared) -> bool:
 
 
 _POOL = None
+_POOL_PID = -1
 
 
 def _run_grids(tasks: Sequence[Callable], parallel: bool) -> list:
@@ -581,11 +582,12 @@ def _run_grids(tasks: Sequence[Callable], parallel: bool) -> list:
     """
     if not parallel:
         return [t() for t in tasks]
-    global _POOL
-    if _POOL is None:
+    global _POOL, _POOL_PID
+    if _POOL is None or _POOL_PID != os.getpid():  # a forked child has the pool object but not its thread
         from concurrent.futures import ThreadPoolExecutor
 
         _POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="diffusion_pr-grid")
+        _POOL_PID = os.getpid()
     _staged_kernels()  # import the kernels in this thread (numba's first load is not for two threads at once)
     finest = _POOL.submit(tasks[-1])
     try:
