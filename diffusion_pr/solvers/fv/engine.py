@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Optional, Sequence
 
 import numpy as np
@@ -504,7 +504,7 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     pieces = prep.segment_fn(refine * max(4, n_base // 8)) if prep.time_dependent else prep.pieces
     if coef is None:
         coef = _coefficients(pieces, [edges], centre_drift=assemble is not native_assemble)[0]
-    compiled = len(pieces) >= COMPILED_MIN_PIECES or prep.has_balance
+    compiled = _compiled(prep)
     rows_in_kernel = compiled and assemble is native_assemble  # the kernel makes each stage's bands itself
     if not rows_in_kernel:
         (lower, diag, upper), (wl, wd, wu) = _stage_bands(edges, coef, assemble)
@@ -559,14 +559,12 @@ def _trimmed_depth(prep: Prepared, below_floor: float, rtol: float) -> Optional[
     new = max(BOTTOM_EFOLDS_TRIMMED, math.log(10.0 * max(below_floor, 1e-300) / rtol))
     if new > depth - 2.0:
         return None
-    from dataclasses import replace
-
     return replace(prep, spec=replace(prep.spec, p_wall=prep.p_floor * math.exp(-new)), depth_adaptive=False)
 
 
 def _compiled(prep: Prepared) -> bool:
-    """Whether :func:`solve_on_grid` integrates ``prep`` with the compiled kernels (as it decides there)."""
-    # a time-dependent problem has at least 4 segments (``max(4, n_base // 8)``) on every grid
+    """Whether ``prep`` is integrated by the compiled kernels (else LAPACK): a balance, or at least
+    COMPILED_MIN_PIECES pieces; a time-dependent problem has at least 4 segments (``max(4, n_base // 8)``)."""
     return prep.has_balance or prep.time_dependent or len(prep.pieces) >= COMPILED_MIN_PIECES
 
 
