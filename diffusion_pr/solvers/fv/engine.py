@@ -805,10 +805,10 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                        f"{int(4 * n_base * need)} cells, max_cells={max_cells}")
             break
         if trimmed is not None:  # a shallower domain below the floor for the next levels (a new grid family)
-            # the same cells per unit of Phi as predicted for the old domain
+            # the cells per unit of Phi predicted for the old domain (growth capped at 8x, as below)
             ratio = float(np.sum(trimmed.spec.segment_weights()) / np.sum(prep.spec.segment_weights()))
             prep = trimmed
-            n = min(max(int(math.ceil(n_base * need * ratio)), n_base + 1), max_cells // 4)
+            n = int(np.clip(math.ceil(n_base * min(need, 8.0) * ratio), 16, max_cells // 4))
             continue
         if reusable and grow <= 2.0 and 8 * n_base <= max_cells:  # cheaper to double: one new grid (8 n_base cells) instead of three
             reuse = (idx, e2, e3, (y2, c2), (y3, cnt))
