@@ -64,6 +64,7 @@ _LAZY = {
     "PressureDistribution": "result",
     "propagate": "api",
     "pressure_distribution": "api",
+    "pressure_distributions": "api",
     "closure_distribution": "closures",
     "solve_problem": "api",
     "choose_backend": "api",

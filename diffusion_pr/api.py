@@ -29,7 +29,7 @@ from .models import PressureFactor, make_cutoff, make_tail
 from .problem import FokkerPlanckProblem, StagedProblem
 from .result import PressureDistribution
 
-__all__ = ["propagate", "pressure_distribution", "solve_problem", "choose_backend", "BACKENDS"]
+__all__ = ["propagate", "pressure_distribution", "pressure_distributions", "solve_problem", "choose_backend", "BACKENDS"]
 
 #: names accepted by ``backend=`` (besides any registered later)
 BACKENDS = ("auto", "closed_form", "native", "pypde", "fipy")
@@ -313,3 +313,58 @@ def pressure_distribution(
         extra.update({"eta": eta, "variance_of_eta": v_eta})
     result = _solve(problem, backend, rtol, options)
     return replace(result, diagnostics={**result.diagnostics, **extra})
+
+
+def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", progress: bool = False,
+                           **kwargs: Any) -> list:
+    """:func:`pressure_distribution` for every wall range of ``zetas``, in the given order (a sweep).
+
+    Neighbouring walls need about the same grid, so each native finite-volume
+    solve starts at the previous one's coarse cells (``n_start``) and usually
+    needs one refinement level instead of two: a 100-zeta sweep of the Fig. 1
+    scene at rtol 1e-6 takes about 0.28 s instead of 0.39 s (docs/backends.md).
+    Every answer meets ``rtol`` on its own; it may differ from a single call's
+    (another grid) by less than ``rtol``.  Sort ``zetas`` for the best effect.
+
+    Parameters
+    ----------
+    spectrum : Spectrum
+        As in :func:`pressure_distribution`.
+    zetas : array_like
+        Wall ranges (length), one-dimensional, each >= 0.
+    backend : str
+        As in :func:`pressure_distribution`; the chaining applies to ``"native"``
+        results (``"auto"`` picks it wherever no closed form is exact).
+    progress : bool
+        Show a tqdm progress bar.
+    **kwargs
+        Everything else :func:`pressure_distribution` takes (``E_star``,
+        ``mean_pressure``, ``cutoff``, ``p_c``, ``closure``, ``rtol``, backend
+        options) except ``zeta`` and ``n_start``.
+
+    Returns
+    -------
+    list of PressureDistribution
+        One per entry of ``zetas``.
+    """
+    z = np.asarray(zetas, dtype=float)
+    if z.ndim != 1 or z.size == 0:
+        raise ValueError(f"zetas must be a non-empty one-dimensional sequence of wall ranges; got zetas={zetas!r}")
+    for name in ("zeta", "n_start"):
+        if name in kwargs:
+            raise ValueError(f"{name} is set by the sweep (each entry of zetas; the previous solve's cells); "
+                             f"remove {name}={kwargs[name]!r}")
+    items = z
+    if progress:
+        from tqdm.auto import tqdm
+
+        items = tqdm(z, desc="zeta sweep", unit="wall")
+    out = []
+    start = None
+    for zeta in items:
+        opts = dict(kwargs) if start is None else {**kwargs, "n_start": start}
+        result = pressure_distribution(spectrum, zeta=float(zeta), backend=backend, **opts)
+        out.append(result)
+        levels = result.diagnostics.get("levels")
+        start = int(levels[0]) if result.backend == "native" and levels else None
+    return out

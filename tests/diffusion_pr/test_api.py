@@ -211,3 +211,32 @@ def test_staged_problem_validation_and_auto_backend():
     r = dp.solve_problem(staged, rtol=1e-6)
     assert r.backend == "native" and r.success
     assert r.zero_weight == pytest.approx(dp.persson_zero_weight(1.0, 1.0), abs=1e-6)
+
+
+def test_zeta_sweep_chains_the_grid_and_keeps_every_answer():
+    """pressure_distributions over 12 walls of the Fig. 1 scene: each answer within 2 rtol (L1 of the cell masses
+    against the single call's cumulative, plus the zero weight) of a single pressure_distribution call, and the
+    chained first levels save refinement levels (a sweep without the chaining needs as many as single calls)."""
+    spec = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+    zetas = np.geomspace(0.01, 4.0, 12)
+    kw = dict(E_star=8 / 3, mean_pressure=0.004, cutoff="muser", p_c=0.0027, rtol=1e-6)
+    sweep = dp.pressure_distributions(spec, zetas=zetas, **kw)
+    single = [dp.pressure_distribution(spec, zeta=float(z), **kw) for z in zetas]
+    for a, b in zip(sweep, single):
+        assert a.success and a.backend == "native"
+        err = float(np.sum(np.abs(np.diff(b.cdf(a.edges)) - a.density * a.weights)) + abs(a.zero_weight - b.zero_weight))
+        assert err <= 2e-6
+    levels = lambda rs: sum(len(r.diagnostics["history"]) for r in rs)  # noqa: E731
+    assert levels(sweep) <= levels(single) - 6
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(zetas=[]), "non-empty one-dimensional"),
+    (dict(zetas=[[0.1, 0.2]]), "non-empty one-dimensional"),
+    (dict(zetas=[0.1], zeta=0.1), "zeta is set by the sweep"),
+    (dict(zetas=[0.1], n_start=64), "n_start is set by the sweep"),
+])
+def test_zeta_sweep_rejects_bad_input(bad, match):
+    spec = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+    with pytest.raises(ValueError, match=match):
+        dp.pressure_distributions(spec, E_star=8 / 3, mean_pressure=0.004, **bad)
