@@ -18,7 +18,6 @@ from __future__ import annotations
 import time
 from typing import Optional
 
-
 from ..result import PressureDistribution
 from .fv.engine import MAX_CELLS, native_assemble, solve_fv
 
