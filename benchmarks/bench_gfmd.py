@@ -376,10 +376,12 @@ def part_threads(sizes, rounds=5, reps=8, solve_n=1024, solve_rounds=2):
 def part_breakdown(n, reps=15, threads=None):
     """Where the time of one CCG iteration goes at ``n^2``: each kernel and FFT of the
     iteration timed on the arrays of a converged solve (medians of ``reps``), against
-    the floor = (FFT pairs per iteration) x (one raw FFT pair, plan execution only) +
-    the unavoidable vector work (4 streaming passes: 8 array reads, 4 writes, the
-    memory traffic of the gap, direction, step and update of any Polonsky-Keer
-    iteration). Both ``ccg`` (preconditioned, about 2.8 pairs per iteration) and
+    the floor = (FFT pairs per iteration) x (one raw FFT pair, plan execution only, the
+    plans the solver runs) + the vector work of a textbook Polonsky-Keer iteration (4
+    streaming passes: 8 array reads, 4 writes, the memory traffic of its gap,
+    direction, step and update; the floor's definition since issue 10, although the
+    solver now makes one full pass per iteration and works on the contact set's index
+    list otherwise). Both ``ccg`` (preconditioned, about 2.8 pairs per iteration) and
     ``pk`` (plain, about 1.3) are measured in the same run."""
     import gfmd_ref as g
     from gfmd_ref import _kernels as kr
@@ -393,31 +395,39 @@ def part_breakdown(n, reps=15, threads=None):
         runs[method] = g.solve_contact(h, length=L, E_star=E_STAR, mean_pressure=P0,
                                        interaction=g.HardWall(), tol=1e-8, threads=threads,
                                        method=method)
-    p = runs["ccg"].pressure.copy()
-    u = el.apply(el.G, p)
-    gg = np.empty_like(p)
-    t = np.zeros_like(p)
-    rr = np.empty_like(p)
-    zz = np.empty_like(p)
-    kr.pk_gap(u, h, p, gg)
-    kr.pk_direction(gg, p, t, 0.5)
-    el.apply_into(el.Gn, t, rr)
+    # the solver's state at convergence, in the pair's work arrays
+    p, u, t, w = (pr.work_array(k) for k in range(g.N_WORK_ARRAYS))
+    p[...] = runs["ccg"].pressure
+    pr.apply_route(el.Gn, p, u)
+    c = p > 0
+    n2 = p.size
+    idx = np.empty(n2, dtype=np.int64)
+    nc = kr.contact_index(c, idx)
+    gcon, olg = np.empty(n2), np.empty(n2)
+    ol = np.empty(n2, dtype=np.int64)
+    kr.pk_gap(u, h, p, c, idx, nc, w, True, gcon, ol, olg)
+    t[...] = 0.0
+    kr.pk_direction(w, True, gcon, idx, nc, t, 0.0, 0.5)
     ops = {}
-    if pr.name == "fftw":
-        ops["FFT pair (plan execution only)"] = lambda: (pr._forward.execute(), pr._backward.execute())
-    ops["apply_into (copy in, pair, multiplier, copy out)"] = lambda: el.apply_into(el.Gn, t, zz)
-    ops["pk_gap (gap + residual, 2 passes)"] = lambda: kr.pk_gap(u, h, p, gg)
-    ops["pk_direction (pk)"] = lambda: kr.pk_direction(gg, p, t, 0.5)
-    ops["pk_masked (ccg)"] = lambda: kr.pk_masked(gg, p, zz)
-    ops["pk_precond_direction (ccg, 2 passes)"] = lambda: kr.pk_precond_direction(zz, gg, p, t, 1.0, 1.0)
-    ops["pk_tau"] = lambda: kr.pk_tau(gg, t, rr, p)
-    pc, uc = p.copy(), u.copy()
-    ops["pk_update (p and u, 2 passes)"] = lambda: kr.pk_update(pc, t, gg, uc, rr, 0.0, P0)
-
-    a = [p.copy(), u.copy(), t.copy(), gg.copy()]
+    if pr.name == "fftw":  # the plans the solver runs: t (kept) -> spectrum -> w
+        fwd, bwd = pr._plans_of(t)[1], pr._plans_of(w)[2]
+        ops["FFT pair (plan execution only)"] = lambda: (fwd.execute(), bwd.execute())
+    ops["apply_route (pair, multiplier and Parseval dot)"] = lambda: pr.apply_route(el.Gn, t, w)
+    ops["pk_gap (the one full pass: u, h, mask -> masked gap)"] = lambda: kr.pk_gap(
+        u, h, p, c, idx, nc, w, True, gcon, ol, olg)
+    ops["gather_sum (contact set)"] = lambda: kr.gather_sum(w, idx, nc)
+    ops["pk_direction (contact set)"] = lambda: kr.pk_direction(w, False, gcon, idx, nc, t, 0.0, 1.0)
+    # tau = 0: the step and the rescaling leave the state as it is
+    idx2 = np.empty_like(idx)
+    ops["pk_step (contact set + overlaps, new index list)"] = lambda: kr.pk_step(
+        p, c, t, idx, nc, ol, olg, 0, 0.0, idx2)
+    ops["contact_index (mask pass)"] = lambda: kr.contact_index(c, idx)
+    ops["pk_rescale (contact set; exact u)"] = lambda: kr.pk_rescale(p, idx, nc, 1.0, u, w, 0.0, True)
+    ops["pk_rescale (incremental u: a full pass)"] = lambda: kr.pk_rescale(p, idx, nc, 1.0, u, w, 0.0, False)
+    a = [p.copy(), u.copy(), t.copy(), w.copy()]
 
     def traffic():  # 4 streaming passes: 8 reads, 4 writes
-        for k, src in enumerate((h, rr, p, u)):
+        for k, src in enumerate((h, w, p, u)):
             np.add(src, a[k], out=a[k])
 
     ops["vector floor (4 passes: 8 reads, 4 writes)"] = traffic
@@ -427,7 +437,7 @@ def part_breakdown(n, reps=15, threads=None):
             f()
             v = 1e3 * _median_time(f, reps)
             times[k] = min(times.get(k, np.inf), v)
-    raw = times.get("FFT pair (plan execution only)", times["apply_into (copy in, pair, multiplier, copy out)"])
+    raw = times.get("FFT pair (plan execution only)", times["apply_route (pair, multiplier and Parseval dot)"])
     vec = times["vector floor (4 passes: 8 reads, 4 writes)"]
     out = dict(n=n, fft=pr.name, threads=pr.threads, load=_uptime(), op_ms=times, methods={})
     print(f"  breakdown n={n} ({pr.name}, {pr.threads} thread(s), load {out['load']}):")

@@ -17,7 +17,7 @@ from .ensemble_store import load_ensemble
 from .histogram import PressureHistogram, pressure_histogram
 from .interactions import ExponentialRepulsion, HardWall
 from .scene import FIG1, fig1_surface
-from .solver import ContactResult, ConvergenceWarning, solve_contact
+from .solver import N_WORK_ARRAYS, ContactResult, ConvergenceWarning, solve_contact
 from .surface import self_affine_surface, spectral_rms_slope
 
 __all__ = [
@@ -45,7 +45,9 @@ def warm_up_fft(n: int) -> float:
     """Plan the FFTs for ``(n, n)`` grids now; returns the seconds spent (0 if done).
 
     The first :func:`solve_contact` on a new grid size pays this planning
-    (about 2 s at 1024^2 with FFTW; nothing with scipy.fft); later calls in the
-    same process reuse the plan.
+    (about 2 s at 1024^2 with FFTW, including the plans of the hard-wall solver's
+    work arrays; nothing with scipy.fft); later calls in the same process reuse
+    the plans.
     """
-    return fft_pair((int(n), int(n)))[1]
+    pair, planning = fft_pair((int(n), int(n)))
+    return planning + pair.make_work_arrays(N_WORK_ARRAYS)

@@ -86,6 +86,10 @@ class ContactResult:
     info: dict = field(default_factory=dict)
 
 
+#: work arrays of the FFT pair the hard-wall solver uses (pressure, displacement, direction, scratch)
+N_WORK_ARRAYS = 4
+
+
 class _Elastic:
     """Half-space Green's function on the rfft2 grid."""
 
@@ -235,16 +239,28 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     an exact ``u`` every iteration. Grids below 512^2 always use the exact ``u``.
 
     Start: uniform ``p0`` (a coarse-grid start was measured slower, see docs/gfmd.md).
-    Every FFT pair writes into preallocated arrays (:meth:`FFTWPair.apply_into`).
+    Every FFT pair goes between work arrays of the cached FFT pair
+    (:meth:`FFTWPair.apply_route`: no copy in or out), one full pass per iteration
+    (the gap) and the rest on the contact set's index list (see :mod:`._kernels`).
     """
     n2 = h.size
-    u = np.zeros(el.shape)  # G p0 = 0: a uniform pressure does not deform
+    # work arrays of the cached FFT pair, transformed where they lie (no copies): the
+    # pressure ``p``, ``u = G p`` (G p0 = 0: a uniform pressure does not deform), the
+    # direction ``t`` and ``w``, which holds in turn the masked gap, K of it and r = G t
+    el.fft_planning_time += el.fft.make_work_arrays(N_WORK_ARRAYS)  # 0 once made (warm_up_fft)
+    p, u, t, w = (el.fft.work_array(k) for k in range(N_WORK_ARRAYS))
+    p[...] = p0
+    u[...] = 0.0
+    t[...] = 0.0
+    c = np.ones(el.shape, dtype=np.bool_)  # the contact set p > 0, one byte per node
+    idx = np.empty(n2, dtype=np.int64)  # and its flat indices (two lists, swapped every step)
+    idx_next = np.empty(n2, dtype=np.int64)
+    nc = kr.contact_index(c, idx)
+    gcon = np.empty(n2)  # the gap on the contact set, in the order of idx
+    ol = np.empty(n2, dtype=np.int64)  # overlaps (g < 0 off the set) and their gaps
+    olg = np.empty(n2)
+    psum = p0 * n2
     n_fft = 0
-    p = np.full(el.shape, p0)
-    g = np.empty(el.shape)
-    t = np.zeros(el.shape)
-    r = np.empty(el.shape)
-    z = np.empty(el.shape) if precond else None
     Kn = el.K / (el.n * el.n) if precond else None
     hist = []
     stamps = []
@@ -265,18 +281,18 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     best, it_best = np.inf, 0
 
     def residual():
-        nc, gn, comp, pen, ps = kr.pk_gap(u, h, p, g)
-        load = abs(ps / n2 - p0) / p0
-        return gn, max(load, comp / (p0 * h_scale), pen / h_scale)
+        sg, gn, comp, pen, n_ol = kr.pk_gap(u, h, p, c, idx, nc, w, precond, gcon, ol, olg)
+        load = abs(psum / n2 - p0) / p0
+        return sg, gn, n_ol, max(load, comp / (p0 * h_scale), pen / h_scale)
 
     while True:
-        gn, res = residual()
+        sg, gn, n_ol, res = residual()
         if (res < tol or it >= max_iter) and (pending or since_exact > 0):
-            el.apply_into(el.Gn, p, u)
+            el.fft.apply_route(el.Gn, p, u)
             n_fft += 1
             pending = False
             since_exact = 0
-            gn, res = residual()
+            sg, gn, n_ol, res = residual()
         hist.append(res)
         stamps.append((it, time.perf_counter() - tstart))
         bar.update(res, it)
@@ -295,27 +311,36 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
             lazy_max_changes = 0
             delta = 0.0  # and restart the conjugate directions
         if precond:
-            kr.pk_masked(g, p, z)
-            el.apply_into(Kn, z, z)
+            # w: masked g -> z = K (masked g); sum_c g z = (masked g).z by Parseval
+            sgz = el.fft.apply_route(Kn, w, w)
             n_fft += 1
-            gold = kr.pk_precond_direction(z, g, p, t, delta, gold)
+            zbar = kr.gather_sum(w, idx, nc) / nc if nc > 0 else 0.0
+            gz = sgz - zbar * sg  # sum_c g (z - zbar), the preconditioned residual norm
+            beta = delta * gz / gold if gold > 0.0 else 0.0
+            st, sgt = kr.pk_direction(w, False, gcon, idx, nc, t, zbar, beta)
+            gold = gz
         else:
             beta = delta * gn / gold if gold > 0.0 else 0.0
-            kr.pk_direction(g, p, t, beta)
+            st, sgt = kr.pk_direction(w, True, gcon, idx, nc, t, 0.0, beta)
             gold = gn
-        el.apply_into(el.Gn, t, r)
+        srt = el.fft.apply_route(el.Gn, t, w)  # w = r = G t; sum_c r t = t.r (Parseval)
         n_fft += 1
-        num, den = kr.pk_tau(g, t, r, p)
-        tau = num / den if den != 0 else 0.0
-        nproj, nol, scale = kr.pk_update(p, t, g, u, r, tau, p0)
-        delta = 0.0 if nol > 0 else 1.0
+        rbar = kr.gather_sum(w, idx, nc) / nc if nc > 0 else 0.0
+        den = srt - rbar * st  # sum_c (r - rbar) t
+        tau = sgt / den if den != 0 else 0.0
+        nproj, psum, nc = kr.pk_step(p, c, t, idx, nc, ol, olg, n_ol, tau, idx_next)
+        idx, idx_next = idx_next, idx
+        scale = p0 * n2 / psum
+        delta = 0.0 if n_ol > 0 else 1.0
         it += 1
         since_exact += 1
-        if nproj or nol:
+        if nproj or n_ol:
             pending = True
-        big = nproj + nol > lazy_max_changes
-        if (pending and (it % lazy == 0 or big)) or since_exact >= refresh:
-            el.apply_into(el.Gn, p, u)
+        big = nproj + n_ol > lazy_max_changes
+        exact = (pending and (it % lazy == 0 or big)) or since_exact >= refresh
+        psum = kr.pk_rescale(p, idx, nc, scale, u, w, tau, exact)  # not exact: u <- scale (u - tau r)
+        if exact:
+            el.fft.apply_route(el.Gn, p, u)
             n_fft += 1
             pending = False
             since_exact = 0
@@ -326,7 +351,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     disp = u + z0
     gap = disp - h
     return dict(
-        pressure=p,
+        pressure=p.copy(),  # p is a work array of the cached FFT pair: the next solve reuses it
         gap=gap,
         displacement=disp,
         converged=converged,
