@@ -1,15 +1,18 @@
 """Real 2-D FFT pairs for the solvers: planned FFTW where available, else scipy.
 
-The FFTs dominate every solver iteration (one ``rfft2`` + ``irfft2`` pair per
-constrained-CG step), so they are planned once per grid size and thread count
-(``FFTW_MEASURE`` with pyfftw), cached for the life of the process, and applied
-into preallocated output arrays: :meth:`FFTWPair.apply_into` costs one pair plus
-one copy in and one copy out, no allocation (a fresh 8 n^2-byte result array per
-call cost about 25 % of a pair at 1024^2 in page faults).  Planning is a
-one-time, visible cost (about 2 s at 1024^2, bounded by ``PLANNING_TIMELIMIT``)
-reported by :func:`fft_pair` so that a caller can warm it up.  Small grids
-(below ``FFTW_MIN_N``) and machines without pyfftw use scipy.fft.  Set the
-environment variable ``GFMD_REF_FFT=scipy`` to force scipy.
+The FFTs dominate every solver iteration (two to three ``rfft2`` + ``irfft2`` pairs
+per preconditioned constrained-CG step), so they are planned once per grid size,
+thread count and calling thread (``FFTW_MEASURE`` with pyfftw) and cached for the
+life of the thread. The hard-wall solver keeps its state in the pair's work arrays
+(:meth:`FFTWPair.work_array`) and transforms between them with
+:meth:`FFTWPair.apply_route`: one pair and one multiply, no copy in or out, no
+allocation, and the dot product of input and output by Parseval for free.
+:meth:`FFTWPair.apply_into` (a copy in and a copy out) serves the other solvers.
+Planning is a one-time, visible cost (about 2 s at 1024^2 with the work arrays,
+bounded by ``PLANNING_TIMELIMIT`` per plan) reported by :func:`fft_pair` and
+:func:`gfmd_ref.warm_up_fft` so that a caller can warm it up. Small grids (below
+``FFTW_MIN_N``) and machines without pyfftw use scipy.fft. Set the environment
+variable ``GFMD_REF_FFT=scipy`` to force scipy.
 
 Threads: ``DEFAULT_THREADS`` is 1, chosen by measurement on the 2-core
 development machine while other jobs kept it loaded (``benchmarks/bench_gfmd.py
@@ -21,6 +24,7 @@ for the two cores).  On an idle multi-core machine pass ``threads=`` explicitly
 from __future__ import annotations
 
 import os
+import threading
 import time
 from typing import Any, Dict, Optional, Tuple
 
@@ -220,7 +224,15 @@ class FFTWPair:
         return dot
 
 
-_CACHE: Dict[Tuple[Tuple[int, int], int], Any] = {}
+#: pairs per thread: a pair's buffers and work arrays hold a solve's state, so two
+#: threads of one process (a Dask worker with several threads) must not share them
+_LOCAL = threading.local()
+
+
+def _cache() -> Dict[Tuple[Tuple[int, int], int], Any]:
+    if not hasattr(_LOCAL, "pairs"):
+        _LOCAL.pairs = {}
+    return _LOCAL.pairs
 
 
 def _want_fftw(n: int) -> bool:
@@ -249,12 +261,13 @@ def fft_pair(shape: Tuple[int, int], threads: Optional[int] = None) -> Tuple[Any
     """
     threads = check_threads(threads)
     key = (tuple(shape), threads)
-    if key in _CACHE:
-        return _CACHE[key], 0.0
+    cache = _cache()
+    if key in cache:
+        return cache[key], 0.0
     t0 = time.perf_counter()
     if _want_fftw(shape[0]):
         pair: Any = FFTWPair(tuple(shape), threads=threads)
     else:
         pair = ScipyPair(tuple(shape), threads=threads)
-    _CACHE[key] = pair
+    cache[key] = pair
     return pair, time.perf_counter() - t0

@@ -1,6 +1,9 @@
 """The planned-FFTW path and the scipy path compute the same transforms."""
 from __future__ import annotations
 
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import pytest
 
@@ -37,7 +40,7 @@ def test_solver_gives_the_same_answer_with_either_fft(monkeypatch):
     kw = dict(length=length, E_star=8 / 3, mean_pressure=0.004, interaction=HardWall(), tol=1e-9)
     fast = solve_contact(h, **kw)
     monkeypatch.setenv("GFMD_REF_FFT", "scipy")
-    monkeypatch.setattr("gfmd_ref._fft._CACHE", {})
+    monkeypatch.setattr("gfmd_ref._fft._LOCAL", threading.local())
     slow = solve_contact(h, **kw)
     assert fast.info["fft"] == "fftw" and slow.info["fft"] == "scipy"
     # both converge to 1e-9 p0; the pressure fields agree to that level and the
@@ -116,3 +119,24 @@ def test_lazy_plain_pk_agrees_with_ccg_at_512():
     assert b.info["fft_pairs"] < 2 * b.iterations  # the lazy path really ran
     assert np.count_nonzero((a.pressure > 0) != (b.pressure > 0)) <= 4
     assert np.max(np.abs(a.pressure - b.pressure)) < 1e-7 * 0.004
+
+
+def test_threads_of_one_process_do_not_share_a_solve():
+    """Two threads solving different surfaces of the same size at once (a Dask worker
+    with several threads): each gets the answer of its own serial solve, bit for bit
+    (each thread has its own FFT pair and work arrays; shared ones would mix the two
+    solves' states)."""
+    h, length = fig1_surface(256, seed=3)
+    surfaces = [h, np.roll(h, 17, axis=0) * 1.3, np.roll(h, 40, axis=1) * 0.8, h[::-1].copy()]
+    kw = dict(length=length, E_star=8 / 3, mean_pressure=0.004, interaction=HardWall(), tol=1e-9)
+    serial = [solve_contact(x, **kw).pressure for x in surfaces]
+    barrier = threading.Barrier(2)
+
+    def run(x):
+        barrier.wait()  # both threads inside the solver together
+        return solve_contact(x, **kw).pressure
+
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        for k in (0, 2):
+            both = list(pool.map(run, surfaces[k:k + 2]))
+            assert all(np.array_equal(a, b) for a, b in zip(both, serial[k:k + 2]))
