@@ -59,6 +59,14 @@ MAX_RATIO = 1e12
 #: 7 assumes third order (the extrapolated values converge at order 3-4: wall cells, knots), conservative by
 #: up to 2 where they converge at order 4
 RICHARDSON_DIVISOR = 7.0
+#: divisor of the sixth-order estimate |R2(N,2N,4N) - R2(M,N,2N)| (63 asymptotically; with 31 the estimate was
+#: up to 3.8x below the true error on the closures, with 15 at most 1.7x, benchmarks/results/closure_sixth.md)
+SIXTH_DIVISOR = 15.0
+#: the sixth-order estimate counts only where the fourth-order differences fall at least this much per halving
+#: (16 asymptotically); measured on coarse levels it was 3x optimistic (benchmarks/results/richardson_order.md)
+SIXTH_ASYMPTOTIC_RATIO = 8.0
+#: extrapolation="sixth": cells of the first level's coarsest grid at rtol 1e-4 (times (1e-4/rtol)^(1/6))
+START_CELLS_SIXTH = 25
 #: refinement stops when the estimate is below SAFETY * rtol (margin for the estimate's own error)
 SAFETY = 0.5
 #: cells of the first level's coarsest grid at rtol 1e-4 (times (1e-4/rtol)^(1/4), at least 16)
@@ -651,11 +659,39 @@ def _aggregate(y_fine: np.ndarray) -> np.ndarray:
     return np.r_[y_fine[0], y_fine[1::2] + y_fine[2::2]]
 
 
+def _sixth(es: Sequence[np.ndarray], ys: Sequence[np.ndarray], r12: np.ndarray, r23: np.ndarray,
+           r_mom: np.ndarray, fine: np.ndarray, prep: Prepared, est4: float) -> tuple:
+    """The second extrapolation of ``extrapolation="sixth"`` on four nested grids ``es`` (coarsest first) with
+    the cell masses ``ys``, the first extrapolations ``r12 = R(N, 2N)`` (``N`` grid), ``r23 = R(2N, 4N)`` (``2N``
+    grid), ``r_mom`` (``R`` of the first moments, ``2N`` grid), ``fine`` (the ``4N`` masses on the ``2N`` grid)
+    and the fourth-order estimate ``est4``.  Returns ``(edges, masses, moments, finest masses, mean, estimate,
+    order)`` on the ``N`` grid, lumped below the floor as the engine reports them; ``order`` is 6, or 4 where
+    the fourth-order differences do not yet fall like ``h^4`` (then ``est4`` is the estimate)."""
+    e0, e1, e2 = es[0], es[1], es[2]
+    y0, y1, y2 = ys[0], ys[1], ys[2]
+    r01 = (4.0 * _aggregate(y1) - y0) / 3.0
+    hi = (16.0 * _aggregate(r23) - r12) / 15.0  # R2(N, 2N, 4N) on the N grid
+    lo = (16.0 * _aggregate(r12) - r01) / 15.0  # R2(M, N, 2N) on the M grid
+    mom2 = centres(e2) * y2[1:]
+    r12_mom = (4.0 * (mom2[0::2] + mom2[1::2]) - centres(e1) * y1[1:]) / 3.0
+    hi_mom = (16.0 * (r_mom[0::2] + r_mom[1::2]) - r12_mom) / 15.0
+    mean_full = float(np.sum(hi_mom) + e1[0] * hi[0])
+    j0 = int(np.searchsorted(e0, prep.lump_below)) if prep.lump_below > 0 else 0
+    j1 = 2 * j0
+    est6 = float(np.sum(np.abs(_lump(_aggregate(hi), j0) - _lump(lo, j0)))) / SIXTH_DIVISOR
+    # pre-asymptotic guard: the fourth-order differences on the M grid must fall like h^4 (ratio 16)
+    d_lo = float(np.sum(np.abs(_lump(_aggregate(r12), j0) - _lump(r01, j0))))
+    d_hi = float(np.sum(np.abs(_lump(_aggregate(_aggregate(r23)), j0) - _lump(_aggregate(r12), j0))))
+    asymptotic = d_lo >= SIXTH_ASYMPTOTIC_RATIO * d_hi
+    return (e1[j1:], _lump(hi, j1), hi_mom[j1:], _lump(_aggregate(fine), j1), mean_full,
+            est6 if asymptotic else est4, 6 if asymptotic else 4)
+
+
 def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_assemble, n_cells: Optional[int] = None,
              max_cells: int = MAX_CELLS, p_floor: Optional[float] = None,
              time_integration: str = "cram16", loop: Optional[Callable] = None,
              extra: Optional[dict] = None, threads: Optional[int] = None,
-             n_start: Optional[int] = None) -> PressureDistribution:
+             n_start: Optional[int] = None, extrapolation: str = "fourth") -> PressureDistribution:
     """Solve ``problem`` to ``rtol`` on nested grids (the engine's entry point).
 
     Parameters
@@ -690,6 +726,17 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         1 or 2: with 2 the finest grid of a compiled (staged, native) solve runs
         in a second thread (default :data:`DEFAULT_THREADS`; the answer is the
         same bit for bit).
+    extrapolation : {"fourth", "sixth"}
+        ``"fourth"``: three nested grids ``N, 2N, 4N``, Richardson on each pair, the
+        answer ``R(2N, 4N)`` on the ``2N`` grid.  ``"sixth"`` (native operator,
+        problems whose coefficients are constant within each stage): four grids
+        ``M, N = 2M, 2N, 4N`` and a second extrapolation ``(16 R(2N,4N) - R(N,2N))/15``,
+        the answer on the ``N`` grid (4x fewer output cells than ``"fourth"`` at
+        the same finest grid); about half the cells for the same error at rtol
+        1e-6 (docs/closures.md).  Its estimate ``|R2 - R2(M, N, 2N)|/31`` is used only
+        where the fourth-order differences fall by at least
+        :data:`SIXTH_ASYMPTOTIC_RATIO` per halving; else the fourth-order
+        estimate is reported (and the grids grow as for ``"fourth"``).
     """
     t_start = time.perf_counter()
     if n_cells is not None:
@@ -707,7 +754,14 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     threads = DEFAULT_THREADS if threads is None else threads
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads not in (1, 2):
         raise ValueError(f"threads must be 1 or 2; got threads={threads!r}")
+    if extrapolation not in ("fourth", "sixth"):
+        raise ValueError(f"extrapolation must be 'fourth' or 'sixth'; got extrapolation={extrapolation!r}")
+    sixth = extrapolation == "sixth"
     prep = prepare(problem, rtol=rtol, p_floor=p_floor)
+    if sixth and not (loop is None and assemble is native_assemble and not prep.time_dependent
+                      and (prep.balance_per_stage or not prep.has_balance)):
+        raise ValueError("extrapolation='sixth' needs the native operator and coefficients constant within each "
+                         "stage (no time-dependent coefficients, no balance substeps); use 'fourth'")
     t_prep = time.perf_counter() - t_start
     integrate = loop if loop is not None else (
         lambda pr, e, nb, rf, cf=None: solve_on_grid(pr, e, assemble=assemble, n_base=nb, refine=rf, coef=cf,
@@ -715,7 +769,9 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                             lin_tol=math.sqrt(LINEAR_FRACTION * rtol),
                                             partial_fractions=rtol >= PFD_MIN_RTOL))
     n = int(n_cells) if n_cells is not None else (
-        int(n_start) if n_start is not None else int(np.clip(START_CELLS * (1e-4 / rtol) ** 0.25, 16, 4096)))
+        int(n_start) if n_start is not None else
+        int(np.clip(START_CELLS_SIXTH * (1e-4 / rtol) ** (1 / 6), 16, 4096)) if sixth else
+        int(np.clip(START_CELLS * (1e-4 / rtol) ** 0.25, 16, 4096)))
     history = []
 
     failure = None
@@ -725,38 +781,42 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     # check where a fresh level passes (p0 = 1, V = 4, Muser cutoff at 0.75: mean off by 3e-3 at 102 cells,
     # estimate 4.6e-4), so the peers keep fresh levels
     reusable = (loop is None and assemble is native_assemble and not prep.time_dependent
-                and (prep.balance_per_stage or not prep.has_balance))
+                and (prep.balance_per_stage or not prep.has_balance) and not sixth)
+    depth = 8 if sixth else 4  # the finest grid's cells per coarsest cell
     reuse = None
     grids_integrated = 0
     while True:
         idx = 2 * reuse[0] if reuse is not None else knot_indices(prep.spec, n)
         n_base = int(idx[-1])
-        if 4 * n_base > max_cells and history:
-            failure = f"refinement stopped at max_cells={max_cells} (the next grid needs {4 * n_base} cells)"
+        if depth * n_base > max_cells and history:
+            failure = f"refinement stopped at max_cells={max_cells} (the next grid needs {depth * n_base} cells)"
             break
-        finest = edges_for(prep.spec, idx, 4)  # the coarser grids are every 2nd / 4th edge of it
-        e1, e2, e3 = finest[::4], finest[::2], finest
-        if reuse is not None and not (np.array_equal(e1, reuse[1]) and np.array_equal(e2, reuse[2])):
+        finest = edges_for(prep.spec, idx, depth)  # the coarser grids are every 2nd / 4th (/ 8th) edge of it
+        es = [finest[::depth >> k] for k in range(depth.bit_length())]  # coarsest first
+        if reuse is not None and not (np.array_equal(es[0], reuse[1]) and np.array_equal(es[1], reuse[2])):
             reuse = None  # not nested to the last bit (never seen): integrate all three grids
         parallel = threads > 1 and loop is None and assemble is native_assemble and _compiled(prep)
+        last = len(es) - 1
         if reuse is not None:
-            coef3 = _coefficients(prep.pieces, [e3], centre_drift=assemble is not native_assemble)[0]
-            (y1, c1), (y2, c2) = reuse[3], reuse[4]
-            y3, cnt = integrate(prep, e3, n_base, 4, coef3)
-        elif loop is None and not prep.time_dependent:
-            # each coefficient evaluated once for the grids of one thread (the worker's finest grid apart, so that
-            # it is evaluated and integrated while this thread evaluates and integrates the coarser two)
-            coefs = _coefficients_lazy(prep.pieces, (e1, e2, e3), ((2,), (0, 1)) if parallel else ((0, 1, 2),),
-                                       centre_drift=assemble is not native_assemble)
-            tasks = [lambda e=e, rf=rf, g=g: integrate(prep, e, n_base, rf, coefs(g))
-                     for e, rf, g in ((e1, 1, 0), (e2, 2, 1), (e3, 4, 2))]
+            coef3 = _coefficients(prep.pieces, [es[-1]], centre_drift=assemble is not native_assemble)[0]
+            ys = [reuse[3], reuse[4], integrate(prep, es[-1], n_base, 4, coef3)]
         else:
-            tasks = [lambda e=e, rf=rf: integrate(prep, e, n_base, rf) for e, rf in ((e1, 1), (e2, 2), (e3, 4))]
-        if reuse is None:
-            (y1, c1), (y2, c2), (y3, cnt) = _run_grids(tasks, parallel)
-        grids_integrated += 1 if reuse is not None else 3
+            if loop is None and not prep.time_dependent:
+                # each coefficient evaluated once for the grids of one thread (the worker's finest grid apart, so
+                # that it is evaluated and integrated while this thread evaluates and integrates the coarser ones)
+                coefs = _coefficients_lazy(prep.pieces, es, ((last,), tuple(range(last))) if parallel
+                                           else (tuple(range(last + 1)),),
+                                           centre_drift=assemble is not native_assemble)
+                tasks = [lambda e=e, rf=1 << k, g=k: integrate(prep, e, n_base, rf, coefs(g))
+                         for k, e in enumerate(es)]
+            else:
+                tasks = [lambda e=e, rf=1 << k: integrate(prep, e, n_base, rf) for k, e in enumerate(es)]
+            ys = _run_grids(tasks, parallel)
+        grids_integrated += 1 if reuse is not None else len(es)
         reuse = None
-        broken = [cc["balance_failure"] for cc in (c1, c2, cnt) if "balance_failure" in cc]
+        (y1, c1), (y2, c2), (y3, cnt) = ys[-3:]
+        e1, e2, e3 = es[-3:]
+        broken = [cc["balance_failure"] for _, cc in ys if "balance_failure" in cc]
         if broken:
             failure = broken[0]
             if not history:  # nothing to report: the coarsest level failed
@@ -775,6 +835,10 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         j2 = 2 * j1
         est = float(np.sum(np.abs(_lump(_aggregate(r23), j1) - _lump(r12, j1)))) / RICHARDSON_DIVISOR
         out_edges, out_y, out_mom, fine_l = e2[j2:], _lump(r23, j2), r_mom[j2:], _lump(fine, j2)
+        order = 4
+        if sixth:
+            out_edges, out_y, out_mom, fine_l, mean_full, est, order = _sixth(
+                es, [y for y, _ in ys], r12, r23, r_mom, fine, prep, est)
         # where extrapolation overshoots below 0 (far tails, 1e-17-level), keep the finest grid's own
         # value (>= 0 up to CRAM round-off, which is then cut to 0); the change is added to the estimate
         neg = out_y < 0.0
@@ -790,29 +854,30 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         mean_miss = abs(mean_full - prep.p0) if prep.mean_conserved else 0.0
         est = max(est, mean_miss / float(out_edges[-1]))
         history.append((n_base, est))
-        best = (out_edges, out_y, out_mom, est, cnt, [n_base, 2 * n_base, 4 * n_base], mean_full)
+        best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(len(es))], mean_full)
         trimmed = _trimmed_depth(prep, float(out_y[0]) + est, rtol) if len(history) == 1 else None
         if (est <= SAFETY * rtol and mean_miss <= SAFETY * rtol * prep.p0) or n_cells is not None:
             break
         if len(history) > 12:
             failure = "refinement did not converge in 12 levels"
             break
-        # the estimate falls like N^-4: predict the cells that meet rtol (x1.5 ... x8 per level)
-        need = NEED_MARGIN * max(est / (SAFETY * rtol), mean_miss / (SAFETY * rtol * prep.p0)) ** 0.25
+        # the estimate falls like N^-4 (N^-6 with a sixth-order estimate): predict the cells that meet rtol
+        # (x1.5 ... x8 per level)
+        need = NEED_MARGIN * max(est / (SAFETY * rtol), mean_miss / (SAFETY * rtol * prep.p0)) ** (1.0 / order)
         grow = float(np.clip(need, MIN_GROWTH, 8.0))
-        if 4 * n_base >= max_cells or 4 * n_base * need > 8 * max_cells:
+        if depth * n_base >= max_cells or depth * n_base * need > 8 * max_cells:
             failure = (f"error estimate {est:.2e} misses rtol={rtol:.1e}: it would need about "
-                       f"{int(4 * n_base * need)} cells, max_cells={max_cells}")
+                       f"{int(depth * n_base * need)} cells, max_cells={max_cells}")
             break
         if trimmed is not None:  # a shallower domain below the floor for the next levels (a new grid family)
             # the cells per unit of Phi predicted for the old domain (growth capped at 8x, as below)
             ratio = float(np.sum(trimmed.spec.segment_weights()) / np.sum(prep.spec.segment_weights()))
             prep = trimmed
-            n = int(np.clip(math.ceil(n_base * min(need, 8.0) * ratio), 16, max_cells // 4))
+            n = int(np.clip(math.ceil(n_base * min(need, 8.0) * ratio), 16, max_cells // depth))
             continue
         if reusable and grow <= 2.0 and 8 * n_base <= max_cells:  # cheaper to double: one new grid (8 n_base cells) instead of three
             reuse = (idx, e2, e3, (y2, c2), (y3, cnt))
-        n = min(int(math.ceil(n_base * grow)), max_cells // 4)
+        n = min(int(math.ceil(n_base * grow)), max_cells // depth)
     edges, y, moments, est, cnt, cells, mean_full = best
     timings = {"setup": t_prep, "solve": time.perf_counter() - t_start - t_prep,
                "total": time.perf_counter() - t_start}
@@ -820,7 +885,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                         timings=timings, mean_full=mean_full,
                         extra={"levels": cells, "history": history, "time_integration": time_integration,
                                "cram_applications": cnt["cram_applications"], "substeps": cnt["substeps"],
-                               "grids_integrated": grids_integrated,
+                               "grids_integrated": grids_integrated, "extrapolation": extrapolation,
                                "newton_steps": cnt.get("newton_steps", 0),
                                **(extra or {})},
                         failure=failure)
