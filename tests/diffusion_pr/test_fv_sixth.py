@@ -99,3 +99,14 @@ def test_sixth_mean_is_extrapolated_too(oracles, zeta, bound):
     res = _closure("local_g1", zeta, rtol=1e-6, backend="native", extrapolation="sixth", n_cells=12)
     miss = abs(res.diagnostics["mean_error"] - ref.diagnostics["mean_error"]) / KW["mean_pressure"]
     assert miss <= bound
+
+
+def test_n_start_bound_follows_the_finest_grid():
+    """With four grids the finest has 8x the coarsest's cells: n_start is capped at
+    max_cells/8 (it was max_cells/4 for three grids), and a sweep's chained start is used."""
+    with pytest.raises(ValueError, match=r"n_start must be an integer in \[8, max_cells/8 = 512\]"):
+        _closure("local_g1", 0.25, rtol=1e-6, backend="native", extrapolation="sixth", max_cells=4096, n_start=600)
+    first = _closure("local_g1_balanced", 0.25, rtol=1e-6, backend="native", extrapolation="sixth")
+    again = _closure("local_g1_balanced", 0.3, rtol=1e-6, backend="native", extrapolation="sixth",
+                     n_start=first.diagnostics["levels"][0])
+    assert len(first.diagnostics["history"]) == 2 and len(again.diagnostics["history"]) == 1

@@ -744,18 +744,19 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             raise ValueError(f"n_cells must be an integer >= 8; got n_cells={n_cells!r}")
     if isinstance(max_cells, bool) or not isinstance(max_cells, (int, np.integer)) or max_cells < 32:
         raise ValueError(f"max_cells must be an integer >= 32; got max_cells={max_cells!r}")
+    if extrapolation not in ("fourth", "sixth"):
+        raise ValueError(f"extrapolation must be 'fourth' or 'sixth'; got extrapolation={extrapolation!r}")
+    depth = 8 if extrapolation == "sixth" else 4  # the finest grid's cells per coarsest cell
     if n_start is not None:
         if n_cells is not None:
             raise ValueError("n_start and n_cells exclude each other (n_cells fixes the grids)")
         if (isinstance(n_start, bool) or not isinstance(n_start, (int, np.integer))
-                or not 8 <= n_start <= max_cells // 4):
-            raise ValueError(f"n_start must be an integer in [8, max_cells/4 = {max_cells // 4}]; "
+                or not 8 <= n_start <= max_cells // depth):
+            raise ValueError(f"n_start must be an integer in [8, max_cells/{depth} = {max_cells // depth}]; "
                              f"got n_start={n_start!r}")
     threads = DEFAULT_THREADS if threads is None else threads
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads not in (1, 2):
         raise ValueError(f"threads must be 1 or 2; got threads={threads!r}")
-    if extrapolation not in ("fourth", "sixth"):
-        raise ValueError(f"extrapolation must be 'fourth' or 'sixth'; got extrapolation={extrapolation!r}")
     sixth = extrapolation == "sixth"
     prep = prepare(problem, rtol=rtol, p_floor=p_floor)
     if sixth and not (loop is None and assemble is native_assemble and not prep.time_dependent
@@ -782,7 +783,6 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     # estimate 4.6e-4), so the peers keep fresh levels
     reusable = (loop is None and assemble is native_assemble and not prep.time_dependent
                 and (prep.balance_per_stage or not prep.has_balance) and not sixth)
-    depth = 8 if sixth else 4  # the finest grid's cells per coarsest cell
     reuse = None
     grids_integrated = 0
     while True:
