@@ -60,7 +60,24 @@ def check_threads(threads: Optional[int]) -> int:
     return int(threads)
 
 
-class ScipyPair:
+class _Pair:
+    """What both pairs share: the work arrays' bookkeeping (``_work``, ``work_array``)."""
+
+    _work: Dict[int, np.ndarray]
+
+    def work_array(self, index: int) -> np.ndarray:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def make_work_arrays(self, count: int) -> float:
+        """Make work arrays ``0 .. count-1`` now; returns the seconds spent (0 if made)."""
+        t0 = time.perf_counter()
+        new = [k for k in range(count) if k not in self._work]
+        for k in new:
+            self.work_array(k)
+        return time.perf_counter() - t0 if new else 0.0
+
+
+class ScipyPair(_Pair):
     """``rfft2``/``irfft2`` on an ``(n, n)`` grid with scipy.fft (pocketfft)."""
 
     name = "scipy"
@@ -91,14 +108,6 @@ class ScipyPair:
                                norm="forward")
         return out
 
-    def make_work_arrays(self, count: int) -> float:
-        """Make work arrays ``0 .. count-1`` now; returns the seconds spent (0 if made)."""
-        t0 = time.perf_counter()
-        new = [k for k in range(count) if k not in self._work]
-        for k in new:
-            self.work_array(k)
-        return time.perf_counter() - t0 if new else 0.0
-
     def work_array(self, index: int) -> np.ndarray:
         """Work array number ``index`` for :meth:`apply_route` (made once, then reused;
         its content is whatever the last user left)."""
@@ -117,7 +126,7 @@ class ScipyPair:
         return dot
 
 
-class FFTWPair:
+class FFTWPair(_Pair):
     """The same operations with FFTW plans (pyfftw) on aligned buffers.
 
     :meth:`rfft`, :meth:`irfft` and :meth:`apply` copy their input into the plan's
@@ -170,14 +179,6 @@ class FFTWPair:
         self._backward.execute()
         out[...] = self._real
         return out
-
-    def make_work_arrays(self, count: int) -> float:
-        """Make work arrays ``0 .. count-1`` now; returns the seconds spent (0 if made)."""
-        t0 = time.perf_counter()
-        new = [k for k in range(count) if k not in self._work]
-        for k in new:
-            self.work_array(k)
-        return time.perf_counter() - t0 if new else 0.0
 
     def work_array(self, index: int) -> np.ndarray:
         """Work array number ``index``: an aligned real ``(n, n)`` array with its own
