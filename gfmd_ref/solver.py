@@ -253,11 +253,12 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     u[...] = 0.0
     t[...] = 0.0
     c = np.ones(el.shape, dtype=np.bool_)  # the contact set p > 0, one byte per node
-    idx = np.empty(n2, dtype=np.int64)  # and its flat indices (two lists, swapped every step)
-    idx_next = np.empty(n2, dtype=np.int64)
+    index = np.int32 if n2 < 2 ** 31 else np.int64  # 4 bytes per entry where they suffice
+    idx = np.empty(n2, dtype=index)  # and its flat indices (two lists, swapped every step)
+    idx_next = np.empty(n2, dtype=index)
     nc = kr.contact_index(c, idx)
     gcon = np.empty(n2)  # the gap on the contact set, in the order of idx
-    ol = np.empty(n2, dtype=np.int64)  # overlaps (g < 0 off the set) and their gaps
+    ol = np.empty(n2, dtype=index)  # overlaps (g < 0 off the set) and their gaps
     olg = np.empty(n2)
     psum = p0 * n2
     n_fft = 0
