@@ -178,32 +178,15 @@ def pk_direction(z, from_gap, gcon, idx, nc, t, shift, beta):
 def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new):
     """Polonsky-Keer step of the pressures: ``p -= tau t`` on the contact set, projected
     on ``p >= 0`` (a projected node leaves the set: ``c`` false, ``p`` and ``t`` zero);
-    ``p = -tau g`` at the overlaps ``ol[:n_overlap]`` (they join the set). The new set's
-    indices go to ``idx_new`` in increasing order (the survivors of ``idx`` merged with
-    the overlaps that joined: both lists are sorted). The load is restored by
+    ``p = -tau g`` at the overlaps ``ol[:n_overlap]`` (they join the set where that is
+    positive). One pass over the two sorted lists in index order, which writes the new
+    set's indices to ``idx_new`` in increasing order. The load is restored by
     :func:`pk_rescale`. Returns ``(n_projected, sum p, new nc)``."""
     pf = p.ravel()
     cf = c.ravel()
     tf = t.ravel()
     nproj = 0
     s = 0.0
-    for k in range(nc):
-        i = idx[k]
-        v = pf[i] - tau * tf[i]
-        if v <= 0.0:
-            v = 0.0
-            nproj += 1
-            cf[i] = False
-            tf[i] = 0.0
-        pf[i] = v
-        s += v
-    for m in range(n_overlap):
-        i = ol[m]
-        v = -tau * olg[m]
-        if v > 0.0:
-            pf[i] = v
-            cf[i] = True
-            s += v
     k = 0
     m = 0
     n = 0
@@ -211,12 +194,24 @@ def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new):
         if m >= n_overlap or (k < nc and idx[k] < ol[m]):
             i = idx[k]
             k += 1
+            v = pf[i] - tau * tf[i]
+            if v <= 0.0:
+                pf[i] = 0.0
+                cf[i] = False
+                tf[i] = 0.0
+                nproj += 1
+                continue
         else:
             i = ol[m]
+            v = -tau * olg[m]
             m += 1
-        if cf[i]:
-            idx_new[n] = i
-            n += 1
+            if v <= 0.0:
+                continue
+            cf[i] = True
+        pf[i] = v
+        s += v
+        idx_new[n] = i
+        n += 1
     return nproj, s, n
 
 
