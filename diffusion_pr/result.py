@@ -138,10 +138,12 @@ class PressureDistribution:
         masses), a cubic spline of them in between (one per segment between
         the solver's knots, ``diagnostics["knots"]``, where the density may
         jump), clipped to the cell's two edge values (fourth-order accurate
-        for a piecewise smooth density; stays within the cell's probability).  Point-wise results (closed forms on
-        quadrature nodes) integrate a shape-preserving cubic (PCHIP)
-        interpolant of the density, so bins narrower than the node spacing are
-        still integrated accurately; the segment ``[0, p[0]]`` is taken as
+        for a piecewise smooth density; stays within the cell's probability).  Point-wise results on
+        Gauss-Legendre panels (the closed forms; ``diagnostics["panels"]``)
+        integrate, on each panel, the polynomial through the density at its
+        nodes: the exact cumulative to about 1e-13, whatever the bin.  Other
+        point-wise results integrate a shape-preserving cubic (PCHIP)
+        interpolant of the density; the segment ``[0, p[0]]`` is taken as
         linear from ``density[0]`` at ``p[0]`` down to ``p = 0`` when the
         density vanishes there, constant otherwise.
         """
@@ -166,9 +168,44 @@ class PressureDistribution:
                     spl[sel] = np.interp(q[sel], self.edges[a:b + 1], cum[a:b + 1])
             inside = np.clip(spl, np.minimum(cum[i], cum[i + 1]), np.maximum(cum[i], cum[i + 1]))
             out = np.where(p <= self.edges[0], 0.0, np.where(p >= self.edges[-1], cum[-1], inside))
+        elif self._panels() is not None:
+            out = self._panel_cdf(p)
         else:
             out = self._pointwise_cdf(p)
         return np.where(p >= 0.0, out + self.zero_weight, 0.0)
+
+    def _panels(self) -> Optional[Array]:
+        """The Gauss-Legendre panel edges of a point-wise result, if its nodes are theirs."""
+        panels = self.diagnostics.get("panels") if self.edges is None else None
+        if panels is None:
+            return None
+        panels = np.asarray(panels, dtype=float)
+        n_panels = panels.size - 1
+        return panels if n_panels >= 1 and self.p.size % n_panels == 0 and self.p.size >= 2 * n_panels else None
+
+    def _panel_cdf(self, p: Array) -> Array:
+        """Cumulative of the continuous part on Gauss-Legendre panels: on each panel the
+        Legendre interpolant through the density at its ``m`` nodes (degree ``m - 1``,
+        the polynomial the panel's quadrature integrates exactly), integrated from the
+        panel's left edge; 0 below the first panel, the total mass above the last."""
+        from numpy.polynomial import legendre as leg
+
+        panels = self._panels()
+        n_panels = panels.size - 1
+        m = self.p.size // n_panels
+        a, b = panels[:-1], panels[1:]
+        half = 0.5 * (b - a)
+        t_nodes = (self.p.reshape(n_panels, m) - 0.5 * (a + b)[:, None]) / half[:, None]
+        dens = self.density.reshape(n_panels, m)
+        coef = np.stack([leg.legfit(t_nodes[k], dens[k], m - 1) for k in range(n_panels)], axis=1)
+        anti = leg.legint(coef, lbnd=-1.0) * half[None, :]  # (m + 1, n_panels): integral from the left edge
+        before = np.concatenate(([0.0], np.cumsum(leg.legval(1.0, anti))))
+        q = np.atleast_1d(np.clip(p, panels[0], panels[-1])).ravel()
+        j = np.clip(np.searchsorted(panels, q, side="right") - 1, 0, n_panels - 1)
+        t = (q - 0.5 * (a[j] + b[j])) / half[j]
+        inside = before[j] + np.sum(leg.legvander(t, m) * anti[:, j].T, axis=1)
+        inside = inside.reshape(np.shape(p))
+        return np.where(p < panels[0], 0.0, np.where(p >= panels[-1], before[-1], inside))
 
     def _pointwise_cdf(self, p: Array) -> Array:
         from scipy.interpolate import PchipInterpolator
