@@ -278,6 +278,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     bar = _Progress(progress, "gfmd_ref ccg", tol)
     stall = _Stall(stall_window)
     stalled = False
+    lost = None
     res = np.inf
     best, it_best = np.inf, 0
 
@@ -331,6 +332,9 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         tau = sgt / den if den != 0 else 0.0
         nproj, psum, nc = kr.pk_step(p, c, t, idx, nc, ol, olg, n_ol, tau, idx_next)
         idx, idx_next = idx_next, idx
+        if not psum > 0.0:  # the step removed every contact: no load can be restored (never seen)
+            lost = f"a step removed every contact (sum p = {psum:g} after step {it + 1})"
+            break
         scale = p0 * n2 / psum
         delta = 0.0 if n_ol > 0 else 1.0
         it += 1
@@ -359,7 +363,8 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         iterations=it,
         residual=res,
         history=np.asarray(hist),
-        stop=("converged" if converged else _stalled_message(stall, res) if stalled else "max_iter"),
+        stop=("converged" if converged else lost if lost else _stalled_message(stall, res) if stalled
+              else "max_iter"),
         info=dict(h_scale=h_scale, fft_pairs=n_fft, history_stamps=np.asarray(stamps)),
     )
 

@@ -384,3 +384,24 @@ def test_preconditioned_ccg_agrees_with_plain_pk():
     assert np.count_nonzero((a.pressure > 0) != (b.pressure > 0)) <= 4
     assert np.max(np.abs(a.pressure - b.pressure)) < 1e-7 * P0
     assert a.iterations <= b.iterations / 2
+
+
+def test_a_step_that_removes_every_contact_is_reported(fig1_64, monkeypatch):
+    """If a Polonsky-Keer step left no node in contact (sum p = 0), the load could not be
+    restored (the old kernel divided by zero into inf); the solver stops and says so
+    instead. Never seen on a real surface: forced here by a step kernel that clears p."""
+    from gfmd_ref import _kernels as kr
+
+    real_step = kr.pk_step
+
+    def clearing_step(p, c, t, *args):
+        real_step(p, c, t, *args)
+        p[...] = 0.0
+        c[...] = False
+        return 0, 0.0, 0
+
+    monkeypatch.setattr(kr, "pk_step", clearing_step)
+    h, L = fig1_64
+    with pytest.warns(ConvergenceWarning, match="NOT converged"):
+        r = _solve(h, L, HardWall(), method="ccg")
+    assert not r.converged and "removed every contact" in r.message
