@@ -412,10 +412,10 @@ def part_breakdown(n, reps=15, threads=None):
     pr.apply_route(el.Gn, p, u)
     c = p > 0
     n2 = p.size
-    idx = np.empty(n2, dtype=np.int64)
-    nc = kr.contact_index(c, idx)
+    idx = np.flatnonzero(c).astype(np.int32 if n2 < 2 ** 31 else np.int64)  # as the solver keeps it
+    nc = idx.size
     gcon, olg = np.empty(n2), np.empty(n2)
-    ol = np.empty(n2, dtype=np.int64)
+    ol = np.empty(n2, dtype=idx.dtype)
     kr.pk_gap(u, h, p, c, idx, nc, w, True, gcon, ol, olg)
     t[...] = 0.0
     kr.pk_direction(w, True, gcon, idx, nc, t, 0.0, 0.5)
@@ -431,7 +431,6 @@ def part_breakdown(n, reps=15, threads=None):
     idx2 = np.empty_like(idx)
     ops["pk_step (contact set + overlaps, new index list)"] = lambda: kr.pk_step(
         p, c, t, idx, nc, ol, olg, 0, 0.0, idx2)
-    ops["contact_index (mask pass)"] = lambda: kr.contact_index(c, idx)
     ops["pk_rescale (contact set; exact u)"] = lambda: kr.pk_rescale(p, idx, nc, 1.0, u, w, 0.0, True)
     ops["pk_rescale (incremental u: a full pass)"] = lambda: kr.pk_rescale(p, idx, nc, 1.0, u, w, 0.0, False)
     a = [p.copy(), u.copy(), t.copy(), w.copy()]

@@ -102,10 +102,7 @@ class ScipyPair(_Pair):
     def apply_into(self, mult_n: np.ndarray, x: np.ndarray, out: np.ndarray) -> np.ndarray:
         """``out = irfft2(mult_n * rfft2(x)) * n^2``: as :meth:`apply` with the
         normalisation ``1/n^2`` folded into the multiplier ``mult_n = mult / n^2``."""
-        X = sfft.rfft2(x, workers=self.threads)
-        X *= mult_n
-        out[...] = sfft.irfft2(X, s=self.shape, workers=self.threads, overwrite_x=True,
-                               norm="forward")
+        self.apply_route(mult_n, x, out)
         return out
 
     def work_array(self, index: int) -> np.ndarray:
@@ -117,8 +114,8 @@ class ScipyPair(_Pair):
 
     def apply_route(self, mult_n: np.ndarray, src: np.ndarray, dst: np.ndarray) -> float:
         """``dst = irfft2(mult_n * rfft2(src)) * n^2`` (``src`` is kept unless it is
-        ``dst``); returns ``src . dst`` (by Parseval, see
-        :func:`gfmd_ref._kernels.spectral_multiply`)."""
+        ``dst``; any arrays of the grid's shape, work arrays or not); returns
+        ``src . dst`` (by Parseval, see :func:`gfmd_ref._kernels.spectral_multiply`)."""
         X = sfft.rfft2(src, workers=self.threads)
         dot = spectral_multiply(X, mult_n, self.shape[1])
         dst[...] = sfft.irfft2(X, s=self.shape, workers=self.threads, overwrite_x=True,

@@ -85,19 +85,6 @@ def spectral_multiply(spec, mult, n_last):
 
 
 @njit(cache=True)
-def contact_index(c, idx):
-    """``idx[:nc]`` = the flat indices of the contact set ``c`` in increasing order;
-    returns ``nc``."""
-    cf = c.ravel()
-    nc = 0
-    for i in range(cf.size):
-        if cf[i]:
-            idx[nc] = i
-            nc += 1
-    return nc
-
-
-@njit(cache=True)
 def gather_sum(x, idx, nc):
     """``sum_k x[idx[k]]``, ``k < nc``: the sum of ``x`` over the contact set."""
     xf = x.ravel()

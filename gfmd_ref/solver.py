@@ -254,9 +254,9 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     t[...] = 0.0
     c = np.ones(el.shape, dtype=np.bool_)  # the contact set p > 0, one byte per node
     index = np.int32 if n2 < 2 ** 31 else np.int64  # 4 bytes per entry where they suffice
-    idx = np.empty(n2, dtype=index)  # and its flat indices (two lists, swapped every step)
+    idx = np.arange(n2, dtype=index)  # and its flat indices (two lists, swapped every step)
     idx_next = np.empty(n2, dtype=index)
-    nc = kr.contact_index(c, idx)
+    nc = n2
     gcon = np.empty(n2)  # the gap on the contact set, in the order of idx
     ol = np.empty(n2, dtype=index)  # overlaps (g < 0 off the set) and their gaps
     olg = np.empty(n2)
@@ -281,6 +281,9 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     lost = None
     res = np.inf
     best, it_best = np.inf, 0
+
+    def contact_mean(x):
+        return kr.gather_sum(x, idx, nc) / nc if nc > 0 else 0.0
 
     def residual():
         sg, gn, comp, pen, n_ol = kr.pk_gap(u, h, p, c, idx, nc, w, precond, gcon, ol, olg)
@@ -316,7 +319,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
             # w: masked g -> z = K (masked g); sum_c g z = (masked g).z by Parseval
             sgz = el.fft.apply_route(Kn, w, w)
             n_fft += 1
-            zbar = kr.gather_sum(w, idx, nc) / nc if nc > 0 else 0.0
+            zbar = contact_mean(w)
             gz = sgz - zbar * sg  # sum_c g (z - zbar), the preconditioned residual norm
             beta = delta * gz / gold if gold > 0.0 else 0.0
             st, sgt = kr.pk_direction(w, False, gcon, idx, nc, t, zbar, beta)
@@ -327,7 +330,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
             gold = gn
         srt = el.fft.apply_route(el.Gn, t, w)  # w = r = G t; sum_c r t = t.r (Parseval)
         n_fft += 1
-        rbar = kr.gather_sum(w, idx, nc) / nc if nc > 0 else 0.0
+        rbar = contact_mean(w)
         den = srt - rbar * st  # sum_c (r - rbar) t
         tau = sgt / den if den != 0 else 0.0
         nproj, psum, nc = kr.pk_step(p, c, t, idx, nc, ol, olg, n_ol, tau, idx_next)
