@@ -168,8 +168,8 @@ class PressureDistribution:
                     spl[sel] = np.interp(q[sel], self.edges[a:b + 1], cum[a:b + 1])
             inside = np.clip(spl, np.minimum(cum[i], cum[i + 1]), np.maximum(cum[i], cum[i + 1]))
             out = np.where(p <= self.edges[0], 0.0, np.where(p >= self.edges[-1], cum[-1], inside))
-        elif self._panels() is not None:
-            out = self._panel_cdf(p)
+        elif (panels := self._panels()) is not None:
+            out = self._panel_cdf(p, panels)
         else:
             out = self._pointwise_cdf(p)
         return np.where(p >= 0.0, out + self.zero_weight, 0.0)
@@ -183,14 +183,13 @@ class PressureDistribution:
         n_panels = panels.size - 1
         return panels if n_panels >= 1 and self.p.size % n_panels == 0 and self.p.size >= 2 * n_panels else None
 
-    def _panel_cdf(self, p: Array) -> Array:
+    def _panel_cdf(self, p: Array, panels: Array) -> Array:
         """Cumulative of the continuous part on Gauss-Legendre panels: on each panel the
         Legendre interpolant through the density at its ``m`` nodes (degree ``m - 1``,
         the polynomial the panel's quadrature integrates exactly), integrated from the
         panel's left edge; 0 below the first panel, the total mass above the last."""
         from numpy.polynomial import legendre as leg
 
-        panels = self._panels()
         n_panels = panels.size - 1
         m = self.p.size // n_panels
         a, b = panels[:-1], panels[1:]
