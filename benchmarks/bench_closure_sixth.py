@@ -12,22 +12,19 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-import diffusion_pr as dp
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import diffusion_pr as dp  # noqa: E402
+from bench_fokker_planck import l1_against  # noqa: E402
 
 SPEC = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
 KW = dict(E_star=8 / 3, mean_pressure=0.004)
 OUT = Path(__file__).resolve().parent / "results" / "closure_sixth.md"
-
-
-def _l1(res, ref) -> float:
-    e = res.edges
-    return float(np.sum(np.abs(np.diff(ref.cdf(e)) - res.density * np.diff(e)))
-                 + abs(res.zero_weight - ref.zero_weight))
 
 
 def main() -> None:
@@ -60,7 +57,8 @@ def main() -> None:
             f, s = res["fourth"], res["sixth"]
             assert f.success and s.success, (cl, zeta)
             row = (f"| {cl} | {zeta:g} | {ms['fourth']:.1f} | {ms['sixth']:.1f} | {ms['sixth'] / ms['fourth']:.2f} | "
-                   f"{_l1(f, ref):.1e} ({f.error_estimate:.1e}) | {_l1(s, ref):.1e} ({s.error_estimate:.1e}) | "
+                   f"{l1_against(ref, f):.1e} ({f.error_estimate:.1e}) | "
+                   f"{l1_against(ref, s):.1e} ({s.error_estimate:.1e}) | "
                    f"{f.diagnostics['levels']} | {s.diagnostics['levels']} ({len(s.diagnostics['history'])}) | "
                    f"{f.edges.size - 1} / {s.edges.size - 1} |")
             lines.append(row)
