@@ -404,26 +404,77 @@ def _expm(lo, di, up, wl, wd, wu, t, y, pfd, want_d, alpha, theta, alpha0, c):  
     return x, x, info
 
 
+#: entries of the predictor state carried from substep to substep (:func:`balanced_stage`): the number of
+#: stored ratios, the last three ratios (newest first) and the ratio of the mean's slope in ``A`` to its
+#: linearization ``-dt <c, Lw u>``
+PREDICTOR_SIZE = 5
+#: a substep's ratio ``A / A_midpoint`` outside (1/RATIO_RANGE, RATIO_RANGE) restarts the ratio history
+RATIO_RANGE = 4.0
+
+
 @njit(cache=True, nogil=True)
-def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol, lin_tol, max_iter, use_d, ratio,
+def _predicted_ratio(hist):  # pragma: no cover - numba
+    """The next ratio ``A / A_midpoint``: the last three extrapolated by a parabola (fewer: a line, a constant)."""
+    k = int(hist[0])
+    if k >= 3:
+        r = 3.0 * hist[1] - 3.0 * hist[2] + hist[3]
+    elif k == 2:
+        r = 2.0 * hist[1] - hist[2]
+    elif k == 1:
+        r = hist[1]
+    else:
+        return 1.0
+    if not 1.0 / RATIO_RANGE < r < RATIO_RANGE:
+        return hist[1]
+    return r
+
+
+@njit(cache=True, nogil=True)
+def _push_ratio(hist, r):  # pragma: no cover - numba
+    if not 1.0 / RATIO_RANGE < r < RATIO_RANGE:
+        hist[0] = 0.0
+        return
+    hist[3] = hist[2]
+    hist[2] = hist[1]
+    hist[1] = r
+    hist[0] = min(hist[0] + 1.0, 3.0)
+
+
+@njit(cache=True, nogil=True)
+def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol, lin_tol, max_iter, hist,
                    pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
     """``m`` balance substeps of length ``dt`` on ``dy/dtau = (L0 - A Lw) y``, one ``A`` per substep.
 
-    Per substep: ``A`` predicted from ``<c, (L0 - A Lw) u> = 0`` at the midpoint
-    state ``u = y + dt/2 (L0 - A0 Lw) y`` (``A0`` the same condition at ``y``) and
-    one CRAM application.  While the mean misses ``p0`` by more than
-    ``mean_tol p0``: Newton on ``A`` with the exact derivative of the CRAM map
-    (:func:`cram_apply_d`; regula falsi where a step leaves the bracket of the
-    root).  Once the miss is below ``lin_tol p0`` the last step is taken on the
-    state to first order, ``y <- y + dA dy/dA`` (mean exact, state error
-    ``O(dA^2)``, about ``(lin_tol)^2``) instead of another application.
-    ``use_d`` (carried over substeps) computes the derivative with the first
-    application where the previous substep needed a correction.
+    Per substep, ``A`` is predicted and tried with one plain CRAM application:
 
-    Returns ``(y, n_cram, n_newton, info, residual, use_d)``: ``info`` 0, or ``> 0``
-    a singular shifted system, or ``-1`` the mean still missing after
-    ``max_iter`` steps (``residual`` the relative miss; ``y`` not advanced past
-    that substep).
+    * ``A_mid`` from ``<c, (L0 - A Lw) u> = 0`` at the midpoint state
+      ``u = y + dt/2 (L0 - A0 Lw) y`` (``A0`` the same condition at ``y``), times
+      the ratio ``A/A_mid`` of the last three substeps extrapolated by a parabola
+      (it varies smoothly from shell to shell), minus ``(<c, y> - p0)/s``: the
+      start's own miss of the mean, removed with the slope ``s = d<c, y_end>/dA``
+      predicted as its linearization ``-dt <c, Lw u>`` times their ratio at the last
+      substep where the slope was measured (the ratio varies slowly; the slope
+      itself changed 5x over the shells at zeta = 4, and a stale slope made the
+      ratio history oscillate and grow).
+    * Where the mean then misses ``p0`` by more than ``mean_tol p0`` but less than
+      ``lin_tol p0``: one secant step on ``A`` with the carried slope (a second
+      plain application; its two points measure the slope afresh).
+    * Where it still misses (or no slope is known yet): Newton on ``A`` with the
+      exact derivative of the CRAM map (:func:`cram_apply_d`; regula falsi where
+      a step leaves the bracket of the root); once the miss is below
+      ``lin_tol p0`` the last step is taken on the state to first order,
+      ``y <- y + dA dy/dA`` (mean exact, state error ``O(dA^2)``, about
+      ``(lin_tol)^2``) instead of another application.
+
+    Every substep ends with the mean within ``mean_tol p0`` of ``p0``; how it got
+    there (prediction, secant, Newton) changes the state only within that
+    tolerance.  ``hist`` (:data:`PREDICTOR_SIZE` floats, zeros at the start) is
+    the predictor state, updated in place and carried over substeps and stages.
+
+    Returns ``(y, n_cram, n_newton, info, residual)``: ``info`` 0, or ``> 0`` a
+    singular shifted system, or ``-1`` the mean still missing after ``max_iter``
+    corrections (``residual`` the relative miss; ``y`` not advanced past that
+    substep).  ``n_newton`` counts the corrections (secant and Newton steps).
     """
     n = diag.size
     l0y = np.empty(n)
@@ -439,6 +490,7 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
         _matvec(wl, wd, wu, y, lwy)
         denom = _dot(cvec, lwy)
         A = _dot(cvec, l0y) / denom if denom != 0.0 else 0.0
+        s_lin = 0.0  # the linearized slope d<c, y_end>/dA = -dt <c, Lw u>
         if denom != 0.0:
             for i in range(n):
                 u[i] = y[i] + 0.5 * dt * (l0y[i] - A * lwy[i])
@@ -447,17 +499,19 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
             den_u = _dot(cvec, lwy)
             if den_u != 0.0:
                 A = _dot(cvec, l0y) / den_u
-        a_pred = A
-        if use_d:  # the previous substep needed a correction: apply its ratio (smooth from shell to shell)
-            A = a_pred * ratio
+                s_lin = -dt * den_u
+        a_mid = A
+        s_pred = hist[4] * s_lin  # < 0 where known (the mean falls as A grows)
+        corr = (_dot(cvec, y) - p0) / s_pred if s_pred < 0.0 else 0.0
+        A = a_mid * _predicted_ratio(hist) - corr
+        have_d = not s_pred < 0.0 and denom != 0.0  # no slope yet: measure it with the first application
         _shifted(lower, diag, upper, wl, wd, wu, A, lo, di, up)
-        trial, dtrial, info = _expm(lo, di, up, wl, wd, wu, dt, y, pfd, use_d, alpha, theta, alpha0, c)
-        have_d = use_d
+        trial, dtrial, info = _expm(lo, di, up, wl, wd, wu, dt, y, pfd, have_d, alpha, theta, alpha0, c)
         n_cram += 1
         if info != 0:
-            return y, n_cram, n_newton, info, 0.0, use_d, ratio
+            return y, n_cram, n_newton, info, 0.0
         err = _dot(cvec, trial) - p0
-        use_d = abs(err) > mean_tol * p0 and denom != 0.0
+        slope = _dot(cvec, dtrial) if have_d else s_pred
         # bracket of the root: the mean falls as A grows, so err > 0 below the root, < 0 above
         a_lo = a_hi = A
         e_lo = e_hi = err
@@ -466,44 +520,60 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
         it = 0
         while abs(err) > mean_tol * p0 and denom != 0.0:
             if it >= max_iter:
-                return y, n_cram, n_newton, -1, abs(err) / p0, use_d, ratio
-            if not have_d:  # the derivative at the current A (the application is recomputed with it)
-                _shifted(lower, diag, upper, wl, wd, wu, A, lo, di, up)
+                return y, n_cram, n_newton, -1, abs(err) / p0
+            n_newton += 1
+            if it == 0 and not have_d and abs(err) <= lin_tol * p0:
+                # secant with the carried slope: a plain application, and the slope measured by the two points
+                A_new = A - err / s_pred
+                _shifted(lower, diag, upper, wl, wd, wu, A_new, lo, di, up)
+                trial, dtrial, info = _expm(lo, di, up, wl, wd, wu, dt, y, pfd, False, alpha, theta, alpha0, c)
+                n_cram += 1
+                if info != 0:
+                    return y, n_cram, n_newton, info, 0.0
+                err_new = _dot(cvec, trial) - p0
+                if A_new != A and (err_new - err) / (A_new - A) < 0.0:
+                    slope = (err_new - err) / (A_new - A)
+                err = err_new
+            else:
+                if not have_d:  # the derivative at the current A (the application is recomputed with it)
+                    _shifted(lower, diag, upper, wl, wd, wu, A, lo, di, up)
+                    trial, dtrial, info = _expm(lo, di, up, wl, wd, wu, dt, y, pfd, True, alpha, theta, alpha0, c)
+                    n_cram += 1
+                    if info != 0:
+                        return y, n_cram, n_newton, info, 0.0
+                    have_d = True
+                slope = _dot(cvec, dtrial)
+                if slope < 0.0:
+                    dA = -err / slope
+                    if abs(err) <= lin_tol * p0:  # close enough: the last step to first order on the state
+                        for i in range(n):
+                            trial[i] += dA * dtrial[i]
+                        err = _dot(cvec, trial) - p0
+                        A += dA
+                        break
+                    A_new = A + dA
+                else:  # not the expected monotone response: halve towards the other side
+                    A_new = A + (1.0 if err > 0.0 else -1.0) * (abs(A) + 1.0)
+                if has_lo and has_hi and not (min(a_lo, a_hi) < A_new < max(a_lo, a_hi)):
+                    A_new = (a_lo * e_hi - a_hi * e_lo) / (e_hi - e_lo)  # outside the bracket: regula falsi
+                _shifted(lower, diag, upper, wl, wd, wu, A_new, lo, di, up)
                 trial, dtrial, info = _expm(lo, di, up, wl, wd, wu, dt, y, pfd, True, alpha, theta, alpha0, c)
                 n_cram += 1
                 if info != 0:
-                    return y, n_cram, n_newton, info, 0.0, use_d, ratio
-                have_d = True
-            slope = _dot(cvec, dtrial)
-            n_newton += 1
-            if slope < 0.0:
-                dA = -err / slope
-                if abs(err) <= lin_tol * p0:  # close enough: the last step to first order on the state
-                    for i in range(n):
-                        trial[i] += dA * dtrial[i]
-                    err = _dot(cvec, trial) - p0
-                    A += dA
-                    break
-                A_new = A + dA
-            else:  # not the expected monotone response: halve towards the other side
-                A_new = A + (1.0 if err > 0.0 else -1.0) * (abs(A) + 1.0)
-            if has_lo and has_hi and not (min(a_lo, a_hi) < A_new < max(a_lo, a_hi)):
-                A_new = (a_lo * e_hi - a_hi * e_lo) / (e_hi - e_lo)  # outside the bracket: regula falsi
-            _shifted(lower, diag, upper, wl, wd, wu, A_new, lo, di, up)
-            trial, dtrial, info = _expm(lo, di, up, wl, wd, wu, dt, y, pfd, True, alpha, theta, alpha0, c)
-            n_cram += 1
-            if info != 0:
-                return y, n_cram, n_newton, info, 0.0, use_d, ratio
-            err = _dot(cvec, trial) - p0
+                    return y, n_cram, n_newton, info, 0.0
+                err = _dot(cvec, trial) - p0
             if err > 0.0:
                 a_lo, e_lo, has_lo = A_new, err, True
             elif err < 0.0:
                 a_hi, e_hi, has_hi = A_new, err, True
             A = A_new
             it += 1
-        ratio = A / a_pred if (a_pred != 0.0 and 0.5 < A / a_pred < 2.0) else 1.0
+        if denom != 0.0 and slope < 0.0 and s_lin < 0.0:
+            hist[4] = slope / s_lin
+            if a_mid != 0.0:  # the ratio of the root (the accepted A less its remaining miss) to A_mid
+                _push_ratio(hist, (A - err / slope + corr) / a_mid)
         y = trial
-    return y, n_cram, n_newton, 0, 0.0, use_d, ratio
+    return y, n_cram, n_newton, 0, 0.0
 
 
 @njit(cache=True, nogil=True)
@@ -555,8 +625,7 @@ def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, b
         h, k_int, wall, half_inv_h = np.empty(1), np.empty(1), 0.0, np.empty(1)
     n_cram = 0
     n_newton = 0
-    use_d = False
-    ratio = 1.0
+    hist = np.zeros(PREDICTOR_SIZE)
     for k in range(n_stages):
         if from_rows:
             _fill_row(h, k_int, wall, half_inv_h, f_rows[k], b_rows[k], any_b, True, lo, di, up)
@@ -571,9 +640,9 @@ def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, b
                 wdi[:] = wd[k]
                 wup[:] = wu[k]
         if balanced[k]:
-            y_new, nc, nn, info, res, use_d, ratio = balanced_stage(
+            y_new, nc, nn, info, res = balanced_stage(
                 lo, di, up, wlo, wdi, wup, cvec, y, dt[k], reps[k], p0, mean_tol, lin_tol,
-                max_iter, use_d, ratio, pfd, alpha, theta, alpha0, c)
+                max_iter, hist, pfd, alpha, theta, alpha0, c)
             n_cram += nc
             n_newton += nn
             if info != 0:
