@@ -7,6 +7,12 @@ modes are timed call by call in turn (medians of ``--repeats`` warm calls), so t
 state.  Writes ``benchmarks/results/closure_sixth.md``.
 
     python benchmarks/bench_closure_sixth.py [--repeats 7] [--zetas 0.001,0.01,0.1,0.25,1,4]
+    python benchmarks/bench_closure_sixth.py --sweep [--rounds 2]
+
+``--sweep``: a 12-wall sweep (``zeta`` = 0.01 ... 4, geometric) per closure and mode, each wall solved
+alone ("single") or started at the previous wall's ``diagnostics["levels"][0]`` ("chained", ``n_start``);
+total and median per wall over ``--rounds`` rounds, levels integrated.  Writes
+``benchmarks/results/closure_sweep.md``.
 """
 from __future__ import annotations
 
@@ -25,6 +31,39 @@ from bench_fokker_planck import l1_against  # noqa: E402
 SPEC = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
 KW = dict(E_star=8 / 3, mean_pressure=0.004)
 OUT = Path(__file__).resolve().parent / "results" / "closure_sixth.md"
+OUT_SWEEP = Path(__file__).resolve().parent / "results" / "closure_sweep.md"
+SWEEP_ZETAS = np.geomspace(0.01, 4.0, 12)
+
+
+def sweep(closures, rounds: int) -> None:
+    """The 12-wall sweep table (see the module docstring)."""
+    lines = ["| closure | mode | start | total [ms] (rounds) | median per wall [ms] | levels over the walls |",
+             "|---|---|---|---|---|---|"]
+    print("\n".join(lines), flush=True)
+    for cl in closures:
+        for mode in ("fourth", "sixth"):
+            for chained in (False, True):
+                totals, per_wall, levels = [], [], 0
+                for rnd in range(rounds + 1):  # round 0 warms up
+                    n_start, times, levels = None, [], 0
+                    for zeta in SWEEP_ZETAS:
+                        t0 = time.perf_counter()
+                        r = dp.closure_distribution(SPEC, closure=cl, zeta=float(zeta), rtol=1e-6, backend="native",
+                                                    extrapolation=mode, n_start=n_start, **KW)
+                        times.append(time.perf_counter() - t0)
+                        assert r.success, (cl, zeta, mode)
+                        levels += len(r.diagnostics["history"])
+                        n_start = r.diagnostics["levels"][0] if chained else None
+                    if rnd:
+                        totals.append(1e3 * sum(times))
+                        per_wall.append(1e3 * statistics.median(times))
+                row = (f"| {cl} | {mode} | {'chained' if chained else 'single'} | "
+                       f"{', '.join(f'{t:.0f}' for t in totals)} | {', '.join(f'{t:.1f}' for t in per_wall)} | "
+                       f"{levels} |")
+                lines.append(row)
+                print(row, flush=True)
+    OUT_SWEEP.write_text("\n".join(lines) + "\n")
+    print(f"wrote {OUT_SWEEP}")
 
 
 def main() -> None:
@@ -32,7 +71,12 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--zetas", default="0.001,0.01,0.1,0.25,1,4")
     ap.add_argument("--closures", default="local_g1,local_g1_balanced,local_g1_shell_balanced")
+    ap.add_argument("--sweep", action="store_true", help="the 12-wall sweep table instead")
+    ap.add_argument("--rounds", type=int, default=2)
     args = ap.parse_args()
+    if args.sweep:
+        sweep(args.closures.split(","), args.rounds)
+        return
     modes = ("fourth", "sixth")
     lines = ["| closure | zeta | fourth: ms | sixth: ms | sixth / fourth | fourth: error (estimate) | "
              "sixth: error (estimate) | fourth: cells N, 2N, 4N | sixth: cells M, N, 2N, 4N (levels) | output cells |",
