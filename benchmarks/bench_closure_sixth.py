@@ -35,6 +35,16 @@ OUT_SWEEP = Path(__file__).resolve().parent / "results" / "closure_sweep.md"
 SWEEP_ZETAS = np.geomspace(0.01, 4.0, 12)
 
 
+def _emit(lines: list, row: str) -> None:
+    lines.append(row)
+    print(row, flush=True)
+
+
+def _write(path: Path, lines: list) -> None:
+    path.write_text("\n".join(lines) + "\n")
+    print(f"wrote {path}")
+
+
 def sweep(closures, rounds: int) -> None:
     """The 12-wall sweep table (see the module docstring)."""
     lines = ["| closure | mode | start | total [ms] (rounds) | median per wall [ms] | levels over the walls |",
@@ -60,10 +70,8 @@ def sweep(closures, rounds: int) -> None:
                 row = (f"| {cl} | {mode} | {'chained' if chained else 'single'} | "
                        f"{', '.join(f'{t:.0f}' for t in totals)} | {', '.join(f'{t:.1f}' for t in per_wall)} | "
                        f"{levels} |")
-                lines.append(row)
-                print(row, flush=True)
-    OUT_SWEEP.write_text("\n".join(lines) + "\n")
-    print(f"wrote {OUT_SWEEP}")
+                _emit(lines, row)
+    _write(OUT_SWEEP, lines)
 
 
 def main() -> None:
@@ -105,10 +113,8 @@ def main() -> None:
                    f"{l1_against(ref, s):.1e} ({s.error_estimate:.1e}) | "
                    f"{f.diagnostics['levels']} | {s.diagnostics['levels']} ({len(s.diagnostics['history'])}) | "
                    f"{f.edges.size - 1} / {s.edges.size - 1} |")
-            lines.append(row)
-            print(row, flush=True)
-    OUT.write_text("\n".join(lines) + "\n")
-    print(f"wrote {OUT}")
+            _emit(lines, row)
+    _write(OUT, lines)
 
 
 if __name__ == "__main__":

@@ -404,6 +404,14 @@ def _expm(lo, di, up, wl, wd, wu, t, y, pfd, want_d, alpha, theta, alpha0, c):  
     return x, x, info
 
 
+@njit(cache=True, nogil=True)
+def _expm_at(lower, diag, upper, wl, wd, wu, A, lo, di, up, dt, y, pfd, want_d, alpha, theta, alpha0,
+             c):  # pragma: no cover - numba
+    """``exp(dt (L0 - A Lw)) y`` (and its ``A``-derivative if ``want_d``), the shifted bands made in ``lo, di, up``."""
+    _shifted(lower, diag, upper, wl, wd, wu, A, lo, di, up)
+    return _expm(lo, di, up, wl, wd, wu, dt, y, pfd, want_d, alpha, theta, alpha0, c)
+
+
 #: entries of the predictor state carried from substep to substep (:func:`balanced_stage`): the number of
 #: stored ratios, the last three ratios (newest first) and the ratio of the mean's slope in ``A`` to its
 #: linearization ``-dt <c, Lw u>``
@@ -505,8 +513,8 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
         corr = (_dot(cvec, y) - p0) / s_pred if s_pred < 0.0 else 0.0
         A = a_mid * _predicted_ratio(hist) - corr
         have_d = not s_pred < 0.0 and denom != 0.0  # no slope yet: measure it with the first application
-        _shifted(lower, diag, upper, wl, wd, wu, A, lo, di, up)
-        trial, dtrial, info = _expm(lo, di, up, wl, wd, wu, dt, y, pfd, have_d, alpha, theta, alpha0, c)
+        trial, dtrial, info = _expm_at(lower, diag, upper, wl, wd, wu, A, lo, di, up, dt, y, pfd, have_d, alpha,
+                                       theta, alpha0, c)
         n_cram += 1
         if info != 0:
             return y, n_cram, n_newton, info, 0.0
@@ -522,22 +530,13 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
             if it >= max_iter:
                 return y, n_cram, n_newton, -1, abs(err) / p0
             n_newton += 1
-            if it == 0 and not have_d and abs(err) <= lin_tol * p0:
-                # secant with the carried slope: a plain application, and the slope measured by the two points
+            secant = it == 0 and not have_d and abs(err) <= lin_tol * p0
+            if secant:  # with the carried slope: a plain application, and the slope measured by the two points
                 A_new = A - err / s_pred
-                _shifted(lower, diag, upper, wl, wd, wu, A_new, lo, di, up)
-                trial, dtrial, info = _expm(lo, di, up, wl, wd, wu, dt, y, pfd, False, alpha, theta, alpha0, c)
-                n_cram += 1
-                if info != 0:
-                    return y, n_cram, n_newton, info, 0.0
-                err_new = _dot(cvec, trial) - p0
-                if A_new != A and (err_new - err) / (A_new - A) < 0.0:
-                    slope = (err_new - err) / (A_new - A)
-                err = err_new
             else:
                 if not have_d:  # the derivative at the current A (the application is recomputed with it)
-                    _shifted(lower, diag, upper, wl, wd, wu, A, lo, di, up)
-                    trial, dtrial, info = _expm(lo, di, up, wl, wd, wu, dt, y, pfd, True, alpha, theta, alpha0, c)
+                    trial, dtrial, info = _expm_at(lower, diag, upper, wl, wd, wu, A, lo, di, up, dt, y, pfd, True,
+                                                   alpha, theta, alpha0, c)
                     n_cram += 1
                     if info != 0:
                         return y, n_cram, n_newton, info, 0.0
@@ -556,12 +555,15 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
                     A_new = A + (1.0 if err > 0.0 else -1.0) * (abs(A) + 1.0)
                 if has_lo and has_hi and not (min(a_lo, a_hi) < A_new < max(a_lo, a_hi)):
                     A_new = (a_lo * e_hi - a_hi * e_lo) / (e_hi - e_lo)  # outside the bracket: regula falsi
-                _shifted(lower, diag, upper, wl, wd, wu, A_new, lo, di, up)
-                trial, dtrial, info = _expm(lo, di, up, wl, wd, wu, dt, y, pfd, True, alpha, theta, alpha0, c)
-                n_cram += 1
-                if info != 0:
-                    return y, n_cram, n_newton, info, 0.0
-                err = _dot(cvec, trial) - p0
+            trial, dtrial, info = _expm_at(lower, diag, upper, wl, wd, wu, A_new, lo, di, up, dt, y, pfd, not secant,
+                                           alpha, theta, alpha0, c)
+            n_cram += 1
+            if info != 0:
+                return y, n_cram, n_newton, info, 0.0
+            err_new = _dot(cvec, trial) - p0
+            if secant and A_new != A and (err_new - err) / (A_new - A) < 0.0:
+                slope = (err_new - err) / (A_new - A)
+            err = err_new
             if err > 0.0:
                 a_lo, e_lo, has_lo = A_new, err, True
             elif err < 0.0:
