@@ -53,7 +53,7 @@ def sweep(closures, rounds: int) -> None:
     for cl in closures:
         for mode in ("fourth", "sixth"):
             for chained in (False, True):
-                totals, per_wall, levels = [], [], 0
+                totals, per_wall = [], []
                 for rnd in range(rounds + 1):  # round 0 warms up
                     n_start, times, levels = None, [], 0
                     for zeta in SWEEP_ZETAS:
