@@ -13,10 +13,10 @@ import pytest
 from scipy.linalg import get_lapack_funcs
 
 import diffusion_pr as dp
-from diffusion_pr.closures import closure_problem, spectrum_shells
+from diffusion_pr.closures import closure_distribution, closure_problem, spectrum_shells
 from diffusion_pr.solvers.fv import engine
-from diffusion_pr.solvers.fv._kernels import (ALPHA, ALPHA0, PFD_RESIDUES, THETA, _fill_row, _geometry, cram_apply,
-                                              cram_apply_d, cram_pfd, gttrf, gttrs)
+from diffusion_pr.solvers.fv._kernels import (ALPHA, ALPHA0, BAD_PREDICTION, GAP_FLOOR, PFD_RESIDUES, THETA, _fill_row,
+                                              _geometry, cram_apply, cram_apply_d, cram_pfd, gttrf, gttrs)
 from diffusion_pr.solvers.fv.operator import bands
 from diffusion_pr.solvers.fv.cram import expm_tridiagonal
 
@@ -161,6 +161,26 @@ def _cram_d(base, wband, t, y, pfd=False):
     return ALPHA0 * out, ALPHA0 * dout
 
 
+def _gap(err, p0):
+    """``_kernels._balance_gap``: the miss as the far search measures it."""
+    if abs(err) <= BAD_PREDICTION * p0:
+        return err / p0
+    return np.log((err + p0) / p0) if err + p0 > 0.0 else -GAP_FLOOR
+
+
+def _illinois(lo, hi, side, A, err, p0):
+    """The bracket after a point ``(A, err)``; an end kept twice in a row has its gap halved."""
+    if err > 0.0:
+        if side == 1 and hi:
+            hi = (hi[0], 0.5 * hi[1])
+        return (A, _gap(err, p0)), hi, 1
+    if err < 0.0:
+        if side == -1 and lo:
+            lo = (lo[0], 0.5 * lo[1])
+        return lo, (A, _gap(err, p0)), -1
+    return lo, hi, side
+
+
 class _PythonKernels:
     """The staged integration written with numpy and LAPACK: the oracle of the compiled kernels.
 
@@ -170,7 +190,10 @@ class _PythonKernels:
     linearized slope times the last measured ratio to it); where the mean then
     misses, one secant step with that slope (misses below ``lin_tol``), then Newton
     on ``A`` with the exact derivative of the CRAM map (regula falsi outside the
-    bracket) and the last step to first order on the state.
+    bracket) and the last step to first order on the state.  A prediction that
+    misses by more than ``BAD_PREDICTION p0`` is compared with the start's balance
+    ``A0``; while the miss stays that large, Newton on ``ln(<p>/p0)`` in a trust
+    region and regula falsi (Illinois) on the gaps.
     """
 
     def __init__(self) -> None:
@@ -198,6 +221,7 @@ class _PythonKernels:
             l0y, lwy = _matvec(base, y), _matvec(wband, y)
             denom = float(cvec @ lwy)
             A = float(cvec @ l0y) / denom if denom != 0.0 else 0.0
+            a_0 = A
             s_lin = 0.0
             if denom != 0.0:
                 u = y + (0.5 * dt) * (l0y - A * lwy)
@@ -217,9 +241,42 @@ class _PythonKernels:
                 trial, dtrial, slope = self._expm(at(A), dt, y), None, s_pred
             n_cram += 1
             err = float(cvec @ trial) - p0
-            lo = (A, err) if err > 0 else None
-            hi = (A, err) if err < 0 else None
+            lo = (A, _gap(err, p0)) if err > 0 else None
+            hi = (A, _gap(err, p0)) if err < 0 else None
+            if abs(err) > BAD_PREDICTION * p0 and denom != 0.0 and a_0 != A:
+                trial0, dtrial0 = _cram_d(at(a_0), wband, dt, y, self.pfd)
+                n_cram += 1
+                err0 = float(cvec @ trial0) - p0
+                if abs(err0) < abs(err):
+                    A, err, trial, dtrial, have_d = a_0, err0, trial0, dtrial0, True
+                    slope = float(cvec @ dtrial)
+                    lo = (A, _gap(err, p0)) if err > 0 else None
+                    hi = (A, _gap(err, p0)) if err < 0 else None
+            side = 0
             it = 0
+            while abs(err) > BAD_PREDICTION * p0 and denom != 0.0:  # far from the root
+                assert it < max_iter
+                n_newton += 1
+                it += 1
+                if not have_d:
+                    trial, dtrial = _cram_d(at(A), wband, dt, y, self.pfd)
+                    n_cram += 1
+                    have_d = True
+                slope = float(cvec @ dtrial)
+                radius = max(abs(A), abs(a_0), 1.0)
+                if slope < 0.0 and err + p0 > 0.0:
+                    step = -np.log((err + p0) / p0) * (err + p0) / slope
+                else:
+                    step = radius if err > 0.0 else -radius
+                a_new = A + min(radius, max(-radius, step))
+                if lo and hi and not (min(lo[0], hi[0]) < a_new < max(lo[0], hi[0])):
+                    a_new = (lo[0] * hi[1] - hi[0] * lo[1]) / (hi[1] - lo[1])
+                trial, dtrial = _cram_d(at(a_new), wband, dt, y, self.pfd)
+                n_cram += 1
+                A, err = a_new, float(cvec @ trial) - p0
+                lo, hi, side = _illinois(lo, hi, side, A, err, p0)
+            if it > 0:
+                slope = float(cvec @ dtrial)
             while abs(err) > mean_tol * p0 and denom != 0.0:
                 assert it < max_iter
                 n_newton += 1
@@ -237,7 +294,10 @@ class _PythonKernels:
                         n_cram += 1
                         have_d = True
                     slope = float(cvec @ dtrial)
-                    if slope < 0.0:
+                    far = abs(err) > BAD_PREDICTION * p0
+                    if slope < 0.0 and far and err + p0 > 0.0:
+                        a_new = A - np.log((err + p0) / p0) * (err + p0) / slope
+                    elif slope < 0.0 and not far:
                         dA = -err / slope
                         if abs(err) <= lin_tol * p0:
                             trial = trial + dA * dtrial
@@ -252,10 +312,7 @@ class _PythonKernels:
                     trial, dtrial = _cram_d(at(a_new), wband, dt, y, self.pfd)
                     n_cram += 1
                     err = float(cvec @ trial) - p0
-                if err > 0:
-                    lo = (a_new, err)
-                elif err < 0:
-                    hi = (a_new, err)
+                lo, hi, side = _illinois(lo, hi, side, a_new, err, p0)
                 A = a_new
                 it += 1
             if denom != 0.0 and slope < 0.0 and s_lin < 0.0:
@@ -305,6 +362,58 @@ def test_compiled_staged_path_equals_python_path(monkeypatch, zeta):
     assert fast.diagnostics["newton_steps"] == slow.diagnostics["newton_steps"]
     assert np.max(np.abs(fast.density * fast.weights - slow.density * slow.weights)) < 1e-12
     assert abs(fast.zero_weight - slow.zero_weight) < 1e-12
+
+
+#: scenes where the balance's first prediction is meaningless (the first shell of a steep spectrum is much wider
+#: than p0): the commit before the far search failed on each ("no root in 30 steps")
+FAR_SCENES = [(dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031), "local_g1_balanced", 1e-4,
+               1e-4, "sixth"),
+              (dp.SelfAffineSpectrum(0.8, 2 * np.pi / 4096, 2 * np.pi / 16, rms_slope=0.1), "local_g1_shell_balanced",
+               1e-4, 1e-4, "richardson"),
+              (dp.SelfAffineSpectrum(0.8, 2 * np.pi / 4096, 2 * np.pi / 16, rms_slope=0.1), "local_g1_balanced", 0.3,
+               1e-4, "richardson")]
+
+
+@pytest.mark.parametrize("scene", range(len(FAR_SCENES)))
+def test_balance_far_from_its_root_is_found(scene):
+    """Each far scene solves (the commit before failed on each), holds the mean, and gives the answer of a run at
+    rtol 1e-8 (other grids, so not a grid's spurious root) within the default rtol 1e-6 in the CDF (measured
+    <= 7.4e-8), and of the independent reference solver within 5e-6 where the reference resolves the scene
+    (measured 1.4e-6 and 1.1e-6, its own estimates 4e-7 and 8e-8).  In the third scene the reference does not
+    resolve it: 2.4e-3, 2.2e-3, 2.0e-3 at 1000, 2000, 4000 cells, its estimate 5e-4 ... 7e-4 (docs/closures.md)."""
+    spec, closure, zeta, p0, extrapolation = FAR_SCENES[scene]
+    kw = dict(E_star=8 / 3, mean_pressure=p0, zeta=zeta, closure=closure)
+    r = closure_distribution(spec, **kw, **({"extrapolation": "sixth"} if extrapolation == "sixth" else {}))
+    assert r.success
+    assert abs(r.mean - p0) < 1e-8 * p0
+    tight = closure_distribution(spec, rtol=1e-8, **kw)
+    x = np.geomspace(1e-10 * p0, 1e4 * p0, 600)
+    assert np.max(np.abs(r.cdf(x) - tight.cdf(x))) < 1e-6
+    if scene < 2:
+        ref = closure_distribution(spec, backend="reference", **kw)
+        assert ref.success
+        assert np.max(np.abs(tight.cdf(x) - ref.cdf(x))) < 5e-6
+
+
+@pytest.mark.parametrize("scene", range(len(FAR_SCENES)))
+def test_compiled_far_search_equals_python_path(monkeypatch, scene):
+    """The far search (start-state balance, Newton on ln<p>, Illinois) through both paths, same grid.
+
+    In the third scene the two paths take 27 and 26 steps (the search starts where the mean is saturated near 0;
+    round-off between LAPACK and the compiled CRAM changes one step there, not traced further); their answers
+    agree to 1e-13 all the same."""
+    spec, closure, zeta, p0, _ = FAR_SCENES[scene]
+    prob = closure_problem(spectrum_shells(spec, E_star=8 / 3, n_shells=24), zeta=zeta, E_star=8 / 3,
+                           mean_pressure=p0, closure=closure)
+    fast = engine.solve_fv(prob, rtol=1e-4, backend="native", n_cells=40)
+    monkeypatch.setattr(engine, "_staged_kernels", lambda: _PythonKernels())
+    slow = engine.solve_fv(prob, rtol=1e-4, backend="native", n_cells=40)
+    assert fast.success and slow.success
+    steps = (fast.diagnostics["newton_steps"], slow.diagnostics["newton_steps"])
+    assert abs(steps[0] - steps[1]) <= (0 if scene < 2 else 1)  # the same search, step for step
+    # round-off only, but amplified: A reaches 1e8 here (|A| dt ~ 1e3); measured <= 5e-12
+    assert np.max(np.abs(fast.density * fast.weights - slow.density * slow.weights)) < 1e-10
+    assert abs(fast.zero_weight - slow.zero_weight) < 1e-10
 
 
 @pytest.mark.parametrize("zeta", [0.25, 4.0])

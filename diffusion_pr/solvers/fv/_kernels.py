@@ -23,6 +23,8 @@ lazily by the engine: a single-stage problem never loads numba.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -418,6 +420,29 @@ def _expm_at(lower, diag, upper, wl, wd, wu, A, lo, di, up, dt, y, pfd, want_d, 
 PREDICTOR_SIZE = 5
 #: a substep's ratio ``A / A_midpoint`` outside (1/RATIO_RANGE, RATIO_RANGE) restarts the ratio history
 RATIO_RANGE = 4.0
+#: a predicted ``A`` whose mean misses ``p0`` by more than BAD_PREDICTION ``p0`` is not a start for Newton: the
+#: start state's own balance ``A0`` is tried too (the explicit midpoint can be meaningless on a substep much
+#: wider than the distribution, e.g. the first shell of a steep spectrum at ``p0`` far below its spread)
+BAD_PREDICTION = 0.5
+#: the root search's measure of a miss where the mean is not positive (:func:`_balance_gap`)
+GAP_FLOOR = 60.0
+
+
+@njit(cache=True, nogil=True)
+def _balance_gap(err, p0):  # pragma: no cover - numba
+    """A substep's miss ``err = <p> - p0`` as the root search on ``A`` measures it (same sign as ``err``).
+
+    ``err / p0`` within ``BAD_PREDICTION p0`` of the root; farther, ``ln(<p>/p0)``
+    (``-GAP_FLOOR`` where the computed mean is not positive): far from the root the
+    computed mean saturates, at 0 where the inward drift wins and at the top of the
+    domain where the outward one does, and Newton or regula falsi on the mean itself
+    jump from one saturation into the other (seen: 30 steps, no root).
+    """
+    if abs(err) <= BAD_PREDICTION * p0:
+        return err / p0
+    if err + p0 <= 0.0:
+        return -GAP_FLOOR
+    return math.log((err + p0) / p0)
 
 
 @njit(cache=True, nogil=True)
@@ -474,6 +499,16 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
       ``y <- y + dA dy/dA`` (mean exact, state error ``O(dA^2)``, about
       ``(lin_tol)^2``) instead of another application.
 
+    * A prediction that misses by more than ``BAD_PREDICTION p0`` (the explicit
+      midpoint is meaningless on a substep much wider than the distribution: the
+      first shell of a steep spectrum at ``p0`` far below its spread) is compared
+      with the start state's balance ``A0``, and the search goes on from the better
+      one.  While the miss stays that large: Newton on ``ln(<p>/p0)`` (far from the
+      root the computed mean saturates, at 0 and at the top of the domain, and
+      Newton on the mean jumps from one saturation into the other), steps at most
+      ``max(|A|, |A0|, 1)``, and regula falsi on the gaps (:func:`_balance_gap`)
+      with Illinois' halving where a step leaves the bracket.
+
     Every substep ends with the mean within ``mean_tol p0`` of ``p0``; how it got
     there (prediction, secant, Newton) changes the state only within that
     tolerance.  ``hist`` (:data:`PREDICTOR_SIZE` floats, zeros at the start) is
@@ -498,6 +533,7 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
         _matvec(wl, wd, wu, y, lwy)
         denom = _dot(cvec, lwy)
         A = _dot(cvec, l0y) / denom if denom != 0.0 else 0.0
+        a_0 = A
         s_lin = 0.0  # the linearized slope d<c, y_end>/dA = -dt <c, Lw u>
         if denom != 0.0:
             for i in range(n):
@@ -522,10 +558,71 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
         slope = _dot(cvec, dtrial) if have_d else s_pred
         # bracket of the root: the mean falls as A grows, so err > 0 below the root, < 0 above
         a_lo = a_hi = A
-        e_lo = e_hi = err
+        e_lo = e_hi = _balance_gap(err, p0)
         has_lo = err > 0.0
         has_hi = err < 0.0
+        if abs(err) > BAD_PREDICTION * p0 and denom != 0.0 and a_0 != A:
+            # a meaningless prediction: the start state's balance A0 too; the search goes on from the better one
+            trial0, dtrial0, info = _expm_at(lower, diag, upper, wl, wd, wu, a_0, lo, di, up, dt, y, pfd, True, alpha,
+                                             theta, alpha0, c)
+            n_cram += 1
+            if info != 0:
+                return y, n_cram, n_newton, info, 0.0
+            err0 = _dot(cvec, trial0) - p0
+            if abs(err0) < abs(err):  # the prediction is dropped, from the bracket too (far from the root the
+                # computed mean need not fall monotonically in A: a strong drift is not resolved by the grid)
+                A, err, trial, dtrial, have_d = a_0, err0, trial0, dtrial0, True
+                slope = _dot(cvec, dtrial)
+                a_lo = a_hi = A
+                e_lo = e_hi = _balance_gap(err, p0)
+                has_lo = err > 0.0
+                has_hi = err < 0.0
+        side = 0  # the side of the bracket the last step replaced (+1 lo, -1 hi): Illinois' rule below
         it = 0
+        # far from the root (the mean off by more than BAD_PREDICTION p0): Newton on ln(<p>/p0) (the mean
+        # saturates far from the root, see _balance_gap) with steps of at most max(|A|, |A0|, 1), and regula
+        # falsi (Illinois) on the gaps where a step leaves the bracket
+        while abs(err) > BAD_PREDICTION * p0 and denom != 0.0:
+            if it >= max_iter:
+                return y, n_cram, n_newton, -1, abs(err) / p0
+            n_newton += 1
+            it += 1
+            if not have_d:
+                trial, dtrial, info = _expm_at(lower, diag, upper, wl, wd, wu, A, lo, di, up, dt, y, pfd, True,
+                                               alpha, theta, alpha0, c)
+                n_cram += 1
+                if info != 0:
+                    return y, n_cram, n_newton, info, 0.0
+                have_d = True
+            slope = _dot(cvec, dtrial)
+            radius = max(abs(A), abs(a_0), 1.0)
+            if slope < 0.0 and err + p0 > 0.0:
+                step = -math.log((err + p0) / p0) * (err + p0) / slope
+            else:  # no positive mean or not the expected monotone response: away from this side
+                step = radius if err > 0.0 else -radius
+            A_new = A + min(radius, max(-radius, step))
+            if has_lo and has_hi and not (min(a_lo, a_hi) < A_new < max(a_lo, a_hi)):
+                A_new = (a_lo * e_hi - a_hi * e_lo) / (e_hi - e_lo)
+            trial, dtrial, info = _expm_at(lower, diag, upper, wl, wd, wu, A_new, lo, di, up, dt, y, pfd, True, alpha,
+                                           theta, alpha0, c)
+            n_cram += 1
+            if info != 0:
+                return y, n_cram, n_newton, info, 0.0
+            A = A_new
+            err = _dot(cvec, trial) - p0
+            g = _balance_gap(err, p0)
+            if err > 0.0:
+                a_lo, e_lo, has_lo = A, g, True
+                if side == 1:
+                    e_hi *= 0.5
+                side = 1
+            elif err < 0.0:
+                a_hi, e_hi, has_hi = A, g, True
+                if side == -1:
+                    e_lo *= 0.5
+                side = -1
+        if it > 0:  # the far search ended on an application with its derivative
+            slope = _dot(cvec, dtrial)
         while abs(err) > mean_tol * p0 and denom != 0.0:
             if it >= max_iter:
                 return y, n_cram, n_newton, -1, abs(err) / p0
@@ -542,7 +639,10 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
                         return y, n_cram, n_newton, info, 0.0
                     have_d = True
                 slope = _dot(cvec, dtrial)
-                if slope < 0.0:
+                far = abs(err) > BAD_PREDICTION * p0
+                if slope < 0.0 and far and err + p0 > 0.0:  # Newton on ln(<p>/p0) (see _balance_gap)
+                    A_new = A - math.log((err + p0) / p0) * (err + p0) / slope
+                elif slope < 0.0 and not far:
                     dA = -err / slope
                     if abs(err) <= lin_tol * p0:  # close enough: the last step to first order on the state
                         for i in range(n):
@@ -551,7 +651,7 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
                         A += dA
                         break
                     A_new = A + dA
-                else:  # not the expected monotone response: halve towards the other side
+                else:  # not the expected monotone response (or no positive mean): away from this side
                     A_new = A + (1.0 if err > 0.0 else -1.0) * (abs(A) + 1.0)
                 if has_lo and has_hi and not (min(a_lo, a_hi) < A_new < max(a_lo, a_hi)):
                     A_new = (a_lo * e_hi - a_hi * e_lo) / (e_hi - e_lo)  # outside the bracket: regula falsi
@@ -564,10 +664,18 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
             if secant and A_new != A and (err_new - err) / (A_new - A) < 0.0:
                 slope = (err_new - err) / (A_new - A)
             err = err_new
+            # Illinois: an end of the bracket kept twice in a row has its miss halved, so regula falsi cannot
+            # creep towards the root from one side (a saturated mean, flat in A, did: 30 steps, no root)
             if err > 0.0:
-                a_lo, e_lo, has_lo = A_new, err, True
+                a_lo, e_lo, has_lo = A_new, _balance_gap(err, p0), True
+                if side == 1:
+                    e_hi *= 0.5
+                side = 1
             elif err < 0.0:
-                a_hi, e_hi, has_hi = A_new, err, True
+                a_hi, e_hi, has_hi = A_new, _balance_gap(err, p0), True
+                if side == -1:
+                    e_lo *= 0.5
+                side = -1
             A = A_new
             it += 1
         if denom != 0.0 and slope < 0.0 and s_lin < 0.0:
