@@ -15,7 +15,7 @@ from scipy.linalg import get_lapack_funcs
 import diffusion_pr as dp
 from diffusion_pr.closures import closure_distribution, closure_problem, spectrum_shells
 from diffusion_pr.solvers.fv import engine
-from diffusion_pr.solvers.fv._kernels import (ALPHA, ALPHA0, BAD_PREDICTION, GAP_FLOOR, PFD_RESIDUES, THETA, _fill_row,
+from diffusion_pr.solvers.fv._kernels import (ALPHA, ALPHA0, BAD_PREDICTION, PFD_RESIDUES, THETA, _fill_row,
                                               _geometry, cram_apply, cram_apply_d, cram_pfd, gttrf, gttrs)
 from diffusion_pr.solvers.fv.operator import bands
 from diffusion_pr.solvers.fv.cram import expm_tridiagonal
@@ -161,23 +161,16 @@ def _cram_d(base, wband, t, y, pfd=False):
     return ALPHA0 * out, ALPHA0 * dout
 
 
-def _gap(err, p0):
-    """``_kernels._balance_gap``: the miss as the far search measures it."""
-    if abs(err) <= BAD_PREDICTION * p0:
-        return err / p0
-    return np.log((err + p0) / p0) if err + p0 > 0.0 else -GAP_FLOOR
-
-
 def _illinois(lo, hi, side, A, err, p0):
-    """The bracket after a point ``(A, err)``; an end kept twice in a row has its gap halved."""
+    """The bracket after a point ``(A, err)``; an end kept twice in a row has its miss halved."""
     if err > 0.0:
         if side == 1 and hi:
             hi = (hi[0], 0.5 * hi[1])
-        return (A, _gap(err, p0)), hi, 1
+        return (A, err), hi, 1
     if err < 0.0:
         if side == -1 and lo:
             lo = (lo[0], 0.5 * lo[1])
-        return lo, (A, _gap(err, p0)), -1
+        return lo, (A, err), -1
     return lo, hi, side
 
 
@@ -193,7 +186,7 @@ class _PythonKernels:
     bracket) and the last step to first order on the state.  A prediction that
     misses by more than ``BAD_PREDICTION p0`` is compared with the start's balance
     ``A0``; while the miss stays that large, Newton on ``ln(<p>/p0)`` in a trust
-    region and regula falsi (Illinois) on the gaps.
+    region and regula falsi (Illinois).
     """
 
     def __init__(self) -> None:
@@ -241,8 +234,8 @@ class _PythonKernels:
                 trial, dtrial, slope = self._expm(at(A), dt, y), None, s_pred
             n_cram += 1
             err = float(cvec @ trial) - p0
-            lo = (A, _gap(err, p0)) if err > 0 else None
-            hi = (A, _gap(err, p0)) if err < 0 else None
+            lo = (A, err) if err > 0 else None
+            hi = (A, err) if err < 0 else None
             if abs(err) > BAD_PREDICTION * p0 and denom != 0.0 and a_0 != A:
                 trial0, dtrial0 = _cram_d(at(a_0), wband, dt, y, self.pfd)
                 n_cram += 1
@@ -250,8 +243,8 @@ class _PythonKernels:
                 if abs(err0) < abs(err):
                     A, err, trial, dtrial, have_d = a_0, err0, trial0, dtrial0, True
                     slope = float(cvec @ dtrial)
-                    lo = (A, _gap(err, p0)) if err > 0 else None
-                    hi = (A, _gap(err, p0)) if err < 0 else None
+                    lo = (A, err) if err > 0 else None
+                    hi = (A, err) if err < 0 else None
             side = 0
             it = 0
             while abs(err) > BAD_PREDICTION * p0 and denom != 0.0:  # far from the root
@@ -371,14 +364,19 @@ FAR_SCENES = [(dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_
               (dp.SelfAffineSpectrum(0.8, 2 * np.pi / 4096, 2 * np.pi / 16, rms_slope=0.1), "local_g1_shell_balanced",
                1e-4, 1e-4, "richardson"),
               (dp.SelfAffineSpectrum(0.8, 2 * np.pi / 4096, 2 * np.pi / 16, rms_slope=0.1), "local_g1_balanced", 0.3,
+               1e-4, "richardson"),
+              # without Illinois' halving the first fails, without the step bound both (stress run, docs/closures.md)
+              (dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031), "local_g1_balanced", 1e-3,
+               1e-5, "richardson"),
+              (dp.SelfAffineSpectrum(0.8, 2 * np.pi / 4096, 2 * np.pi / 16, rms_slope=0.1), "local_g1_balanced", 0.03,
                1e-4, "richardson")]
 
 
 @pytest.mark.parametrize("scene", range(len(FAR_SCENES)))
 def test_balance_far_from_its_root_is_found(scene):
     """Each far scene solves (the commit before failed on each), holds the mean, and gives the answer of a run at
-    rtol 1e-8 (other grids, so not a grid's spurious root) within the default rtol 1e-6 in the CDF (measured
-    <= 7.4e-8), and of the independent reference solver within 5e-6 where the reference resolves the scene
+    rtol 1e-7 (other grids, so not a grid's spurious root) within the default rtol 1e-6 in the CDF (measured
+    <= 7.2e-8), and of the independent reference solver within 5e-6 where the reference resolves the scene
     (measured 1.4e-6 and 1.1e-6, its own estimates 4e-7 and 8e-8).  In the third scene the reference does not
     resolve it: 2.4e-3, 2.2e-3, 2.0e-3 at 1000, 2000, 4000 cells, its estimate 5e-4 ... 7e-4 (docs/closures.md)."""
     spec, closure, zeta, p0, extrapolation = FAR_SCENES[scene]
@@ -386,7 +384,8 @@ def test_balance_far_from_its_root_is_found(scene):
     r = closure_distribution(spec, **kw, **({"extrapolation": "sixth"} if extrapolation == "sixth" else {}))
     assert r.success
     assert abs(r.mean - p0) < 1e-8 * p0
-    tight = closure_distribution(spec, rtol=1e-8, **kw)
+    tight = closure_distribution(spec, rtol=1e-7, **kw)
+    assert tight.success
     x = np.geomspace(1e-10 * p0, 1e4 * p0, 600)
     assert np.max(np.abs(r.cdf(x) - tight.cdf(x))) < 1e-6
     if scene < 2:
@@ -399,9 +398,9 @@ def test_balance_far_from_its_root_is_found(scene):
 def test_compiled_far_search_equals_python_path(monkeypatch, scene):
     """The far search (start-state balance, Newton on ln<p>, Illinois) through both paths, same grid.
 
-    In the third scene the two paths take 27 and 26 steps (the search starts where the mean is saturated near 0;
-    round-off between LAPACK and the compiled CRAM changes one step there, not traced further); their answers
-    agree to 1e-13 all the same."""
+    In the third and fifth scenes the two paths are one step apart (27/26, 39/40: the search starts where the mean
+    is saturated near 0; round-off between LAPACK and the compiled CRAM changes one step there, not traced
+    further); their answers agree within the same tolerance all the same."""
     spec, closure, zeta, p0, _ = FAR_SCENES[scene]
     prob = closure_problem(spectrum_shells(spec, E_star=8 / 3, n_shells=24), zeta=zeta, E_star=8 / 3,
                            mean_pressure=p0, closure=closure)
@@ -410,7 +409,7 @@ def test_compiled_far_search_equals_python_path(monkeypatch, scene):
     slow = engine.solve_fv(prob, rtol=1e-4, backend="native", n_cells=40)
     assert fast.success and slow.success
     steps = (fast.diagnostics["newton_steps"], slow.diagnostics["newton_steps"])
-    assert abs(steps[0] - steps[1]) <= (0 if scene < 2 else 1)  # the same search, step for step
+    assert abs(steps[0] - steps[1]) <= (1 if scene in (2, 4) else 0)  # the same search, step for step
     # round-off only, but amplified: A reaches 1e8 here (|A| dt ~ 1e3); measured <= 5e-12
     assert np.max(np.abs(fast.density * fast.weights - slow.density * slow.weights)) < 1e-10
     assert abs(fast.zero_weight - slow.zero_weight) < 1e-10

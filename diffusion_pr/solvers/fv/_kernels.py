@@ -424,25 +424,6 @@ RATIO_RANGE = 4.0
 #: start state's own balance ``A0`` is tried too (the explicit midpoint can be meaningless on a substep much
 #: wider than the distribution, e.g. the first shell of a steep spectrum at ``p0`` far below its spread)
 BAD_PREDICTION = 0.5
-#: the root search's measure of a miss where the mean is not positive (:func:`_balance_gap`)
-GAP_FLOOR = 60.0
-
-
-@njit(cache=True, nogil=True)
-def _balance_gap(err, p0):  # pragma: no cover - numba
-    """A substep's miss ``err = <p> - p0`` as the root search on ``A`` measures it (same sign as ``err``).
-
-    ``err / p0`` within ``BAD_PREDICTION p0`` of the root; farther, ``ln(<p>/p0)``
-    (``-GAP_FLOOR`` where the computed mean is not positive): far from the root the
-    computed mean saturates, at 0 where the inward drift wins and at the top of the
-    domain where the outward one does, and Newton or regula falsi on the mean itself
-    jump from one saturation into the other (seen: 30 steps, no root).
-    """
-    if abs(err) <= BAD_PREDICTION * p0:
-        return err / p0
-    if err + p0 <= 0.0:
-        return -GAP_FLOOR
-    return math.log((err + p0) / p0)
 
 
 @njit(cache=True, nogil=True)
@@ -506,8 +487,8 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
       one.  While the miss stays that large: Newton on ``ln(<p>/p0)`` (far from the
       root the computed mean saturates, at 0 and at the top of the domain, and
       Newton on the mean jumps from one saturation into the other), steps at most
-      ``max(|A|, |A0|, 1)``, and regula falsi on the gaps (:func:`_balance_gap`)
-      with Illinois' halving where a step leaves the bracket.
+      ``max(|A|, |A0|, 1)``, and regula falsi with Illinois' halving where a step
+      leaves the bracket.
 
     Every substep ends with the mean within ``mean_tol p0`` of ``p0``; how it got
     there (prediction, secant, Newton) changes the state only within that
@@ -558,7 +539,7 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
         slope = _dot(cvec, dtrial) if have_d else s_pred
         # bracket of the root: the mean falls as A grows, so err > 0 below the root, < 0 above
         a_lo = a_hi = A
-        e_lo = e_hi = _balance_gap(err, p0)
+        e_lo = e_hi = err
         has_lo = err > 0.0
         has_hi = err < 0.0
         if abs(err) > BAD_PREDICTION * p0 and denom != 0.0 and a_0 != A:
@@ -574,14 +555,15 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
                 A, err, trial, dtrial, have_d = a_0, err0, trial0, dtrial0, True
                 slope = _dot(cvec, dtrial)
                 a_lo = a_hi = A
-                e_lo = e_hi = _balance_gap(err, p0)
+                e_lo = e_hi = err
                 has_lo = err > 0.0
                 has_hi = err < 0.0
         side = 0  # the side of the bracket the last step replaced (+1 lo, -1 hi): Illinois' rule below
         it = 0
-        # far from the root (the mean off by more than BAD_PREDICTION p0): Newton on ln(<p>/p0) (the mean
-        # saturates far from the root, see _balance_gap) with steps of at most max(|A|, |A0|, 1), and regula
-        # falsi (Illinois) on the gaps where a step leaves the bracket
+        # far from the root (the mean off by more than BAD_PREDICTION p0): Newton on ln(<p>/p0) (far from the
+        # root the computed mean saturates, at 0 where the inward drift wins and at the top of the domain where
+        # the outward one does, and Newton on the mean jumps from one saturation into the other) with steps of
+        # at most max(|A|, |A0|, 1), and regula falsi with Illinois' halving where a step leaves the bracket
         while abs(err) > BAD_PREDICTION * p0 and denom != 0.0:
             if it >= max_iter:
                 return y, n_cram, n_newton, -1, abs(err) / p0
@@ -610,14 +592,13 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
                 return y, n_cram, n_newton, info, 0.0
             A = A_new
             err = _dot(cvec, trial) - p0
-            g = _balance_gap(err, p0)
             if err > 0.0:
-                a_lo, e_lo, has_lo = A, g, True
+                a_lo, e_lo, has_lo = A, err, True
                 if side == 1:
                     e_hi *= 0.5
                 side = 1
             elif err < 0.0:
-                a_hi, e_hi, has_hi = A, g, True
+                a_hi, e_hi, has_hi = A, err, True
                 if side == -1:
                     e_lo *= 0.5
                 side = -1
@@ -640,7 +621,7 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
                     have_d = True
                 slope = _dot(cvec, dtrial)
                 far = abs(err) > BAD_PREDICTION * p0
-                if slope < 0.0 and far and err + p0 > 0.0:  # Newton on ln(<p>/p0) (see _balance_gap)
+                if slope < 0.0 and far and err + p0 > 0.0:  # Newton on ln(<p>/p0), as in the far search above
                     A_new = A - math.log((err + p0) / p0) * (err + p0) / slope
                 elif slope < 0.0 and not far:
                     dA = -err / slope
@@ -667,12 +648,12 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
             # Illinois: an end of the bracket kept twice in a row has its miss halved, so regula falsi cannot
             # creep towards the root from one side (a saturated mean, flat in A, did: 30 steps, no root)
             if err > 0.0:
-                a_lo, e_lo, has_lo = A_new, _balance_gap(err, p0), True
+                a_lo, e_lo, has_lo = A_new, err, True
                 if side == 1:
                     e_hi *= 0.5
                 side = 1
             elif err < 0.0:
-                a_hi, e_hi, has_hi = A_new, _balance_gap(err, p0), True
+                a_hi, e_hi, has_hi = A_new, err, True
                 if side == -1:
                     e_lo *= 0.5
                 side = -1
