@@ -430,6 +430,26 @@ def test_lamperti_domain_keeps_the_answer(monkeypatch, zeta):
     assert np.max(np.abs(short.cdf(x) - long.cdf(x))) < 2e-6  # both within rtol = 1e-6 of the truth
 
 
+@pytest.mark.parametrize("closure", ["local_g1_balanced", "local_g1_shell_balanced"])
+def test_lamperti_domain_too_short_falls_back(monkeypatch, closure):
+    """A balance's drift, which the Lamperti bound does not see, can carry the tail past it: H = 0.5, rms slope 0.3,
+    zeta = 3, p0 = 1e-5 left 9.8e-6 (q_min partition) and 1.9e-6 (q_k) in the top cell, a failed solve.  The solve
+    is repeated on the conservative domain and says so; its answer is the answer with the Lamperti bound switched
+    off (the same computation, bit for bit), and a solve that fits the bound is not repeated."""
+    spec = dp.SelfAffineSpectrum(0.5, 2 * np.pi / 8192, 2 * np.pi / 8, rms_slope=0.3)
+    kw = dict(E_star=8 / 3, mean_pressure=1e-5, zeta=3.0, closure=closure)
+    r = closure_distribution(spec, **kw)
+    assert r.success and r.diagnostics["domain"].startswith("conservative")
+    assert r.diagnostics["tail_mass"] < 1e-6
+    monkeypatch.setattr(engine, "LAMPERTI", False)
+    off = closure_distribution(spec, **kw)
+    assert off.diagnostics["domain"] == "from the spread"
+    assert np.array_equal(off.density, r.density) and off.zero_weight == r.zero_weight
+    monkeypatch.setattr(engine, "LAMPERTI", True)
+    fits = closure_distribution(spec, **dict(kw, mean_pressure=1e-3))
+    assert fits.success and fits.diagnostics["domain"] == "Lamperti-bounded"
+
+
 @pytest.mark.parametrize("zeta", [0.001, 0.01])
 def test_balanced_closure_answer_does_not_follow_rtol(zeta):
     """Same question, same answer: a balanced closure at rtol 1e-4 and 1e-5 agrees within 1e-4.

@@ -159,6 +159,9 @@ class Prepared:
     #: the depth below the floor is an accuracy knob (ln(10/rtol) e-folds: no drift, no balance), which the first
     #: level may shorten to what its probability below the floor needs (:func:`_trimmed_depth`)
     depth_adaptive: bool = False
+    #: the upper end was shortened by the Lamperti bound (:data:`LAMPERTI`); a solve whose top cell then holds
+    #: more than rtol is repeated on the conservative domain (:func:`solve_fv`)
+    lamperti_bounded: bool = False
 
 
 def _check_f(f: Callable, p: np.ndarray, name: str) -> np.ndarray:
@@ -252,7 +255,7 @@ def _tail_quantile(mass: float) -> float:
     return z
 
 
-def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepared:
+def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: bool = True) -> Prepared:
     """Classify the wall, bound the domain and fix the grid family of ``problem``.
 
     Raises
@@ -261,6 +264,9 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
         ``f = 0`` everywhere (the start never moves), ``p0/spread`` beyond
         double precision (``> 1e12``), or a coefficient that is not a
         vectorized finite callable.
+
+    ``lamperti=False``: the upper end from the spread alone, never the shorter
+    Lamperti bound (the fallback of :func:`solve_fv` where that bound was too short).
     """
     p0, pieces, time_dependent, segment_fn = _pieces_of(problem)
     tau_end = float(sum(pc.duration for pc in pieces))
@@ -299,7 +305,8 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
     if with_w:
         _rows(with_w, probe, "the balance")
     p_max = new
-    if LAMPERTI and not time_dependent and len(pieces) >= COMPILED_MIN_PIECES:
+    lamperti_bounded = False
+    if LAMPERTI and lamperti and not time_dependent and len(pieces) >= COMPILED_MIN_PIECES:
         # the upper tail in the Lamperti coordinate Y = int dp / sqrt(2 F), F = sum dtau_k f_k: Y - Y(p0) is
         # a unit-variance diffusion whose Ito drift -F'/(2 sqrt(2F)) points down where F grows, so z units of
         # Y bound the tail like z spreads do for constant f (checked after the solve: the top cell's mass)
@@ -312,6 +319,7 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
             y_l = np.concatenate(([0.0], np.cumsum(0.5 * np.diff(nodes) * (rho[1:] + rho[:-1]))))
             if y_l[-1] > z:
                 p_max = min(p_max, float(np.interp(z, y_l, nodes)) + shift)
+                lamperti_bounded = p_max < new
     # Feller's criterion on every stage: the wall absorbs if one of them reaches it
     bps: list[float] = []
     k_min = math.inf
@@ -370,7 +378,7 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None) -> Prepare
                     lump_below=floor if extra_knots else 0.0,
                     label=getattr(problem, "label", ""), segment_fn=segment_fn,
                     balance_per_stage=bool(getattr(problem, "balance_per_stage", False)),
-                    depth_adaptive=depth_adaptive)
+                    depth_adaptive=depth_adaptive, lamperti_bounded=lamperti_bounded)
 
 
 def native_assemble(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray],
@@ -702,8 +710,15 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
              max_cells: int = MAX_CELLS, p_floor: Optional[float] = None,
              time_integration: str = "cram16", loop: Optional[Callable] = None,
              extra: Optional[dict] = None, threads: Optional[int] = None,
-             n_start: Optional[int] = None, extrapolation: str = "fourth") -> PressureDistribution:
+             n_start: Optional[int] = None, extrapolation: str = "fourth",
+             _lamperti: bool = True) -> PressureDistribution:
     """Solve ``problem`` to ``rtol`` on nested grids (the engine's entry point).
+
+    The upper end of a staged problem's domain comes from the Lamperti bound
+    (:data:`LAMPERTI`), which sees the diffusivity and the drift but not a
+    balance's drift (its multiplier is found during the solve).  Where the solve
+    then leaves more than ``rtol`` in the top cell, it is repeated once on the
+    conservative domain (the spread alone), and ``diagnostics["domain"]`` says so.
 
     Parameters
     ----------
@@ -769,7 +784,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads not in (1, 2):
         raise ValueError(f"threads must be 1 or 2; got threads={threads!r}")
     sixth = extrapolation == "sixth"
-    prep = prepare(problem, rtol=rtol, p_floor=p_floor)
+    prep = prepare(problem, rtol=rtol, p_floor=p_floor, lamperti=_lamperti)
     # the native operator on coefficients constant within each stage: a grid's integration does not depend on
     # the level it belongs to (levels can reuse grids) and its only error is spatial (a second extrapolation)
     stage_constant = (loop is None and assemble is native_assemble and not prep.time_dependent
@@ -892,6 +907,15 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             reuse = (idx, e2, e3, (y2, c2), (y3, cnt))
         n = min(int(math.ceil(n_base * grow)), max_cells // depth)
     edges, y, moments, est, cnt, cells, mean_full = best
+    if prep.lamperti_bounded and failure is None and abs(float(y[-1])) > rtol:
+        # the Lamperti bound was too short (a balance's drift, which it does not see, carried the tail further)
+        again = solve_fv(problem, rtol=rtol, backend=backend, assemble=assemble, n_cells=n_cells, max_cells=max_cells,
+                         p_floor=p_floor, time_integration=time_integration, loop=loop, extra=extra, threads=threads,
+                         n_start=n_start, extrapolation=extrapolation, _lamperti=False)
+        again.diagnostics["domain"] = (f"conservative: on the Lamperti-bounded domain (p_max = {edges[-1]:.4g}) the top "
+                                       f"cell held {abs(float(y[-1])):.2e} > rtol")
+        again.diagnostics["timings"]["total"] = time.perf_counter() - t_start
+        return again
     timings = {"setup": t_prep, "solve": time.perf_counter() - t_start - t_prep,
                "total": time.perf_counter() - t_start}
     return build_result(prep, backend=backend, edges=edges, y=y, moments=moments, estimate=est, rtol=rtol,
@@ -900,6 +924,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                "cram_applications": cnt["cram_applications"], "substeps": cnt["substeps"],
                                "grids_integrated": grids_integrated, "extrapolation": extrapolation,
                                "newton_steps": cnt.get("newton_steps", 0),
+                               "domain": "Lamperti-bounded" if prep.lamperti_bounded else "from the spread",
                                **(extra or {})},
                         failure=failure)
 

@@ -1,0 +1,95 @@
+"""Stress run of the balanced closures over extreme scenes: which solve, which fail, and why.
+
+640 scenes: four spectra (the Fig. 1 one; ``H = 0.8`` with rms slope 0.031 and, from
+``q = 2 pi/4096`` to ``2 pi/16``, with 0.1; ``H = 0.5``, rms slope 0.3, ``2 pi/8192`` to
+``2 pi/8``), eight walls ``zeta = 1e-5 ... 30``, five loads ``p0 = 1e-5 ... 0.3``, both
+balanced closures, both extrapolation modes; native backend, rtol 1e-6, ``E* = 8/3``.
+A scene "solves" when the result has ``success``; a failure is either an exception (the
+first level failed, e.g. a balance with no root) or ``success = False`` with its message.
+
+Prints each failure and the counts, and writes ``results/stress_balance.md`` (the table
+docs/closures.md quotes, "A balance far from its root").  30-60 s on the 2-core
+development machine; ``--quick`` runs the ``p0 <= 1e-4`` scenes of the two steep spectra only.
+
+    python benchmarks/stress_balance.py [--quick]
+"""
+from __future__ import annotations
+
+import argparse
+import collections
+import pathlib
+import time
+
+import numpy as np
+
+import diffusion_pr as dp
+from diffusion_pr.closures import closure_distribution
+
+RESULTS = pathlib.Path(__file__).parent / "results"
+SPECTRA = {
+    "fig1 (H 0.3, slope 0.031)": dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031),
+    "H 0.8, slope 0.031": dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031),
+    "H 0.8, slope 0.1, q 2pi/4096..2pi/16": dp.SelfAffineSpectrum(0.8, 2 * np.pi / 4096, 2 * np.pi / 16,
+                                                                   rms_slope=0.1),
+    "H 0.5, slope 0.3, q 2pi/8192..2pi/8": dp.SelfAffineSpectrum(0.5, 2 * np.pi / 8192, 2 * np.pi / 8,
+                                                                  rms_slope=0.3),
+}
+ZETAS = (1e-5, 1e-4, 1e-3, 3e-3, 0.03, 0.3, 3.0, 30.0)
+LOADS = (1e-5, 1e-4, 1e-3, 0.04, 0.3)
+CLOSURES = ("local_g1_balanced", "local_g1_shell_balanced")
+MODES = ("fourth", "sixth")
+
+
+def classify(message: str) -> str:
+    """A failure's kind, for the counts."""
+    if "balance multiplier" in message:
+        return "the balance fails"
+    if "domain is too short" in message:
+        return "the domain is too short"
+    return "other"
+
+
+def run(quick: bool = False) -> dict:
+    """Every scene: ``{(spectrum, closure, zeta, p0, mode): None | (kind, message)}``."""
+    out = {}
+    spectra = list(SPECTRA.items())[1:3] if quick else SPECTRA.items()
+    loads = [p for p in LOADS if p <= 1e-4] if quick else LOADS
+    for name, spec in spectra:
+        for closure in CLOSURES:
+            for zeta in ZETAS:
+                for p0 in loads:
+                    for mode in MODES:
+                        key = (name, closure, zeta, p0, mode)
+                        try:
+                            r = closure_distribution(spec, E_star=8 / 3, mean_pressure=p0, zeta=zeta,
+                                                     closure=closure, extrapolation=mode)
+                            out[key] = None if r.success else (classify(r.message), r.message)
+                        except (RuntimeError, ValueError, FloatingPointError) as exc:
+                            out[key] = (classify(str(exc)), f"{type(exc).__name__}: {exc}")
+                        if out[key] is not None:
+                            print(*key, "|", out[key][1][:160], flush=True)
+    return out
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="the p0 <= 1e-4 scenes of the two steep spectra")
+    args = ap.parse_args(argv)
+    t0 = time.perf_counter()
+    out = run(args.quick)
+    seconds = time.perf_counter() - t0
+    kinds = collections.Counter(v[0] for v in out.values() if v is not None)
+    solved = sum(v is None for v in out.values())
+    lines = [f"# Balanced closures: stress run ({len(out)} scenes{', quick' if args.quick else ''})", "",
+             f"{solved} solved; " + ", ".join(f"{kinds[k]} {k}" for k in sorted(kinds)) + f" ({seconds:.0f} s)", "",
+             "| spectrum | closure | zeta | p0 | extrapolation | failure |", "|---|---|---|---|---|---|"]
+    lines += [f"| {k[0]} | {k[1]} | {k[2]:g} | {k[3]:g} | {k[4]} | {v[1][:140]} |"
+              for k, v in out.items() if v is not None]
+    print("\n".join(lines[:3]))
+    if not args.quick:
+        RESULTS.mkdir(exist_ok=True)
+        (RESULTS / "stress_balance.md").write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()
