@@ -161,17 +161,13 @@ def _cram_d(base, wband, t, y, pfd=False):
     return ALPHA0 * out, ALPHA0 * dout
 
 
-def _illinois(lo, hi, side, A, err, p0):
-    """The bracket after a point ``(A, err)``; an end kept twice in a row has its miss halved."""
+def _bracket(lo, hi, A, err):
+    """The bracket after a point ``(A, err)`` (the mean falls as ``A`` grows)."""
     if err > 0.0:
-        if side == 1 and hi:
-            hi = (hi[0], 0.5 * hi[1])
-        return (A, err), hi, 1
+        return (A, err), hi
     if err < 0.0:
-        if side == -1 and lo:
-            lo = (lo[0], 0.5 * lo[1])
-        return lo, (A, err), -1
-    return lo, hi, side
+        return lo, (A, err)
+    return lo, hi
 
 
 class _PythonKernels:
@@ -186,7 +182,7 @@ class _PythonKernels:
     bracket) and the last step to first order on the state.  A prediction that
     misses by more than ``BAD_PREDICTION p0`` is compared with the start's balance
     ``A0``; while the miss stays that large, Newton on ``ln(<p>/p0)`` in a trust
-    region and regula falsi (Illinois).
+    region, bisection where a step leaves the bracket.
     """
 
     def __init__(self) -> None:
@@ -245,7 +241,6 @@ class _PythonKernels:
                     slope = float(cvec @ dtrial)
                     lo = (A, err) if err > 0 else None
                     hi = (A, err) if err < 0 else None
-            side = 0
             it = 0
             while abs(err) > BAD_PREDICTION * p0 and denom != 0.0:  # far from the root
                 assert it < max_iter
@@ -263,11 +258,11 @@ class _PythonKernels:
                     step = radius if err > 0.0 else -radius
                 a_new = A + min(radius, max(-radius, step))
                 if lo and hi and not (min(lo[0], hi[0]) < a_new < max(lo[0], hi[0])):
-                    a_new = (lo[0] * hi[1] - hi[0] * lo[1]) / (hi[1] - lo[1])
+                    a_new = 0.5 * (lo[0] + hi[0])
                 trial, dtrial = _cram_d(at(a_new), wband, dt, y, self.pfd)
                 n_cram += 1
                 A, err = a_new, float(cvec @ trial) - p0
-                lo, hi, side = _illinois(lo, hi, side, A, err, p0)
+                lo, hi = _bracket(lo, hi, A, err)
             if it > 0:
                 slope = float(cvec @ dtrial)
             while abs(err) > mean_tol * p0 and denom != 0.0:
@@ -298,6 +293,8 @@ class _PythonKernels:
                             A += dA
                             break
                         a_new = A + dA
+                    elif lo and hi:
+                        a_new = 0.5 * (lo[0] + hi[0])
                     else:
                         a_new = A + (1.0 if err > 0 else -1.0) * (abs(A) + 1.0)
                     if lo and hi and not (min(lo[0], hi[0]) < a_new < max(lo[0], hi[0])):
@@ -305,7 +302,7 @@ class _PythonKernels:
                     trial, dtrial = _cram_d(at(a_new), wband, dt, y, self.pfd)
                     n_cram += 1
                     err = float(cvec @ trial) - p0
-                lo, hi, side = _illinois(lo, hi, side, a_new, err, p0)
+                lo, hi = _bracket(lo, hi, a_new, err)
                 A = a_new
                 it += 1
             if denom != 0.0 and slope < 0.0 and s_lin < 0.0:
@@ -365,18 +362,21 @@ FAR_SCENES = [(dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_
                1e-4, 1e-4, "richardson"),
               (dp.SelfAffineSpectrum(0.8, 2 * np.pi / 4096, 2 * np.pi / 16, rms_slope=0.1), "local_g1_balanced", 0.3,
                1e-4, "richardson"),
-              # without Illinois' halving the first fails, without the step bound both (stress run, docs/closures.md)
+              # without the step bound both fail (stress run, docs/closures.md)
               (dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031), "local_g1_balanced", 1e-3,
                1e-5, "richardson"),
               (dp.SelfAffineSpectrum(0.8, 2 * np.pi / 4096, 2 * np.pi / 16, rms_slope=0.1), "local_g1_balanced", 0.03,
-               1e-4, "richardson")]
+               1e-4, "richardson"),
+              # near the root the mean rises with A at stage 83 (coarse grid): bisection, not 30 steps of creeping
+              (dp.SelfAffineSpectrum(0.5, 2 * np.pi / 8192, 2 * np.pi / 8, rms_slope=0.3), "local_g1_balanced", 0.03,
+               1e-5, "richardson")]
 
 
 @pytest.mark.parametrize("scene", range(len(FAR_SCENES)))
 def test_balance_far_from_its_root_is_found(scene):
     """Each far scene solves (the commit before failed on each), holds the mean, and gives the answer of a run at
     rtol 1e-7 (other grids, so not a grid's spurious root) within the default rtol 1e-6 in the CDF (measured
-    <= 7.2e-8), and of the independent reference solver within 5e-6 where the reference resolves the scene
+    <= 7.7e-8), and of the independent reference solver within 5e-6 where the reference resolves the scene
     (measured 1.4e-6 and 1.1e-6, its own estimates 4e-7 and 8e-8).  In the third scene the reference does not
     resolve it: 2.4e-3, 2.2e-3, 2.0e-3 at 1000, 2000, 4000 cells, its estimate 5e-4 ... 7e-4 (docs/closures.md)."""
     spec, closure, zeta, p0, extrapolation = FAR_SCENES[scene]
@@ -396,11 +396,11 @@ def test_balance_far_from_its_root_is_found(scene):
 
 @pytest.mark.parametrize("scene", range(len(FAR_SCENES)))
 def test_compiled_far_search_equals_python_path(monkeypatch, scene):
-    """The far search (start-state balance, Newton on ln<p>, Illinois) through both paths, same grid.
+    """The far search (start-state balance, Newton on ln<p>, bisection) through both paths, same grid.
 
-    In the third and fifth scenes the two paths are one step apart (27/26, 39/40: the search starts where the mean
-    is saturated near 0; round-off between LAPACK and the compiled CRAM changes one step there, not traced
-    further); their answers agree within the same tolerance all the same."""
+    In the third scene the two paths are one step apart (27/26: the search starts where the mean is saturated near
+    0; round-off between LAPACK and the compiled CRAM changes one step there, not traced further); their answers
+    agree within the same tolerance all the same (measured 1.1e-13; elsewhere at most 5e-12)."""
     spec, closure, zeta, p0, _ = FAR_SCENES[scene]
     prob = closure_problem(spectrum_shells(spec, E_star=8 / 3, n_shells=24), zeta=zeta, E_star=8 / 3,
                            mean_pressure=p0, closure=closure)
@@ -409,7 +409,7 @@ def test_compiled_far_search_equals_python_path(monkeypatch, scene):
     slow = engine.solve_fv(prob, rtol=1e-4, backend="native", n_cells=40)
     assert fast.success and slow.success
     steps = (fast.diagnostics["newton_steps"], slow.diagnostics["newton_steps"])
-    assert abs(steps[0] - steps[1]) <= (1 if scene in (2, 4) else 0)  # the same search, step for step
+    assert abs(steps[0] - steps[1]) <= (1 if scene == 2 else 0)  # the same search, step for step
     # round-off only, but amplified: A reaches 1e8 here (|A| dt ~ 1e3); measured <= 5e-12
     assert np.max(np.abs(fast.density * fast.weights - slow.density * slow.weights)) < 1e-10
     assert abs(fast.zero_weight - slow.zero_weight) < 1e-10

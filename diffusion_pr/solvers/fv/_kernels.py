@@ -487,8 +487,7 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
       one.  While the miss stays that large: Newton on ``ln(<p>/p0)`` (far from the
       root the computed mean saturates, at 0 and at the top of the domain, and
       Newton on the mean jumps from one saturation into the other), steps at most
-      ``max(|A|, |A0|, 1)``, and regula falsi with Illinois' halving where a step
-      leaves the bracket.
+      ``max(|A|, |A0|, 1)``, and bisection where a step leaves the bracket.
 
     Every substep ends with the mean within ``mean_tol p0`` of ``p0``; how it got
     there (prediction, secant, Newton) changes the state only within that
@@ -558,12 +557,12 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
                 e_lo = e_hi = err
                 has_lo = err > 0.0
                 has_hi = err < 0.0
-        side = 0  # the side of the bracket the last step replaced (+1 lo, -1 hi): Illinois' rule below
         it = 0
         # far from the root (the mean off by more than BAD_PREDICTION p0): Newton on ln(<p>/p0) (far from the
         # root the computed mean saturates, at 0 where the inward drift wins and at the top of the domain where
         # the outward one does, and Newton on the mean jumps from one saturation into the other) with steps of
-        # at most max(|A|, |A0|, 1), and regula falsi with Illinois' halving where a step leaves the bracket
+        # at most max(|A|, |A0|, 1), and bisection where a step leaves the bracket (regula falsi between two
+        # saturated ends creeps from one of them: 26 steps in a stress scene)
         while abs(err) > BAD_PREDICTION * p0 and denom != 0.0:
             if it >= max_iter:
                 return y, n_cram, n_newton, -1, abs(err) / p0
@@ -584,7 +583,7 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
                 step = radius if err > 0.0 else -radius
             A_new = A + min(radius, max(-radius, step))
             if has_lo and has_hi and not (min(a_lo, a_hi) < A_new < max(a_lo, a_hi)):
-                A_new = (a_lo * e_hi - a_hi * e_lo) / (e_hi - e_lo)
+                A_new = 0.5 * (a_lo + a_hi)
             trial, dtrial, info = _expm_at(lower, diag, upper, wl, wd, wu, A_new, lo, di, up, dt, y, pfd, True, alpha,
                                            theta, alpha0, c)
             n_cram += 1
@@ -594,14 +593,8 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
             err = _dot(cvec, trial) - p0
             if err > 0.0:
                 a_lo, e_lo, has_lo = A, err, True
-                if side == 1:
-                    e_hi *= 0.5
-                side = 1
             elif err < 0.0:
                 a_hi, e_hi, has_hi = A, err, True
-                if side == -1:
-                    e_lo *= 0.5
-                side = -1
         if it > 0:  # the far search ended on an application with its derivative
             slope = _dot(cvec, dtrial)
         while abs(err) > mean_tol * p0 and denom != 0.0:
@@ -632,6 +625,8 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
                         A += dA
                         break
                     A_new = A + dA
+                elif has_lo and has_hi:  # the mean does not fall here as A grows: the bracket's midpoint
+                    A_new = 0.5 * (a_lo + a_hi)
                 else:  # not the expected monotone response (or no positive mean): away from this side
                     A_new = A + (1.0 if err > 0.0 else -1.0) * (abs(A) + 1.0)
                 if has_lo and has_hi and not (min(a_lo, a_hi) < A_new < max(a_lo, a_hi)):
@@ -645,18 +640,10 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
             if secant and A_new != A and (err_new - err) / (A_new - A) < 0.0:
                 slope = (err_new - err) / (A_new - A)
             err = err_new
-            # Illinois: an end of the bracket kept twice in a row has its miss halved, so regula falsi cannot
-            # creep towards the root from one side (a saturated mean, flat in A, did: 30 steps, no root)
             if err > 0.0:
                 a_lo, e_lo, has_lo = A_new, err, True
-                if side == 1:
-                    e_hi *= 0.5
-                side = 1
             elif err < 0.0:
                 a_hi, e_hi, has_hi = A_new, err, True
-                if side == -1:
-                    e_lo *= 0.5
-                side = -1
             A = A_new
             it += 1
         if denom != 0.0 and slope < 0.0 and s_lin < 0.0:
