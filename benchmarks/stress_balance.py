@@ -81,7 +81,8 @@ def main(argv=None) -> None:
     kinds = collections.Counter(v[0] for v in out.values() if v is not None)
     solved = sum(v is None for v in out.values())
     lines = [f"# Balanced closures: stress run ({len(out)} scenes{', quick' if args.quick else ''})", "",
-             f"{solved} solved; " + ", ".join(f"{kinds[k]} {k}" for k in sorted(kinds)) + f" ({seconds:.0f} s)", "",
+             f"{solved} solved; " + (", ".join(f"{kinds[k]} {k}" for k in sorted(kinds)) or "none failed")
+             + f" ({seconds:.0f} s)", "",
              "| spectrum | closure | zeta | p0 | extrapolation | failure |", "|---|---|---|---|---|---|"]
     lines += [f"| {k[0]} | {k[1]} | {k[2]:g} | {k[3]:g} | {k[4]} | {v[1][:140]} |"
               for k, v in out.items() if v is not None]

@@ -74,7 +74,9 @@ def solve(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cel
     extrapolation : {"fourth", "sixth"}
         ``"sixth"``: a second Richardson extrapolation on four nested grids,
         about half the cells at rtol 1e-6 with the answer on a 4x coarser grid
-        (see :func:`~diffusion_pr.solvers.fv.engine.solve_fv`).
+        (see :func:`~diffusion_pr.solvers.fv.engine.solve_fv`); where its
+        grids do not resolve a balance, the default scheme answers and
+        ``diagnostics["extrapolation"]`` says so.
     """
     return solve_fv(problem, rtol=rtol, backend="native", assemble=native_assemble, n_cells=n_cells,
                     max_cells=max_cells, p_floor=p_floor, time_integration="cram16", threads=threads,

@@ -450,6 +450,20 @@ def test_lamperti_domain_too_short_falls_back(monkeypatch, closure):
     assert fits.success and fits.diagnostics["domain"] == "Lamperti-bounded"
 
 
+def test_sixth_that_does_not_balance_falls_back_to_fourth():
+    """H = 0.5, rms slope 0.3, zeta = 0.03, p0 = 1e-5, shell partition: the sixth-order scheme's coarser grids do
+    not resolve the balance of stage 2 (the mean jumps by 4.5e7 p0 within the bracket), the fourth-order scheme's
+    do.  The solve says so and returns the fourth-order answer, bit for bit that of a "fourth" solve."""
+    spec = dp.SelfAffineSpectrum(0.5, 2 * np.pi / 8192, 2 * np.pi / 8, rms_slope=0.3)
+    kw = dict(E_star=8 / 3, mean_pressure=1e-5, zeta=0.03, closure="local_g1_shell_balanced")
+    r = closure_distribution(spec, extrapolation="sixth", **kw)
+    assert r.success
+    assert r.diagnostics["extrapolation"].startswith("fourth (the sixth's grids did not balance")
+    fourth = closure_distribution(spec, extrapolation="fourth", **kw)
+    assert fourth.diagnostics["extrapolation"] == "fourth"
+    assert np.array_equal(r.density, fourth.density) and r.zero_weight == fourth.zero_weight
+
+
 @pytest.mark.parametrize("zeta", [0.001, 0.01])
 def test_balanced_closure_answer_does_not_follow_rtol(zeta):
     """Same question, same answer: a balanced closure at rtol 1e-4 and 1e-5 agrees within 1e-4.

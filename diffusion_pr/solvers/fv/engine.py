@@ -719,6 +719,9 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     balance's drift (its multiplier is found during the solve).  Where the solve
     then leaves more than ``rtol`` in the top cell, it is repeated once on the
     conservative domain (the spread alone), and ``diagnostics["domain"]`` says so.
+    A ``"sixth"`` solve whose balance fails (its grids are 2x coarser than the
+    fourth-order scheme's) is repeated with ``"fourth"``, and
+    ``diagnostics["extrapolation"]`` says so.
 
     Parameters
     ----------
@@ -784,6 +787,23 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads not in (1, 2):
         raise ValueError(f"threads must be 1 or 2; got threads={threads!r}")
     sixth = extrapolation == "sixth"
+
+    def again(why_key: str, why: str, **changes) -> PressureDistribution:
+        """The same solve with ``changes``; ``diagnostics[why_key] = why`` says why it was repeated."""
+        options = dict(rtol=rtol, backend=backend, assemble=assemble, n_cells=n_cells, max_cells=max_cells,
+                       p_floor=p_floor, time_integration=time_integration, loop=loop, extra=extra, threads=threads,
+                       n_start=n_start, extrapolation=extrapolation, _lamperti=_lamperti)
+        out = solve_fv(problem, **{**options, **changes})
+        out.diagnostics[why_key] = why
+        out.diagnostics["timings"]["total"] = time.perf_counter() - t_start
+        return out
+
+    def fourth_instead(failure: str) -> PressureDistribution:
+        # the sixth's grids are 2x coarser than the fourth's at the same finest grid; where its coarsest grid does
+        # not resolve a balance (a first shell far wider than p0), the fourth-order scheme answers
+        return again("extrapolation", f"fourth (the sixth's grids did not balance: {failure})",
+                     extrapolation="fourth")
+
     prep = prepare(problem, rtol=rtol, p_floor=p_floor, lamperti=_lamperti)
     # the native operator on coefficients constant within each stage: a grid's integration does not depend on
     # the level it belongs to (levels can reuse grids) and its only error is spatial (a second extrapolation)
@@ -847,6 +867,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         broken = [cc["balance_failure"] for _, cc in ys if "balance_failure" in cc]
         if broken:
             failure = broken[0]
+            if sixth:
+                return fourth_instead(failure)
             if not history:  # nothing to report: the coarsest level failed
                 raise RuntimeError(failure)
             break
@@ -909,13 +931,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     edges, y, moments, est, cnt, cells, mean_full = best
     if prep.lamperti_bounded and failure is None and abs(float(y[-1])) > rtol:
         # the Lamperti bound was too short (a balance's drift, which it does not see, carried the tail further)
-        again = solve_fv(problem, rtol=rtol, backend=backend, assemble=assemble, n_cells=n_cells, max_cells=max_cells,
-                         p_floor=p_floor, time_integration=time_integration, loop=loop, extra=extra, threads=threads,
-                         n_start=n_start, extrapolation=extrapolation, _lamperti=False)
-        again.diagnostics["domain"] = (f"conservative: on the Lamperti-bounded domain (p_max = {edges[-1]:.4g}) the top "
-                                       f"cell held {abs(float(y[-1])):.2e} > rtol")
-        again.diagnostics["timings"]["total"] = time.perf_counter() - t_start
-        return again
+        return again("domain", f"conservative: on the Lamperti-bounded domain (p_max = {edges[-1]:.4g}) the top "
+                               f"cell held {abs(float(y[-1])):.2e} > rtol", _lamperti=False)
     timings = {"setup": t_prep, "solve": time.perf_counter() - t_start - t_prep,
                "total": time.perf_counter() - t_start}
     return build_result(prep, backend=backend, edges=edges, y=y, moments=moments, estimate=est, rtol=rtol,
