@@ -558,45 +558,6 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
                 has_lo = err > 0.0
                 has_hi = err < 0.0
         it = 0
-        # far from the root (the mean off by more than BAD_PREDICTION p0): Newton on ln(<p>/p0) (far from the
-        # root the computed mean saturates, at 0 where the inward drift wins and at the top of the domain where
-        # the outward one does, and Newton on the mean jumps from one saturation into the other) with steps of
-        # at most max(|A|, |A0|, 1), and bisection where a step leaves the bracket (regula falsi between two
-        # saturated ends creeps from one of them: 26 steps in a stress scene)
-        while abs(err) > BAD_PREDICTION * p0 and denom != 0.0:
-            if it >= max_iter:
-                return y, n_cram, n_newton, -1, abs(err) / p0
-            n_newton += 1
-            it += 1
-            if not have_d:
-                trial, dtrial, info = _expm_at(lower, diag, upper, wl, wd, wu, A, lo, di, up, dt, y, pfd, True,
-                                               alpha, theta, alpha0, c)
-                n_cram += 1
-                if info != 0:
-                    return y, n_cram, n_newton, info, 0.0
-                have_d = True
-            slope = _dot(cvec, dtrial)
-            radius = max(abs(A), abs(a_0), 1.0)
-            if slope < 0.0 and err + p0 > 0.0:
-                step = -math.log((err + p0) / p0) * (err + p0) / slope
-            else:  # no positive mean or not the expected monotone response: away from this side
-                step = radius if err > 0.0 else -radius
-            A_new = A + min(radius, max(-radius, step))
-            if has_lo and has_hi and not (min(a_lo, a_hi) < A_new < max(a_lo, a_hi)):
-                A_new = 0.5 * (a_lo + a_hi)
-            trial, dtrial, info = _expm_at(lower, diag, upper, wl, wd, wu, A_new, lo, di, up, dt, y, pfd, True, alpha,
-                                           theta, alpha0, c)
-            n_cram += 1
-            if info != 0:
-                return y, n_cram, n_newton, info, 0.0
-            A = A_new
-            err = _dot(cvec, trial) - p0
-            if err > 0.0:
-                a_lo, e_lo, has_lo = A, err, True
-            elif err < 0.0:
-                a_hi, e_hi, has_hi = A, err, True
-        if it > 0:  # the far search ended on an application with its derivative
-            slope = _dot(cvec, dtrial)
         while abs(err) > mean_tol * p0 and denom != 0.0:
             if it >= max_iter:
                 return y, n_cram, n_newton, -1, abs(err) / p0
@@ -613,24 +574,34 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
                         return y, n_cram, n_newton, info, 0.0
                     have_d = True
                 slope = _dot(cvec, dtrial)
-                far = abs(err) > BAD_PREDICTION * p0
-                if slope < 0.0 and far and err + p0 > 0.0:  # Newton on ln(<p>/p0), as in the far search above
-                    A_new = A - math.log((err + p0) / p0) * (err + p0) / slope
-                elif slope < 0.0 and not far:
-                    dA = -err / slope
-                    if abs(err) <= lin_tol * p0:  # close enough: the last step to first order on the state
-                        for i in range(n):
-                            trial[i] += dA * dtrial[i]
-                        err = _dot(cvec, trial) - p0
-                        A += dA
-                        break
-                    A_new = A + dA
-                elif has_lo and has_hi:  # the mean does not fall here as A grows: the bracket's midpoint
-                    A_new = 0.5 * (a_lo + a_hi)
-                else:  # not the expected monotone response (or no positive mean): away from this side
-                    A_new = A + (1.0 if err > 0.0 else -1.0) * (abs(A) + 1.0)
-                if has_lo and has_hi and not (min(a_lo, a_hi) < A_new < max(a_lo, a_hi)):
-                    A_new = (a_lo * e_hi - a_hi * e_lo) / (e_hi - e_lo)  # outside the bracket: regula falsi
+                if abs(err) > BAD_PREDICTION * p0:
+                    # far from the root: Newton on ln(<p>/p0) (the computed mean saturates there, at 0 where the
+                    # inward drift wins and at the top of the domain where the outward one does, and Newton on the
+                    # mean jumps from one saturation into the other), steps of at most max(|A|, |A0|, 1), and
+                    # bisection where a step leaves the bracket (regula falsi between two saturated ends creeps
+                    # from one of them: 26 steps in a stress scene)
+                    radius = max(abs(A), abs(a_0), 1.0)
+                    if slope < 0.0 and err + p0 > 0.0:
+                        step = -math.log((err + p0) / p0) * (err + p0) / slope
+                    else:  # no positive mean or not the expected monotone response: away from this side
+                        step = radius if err > 0.0 else -radius
+                    A_new = A + min(radius, max(-radius, step))
+                    if has_lo and has_hi and not (min(a_lo, a_hi) < A_new < max(a_lo, a_hi)):
+                        A_new = 0.5 * (a_lo + a_hi)
+                else:
+                    if slope < 0.0:
+                        dA = -err / slope
+                        if abs(err) <= lin_tol * p0:  # close enough: the last step to first order on the state
+                            for i in range(n):
+                                trial[i] += dA * dtrial[i]
+                            err = _dot(cvec, trial) - p0
+                            A += dA
+                            break
+                        A_new = A + dA
+                    else:  # not the expected monotone response: away from this side
+                        A_new = A + (1.0 if err > 0.0 else -1.0) * (abs(A) + 1.0)
+                    if has_lo and has_hi and not (min(a_lo, a_hi) < A_new < max(a_lo, a_hi)):
+                        A_new = (a_lo * e_hi - a_hi * e_lo) / (e_hi - e_lo)  # outside the bracket: regula falsi
             trial, dtrial, info = _expm_at(lower, diag, upper, wl, wd, wu, A_new, lo, di, up, dt, y, pfd, not secant,
                                            alpha, theta, alpha0, c)
             n_cram += 1
