@@ -449,7 +449,7 @@ def test_lamperti_domain_too_short_falls_back(monkeypatch, closure):
 
 def test_sixth_that_does_not_balance_falls_back_to_fourth():
     """H = 0.5, rms slope 0.3, zeta = 0.03, p0 = 1e-5, shell partition: the sixth-order scheme's coarser grids do
-    not resolve the balance of stage 2 (the mean jumps by 4.5e7 p0 within the bracket), the fourth-order scheme's
+    not resolve the balance of stage 2 (30 steps end with the mean 4.5e7 p0 off), the fourth-order scheme's
     do.  The solve says so and returns the fourth-order answer, bit for bit that of a "fourth" solve."""
     spec = dp.SelfAffineSpectrum(0.5, 2 * np.pi / 8192, 2 * np.pi / 8, rms_slope=0.3)
     kw = dict(E_star=8 / 3, mean_pressure=1e-5, zeta=0.03, closure="local_g1_shell_balanced")

@@ -484,10 +484,11 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
       midpoint is meaningless on a substep much wider than the distribution: the
       first shell of a steep spectrum at ``p0`` far below its spread) is compared
       with the start state's balance ``A0``, and the search goes on from the better
-      one.  While the miss stays that large: Newton on ``ln(<p>/p0)`` (far from the
-      root the computed mean saturates, at 0 and at the top of the domain, and
-      Newton on the mean jumps from one saturation into the other), steps at most
-      ``max(|A|, |A0|, 1)``, and bisection where a step leaves the bracket.
+      one.  Wherever the miss is that large (at the start or after a step): Newton
+      on ``ln(<p>/p0)`` (far from the root the computed mean saturates, at 0 and at
+      the top of the domain, and Newton on the mean jumps from one saturation into
+      the other), steps at most ``max(|A|, |A0|, 1)``, and bisection where a step
+      leaves the bracket.
 
     Every substep ends with the mean within ``mean_tol p0`` of ``p0``; how it got
     there (prediction, secant, Newton) changes the state only within that
