@@ -56,25 +56,32 @@ def classify(message: str) -> str:
     return "other"
 
 
-def run(quick: bool = False, closures=CLOSURES) -> dict:
-    """Every scene: ``{(spectrum, closure, zeta, p0, mode): None | (kind, message)}``."""
-    out = {}
+def scenes(quick: bool = False, closures=CLOSURES):
+    """``(spectrum name, spectrum, closure, zeta, p0)`` of the run (``quick``: the ``p0 <= 1e-4`` scenes of the
+    two steep spectra)."""
     spectra = list(SPECTRA.items())[1:3] if quick else SPECTRA.items()
     loads = [p for p in LOADS if p <= 1e-4] if quick else LOADS
     for name, spec in spectra:
         for closure in closures:
             for zeta in ZETAS:
                 for p0 in loads:
-                    for mode in MODES:
-                        key = (name, closure, zeta, p0, mode)
-                        try:
-                            r = closure_distribution(spec, E_star=8 / 3, mean_pressure=p0, zeta=zeta,
-                                                     closure=closure, extrapolation=mode)
-                            out[key] = None if r.success else (classify(r.message), r.message)
-                        except (RuntimeError, ValueError, FloatingPointError) as exc:
-                            out[key] = (classify(str(exc)), f"{type(exc).__name__}: {exc}")
-                        if out[key] is not None:
-                            print(*key, "|", out[key][1][:160], flush=True)
+                    yield name, spec, closure, zeta, p0
+
+
+def run(quick: bool = False, closures=CLOSURES) -> dict:
+    """Every scene: ``{(spectrum, closure, zeta, p0, mode): None | (kind, message)}``."""
+    out = {}
+    for name, spec, closure, zeta, p0 in scenes(quick, closures):
+        for mode in MODES:
+            key = (name, closure, zeta, p0, mode)
+            try:
+                r = closure_distribution(spec, E_star=8 / 3, mean_pressure=p0, zeta=zeta, closure=closure,
+                                         extrapolation=mode)
+                out[key] = None if r.success else (classify(r.message), r.message)
+            except (RuntimeError, ValueError, FloatingPointError) as exc:
+                out[key] = (classify(str(exc)), f"{type(exc).__name__}: {exc}")
+            if out[key] is not None:
+                print(*key, "|", out[key][1][:160], flush=True)
     return out
 
 
@@ -82,23 +89,19 @@ def against_peer(peer: str, closures=CLOSURES, quick: bool = False) -> list:
     """``[(max CDF distance, spectrum, closure, zeta, p0)]`` between the native and ``peer`` answers, largest
     first (scenes where either fails are listed with distance ``inf``)."""
     rows = []
-    spectra = list(SPECTRA.items())[1:3] if quick else SPECTRA.items()
-    for name, spec in spectra:
-        for closure in closures:
-            for zeta in ZETAS:
-                for p0 in LOADS:
-                    kw = dict(E_star=8 / 3, mean_pressure=p0, zeta=zeta, closure=closure)
-                    try:
-                        a = closure_distribution(spec, **kw)
-                        b = closure_distribution(spec, backend=peer, **kw)
-                        ok = a.success and b.success
-                    except (RuntimeError, ValueError, FloatingPointError):
-                        ok = False
-                    x = np.geomspace(1e-12 * p0, 1e4 * p0, 500)
-                    d = float(np.max(np.abs(a.cdf(x) - b.cdf(x)))) if ok else float("inf")
-                    rows.append((d, name, closure, zeta, p0))
-                    if d > 2e-6:
-                        print(name, closure, zeta, p0, f"| native and {peer} differ by {d:.2e}", flush=True)
+    for name, spec, closure, zeta, p0 in scenes(quick, closures):
+        kw = dict(E_star=8 / 3, mean_pressure=p0, zeta=zeta, closure=closure)
+        try:
+            a = closure_distribution(spec, **kw)
+            b = closure_distribution(spec, backend=peer, **kw)
+            ok = a.success and b.success
+        except (RuntimeError, ValueError, FloatingPointError):
+            ok = False
+        x = np.geomspace(1e-12 * p0, 1e4 * p0, 500)
+        d = float(np.max(np.abs(a.cdf(x) - b.cdf(x)))) if ok else float("inf")
+        rows.append((d, name, closure, zeta, p0))
+        if d > 2e-6:
+            print(name, closure, zeta, p0, f"| native and {peer} differ by {d:.2e}", flush=True)
     return sorted(rows, reverse=True)
 
 
