@@ -17,6 +17,9 @@ development machine; ``--quick`` runs the ``p0 <= 1e-4`` scenes of the two steep
 where its ln-variance is too large, and says so with a ValueError).  ``--peer pypde``: each scene of the
 default mode solved by the peer too; prints the largest CDF distance from the native answer (both claim
 rtol 1e-6 in L1, so up to 2e-6 is within what they claim) and any scene where they differ by more.
+``--cram``: each scene of both modes solved with the default time integration (CF-12 at rtol 1e-6) and with
+CRAM-16 (``engine.CRAM_SHARE = 0``); prints the largest CDF distance, the solves that fell back to CRAM-16,
+the summed times, and writes ``results/stress_cram.md``.
 """
 from __future__ import annotations
 
@@ -29,6 +32,7 @@ import numpy as np
 
 import diffusion_pr as dp
 from diffusion_pr.closures import closure_distribution
+from diffusion_pr.solvers.fv import engine
 
 RESULTS = pathlib.Path(__file__).parent / "results"
 SPECTRA = {
@@ -105,13 +109,64 @@ def against_peer(peer: str, closures=CLOSURES, quick: bool = False) -> list:
     return sorted(rows, reverse=True)
 
 
+def against_cram16(closures=CLOSURES, quick: bool = False) -> tuple:
+    """``(rows, seconds)``: per scene and mode ``(max CDF distance, fell back, spectrum, closure, zeta, p0, mode)``
+    between the default answer and the CRAM-16 one, largest first (``inf`` where either fails); and the summed
+    wall times ``{"default": s, "cram16": s}``."""
+    rows, seconds = [], {"default": 0.0, "cram16": 0.0}
+    share = engine.CRAM_SHARE
+    for name, spec, closure, zeta, p0 in scenes(quick, closures):
+        for mode in MODES:
+            kw = dict(E_star=8 / 3, mean_pressure=p0, zeta=zeta, closure=closure, extrapolation=mode)
+            res = {}
+            for key, value in (("default", share), ("cram16", 0.0)):
+                engine.CRAM_SHARE = value
+                t0 = time.perf_counter()
+                try:
+                    res[key] = closure_distribution(spec, **kw)
+                except (RuntimeError, ValueError, FloatingPointError):
+                    res[key] = None
+                finally:
+                    engine.CRAM_SHARE = share
+                seconds[key] += time.perf_counter() - t0
+            a, b = res["default"], res["cram16"]
+            ok = a is not None and b is not None and a.success and b.success
+            x = np.geomspace(1e-12 * p0, 1e4 * p0, 500)
+            d = float(np.max(np.abs(a.cdf(x) - b.cdf(x)))) if ok else float("inf")
+            fell_back = a is not None and "cram" in a.diagnostics
+            rows.append((d, fell_back, name, closure, zeta, p0, mode))
+            if d > 1e-7 or fell_back:
+                print(name, closure, zeta, p0, mode, f"| CDF distance {d:.2e}", "| fell back to CRAM-16" * fell_back,
+                      flush=True)
+    return sorted(rows, key=lambda r: r[0], reverse=True), seconds
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="the p0 <= 1e-4 scenes of the two steep spectra")
     ap.add_argument("--closures", default=None, help="comma-separated closures instead of the balanced two")
     ap.add_argument("--peer", default=None, help="compare each scene's native answer with this backend's")
+    ap.add_argument("--cram", action="store_true", help="compare each scene's answer with its CRAM-16 answer")
     args = ap.parse_args(argv)
     closures = tuple(args.closures.split(",")) if args.closures else CLOSURES
+    if args.cram:
+        rows, seconds = against_cram16(closures, args.quick)
+        solved = [r for r in rows if np.isfinite(r[0])]
+        lines = [f"# Default time integration (CF-12 at rtol 1e-6) against CRAM-16: {len(rows)} solves "
+                 f"({', '.join(closures)}{', quick' if args.quick else ''})", "",
+                 f"{len(rows) - len(solved)} not solved by both; {sum(r[1] for r in rows)} fell back to CRAM-16; "
+                 f"largest CDF distance where both solve {solved[0][0]:.2e} "
+                 f"({', '.join(map(str, solved[0][2:]))}); {sum(r[0] > 1e-7 for r in solved)} above 1e-7; "
+                 f"summed wall time {seconds['default']:.1f} s default, {seconds['cram16']:.1f} s CRAM-16", "",
+                 "| CDF distance | fell back | spectrum | closure | zeta | p0 | mode |", "|---|---|---|---|---|---|---|"]
+        lines += [f"| {r[0]:.2e} | {'yes' if r[1] else ''} | {r[2]} | {r[3]} | {r[4]:g} | {r[5]:g} | {r[6]} |"
+                  for r in rows[:25]]
+        print("\n".join(lines[:3]))
+        if not args.quick:
+            RESULTS.mkdir(exist_ok=True)
+            (RESULTS / f"stress_cram{'' if closures == CLOSURES else '_' + '_'.join(closures)}.md").write_text(
+                "\n".join(lines) + "\n")
+        return
     if args.peer:
         t0 = time.perf_counter()
         rows = against_peer(args.peer, closures, args.quick)

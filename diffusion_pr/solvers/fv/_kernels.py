@@ -234,11 +234,15 @@ def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusi
         upper[0] -= aw / h[0]
 
 
-#: poles per block of :func:`cram_pfd` (their eliminations interleave): 4 while the block's arrays (4 per row,
-#: 7 with the derivative; 64 bytes per row and array) stay within 20000 row-arrays (1.3 MB, about the L2 cache),
-#: else 2.  Measured per cell and pole: 8.8-9.2 ns plain up to 5000 cells, 16 ns with the derivative up to 2528
-#: cells (blocks of 2: 12 and 23 ns); the IPF form 27 and 40 ns
-_PFD_BLOCK_WORDS = 20000
+#: poles per block of :func:`cram_pfd` (their eliminations interleave): all of them up to 6 poles, else 4 (CRAM-16:
+#: two blocks of 4), while the block's arrays (4 per row, 7 with the derivative; 16 bytes per row, array and pole)
+#: stay within 80000 pole-row-arrays (1.3 MB, about the L2 cache), else fewer (at least 2).  Measured per cell and
+#: pole with blocks of 4: 8.8-9.2 ns plain up to 5000 cells, 16 ns with the derivative up to 2528 cells (blocks of
+#: 2: 12 and 23 ns); the IPF form 27 and 40 ns.  A block of 6 (CF-12) or 5 (CF-10) poles costs per pole what a
+#: block of 4 does (768 cells: 6 poles 0.74x and 5 poles 0.65x the time of CRAM-16's 8)
+_PFD_BLOCK_WORDS = 80000
+#: the largest block of poles (interleaved eliminations) of :func:`cram_pfd`
+_PFD_MAX_BLOCK = 6
 
 
 @njit(cache=True, nogil=True)
@@ -255,7 +259,9 @@ def cram_pfd(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  #
     """
     n = diag.size
     m = theta.size
-    g_size = 4 if n * (7 if want_d else 4) <= _PFD_BLOCK_WORDS else 2
+    g_size = m if m <= _PFD_MAX_BLOCK else 4
+    while g_size > 2 and n * (7 if want_d else 4) * g_size > _PFD_BLOCK_WORDS:
+        g_size = (g_size + 1) // 2
     d = np.empty((n, g_size), dtype=np.complex128)
     du = np.empty((n, g_size), dtype=np.complex128)
     du2 = np.empty((n, g_size), dtype=np.complex128)
@@ -273,7 +279,8 @@ def cram_pfd(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  #
             out[i] = y[i]
         return out, dout, 0
     for g0 in range(0, m, g_size):
-        for jj in range(g_size):
+        gs = min(g_size, m - g0)  # the poles of this block
+        for jj in range(gs):
             d[0, jj] = t * diag[0] - theta[g0 + jj]
             b[0, jj] = y[0]
             du[0, jj] = t * upper[0] if n > 1 else 0.0
@@ -283,7 +290,7 @@ def cram_pfd(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  #
             tdn = t * diag[i + 1]
             tun = t * upper[i + 1] if i < n - 2 else 0.0
             yn = y[i + 1]
-            for jj in range(g_size):
+            for jj in range(gs):
                 di = d[i, jj]
                 dnext = tdn - theta[g0 + jj]
                 if abs(di.real) + abs(di.imag) >= atl:
@@ -314,20 +321,20 @@ def cram_pfd(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  #
                     if want_d:
                         fl[i, jj] = f
                         piv[i, jj] = True
-        for jj in range(g_size):
+        for jj in range(gs):
             if d[n - 1, jj] == 0.0:
                 return out, dout, n
             d[n - 1, jj] = _rec(d[n - 1, jj])
-        _back(d, du, du2, b, n, g_size)
-        _accumulate(out, c, g0, b, n, g_size)
+        _back(d, du, du2, b, n, gs)
+        _accumulate(out, c, g0, b, n, gs)
         if not want_d:
             continue
         # r = t W b row by row, eliminated in the same sweep with the stored multipliers and interchanges
-        for jj in range(g_size):
+        for jj in range(gs):
             r[0, jj] = t * (wd[0] * b[0, jj] + (wu[0] * b[1, jj] if n > 1 else 0.0))
         for i in range(n - 1):
             last = i + 2 >= n
-            for jj in range(g_size):
+            for jj in range(gs):
                 raw = wl[i] * b[i, jj] + wd[i + 1] * b[i + 1, jj]
                 if not last:
                     raw += wu[i + 1] * b[i + 2, jj]
@@ -339,8 +346,8 @@ def cram_pfd(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  #
                     r[i + 1, jj] = tb - f * raw
                 else:
                     r[i + 1, jj] = raw - f * r[i, jj]
-        _back(d, du, du2, r, n, g_size)
-        _accumulate(dout, c, g0, r, n, g_size)
+        _back(d, du, du2, r, n, gs)
+        _accumulate(dout, c, g0, r, n, gs)
     return out, dout, 0
 
 

@@ -39,7 +39,7 @@ import numpy as np
 from ...models import breakpoints_of, evaluate_vectorized, wall_reached, zero_power_of
 from ...problem import FokkerPlanckProblem, Stage, StagedProblem
 from ...result import PressureDistribution
-from .cram import expm_tridiagonal
+from .cram import PFD_ERROR_BOUNDS, expm_tridiagonal, pfd_coefficients
 from .grid import GridSpec, edges_for, knot_indices
 from .operator import bands as fv_bands
 from .operator import centres
@@ -95,6 +95,17 @@ ROWS_CHUNK = 32768
 #: IPF form) down to this rtol; its round-off, about 1e-13 of max|y| per application against 1e-15, would
 #: matter below (docs/backends.md)
 PFD_MIN_RTOL = 1e-10
+#: the compiled stages' rational approximation in partial fractions is the lowest order (CF-10, CF-12, else
+#: CRAM-16) whose uniform error per application is at most CRAM_SHARE * rtol: a thousand applications with an
+#: amplification of 10 (the operator's non-normality; measured at most 3.3 on the closures against CRAM-16) stay
+#: within 1e-2 rtol.  At rtol 1e-6: CF-12, six poles instead of eight (1.7e-12 per application; the closures'
+#: CDFs moved by 1.6e-10 ... 5e-10 against CRAM-16), 0.74x the time of a CRAM-16 application.  CF-10 at 1e-6
+#: moved them by 1.3e-8 ... 4e-8, and CF-8 (1.2e-8 per application) made the Richardson estimate chase the
+#: grid-to-grid scatter of the time error (local_g1 refined to 7688 cells): the time error must stay far below
+#: the spatial one, which Richardson removes and it does not
+CRAM_SHARE = 1e-5
+#: the error estimate carries the time integration's bound, CRAM_AMPLIFICATION * applications * uniform error
+CRAM_AMPLIFICATION = 10.0
 #: cells per balance substep (the substeps double with the cells, so Richardson removes their O(dtau^2) error)
 SUBSTEP_CELLS = 16
 #: e-folds of p resolved below the floor where the wall is not reached: ln(10/rtol), at least this many;
@@ -496,7 +507,7 @@ def _drift_splits(pieces: Sequence, coef: dict) -> np.ndarray:
 def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = native_assemble,
                   n_base: int = 64, refine: int = 1, mean_tol: float = 1e-13,
                   lin_tol: float = 0.0, coef: Optional[dict] = None,
-                  partial_fractions: bool = True) -> tuple[np.ndarray, dict]:
+                  partial_fractions: bool = True, order: int = 16) -> tuple[np.ndarray, dict]:
     """Integrate from the start to ``tau_end`` on one grid; return ``y = [z, m...]`` and counters.
 
     ``n_base`` is the cell count of the coarsest grid of the nested triple and
@@ -508,7 +519,8 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     miss is below ``lin_tol p0``; after MAX_BALANCE_ITERATIONS the counters carry
     ``"balance_failure"`` and ``y`` is not a result.  ``partial_fractions``: the
     compiled stages use CRAM in partial fractions (else the IPF form; see
-    PFD_MIN_RTOL); ``coef``: the stage coefficients on this grid, if already evaluated.
+    PFD_MIN_RTOL) of ``order`` (:func:`cram_order`; LAPACK's stages are CRAM-16); ``coef``: the stage
+    coefficients on this grid, if already evaluated.
     """
     c = centres(edges)
     n = c.size
@@ -533,7 +545,7 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     # a balance always runs in the kernel (its substep loop is compiled); a few plain stages stay on LAPACK
     if compiled:
         common = (balanced, dt, reps, np.r_[edges[0], c], y, prep.p0, mean_tol, max(mean_tol, lin_tol),
-                  bool(partial_fractions))
+                  bool(partial_fractions), int(order) if partial_fractions else 16)
         if rows_in_kernel:
             y, n_cram, n_newton, info, stage, residual = _staged_kernels().run_rows(
                 edges, coef["f"], coef["b"], coef["w"], bool(coef["has_b"].any()), *common)
@@ -542,6 +554,7 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
                                                                               *common)
         counters["cram_applications"] = n_cram
         counters["newton_steps"] = n_newton
+        counters["cram_order"] = int(order) if partial_fractions else 16
         if info > 0:
             raise FloatingPointError(f"CRAM: singular shifted tridiagonal system (zero pivot at row {info}, "
                                      f"stage {stage})")
@@ -554,6 +567,7 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
         for _ in range(reps[k]):
             y = expm_tridiagonal(lower[k], diag[k], upper[k], dt[k], y)
         counters["cram_applications"] += int(reps[k])
+    counters["cram_order"] = 16
     return y, counters
 
 
@@ -576,6 +590,16 @@ def _trimmed_depth(prep: Prepared, below_floor: float, rtol: float) -> Optional[
     if new > depth - 2.0:
         return None
     return replace(prep, spec=replace(prep.spec, p_wall=prep.p_floor * math.exp(-new)), depth_adaptive=False)
+
+
+def cram_order(rtol: float) -> int:
+    """The order of the compiled stages' rational approximation at ``rtol`` (see :data:`CRAM_SHARE`)."""
+    if rtol < PFD_MIN_RTOL:
+        return 16  # the IPF form (CRAM-16 only)
+    for order in (10, 12):
+        if PFD_ERROR_BOUNDS[order] <= CRAM_SHARE * rtol:
+            return order
+    return 16
 
 
 def _compiled(prep: Prepared) -> bool:
@@ -622,26 +646,36 @@ class _Kernels:
         from . import _kernels as k
 
         self._k = k
-        self._coef = (np.ascontiguousarray(k.ALPHA), np.ascontiguousarray(k.THETA), float(k.ALPHA0),
-                      np.ascontiguousarray(k.PFD_RESIDUES))
+        self._coef = {}
+
+    def _coefficients(self, pfd: bool, order: int) -> tuple:
+        """``(alpha, theta, alpha0, c)`` as the kernels take them: the IPF form's CRAM-16 (``pfd`` False), or the
+        partial fractions of ``order`` (``theta``, ``alpha0`` and ``c`` theirs; ``alpha`` unused)."""
+        key = 16 if not pfd else int(order)
+        if key not in self._coef:
+            theta, res, r_inf, _ = pfd_coefficients(16 if not pfd else key)
+            self._coef[key] = (np.ascontiguousarray(self._k.ALPHA), np.ascontiguousarray(theta), float(r_inf),
+                               np.ascontiguousarray(res))
+        return self._coef[key]
 
     def run_rows(self, edges, f_rows, b_rows, w_rows, any_b, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol,
-                 pfd):
+                 pfd, order=16):
         """:meth:`run` with the native operator's bands made in the kernel (:func:`._kernels.staged_run_rows`)."""
         f = _f64
         y, n_cram, n_newton, info, stage, res = self._k.staged_run_rows(
             f(edges), f_rows, b_rows, w_rows, bool(any_b), np.ascontiguousarray(balanced, dtype=np.bool_),
             f(dt), np.ascontiguousarray(reps, dtype=np.int64), f(cvec), f(y), float(p0), float(mean_tol),
-            float(lin_tol), int(MAX_BALANCE_ITERATIONS), bool(pfd), *self._coef)
+            float(lin_tol), int(MAX_BALANCE_ITERATIONS), bool(pfd), *self._coefficients(pfd, order))
         return y, int(n_cram), int(n_newton), int(info), int(stage), float(res)
 
-    def run(self, lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, pfd):
-        """Every stage on one grid: ``(y, n_cram, n_newton, info, stage, residual)`` (:func:`._kernels.staged_run`)."""
+    def run(self, lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, pfd, order=16):
+        """Every stage on one grid: ``(y, n_cram, n_newton, info, stage, residual)`` (:func:`._kernels.staged_run`);
+        ``pfd``: partial fractions of ``order`` (10, 12, 16), else the IPF form of CRAM-16."""
         f = _f64
         y, n_cram, n_newton, info, stage, res = self._k.staged_run(
             f(lower), f(diag), f(upper), f(wl), f(wd), f(wu), np.ascontiguousarray(balanced, dtype=np.bool_),
             f(dt), np.ascontiguousarray(reps, dtype=np.int64), f(cvec), f(y), float(p0), float(mean_tol),
-            float(lin_tol), int(MAX_BALANCE_ITERATIONS), bool(pfd), *self._coef)
+            float(lin_tol), int(MAX_BALANCE_ITERATIONS), bool(pfd), *self._coefficients(pfd, order))
         return y, int(n_cram), int(n_newton), int(info), int(stage), float(res)
 
 
@@ -711,7 +745,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
              time_integration: str = "cram16", loop: Optional[Callable] = None,
              extra: Optional[dict] = None, threads: Optional[int] = None,
              n_start: Optional[int] = None, extrapolation: str = "fourth",
-             _lamperti: bool = True) -> PressureDistribution:
+             _lamperti: bool = True, _cram_order: Optional[int] = None) -> PressureDistribution:
     """Solve ``problem`` to ``rtol`` on nested grids (the engine's entry point).
 
     The upper end of a staged problem's domain comes from the Lamperti bound
@@ -724,7 +758,12 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     conservative domain (the spread alone), and ``diagnostics["domain"]`` says so.
     A ``"sixth"`` solve whose balance fails (its grids are 2x coarser than the
     fourth-order scheme's) is repeated with ``"fourth"``, and
-    ``diagnostics["extrapolation"]`` says so.
+    ``diagnostics["extrapolation"]`` says so.  The compiled stages integrate with
+    the lowest-order rational approximation that ``rtol`` allows (:func:`cram_order`;
+    CF-12 at rtol 1e-6); a solve that fails with CF-10 or CF-12 (a balance or the
+    refinement: a stage whose spectrum leaves the real axis, e.g. a strong balance
+    drift on a first shell far wider than ``p0``) is repeated first with CRAM-16, and
+    ``diagnostics["cram"]`` says so.
 
     Parameters
     ----------
@@ -744,7 +783,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     p_floor : float, optional
         Floor (pressure) where the wall is not reached; default ``FLOOR * p0``.
     time_integration : str
-        Label of the integrator stored in the diagnostics.
+        Label of the integrator stored in the diagnostics; ``"cram16"`` is reported as ``"cf10"`` or
+        ``"cf12"`` where the compiled stages used that order (:func:`cram_order`; ``diagnostics["cram_order"]``).
     loop : callable, optional
         ``loop(prep, edges, n_base, refine) -> (y, counters)`` replacing the CRAM
         integration (a library's own time loop).
@@ -795,11 +835,18 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         """The same solve with ``changes``; ``diagnostics[why_key] = why`` says why it was repeated."""
         options = dict(rtol=rtol, backend=backend, assemble=assemble, n_cells=n_cells, max_cells=max_cells,
                        p_floor=p_floor, time_integration=time_integration, loop=loop, extra=extra, threads=threads,
-                       n_start=n_start, extrapolation=extrapolation, _lamperti=_lamperti)
+                       n_start=n_start, extrapolation=extrapolation, _lamperti=_lamperti, _cram_order=_cram_order)
         out = solve_fv(problem, **{**options, **changes})
         out.diagnostics[why_key] = why
         out.diagnostics["timings"]["total"] = time.perf_counter() - t_start
         return out
+
+    rational_order = cram_order(rtol) if _cram_order is None else int(_cram_order)
+
+    def cram16_instead(failure: str) -> PressureDistribution:
+        # CF-10/12 are near-best on the negative real axis only: CRAM-16 is accurate in a wider region around it
+        # (H = 0.8, slope 0.1, zeta = 1e-3, p0 = 1e-5: the first shell's balance failed with CF-12 on 316 cells)
+        return again("cram", f"CRAM-16 (CF-{rational_order} failed: {failure})", _cram_order=16)
 
     def fourth_instead(failure: str) -> PressureDistribution:
         # the sixth's grids are 2x coarser than the fourth's at the same finest grid; where its coarsest grid does
@@ -820,7 +867,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         lambda pr, e, nb, rf, cf=None: solve_on_grid(pr, e, assemble=assemble, n_base=nb, refine=rf, coef=cf,
                                             mean_tol=max(1e-13, MEAN_TOL_FRACTION * rtol),
                                             lin_tol=math.sqrt(LINEAR_FRACTION * rtol),
-                                            partial_fractions=rtol >= PFD_MIN_RTOL))
+                                            partial_fractions=rtol >= PFD_MIN_RTOL, order=rational_order))
     n = int(n_cells) if n_cells is not None else (
         int(n_start) if n_start is not None else
         int(np.clip(START_CELLS_SIXTH * (1e-4 / rtol) ** (1 / 6), 16, 4096)) if sixth else
@@ -872,6 +919,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         if broken:
             failure = broken[0]
             balance_broke = True
+            if rational_order < 16:
+                return cram16_instead(failure)
             if sixth:
                 return fourth_instead(failure)
             if not history:  # nothing to report: the coarsest level failed
@@ -915,6 +964,9 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             return again("domain", f"conservative: on the Lamperti-bounded domain (p_max = {out_edges[-1]:.4g}) the "
                                    f"mean missed p0 by {mean_miss / prep.p0:.2e} p0", _lamperti=False)
         est = max(est, mean_miss / float(out_edges[-1]))
+        # the time integration's own error (not removed by Richardson): its uniform bound per application
+        est += CRAM_AMPLIFICATION * max(cc.get("cram_applications", 0) * PFD_ERROR_BOUNDS[cc.get("cram_order", 16)]
+                                        for _, cc in ys)
         history.append((n_base, est))
         best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(len(es))], mean_full)
         trimmed = _trimmed_depth(prep, float(out_y[0]) + est, rtol) if len(history) == 1 else None
@@ -940,6 +992,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         if reusable and grow <= 2.0 and 8 * n_base <= max_cells:  # cheaper to double: one new grid (8 n_base cells) instead of three
             reuse = (idx, e2, e3, (y2, c2), (y3, cnt))
         n = min(int(math.ceil(n_base * grow)), max_cells // depth)
+    if failure is not None and rational_order < 16:
+        return cram16_instead(failure)
     edges, y, moments, est, cnt, cells, mean_full = best
     if prep.lamperti_bounded and failure is None and abs(float(y[-1])) > rtol:
         # the Lamperti bound was too short (a balance's drift, which it does not see, carried the tail further)
@@ -955,8 +1009,11 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                "total": time.perf_counter() - t_start}
     return build_result(prep, backend=backend, edges=edges, y=y, moments=moments, estimate=est, rtol=rtol,
                         timings=timings, mean_full=mean_full,
-                        extra={"levels": cells, "history": history, "time_integration": time_integration,
+                        extra={"levels": cells, "history": history,
+                               "time_integration": (f"cf{cnt['cram_order']}" if time_integration == "cram16"
+                                                    and cnt.get("cram_order", 16) != 16 else time_integration),
                                "cram_applications": cnt["cram_applications"], "substeps": cnt["substeps"],
+                               "cram_order": cnt.get("cram_order", 16),
                                "grids_integrated": grids_integrated, "extrapolation": extrapolation,
                                "newton_steps": cnt.get("newton_steps", 0),
                                "domain": "Lamperti-bounded" if prep.lamperti_bounded else "from the spread",
