@@ -10,6 +10,35 @@ from numpy.typing import NDArray
 Array = NDArray[np.float64]
 
 
+def edge_cdf(edges: Array, cum: Array, knots: Any, p: Any) -> Array:
+    """The cumulative ``cum`` given at the cell ``edges``, at the pressures ``p`` (pressure units).
+
+    Exact at the edges; between them a cubic spline of ``cum`` (one per segment
+    between the ``knots``, where the density may jump), clipped to the cell's two
+    edge values; 0 below the first edge, ``cum[-1]`` above the last.  The
+    finite-volume results' :meth:`PressureDistribution.cdf` (without the delta at
+    0) and the engine's estimate of this interpolation's error use it.
+    """
+    from scipy.interpolate import CubicSpline
+
+    p = np.asarray(p, dtype=float)
+    q = np.clip(p, edges[0], edges[-1])
+    i = np.clip(np.searchsorted(edges, q, side="right") - 1, 0, edges.size - 2)
+    inner = [float(k) for k in knots if edges[0] < k < edges[-1]]
+    cuts = [0, *sorted(set(int(j) for j in np.searchsorted(edges, inner))), edges.size - 1]
+    spl = np.empty_like(q)
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        if b - a < 1:
+            continue
+        sel = (q >= edges[a]) & (q <= edges[b])
+        if b - a >= 2:
+            spl[sel] = CubicSpline(edges[a:b + 1], cum[a:b + 1])(q[sel])
+        else:
+            spl[sel] = np.interp(q[sel], edges[a:b + 1], cum[a:b + 1])
+    inside = np.clip(spl, np.minimum(cum[i], cum[i + 1]), np.maximum(cum[i], cum[i + 1]))
+    return np.where(p <= edges[0], 0.0, np.where(p >= edges[-1], cum[-1], inside))
+
+
 @dataclass(frozen=True)
 class PressureDistribution:
     """A pressure distribution ``Pr(p)`` with its diagnostics.
@@ -149,25 +178,8 @@ class PressureDistribution:
         """
         p = np.asarray(p, dtype=float)
         if self.edges is not None:
-            from scipy.interpolate import CubicSpline
-
             cum = np.concatenate(([0.0], np.cumsum(self.weights * self.density)))
-            q = np.clip(p, self.edges[0], self.edges[-1])
-            i = np.clip(np.searchsorted(self.edges, q, side="right") - 1, 0, self.edges.size - 2)
-            # one spline per segment between the solver's knots (where the density may jump)
-            knots = [float(k) for k in self.diagnostics.get("knots", ()) if self.edges[0] < k < self.edges[-1]]
-            cuts = [0, *sorted(set(int(j) for j in np.searchsorted(self.edges, knots))), self.edges.size - 1]
-            spl = np.empty_like(q)
-            for a, b in zip(cuts[:-1], cuts[1:]):
-                if b - a < 1:
-                    continue
-                sel = (q >= self.edges[a]) & (q <= self.edges[b])
-                if b - a >= 2:
-                    spl[sel] = CubicSpline(self.edges[a:b + 1], cum[a:b + 1])(q[sel])
-                else:
-                    spl[sel] = np.interp(q[sel], self.edges[a:b + 1], cum[a:b + 1])
-            inside = np.clip(spl, np.minimum(cum[i], cum[i + 1]), np.maximum(cum[i], cum[i + 1]))
-            out = np.where(p <= self.edges[0], 0.0, np.where(p >= self.edges[-1], cum[-1], inside))
+            out = edge_cdf(self.edges, cum, self.diagnostics.get("knots", ()), p)
         elif (panels := self._panels()) is not None:
             out = self._panel_cdf(p, panels)
         else:
