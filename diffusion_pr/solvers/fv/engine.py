@@ -65,6 +65,13 @@ SIXTH_DIVISOR = 15.0
 #: the sixth-order estimate counts only where the fourth-order differences fall at least this much per halving
 #: (16 asymptotically); measured on coarse levels it was 3x optimistic (benchmarks/results/richardson_order.md)
 SIXTH_ASYMPTOTIC_RATIO = 8.0
+#: after the first level, a problem whose depth below the floor is fixed (a drift or a balance) may move its cells
+#: between the logarithmic grading towards the wall and the rest (:func:`_regraded`)
+REGRADE = True
+#: candidate factors on ``c_wall`` (the weight of the logarithmic grading)
+REGRADE_FACTORS = (0.2, 0.3, 0.45, 0.7, 1.5, 2.0)
+#: regrade only where the predicted cells fall by at least this fraction
+REGRADE_GAIN = 0.15
 #: the cubic spline of the cdf between the output edges errs like h^4 (the refinement's prediction where that error
 #: drives it, extrapolation="sixth")
 INTERPOLATION_ORDER = 4
@@ -608,6 +615,42 @@ def cram_order(rtol: float) -> int:
     return 16
 
 
+def _regraded(prep: Prepared, edges: np.ndarray, diff: np.ndarray, j: int) -> Optional[tuple]:
+    """``(spec, cell factor)``: the grid family whose logarithmic grading towards the wall (``c_wall``) needs the
+    fewest cells for the first level's error, and the ratio of the cells it needs to those the old family needs;
+    or None where no candidate saves :data:`REGRADE_GAIN`.
+
+    ``diff`` are the first level's Richardson differences ``[zero weight, cells from j on]`` on ``edges`` (the N
+    grid, cells below the floor lumped into the first entry).  A cell's error scales with its width to the
+    fourth power, and a width with the inverse density ``dPhi/dp`` of the monitor times the total ``Phi`` per
+    cell; so under ``c_wall'`` the error becomes ``sum_i d_i rho_i^4`` with
+    ``rho_i = (Phi'_tot / Phi_tot) (dPhi/dp / dPhi'/dp)(p_i)``, and the cells for the same error scale with its
+    fourth root.  Where the depth below the floor is part of the problem (a drift or a balance: the closures),
+    this is what adapts: at large ``zeta`` the balanced closures' probability never gets near the floor, and the
+    cells the default grading puts there (half of them) are moved up.
+    """
+    spec = prep.spec
+    d = np.abs(diff)
+    if not np.isfinite(d).all() or d.sum() <= 0.0:
+        return None
+    centres_ = 0.5 * (edges[j:-1] + edges[j + 1:])
+    pts = np.concatenate(([centres_[0]], centres_))  # the lumped entry at the first cell above the floor
+    knots = spec.all_knots
+    phi_tot = float(spec.phi(knots[-1]) - spec.phi(knots[0]))
+    dphi = spec.dphi(pts)
+    base = float(np.sum(d))
+    best, best_cost = None, 1.0
+    for f in REGRADE_FACTORS:
+        cand = replace(spec, c_wall=spec.c_wall * f)
+        rho = (float(cand.phi(knots[-1]) - cand.phi(knots[0])) / phi_tot) * dphi / cand.dphi(pts)
+        cost = (float(np.sum(d * rho**4)) / base) ** 0.25
+        if cost < best_cost:
+            best, best_cost = cand, cost
+    if best is None or best_cost > 1.0 - REGRADE_GAIN:
+        return None
+    return best, best_cost
+
+
 def _compiled(prep: Prepared) -> bool:
     """Whether ``prep`` is integrated by the compiled kernels (else LAPACK): a balance, or at least
     COMPILED_MIN_PIECES pieces; a time-dependent problem has at least 4 segments (``max(4, n_base // 8)``)."""
@@ -1020,6 +1063,13 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             prep = trimmed
             n = int(np.clip(math.ceil(n_base * min(need, 8.0) * ratio), 16, max_cells // depth))
             continue
+        regraded = _regraded(prep, e1, _lump(_aggregate(r23), j1) - _lump(r12, j1), j1) if (
+            REGRADE and len(history) == 1 and not prep.depth_adaptive and prep.spec.c_wall > 0.0) else None
+        if regraded is not None:  # the same domain, its cells moved to where the first level's error was
+            spec_new, factor = regraded
+            prep = replace(prep, spec=spec_new)
+            n = int(np.clip(math.ceil(n_base * min(need * factor, 8.0)), 16, max_cells // depth))
+            continue
         if reusable and grow <= 2.0 and 8 * n_base <= max_cells:  # cheaper to double: one new grid (8 n_base cells) instead of three
             reuse = (idx, e2, e3, (y2, c2), (y3, cnt))
         n = min(int(math.ceil(n_base * grow)), max_cells // depth)
@@ -1049,6 +1099,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                "grids_integrated": grids_integrated, "extrapolation": extrapolation,
                                "newton_steps": cnt.get("newton_steps", 0),
                                "domain": "Lamperti-bounded" if prep.lamperti_bounded else "from the spread",
+                               "wall_grading": float(prep.spec.c_wall),
                                **(extra or {})},
                         failure=failure)
 
