@@ -214,8 +214,10 @@ def _zgtsv():
 _GTSV = _zgtsv()
 
 
-def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: float, y: np.ndarray) -> np.ndarray:
-    """``exp(t L) y`` for the tridiagonal ``L = (lower, diag, upper)`` (CRAM-16).
+def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: float, y: np.ndarray,
+                     order: int = 16) -> np.ndarray:
+    """``exp(t L) y`` for the tridiagonal ``L = (lower, diag, upper)``: CRAM-16 in the IPF form, or (``order`` 10
+    or 12) the CF approximation in partial fractions (5 or 6 solves instead of 8; see :func:`pfd_coefficients`).
 
     Parameters
     ----------
@@ -240,6 +242,16 @@ def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: 
     tu = (t * upper).astype(np.complex128)
     td = (t * diag).astype(np.complex128)
     gtsv = _GTSV
+    if order != 16:
+        thetas, residues, r_inf, _ = pfd_coefficients(order)
+        yc = y.astype(np.complex128)
+        out = r_inf * y
+        for c, theta in zip(residues, thetas):
+            _, _, _, x, info = gtsv(tl.copy(), td - theta, tu.copy(), yc.copy(), 1, 1, 1, 1)
+            if info != 0:
+                raise FloatingPointError(f"CF-{order}: singular shifted tridiagonal system (LAPACK zgtsv info={info})")
+            out += 2.0 * (c * x).real
+        return out
     for alpha, theta in zip(ALPHA, THETA):
         _, _, _, x, info = gtsv(tl.copy(), td - theta, tu.copy(), y.astype(np.complex128), 1, 1, 1, 1)
         if info != 0:

@@ -576,11 +576,12 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
                                            f"still missed p0 by {residual:.2e} p0 after {MAX_BALANCE_ITERATIONS} "
                                            f"Newton steps (tolerance {mean_tol:.1e} p0) on {n} cells")
         return y, counters
+    lapack_order = int(order) if partial_fractions else 16
     for k in range(len(pieces)):
         for _ in range(reps[k]):
-            y = expm_tridiagonal(lower[k], diag[k], upper[k], dt[k], y)
+            y = expm_tridiagonal(lower[k], diag[k], upper[k], dt[k], y, lapack_order)
         counters["cram_applications"] += int(reps[k])
-    counters["cram_order"] = 16
+    counters["cram_order"] = lapack_order
     return y, counters
 
 
