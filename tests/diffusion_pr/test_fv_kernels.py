@@ -794,3 +794,23 @@ def test_regrading_moves_the_cells_where_the_first_level_erred(monkeypatch):
     small = closure_distribution(spec, zeta=0.01, **kw)
     assert small.diagnostics["wall_grading"] == plain_small.diagnostics["wall_grading"]
     assert np.array_equal(small.density, plain_small.density)
+
+
+def test_a_first_level_whose_balance_fails_is_repeated_finer(monkeypatch):
+    """py-pde's operator with CRAM-16 on the one stress scene py-pde did not solve (H = 0.8, rms slope 0.1,
+    zeta = p0 = 1e-5, local_g1_balanced): the balance of stage 5 fails on the first level's 158-cell grid, and
+    again at twice the cells; the first level is repeated with twice the cells (at most twice), and at 4x it
+    solves, within 2e-6 of native in the cdf (both claim 1e-6; measured 1.2e-9).  Without the repetition the
+    solve raises."""
+    pytest.importorskip("pde")
+    monkeypatch.setattr(engine, "CRAM_SHARE", 0.0)
+    spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 4096, 2 * np.pi / 16, rms_slope=0.1)
+    kw = dict(E_star=8 / 3, mean_pressure=1e-5, zeta=1e-5, closure="local_g1_balanced")
+    r = closure_distribution(spec, backend="pypde", **kw)
+    assert r.success and r.diagnostics["history"][0][0] == 316  # 4 x the first level's 79
+    native = closure_distribution(spec, **kw)
+    x = np.geomspace(1e-12, 1e4, 500) * 1e-5
+    assert np.max(np.abs(r.cdf(x) - native.cdf(x))) < 2e-6
+    monkeypatch.setattr(engine, "FIRST_LEVEL_RETRIES", 0)
+    with pytest.raises(RuntimeError, match="balance multiplier A of stage 5"):
+        closure_distribution(spec, backend="pypde", **kw)
