@@ -534,8 +534,8 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     miss is below ``lin_tol p0``; after MAX_BALANCE_ITERATIONS the counters carry
     ``"balance_failure"`` and ``y`` is not a result.  ``partial_fractions``: the
     compiled stages use CRAM in partial fractions (else the IPF form; see
-    PFD_MIN_RTOL) of ``order`` (:func:`cram_order`; LAPACK's stages are CRAM-16); ``coef``: the stage
-    coefficients on this grid, if already evaluated.
+    PFD_MIN_RTOL) of ``order`` (:func:`cram_order`; LAPACK's stages too, in partial fractions where ``order`` is
+    below 16); ``coef``: the stage coefficients on this grid, if already evaluated.
     """
     c = centres(edges)
     n = c.size
@@ -609,7 +609,7 @@ def _trimmed_depth(prep: Prepared, below_floor: float, rtol: float) -> Optional[
 
 
 def cram_order(rtol: float) -> int:
-    """The order of the compiled stages' rational approximation at ``rtol`` (see :data:`CRAM_SHARE`)."""
+    """The order of the stages' rational approximation at ``rtol`` (see :data:`CRAM_SHARE`): 10, 12 or 16."""
     if rtol < PFD_MIN_RTOL:
         return 16  # the IPF form (CRAM-16 only)
     for order in (10, 12):
