@@ -556,11 +556,13 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     for k in np.flatnonzero(balanced):
         reps[k] = _substeps(prep, pieces[k], n_base, refine)
     dt = np.array([pc.duration for pc in pieces]) / reps
-    counters = {"cram_applications": 0, "substeps": int(reps[balanced].sum()), "newton_steps": 0}
+    order = int(order) if partial_fractions else 16  # the IPF form is CRAM-16's
+    counters = {"cram_applications": 0, "substeps": int(reps[balanced].sum()), "newton_steps": 0,
+                "cram_order": order}
     # a balance always runs in the kernel (its substep loop is compiled); a few plain stages stay on LAPACK
     if compiled:
         common = (balanced, dt, reps, np.r_[edges[0], c], y, prep.p0, mean_tol, max(mean_tol, lin_tol),
-                  bool(partial_fractions), int(order) if partial_fractions else 16)
+                  bool(partial_fractions), order)
         if rows_in_kernel:
             y, n_cram, n_newton, info, stage, residual = _staged_kernels().run_rows(
                 edges, coef["f"], coef["b"], coef["w"], bool(coef["has_b"].any()), *common)
@@ -569,7 +571,6 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
                                                                               *common)
         counters["cram_applications"] = n_cram
         counters["newton_steps"] = n_newton
-        counters["cram_order"] = int(order) if partial_fractions else 16
         if info > 0:
             raise FloatingPointError(f"CRAM: singular shifted tridiagonal system (zero pivot at row {info}, "
                                      f"stage {stage})")
@@ -578,12 +579,10 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
                                            f"still missed p0 by {residual:.2e} p0 after {MAX_BALANCE_ITERATIONS} "
                                            f"Newton steps (tolerance {mean_tol:.1e} p0) on {n} cells")
         return y, counters
-    lapack_order = int(order) if partial_fractions else 16
     for k in range(len(pieces)):
         for _ in range(reps[k]):
-            y = expm_tridiagonal(lower[k], diag[k], upper[k], dt[k], y, lapack_order)
+            y = expm_tridiagonal(lower[k], diag[k], upper[k], dt[k], y, order)
         counters["cram_applications"] += int(reps[k])
-    counters["cram_order"] = lapack_order
     return y, counters
 
 
