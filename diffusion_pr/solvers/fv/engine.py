@@ -1012,7 +1012,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         # the quantity reported: cells below the floor lumped into zero_weight (before any other step)
         j1 = int(np.searchsorted(e1, prep.lump_below)) if prep.lump_below > 0 else 0
         j2 = 2 * j1
-        est = float(np.sum(np.abs(_lump(_aggregate(r23), j1) - _lump(r12, j1)))) / RICHARDSON_DIVISOR
+        diff = _lump(_aggregate(r23), j1) - _lump(r12, j1)  # the Richardson differences on the N grid
+        est = float(np.sum(np.abs(diff))) / RICHARDSON_DIVISOR
         out_edges, out_y, out_mom, fine_l = e2[j2:], _lump(r23, j2), r_mom[j2:], _lump(fine, j2)
         order = 4
         if sixth:
@@ -1075,7 +1076,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             prep = trimmed
             n = int(np.clip(math.ceil(n_base * min(need, 8.0) * ratio), 16, max_cells // depth))
             continue
-        regraded = _regraded(prep, e1, _lump(_aggregate(r23), j1) - _lump(r12, j1), j1) if (
+        regraded = _regraded(prep, e1, diff, j1) if (
             REGRADE and len(history) == 1 and not prep.depth_adaptive and prep.spec.c_wall > 0.0) else None
         if regraded is not None:  # the same domain, its cells moved to where the first level's error was
             spec_new, factor = regraded
