@@ -192,12 +192,13 @@ def test_cf12_answer_is_the_cram16_answer_within_its_bound(monkeypatch):
 
 
 def test_a_cf12_failure_is_repeated_with_cram16():
-    """H = 0.8, zeta = 1e-3, p0 = 1e-5: the first shell's balance fails with CF-12 (its approximation is near-best
-    on the real axis only) and succeeds with CRAM-16; the solve says so."""
-    spec, closure, zeta, p0, _ = FAR_SCENES[3]
-    r = closure_distribution(spec, E_star=8 / 3, mean_pressure=p0, zeta=zeta, closure=closure)
+    """H = 0.8, zeta = 3e-3, p0 = 1e-5: an early shell's balance fails with CF-12 (its approximation is near-best
+    on the real axis only) and succeeds with CRAM-16; the solve says so.  (Which scenes fail is fragile: at
+    zeta = 1e-3 stage 0 failed with CF-12 until the domain moved by 1e-7 in the eighth session.)"""
+    spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+    r = closure_distribution(spec, E_star=8 / 3, mean_pressure=1e-5, zeta=3e-3, closure="local_g1_balanced")
     assert r.success and r.diagnostics["cram_order"] == 16
-    assert r.diagnostics["cram"].startswith("CRAM-16 (CF-12 failed: the balance multiplier A of stage 0")
+    assert r.diagnostics["cram"].startswith("CRAM-16 (CF-12 failed: the balance multiplier A of stage ")
 
 
 @pytest.mark.parametrize("n", [2, 3, 57, 1500, 3001])
@@ -581,13 +582,13 @@ def test_lamperti_domain_failed_with_pypde_falls_back():
 
 
 def test_sixth_that_does_not_balance_falls_back_to_fourth(monkeypatch):
-    """H = 0.5, rms slope 0.3, zeta = 0.03, p0 = 1e-5, shell partition, CRAM-16: the sixth-order scheme's coarser
-    grids do not resolve the balance of stage 2 (30 steps end with the mean 4.5e7 p0 off), the fourth-order
-    scheme's do.  The solve says so and returns the fourth-order answer, bit for bit that of a "fourth" solve.
-    (With the default CF-12 at rtol 1e-6 the sixth's balance succeeds here; that answer agrees with the fourth
-    within rtol in the CDF.)"""
+    """H = 0.5, rms slope 0.3, zeta = 0.03, p0 = 1e-5, CRAM-16: the sixth-order scheme's coarser grids do not
+    resolve the balance of stage 42, the fourth-order scheme's do.  The solve says so and returns the
+    fourth-order answer, bit for bit that of a "fourth" solve.  (With the default CF-12 at rtol 1e-6 the sixth's
+    balance succeeds here; that answer agrees with the fourth within rtol in the CDF.  Which scenes fail is
+    fragile: until the eighth session moved the domain by up to 8 %, this was the shell partition's scene.)"""
     spec = dp.SelfAffineSpectrum(0.5, 2 * np.pi / 8192, 2 * np.pi / 8, rms_slope=0.3)
-    kw = dict(E_star=8 / 3, mean_pressure=1e-5, zeta=0.03, closure="local_g1_shell_balanced")
+    kw = dict(E_star=8 / 3, mean_pressure=1e-5, zeta=0.03, closure="local_g1_balanced")
     cf12 = closure_distribution(spec, extrapolation="sixth", **kw)
     assert cf12.success and cf12.diagnostics["cram_order"] == 12 and cf12.diagnostics["extrapolation"] == "sixth"
     monkeypatch.setattr(engine, "CRAM_SHARE", 0.0)  # CRAM-16 at every rtol
@@ -811,9 +812,29 @@ def test_a_first_level_whose_balance_fails_is_repeated_finer(monkeypatch):
     native = closure_distribution(spec, **kw)
     x = np.geomspace(1e-12, 1e4, 500) * 1e-5
     assert np.max(np.abs(r.cdf(x) - native.cdf(x))) < 2e-6
-    monkeypatch.setattr(engine, "FIRST_LEVEL_RETRIES", 0)
+    monkeypatch.setattr(engine, "BALANCE_RETRIES", 0)
     with pytest.raises(RuntimeError, match="balance multiplier A of stage 5"):
         closure_distribution(spec, backend="pypde", **kw)
+
+
+def test_a_later_level_whose_balance_fails_is_repeated_finer(monkeypatch):
+    """Native with CRAM-16, H = 0.8, rms slope 0.031, zeta = 1e-3, p0 = 1e-5, local_g1_balanced: the first level
+    solves (79 and 158 cells), the third level's balance of stage 0 fails on 327 cells (the mean 0.29 p0 off after 30 steps); the
+    level is repeated with twice the cells and solves, within 2e-6 of the default (CF-12) answer in the cdf (both
+    claim 1e-6).  Without the repetition the solve reports failure.  (Fragile by nature: which grid fails a
+    balance this far from its root moves with the domain's last digits.)"""
+    spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+    kw = dict(E_star=8 / 3, mean_pressure=1e-5, zeta=1e-3, closure="local_g1_balanced")
+    default = closure_distribution(spec, **kw)
+    assert default.success and default.diagnostics["cram_order"] == 12
+    monkeypatch.setattr(engine, "CRAM_SHARE", 0.0)
+    r = closure_distribution(spec, **kw)
+    assert r.success and [n for n, _ in r.diagnostics["history"]] == [79, 158, 654]  # 327 failed, 2 x 327 solved
+    x = np.geomspace(1e-12, 1e4, 500) * 1e-5
+    assert np.max(np.abs(r.cdf(x) - default.cdf(x))) < 2e-6
+    monkeypatch.setattr(engine, "BALANCE_RETRIES", 0)
+    failed = closure_distribution(spec, **kw)
+    assert not failed.success and "balance multiplier A of stage 0" in failed.message
 
 
 # --------------------------------------------------------------------------- subnormals flushed (._fpenv)
