@@ -89,6 +89,8 @@ START_CELLS = 25.0
 NEED_MARGIN = 1.25
 #: ... but at least MIN_GROWTH times the current level's
 MIN_GROWTH = 1.5
+#: the largest growth of the cells from one level to the next
+MAX_GROWTH = 8.0
 #: a drift stage is split so that each exponential moves the distribution by at most this many spreads
 DRIFT_SPLIT = 2.0
 #: at most this many exponential steps per drift stage
@@ -1077,27 +1079,27 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             failure = "refinement did not converge in 12 levels"
             break
         # the estimate falls like N^-4 (N^-6 with a sixth-order estimate): predict the cells that meet rtol
-        # (x1.5 ... x8 per level)
+        # (x MIN_GROWTH ... x MAX_GROWTH per level)
         need = NEED_MARGIN * max(((est - interp) / (SAFETY * rtol)) ** (1.0 / order),
                                  (interp / (SAFETY * rtol)) ** (1.0 / INTERPOLATION_ORDER),
                                  (mean_miss / (SAFETY * rtol * prep.p0)) ** (1.0 / order))
-        grow = float(np.clip(need, MIN_GROWTH, 8.0))
+        grow = float(np.clip(need, MIN_GROWTH, MAX_GROWTH))
         if depth * n_base >= max_cells or depth * n_base * need > 8 * max_cells:
             failure = (f"error estimate {est:.2e} misses rtol={rtol:.1e}: it would need about "
                        f"{int(depth * n_base * need)} cells, max_cells={max_cells}")
             break
         if trimmed is not None:  # a shallower domain below the floor for the next levels (a new grid family)
-            # the cells per unit of Phi predicted for the old domain (growth capped at 8x, as below)
+            # the cells per unit of Phi predicted for the old domain (growth capped at MAX_GROWTH, as below)
             ratio = float(np.sum(trimmed.spec.segment_weights()) / np.sum(prep.spec.segment_weights()))
             prep = trimmed
-            n = int(np.clip(math.ceil(n_base * min(need, 8.0) * ratio), 16, max_cells // depth))
+            n = int(np.clip(math.ceil(n_base * min(need, MAX_GROWTH) * ratio), 16, max_cells // depth))
             continue
         regraded = _regraded(prep, e1, diff, j1) if (
             REGRADE and len(history) == 1 and not prep.depth_adaptive and prep.spec.c_wall > 0.0) else None
         if regraded is not None:  # the same domain, its cells moved to where the first level's error was
             spec_new, factor = regraded
             prep = replace(prep, spec=spec_new)
-            n = int(np.clip(math.ceil(n_base * min(need * factor, 8.0)), 16, max_cells // depth))
+            n = int(np.clip(math.ceil(n_base * min(need * factor, MAX_GROWTH)), 16, max_cells // depth))
             continue
         if reusable and grow <= 2.0 and 8 * n_base <= max_cells:  # cheaper to double: one new grid (8 n_base cells) instead of three
             reuse = (idx, e2, e3, (y2, c2), (y3, cnt))
