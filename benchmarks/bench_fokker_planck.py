@@ -9,7 +9,7 @@ Problems (docs/theory.md, docs/fig1.md):
              the cell masses against its cumulative plus ``|zero_weight error|``.
 ``literal``  zeta = 0.25 with the literal cutoff written by a user (``1 - cos``, no model protocol).
 
-Backends: ``native``; ``pypde`` and ``fipy`` (their operators on the engine's grids, CRAM-16);
+Backends: ``native``; ``pypde`` and ``fipy`` (their operators on the engine's grids, its rational exponential: CF-10, CF-12 or CRAM-16 by rtol);
 ``pypde-loop`` and ``fipy-loop`` (the libraries' own time loops, loose rtol only: seconds per solve).
 Warm medians of ``--repeats`` calls after one discarded call.  Also: a 100-zeta sweep at rtol 1e-6 (a loop,
 and ``pressure_distributions``, which starts each solve at the previous zeta's coarse cells),
