@@ -385,8 +385,11 @@ def closure_problem(shells: Shells, *, zeta: float, E_star: float, mean_pressure
         partition_q = "shell"
     kz = 0.5 * float(check_nonnegative("zeta", zeta)) * float(check_positive("E_star", E_star))
     stages = []
+    # the hard wall: g = 1 in every shell; one diffusivity object for all (the engine then integrates the
+    # commuting stages as one exponential: Persson's mirror Gaussian in one step)
+    hard = LocalResponseDiffusivity(float(shells.q_min), 0.0) if kz == 0.0 else None
     for q, dv in zip(shells.q, shells.dV0):
-        f = LocalResponseDiffusivity(float(q), kz)
+        f = hard if hard is not None else LocalResponseDiffusivity(float(q), kz)
         if closure == "local_g1" or kz == 0.0:
             stages.append(Stage(0.5 * float(dv), f))
         else:

@@ -140,6 +140,25 @@ def test_staged_balance_oracle_and_drift_oracle():
     assert r.mean == pytest.approx(10.0 + 0.5 * beta, rel=1e-7)
 
 
+def test_consecutive_stages_of_one_diffusivity_are_merged():
+    """Stages that share their diffusivity object (no drift, no balance) commute: they are integrated as one
+    exponential of the summed duration (n_stages counts what was integrated).  Oracle: the mirror Gaussian
+    (f = 1, V = 1 over 6 stages); the same stages with distinct but equal callables are integrated one by one
+    and agree within rtol; a stage with a drift between them is not merged across."""
+    one = lambda p: np.ones_like(p)  # noqa: E731
+    exact = (lambda p: cf.mirror_gaussian_density(p, 1.0, 1.0), cf.persson_zero_weight(1.0, 1.0))
+    shared = native.solve(StagedProblem(1.0, tuple(Stage(0.5 / 6, one) for _ in range(6))), rtol=1e-6)
+    assert shared.success and shared.diagnostics["n_stages"] == 1
+    assert l1_error(shared, *exact) < 1e-6
+    distinct = native.solve(StagedProblem(1.0, tuple(Stage(0.5 / 6, lambda p: np.ones_like(p)) for _ in range(6))),
+                            rtol=1e-6)
+    assert distinct.success and distinct.diagnostics["n_stages"] == 6
+    assert l1_error(distinct, *exact) < 1e-6
+    zero = lambda p: 0.0 * p  # noqa: E731
+    split = (Stage(0.1, one), Stage(0.1, one), Stage(0.1, one, drift=zero), Stage(0.1, one), Stage(0.1, one))
+    assert native.solve(StagedProblem(1.0, split), rtol=1e-6).diagnostics["n_stages"] == 3
+
+
 def test_staged_balance_converges_to_a_finer_run_and_holds_the_mean(closure_like_problem):
     problem = closure_like_problem()
     r = native.solve(problem, rtol=1e-5)

@@ -256,7 +256,17 @@ def _tau_independent(problem: FokkerPlanckProblem) -> bool:
 def _pieces_of(problem) -> tuple[float, list, bool, Optional[Callable]]:
     """(p0, pieces, time_dependent, segment_fn) of a StagedProblem or FokkerPlanckProblem."""
     if isinstance(problem, StagedProblem):
-        pieces = [_Piece(s.duration, s.diffusivity, s.drift, s.balance) for s in problem.stages if s.duration > 0]
+        pieces: list = []
+        for s in problem.stages:
+            if s.duration <= 0:
+                continue
+            if (pieces and s.drift is None and s.balance is None and pieces[-1].b is None and pieces[-1].w is None
+                    and s.diffusivity is pieces[-1].f):
+                # consecutive stages with the same diffusivity object and nothing else commute: one exponential
+                # of the summed duration is their product, exactly (the shell closures at the hard wall)
+                pieces[-1] = _Piece(pieces[-1].duration + s.duration, s.diffusivity, None, None)
+                continue
+            pieces.append(_Piece(s.duration, s.diffusivity, s.drift, s.balance))
         return problem.mean_pressure, pieces, False, None
     if isinstance(problem, FokkerPlanckProblem):
         if problem.autonomous:
