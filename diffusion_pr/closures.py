@@ -241,16 +241,23 @@ def contact_fraction(theory: Any, *, zeta: float, mean_pressure: float) -> float
 
 # --------------------------------------------------------------------------- model callables
 def _common_wall(items: tuple, p: Any) -> Optional[tuple]:
-    """``(kz, max(p, 0) as a row)`` when all ``items`` share one ``kz > 0`` (their rows vectorize), else None."""
+    """``(kz, p as a contiguous 1-D float array)`` when all ``items`` share one ``kz > 0`` (their rows
+    vectorize), else None.  The formulas clamp ``p`` at 0."""
     kz = {it.kz for it in items}
     if len(kz) != 1 or kz == {0.0}:
         return None
-    return kz.pop(), np.maximum(np.asarray(p, dtype=float), 0.0)[None, :]
+    return kz.pop(), np.ascontiguousarray(p, dtype=float).reshape(-1)
+
+
+def _products(kz: float, items: tuple, name: str) -> np.ndarray:
+    """``kz x [item.<name> for item in items]``: the shells' wall products ``kz q`` [pressure]."""
+    return kz * np.array([getattr(it, name) for it in items], dtype=float)
 
 
 class _ShellModel:
     """A shell model of ``p`` that is the constant ``_HARD_WALL`` for the hard wall (``kz = 0``) and
-    ``_formula(items, kz, max(p, 0))`` otherwise, evaluated row-wise for many shells at once."""
+    ``_formula(items, kz, p)`` otherwise (``p`` clamped at 0), evaluated row-wise for many shells at once by the
+    compiled kernels of :mod:`diffusion_pr._closure_kernels` (imported on first use)."""
 
     _HARD_WALL = 0.0
 
@@ -266,8 +273,8 @@ class _ShellModel:
         common = _common_wall(items, p)
         if common is None:
             return np.array([it(p) for it in items])
-        kz, pp = common
-        return cls._formula(items, kz, pp)
+        kz, p1 = common
+        return cls._formula(items, kz, p1)
 
 
 class _LoadModel(_ShellModel):
@@ -311,9 +318,10 @@ class LocalResponseDiffusivity(_ShellModel):
         return ()
 
     @staticmethod
-    def _formula(items: tuple, kz: float, pp: np.ndarray) -> np.ndarray:
-        g = pp / (pp + kz * np.array([it.q for it in items])[:, None])
-        return g * g
+    def _formula(items: tuple, kz: float, p: np.ndarray) -> np.ndarray:
+        from ._closure_kernels import diffusivity_rows
+
+        return diffusivity_rows(_products(kz, items, "q"), p)
 
 
 @dataclass(frozen=True)
@@ -330,11 +338,10 @@ class LoadExcessDrift(_LoadModel):
     kz: float
 
     @staticmethod
-    def _formula(items: tuple, kz: float, pp: np.ndarray) -> np.ndarray:
-        kq_part = kz * np.array([it.q_part for it in items])[:, None]
-        part = kq_part / (pp + kq_part)
-        denom = pp + kz * np.array([it.q for it in items])[:, None]
-        return part * pp / (denom * denom)
+    def _formula(items: tuple, kz: float, p: np.ndarray) -> np.ndarray:
+        from ._closure_kernels import drift_rows
+
+        return drift_rows(_products(kz, items, "q"), _products(kz, items, "q_part"), p)
 
 
 @dataclass(frozen=True)
@@ -346,9 +353,10 @@ class RigidApproachBalance(_LoadModel):
     kz: float
 
     @staticmethod
-    def _formula(items: tuple, kz: float, pp: np.ndarray) -> np.ndarray:
-        kq_part = kz * np.array([it.q_part for it in items])[:, None]
-        return kq_part * pp / (pp + kq_part)
+    def _formula(items: tuple, kz: float, p: np.ndarray) -> np.ndarray:
+        from ._closure_kernels import balance_rows
+
+        return balance_rows(_products(kz, items, "q_part"), p)
 
 
 def closure_problem(shells: Shells, *, zeta: float, E_star: float, mean_pressure: float, closure: str,

@@ -234,6 +234,34 @@ def test_closure_problem_stages(fig1):
     np.testing.assert_allclose(shell.stages[-1].balance(p), (1 - g) * p, rtol=1e-12)
 
 
+def test_compiled_rows_are_the_numpy_formulas_bit_for_bit(fig1):
+    """The closures' coefficient rows (compiled, diffusion_pr._closure_kernels) against the numpy formulas they
+    replaced, written out here: the same operations in the same order give the same bits (a changed order of
+    operations would show up in the last bit); p < 0 is clamped to 0 and a NaN stays NaN."""
+    from diffusion_pr.closures import LoadExcessDrift, LocalResponseDiffusivity, RigidApproachBalance
+
+    sh = spectrum_shells(fig1, E_star=E)
+    kz = 0.5 * 0.25 * E
+    p = np.r_[-1.0, 0.0, np.geomspace(1e-300, 10.0, 997), np.nan]
+    pp = np.maximum(p, 0.0)[None, :]
+    q = sh.q[:, None]
+    kq_part = kz * np.full_like(q, sh.q_min)
+    g = pp / (pp + kz * q)
+    expect = {
+        "f": g * g,
+        "b": (kq_part / (pp + kq_part)) * pp / ((pp + kz * q) * (pp + kz * q)),
+        "w": kq_part * pp / (pp + kq_part),
+    }
+    f = LocalResponseDiffusivity.rows(tuple(LocalResponseDiffusivity(float(x), kz) for x in sh.q), p)
+    b = LoadExcessDrift.rows(tuple(LoadExcessDrift(float(x), float(sh.q_min), kz) for x in sh.q), p)
+    w = RigidApproachBalance.rows(tuple(RigidApproachBalance(float(sh.q_min), kz) for _ in sh.q), p)
+    for got, key in ((f, "f"), (b, "b"), (w, "w")):
+        assert got.shape == expect[key].shape
+        np.testing.assert_array_equal(got, expect[key])  # NaN in the same places, every other value bit for bit
+    one = LocalResponseDiffusivity(float(sh.q[3]), kz)
+    np.testing.assert_array_equal(one(p.reshape(1, -1)), expect["f"][3:4])  # a single model keeps p's shape
+
+
 # ----------------------------------------------------------------------------- bad input
 @pytest.mark.parametrize("kwargs, match", [
     ({"closure": "third_order"}, "closure must be one of"),

@@ -107,8 +107,6 @@ MAX_BALANCE_ITERATIONS = 30
 #: p0 by less than sqrt(LINEAR_FRACTION * rtol) p0: its O(miss^2) state error is then about LINEAR_FRACTION * rtol
 #: (measured on the closures: 96 stages at a miss of 5e-5 moved the answer by 2e-9)
 LINEAR_FRACTION = 1e-2
-#: values per block when stage coefficients are evaluated as rows (:func:`_rows`): temporaries of ~256 kB
-ROWS_CHUNK = 32768
 #: the compiled stages use CRAM in partial fractions (all poles eliminated together, 2-3x faster than the
 #: IPF form) down to this rtol; its round-off, about 1e-13 of max|y| per application against 1e-15, would
 #: matter below (docs/backends.md)
@@ -219,17 +217,12 @@ def _rows(funcs: Sequence, p: np.ndarray, name: str, out: Optional[np.ndarray] =
     """
     kinds = {type(g) for g in funcs}
     if len(kinds) == 1 and callable(getattr(next(iter(kinds)), "rows", None)):
-        rows = next(iter(kinds)).rows
-        out = np.empty((len(funcs), p.size)) if out is None else out
-        step = max(1, ROWS_CHUNK // max(p.size, 1))  # blocks of rows whose temporaries stay in cache
-        ok = True
-        for k0 in range(0, len(funcs), step):
-            block = np.asarray(rows(tuple(funcs[k0:k0 + step]), p), dtype=float)
-            if block.shape != (len(funcs[k0:k0 + step]), p.size):
-                ok = False
-                break
-            out[k0:k0 + step] = block
-        if ok and np.all(np.isfinite(out)):
+        # one call for all rows (the closures' models evaluate them in a compiled pass, no temporaries)
+        block = np.asarray(next(iter(kinds)).rows(tuple(funcs), p), dtype=float)
+        if block.shape == (len(funcs), p.size) and np.all(np.isfinite(block)):
+            if out is None:
+                return block
+            out[...] = block
             return out
     res = np.array([_check_f(g, p, f"{name} of stage {k}") for k, g in enumerate(funcs)]).reshape(len(funcs), p.size)
     if out is None:

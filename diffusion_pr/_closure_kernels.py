@@ -1,0 +1,57 @@
+"""Compiled coefficient rows of the shell closures (:mod:`diffusion_pr.closures`), loaded on first use.
+
+Each kernel evaluates one model for many shells on one pressure grid in a single
+pass, with the same floating-point operations in the same order as the numpy
+formulas they replace (``tests/diffusion_pr/test_closures.py`` checks the bits),
+3-4x faster than numpy on the 96 x (N + 2N + 4N) rows of a closure solve: the
+numpy form made three temporaries of the full row block per model.
+
+Units: pressures ``p`` and the wall products ``kz q`` [pressure]; rows dimensionless
+(``f``), [pressure per unit tau] (``b``) and [pressure per unit tau per unit A] (``w``).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def _clamped(x):  # pragma: no cover - numba
+    """``max(x, 0)`` that keeps a NaN (as ``np.maximum`` does)."""
+    return 0.0 if x < 0.0 else x
+
+
+@njit(cache=True, nogil=True)
+def diffusivity_rows(kq, p):  # pragma: no cover - numba
+    """``f[k, i] = g^2``, ``g = p_i / (p_i + kq_k)`` (``p`` clamped at 0; ``kq = kz q_k``)."""
+    out = np.empty((kq.size, p.size))
+    for k in range(kq.size):
+        for i in range(p.size):
+            pp = _clamped(p[i])
+            g = pp / (pp + kq[k])
+            out[k, i] = g * g
+    return out
+
+
+@njit(cache=True, nogil=True)
+def drift_rows(kq, kq_part, p):  # pragma: no cover - numba
+    """``b[k, i] = part * p / (p + kq_k)^2``, ``part = kq_part_k / (p + kq_part_k)``."""
+    out = np.empty((kq.size, p.size))
+    for k in range(kq.size):
+        for i in range(p.size):
+            pp = _clamped(p[i])
+            part = kq_part[k] / (pp + kq_part[k])
+            denom = pp + kq[k]
+            out[k, i] = part * pp / (denom * denom)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def balance_rows(kq_part, p):  # pragma: no cover - numba
+    """``w[k, i] = kq_part_k p / (p + kq_part_k)``."""
+    out = np.empty((kq_part.size, p.size))
+    for k in range(kq_part.size):
+        for i in range(p.size):
+            pp = _clamped(p[i])
+            out[k, i] = kq_part[k] * pp / (pp + kq_part[k])
+    return out
