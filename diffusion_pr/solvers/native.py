@@ -46,7 +46,8 @@ def warm_up() -> float:
 
 def solve(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cells: int = MAX_CELLS,
           p_floor: Optional[float] = None, threads: Optional[int] = None,
-          n_start: Optional[int] = None, extrapolation: str = "fourth") -> PressureDistribution:
+          n_start: Optional[int] = None, extrapolation: str = "fourth",
+          wall_grading: Optional[float] = None) -> PressureDistribution:
     """Solve a :class:`~diffusion_pr.problem.FokkerPlanckProblem` or :class:`~diffusion_pr.problem.StagedProblem`.
 
     Parameters
@@ -66,7 +67,13 @@ def solve(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cel
         Cells of the first level's coarsest grid; the refinement continues
         from there until the estimate meets ``rtol``.  In a sweep over
         neighbouring problems pass the previous result's
-        ``diagnostics["levels"][0]``: the first level then usually suffices.
+        ``diagnostics["cells_needed"]`` (the cells its estimate predicts for
+        ``rtol``): the first level then usually suffices.
+    wall_grading : float, optional
+        Start value of the logarithmic grading towards the wall, in (0, 10],
+        where the depth below the floor is fixed (drift or balance: the
+        closures); in a sweep the previous result's
+        ``diagnostics["wall_grading"]``.  Default: the engine's ``C_WALL``.
     threads : int, optional
         1 or 2 (default 2 where the machine has two cores): a staged problem's
         finest grid is integrated in a second thread, alongside the two coarser
@@ -80,4 +87,4 @@ def solve(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cel
     """
     return solve_fv(problem, rtol=rtol, backend="native", assemble=native_assemble, n_cells=n_cells,
                     max_cells=max_cells, p_floor=p_floor, time_integration="cram16", threads=threads,
-                    n_start=n_start, extrapolation=extrapolation)
+                    n_start=n_start, extrapolation=extrapolation, wall_grading=wall_grading)

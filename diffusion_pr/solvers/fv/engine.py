@@ -830,7 +830,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
              max_cells: int = MAX_CELLS, p_floor: Optional[float] = None,
              time_integration: str = "cram16", loop: Optional[Callable] = None,
              extra: Optional[dict] = None, threads: Optional[int] = None,
-             n_start: Optional[int] = None, extrapolation: str = "fourth",
+             n_start: Optional[int] = None, extrapolation: str = "fourth", wall_grading: Optional[float] = None,
              _lamperti: bool = True, _cram_order: Optional[int] = None) -> PressureDistribution:
     """Solve ``problem`` to ``rtol`` on nested grids (the engine's entry point).
 
@@ -884,6 +884,10 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         1 or 2: with 2 the finest grid of a compiled (staged, native) solve runs
         in a second thread (default :data:`DEFAULT_THREADS`; the answer is the
         same bit for bit).
+    wall_grading : float, optional
+        Start value of the logarithmic grading towards the wall (``c_wall``, in (0, 10]) where the depth below
+        the floor is fixed (a drift or a balance: the closures), which the first level may regrade (a sweep
+        passes the previous result's ``diagnostics["wall_grading"]``).  Default: :data:`C_WALL`.
     extrapolation : {"fourth", "sixth"}
         ``"fourth"``: three nested grids ``N, 2N, 4N``, Richardson on each pair, the
         answer ``R(2N, 4N)`` on the ``2N`` grid.  ``"sixth"`` (native operator,
@@ -921,7 +925,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         """The same solve with ``changes``; ``diagnostics[why_key] = why`` says why it was repeated."""
         options = dict(rtol=rtol, backend=backend, assemble=assemble, n_cells=n_cells, max_cells=max_cells,
                        p_floor=p_floor, time_integration=time_integration, loop=loop, extra=extra, threads=threads,
-                       n_start=n_start, extrapolation=extrapolation, _lamperti=_lamperti, _cram_order=_cram_order)
+                       n_start=n_start, extrapolation=extrapolation, wall_grading=wall_grading, _lamperti=_lamperti,
+                       _cram_order=_cram_order)
         out = solve_fv(problem, **{**options, **changes})
         out.diagnostics[why_key] = why
         out.diagnostics["timings"]["total"] = time.perf_counter() - t_start
@@ -941,6 +946,12 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                      extrapolation="fourth")
 
     prep = prepare(problem, rtol=rtol, p_floor=p_floor, lamperti=_lamperti)
+    if wall_grading is not None:
+        if isinstance(wall_grading, bool) or not isinstance(wall_grading, (int, float, np.floating)) \
+                or not 0.0 < float(wall_grading) <= 10.0:
+            raise ValueError(f"wall_grading must be a number in (0, 10]; got wall_grading={wall_grading!r}")
+        if prep.spec.c_wall > 0.0 and not prep.depth_adaptive:  # where regrading applies (a drift or a balance)
+            prep = replace(prep, spec=replace(prep.spec, c_wall=float(wall_grading)))
     # the native operator on coefficients constant within each stage: a grid's integration does not depend on
     # the level it belongs to (levels can reuse grids) and its only error is spatial (a second extrapolation)
     stage_constant = (loop is None and assemble is native_assemble and not prep.time_dependent
@@ -970,6 +981,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     # estimate 4.6e-4), so the peers keep fresh levels
     reusable = stage_constant and not sixth
     reuse = None
+    grading_next = None  # (c_wall, cell factor) the converged level's errors favour (:func:`_regraded`)
     grids_integrated = 0
     while True:
         idx = 2 * reuse[0] if reuse is not None else knot_indices(prep.spec, n)
@@ -1074,9 +1086,14 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                                                      _lump(r23, 2 * j_out), prep.spec.knots)
             est += interp
         history.append((n_base, est))
-        best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(len(es))], mean_full, interp)
+        best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(len(es))], mean_full, interp, order)
         trimmed = _trimmed_depth(prep, float(out_y[0]) + est, rtol) if len(history) == 1 else None
         if (est <= SAFETY * rtol and mean_miss <= SAFETY * rtol * prep.p0) or n_cells is not None:
+            if REGRADE and not prep.depth_adaptive and prep.spec.c_wall > 0.0:
+                # the grading this level's errors favour, for the next problem of a sweep (not used here)
+                suggested = _regraded(prep, e1, diff, j1)
+                if suggested is not None:
+                    grading_next = (float(suggested[0].c_wall), float(suggested[1]))
             break
         if len(history) > 12:
             failure = "refinement did not converge in 12 levels"
@@ -1109,7 +1126,17 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         n = min(int(math.ceil(n_base * grow)), max_cells // depth)
     if failure is not None and rational_order < 16:
         return cram16_instead(failure)
-    edges, y, moments, est, cnt, cells, mean_full, interp = best
+    edges, y, moments, est, cnt, cells, mean_full, interp, order = best
+    # the coarsest grid this problem needs for rtol, predicted from the last level as the refinement predicts it
+    # (a sweep starts the next problem there: its previous cells over-resolve where the need falls)
+    need_last = NEED_MARGIN * (max(est - interp, 0.0) / (SAFETY * rtol)) ** (1.0 / order)
+    if interp > 0.0:
+        need_last = max(need_last, NEED_MARGIN * (interp / (SAFETY * rtol)) ** (1.0 / INTERPOLATION_ORDER))
+    grading_needed = float(prep.spec.c_wall)
+    if grading_next is not None:  # the cells are then those of the favoured grading
+        grading_needed, factor = grading_next
+        need_last *= factor
+    cells_needed = int(np.clip(math.ceil(cells[0] * need_last), 16, max(16, max_cells // depth)))
     if prep.lamperti_bounded and failure is None and abs(float(y[-1])) > rtol:
         # the Lamperti bound was too short (a balance's drift, which it does not see, carried the tail further)
         return again("domain", f"conservative: on the Lamperti-bounded domain (p_max = {edges[-1]:.4g}) the top "
@@ -1131,6 +1158,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                "cram_order": cnt.get("cram_order", 16),
                                **({"cdf_interpolation_error": interp} if sixth else {}),
                                "grids_integrated": grids_integrated, "extrapolation": extrapolation,
+                               "cells_needed": cells_needed, "wall_grading_needed": grading_needed,
                                "newton_steps": cnt.get("newton_steps", 0),
                                "domain": "Lamperti-bounded" if prep.lamperti_bounded else "from the spread",
                                "wall_grading": float(prep.spec.c_wall),
