@@ -362,13 +362,17 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
         from tqdm.auto import tqdm
 
         items = tqdm(z, desc="zeta sweep", unit="wall")
+    from .solvers.fv.engine import MAX_CELLS
+
+    # the engine's bound on a first level's cells (n_start): its finest grid within max_cells
+    cap = int(kwargs.get("max_cells", MAX_CELLS)) // (8 if kwargs.get("extrapolation") == "sixth" else 4)
     out = []
     hint: dict = {}
     for zeta in items:
         start = {k: v for k, v in hint.items() if k in ("n_start", "wall_grading")}
         result = pressure_distribution(spectrum, zeta=float(zeta), backend=backend, **{**kwargs, **start})
         out.append(result)
-        hint = _sweep_hint(result, hint)
+        hint = _sweep_hint(result, hint, cap)
     return out
 
 
@@ -376,14 +380,14 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
 SWEEP_TREND_MAX = 1.5
 
 
-def _sweep_hint(result: PressureDistribution, previous: dict) -> dict:
+def _sweep_hint(result: PressureDistribution, previous: dict, cap: int) -> dict:
     """The next solve's start in a sweep: the cells this (native, converged) result's estimate predicts for its
     rtol, at most its own first grid (``n_start``; starting at the previous cells over-resolves where the need
     falls: a balanced closure's zeta sweep ratcheted up to 1060 cells where 140-630 suffice), times the growth of
     the need from the previous entry where it grows (at most SWEEP_TREND_MAX: a start just short of the need costs a
     second level of twice the cells), with the wall grading its last level's errors favour (``wall_grading``;
-    ``diagnostics["cells_needed"]`` is for that grading).  ``cells_needed`` is carried along for the trend and
-    removed before the call."""
+    ``diagnostics["cells_needed"]`` is for that grading), at most ``cap`` cells.  ``cells_needed`` is carried
+    along for the trend and removed before the call."""
     d = result.diagnostics
     levels = d.get("levels")
     if result.backend != "native" or not levels or not result.success:
@@ -393,7 +397,7 @@ def _sweep_hint(result: PressureDistribution, previous: dict) -> dict:
     start = min(levels[0], needed)  # a regrading can only lower it
     if previous.get("cells_needed"):  # where the need grows from entry to entry, start ahead of it
         start *= min(max(needed / previous["cells_needed"], 1.0), SWEEP_TREND_MAX)
-    hint["n_start"] = int(math.ceil(start))
+    hint["n_start"] = int(min(math.ceil(start), cap))
     grading = d.get("wall_grading_needed", d.get("wall_grading", 0.0))
     if grading > 0.0:
         hint["wall_grading"] = float(grading)
