@@ -21,37 +21,39 @@ def _clamped(x):  # pragma: no cover - numba
     return 0.0 if x < 0.0 else x
 
 
+#: the models of :func:`_model_rows`
+DIFFUSIVITY, DRIFT, BALANCE = 0, 1, 2
+
+
 @njit(cache=True, nogil=True)
-def diffusivity_rows(kq, p):  # pragma: no cover - numba
+def _model_rows(kq, kq_part, p, model):  # pragma: no cover - numba
+    """Row ``k`` of one model (``DIFFUSIVITY``, ``DRIFT`` or ``BALANCE``) at the clamped pressures ``p``."""
+    out = np.empty((kq.size, p.size))
+    for k in range(kq.size):
+        for i in range(p.size):
+            pp = _clamped(p[i])
+            if model == DIFFUSIVITY:
+                g = pp / (pp + kq[k])
+                out[k, i] = g * g
+            elif model == DRIFT:
+                part = kq_part[k] / (pp + kq_part[k])
+                denom = pp + kq[k]
+                out[k, i] = part * pp / (denom * denom)
+            else:
+                out[k, i] = kq_part[k] * pp / (pp + kq_part[k])
+    return out
+
+
+def diffusivity_rows(kq: np.ndarray, p: np.ndarray) -> np.ndarray:
     """``f[k, i] = g^2``, ``g = p_i / (p_i + kq_k)`` (``p`` clamped at 0; ``kq = kz q_k``)."""
-    out = np.empty((kq.size, p.size))
-    for k in range(kq.size):
-        for i in range(p.size):
-            pp = _clamped(p[i])
-            g = pp / (pp + kq[k])
-            out[k, i] = g * g
-    return out
+    return _model_rows(kq, kq, p, DIFFUSIVITY)
 
 
-@njit(cache=True, nogil=True)
-def drift_rows(kq, kq_part, p):  # pragma: no cover - numba
+def drift_rows(kq: np.ndarray, kq_part: np.ndarray, p: np.ndarray) -> np.ndarray:
     """``b[k, i] = part * p / (p + kq_k)^2``, ``part = kq_part_k / (p + kq_part_k)``."""
-    out = np.empty((kq.size, p.size))
-    for k in range(kq.size):
-        for i in range(p.size):
-            pp = _clamped(p[i])
-            part = kq_part[k] / (pp + kq_part[k])
-            denom = pp + kq[k]
-            out[k, i] = part * pp / (denom * denom)
-    return out
+    return _model_rows(kq, kq_part, p, DRIFT)
 
 
-@njit(cache=True, nogil=True)
-def balance_rows(kq_part, p):  # pragma: no cover - numba
+def balance_rows(kq_part: np.ndarray, p: np.ndarray) -> np.ndarray:
     """``w[k, i] = kq_part_k p / (p + kq_part_k)``."""
-    out = np.empty((kq_part.size, p.size))
-    for k in range(kq_part.size):
-        for i in range(p.size):
-            pp = _clamped(p[i])
-            out[k, i] = kq_part[k] * pp / (pp + kq_part[k])
-    return out
+    return _model_rows(kq_part, kq_part, p, BALANCE)
