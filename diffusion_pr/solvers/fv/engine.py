@@ -1088,7 +1088,12 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                                                      _lump(r23, 2 * j_out), prep.spec.knots)
             est += interp
         history.append((n_base, est))
-        best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(len(es))], mean_full, interp, order)
+        # the estimate falls like N^-4 (N^-6 with a sixth-order estimate): the cells that meet rtol, as a factor on
+        # this level's (the next level's growth where it misses; a sweep's next start where it meets rtol)
+        need = NEED_MARGIN * max(((est - interp) / (SAFETY * rtol)) ** (1.0 / order),
+                                 (interp / (SAFETY * rtol)) ** (1.0 / INTERPOLATION_ORDER),
+                                 (mean_miss / (SAFETY * rtol * prep.p0)) ** (1.0 / order))
+        best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(len(es))], mean_full, interp, need)
         trimmed = _trimmed_depth(prep, float(out_y[0]) + est, rtol) if len(history) == 1 else None
         if (est <= SAFETY * rtol and mean_miss <= SAFETY * rtol * prep.p0) or n_cells is not None:
             if REGRADE and n_start is not None and not prep.depth_adaptive and prep.spec.c_wall > 0.0:
@@ -1101,12 +1106,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         if len(history) > 12:
             failure = "refinement did not converge in 12 levels"
             break
-        # the estimate falls like N^-4 (N^-6 with a sixth-order estimate): predict the cells that meet rtol
-        # (x MIN_GROWTH ... x MAX_GROWTH per level)
-        need = NEED_MARGIN * max(((est - interp) / (SAFETY * rtol)) ** (1.0 / order),
-                                 (interp / (SAFETY * rtol)) ** (1.0 / INTERPOLATION_ORDER),
-                                 (mean_miss / (SAFETY * rtol * prep.p0)) ** (1.0 / order))
-        grow = float(np.clip(need, MIN_GROWTH, MAX_GROWTH))
+        grow = float(np.clip(need, MIN_GROWTH, MAX_GROWTH))  # x MIN_GROWTH ... x MAX_GROWTH per level
         if depth * n_base >= max_cells or depth * n_base * need > 8 * max_cells:
             failure = (f"error estimate {est:.2e} misses rtol={rtol:.1e}: it would need about "
                        f"{int(depth * n_base * need)} cells, max_cells={max_cells}")
@@ -1129,12 +1129,9 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         n = min(int(math.ceil(n_base * grow)), max_cells // depth)
     if failure is not None and rational_order < 16:
         return cram16_instead(failure)
-    edges, y, moments, est, cnt, cells, mean_full, interp, order = best
+    edges, y, moments, est, cnt, cells, mean_full, interp, need_last = best
     # the coarsest grid this problem needs for rtol, predicted from the last level as the refinement predicts it
     # (a sweep starts the next problem there: its previous cells over-resolve where the need falls)
-    need_last = NEED_MARGIN * (max(est - interp, 0.0) / (SAFETY * rtol)) ** (1.0 / order)
-    if interp > 0.0:
-        need_last = max(need_last, NEED_MARGIN * (interp / (SAFETY * rtol)) ** (1.0 / INTERPOLATION_ORDER))
     grading_needed = float(prep.spec.c_wall)
     if grading_next is not None:  # the cells are then those of the favoured grading
         grading_needed, factor = grading_next
