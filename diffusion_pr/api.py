@@ -367,12 +367,12 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
     # the engine's bound on a first level's cells (n_start): its finest grid within max_cells
     cap = int(kwargs.get("max_cells", MAX_CELLS)) // (8 if kwargs.get("extrapolation") == "sixth" else 4)
     out = []
-    hint: dict = {}
+    start: dict = {}
+    needed = None
     for zeta in items:
-        start = {k: v for k, v in hint.items() if k in ("n_start", "wall_grading")}
         result = pressure_distribution(spectrum, zeta=float(zeta), backend=backend, **{**kwargs, **start})
         out.append(result)
-        hint = _sweep_hint(result, hint, cap)
+        start, needed = _sweep_start(result, needed, cap)
     return out
 
 
@@ -380,25 +380,26 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
 SWEEP_TREND_MAX = 1.5
 
 
-def _sweep_hint(result: PressureDistribution, previous: dict, cap: int) -> dict:
-    """The next solve's start in a sweep: the cells this (native, converged) result's estimate predicts for its
-    rtol, at most its own first grid (``n_start``; starting at the previous cells over-resolves where the need
-    falls: a balanced closure's zeta sweep ratcheted up to 1060 cells where 140-630 suffice), times the growth of
-    the need from the previous entry where it grows (at most SWEEP_TREND_MAX: a start just short of the need costs a
-    second level of twice the cells), with the wall grading its last level's errors favour (``wall_grading``;
-    ``diagnostics["cells_needed"]`` is for that grading), at most ``cap`` cells.  ``cells_needed`` is carried
-    along for the trend and removed before the call."""
+def _sweep_start(result: PressureDistribution, previous_needed: Optional[int], cap: int) -> tuple:
+    """``(options, cells_needed)`` for the next solve of a sweep after ``result``.
+
+    ``n_start``: the cells this (native, converged) result's estimate predicts for its rtol
+    (``diagnostics["cells_needed"]``), at most its own first grid (starting at the previous cells over-resolves
+    where the need falls: a balanced closure's zeta sweep ratcheted up to 1060 cells where 140-630 suffice), times
+    the growth of the need since ``previous_needed`` where it grows (at most SWEEP_TREND_MAX: a start just short
+    of the need costs a second level of twice the cells), at most ``cap``.  ``wall_grading``: the grading its last
+    level's errors favour (``cells_needed`` is for that grading).  No options after a result of another backend
+    or a failed one."""
     d = result.diagnostics
     levels = d.get("levels")
     if result.backend != "native" or not levels or not result.success:
-        return {}
+        return {}, None
     needed = int(d.get("cells_needed", levels[0]))
-    hint = {"cells_needed": needed}
     start = min(levels[0], needed)  # a regrading can only lower it
-    if previous.get("cells_needed"):  # where the need grows from entry to entry, start ahead of it
-        start *= min(max(needed / previous["cells_needed"], 1.0), SWEEP_TREND_MAX)
-    hint["n_start"] = int(min(math.ceil(start), cap))
+    if previous_needed:  # where the need grows from entry to entry, start ahead of it
+        start *= min(max(needed / previous_needed, 1.0), SWEEP_TREND_MAX)
+    options = {"n_start": int(min(math.ceil(start), cap))}
     grading = d.get("wall_grading_needed", d.get("wall_grading", 0.0))
     if grading > 0.0:
-        hint["wall_grading"] = float(grading)
-    return hint
+        options["wall_grading"] = float(grading)
+    return options, needed
