@@ -366,7 +366,10 @@ def closure_problem(shells: Shells, *, zeta: float, E_star: float, mean_pressure
     One :class:`~diffusion_pr.problem.Stage` per shell ``k`` (duration ``dV0_k/2``,
     pressure^2) with ``f_k = g(q_k; p)^2``; for ``"local_g1_balanced"`` also
     ``b_k = (1 - g(q_min; p)) g(q_k; p)^2/p`` and the balance ``w = (1 - g(q_min; p)) p``
-    (total drift ``b_k - A w``, ``A`` keeping ``<p> = p0``).
+    (total drift ``b_k - A w``, ``A`` keeping ``<p> = p0``).  At the hard wall
+    (``zeta = 0``: ``g = 1``, no drift) every stage holds the same diffusivity
+    object ``f = 1`` (its ``q`` is ``q_min``), which the engine integrates as one
+    exponential of the summed duration.
 
     Parameters
     ----------
