@@ -23,23 +23,16 @@ ZETAS = (0.001, 0.01, 0.1, 0.25, 1.0, 4.0)
 CLOSURES = ("local_g1", "local_g1_balanced", "local_g1_shell_balanced")
 
 CHILD = r"""
-import json, sys, time
-import numpy as np
+import json, sys
+sys.path.insert(0, sys.argv[2])  # this folder: the timing helper of bench_fokker_planck
 import diffusion_pr as dp
-calls = int(sys.argv[1])
-spec = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+from bench_fokker_planck import SPECTRUM, timed
 out = {}
 for closure in %r:
     for zeta in %r:
-        run = lambda: dp.pressure_distribution(spec, E_star=8 / 3, mean_pressure=0.004, zeta=zeta, closure=closure,
-                                               rtol=1e-6)
-        run()
-        times = []
-        for _ in range(calls):
-            t0 = time.perf_counter()
-            r = run()
-            times.append(time.perf_counter() - t0)
-        out[f"{closure} {zeta:g}"] = [float(np.median(times)), int(r.diagnostics["levels"][0]), bool(r.success)]
+        r, median = timed(lambda: dp.pressure_distribution(SPECTRUM, E_star=8 / 3, mean_pressure=0.004, zeta=zeta,
+                                                           closure=closure, rtol=1e-6), int(sys.argv[1]))
+        out[f"{closure} {zeta:g}"] = [median, int(r.diagnostics["levels"][0]), bool(r.success)]
 print(json.dumps(out))
 """ % (CLOSURES, ZETAS)
 
@@ -48,7 +41,8 @@ def measure(pythonpath: str | None, calls: int) -> dict:
     env = dict(os.environ)
     if pythonpath:
         env["PYTHONPATH"] = pythonpath + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    run = subprocess.run([sys.executable, "-c", CHILD, str(calls)], env=env, capture_output=True, text=True,
+    here = os.path.dirname(os.path.abspath(__file__))
+    run = subprocess.run([sys.executable, "-c", CHILD, str(calls), here], env=env, capture_output=True, text=True,
                          check=True, cwd="/")  # not the source tree: the installed package (or --base) is imported
     return json.loads(run.stdout.strip().splitlines()[-1])
 
