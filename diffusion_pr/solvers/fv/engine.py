@@ -642,6 +642,12 @@ def cram_order(rtol: float) -> int:
     return 16
 
 
+def _regradable(prep: Prepared) -> bool:
+    """Whether the grading towards the wall may change (:func:`_regraded`, the ``wall_grading`` option): a
+    graded wall (``c_wall > 0``) whose depth below the floor is fixed (a drift or a balance)."""
+    return prep.spec.c_wall > 0.0 and not prep.depth_adaptive
+
+
 def _regraded(prep: Prepared, edges: np.ndarray, diff: np.ndarray, j: int) -> Optional[tuple]:
     """``(spec, cell factor)``: the grid family whose logarithmic grading towards the wall (``c_wall``) needs the
     fewest cells for the first level's error, and the ratio of the cells it needs to those the old family needs;
@@ -956,7 +962,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         if isinstance(wall_grading, bool) or not isinstance(wall_grading, (int, float, np.floating)) \
                 or not 0.0 < float(wall_grading) <= 10.0:
             raise ValueError(f"wall_grading must be a number in (0, 10]; got wall_grading={wall_grading!r}")
-        if prep.spec.c_wall > 0.0 and not prep.depth_adaptive:  # where regrading applies (a drift or a balance)
+        if _regradable(prep):
             prep = replace(prep, spec=replace(prep.spec, c_wall=float(wall_grading)))
     # the native operator on coefficients constant within each stage: a grid's integration does not depend on
     # the level it belongs to (levels can reuse grids) and its only error is spatial (a second extrapolation)
@@ -1101,7 +1107,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(len(es))], mean_full, interp, need)
         trimmed = _trimmed_depth(prep, float(out_y[0]) + est, rtol) if len(history) == 1 else None
         if (est <= SAFETY * rtol and mean_miss <= SAFETY * rtol * prep.p0) or n_cells is not None:
-            if REGRADE and n_start is not None and not prep.depth_adaptive and prep.spec.c_wall > 0.0:
+            if REGRADE and n_start is not None and _regradable(prep):
                 # the grading this level's errors favour, for the next problem of a sweep (not used here; only
                 # where a start was given, as a sweep gives it: it costs 0.3 ms)
                 suggested = _regraded(prep, e1, diff, j1)
@@ -1123,7 +1129,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             n = int(np.clip(math.ceil(n_base * min(need, MAX_GROWTH) * ratio), 16, max_cells // depth))
             continue
         regraded = _regraded(prep, e1, diff, j1) if (
-            REGRADE and len(history) == 1 and not prep.depth_adaptive and prep.spec.c_wall > 0.0) else None
+            REGRADE and len(history) == 1 and _regradable(prep)) else None
         if regraded is not None:  # the same domain, its cells moved to where the first level's error was
             spec_new, factor = regraded
             prep = replace(prep, spec=spec_new)
