@@ -16,7 +16,8 @@ import diffusion_pr as dp
 from diffusion_pr.closures import closure_distribution, closure_problem, spectrum_shells
 from diffusion_pr.solvers.fv import engine
 from diffusion_pr.solvers.fv._kernels import (ALPHA, ALPHA0, BAD_PREDICTION, PFD_RESIDUES, THETA, _fill_row,
-                                              _geometry, cram_apply, cram_apply_d, cram_pfd, gttrf, gttrs)
+                                              _geometry, _pfd_dominant, _pfd_pivoting, cram_apply, cram_apply_d,
+                                              cram_pfd, gttrf, gttrs)
 from diffusion_pr.solvers.fv.operator import bands
 from diffusion_pr.solvers.fv.cram import cf_coefficients, expm_tridiagonal, pfd_coefficients
 
@@ -161,6 +162,48 @@ def test_cram_pfd_uneven_pole_blocks_match_lapack(rng, order, n):
         assert np.max(np.abs(out - ref)) <= 1e-12 * np.max(np.abs(ref))
         if want_d:
             assert np.max(np.abs(dout - dref)) <= 1e-12 * np.max(np.abs(dref))
+
+
+
+def _generator_with_drift(rng, n, scale):
+    lo, up = rng.uniform(0.1, 2.0, n - 1) * scale, rng.uniform(0.1, 2.0, n - 1) * scale
+    diag = -(np.r_[lo, 0.0] + np.r_[0.0, up])  # columns sum to 0: no row interchange for any pole
+    wl, wu = rng.uniform(0.0, 1.0, n - 1), -rng.uniform(0.0, 1.0, n - 1)
+    wd = -(np.r_[wl, 0.0] + np.r_[0.0, wu])
+    return (lo, diag, up), (wl, wd, wu), rng.uniform(size=n)
+
+
+@pytest.mark.parametrize("order", [10, 12, 16])
+@pytest.mark.parametrize("n", [3, 57, 1500, 3001])
+def test_pfd_without_interchanges_is_the_pivoting_kernel_bit_for_bit(rng, order, n):
+    """On a generator (columns sum to 0: LAPACK's pivot test keeps every pivot row) the split-part kernel without
+    interchanges is taken, and its answer and derivative are the pivoting kernel's to the last bit: the same
+    operations in the same order (blocks of 6, 5, 4 and the smaller blocks of large grids included)."""
+    band, wband, y = _generator_with_drift(rng, n, 100.0)
+    theta, res, r_inf, _ = pfd_coefficients(order)
+    for want_d in (False, True):
+        out, dout, done = _pfd_dominant(*band, *wband, 0.01, y, res, theta, r_inf, want_d)
+        ref, dref, info = _pfd_pivoting(*band, *wband, 0.01, y, res, theta, r_inf, want_d)
+        assert done and info == 0
+        assert np.array_equal(out, ref)
+        assert np.array_equal(dout, dref)
+
+
+def test_pfd_that_needs_interchanges_is_solved_with_them(rng):
+    """A diagonal far weaker than the subdiagonal (``|t d_i - theta| < |t l_i|``): the kernel without interchanges
+    declines, and :func:`cram_pfd` returns the pivoting kernel's answer, which is LAPACK's (gttrf/gttrs) to
+    round-off."""
+    n = 40
+    (lo, diag, up), wband, y = _generator_with_drift(rng, n, 1.0)
+    band = (lo * 1e3, diag, up)  # rows no longer dominant: pivots below the subdiagonal's entries
+    theta, res, r_inf, _ = pfd_coefficients(12)
+    assert not _pfd_dominant(*band, *wband, 0.01, y, res, theta, r_inf, True)[2]
+    out, dout, info = cram_pfd(*band, *wband, 0.01, y, res, theta, r_inf, True)
+    ref, dref, _ = _pfd_pivoting(*band, *wband, 0.01, y, res, theta, r_inf, True)
+    assert info == 0 and np.array_equal(out, ref) and np.array_equal(dout, dref)
+    lapack, dlapack = _cram_d(band, wband, 0.01, y, pfd=True, order=12)
+    assert np.max(np.abs(out - lapack)) <= 1e-12 * np.max(np.abs(lapack))
+    assert np.max(np.abs(dout - dlapack)) <= 1e-12 * np.max(np.abs(dlapack))
 
 
 def test_cram_order_follows_rtol():

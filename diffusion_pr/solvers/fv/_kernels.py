@@ -10,6 +10,9 @@ in one compiled call per grid:
   pivoting, row for row LAPACK's ``zgttrf`` / ``zgttrs`` (row interchanges make a
   second superdiagonal), keeping the reciprocal pivots so that a second solve
   with the same matrix (the derivative of :func:`cram_apply_d`) costs no division;
+* :func:`cram_pfd` -- ``exp(t L) y`` in partial fractions, all poles of a block
+  eliminated together; without row interchanges in real arithmetic where no pole
+  needs one (every closure stage measured so far), with LAPACK's pivoting otherwise;
 * :func:`cram_apply` -- ``exp(t L) y`` in the incomplete partial factorization
   form of :mod:`.cram` (same coefficients, same order of operations);
 * :func:`balanced_stage` -- the balance substeps of
@@ -249,6 +252,173 @@ _PFD_MAX_BLOCK = 6
 def cram_pfd(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  # pragma: no cover - numba
     """``exp(t L) y`` by CRAM-16 in partial fractions, ``alpha0 y + 2 Re sum_j c_j (t L - theta_j)^-1 y``.
 
+    First without row interchanges (:func:`_pfd_dominant`: real and imaginary
+    parts in separate arrays, no branch per pole, so that the poles' eliminations
+    run side by side in the processor's vector lanes); where any pole would
+    interchange rows, or a pivot's reciprocal needs numba's guarded division,
+    again with partial pivoting (:func:`_pfd_pivoting`).  Where no row is
+    interchanged the two do the same operations in the same order: the answers
+    are the same bit for bit.  Returns ``(x, dx, info)`` as :func:`_pfd_pivoting`.
+    """
+    if t != 0.0 and diag.size > 2:
+        out, dout, done = _pfd_dominant(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d)
+        if done:
+            return out, dout, 0
+    return _pfd_pivoting(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d)
+
+
+@njit(cache=True, nogil=True)
+def _block_size(n, m, want_d):  # pragma: no cover - numba
+    """Poles per block of :func:`_pfd_pivoting` and :func:`_pfd_dominant` (see :data:`_PFD_BLOCK_WORDS`)."""
+    g_size = m if m <= _PFD_MAX_BLOCK else 4
+    while g_size > 2 and n * (7 if want_d else 4) * g_size > _PFD_BLOCK_WORDS:
+        g_size = (g_size + 1) // 2
+    return g_size
+
+
+@njit(cache=True, nogil=True)
+def _pfd_dominant(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  # pragma: no cover - numba
+    """:func:`_pfd_pivoting` for matrices that need no row interchange, in real arithmetic on split parts.
+
+    The elimination of row ``i`` keeps the pivot row (``|d_i| >= |t l_i|`` in the
+    1-norm of :func:`_cabs1`, LAPACK's test) for every pole; the superdiagonal
+    then stays ``t u_i`` (real) and the reciprocal pivot is ``conj(d)/|d|^2``
+    (:func:`_rec`'s first branch).  Every complex product of the pivoting kernel
+    is written out in the order numba evaluates it, so where its test holds the
+    results agree bit for bit.  The tests are gathered without branching; if any
+    fails (a row interchange, or a pivot outside ``1e-150 ... 1e150``) the result
+    is discarded: returns ``(x, dx, False)``, and :func:`cram_pfd` pivots.
+    """
+    n = diag.size
+    m = theta.size
+    g_size = _block_size(n, m, want_d)
+    rr = np.empty((n, g_size))  # reciprocal pivots
+    ri = np.empty((n, g_size))
+    br = np.empty((n, g_size))  # right-hand side, then solution
+    bi = np.empty((n, g_size))
+    nd = n if want_d else 1
+    fr = np.empty((nd, g_size))  # multipliers t l_i / d_i
+    fi = np.empty((nd, g_size))
+    qr = np.empty((nd, g_size))  # t W x, then its solution
+    qi = np.empty((nd, g_size))
+    pr = np.empty(g_size)  # the current pivot d_i
+    pi = np.empty(g_size)
+    thr = np.empty(g_size)
+    thi = np.empty(g_size)
+    out = np.empty(n)
+    dout = np.zeros(n)
+    for i in range(n):
+        out[i] = alpha0 * y[i]
+    bad = False
+    for g0 in range(0, m, g_size):
+        gs = min(g_size, m - g0)
+        for jj in range(gs):
+            thr[jj] = theta[g0 + jj].real
+            thi[jj] = theta[g0 + jj].imag
+            pr[jj] = t * diag[0] - thr[jj]
+            pi[jj] = 0.0 - thi[jj]
+            br[0, jj] = y[0]
+            bi[0, jj] = 0.0
+        for i in range(n - 1):
+            tl = t * lower[i]
+            atl = abs(tl)
+            tu = t * upper[i]
+            tdn = t * diag[i + 1]
+            yn = y[i + 1]
+            for jj in range(gs):
+                x = pr[jj]
+                z = pi[jj]
+                ax = abs(x)
+                az = abs(z)
+                bad |= (ax + az < atl) | (ax >= 1e150) | (az >= 1e150) | ((ax <= 1e-150) & (az <= 1e-150))
+                s = 1.0 / (x * x + z * z)
+                r_re = x * s
+                r_im = -z * s
+                f_re = tl * r_re
+                f_im = tl * r_im
+                rr[i, jj] = r_re
+                ri[i, jj] = r_im
+                pr[jj] = (tdn - thr[jj]) - f_re * tu
+                pi[jj] = (0.0 - thi[jj]) - f_im * tu
+                b_re = br[i, jj]
+                b_im = bi[i, jj]
+                br[i + 1, jj] = yn - (f_re * b_re - f_im * b_im)
+                bi[i + 1, jj] = 0.0 - (f_re * b_im + f_im * b_re)
+                if want_d:
+                    fr[i, jj] = f_re
+                    fi[i, jj] = f_im
+        for jj in range(gs):
+            x = pr[jj]
+            z = pi[jj]
+            ax = abs(x)
+            az = abs(z)
+            bad |= (ax >= 1e150) | (az >= 1e150) | ((ax <= 1e-150) & (az <= 1e-150))
+            s = 1.0 / (x * x + z * z)
+            rr[n - 1, jj] = x * s
+            ri[n - 1, jj] = -z * s
+        if bad:
+            return out, dout, False
+        _back_dominant(rr, ri, br, bi, upper, t, n, gs)
+        _accumulate_split(out, c, g0, br, bi, n, gs)
+        if not want_d:
+            continue
+        # q = t W x row by row, eliminated with the stored multipliers
+        for jj in range(gs):
+            qr[0, jj] = t * (wd[0] * br[0, jj] + wu[0] * br[1, jj])
+            qi[0, jj] = t * (wd[0] * bi[0, jj] + wu[0] * bi[1, jj])
+        for i in range(n - 1):
+            last = i + 2 >= n
+            for jj in range(gs):
+                raw_re = wl[i] * br[i, jj] + wd[i + 1] * br[i + 1, jj]
+                raw_im = wl[i] * bi[i, jj] + wd[i + 1] * bi[i + 1, jj]
+                if not last:
+                    raw_re += wu[i + 1] * br[i + 2, jj]
+                    raw_im += wu[i + 1] * bi[i + 2, jj]
+                raw_re *= t
+                raw_im *= t
+                f_re = fr[i, jj]
+                f_im = fi[i, jj]
+                q_re = qr[i, jj]
+                q_im = qi[i, jj]
+                qr[i + 1, jj] = raw_re - (f_re * q_re - f_im * q_im)
+                qi[i + 1, jj] = raw_im - (f_re * q_im + f_im * q_re)
+        _back_dominant(rr, ri, qr, qi, upper, t, n, gs)
+        _accumulate_split(dout, c, g0, qr, qi, n, gs)
+    return out, dout, True
+
+
+@njit(cache=True, nogil=True)
+def _back_dominant(rr, ri, br, bi, upper, t, n, g_size):  # pragma: no cover - numba
+    """Back substitution of :func:`_pfd_dominant`: ``x_i = (b_i - t u_i x_{i+1}) / d_i``, split parts."""
+    for jj in range(g_size):
+        a = br[n - 1, jj]
+        b = bi[n - 1, jj]
+        br[n - 1, jj] = a * rr[n - 1, jj] - b * ri[n - 1, jj]
+        bi[n - 1, jj] = a * ri[n - 1, jj] + b * rr[n - 1, jj]
+    for i in range(n - 2, -1, -1):
+        tu = t * upper[i]
+        for jj in range(g_size):
+            a = br[i, jj] - tu * br[i + 1, jj]
+            b = bi[i, jj] - tu * bi[i + 1, jj]
+            br[i, jj] = a * rr[i, jj] - b * ri[i, jj]
+            bi[i, jj] = a * ri[i, jj] + b * rr[i, jj]
+
+
+@njit(cache=True, nogil=True)
+def _accumulate_split(out, c, g0, xr, xi, n, g_size):  # pragma: no cover - numba
+    """:func:`_accumulate` on split parts."""
+    for i in range(n):
+        s = 0.0
+        for jj in range(g_size):
+            cj = c[g0 + jj]
+            s += cj.real * xr[i, jj] - cj.imag * xi[i, jj]
+        out[i] += 2.0 * s
+
+
+@njit(cache=True, nogil=True)
+def _pfd_pivoting(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  # pragma: no cover - numba
+    """``exp(t L) y`` by CRAM-16 in partial fractions, ``alpha0 y + 2 Re sum_j c_j (t L - theta_j)^-1 y``.
+
     The solves of different poles are independent: a block of poles is
     eliminated together, row by row (LAPACK ``zgttrf``'s pivoting per pole, the
     right-hand side eliminated in the same sweep), which turns the latency-bound
@@ -259,9 +429,7 @@ def cram_pfd(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  #
     """
     n = diag.size
     m = theta.size
-    g_size = m if m <= _PFD_MAX_BLOCK else 4
-    while g_size > 2 and n * (7 if want_d else 4) * g_size > _PFD_BLOCK_WORDS:
-        g_size = (g_size + 1) // 2
+    g_size = _block_size(n, m, want_d)
     d = np.empty((n, g_size), dtype=np.complex128)
     du = np.empty((n, g_size), dtype=np.complex128)
     du2 = np.empty((n, g_size), dtype=np.complex128)
