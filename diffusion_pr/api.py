@@ -323,7 +323,7 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
     Neighbouring walls need about the same grid, so each native finite-volume
     solve starts where the previous one's estimate says the grid suffices
     (``n_start``: its ``diagnostics["cells_needed"]``, at most its first grid;
-    and its ``wall_grading``) and usually needs one refinement level instead of
+    and its ``wall_grading`` and ``wall_depth``) and usually needs one refinement level instead of
     two: a 100-zeta sweep of the Fig. 1 scene at rtol 1e-6 takes about 0.16 s
     instead of 0.23 s (docs/backends.md).
     Every answer meets ``rtol`` on its own; it may differ from a single call's
@@ -343,7 +343,7 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
     **kwargs
         Everything else :func:`pressure_distribution` takes (``E_star``,
         ``mean_pressure``, ``cutoff``, ``p_c``, ``closure``, ``rtol``, backend
-        options) except ``zeta``, ``n_start`` and ``wall_grading``.
+        options) except ``zeta``, ``n_start``, ``wall_grading`` and ``wall_depth``.
 
     Returns
     -------
@@ -353,7 +353,7 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
     z = np.asarray(zetas, dtype=float)
     if z.ndim != 1 or z.size == 0:
         raise ValueError(f"zetas must be a non-empty one-dimensional sequence of wall ranges; got zetas={zetas!r}")
-    for name in ("zeta", "n_start", "wall_grading"):
+    for name in ("zeta", "n_start", "wall_grading", "wall_depth"):
         if name in kwargs:
             raise ValueError(f"{name} is set by the sweep (each entry of zetas; the previous solve's cells); "
                              f"remove {name}={kwargs[name]!r}")
@@ -388,7 +388,7 @@ def _sweep_start(result: PressureDistribution, previous_needed: Optional[int], c
     where the need falls: a balanced closure's zeta sweep ratcheted up to 1060 cells where 140-630 suffice), times
     the growth of the need since ``previous_needed`` where it grows (at most SWEEP_TREND_MAX: a start just short
     of the need costs a second level of twice the cells), at most ``cap``.  ``wall_grading``: the grading its last
-    level's errors favour (``cells_needed`` is for that grading).  No options after a result of another backend
+    level's errors favour, and ``wall_depth`` where it ends (``cells_needed`` is for that grading).  No options after a result of another backend
     or a failed one."""
     d = result.diagnostics
     levels = d.get("levels")
@@ -402,4 +402,7 @@ def _sweep_start(result: PressureDistribution, previous_needed: Optional[int], c
     grading = d.get("wall_grading_needed", d.get("wall_grading", 0.0))
     if grading > 0.0:
         options["wall_grading"] = float(grading)
+        depth = d.get("wall_depth_needed", d.get("wall_depth", 0.0))
+        if depth > 0.0:
+            options["wall_depth"] = float(depth)
     return options, needed

@@ -47,7 +47,7 @@ def warm_up() -> float:
 def solve(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cells: int = MAX_CELLS,
           p_floor: Optional[float] = None, threads: Optional[int] = None,
           n_start: Optional[int] = None, extrapolation: str = "fourth",
-          wall_grading: Optional[float] = None) -> PressureDistribution:
+          wall_grading: Optional[float] = None, wall_depth: Optional[float] = None) -> PressureDistribution:
     """Solve a :class:`~diffusion_pr.problem.FokkerPlanckProblem` or :class:`~diffusion_pr.problem.StagedProblem`.
 
     Parameters
@@ -74,6 +74,11 @@ def solve(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cel
         where the depth below the floor is fixed (drift or balance: the
         closures); in a sweep the previous result's
         ``diagnostics["wall_grading"]``.  Default: the engine's ``C_WALL``.
+    wall_depth : float, optional
+        Where that grading ends, as the fraction in [0, 1) of the way from
+        the floor to ``p0`` in ``ln p`` (0, the default: it reaches the
+        floor); under the same condition, in a sweep the previous result's
+        ``diagnostics["wall_depth_needed"]``.
     threads : int, optional
         1 or 2 (default 2 where the machine has two cores): a staged problem's
         finest grid is integrated in a second thread, alongside the two coarser
@@ -87,4 +92,5 @@ def solve(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cel
     """
     return solve_fv(problem, rtol=rtol, backend="native", assemble=native_assemble, n_cells=n_cells,
                     max_cells=max_cells, p_floor=p_floor, time_integration="cram16", threads=threads,
-                    n_start=n_start, extrapolation=extrapolation, wall_grading=wall_grading)
+                    n_start=n_start, extrapolation=extrapolation, wall_grading=wall_grading,
+                    wall_depth=wall_depth)

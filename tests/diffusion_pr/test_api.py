@@ -254,6 +254,7 @@ def test_balanced_closure_sweep_follows_the_need_and_the_grading():
     cells = lambda rs: sum(n for r in rs for n, _ in r.diagnostics["history"])  # noqa: E731
     assert cells(sweep) < cells(single)
     assert sweep[-1].diagnostics["wall_grading"] < 0.6  # the regraded family carried along
+    assert sweep[-1].diagnostics["wall_depth"] > 0.0  # with where its logarithmic grading ends
 
 
 def test_sweep_start_stays_within_max_cells():
@@ -279,9 +280,17 @@ def test_wall_grading_option_is_checked_and_applies_where_regrading_does():
                                  n_start=200, **kw)
     assert r.success and len(r.diagnostics["history"]) == 1 and r.diagnostics["wall_grading"] == 0.12
     assert r.diagnostics["cells_needed"] < 200  # the grid was finer than rtol needs
+    for bad in (-0.1, 1.0, float("nan"), True, "0.3"):
+        with pytest.raises(ValueError, match=r"wall_depth must be a fraction in \[0, 1\)"):
+            dp.pressure_distribution(spec, closure="local_g1_balanced", backend="native", wall_depth=bad, **kw)
+    r = dp.pressure_distribution(spec, closure="local_g1_balanced", backend="native", wall_grading=0.12,
+                                 wall_depth=0.5, n_start=200, **kw)
+    assert r.success and len(r.diagnostics["history"]) == 1 and np.isclose(r.diagnostics["wall_depth"], 0.5)
     # no drift, no balance: the depth below the floor follows rtol and the grading stays the engine's
     plain = dp.pressure_distribution(spec, closure="local_g1", backend="native", wall_grading=0.12, **kw)
     assert plain.diagnostics["wall_grading"] == 0.6
+    plain = dp.pressure_distribution(spec, closure="local_g1", backend="native", wall_depth=0.5, **kw)
+    assert plain.diagnostics["wall_depth"] == 0.0
 
 
 @pytest.mark.parametrize("bad, match", [
@@ -290,6 +299,7 @@ def test_wall_grading_option_is_checked_and_applies_where_regrading_does():
     (dict(zetas=[0.1], zeta=0.1), "zeta is set by the sweep"),
     (dict(zetas=[0.1], n_start=64), "n_start is set by the sweep"),
     (dict(zetas=[0.1], wall_grading=0.3), "wall_grading is set by the sweep"),
+    (dict(zetas=[0.1], wall_depth=0.3), "wall_depth is set by the sweep"),
 ])
 def test_zeta_sweep_rejects_bad_input(bad, match):
     spec = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)

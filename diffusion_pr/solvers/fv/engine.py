@@ -73,6 +73,9 @@ REGRADE = True
 #: (balanced closures, Fig. 1: zeta = 4 on 95 cells instead of 138 at 0.2x, zeta = 2 on 122 instead of 168; a sweep's
 #: second regrading had found 0.024 = 0.04 x 0.6 there; nothing changed at zeta <= 1)
 REGRADE_FACTORS = (0.04, 0.07, 0.1, 0.15, 0.2, 0.3, 0.45, 0.7, 1.5, 2.0)
+#: candidate inner scales of the logarithmic grading (``GridSpec.wall_depth``), as fractions of the way from the
+#: floor to ``p0`` in ``ln p``
+REGRADE_DEPTHS = (0.2, 0.35, 0.5, 0.65, 0.8)
 #: regrade only where the predicted cells fall by at least this fraction
 REGRADE_GAIN = 0.15
 #: the cubic spline of the cdf between the output edges errs like h^4 (the refinement's prediction where that error
@@ -648,40 +651,69 @@ def _regradable(prep: Prepared) -> bool:
     return prep.spec.c_wall > 0.0 and not prep.depth_adaptive
 
 
+def _wall_depth(spec: GridSpec, fraction: float) -> float:
+    """``GridSpec.wall_depth`` for ``fraction`` of the way from the floor to ``p0`` in ``ln p`` (0: the default)."""
+    if fraction <= 0.0 or spec.p_wall <= 0.0:
+        return 0.0
+    return spec.p_wall * (spec.p0 / spec.p_wall) ** fraction
+
+
+def _depth_fraction(spec: GridSpec) -> float:
+    """The inverse of :func:`_wall_depth`: where the logarithmic grading of ``spec`` ends, as that fraction."""
+    if spec.wall_depth <= 0.0 or spec.p_wall <= 0.0:
+        return 0.0
+    return math.log(spec.wall_depth / spec.p_wall) / math.log(spec.p0 / spec.p_wall)
+
+
 def _regraded(prep: Prepared, edges: np.ndarray, diff: np.ndarray, j: int) -> Optional[tuple]:
-    """``(spec, cell factor)``: the grid family whose logarithmic grading towards the wall (``c_wall``) needs the
-    fewest cells for the first level's error, and the ratio of the cells it needs to those the old family needs;
-    or None where no candidate saves :data:`REGRADE_GAIN`.
+    """``(spec, cell factor)``: the grid family whose logarithmic grading towards the wall (its weight ``c_wall``
+    and its inner scale ``wall_depth``) needs the fewest cells for the first level's error, and the ratio of the
+    cells it needs to those the old family needs; or None where no candidate saves :data:`REGRADE_GAIN`.
 
     ``diff`` are the first level's Richardson differences ``[zero weight, cells from j on]`` on ``edges`` (the N
     grid, cells below the floor lumped into the first entry).  A cell's error scales with its width to the
     fourth power, and a width with the inverse density ``dPhi/dp`` of the monitor times the total ``Phi`` per
-    cell; so under ``c_wall'`` the error becomes ``sum_i d_i rho_i^4`` with
+    cell; so under a candidate monitor ``Phi'`` the error becomes ``sum_i d_i rho_i^4`` with
     ``rho_i = (Phi'_tot / Phi_tot) (dPhi/dp / dPhi'/dp)(p_i)``, and the cells for the same error scale with its
-    fourth root.  Where the depth below the floor is part of the problem (a drift or a balance: the closures),
-    this is what adapts: at large ``zeta`` the balanced closures' probability never gets near the floor, and the
-    cells the default grading puts there (half of them) are moved up.
+    fourth root.  The lumped entry's error was made below the floor: it is charged with the largest ``rho`` of
+    the cells there (a candidate that widens them, where the balanced closures keep half their probability at
+    ``zeta <= 0.1``, is charged for it).  Where the depth below the floor is part of the problem (a drift or a
+    balance: the closures), this is what adapts: at large ``zeta`` the balanced closures' probability never gets
+    near the floor, and the cells the default grading puts there (half of them) are moved up.  The candidates
+    (:data:`REGRADE_FACTORS` on ``c_wall`` times :data:`REGRADE_DEPTHS`) are costed together in one array
+    expression: the monitor is ``rest(p) + c_wall / (p - p_wall + delta)`` and only the last term changes.
     """
     spec = prep.spec
     d = np.abs(diff)
     if not np.isfinite(d).all() or d.sum() <= 0.0:
         return None
     centres_ = 0.5 * (edges[j:-1] + edges[j + 1:])
-    pts = np.concatenate(([centres_[0]], centres_))  # the lumped entry at the first cell above the floor
+    below = 0.5 * (edges[:j] + edges[1:j + 1])  # the cells below the floor, lumped into the first entry
+    pts = np.concatenate(([centres_[0]], centres_, below))  # the lumped entry at the first cell above the floor
+    n_pts = centres_.size + 1
     knots = spec.all_knots
+    rest = replace(spec, c_wall=0.0)  # the monitor without its logarithmic grading
+    rest_tot = float(rest.phi(knots[-1]) - rest.phi(knots[0]))
     phi_tot = float(spec.phi(knots[-1]) - spec.phi(knots[0]))
     dphi = spec.dphi(pts)
-    base = float(np.sum(d))
-    best, best_cost = None, 1.0
-    for f in REGRADE_FACTORS:
-        cand = replace(spec, c_wall=spec.c_wall * f)
-        rho = (float(cand.phi(knots[-1]) - cand.phi(knots[0])) / phi_tot) * dphi / cand.dphi(pts)
-        cost = (float(np.sum(d * rho**4)) / base) ** 0.25
-        if cost < best_cost:
-            best, best_cost = cand, cost
-    if best is None or best_cost > 1.0 - REGRADE_GAIN:
+    fractions = (0.0,) + (REGRADE_DEPTHS if spec.p_wall > 0.0 else ())
+    deltas = np.array([replace(spec, wall_depth=_wall_depth(spec, k))._delta for k in fractions])
+    weights = spec.c_wall * np.array((1.0,) + REGRADE_FACTORS)
+    x = pts - spec.p_wall
+    span = knots[-1] - spec.p_wall
+    tot = rest_tot + weights[:, None] * np.log((span + deltas) / deltas)[None, :]  # (weights, depths)
+    cand_dphi = rest.dphi(pts)[None, None, :] + weights[:, None, None] / (x[None, None, :] + deltas[None, :, None])
+    rho = (tot / phi_tot)[:, :, None] * dphi[None, None, :] / cand_dphi
+    if below.size:
+        rho[:, :, 0] = np.maximum(rho[:, :, 0], np.max(rho[:, :, n_pts:], axis=2))
+    cost = (np.sum(d * rho[:, :, :n_pts] ** 4, axis=2) / float(np.sum(d))) ** 0.25
+    same = (weights == spec.c_wall)[:, None] & (deltas == spec._delta)[None, :]
+    cost[same] = np.inf  # the present grading is no candidate
+    iw, idp = np.unravel_index(int(np.argmin(cost)), cost.shape)
+    best_cost = float(cost[iw, idp])
+    if not best_cost < 1.0 - REGRADE_GAIN:
         return None
-    return best, best_cost
+    return replace(spec, c_wall=float(weights[iw]), wall_depth=_wall_depth(spec, fractions[idp])), best_cost
 
 
 def _compiled(prep: Prepared) -> bool:
@@ -843,6 +875,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
              time_integration: str = "cram16", loop: Optional[Callable] = None,
              extra: Optional[dict] = None, threads: Optional[int] = None,
              n_start: Optional[int] = None, extrapolation: str = "fourth", wall_grading: Optional[float] = None,
+             wall_depth: Optional[float] = None,
              _lamperti: bool = True, _cram_order: Optional[int] = None) -> PressureDistribution:
     """Solve ``problem`` to ``rtol`` on nested grids (the engine's entry point).
 
@@ -900,6 +933,11 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         Start value of the logarithmic grading towards the wall (``c_wall``, in (0, 10]) where the depth below
         the floor is fixed (a drift or a balance: the closures), which the first level may regrade (a sweep
         passes the previous result's ``diagnostics["wall_grading"]``).  Default: :data:`C_WALL`.
+    wall_depth : float, optional
+        Start value of the grading's inner scale under the same condition, as the fraction in [0, 1) of the way
+        from the floor to ``p0`` in ``ln p`` where the logarithmic grading ends (``GridSpec.wall_depth``; 0: it
+        reaches the floor); a sweep passes the previous result's ``diagnostics["wall_depth_needed"]``.
+        Default: 0.
     extrapolation : {"fourth", "sixth"}
         ``"fourth"``: three nested grids ``N, 2N, 4N``, Richardson on each pair, the
         answer ``R(2N, 4N)`` on the ``2N`` grid.  ``"sixth"`` (native operator,
@@ -937,7 +975,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         """The same solve with ``changes``; ``diagnostics[why_key] = why`` says why it was repeated."""
         options = dict(rtol=rtol, backend=backend, assemble=assemble, n_cells=n_cells, max_cells=max_cells,
                        p_floor=p_floor, time_integration=time_integration, loop=loop, extra=extra, threads=threads,
-                       n_start=n_start, extrapolation=extrapolation, wall_grading=wall_grading, _lamperti=_lamperti,
+                       n_start=n_start, extrapolation=extrapolation, wall_grading=wall_grading, wall_depth=wall_depth,
+                       _lamperti=_lamperti,
                        _cram_order=_cram_order)
         out = solve_fv(problem, **{**options, **changes})
         out.diagnostics[why_key] = why
@@ -964,6 +1003,12 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             raise ValueError(f"wall_grading must be a number in (0, 10]; got wall_grading={wall_grading!r}")
         if _regradable(prep):
             prep = replace(prep, spec=replace(prep.spec, c_wall=float(wall_grading)))
+    if wall_depth is not None:
+        if isinstance(wall_depth, bool) or not isinstance(wall_depth, (int, float, np.floating)) \
+                or not 0.0 <= float(wall_depth) < 1.0:
+            raise ValueError(f"wall_depth must be a fraction in [0, 1); got wall_depth={wall_depth!r}")
+        if _regradable(prep):
+            prep = replace(prep, spec=replace(prep.spec, wall_depth=_wall_depth(prep.spec, float(wall_depth))))
     # the native operator on coefficients constant within each stage: a grid's integration does not depend on
     # the level it belongs to (levels can reuse grids) and its only error is spatial (a second extrapolation)
     stage_constant = (loop is None and assemble is native_assemble and not prep.time_dependent
@@ -994,7 +1039,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     # estimate 4.6e-4), so the peers keep fresh levels
     reusable = stage_constant and not sixth
     reuse = None
-    grading_next = None  # (c_wall, cell factor) the converged level's errors favour (:func:`_regraded`)
+    grading_next = None  # (c_wall, depth fraction, cell factor) the converged level's errors favour (:func:`_regraded`)
     grids_integrated = 0
     while True:
         idx = 2 * reuse[0] if reuse is not None else knot_indices(prep.spec, n)
@@ -1112,7 +1157,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                 # where a start was given, as a sweep gives it: it costs 0.3 ms)
                 suggested = _regraded(prep, e1, diff, j1)
                 if suggested is not None:
-                    grading_next = (float(suggested[0].c_wall), float(suggested[1]))
+                    grading_next = (float(suggested[0].c_wall), _depth_fraction(suggested[0]), float(suggested[1]))
             break
         if len(history) > 12:
             failure = "refinement did not converge in 12 levels"
@@ -1143,9 +1188,9 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     edges, y, moments, est, cnt, cells, mean_full, interp, need_last = best
     # the coarsest grid this problem needs for rtol, predicted from the last level as the refinement predicts it
     # (a sweep starts the next problem there: its previous cells over-resolve where the need falls)
-    grading_needed = float(prep.spec.c_wall)
+    grading_needed, depth_needed = float(prep.spec.c_wall), _depth_fraction(prep.spec)
     if grading_next is not None:  # the cells are then those of the favoured grading
-        grading_needed, factor = grading_next
+        grading_needed, depth_needed, factor = grading_next
         need_last *= factor
     cells_needed = int(np.clip(math.ceil(cells[0] * need_last), 16, max(16, max_cells // depth)))
     if prep.lamperti_bounded and failure is None and abs(float(y[-1])) > rtol:
@@ -1172,7 +1217,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                "cells_needed": cells_needed, "wall_grading_needed": grading_needed,
                                "newton_steps": cnt.get("newton_steps", 0),
                                "domain": "Lamperti-bounded" if prep.lamperti_bounded else "from the spread",
-                               "wall_grading": float(prep.spec.c_wall),
+                               "wall_grading": float(prep.spec.c_wall), "wall_depth": _depth_fraction(prep.spec),
+                               "wall_depth_needed": depth_needed,
                                **(extra or {})},
                         failure=failure)
 

@@ -44,6 +44,10 @@ class GridSpec:
         Weight and width (pressure) of the grading towards ``p0``.
     p0 : float
         The start (pressure), one of the knots.
+    wall_depth : float
+        ``delta``, the inner scale of the logarithmic grading (pressure above ``p_wall``): the cells grow
+        geometrically from ``p_wall + delta`` up and are about uniform below it.  0 (default): ``p_wall`` itself
+        where ``p_wall > 0`` (the grading reaches the floor), else ``1e-12 p_max``.
     """
 
     p_wall: float
@@ -54,6 +58,7 @@ class GridSpec:
     c_0: float
     w0: float
     p0: float
+    wall_depth: float = 0.0
 
     @property
     def all_knots(self) -> np.ndarray:
@@ -82,6 +87,8 @@ class GridSpec:
     @property
     def _delta(self) -> float:
         # the logarithmic grading reaches down to p_wall itself when p_wall > 0 (the floor)
+        if self.wall_depth > 0.0:
+            return self.wall_depth
         return self.p_wall if self.p_wall > 0.0 else 1e-12 * self.p_max
 
     def segment_weights(self) -> np.ndarray:
