@@ -28,6 +28,8 @@ Every finite-volume backend (``native``, ``pypde``, ``fipy``) goes through
 """
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import math
 import os
 import time
@@ -76,6 +78,23 @@ REGRADE_FACTORS = (0.04, 0.07, 0.1, 0.15, 0.2, 0.3, 0.45, 0.7, 1.5, 2.0)
 #: candidate inner scales of the logarithmic grading (``GridSpec.wall_depth``), as fractions of the way from the
 #: floor to ``p0`` in ``ln p``
 REGRADE_DEPTHS = (0.2, 0.35, 0.5, 0.65, 0.8)
+#: the grid family a solve must use (:func:`grid_family`); None: its own
+_FORCED_GRID: contextvars.ContextVar = contextvars.ContextVar("forced_grid", default=None)
+
+
+@contextlib.contextmanager
+def grid_family(spec: GridSpec):
+    """Within the block, every finite-volume solve (any backend) uses the grid family ``spec`` (a previous result's
+    ``diagnostics["grid"]``) instead of its own; with ``n_cells`` given, its grids are then that result's, edge for
+    edge.  Used where two problems on the same pressure range are combined cell by cell (the closures' Richardson
+    extrapolation in the number of shells, :func:`diffusion_pr.closures.closure_distribution`)."""
+    token = _FORCED_GRID.set(spec)
+    try:
+        yield
+    finally:
+        _FORCED_GRID.reset(token)
+
+
 #: regrade only where the predicted cells fall by at least this fraction
 REGRADE_GAIN = 0.15
 #: the cubic spline of the cdf between the output edges errs like h^4 (the refinement's prediction where that error
@@ -997,6 +1016,9 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                      extrapolation="fourth")
 
     prep = prepare(problem, rtol=rtol, p_floor=p_floor, lamperti=_lamperti)
+    forced = _FORCED_GRID.get()
+    if forced is not None:  # another problem's grids (grid_family); its domain, grading and depth as they were
+        prep = replace(prep, spec=forced)
     if wall_grading is not None:
         if isinstance(wall_grading, bool) or not isinstance(wall_grading, (int, float, np.floating)) \
                 or not 0.0 < float(wall_grading) <= 10.0:
@@ -1218,6 +1240,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                "newton_steps": cnt.get("newton_steps", 0),
                                "domain": "Lamperti-bounded" if prep.lamperti_bounded else "from the spread",
                                "wall_grading": float(prep.spec.c_wall), "wall_depth": _depth_fraction(prep.spec),
+                               "grid": prep.spec,
                                "wall_depth_needed": depth_needed,
                                **(extra or {})},
                         failure=failure)
