@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Optional
 
 import numpy as np
@@ -59,8 +59,13 @@ CLOSURES: tuple[str, ...] = ("second_order", "lognormal_gap", "local_g1", "local
 #: the balanced closures and their partition wavenumber ("shell": each shell's own q_k)
 _BALANCED = {"local_g1_balanced": None, "local_g1_shell_balanced": "shell"}
 
-#: shells of a continuum spectrum (uniform in ln q, tau-midpoint nodes); converged in the tests
+#: shells of a continuum spectrum (uniform in ln q, tau-midpoint nodes): the first of the Richardson extrapolation
+#: in the number of shells (with 48 and 24), or the problem itself with ``shell_extrapolation=False``
 DEFAULT_CONTINUUM_SHELLS = 96
+#: the most shells the extrapolation grows to where its residual misses rtol
+MAX_CONTINUUM_SHELLS = 1536
+#: the shells grow only while the grids' estimate leaves the extrapolation's residual this share of rtol at least
+SHELL_SHARE = 0.9
 
 #: GFMD's contact threshold for exponential walls, relative to p0
 CONTACT_THRESHOLD = 0.01
@@ -574,7 +579,7 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
                          closure: str = "local_g1_balanced", backend: str = "auto", rtol: float = 1e-6,
                          n_shells: Optional[int] = None, cutoff: Any = None, p_c: Optional[float] = None,
                          tail: Any = None, p_t: Optional[float] = None, partition_q: Optional[float] = None,
-                         shell_extrapolation: bool = False, **options: Any) -> Any:
+                         shell_extrapolation: Optional[bool] = None, **options: Any) -> Any:
     r"""Pressure distribution of a rough contact with a named closure (docs/closures.md).
 
     Parameters
@@ -614,20 +619,26 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
     partition_q : float, optional
         ``"local_g1_balanced"`` only: wavenumber of the partition factor
         (default ``q_min``; docs/closures.md explains why it must be ``q_min``).
-    shell_extrapolation : bool
-        Shell closures on a continuum spectrum only.  False (default): the
-        answer is the ``n_shells``-shell problem's within ``rtol``; the shell
-        sum is a midpoint rule in ``tau``, and at 96 shells it differs from the
-        continuum closure by 2.5-6e-5 in the cdf (1.3-1.6e-4 in L1) on the
-        Fig. 1 scene, which ``error_estimate`` does not contain.  True: the
-        continuum closure by Richardson extrapolation in the number of shells,
-        ``(4 Pr(n) - Pr(n/2))/3`` cell by cell on the ``n``-shell solve's
-        grids (``n`` = ``n_shells``, a multiple of 4, default 96), with
-        ``error_estimate`` the grids' estimate plus ``|R(n/2, n) - R(n/4, n/2)|/15``
-        in L1 (the extrapolation's residual, fourth order);
-        ``diagnostics["shell_error"]`` is the ``n``-shell problem's distance
-        from the continuum, ``L1 |Pr(n) - Pr(n/2)|/3``.  About 1.6-1.8x the
-        time (docs/closures.md, "Shells: the continuum limit").
+    shell_extrapolation : bool, optional
+        Shell closures on a continuum spectrum.  The shell sum is the
+        exponential midpoint rule in ``tau``, second order in the shell width:
+        96 shells alone differ from the continuum closure by 2.5-6e-5 in the
+        cdf (1.3-1.6e-4 in L1) on the Fig. 1 scene, 50x rtol 1e-6.  Default
+        (None): True for a continuum spectrum without ``n_shells``, else False.
+        True: the continuum closure, by Richardson extrapolation in the number
+        of shells, ``(4 Pr(n) - Pr(n/2))/3`` cell by cell on the ``n``-shell
+        solve's grids (``n`` = ``n_shells``, a multiple of 4, default 96),
+        with ``error_estimate`` the grids' estimate plus
+        ``|R(n/2, n) - R(n/4, n/2)|/15`` in L1 (the extrapolation's residual);
+        where that misses ``rtol`` the shells double (the residual falls 16x, up
+        to :data:`MAX_CONTINUUM_SHELLS`, each doubling one more solve on the
+        same grids; ``diagnostics["shells_solved"]``).
+        ``diagnostics["shell_error"]`` is the ``n``-shell problem's distance from
+        the continuum, ``L1 |Pr(n) - Pr(n/2)|/3``.  About 1.5-2x the time of
+        one ``n``-shell solve (docs/closures.md, "Shells: the continuum limit").
+        False: the ``n``-shell problem itself within ``rtol`` (its estimate
+        does not contain the distance from the continuum; a
+        :class:`~diffusion_pr.spectra.DiscreteSpectrum`'s shells are exact).
     **options
         ``n_cells``, ``n_steps`` for the reference solver; backend options otherwise.
 
@@ -644,6 +655,12 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
     E = float(check_positive("E_star", E_star))
     p0 = float(check_positive("mean_pressure", mean_pressure))
     z = float(check_nonnegative("zeta", zeta))
+    if shell_extrapolation is not None and not isinstance(shell_extrapolation, (bool, np.bool_)):
+        raise ValueError(f"shell_extrapolation must be None, True or False; got "
+                         f"shell_extrapolation={shell_extrapolation!r}")
+    if shell_extrapolation is None:  # the default: the continuum closure where the shells are a quadrature
+        shell_extrapolation = bool(closure not in ("second_order", "lognormal_gap") and backend != "reference"
+                                   and not isinstance(spectrum, DiscreteSpectrum) and n_shells is None)
     if shell_extrapolation is not False and (closure in ("second_order", "lognormal_gap") or backend == "reference"):
         raise ValueError("shell_extrapolation applies to the shell closures ('local_g1', 'local_g1_balanced', "
                          "'local_g1_shell_balanced') on the finite-volume backends; got "
@@ -687,8 +704,6 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         # ln p below p* = zeta q_min E*/2, so mass returns from deep below p*; resolve down to
         # BALANCED_FLOOR p* (docs/closures.md), as the reference solver does
         options.setdefault("p_floor", BALANCED_FLOOR * 0.5 * z * E * shells.q_min)
-    if not isinstance(shell_extrapolation, (bool, np.bool_)):
-        raise ValueError(f"shell_extrapolation must be True or False; got shell_extrapolation={shell_extrapolation!r}")
     if shell_extrapolation:
         if shells.exact:
             raise ValueError("shell_extrapolation applies to continuum spectra; a DiscreteSpectrum's shells are its "
@@ -699,13 +714,26 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
     res = solve_problem(problem, backend=backend, rtol=rtol, **options)
     res.diagnostics["closure"] = closure
     res.diagnostics["n_shells"] = int(shells.q.size)
-    if shell_extrapolation:
-        return _shell_extrapolated(res, spectrum, E, p0, z, closure, partition_q, backend, rtol, options)
-    return res
+    if not shell_extrapolation:
+        return res
+    while True:
+        out = _shell_extrapolated(res, spectrum, E, p0, z, closure, partition_q, rtol, options)
+        n = int(shells.q.size)
+        if "shell_extrapolation_failed" not in out.diagnostics or 2 * n > MAX_CONTINUUM_SHELLS:
+            return out
+        # a coarser-shell problem did not solve on these grids (wide shells on a steep spectrum at a small load):
+        # all three with twice the shells, on the grids of the finer first solve
+        shells = _cached_shells(spectrum, E, 2 * n)
+        problem = closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure,
+                                  partition_q=partition_q)
+        res = solve_problem(problem, backend=backend, rtol=rtol, **options)
+        res.diagnostics["closure"] = closure
+        res.diagnostics["n_shells"] = int(shells.q.size)
+        res.diagnostics["shells_first_tried"] = n
 
 
 def _shell_extrapolated(res: Any, spectrum: Spectrum, E: float, p0: float, z: float, closure: str,
-                        partition_q: Any, backend: str, rtol: float, options: dict) -> Any:
+                        partition_q: Any, rtol: float, options: dict) -> Any:
     """The continuum closure from the ``n``-shell result ``res``: Richardson extrapolation in the number of shells.
 
     The shell sum is the exponential midpoint rule in ``tau`` (each shell's coefficients at its ``tau``-midpoint),
@@ -714,10 +742,10 @@ def _shell_extrapolated(res: Any, spectrum: Spectrum, E: float, p0: float, z: fl
     (:func:`~diffusion_pr.solvers.fv.engine.grid_family`, ``n_cells`` its coarsest), so the cell masses combine
     cell by cell: ``R(n/2, n) = (4 m(n) - m(n/2))/3`` is the answer; ``|R(n/2, n) - R(n/4, n/2)|/15`` in L1 the
     estimate of its residual (the next term, fourth order in a symmetric rule), added to the grids' estimate
-    ``(4 e(n) + e(n/2))/3`` (the spatial errors of the two solves, not assumed to cancel).  At ``zeta = 0``
-    every stage commutes and the shells do not matter: ``res`` is returned with ``shell_error = 0``."""
-    from dataclasses import replace
-
+    ``(4 e(n) + e(n/2))/3`` (the spatial errors of the two solves, not assumed to cancel).  Where the residual
+    keeps the sum above ``rtol``, the ``2n``-shell problem is solved on the same grids and the top three are
+    combined again (one solve per doubling, up to :data:`MAX_CONTINUUM_SHELLS`).  At ``zeta = 0`` every stage
+    commutes and the shells do not matter: ``res`` is returned with ``shell_error = 0``."""
     from .api import solve_problem
     from .solvers.fv import engine
 
@@ -727,34 +755,51 @@ def _shell_extrapolated(res: Any, spectrum: Spectrum, E: float, p0: float, z: fl
         return replace(res, diagnostics=diag)
     sub = {k: v for k, v in options.items() if k not in ("n_start", "n_cells", "wall_grading", "wall_depth")}
     sub["n_cells"] = int(res.diagnostics["levels"][0])
-    coarse = []
-    with engine.grid_family(res.diagnostics["grid"]):
-        for m in (n // 2, n // 4):
-            shells = _cached_shells(spectrum, E, m)
-            problem = closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure,
-                                      partition_q=partition_q)
-            coarse.append(solve_problem(problem, backend=res.backend, rtol=rtol, **sub))
-    half, quarter = coarse
-    if not all(r.success and r.edges is not None and np.array_equal(r.edges, res.edges) for r in coarse):
-        why = "; ".join(f"{m} shells: {r.message}" for m, r in zip((n // 2, n // 4), coarse) if not r.success)
-        message = ("shell extrapolation failed: " + (why or "the coarser shells' grids differ from the n-shell "
-                                                     "solve's") + f"; the {n}-shell answer is returned")
-        diag = {**res.diagnostics, "shell_error": None, "shell_extrapolation": False}
-        return replace(res, success=False, message=message, diagnostics=diag)
+    if "extrapolation" in res.diagnostics:  # as the first solve ended (a sixth that did not balance ended fourth,
+        sub["extrapolation"] = str(res.diagnostics["extrapolation"]).split()[0]  # and says why after the word)
+    solved = {n: res}
+
+    def on_the_grid(m: int) -> Any:
+        shells = _cached_shells(spectrum, E, m)
+        problem = closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure, partition_q=partition_q)
+        with engine.grid_family(res.diagnostics["grid"]):
+            try:
+                return solve_problem(problem, backend=res.backend, rtol=rtol, **sub)
+            except RuntimeError as exc:  # a balance with no root on these grids: a failed solve, said so
+                return replace(res, success=False, message=f"{type(exc).__name__}: {exc}",
+                               diagnostics={**res.diagnostics, "n_stages": len(problem.stages)})
 
     def masses(r: Any) -> np.ndarray:
         return np.concatenate(([r.zero_weight], r.density * r.weights))
 
-    m_n, m_h, m_q = masses(res), masses(half), masses(quarter)
-    r1 = (4.0 * m_n - m_h) / 3.0
-    r2 = (4.0 * m_h - m_q) / 3.0
-    shell_error = float(np.sum(np.abs(m_n - m_h))) / 3.0
-    residual = float(np.sum(np.abs(r1 - r2))) / 15.0
-    grids = (4.0 * res.error_estimate + half.error_estimate) / 3.0
+    while True:
+        for m in (n // 2, n // 4):
+            if m not in solved:
+                solved[m] = on_the_grid(m)
+        top, half, quarter = solved[n], solved[n // 2], solved[n // 4]
+        others = [r for r in (top, half, quarter) if r is not res]
+        if not all(r.success and r.edges is not None and np.array_equal(r.edges, res.edges) for r in others):
+            why = "; ".join(f"{int(r.diagnostics.get('n_stages', 0))} stages: {r.message}" for r in others
+                            if not r.success)
+            message = ("shell extrapolation failed: " + (why or "a solve's grids differ from the first one's")
+                       + f"; the {int(res.diagnostics['n_shells'])}-shell answer is returned")
+            diag = {**res.diagnostics, "shell_error": None, "shell_extrapolation": False,
+                    "shell_extrapolation_failed": why or "grids"}
+            return replace(res, success=False, message=message, diagnostics=diag)
+        m_n, m_h, m_q = masses(top), masses(half), masses(quarter)
+        r1 = (4.0 * m_n - m_h) / 3.0
+        r2 = (4.0 * m_h - m_q) / 3.0
+        residual = float(np.sum(np.abs(r1 - r2))) / 15.0
+        grids = (4.0 * top.error_estimate + half.error_estimate) / 3.0
+        if grids + residual <= rtol or 2 * n > MAX_CONTINUUM_SHELLS or grids >= SHELL_SHARE * rtol:
+            break
+        n *= 2  # the residual falls 16x per doubling: one more solve on the same grids
+        solved[n] = on_the_grid(n)
     estimate = grids + residual
+    shell_error = float(np.sum(np.abs(m_n - m_h))) / 3.0
     # the first moments per cell, extrapolated alike: the barycentres (kept inside their cells, as the engine does)
     w = res.weights
-    mom = (4.0 * res.p * res.density * w - half.p * half.density * w) / 3.0
+    mom = (4.0 * top.p * top.density * w - half.p * half.density * w) / 3.0
     cells = r1[1:]
     ok = cells > 1e-300
     centre = 0.5 * (res.edges[:-1] + res.edges[1:])
@@ -765,7 +810,8 @@ def _shell_extrapolated(res: Any, spectrum: Spectrum, E: float, p0: float, z: fl
     problems = []
     if not estimate <= rtol:
         problems.append(f"error estimate {estimate:.2e} (grids {grids:.2e} + shell extrapolation {residual:.2e}) "
-                        f"misses rtol={rtol:.1e}: more shells (n_shells={2 * n}) would lower the second")
+                        f"misses rtol={rtol:.1e}" + (f" at {n} shells (MAX_CONTINUUM_SHELLS = "
+                                                     f"{MAX_CONTINUUM_SHELLS})" if residual > grids else ""))
     if not abs(mass - 1.0) <= rtol:
         problems.append(f"mass {mass:.12g} not conserved to rtol")
     if negative > rtol:
@@ -774,11 +820,11 @@ def _shell_extrapolated(res: Any, spectrum: Spectrum, E: float, p0: float, z: fl
     message = (f"converged: L1 error estimate {estimate:.2e} <= rtol {rtol:.1e} (continuum closure, Richardson "
                f"in shells {n // 4}/{n // 2}/{n})" if success else "; ".join(problems))
     density = cells / w
+    extra_time = sum(r.wall_time for r in solved.values() if r is not res)
     diag = {**res.diagnostics, "shell_extrapolation": True, "shell_error": shell_error,
             "shell_extrapolation_residual": residual, "grid_estimate": grids, "n_shells": (n, n // 2, n // 4),
-            "mass_error": mass - 1.0, "mean_error": mean - p0, "negative_mass": negative,
-            "min_density": float(density.min()),
-            "timings": {**res.diagnostics["timings"], "shells": half.wall_time + quarter.wall_time}}
+            "shells_solved": tuple(sorted(solved)), "mass_error": mass - 1.0, "mean_error": mean - p0,
+            "negative_mass": negative, "min_density": float(density.min()),
+            "timings": {**res.diagnostics["timings"], "shells": extra_time}}
     return replace(res, p=bary, density=density, zero_weight=float(r1[0]), success=success, message=message,
-                   error_estimate=float(estimate), wall_time=res.wall_time + half.wall_time + quarter.wall_time,
-                   diagnostics=diag)
+                   error_estimate=float(estimate), wall_time=res.wall_time + extra_time, diagnostics=diag)

@@ -83,12 +83,13 @@ _FORCED_GRID: contextvars.ContextVar = contextvars.ContextVar("forced_grid", def
 
 
 @contextlib.contextmanager
-def grid_family(spec: GridSpec):
-    """Within the block, every finite-volume solve (any backend) uses the grid family ``spec`` (a previous result's
-    ``diagnostics["grid"]``) instead of its own; with ``n_cells`` given, its grids are then that result's, edge for
-    edge.  Used where two problems on the same pressure range are combined cell by cell (the closures' Richardson
-    extrapolation in the number of shells, :func:`diffusion_pr.closures.closure_distribution`)."""
-    token = _FORCED_GRID.set(spec)
+def grid_family(grid: tuple):
+    """Within the block, every finite-volume solve (any backend) uses the grids ``grid`` (a previous result's
+    ``diagnostics["grid"]``: its family and the knot indices of its last level) instead of its own; with ``n_cells``
+    its coarsest (``diagnostics["levels"][0]``), its grids are that result's, edge for edge.  Used where two problems
+    on the same pressure range are combined cell by cell (the closures' Richardson extrapolation in the number of
+    shells, :func:`diffusion_pr.closures.closure_distribution`)."""
+    token = _FORCED_GRID.set(grid)
     try:
         yield
     finally:
@@ -1018,7 +1019,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     prep = prepare(problem, rtol=rtol, p_floor=p_floor, lamperti=_lamperti)
     forced = _FORCED_GRID.get()
     if forced is not None:  # another problem's grids (grid_family); its domain, grading and depth as they were
-        prep = replace(prep, spec=forced)
+        prep = replace(prep, spec=forced[0])
     if wall_grading is not None:
         if isinstance(wall_grading, bool) or not isinstance(wall_grading, (int, float, np.floating)) \
                 or not 0.0 < float(wall_grading) <= 10.0:
@@ -1064,7 +1065,12 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     grading_next = None  # (c_wall, depth fraction, cell factor) the converged level's errors favour (:func:`_regraded`)
     grids_integrated = 0
     while True:
-        idx = 2 * reuse[0] if reuse is not None else knot_indices(prep.spec, n)
+        if reuse is not None:
+            idx = 2 * reuse[0]
+        elif forced is not None and not history and n == int(forced[1][-1]):
+            idx = np.array(forced[1])  # the knots where the other result's last level had them
+        else:
+            idx = knot_indices(prep.spec, n)
         n_base = int(idx[-1])
         if depth * n_base > max_cells and history:
             failure = f"refinement stopped at max_cells={max_cells} (the next grid needs {depth * n_base} cells)"
@@ -1172,6 +1178,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                  (interp / (SAFETY * rtol)) ** (1.0 / INTERPOLATION_ORDER),
                                  (mean_miss / (SAFETY * rtol * prep.p0)) ** (1.0 / order))
         best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(len(es))], mean_full, interp, need)
+        best_grid = (prep.spec, tuple(int(i) for i in idx))
         trimmed = _trimmed_depth(prep, float(out_y[0]) + est, rtol) if len(history) == 1 else None
         if (est <= SAFETY * rtol and mean_miss <= SAFETY * rtol * prep.p0) or n_cells is not None:
             if REGRADE and n_start is not None and _regradable(prep):
@@ -1240,7 +1247,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                "newton_steps": cnt.get("newton_steps", 0),
                                "domain": "Lamperti-bounded" if prep.lamperti_bounded else "from the spread",
                                "wall_grading": float(prep.spec.c_wall), "wall_depth": _depth_fraction(prep.spec),
-                               "grid": prep.spec,
+                               "grid": best_grid,
                                "wall_depth_needed": depth_needed,
                                **(extra or {})},
                         failure=failure)
