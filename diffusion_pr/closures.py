@@ -755,7 +755,7 @@ def _shell_extrapolated(res: Any, spectrum: Spectrum, E: float, p0: float, z: fl
         return replace(res, diagnostics=diag)
     sub = {k: v for k, v in options.items() if k not in ("n_start", "n_cells", "wall_grading", "wall_depth")}
     sub["n_cells"] = int(res.diagnostics["levels"][0])
-    if "extrapolation" in res.diagnostics:  # as the first solve ended (a sixth that did not balance ended fourth,
+    if "extrapolation" in sub:  # as the first solve ended (a sixth that did not balance ended fourth,
         sub["extrapolation"] = str(res.diagnostics["extrapolation"]).split()[0]  # and says why after the word)
     solved = {n: res}
 
