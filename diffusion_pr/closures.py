@@ -711,11 +711,12 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         if shells.q.size % 4:
             raise ValueError(f"shell_extrapolation needs n_shells divisible by 4 (n, n/2, n/4 shells); got "
                              f"n_shells={shells.q.size}")
-    res = solve_problem(problem, backend=backend, rtol=rtol, **options)
+    res = _solve_keeping_plain(problem, backend, rtol, options, keep=shell_extrapolation)
     res.diagnostics["closure"] = closure
     res.diagnostics["n_shells"] = int(shells.q.size)
     if not shell_extrapolation:
         return res
+    first = int(shells.q.size)
     while True:
         out = _shell_extrapolated(res, spectrum, E, p0, z, closure, partition_q, rtol, options)
         n = int(shells.q.size)
@@ -726,14 +727,164 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         shells = _cached_shells(spectrum, E, 2 * n)
         problem = closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure,
                                   partition_q=partition_q)
-        res = solve_problem(problem, backend=backend, rtol=rtol, **options)
+        res = _solve_keeping_plain(problem, backend, rtol, options, keep=True)
         res.diagnostics["closure"] = closure
         res.diagnostics["n_shells"] = int(shells.q.size)
-        res.diagnostics["shells_first_tried"] = n
+        res.diagnostics["shells_first_tried"] = first
+
+
+def _solve_keeping_plain(problem: Any, backend: str, rtol: float, options: dict, *, keep: bool) -> Any:
+    """``solve_problem``; with ``keep`` the last level's plain masses are kept in the diagnostics (the shell
+    extrapolation's corrections are taken from them)."""
+    from .api import solve_problem
+    from .solvers.fv import engine
+
+    if not keep:
+        return solve_problem(problem, backend=backend, rtol=rtol, **options)
+    with engine.plain_masses("keep"):
+        return solve_problem(problem, backend=backend, rtol=rtol, **options)
 
 
 def _shell_extrapolated(res: Any, spectrum: Spectrum, E: float, p0: float, z: float, closure: str,
                         partition_q: Any, rtol: float, options: dict) -> Any:
+    """The continuum closure from ``res`` (:func:`_shell_corrected` where its plain masses were kept, else
+    :func:`_shell_combined`)."""
+    n_first = res.diagnostics.get("n_shells")
+    if z == 0.0 or not res.success or res.edges is None or "grid" not in res.diagnostics:
+        diag = {**res.diagnostics, "shell_error": 0.0 if z == 0.0 else None, "shell_extrapolation": False}
+        return replace(res, diagnostics=diag)
+    if "plain_masses" in res.diagnostics:
+        out = _shell_corrected(res, spectrum, E, p0, z, closure, partition_q, rtol, options, int(n_first))
+        if out.success:
+            return out
+        # the plain grids' correction misses rtol (on steep spectra at small loads its spatial error dominates):
+        # the n/2 and n/4-shell problems are solved in full instead
+        combined = _shell_combined(res, spectrum, E, p0, z, closure, partition_q, rtol, options)
+        tried = out.diagnostics["timings"].get("shells", 0.0)
+        timings = dict(combined.diagnostics["timings"])
+        timings["shells"] = timings.get("shells", 0.0) + tried
+        return replace(combined, wall_time=combined.wall_time + tried,
+                       diagnostics={**combined.diagnostics, "timings": timings,
+                                    "shell_correction_missed": out.message})
+    return _shell_combined(res, spectrum, E, p0, z, closure, partition_q, rtol, options)
+
+
+def _shell_corrected(res: Any, spectrum: Spectrum, E: float, p0: float, z: float, closure: str,
+                     partition_q: Any, rtol: float, options: dict, n: int) -> Any:
+    """The continuum closure as ``res`` plus a correction from plain grids.
+
+    ``res`` (``n`` shells) is extrapolated in space; the difference between it and the continuum is a
+    difference between problems on the same grid, whose spatial errors are correlated: it is taken from the
+    plain masses ``P`` of the last level's ``N`` and ``2N`` grids alone (:func:`~diffusion_pr.solvers.fv.engine.
+    plain_masses`), solved for ``n/2`` and ``n/4`` shells on ``res``'s grids.  With ``top`` the most shells
+    solved: answer ``= m(res) + (4 P(top) - P(top/2))/3 - P(n)`` on the ``2N`` grid; the correction's spatial
+    error is estimated from the same correction on the ``N`` grid (``|agg(c_2N) - c_N|/3``, second order), the
+    shells' residual as ``|R(top/2, top) - R(top/4, top/2)|/15`` on the ``2N`` grid; both are added to ``res``'s
+    estimate.  Where the sum misses ``rtol`` the ``2 top``-shell problem is solved on the same grids (two plain
+    grids per doubling).  The cost: two plain grids of ``n/2`` and of ``n/4`` shells, about 0.3x ``res``."""
+    from .api import solve_problem
+    from .solvers.fv import engine
+
+    # the plain masses come from a fourth-order level (a sixth that did not balance ended fourth): the default
+    sub = {k: v for k, v in options.items()
+           if k not in ("n_start", "n_cells", "wall_grading", "wall_depth", "extrapolation")}
+    sub["n_cells"] = int(res.diagnostics["levels"][0])
+    plain = {n: res.diagnostics["plain_masses"]}
+    timing = {"shells": 0.0}
+
+    def on_the_grid(m: int) -> Optional[tuple]:
+        shells = _cached_shells(spectrum, E, m)
+        problem = closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure, partition_q=partition_q)
+        with engine.grid_family(res.diagnostics["grid"]), engine.plain_masses("only"):
+            try:
+                r = solve_problem(problem, backend=res.backend, rtol=rtol, **sub)
+            except RuntimeError:  # a balance with no root on these grids
+                return None
+        timing["shells"] += r.wall_time
+        if r.diagnostics.get("plain_failure") or "plain_masses" not in r.diagnostics \
+                or not np.array_equal(r.edges, res.edges):
+            return None
+        return r.diagnostics["plain_masses"]
+
+    def l1(x: np.ndarray) -> float:
+        return float(np.sum(np.abs(x)))
+
+    top = n
+    while True:
+        for m in (top // 2, top // 4):
+            if m not in plain:
+                plain[m] = on_the_grid(m)
+        if plain[top] is None or plain[top // 2] is None or plain[top // 4] is None:
+            diag = {**res.diagnostics, "shell_error": None, "shell_extrapolation": False,
+                    "shell_extrapolation_failed": f"a coarser-shell problem did not solve on the {n}-shell grids"}
+            diag.pop("plain_masses", None)
+            return replace(res, success=False, message=f"shell extrapolation failed: a coarser-shell problem "
+                                                        f"did not solve on the {n}-shell grids; the {n}-shell "
+                                                        "answer is returned", diagnostics=diag)
+        (p1_t, p2_t), (p1_h, p2_h), (_, p2_q) = plain[top], plain[top // 2], plain[top // 4]
+        corr2 = (4.0 * p2_t - p2_h) / 3.0 - plain[n][1]
+        corr1 = (4.0 * p1_t - p1_h) / 3.0 - plain[n][0]
+        corr_error = l1(np.r_[corr2[0], corr2[1::2] + corr2[2::2]] - corr1) / 3.0
+        residual = l1((4.0 * p2_t - p2_h) / 3.0 - (4.0 * p2_h - p2_q) / 3.0) / 15.0
+        grids = res.error_estimate + corr_error
+        if grids + residual <= rtol or 2 * top > MAX_CONTINUUM_SHELLS or grids >= SHELL_SHARE * rtol:
+            break
+        top *= 2
+        plain[top] = on_the_grid(top)
+        if plain[top] is None:
+            top //= 2
+            break
+    estimate = grids + residual
+    masses = np.concatenate(([res.zero_weight], res.density * res.weights)) + corr2
+    cells = masses[1:]
+    centre = 0.5 * (res.edges[:-1] + res.edges[1:])
+    m_res = res.density * res.weights
+    mom = res.p * m_res + centre * corr2[1:]
+    ok = cells > 1e-300
+    bary = np.clip(np.where(ok, mom / np.where(ok, cells, 1.0), centre), res.edges[:-1], res.edges[1:])
+    return _continuum_result(res, masses, bary, estimate=estimate, grids=grids, residual=residual,
+                             shell_error=l1(plain[n][1] - plain[n // 2][1]) / 3.0, n=top, p0=p0, rtol=rtol,
+                             extra={"shell_correction_error": corr_error,
+                                    "shells_solved": tuple(sorted(m for m in plain if plain[m] is not None)),
+                                    "shell_scheme": "correction from plain grids"},
+                             extra_time=timing["shells"])
+
+
+def _continuum_result(res: Any, masses: np.ndarray, bary: np.ndarray, *, estimate: float, grids: float,
+                      residual: float, shell_error: float, n: int, p0: float, rtol: float, extra: dict,
+                      extra_time: float) -> Any:
+    """The result of the shell extrapolation: ``res`` with the continuum's masses ``[zero weight, cells]`` and
+    barycentres, its checks (estimate, mass, negative probability) and diagnostics."""
+    cells = masses[1:]
+    w = res.weights
+    negative = float(-cells[cells < 0.0].sum())
+    mass = float(masses.sum())
+    mean = float(bary @ cells + res.edges[0] * masses[0])
+    problems = []
+    if not estimate <= rtol:
+        problems.append(f"error estimate {estimate:.2e} (grids {grids:.2e} + shell extrapolation {residual:.2e}) "
+                        f"misses rtol={rtol:.1e}" + (f" at {n} shells (MAX_CONTINUUM_SHELLS = "
+                                                     f"{MAX_CONTINUUM_SHELLS})" if residual > grids else ""))
+    if not abs(mass - 1.0) <= rtol:
+        problems.append(f"mass {mass:.12g} not conserved to rtol")
+    if negative > rtol:
+        problems.append(f"negative probability {negative:.2e} > rtol")
+    success = not problems
+    message = (f"converged: L1 error estimate {estimate:.2e} <= rtol {rtol:.1e} (continuum closure, Richardson "
+               f"in shells {n // 4}/{n // 2}/{n})" if success else "; ".join(problems))
+    density = cells / w
+    diag = {**res.diagnostics, "shell_extrapolation": True, "shell_error": shell_error,
+            "shell_extrapolation_residual": residual, "grid_estimate": grids, "n_shells": (n, n // 2, n // 4),
+            "mass_error": mass - 1.0, "mean_error": mean - p0, "negative_mass": negative,
+            "min_density": float(density.min()),
+            "timings": {**res.diagnostics["timings"], "shells": extra_time}, **extra}
+    diag.pop("plain_masses", None)
+    return replace(res, p=bary, density=density, zero_weight=float(masses[0]), success=success, message=message,
+                   error_estimate=float(estimate), wall_time=res.wall_time + extra_time, diagnostics=diag)
+
+
+def _shell_combined(res: Any, spectrum: Spectrum, E: float, p0: float, z: float, closure: str,
+                    partition_q: Any, rtol: float, options: dict) -> Any:
     """The continuum closure from the ``n``-shell result ``res``: Richardson extrapolation in the number of shells.
 
     The shell sum is the exponential midpoint rule in ``tau`` (each shell's coefficients at its ``tau``-midpoint),
@@ -796,7 +947,6 @@ def _shell_extrapolated(res: Any, spectrum: Spectrum, E: float, p0: float, z: fl
         n *= 2  # the residual falls 16x per doubling: one more solve on the same grids
         solved[n] = on_the_grid(n)
     estimate = grids + residual
-    shell_error = float(np.sum(np.abs(m_n - m_h))) / 3.0
     # the first moments per cell, extrapolated alike: the barycentres (kept inside their cells, as the engine does)
     w = res.weights
     mom = (4.0 * top.p * top.density * w - half.p * half.density * w) / 3.0
@@ -804,27 +954,7 @@ def _shell_extrapolated(res: Any, spectrum: Spectrum, E: float, p0: float, z: fl
     ok = cells > 1e-300
     centre = 0.5 * (res.edges[:-1] + res.edges[1:])
     bary = np.clip(np.where(ok, mom / np.where(ok, cells, 1.0), centre), res.edges[:-1], res.edges[1:])
-    negative = float(-cells[cells < 0.0].sum())
-    mass = float(r1.sum())
-    mean = float(bary @ cells + res.edges[0] * r1[0])
-    problems = []
-    if not estimate <= rtol:
-        problems.append(f"error estimate {estimate:.2e} (grids {grids:.2e} + shell extrapolation {residual:.2e}) "
-                        f"misses rtol={rtol:.1e}" + (f" at {n} shells (MAX_CONTINUUM_SHELLS = "
-                                                     f"{MAX_CONTINUUM_SHELLS})" if residual > grids else ""))
-    if not abs(mass - 1.0) <= rtol:
-        problems.append(f"mass {mass:.12g} not conserved to rtol")
-    if negative > rtol:
-        problems.append(f"negative probability {negative:.2e} > rtol")
-    success = not problems
-    message = (f"converged: L1 error estimate {estimate:.2e} <= rtol {rtol:.1e} (continuum closure, Richardson "
-               f"in shells {n // 4}/{n // 2}/{n})" if success else "; ".join(problems))
-    density = cells / w
-    extra_time = sum(r.wall_time for r in solved.values() if r is not res)
-    diag = {**res.diagnostics, "shell_extrapolation": True, "shell_error": shell_error,
-            "shell_extrapolation_residual": residual, "grid_estimate": grids, "n_shells": (n, n // 2, n // 4),
-            "shells_solved": tuple(sorted(solved)), "mass_error": mass - 1.0, "mean_error": mean - p0,
-            "negative_mass": negative, "min_density": float(density.min()),
-            "timings": {**res.diagnostics["timings"], "shells": extra_time}}
-    return replace(res, p=bary, density=density, zero_weight=float(r1[0]), success=success, message=message,
-                   error_estimate=float(estimate), wall_time=res.wall_time + extra_time, diagnostics=diag)
+    return _continuum_result(res, r1, bary, estimate=estimate, grids=grids, residual=residual,
+                             shell_error=float(np.sum(np.abs(m_n - m_h))) / 3.0, n=n, p0=p0, rtol=rtol,
+                             extra={"shells_solved": tuple(sorted(solved)), "shell_scheme": "combined solves"},
+                             extra_time=sum(r.wall_time for r in solved.values() if r is not res))

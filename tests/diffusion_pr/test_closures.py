@@ -393,6 +393,7 @@ def test_shell_extrapolation_reaches_the_continuum_closure(fig1, closure):
     oracle = (4.0 * fine[768].cdf(edges) - fine[384].cdf(edges)) / 3.0
     true = np.max(np.abs(r.cdf(edges) - oracle))
     assert r.success and r.diagnostics["shell_extrapolation"] and r.diagnostics["n_shells"] == (96, 48, 24)
+    assert r.diagnostics["shell_scheme"] == "correction from plain grids"  # the cheap path (0.3x of the solve)
     assert true < 1e-6 and true < 10 * r.error_estimate
     plain_err = np.max(np.abs(plain.cdf(edges) - oracle))
     assert plain_err > 1e-5  # what the extrapolation removes: the 96-shell problem's distance from the continuum
@@ -440,11 +441,12 @@ def test_shell_extrapolation_doubles_the_shells_where_its_residual_misses(fig1):
 
 
 def test_shell_extrapolation_starts_finer_where_coarse_shells_do_not_solve():
-    """A stress scene (H = 0.5, rms slope 0.3, q from 2 pi/8192 to 2 pi/8, p0 = 1e-5, zeta = 1e-4): 24 shells over
-    three decades of q are too wide to solve on the 96-shell problem's grids, so all three are solved with twice the
-    shells (192/96/48).  The answer agrees with the 384/768-shell oracle (measured 3.8e-10)."""
-    spec = dp.SelfAffineSpectrum(0.5, 2 * np.pi / 8192, 2 * np.pi / 8, rms_slope=0.3)
-    kw = dict(E_star=E, mean_pressure=1e-5, zeta=1e-4, closure="local_g1_balanced")
+    """A stress scene (H = 0.8, rms slope 0.1, q from 2 pi/4096 to 2 pi/16, p0 = 1e-5, zeta = 3e-3): the correction
+    from plain grids misses rtol there, and solved in full the 24-shell problem does not converge on the 96-shell
+    problem's grids, so all three start from twice the shells (192/96/48), where the plain grids' correction meets
+    rtol.  The answer agrees with the 384/768-shell oracle (measured 1.6e-8; estimate 9.8e-9)."""
+    spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 4096, 2 * np.pi / 16, rms_slope=0.1)
+    kw = dict(E_star=E, mean_pressure=1e-5, zeta=3e-3, closure="local_g1_balanced")
     r = closure_distribution(spec, **kw)
     assert r.success and r.diagnostics["shells_first_tried"] == 96 and r.diagnostics["n_shells"] == (192, 96, 48)
     x = np.geomspace(1e-8, 1e3, 3000) * 1e-5
@@ -464,3 +466,38 @@ def test_continuum_closure_is_the_same_from_pypde(fig1):
     assert nat.success and peer.success and peer.diagnostics["shell_extrapolation"]
     x = np.geomspace(1e-12, 1e3, 3000) * P0
     assert np.max(np.abs(peer.cdf(x) - nat.cdf(x))) < 2e-6
+
+
+def test_plain_masses_are_the_grids_own_and_need_a_fixed_grid(fig1):
+    """engine.plain_masses: under "keep" a solve reports its last level's N- and 2N-grid masses (lumped below the
+    floor like the answer: the 2N one on the answer's edges, the N one on every other edge), each summing to 1
+    within the grids' own error; under "only" it integrates those two grids of a given family and no more (the
+    same masses, bit for bit, as the full solve's), and refuses without a fixed grid."""
+    from diffusion_pr.api import solve_problem
+    from diffusion_pr.solvers.fv import engine
+
+    shells = spectrum_shells(fig1, E_star=E, n_shells=96)
+    problem = closure_problem(shells, zeta=1.0, E_star=E, mean_pressure=P0, closure="local_g1")
+    with engine.plain_masses("keep"):
+        full = solve_problem(problem, backend="native", rtol=1e-6)
+    p1, p2 = full.diagnostics["plain_masses"]
+    assert p2.size == full.edges.size and 2 * (p1.size - 1) == p2.size - 1
+    assert abs(p1.sum() - 1.0) < 1e-9 and abs(p2.sum() - 1.0) < 1e-9
+    with engine.grid_family(full.diagnostics["grid"]), engine.plain_masses("only"):
+        only = solve_problem(problem, backend="native", rtol=1e-6, n_cells=full.diagnostics["levels"][0])
+    assert np.array_equal(only.edges, full.edges)
+    assert np.array_equal(only.diagnostics["plain_masses"][1], p2) and np.array_equal(only.diagnostics["plain_masses"][0], p1)
+    assert not only.success and only.diagnostics["plain_failure"] is None
+    with engine.plain_masses("only"), pytest.raises(ValueError, match="needs grid_family"):
+        solve_problem(problem, backend="native", rtol=1e-6)
+
+
+def test_shell_extrapolation_after_a_sixth_that_ended_fourth():
+    """A stress scene where extrapolation="sixth" does not balance and the solve ends with the fourth-order scheme
+    (H = 0.5, rms slope 0.3, p0 = 1e-5, zeta = 3e-3): the shell extrapolation's coarser solves follow the scheme the
+    solve ended with (they raised ValueError when they were asked for the sixth's plain grids)."""
+    spec = dp.SelfAffineSpectrum(0.5, 2 * np.pi / 8192, 2 * np.pi / 8, rms_slope=0.3)
+    r = closure_distribution(spec, E_star=E, mean_pressure=1e-5, zeta=3e-3, closure="local_g1_balanced",
+                             extrapolation="sixth")
+    assert r.success and r.diagnostics["shell_extrapolation"]
+    assert str(r.diagnostics["extrapolation"]).startswith("fourth")

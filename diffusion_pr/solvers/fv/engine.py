@@ -96,6 +96,27 @@ def grid_family(grid: tuple):
         _FORCED_GRID.reset(token)
 
 
+#: the plain (not extrapolated) cell masses a solve reports or is limited to (:func:`plain_masses`); None: neither
+_PLAIN: contextvars.ContextVar = contextvars.ContextVar("plain_masses", default=None)
+
+
+@contextlib.contextmanager
+def plain_masses(mode: str):
+    """Within the block, finite-volume solves report the plain cell masses of their last level's two coarser grids
+    (``mode="keep"``: ``diagnostics["plain_masses"] = (N grid, 2N grid)``, each lumped below the floor as the
+    answer is) or, with ``mode="only"`` under :func:`grid_family` and ``n_cells``, integrate only those two grids
+    and return them (no Richardson, no estimate: ``diagnostics["plain_failure"]`` says whether a balance failed).
+    The closures' extrapolation in the number of shells takes its corrections from them (the difference of two
+    problems on the same grid has correlated spatial errors)."""
+    if mode not in ("keep", "only"):
+        raise ValueError(f"mode must be 'keep' or 'only'; got mode={mode!r}")
+    token = _PLAIN.set(mode)
+    try:
+        yield
+    finally:
+        _PLAIN.reset(token)
+
+
 #: regrade only where the predicted cells fall by at least this fraction
 REGRADE_GAIN = 0.15
 #: the cubic spline of the cdf between the output edges errs like h^4 (the refinement's prediction where that error
@@ -1018,6 +1039,10 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
 
     prep = prepare(problem, rtol=rtol, p_floor=p_floor, lamperti=_lamperti)
     forced = _FORCED_GRID.get()
+    plain_mode = _PLAIN.get()
+    plain_only = plain_mode == "only"
+    if plain_only and (forced is None or n_cells is None or sixth):
+        raise ValueError("plain_masses('only') needs grid_family, n_cells and extrapolation='fourth'")
     if forced is not None:  # another problem's grids (grid_family); its domain, grading and depth as they were
         prep = replace(prep, spec=forced[0])
     if wall_grading is not None:
@@ -1077,6 +1102,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             break
         finest = edges_for(prep.spec, idx, depth)  # the coarser grids are every 2nd / 4th (/ 8th) edge of it
         es = [finest[::depth >> k] for k in range(depth.bit_length())]  # coarsest first
+        if plain_only:
+            es = es[:2]  # the N and 2N grids alone (plain_masses)
         if reuse is not None and not (np.array_equal(es[0], reuse[1]) and np.array_equal(es[1], reuse[2])):
             reuse = None  # not nested to the last bit (never seen): integrate all three grids
         parallel = threads > 1 and loop is None and assemble is native_assemble and _compiled(prep)
@@ -1098,6 +1125,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             ys = _run_grids(tasks, parallel)
         grids_integrated += 1 if reuse is not None else len(es)
         reuse = None
+        if plain_only:
+            return _plain_result(prep, es, ys, idx, backend=backend, rtol=rtol, t_start=t_start, t_prep=t_prep)
         (y1, c1), (y2, c2), (y3, cnt) = ys[-3:]
         e1, e2, e3 = es[-3:]
         broken = [cc["balance_failure"] for _, cc in ys if "balance_failure" in cc]
@@ -1179,6 +1208,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                  (mean_miss / (SAFETY * rtol * prep.p0)) ** (1.0 / order))
         best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(len(es))], mean_full, interp, need)
         best_grid = (prep.spec, tuple(int(i) for i in idx))
+        best_plain = (_lump(y1, j1), _lump(y2, j2)) if plain_mode == "keep" and not sixth else None
         trimmed = _trimmed_depth(prep, float(out_y[0]) + est, rtol) if len(history) == 1 else None
         if (est <= SAFETY * rtol and mean_miss <= SAFETY * rtol * prep.p0) or n_cells is not None:
             if REGRADE and n_start is not None and _regradable(prep):
@@ -1248,9 +1278,29 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                "domain": "Lamperti-bounded" if prep.lamperti_bounded else "from the spread",
                                "wall_grading": float(prep.spec.c_wall), "wall_depth": _depth_fraction(prep.spec),
                                "grid": best_grid,
+                               **({"plain_masses": best_plain} if best_plain is not None else {}),
                                "wall_depth_needed": depth_needed,
                                **(extra or {})},
                         failure=failure)
+
+
+def _plain_result(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple], idx: np.ndarray, *, backend: str,
+                  rtol: float, t_start: float, t_prep: float) -> PressureDistribution:
+    """The result of a solve under ``plain_masses("only")``: the N and 2N grids' own masses, lumped below the floor
+    as an answer is, in ``diagnostics["plain_masses"]``; the density is the 2N grid's (not extrapolated, no
+    estimate: ``success`` is False by construction, ``diagnostics["plain_failure"]`` is a balance's failure or
+    None)."""
+    (y1, _), (y2, _) = ys
+    j1 = int(np.searchsorted(es[0], prep.lump_below)) if prep.lump_below > 0 else 0
+    broken = [cc["balance_failure"] for _, cc in ys if "balance_failure" in cc]
+    timings = {"setup": t_prep, "solve": time.perf_counter() - t_start - t_prep,
+               "total": time.perf_counter() - t_start}
+    plain = (_lump(y1, j1), _lump(y2, 2 * j1))
+    return build_result(prep, backend=backend, edges=es[1][2 * j1:], y=plain[1], estimate=float("inf"), rtol=rtol,
+                        timings=timings, failure="plain masses only (no extrapolation, no estimate)",
+                        extra={"levels": [int(idx[-1]), 2 * int(idx[-1])], "plain_masses": plain,
+                               "plain_failure": broken[0] if broken else None,
+                               "grid": (prep.spec, tuple(int(i) for i in idx))})
 
 
 def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarray, estimate: float, rtol: float,
