@@ -433,6 +433,7 @@ def test_shell_extrapolation_doubles_the_shells_where_its_residual_misses(fig1):
     r = closure_distribution(fig1, **kw)
     assert r.success and r.diagnostics["n_shells"] == (192, 96, 48)
     assert r.diagnostics["shells_solved"] == (24, 48, 96, 192)
+    assert r.diagnostics["shell_scheme"] == "correction from plain grids"  # doubled on the plain grids
     # the oracle at rtol 1e-8 (1e-9 takes 40 s at this wall): its own error is 1% of the tolerance asserted
     fine = {n: closure_distribution(fig1, rtol=1e-8, n_shells=n, **kw) for n in (384, 768)}
     oracle = (4.0 * fine[768].cdf(r.edges) - fine[384].cdf(r.edges)) / 3.0
