@@ -117,6 +117,9 @@ def plain_masses(mode: str):
         _PLAIN.reset(token)
 
 
+#: the largest weight of the logarithmic grading towards the wall (the ``wall_grading`` option's range, and the
+#: regrading's candidates)
+WALL_GRADING_MAX = 10.0
 #: regrade only where the predicted cells fall by at least this fraction
 REGRADE_GAIN = 0.15
 #: the cubic spline of the cdf between the output edges errs like h^4 (the refinement's prediction where that error
@@ -750,6 +753,8 @@ def _regraded(prep: Prepared, edges: np.ndarray, diff: np.ndarray, j: int) -> Op
     cost = (np.sum(d * rho[:, :, :n_pts] ** 4, axis=2) / float(np.sum(d))) ** 0.25
     same = (weights == spec.c_wall)[:, None] & (deltas == spec._delta)[None, :]
     cost[same] = np.inf  # the present grading is no candidate
+    # within the range the wall_grading option accepts (a sweep passes the choice on: 2x per entry grew past it)
+    cost[weights > WALL_GRADING_MAX, :] = np.inf
     iw, idp = np.unravel_index(int(np.argmin(cost)), cost.shape)
     best_cost = float(cost[iw, idp])
     if not best_cost < 1.0 - REGRADE_GAIN:
@@ -1047,8 +1052,9 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         prep = replace(prep, spec=forced[0])
     if wall_grading is not None:
         if isinstance(wall_grading, bool) or not isinstance(wall_grading, (int, float, np.floating)) \
-                or not 0.0 < float(wall_grading) <= 10.0:
-            raise ValueError(f"wall_grading must be a number in (0, 10]; got wall_grading={wall_grading!r}")
+                or not 0.0 < float(wall_grading) <= WALL_GRADING_MAX:
+            raise ValueError(f"wall_grading must be a number in (0, {WALL_GRADING_MAX:g}]; got "
+                             f"wall_grading={wall_grading!r}")
         if _regradable(prep):
             prep = replace(prep, spec=replace(prep.spec, c_wall=float(wall_grading)))
     if wall_depth is not None:
