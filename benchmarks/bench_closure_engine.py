@@ -39,7 +39,8 @@ def main() -> None:
     for cl in args.closures.split(","):
         for zeta in (float(z) for z in args.zetas.split(",")):
             runs = {t: (lambda t=t: dp.pressure_distribution(spec, E_star=8 / 3, mean_pressure=0.004, zeta=zeta,
-                                                               closure=cl, rtol=args.rtol, threads=t))
+                                                               closure=cl, rtol=args.rtol, threads=t,
+                                                               shell_extrapolation=False))  # the 96-shell problem
                     for t in threads}
             for run in runs.values():
                 r = run()
