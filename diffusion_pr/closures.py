@@ -31,6 +31,7 @@ Units: pressures in the unit of ``E_star`` and ``mean_pressure``; lengths
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from dataclasses import dataclass, replace
@@ -640,8 +641,12 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         to :data:`MAX_CONTINUUM_SHELLS`, each doubling one more solve on the
         same grids; ``diagnostics["shells_solved"]``).
         ``diagnostics["shell_error"]`` is the ``n``-shell problem's distance from
-        the continuum, ``L1 |Pr(n) - Pr(n/2)|/3``.  About 1.5-2x the time of
-        one ``n``-shell solve (docs/closures.md, "Shells: the continuum limit").
+        the continuum, ``L1 |Pr(n) - Pr(n/2)|/3``.  The coarser shells are
+        integrated on the ``n``-shell solve's two coarser grids alone where
+        that correction meets ``rtol`` (else in full): 1.3-1.7x the time of
+        one ``n``-shell solve on the Fig. 1 scene at ``zeta >= 0.1``, 2.2-4.6x
+        below, where more shells are needed (docs/closures.md, "Shells: the
+        continuum limit").
         False: the ``n``-shell problem itself within ``rtol`` (its estimate
         does not contain the distance from the continuum; a
         :class:`~diffusion_pr.spectra.DiscreteSpectrum`'s shells are exact).
@@ -769,6 +774,44 @@ def _solve_keeping_plain(problem: Any, backend: str, rtol: float, options: dict,
         return solve_problem(problem, backend=backend, rtol=rtol, **options)
 
 
+def _coarser_on_grid(res: Any, m: int, scene: tuple, rtol: float, options: dict, *, plain_only: bool) -> Any:
+    """The ``m``-shell problem of ``scene = (spectrum, E, p0, z, closure, partition_q)`` solved on ``res``'s grids
+    (:func:`~diffusion_pr.solvers.fv.engine.grid_family`, ``n_cells`` its coarsest), in full or (``plain_only``)
+    on the two plain grids alone; a balance with no root there is a failed result that says so."""
+    from .api import solve_problem
+    from .solvers.fv import engine
+
+    spectrum, E, p0, z, closure, partition_q = scene
+    # a sweep's start and grading are the first solve's; the plain masses come from a fourth-order level, and a
+    # full solve follows the scheme the first one ended with (a sixth that did not balance ended fourth, and says
+    # why after the word)
+    sub = {k: v for k, v in options.items() if k not in ("n_start", "n_cells", "wall_grading", "wall_depth")}
+    sub["n_cells"] = int(res.diagnostics["levels"][0])
+    if "extrapolation" in sub:
+        if plain_only:
+            del sub["extrapolation"]
+        else:
+            sub["extrapolation"] = str(res.diagnostics["extrapolation"]).split()[0]
+    problem = closure_problem(_cached_shells(spectrum, E, m), zeta=z, E_star=E, mean_pressure=p0, closure=closure,
+                              partition_q=partition_q)
+    with engine.grid_family(res.diagnostics["grid"]), \
+            (engine.plain_masses("only") if plain_only else contextlib.nullcontext()):
+        try:
+            return solve_problem(problem, backend=res.backend, rtol=rtol, **sub)
+        except RuntimeError as exc:
+            return replace(res, success=False, message=f"{type(exc).__name__}: {exc}", wall_time=0.0,
+                           diagnostics={"n_stages": len(problem.stages), "plain_failure": str(exc)})
+
+
+def _failed_extrapolation(res: Any, why: str) -> Any:
+    """``res`` (the ``n``-shell answer) marked as a failed shell extrapolation, saying why."""
+    n = int(res.diagnostics["n_shells"])
+    diag = {k: v for k, v in res.diagnostics.items() if k != "plain_masses"}
+    diag.update({"shell_error": None, "shell_extrapolation": False, "shell_extrapolation_failed": why})
+    return replace(res, success=False, diagnostics=diag,
+                   message=f"shell extrapolation failed: {why}; the {n}-shell answer is returned")
+
+
 def _shell_extrapolated(res: Any, spectrum: Spectrum, E: float, p0: float, z: float, closure: str,
                         partition_q: Any, rtol: float, options: dict) -> Any:
     """The continuum closure from ``res`` (:func:`_shell_corrected` where its plain masses were kept, else
@@ -806,24 +849,12 @@ def _shell_corrected(res: Any, spectrum: Spectrum, E: float, p0: float, z: float
     shells' residual as ``|R(top/2, top) - R(top/4, top/2)|/15`` on the ``2N`` grid; both are added to ``res``'s
     estimate.  Where the sum misses ``rtol`` the ``2 top``-shell problem is solved on the same grids (two plain
     grids per doubling).  The cost: two plain grids of ``n/2`` and of ``n/4`` shells, about 0.3x ``res``."""
-    from .api import solve_problem
-    from .solvers.fv import engine
-
-    # the plain masses come from a fourth-order level (a sixth that did not balance ended fourth): the default
-    sub = {k: v for k, v in options.items()
-           if k not in ("n_start", "n_cells", "wall_grading", "wall_depth", "extrapolation")}
-    sub["n_cells"] = int(res.diagnostics["levels"][0])
+    scene = (spectrum, E, p0, z, closure, partition_q)
     plain = {n: res.diagnostics["plain_masses"]}
     timing = {"shells": 0.0}
 
     def on_the_grid(m: int) -> Optional[tuple]:
-        shells = _cached_shells(spectrum, E, m)
-        problem = closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure, partition_q=partition_q)
-        with engine.grid_family(res.diagnostics["grid"]), engine.plain_masses("only"):
-            try:
-                r = solve_problem(problem, backend=res.backend, rtol=rtol, **sub)
-            except RuntimeError:  # a balance with no root on these grids
-                return None
+        r = _coarser_on_grid(res, m, scene, rtol, options, plain_only=True)
         timing["shells"] += r.wall_time
         if r.diagnostics.get("plain_failure") or "plain_masses" not in r.diagnostics \
                 or not np.array_equal(r.edges, res.edges):
@@ -839,12 +870,7 @@ def _shell_corrected(res: Any, spectrum: Spectrum, E: float, p0: float, z: float
             if m not in plain:
                 plain[m] = on_the_grid(m)
         if plain[top] is None or plain[top // 2] is None or plain[top // 4] is None:
-            diag = {**res.diagnostics, "shell_error": None, "shell_extrapolation": False,
-                    "shell_extrapolation_failed": f"a coarser-shell problem did not solve on the {n}-shell grids"}
-            diag.pop("plain_masses", None)
-            return replace(res, success=False, message=f"shell extrapolation failed: a coarser-shell problem "
-                                                        f"did not solve on the {n}-shell grids; the {n}-shell "
-                                                        "answer is returned", diagnostics=diag)
+            return _failed_extrapolation(res, f"a coarser-shell problem did not solve on the {n}-shell grids")
         (p1_t, p2_t), (p1_h, p2_h), (_, p2_q) = plain[top], plain[top // 2], plain[top // 4]
         corr2 = (4.0 * p2_t - p2_h) / 3.0 - plain[n][1]
         corr1 = (4.0 * p1_t - p1_h) / 3.0 - plain[n][0]
@@ -921,28 +947,12 @@ def _shell_combined(res: Any, spectrum: Spectrum, E: float, p0: float, z: float,
     keeps the sum above ``rtol``, the ``2n``-shell problem is solved on the same grids and the top three are
     combined again (one solve per doubling, up to :data:`MAX_CONTINUUM_SHELLS`).  At ``zeta = 0`` every stage
     commutes and the shells do not matter: ``res`` is returned with ``shell_error = 0``."""
-    from .api import solve_problem
-    from .solvers.fv import engine
-
     n = int(res.diagnostics["n_shells"])
-    if z == 0.0 or not res.success or res.edges is None or "grid" not in res.diagnostics:
-        diag = {**res.diagnostics, "shell_error": 0.0 if z == 0.0 else None, "shell_extrapolation": False}
-        return replace(res, diagnostics=diag)
-    sub = {k: v for k, v in options.items() if k not in ("n_start", "n_cells", "wall_grading", "wall_depth")}
-    sub["n_cells"] = int(res.diagnostics["levels"][0])
-    if "extrapolation" in sub:  # as the first solve ended (a sixth that did not balance ended fourth,
-        sub["extrapolation"] = str(res.diagnostics["extrapolation"]).split()[0]  # and says why after the word)
+    scene = (spectrum, E, p0, z, closure, partition_q)
     solved = {n: res}
 
     def on_the_grid(m: int) -> Any:
-        shells = _cached_shells(spectrum, E, m)
-        problem = closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure, partition_q=partition_q)
-        with engine.grid_family(res.diagnostics["grid"]):
-            try:
-                return solve_problem(problem, backend=res.backend, rtol=rtol, **sub)
-            except RuntimeError as exc:  # a balance with no root on these grids: a failed solve, said so
-                return replace(res, success=False, message=f"{type(exc).__name__}: {exc}",
-                               diagnostics={**res.diagnostics, "n_stages": len(problem.stages)})
+        return _coarser_on_grid(res, m, scene, rtol, options, plain_only=False)
 
     def masses(r: Any) -> np.ndarray:
         return np.concatenate(([r.zero_weight], r.density * r.weights))
@@ -956,14 +966,9 @@ def _shell_combined(res: Any, spectrum: Spectrum, E: float, p0: float, z: float,
         if not all(r.success and r.edges is not None and np.array_equal(r.edges, res.edges) for r in others):
             why = "; ".join(f"{int(r.diagnostics.get('n_stages', 0))} stages: {r.message}" for r in others
                             if not r.success)
-            message = ("shell extrapolation failed: " + (why or "a solve's grids differ from the first one's")
-                       + f"; the {int(res.diagnostics['n_shells'])}-shell answer is returned")
-            diag = {**res.diagnostics, "shell_error": None, "shell_extrapolation": False,
-                    "shell_extrapolation_failed": why or "grids"}
-            return replace(res, success=False, message=message, diagnostics=diag)
+            return _failed_extrapolation(res, why or "a solve's grids differ from the first one's")
         m_n, m_h, m_q = masses(top), masses(half), masses(quarter)
         r1 = (4.0 * m_n - m_h) / 3.0
-        r2 = (4.0 * m_h - m_q) / 3.0
         residual, rho = _shell_residual(m_n, m_h, m_q)
         grids = (4.0 * top.error_estimate + half.error_estimate) / 3.0
         if grids + residual <= rtol or 2 * n > MAX_CONTINUUM_SHELLS or grids >= SHELL_SHARE * rtol:
