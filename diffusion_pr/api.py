@@ -215,8 +215,11 @@ def pressure_distribution(
     ``closure`` picks the theory (docs/closures.md):
     ``"second_order"`` (the paper, default; everything below), or the
     parameter-free ``"lognormal_gap"``, ``"local_g1"``, ``"local_g1_balanced"``
-    (:func:`diffusion_pr.closures.closure_distribution`; no cutoff, tail or drift).
-    ``diagnostics["closure"]`` names it in every result.
+    (:func:`diffusion_pr.closures.closure_distribution`; no cutoff, tail or drift;
+    on a continuum spectrum the shell closures answer for the continuum limit,
+    Richardson-extrapolated in the number of shells, unless
+    ``shell_extrapolation=False``).  ``diagnostics["closure"]`` names it in every
+    result.
 
     Steps: ``V = stress_variance(spectrum, E_star, p0, zeta)`` (Eq. 9 with
     ``G1`` of Eq. 10 for ``zeta > 0``; Persson's ``V0`` for ``zeta = 0``);
