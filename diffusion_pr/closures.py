@@ -707,8 +707,6 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
                 raise ValueError(f"{name} must be an even integer >= 16; got {name}={v!r}")
         return _solve_reference(shells, zeta=z, E_star=E, p0=p0, closure=closure, partition_q=partition_q,
                                 n_cells=int(n_cells), n_steps=int(n_steps))
-    from .api import solve_problem
-
     problem = closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure, partition_q=partition_q)
     if closure in _BALANCED and z > 0:
         # part of the closure's definition, not an accuracy knob: its drift cancels the Ito drift of
@@ -722,25 +720,20 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         if shells.q.size % 4:
             raise ValueError(f"shell_extrapolation needs n_shells divisible by 4 (n, n/2, n/4 shells); got "
                              f"n_shells={shells.q.size}")
-    res = _solve_keeping_plain(problem, backend, rtol, options, keep=shell_extrapolation)
-    res.diagnostics["closure"] = closure
-    res.diagnostics["n_shells"] = int(shells.q.size)
+    res = _solve_shells(problem, shells, closure, backend, rtol, options, keep=shell_extrapolation)
     if not shell_extrapolation:
         return res
+    scene = (spectrum, E, p0, z, closure, partition_q)
     first = int(shells.q.size)
     while True:
-        out = _shell_extrapolated(res, spectrum, E, p0, z, closure, partition_q, rtol, options)
-        n = int(shells.q.size)
+        out = _shell_extrapolated(res, scene, rtol, options)
+        n = int(res.diagnostics["n_shells"])
         if "shell_extrapolation_failed" not in out.diagnostics or 2 * n > MAX_CONTINUUM_SHELLS:
             return out
         # a coarser-shell problem did not solve on these grids (wide shells on a steep spectrum at a small load):
         # all three with twice the shells, on the grids of the finer first solve
-        shells = _cached_shells(spectrum, E, 2 * n)
-        problem = closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure,
-                                  partition_q=partition_q)
-        res = _solve_keeping_plain(problem, backend, rtol, options, keep=True)
-        res.diagnostics["closure"] = closure
-        res.diagnostics["n_shells"] = int(shells.q.size)
+        problem, shells = _shell_problem(scene, 2 * n)
+        res = _solve_shells(problem, shells, closure, backend, rtol, options, keep=True)
         res.diagnostics["shells_first_tried"] = first
 
 
@@ -762,16 +755,27 @@ def _shell_residual(m_n: np.ndarray, m_h: np.ndarray, m_q: np.ndarray) -> tuple:
     return difference / (15.0 if rho >= SHELL_ORDER_RATIO else max(rho - 1.0, 1.0)), rho
 
 
-def _solve_keeping_plain(problem: Any, backend: str, rtol: float, options: dict, *, keep: bool) -> Any:
-    """``solve_problem``; with ``keep`` the last level's plain masses are kept in the diagnostics (the shell
-    extrapolation's corrections are taken from them)."""
+def _shell_problem(scene: tuple, m: int) -> tuple:
+    """``(problem, shells)``: the closure of ``scene = (spectrum, E, p0, z, closure, partition_q)`` on ``m``
+    shells of its continuum spectrum."""
+    spectrum, E, p0, z, closure, partition_q = scene
+    shells = _cached_shells(spectrum, E, m)
+    return closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure,
+                           partition_q=partition_q), shells
+
+
+def _solve_shells(problem: Any, shells: Shells, closure: str, backend: str, rtol: float, options: dict, *,
+                  keep: bool) -> Any:
+    """``solve_problem`` with the closure and the shell count in the diagnostics; with ``keep`` the last level's
+    plain masses are kept there too (the shell extrapolation's corrections are taken from them)."""
     from .api import solve_problem
     from .solvers.fv import engine
 
-    if not keep:
-        return solve_problem(problem, backend=backend, rtol=rtol, **options)
-    with engine.plain_masses("keep"):
-        return solve_problem(problem, backend=backend, rtol=rtol, **options)
+    with engine.plain_masses("keep") if keep else contextlib.nullcontext():
+        res = solve_problem(problem, backend=backend, rtol=rtol, **options)
+    res.diagnostics["closure"] = closure
+    res.diagnostics["n_shells"] = int(shells.q.size)
+    return res
 
 
 def _coarser_on_grid(res: Any, m: int, scene: tuple, rtol: float, options: dict, *, plain_only: bool) -> Any:
@@ -781,7 +785,6 @@ def _coarser_on_grid(res: Any, m: int, scene: tuple, rtol: float, options: dict,
     from .api import solve_problem
     from .solvers.fv import engine
 
-    spectrum, E, p0, z, closure, partition_q = scene
     # a sweep's start and grading are the first solve's; the plain masses come from a fourth-order level, and a
     # full solve follows the scheme the first one ended with (a sixth that did not balance ended fourth, and says
     # why after the word)
@@ -792,8 +795,7 @@ def _coarser_on_grid(res: Any, m: int, scene: tuple, rtol: float, options: dict,
             del sub["extrapolation"]
         else:
             sub["extrapolation"] = str(res.diagnostics["extrapolation"]).split()[0]
-    problem = closure_problem(_cached_shells(spectrum, E, m), zeta=z, E_star=E, mean_pressure=p0, closure=closure,
-                              partition_q=partition_q)
+    problem, _ = _shell_problem(scene, m)
     with engine.grid_family(res.diagnostics["grid"]), \
             (engine.plain_masses("only") if plain_only else contextlib.nullcontext()):
         try:
@@ -812,32 +814,30 @@ def _failed_extrapolation(res: Any, why: str) -> Any:
                    message=f"shell extrapolation failed: {why}; the {n}-shell answer is returned")
 
 
-def _shell_extrapolated(res: Any, spectrum: Spectrum, E: float, p0: float, z: float, closure: str,
-                        partition_q: Any, rtol: float, options: dict) -> Any:
+def _shell_extrapolated(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
     """The continuum closure from ``res`` (:func:`_shell_corrected` where its plain masses were kept, else
     :func:`_shell_combined`)."""
-    n_first = res.diagnostics.get("n_shells")
+    z = scene[3]
     if z == 0.0 or not res.success or res.edges is None or "grid" not in res.diagnostics:
         diag = {**res.diagnostics, "shell_error": 0.0 if z == 0.0 else None, "shell_extrapolation": False}
         return replace(res, diagnostics=diag)
     if "plain_masses" in res.diagnostics:
-        out = _shell_corrected(res, spectrum, E, p0, z, closure, partition_q, rtol, options, int(n_first))
+        out = _shell_corrected(res, scene, rtol, options)
         if out.success:
             return out
         # the plain grids' correction misses rtol (on steep spectra at small loads its spatial error dominates):
         # the n/2 and n/4-shell problems are solved in full instead
-        combined = _shell_combined(res, spectrum, E, p0, z, closure, partition_q, rtol, options)
+        combined = _shell_combined(res, scene, rtol, options)
         tried = out.diagnostics["timings"].get("shells", 0.0)
         timings = dict(combined.diagnostics["timings"])
         timings["shells"] = timings.get("shells", 0.0) + tried
         return replace(combined, wall_time=combined.wall_time + tried,
                        diagnostics={**combined.diagnostics, "timings": timings,
                                     "shell_correction_missed": out.message})
-    return _shell_combined(res, spectrum, E, p0, z, closure, partition_q, rtol, options)
+    return _shell_combined(res, scene, rtol, options)
 
 
-def _shell_corrected(res: Any, spectrum: Spectrum, E: float, p0: float, z: float, closure: str,
-                     partition_q: Any, rtol: float, options: dict, n: int) -> Any:
+def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
     """The continuum closure as ``res`` plus a correction from plain grids.
 
     ``res`` (``n`` shells) is extrapolated in space; the difference between it and the continuum is a
@@ -849,7 +849,7 @@ def _shell_corrected(res: Any, spectrum: Spectrum, E: float, p0: float, z: float
     shells' residual as ``|R(top/2, top) - R(top/4, top/2)|/15`` on the ``2N`` grid; both are added to ``res``'s
     estimate.  Where the sum misses ``rtol`` the ``2 top``-shell problem is solved on the same grids (two plain
     grids per doubling).  The cost: two plain grids of ``n/2`` and of ``n/4`` shells, about 0.3x ``res``."""
-    scene = (spectrum, E, p0, z, closure, partition_q)
+    n = int(res.diagnostics["n_shells"])
     plain = {n: res.diagnostics["plain_masses"]}
     timing = {"shells": 0.0}
 
@@ -885,28 +885,32 @@ def _shell_corrected(res: Any, spectrum: Spectrum, E: float, p0: float, z: float
             top //= 2
             break
     estimate = grids + residual
-    masses = np.concatenate(([res.zero_weight], res.density * res.weights)) + corr2
-    cells = masses[1:]
-    centre = 0.5 * (res.edges[:-1] + res.edges[1:])
-    m_res = res.density * res.weights
-    mom = res.p * m_res + centre * corr2[1:]
-    ok = cells > 1e-300
-    bary = np.clip(np.where(ok, mom / np.where(ok, cells, 1.0), centre), res.edges[:-1], res.edges[1:])
-    return _continuum_result(res, masses, bary, estimate=estimate, grids=grids, residual=residual,
-                             shell_error=l1(plain[n][1] - plain[n // 2][1]) / 3.0, n=top, p0=p0, rtol=rtol,
+    # the first moments per cell: the answer's, corrected with the plain cells' (at their centres)
+    mom = res.p * (res.density * res.weights) + 0.5 * (res.edges[:-1] + res.edges[1:]) * corr2[1:]
+    return _continuum_result(res, _masses(res) + corr2, mom, estimate=estimate, grids=grids, residual=residual,
+                             shell_error=l1(plain[n][1] - plain[n // 2][1]) / 3.0, n=top, p0=scene[2], rtol=rtol,
                              extra={"shell_correction_error": corr_error, "shell_order_ratio": rho,
                                     "shells_solved": tuple(sorted(m for m in plain if plain[m] is not None)),
                                     "shell_scheme": "correction from plain grids"},
                              extra_time=timing["shells"])
 
 
-def _continuum_result(res: Any, masses: np.ndarray, bary: np.ndarray, *, estimate: float, grids: float,
+def _masses(r: Any) -> np.ndarray:
+    """``[zero weight, cell masses]`` of a finite-volume result."""
+    return np.concatenate(([r.zero_weight], r.density * r.weights))
+
+
+def _continuum_result(res: Any, masses: np.ndarray, mom: np.ndarray, *, estimate: float, grids: float,
                       residual: float, shell_error: float, n: int, p0: float, rtol: float, extra: dict,
                       extra_time: float) -> Any:
-    """The result of the shell extrapolation: ``res`` with the continuum's masses ``[zero weight, cells]`` and
-    barycentres, its checks (estimate, mass, negative probability) and diagnostics."""
+    """The result of the shell extrapolation: ``res`` with the continuum's masses ``[zero weight, cells]``, the
+    cells' barycentres from their first moments ``mom`` (kept inside their cells, the midpoint where the mass is
+    not positive, as the engine's results), its checks (estimate, mass, negative probability) and diagnostics."""
     cells = masses[1:]
     w = res.weights
+    ok = cells > 1e-300
+    centre = 0.5 * (res.edges[:-1] + res.edges[1:])
+    bary = np.clip(np.where(ok, mom / np.where(ok, cells, 1.0), centre), res.edges[:-1], res.edges[1:])
     negative = float(-cells[cells < 0.0].sum())
     mass = float(masses.sum())
     mean = float(bary @ cells + res.edges[0] * masses[0])
@@ -933,8 +937,7 @@ def _continuum_result(res: Any, masses: np.ndarray, bary: np.ndarray, *, estimat
                    error_estimate=float(estimate), wall_time=res.wall_time + extra_time, diagnostics=diag)
 
 
-def _shell_combined(res: Any, spectrum: Spectrum, E: float, p0: float, z: float, closure: str,
-                    partition_q: Any, rtol: float, options: dict) -> Any:
+def _shell_combined(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
     """The continuum closure from the ``n``-shell result ``res``: Richardson extrapolation in the number of shells.
 
     The shell sum is the exponential midpoint rule in ``tau`` (each shell's coefficients at its ``tau``-midpoint),
@@ -948,14 +951,10 @@ def _shell_combined(res: Any, spectrum: Spectrum, E: float, p0: float, z: float,
     combined again (one solve per doubling, up to :data:`MAX_CONTINUUM_SHELLS`).  At ``zeta = 0`` every stage
     commutes and the shells do not matter: ``res`` is returned with ``shell_error = 0``."""
     n = int(res.diagnostics["n_shells"])
-    scene = (spectrum, E, p0, z, closure, partition_q)
     solved = {n: res}
 
     def on_the_grid(m: int) -> Any:
         return _coarser_on_grid(res, m, scene, rtol, options, plain_only=False)
-
-    def masses(r: Any) -> np.ndarray:
-        return np.concatenate(([r.zero_weight], r.density * r.weights))
 
     while True:
         for m in (n // 2, n // 4):
@@ -967,7 +966,7 @@ def _shell_combined(res: Any, spectrum: Spectrum, E: float, p0: float, z: float,
             why = "; ".join(f"{int(r.diagnostics.get('n_stages', 0))} stages: {r.message}" for r in others
                             if not r.success)
             return _failed_extrapolation(res, why or "a solve's grids differ from the first one's")
-        m_n, m_h, m_q = masses(top), masses(half), masses(quarter)
+        m_n, m_h, m_q = _masses(top), _masses(half), _masses(quarter)
         r1 = (4.0 * m_n - m_h) / 3.0
         residual, rho = _shell_residual(m_n, m_h, m_q)
         grids = (4.0 * top.error_estimate + half.error_estimate) / 3.0
@@ -976,15 +975,11 @@ def _shell_combined(res: Any, spectrum: Spectrum, E: float, p0: float, z: float,
         n *= 2  # the residual falls 16x per doubling: one more solve on the same grids
         solved[n] = on_the_grid(n)
     estimate = grids + residual
-    # the first moments per cell, extrapolated alike: the barycentres (kept inside their cells, as the engine does)
+    # the first moments per cell, extrapolated alike
     w = res.weights
     mom = (4.0 * top.p * top.density * w - half.p * half.density * w) / 3.0
-    cells = r1[1:]
-    ok = cells > 1e-300
-    centre = 0.5 * (res.edges[:-1] + res.edges[1:])
-    bary = np.clip(np.where(ok, mom / np.where(ok, cells, 1.0), centre), res.edges[:-1], res.edges[1:])
-    return _continuum_result(res, r1, bary, estimate=estimate, grids=grids, residual=residual,
-                             shell_error=float(np.sum(np.abs(m_n - m_h))) / 3.0, n=n, p0=p0, rtol=rtol,
+    return _continuum_result(res, r1, mom, estimate=estimate, grids=grids, residual=residual,
+                             shell_error=float(np.sum(np.abs(m_n - m_h))) / 3.0, n=n, p0=scene[2], rtol=rtol,
                              extra={"shells_solved": tuple(sorted(solved)), "shell_scheme": "combined solves",
                                     "shell_order_ratio": rho},
                              extra_time=sum(r.wall_time for r in solved.values() if r is not res))

@@ -1164,7 +1164,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         r_mom = _extrapolate(_pairs(mom3), mom2, 4.0)
         mean_full = float(np.sum(r_mom) + e2[0] * r23[0])
         # the quantity reported: cells below the floor lumped into zero_weight (before any other step)
-        j1 = int(np.searchsorted(e1, prep.lump_below)) if prep.lump_below > 0 else 0
+        j1 = _cells_below_floor(prep, e1)
         j2 = 2 * j1
         diff = _lump(_aggregate(r23), j1) - _lump(r12, j1)  # the Richardson differences on the N grid
         est = float(np.sum(np.abs(diff))) / RICHARDSON_DIVISOR
@@ -1213,7 +1213,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                  (interp / (SAFETY * rtol)) ** (1.0 / INTERPOLATION_ORDER),
                                  (mean_miss / (SAFETY * rtol * prep.p0)) ** (1.0 / order))
         best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(len(es))], mean_full, interp, need)
-        best_grid = (prep.spec, tuple(int(i) for i in idx))
+        best_grid = _grid_of(prep, idx)
         best_plain = (_lump(y1, j1), _lump(y2, j2)) if plain_mode == "keep" and not sixth else None
         trimmed = _trimmed_depth(prep, float(out_y[0]) + est, rtol) if len(history) == 1 else None
         if (est <= SAFETY * rtol and mean_miss <= SAFETY * rtol * prep.p0) or n_cells is not None:
@@ -1290,6 +1290,16 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                         failure=failure)
 
 
+def _cells_below_floor(prep: Prepared, edges: np.ndarray) -> int:
+    """How many cells of the grid ``edges`` lie below the floor (lumped into the zero weight of an answer)."""
+    return int(np.searchsorted(edges, prep.lump_below)) if prep.lump_below > 0 else 0
+
+
+def _grid_of(prep: Prepared, idx: np.ndarray) -> tuple:
+    """``diagnostics["grid"]``: the family and the knot indices of a level (what :func:`grid_family` takes)."""
+    return prep.spec, tuple(int(i) for i in idx)
+
+
 def _plain_result(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple], idx: np.ndarray, *, backend: str,
                   rtol: float, t_start: float, t_prep: float) -> PressureDistribution:
     """The result of a solve under ``plain_masses("only")``: the N and 2N grids' own masses, lumped below the floor
@@ -1297,7 +1307,7 @@ def _plain_result(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple],
     estimate: ``success`` is False by construction, ``diagnostics["plain_failure"]`` is a balance's failure or
     None)."""
     (y1, _), (y2, _) = ys
-    j1 = int(np.searchsorted(es[0], prep.lump_below)) if prep.lump_below > 0 else 0
+    j1 = _cells_below_floor(prep, es[0])
     broken = [cc["balance_failure"] for _, cc in ys if "balance_failure" in cc]
     timings = {"setup": t_prep, "solve": time.perf_counter() - t_start - t_prep,
                "total": time.perf_counter() - t_start}
@@ -1306,7 +1316,7 @@ def _plain_result(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple],
                         timings=timings, failure="plain masses only (no extrapolation, no estimate)",
                         extra={"levels": [int(idx[-1]), 2 * int(idx[-1])], "plain_masses": plain,
                                "plain_failure": broken[0] if broken else None,
-                               "grid": (prep.spec, tuple(int(i) for i in idx))})
+                               "grid": _grid_of(prep, idx)})
 
 
 def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarray, estimate: float, rtol: float,
