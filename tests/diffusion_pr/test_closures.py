@@ -377,28 +377,60 @@ def test_lognormal_gap_mean_at_small_zeta(fig1):
 
 
 # ----------------------------------------------------------------------------- shells: the continuum limit
-@pytest.mark.parametrize("closure", ["local_g1_balanced", "local_g1"])
-def test_shell_extrapolation_reaches_the_continuum_closure(fig1, closure):
+@pytest.mark.parametrize("closure, zeta, scheme", [
+    ("local_g1_balanced", 1.0, "correction from plain grids"),
+    ("local_g1", 1.0, "correction from plain grids"),
+    ("local_g1", 0.25, "correction from plain grids, extrapolated in space (4N grids)")])
+def test_shell_extrapolation_reaches_the_continuum_closure(fig1, closure, zeta, scheme):
     """The shell sum is a midpoint rule in tau: 96 shells differ from the continuum closure by about 5e-5 in the cdf
-    (Fig. 1 scene, zeta = 1), 50x rtol; the default for a continuum spectrum is the extrapolated answer.  The oracle is the
-    continuum closure from independent solves: 384 and 768 shells at rtol 1e-9 on their own grids, Richardson
-    (their difference falls 4.00x per doubling; what is left of it is < 1e-8).  shell_extrapolation meets rtol
-    against it (measured 7.8e-8 sup in the cdf; its estimate 5.3e-7), the plain 96-shell answer does not
-    (measured 5.2e-5), and diagnostics["shell_error"] says how far that one is (1.4e-4 in L1)."""
-    kw = dict(E_star=E, mean_pressure=P0, zeta=1.0, closure=closure)
+    (Fig. 1 scene), 50x rtol; the default for a continuum spectrum is the extrapolated answer: a 48-shell solve
+    corrected from the plain grids of 24, 12 and 6 shells, Romberg to sixth order (the observed ratio of the
+    Richardson differences is 15.3, a fourth order).  At zeta = 0.25 the plain correction's own spatial error (6e-7)
+    is too large, and the 4N grids extrapolate it in space.  The oracle is the continuum closure from independent
+    solves: 384 and 768 shells at rtol 1e-9 on their own grids, Richardson (what is left of it is < 1e-9).
+    shell_extrapolation meets rtol against it (measured 1.4e-7 / 1.5e-7 / 3.7e-8 sup in the cdf, 6.5e-7 / 7.1e-7 /
+    1.3e-7 in L1; estimates 9.1e-7 / 9.9e-7 / 3.9e-7), the plain 96-shell answer does not (measured 5.2e-5 / 5.3e-5 / 7.7e-5), and
+    diagnostics["shell_error"] says how far the 48-shell one is (5.7e-4 ... 6.7e-4 in L1)."""
+    kw = dict(E_star=E, mean_pressure=P0, zeta=zeta, closure=closure)
     fine = {n: closure_distribution(fig1, rtol=1e-9, n_shells=n, **kw) for n in (384, 768)}
     r = closure_distribution(fig1, **kw)  # the default for a continuum spectrum
     plain = closure_distribution(fig1, shell_extrapolation=False, **kw)
     edges = r.edges
     oracle = (4.0 * fine[768].cdf(edges) - fine[384].cdf(edges)) / 3.0
     true = np.max(np.abs(r.cdf(edges) - oracle))
-    assert r.success and r.diagnostics["shell_extrapolation"] and r.diagnostics["n_shells"] == (96, 48, 24)
-    assert r.diagnostics["shell_scheme"] == "correction from plain grids"  # the cheap path (0.3x of the solve)
+    assert r.success and r.diagnostics["shell_extrapolation"] and r.diagnostics["n_shells"] == (48, 24, 12)
+    assert r.diagnostics["shell_scheme"] == scheme  # the cheap paths (0.38x / 0.88x of the solve)
+    assert r.diagnostics["shells_solved"] == (6, 12, 24, 48) and r.diagnostics["shell_extrapolation_order"] == 6
+    assert 12.0 < r.diagnostics["richardson_order_ratio"] < 20.0  # fourth order: the rule is symmetric
     assert true < 1e-6 and true < 10 * r.error_estimate
+    # in L1 (the estimate's norm; cell masses on the answer's edges and the weight below them): the estimate bounds
+    # the true error (measured 6.5e-7 / 7.1e-7 / 1.3e-7 against 9.1e-7 / 9.9e-7 / 3.9e-7; at zeta = 0.25 the
+    # correction not extrapolated in space is 7.1e-7 off with an estimate of 5.0e-7)
+    cdf = r.cdf(edges)
+    l1_true = abs(cdf[0] - oracle[0]) + float(np.sum(np.abs(np.diff(cdf) - np.diff(oracle))))
+    assert l1_true < min(1e-6, r.error_estimate)
     plain_err = np.max(np.abs(plain.cdf(edges) - oracle))
     assert plain_err > 1e-5  # what the extrapolation removes: the 96-shell problem's distance from the continuum
-    assert r.diagnostics["shell_error"] > plain_err  # its L1 estimate bounds the sup of the cdf
+    assert r.diagnostics["shell_error"] > 4 * plain_err  # 48 shells: its L1 estimate bounds 4x the 96's sup
     assert abs(r.diagnostics["mass_error"]) < 1e-6 and abs(r.diagnostics["mean_error"]) < 1e-6 * P0
+
+
+def test_shell_midpoints_are_exact_in_diffusion_time(fig1):
+    """Each continuum shell's node is where the cumulative V0 reaches half the shell (the spectrum's own cumulative
+    is the oracle), to 1e-12 of the shell's power: with the linear interpolation used before (32 points per
+    shell) the node was off by O(h^3), the rule was not symmetric and R(n/2, n) fell 8x per doubling (third
+    order) instead of 16x, which made its /15 residual 2x optimistic."""
+    from diffusion_pr.closures import MIDPOINT_TOL
+
+    w = lambda q: (0.25 * E * E) * q * q  # noqa: E731
+    for spectrum in (fig1, dp.SelfAffineSpectrum(0.8, 1.0, 300.0, q_roll=7.0, rms_slope=0.2)):
+        for n in (6, 48, 96, 1536):
+            shells = spectrum_shells(spectrum, E_star=E, n_shells=n)
+            edges = np.geomspace(spectrum.q_min, spectrum.q_max, n + 1)
+            cum = spectrum.cumulative(w, edges)
+            mid = 0.5 * (cum[1:] + cum[:-1])
+            assert np.all(np.abs(spectrum.cumulative(w, shells.q) - mid) <= 2 * MIDPOINT_TOL * shells.dV0 + 1e-15 * mid)
+            assert np.all((shells.q > edges[:-1]) & (shells.q < edges[1:]))
 
 
 def test_shell_extrapolation_is_checked(fig1):
@@ -426,14 +458,16 @@ def test_shell_extrapolation_is_checked(fig1):
 
 
 def test_shell_extrapolation_doubles_the_shells_where_its_residual_misses(fig1):
-    """Balanced closure, Fig. 1 scene, zeta = 0.01: from 96/48/24 shells the residual estimate (1.1e-6) keeps the
-    sum above rtol (the 24-shell level is not yet asymptotic there), so the 192-shell problem is solved on the same
-    grids and 192/96/48 combined (measured: estimate 6.9e-7, true 2.4e-7 in the cdf against the 384/768 oracle)."""
+    """Balanced closure, Fig. 1 scene, zeta = 0.01: near p* = zeta q E*/2 the shells converge at a lower order
+    (the Richardson differences fall 3-11x per doubling, not 16x), so no Romberg step, and from 48/24/12 shells the
+    residual estimate keeps the sum above rtol: the 96-, 192- and 384-shell problems are solved on the same grids
+    and 384/192/96 combined (measured: estimate 6.1e-7, true 4.4e-8 in the cdf against the 384/768 oracle)."""
     kw = dict(E_star=E, mean_pressure=P0, zeta=0.01, closure="local_g1_balanced")
     r = closure_distribution(fig1, **kw)
-    assert r.success and r.diagnostics["n_shells"] == (192, 96, 48)
-    assert r.diagnostics["shells_solved"] == (24, 48, 96, 192)
+    assert r.success and r.diagnostics["n_shells"] == (384, 192, 96)
+    assert r.diagnostics["shells_solved"] == (6, 12, 24, 48, 96, 192, 384)
     assert r.diagnostics["shell_scheme"] == "correction from plain grids"  # doubled on the plain grids
+    assert r.diagnostics["shell_extrapolation_order"] == 4 and r.diagnostics["richardson_order_ratio"] < 12.0
     # the oracle at rtol 1e-8 (1e-9 takes 40 s at this wall): its own error is 1% of the tolerance asserted
     fine = {n: closure_distribution(fig1, rtol=1e-8, n_shells=n, **kw) for n in (384, 768)}
     oracle = (4.0 * fine[768].cdf(r.edges) - fine[384].cdf(r.edges)) / 3.0
@@ -442,17 +476,17 @@ def test_shell_extrapolation_doubles_the_shells_where_its_residual_misses(fig1):
 
 
 def test_shell_extrapolation_starts_finer_where_coarse_shells_do_not_solve():
-    """A stress scene (H = 0.8, rms slope 0.1, q from 2 pi/4096 to 2 pi/16, p0 = 1e-5, zeta = 3e-3): the correction
-    from plain grids misses rtol there, and solved in full the 24-shell problem does not converge on the 96-shell
-    problem's grids, so all three start from twice the shells (192/96/48), where the plain grids' correction meets
-    rtol.  The answer agrees with the 384/768-shell oracle (measured 1.6e-8; estimate 9.8e-9)."""
-    spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 4096, 2 * np.pi / 16, rms_slope=0.1)
-    kw = dict(E_star=E, mean_pressure=1e-5, zeta=3e-3, closure="local_g1_balanced")
+    """A stress scene (H = 0.8, rms slope 0.031, p0 = 1e-5, zeta = 1e-3): the 12-shell problem has no balance on
+    the 48-shell problem's grids (its first shell is far wider than p0), so all start from twice the shells
+    (96/48/24), where the plain grids' correction meets rtol.  The answer agrees with the 768/1536-shell oracle
+    (measured 1.7e-7; estimate 5.6e-7; the oracle moves by 9e-9 from 384/768 to 768/1536)."""
+    spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+    kw = dict(E_star=E, mean_pressure=1e-5, zeta=1e-3, closure="local_g1_balanced")
     r = closure_distribution(spec, **kw)
-    assert r.success and r.diagnostics["shells_first_tried"] == 96 and r.diagnostics["n_shells"] == (192, 96, 48)
+    assert r.success and r.diagnostics["shells_first_tried"] == 48 and r.diagnostics["n_shells"] == (96, 48, 24)
     x = np.geomspace(1e-8, 1e3, 3000) * 1e-5
-    fine = {n: closure_distribution(spec, rtol=1e-8, n_shells=n, **kw) for n in (384, 768)}
-    assert np.max(np.abs((4.0 * fine[768].cdf(x) - fine[384].cdf(x)) / 3.0 - r.cdf(x))) < 1e-6
+    fine = {n: closure_distribution(spec, rtol=1e-8, n_shells=n, **kw) for n in (768, 1536)}
+    assert np.max(np.abs((4.0 * fine[1536].cdf(x) - fine[768].cdf(x)) / 3.0 - r.cdf(x))) < 1e-6
     assert abs(r.diagnostics["mean_error"]) < 1e-6 * 1e-5
 
 
@@ -470,10 +504,11 @@ def test_continuum_closure_is_the_same_from_pypde(fig1):
 
 
 def test_plain_masses_are_the_grids_own_and_need_a_fixed_grid(fig1):
-    """engine.plain_masses: under "keep" a solve reports its last level's N- and 2N-grid masses (lumped below the
-    floor like the answer: the 2N one on the answer's edges, the N one on every other edge), each summing to 1
-    within the grids' own error; under "only" it integrates those two grids of a given family and no more (the
-    same masses, bit for bit, as the full solve's), and refuses without a fixed grid."""
+    """engine.plain_masses: under "keep" a solve reports its last level's N-, 2N- and 4N-grid masses (lumped below
+    the floor like the answer: the 2N one on the answer's edges, the N one on every other edge), each summing to 1
+    within the grids' own error; under "only" it integrates the two coarser grids of a given family and no more,
+    under "finest" the 4N grid alone (the same masses, bit for bit, as the full solve's), and refuses without a
+    fixed grid."""
     from diffusion_pr.api import solve_problem
     from diffusion_pr.solvers.fv import engine
 
@@ -481,16 +516,22 @@ def test_plain_masses_are_the_grids_own_and_need_a_fixed_grid(fig1):
     problem = closure_problem(shells, zeta=1.0, E_star=E, mean_pressure=P0, closure="local_g1")
     with engine.plain_masses("keep"):
         full = solve_problem(problem, backend="native", rtol=1e-6)
-    p1, p2 = full.diagnostics["plain_masses"]
-    assert p2.size == full.edges.size and 2 * (p1.size - 1) == p2.size - 1
-    assert abs(p1.sum() - 1.0) < 1e-9 and abs(p2.sum() - 1.0) < 1e-9
-    with engine.grid_family(full.diagnostics["grid"]), engine.plain_masses("only"):
-        only = solve_problem(problem, backend="native", rtol=1e-6, n_cells=full.diagnostics["levels"][0])
-    assert np.array_equal(only.edges, full.edges)
-    assert np.array_equal(only.diagnostics["plain_masses"][1], p2) and np.array_equal(only.diagnostics["plain_masses"][0], p1)
-    assert not only.success and only.diagnostics["plain_failure"] is None
+    p1, p2, p4 = full.diagnostics["plain_masses"]
+    assert p2.size == full.edges.size and 2 * (p1.size - 1) == p2.size - 1 and 2 * (p2.size - 1) == p4.size - 1
+    assert abs(p1.sum() - 1.0) < 1e-9 and abs(p2.sum() - 1.0) < 1e-9 and abs(p4.sum() - 1.0) < 1e-9
+    for mode, grids in (("only", (0, 1)), ("finest", (2,))):
+        with engine.grid_family(full.diagnostics["grid"]), engine.plain_masses(mode):
+            only = solve_problem(problem, backend="native", rtol=1e-6, n_cells=full.diagnostics["levels"][0])
+        got = only.diagnostics["plain_masses"]
+        for g in range(3):
+            assert (np.array_equal(got[g], full.diagnostics["plain_masses"][g]) if g in grids else got[g] is None)
+        assert not only.success and only.diagnostics["plain_failure"] is None
+    assert np.array_equal(only.edges[::2], full.edges)  # the finest grid's edges: every 2nd is the answer's
     with engine.plain_masses("only"), pytest.raises(ValueError, match="needs grid_family"):
         solve_problem(problem, backend="native", rtol=1e-6)
+    with pytest.raises(ValueError, match="mode must be 'keep', 'only' or 'finest'"):
+        with engine.plain_masses("all"):
+            pass
 
 
 def test_shell_extrapolation_after_a_sixth_that_ended_fourth():

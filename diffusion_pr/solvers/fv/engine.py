@@ -102,14 +102,16 @@ _PLAIN: contextvars.ContextVar = contextvars.ContextVar("plain_masses", default=
 
 @contextlib.contextmanager
 def plain_masses(mode: str):
-    """Within the block, finite-volume solves report the plain cell masses of their last level's two coarser grids
-    (``mode="keep"``: ``diagnostics["plain_masses"] = (N grid, 2N grid)``, each lumped below the floor as the
-    answer is) or, with ``mode="only"`` under :func:`grid_family` and ``n_cells``, integrate only those two grids
-    and return them (no Richardson, no estimate: ``diagnostics["plain_failure"]`` says whether a balance failed).
-    The closures' extrapolation in the number of shells takes its corrections from them (the difference of two
-    problems on the same grid has correlated spatial errors)."""
-    if mode not in ("keep", "only"):
-        raise ValueError(f"mode must be 'keep' or 'only'; got mode={mode!r}")
+    """Within the block, finite-volume solves report the plain cell masses of their last level's three grids
+    (``mode="keep"``: ``diagnostics["plain_masses"] = (N grid, 2N grid, 4N grid)``, each lumped below the floor as
+    the answer is) or, under :func:`grid_family` and ``n_cells``, integrate only the N and 2N grids
+    (``mode="only"``) or only the 4N grid (``mode="finest"``) and return those (the others None; no Richardson,
+    no estimate: ``diagnostics["plain_failure"]`` says whether a balance failed).  The closures' extrapolation in
+    the number of shells takes its corrections from them (the difference of two problems on the same grid has
+    correlated spatial errors): from the two coarser grids, and from the 4N grid too where the correction's own
+    spatial error needs its extrapolation."""
+    if mode not in ("keep", "only", "finest"):
+        raise ValueError(f"mode must be 'keep', 'only' or 'finest'; got mode={mode!r}")
     token = _PLAIN.set(mode)
     try:
         yield
@@ -130,6 +132,10 @@ INTERPOLATION_ORDER = 4
 INTERPOLATION_MARGIN = 1.25
 #: extrapolation="sixth": cells of the first level's coarsest grid at rtol 1e-4 (times (1e-4/rtol)^(1/6))
 START_CELLS_SIXTH = 25
+#: a plain-mass solve's two grids run in one thread below this many cell-stages (3 N x stages) where no balance
+#: is solved (measured, Fig. 1 scene: local_g1, 176 cells, 6/24/96 shells: one thread 0.37/0.82/2.61 ms, two
+#: 0.54/0.84/3.14; a balanced closure's Newton steps make two threads faster from 6 shells on, 1.25 against 1.38 ms)
+PARALLEL_MIN_WORK = 60000
 #: refinement stops when the estimate is below SAFETY * rtol (margin for the estimate's own error)
 SAFETY = 0.5
 #: cells of the first level's coarsest grid at rtol 1e-4 (times (1e-4/rtol)^(1/4), at least 16)
@@ -349,7 +355,8 @@ def _tail_quantile(mass: float) -> float:
     return z
 
 
-def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: bool = True) -> Prepared:
+def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: bool = True,
+            on_grid: Optional[GridSpec] = None) -> Prepared:
     """Classify the wall, bound the domain and fix the grid family of ``problem``.
 
     Raises
@@ -361,9 +368,14 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
 
     ``lamperti=False``: the upper end from the spread alone, never the shorter
     Lamperti bound (the fallback of :func:`solve_fv` where that bound was too short).
+    ``on_grid``: the grid family is given (another problem's, :func:`grid_family`): no domain probe, no
+    grading; the wall, the floor and the lumping are classified for it (the plain-mass solves of
+    :func:`plain_masses`, 0.3-1 ms each saved).
     """
     p0, pieces, time_dependent, segment_fn = _pieces_of(problem)
     tau_end = float(sum(pc.duration for pc in pieces))
+    if on_grid is not None:
+        return _prepared_on(problem, p0, pieces, time_dependent, segment_fn, tau_end, on_grid, p_floor)
     # spread: sqrt(2 sum dtau max f) on an expanding probe, plus the drift displacement
     p_hi = p0 * 4.0
     points = PROBE_POINTS_COARSE
@@ -418,22 +430,7 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
             if y_l[-1] > z:
                 p_max = min(p_max, float(np.interp(z, y_l, nodes)) + shift)
                 lamperti_bounded = p_max < new
-    # Feller's criterion on every stage: the wall absorbs if one of them reaches it
-    bps: list[float] = []
-    k_min = math.inf
-    scale = p0
-    for pc in pieces[:1] if time_dependent else pieces:
-        for g in (pc.f, pc.b, pc.w):
-            if g is not None:
-                bps.extend(breakpoints_of(g, 0.0, p_max))
-    if bps:
-        scale = min(p0, min(bps))
-    for pc in pieces[:1] if time_dependent else pieces:
-        k_min = min(k_min, zero_power_of(pc.f, scale))
-    reached = wall_reached(k_min)
-    floor = 0.0 if reached else (FLOOR * p0 if p_floor is None else float(p_floor))
-    if not reached and not (0.0 < floor < p0):
-        raise ValueError(f"p_floor must be in (0, mean_pressure); got p_floor={p_floor!r}")
+    bps, k_min, reached, floor = _wall_of(pieces, time_dependent, p0, p_max, p_floor)
     has_balance = any(pc.w is not None for pc in pieces)
     has_drift = any(pc.b is not None for pc in pieces)
     # far from the wall (p0 - z s above the floor) less than the tail tolerance gets below p0 - z s:
@@ -477,6 +474,42 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
                     label=getattr(problem, "label", ""), segment_fn=segment_fn,
                     balance_per_stage=bool(getattr(problem, "balance_per_stage", False)),
                     depth_adaptive=depth_adaptive, lamperti_bounded=lamperti_bounded)
+
+
+def _wall_of(pieces: Sequence, time_dependent: bool, p0: float, p_max: float, p_floor: Optional[float]) -> tuple:
+    """``(breakpoints, zero power, reached, floor)``: Feller's criterion on every stage (the wall absorbs if one of
+    them reaches it) and the floor of a wall that is not reached."""
+    bps: list[float] = []
+    k_min = math.inf
+    scale = p0
+    for pc in pieces[:1] if time_dependent else pieces:
+        for g in (pc.f, pc.b, pc.w):
+            if g is not None:
+                bps.extend(breakpoints_of(g, 0.0, p_max))
+    if bps:
+        scale = min(p0, min(bps))
+    for pc in pieces[:1] if time_dependent else pieces:
+        k_min = min(k_min, zero_power_of(pc.f, scale))
+    reached = wall_reached(k_min)
+    floor = 0.0 if reached else (FLOOR * p0 if p_floor is None else float(p_floor))
+    if not reached and not (0.0 < floor < p0):
+        raise ValueError(f"p_floor must be in (0, mean_pressure); got p_floor={p_floor!r}")
+    return bps, k_min, reached, floor
+
+
+def _prepared_on(problem, p0: float, pieces: Sequence, time_dependent: bool, segment_fn: Any, tau_end: float,
+                 spec: GridSpec, p_floor: Optional[float]) -> Prepared:
+    """:func:`prepare` on a given grid family (``on_grid``): the classification without the domain probe."""
+    _, k_min, reached, floor = _wall_of(pieces, time_dependent, p0, spec.p_max, p_floor)
+    has_balance = any(pc.w is not None for pc in pieces)
+    has_drift = any(pc.b is not None for pc in pieces)
+    truncated = not reached and spec.p_wall > floor  # the domain starts above the floor (prepare's p_lo)
+    return Prepared(mean_conserved=has_balance or not has_drift, p0=p0, tau_end=tau_end, pieces=tuple(pieces),
+                    time_dependent=time_dependent, spec=spec, zero_power=k_min, reached=reached, p_floor=floor,
+                    has_balance=has_balance, lump_below=floor if not (reached or truncated) else 0.0,
+                    label=getattr(problem, "label", ""), segment_fn=segment_fn,
+                    balance_per_stage=bool(getattr(problem, "balance_per_stage", False)),
+                    depth_adaptive=not (reached or truncated or has_drift or has_balance), lamperti_bounded=False)
 
 
 def native_assemble(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray],
@@ -1042,12 +1075,12 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         return again("extrapolation", f"fourth (the sixth's grids did not balance: {failure})",
                      extrapolation="fourth")
 
-    prep = prepare(problem, rtol=rtol, p_floor=p_floor, lamperti=_lamperti)
     forced = _FORCED_GRID.get()
     plain_mode = _PLAIN.get()
-    plain_only = plain_mode == "only"
+    plain_only = plain_mode in ("only", "finest")
     if plain_only and (forced is None or n_cells is None or sixth):
-        raise ValueError("plain_masses('only') needs grid_family, n_cells and extrapolation='fourth'")
+        raise ValueError(f"plain_masses({plain_mode!r}) needs grid_family, n_cells and extrapolation='fourth'")
+    prep = prepare(problem, rtol=rtol, p_floor=p_floor, lamperti=_lamperti, on_grid=forced[0] if plain_only else None)
     if forced is not None:  # another problem's grids (grid_family); its domain, grading and depth as they were
         prep = replace(prep, spec=forced[0])
     if wall_grading is not None:
@@ -1106,13 +1139,21 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         if depth * n_base > max_cells and history:
             failure = f"refinement stopped at max_cells={max_cells} (the next grid needs {depth * n_base} cells)"
             break
-        finest = edges_for(prep.spec, idx, depth)  # the coarser grids are every 2nd / 4th (/ 8th) edge of it
+        # the coarser grids are every 2nd / 4th (/ 8th) edge of it (a forced grid's remembered: the shells' plain
+        # solves ask for the same one several times)
+        finest = _forced_edges(prep.spec, idx, depth) if forced is not None else edges_for(prep.spec, idx, depth)
         es = [finest[::depth >> k] for k in range(depth.bit_length())]  # coarsest first
-        if plain_only:
-            es = es[:2]  # the N and 2N grids alone (plain_masses)
+        ks = list(range(len(es)))  # each grid's refinement exponent (its cells are n_base << k)
+        if plain_only:  # the N and 2N grids alone, or the 4N grid alone (plain_masses)
+            ks = [0, 1] if plain_mode == "only" else [2]
+            es = [es[k] for k in ks]
         if reuse is not None and not (np.array_equal(es[0], reuse[1]) and np.array_equal(es[1], reuse[2])):
             reuse = None  # not nested to the last bit (never seen): integrate all three grids
-        parallel = threads > 1 and loop is None and assemble is native_assemble and _compiled(prep)
+        # (not for a plain solve's two grids without a balance below PARALLEL_MIN_WORK cell-stages: handing the 2N
+        # grid to a thread costs more than it saves)
+        parallel = threads > 1 and loop is None and assemble is native_assemble and _compiled(prep) and not (
+            plain_mode == "finest" or (plain_only and not prep.has_balance
+                                       and 3 * n_base * len(prep.pieces) < PARALLEL_MIN_WORK))
         last = len(es) - 1
         if reuse is not None:
             coef3 = _coefficients(prep.pieces, [es[-1]], centre_drift=assemble is not native_assemble)[0]
@@ -1124,15 +1165,16 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                 coefs = _coefficients_lazy(prep.pieces, es, ((last,), tuple(range(last))) if parallel
                                            else (tuple(range(last + 1)),),
                                            centre_drift=assemble is not native_assemble)
-                tasks = [lambda e=e, rf=1 << k, g=k: integrate(prep, e, n_base, rf, coefs(g))
-                         for k, e in enumerate(es)]
+                tasks = [lambda e=e, rf=1 << k, g=g: integrate(prep, e, n_base, rf, coefs(g))
+                         for g, (k, e) in enumerate(zip(ks, es))]
             else:
-                tasks = [lambda e=e, rf=1 << k: integrate(prep, e, n_base, rf) for k, e in enumerate(es)]
+                tasks = [lambda e=e, rf=1 << k: integrate(prep, e, n_base, rf) for k, e in zip(ks, es)]
             ys = _run_grids(tasks, parallel)
         grids_integrated += 1 if reuse is not None else len(es)
         reuse = None
         if plain_only:
-            return _plain_result(prep, es, ys, idx, backend=backend, rtol=rtol, t_start=t_start, t_prep=t_prep)
+            return _plain_result(prep, es, ys, idx, ks, backend=backend, rtol=rtol, t_start=t_start,
+                                 t_prep=t_prep)
         (y1, c1), (y2, c2), (y3, cnt) = ys[-3:]
         e1, e2, e3 = es[-3:]
         broken = [cc["balance_failure"] for _, cc in ys if "balance_failure" in cc]
@@ -1214,7 +1256,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                  (mean_miss / (SAFETY * rtol * prep.p0)) ** (1.0 / order))
         best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(len(es))], mean_full, interp, need)
         best_grid = _grid_of(prep, idx)
-        best_plain = (_lump(y1, j1), _lump(y2, j2)) if plain_mode == "keep" and not sixth else None
+        best_plain = (_lump(y1, j1), _lump(y2, j2), _lump(y3, 2 * j2)) if plain_mode == "keep" and not sixth \
+            else None
         trimmed = _trimmed_depth(prep, float(out_y[0]) + est, rtol) if len(history) == 1 else None
         if (est <= SAFETY * rtol and mean_miss <= SAFETY * rtol * prep.p0) or n_cells is not None:
             if REGRADE and n_start is not None and _regradable(prep):
@@ -1290,6 +1333,22 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                         failure=failure)
 
 
+_EDGES_CACHE: dict = {}
+
+
+def _forced_edges(spec: GridSpec, idx: np.ndarray, depth: int) -> np.ndarray:
+    """:func:`edges_for` of a forced grid (:func:`grid_family`), remembered for the last few (read-only)."""
+    key = (spec, tuple(int(i) for i in idx), int(depth))
+    hit = _EDGES_CACHE.get(key)
+    if hit is None:
+        hit = edges_for(spec, idx, depth)
+        hit.setflags(write=False)
+        if len(_EDGES_CACHE) >= 8:
+            _EDGES_CACHE.pop(next(iter(_EDGES_CACHE)))
+        _EDGES_CACHE[key] = hit
+    return hit
+
+
 def _cells_below_floor(prep: Prepared, edges: np.ndarray) -> int:
     """How many cells of the grid ``edges`` lie below the floor (lumped into the zero weight of an answer)."""
     return int(np.searchsorted(edges, prep.lump_below)) if prep.lump_below > 0 else 0
@@ -1300,23 +1359,32 @@ def _grid_of(prep: Prepared, idx: np.ndarray) -> tuple:
     return prep.spec, tuple(int(i) for i in idx)
 
 
-def _plain_result(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple], idx: np.ndarray, *, backend: str,
-                  rtol: float, t_start: float, t_prep: float) -> PressureDistribution:
-    """The result of a solve under ``plain_masses("only")``: the N and 2N grids' own masses, lumped below the floor
-    as an answer is, in ``diagnostics["plain_masses"]``; the density is the 2N grid's (not extrapolated, no
-    estimate: ``success`` is False by construction, ``diagnostics["plain_failure"]`` is a balance's failure or
-    None)."""
-    (y1, _), (y2, _) = ys
-    j1 = _cells_below_floor(prep, es[0])
+def _plain_result(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple], idx: np.ndarray,
+                  ks: Sequence[int], *, backend: str, rtol: float, t_start: float, t_prep: float
+                  ) -> PressureDistribution:
+    """The result of a solve under ``plain_masses("only")`` or ``("finest")``: the grids' own masses (``ks`` their
+    refinement exponents: N and 2N, or 4N), lumped below the floor as an answer is, in
+    ``diagnostics["plain_masses"]`` (the N, 2N and 4N grid's places, None where not integrated); the density is the
+    finest integrated grid's (not extrapolated, no estimate: ``success`` is False by construction,
+    ``diagnostics["plain_failure"]`` is a balance's failure or None)."""
+    j1 = _cells_below_floor(prep, _coarsest(es[0], ks[0]))  # the N grid's cells below the floor
     broken = [cc["balance_failure"] for _, cc in ys if "balance_failure" in cc]
     timings = {"setup": t_prep, "solve": time.perf_counter() - t_start - t_prep,
                "total": time.perf_counter() - t_start}
-    plain = (_lump(y1, j1), _lump(y2, 2 * j1))
-    return build_result(prep, backend=backend, edges=es[1][2 * j1:], y=plain[1], estimate=float("inf"), rtol=rtol,
-                        timings=timings, failure="plain masses only (no extrapolation, no estimate)",
-                        extra={"levels": [int(idx[-1]), 2 * int(idx[-1])], "plain_masses": plain,
+    plain = [None, None, None]
+    for k, (y, _) in zip(ks, ys):
+        plain[k] = _lump(y, j1 << k)
+    last = ks[-1]
+    return build_result(prep, backend=backend, edges=es[-1][j1 << last:], y=plain[last], estimate=float("inf"),
+                        rtol=rtol, timings=timings, failure="plain masses only (no extrapolation, no estimate)",
+                        extra={"levels": [int(idx[-1]) << k for k in ks], "plain_masses": tuple(plain),
                                "plain_failure": broken[0] if broken else None,
                                "grid": _grid_of(prep, idx)})
+
+
+def _coarsest(edges: np.ndarray, k: int) -> np.ndarray:
+    """The coarsest (N) grid of a family from its grid with ``N << k`` cells (every ``2^k``-th edge)."""
+    return edges[::1 << k]
 
 
 def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarray, estimate: float, rtol: float,
