@@ -679,21 +679,25 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         96 shells alone differ from the continuum closure by 2.5-6e-5 in the
         cdf (1.3-1.6e-4 in L1) on the Fig. 1 scene, 50x rtol 1e-6.  Default
         (None): True for a continuum spectrum without ``n_shells``, else False.
-        True: the continuum closure, by Richardson extrapolation in the number
-        of shells, ``(4 Pr(n) - Pr(n/2))/3`` cell by cell on the ``n``-shell
-        solve's grids (``n`` = ``n_shells``, a multiple of 4, default 96),
-        with ``error_estimate`` the grids' estimate plus
-        ``|R(n/2, n) - R(n/4, n/2)|/15`` in L1 (the extrapolation's residual);
-        where that misses ``rtol`` the shells double (the residual falls 16x, up
-        to :data:`MAX_CONTINUUM_SHELLS`, each doubling one more solve on the
-        same grids; ``diagnostics["shells_solved"]``).
+        True: the continuum closure, extrapolated in the number of shells
+        cell by cell on the ``n``-shell solve's grids (``n`` = ``n_shells``, a
+        multiple of 4, default :data:`EXTRAPOLATION_SHELLS` = 48): the
+        ``n/2``-, ``n/4``- and ``n/8``-shell problems are integrated on its two
+        coarser grids (all three where the correction's own spatial error
+        needs it), and :func:`_shell_table` combines them: Romberg to sixth
+        order, ``(16 R(n/2, n) - R(n/4, n/2))/15`` with
+        ``R(n/2, n) = (4 Pr(n) - Pr(n/2))/3``, where the observed order is four
+        (the rule is symmetric: exact ``tau``-midpoints), else ``R(n/2, n)``
+        with its residual divided by the observed order.  ``error_estimate``
+        is the grids' estimate plus the correction's spatial error plus that
+        residual in L1; where it misses ``rtol`` the shells double (up to
+        :data:`MAX_CONTINUUM_SHELLS`, each doubling one more solve on the same
+        grids; ``diagnostics["shells_solved"]``).
         ``diagnostics["shell_error"]`` is the ``n``-shell problem's distance from
-        the continuum, ``L1 |Pr(n) - Pr(n/2)|/3``.  The coarser shells are
-        integrated on the ``n``-shell solve's two coarser grids alone where
-        that correction meets ``rtol`` (else in full): 1.3-1.7x the time of
-        one ``n``-shell solve on the Fig. 1 scene at ``zeta >= 0.1``, 2.2-4.6x
-        below, where more shells are needed (docs/closures.md, "Shells: the
-        continuum limit").
+        the continuum, ``L1 |Pr(n) - Pr(n/2)|/3``.  On the Fig. 1 scene at
+        rtol 1e-6: 7.4-20 ms at ``zeta >= 0.1``, 17-165 ms below, where the
+        order is lower and more shells are needed (docs/closures.md, "Exact
+        midpoints and Romberg in the shells").
         False: the ``n``-shell problem itself within ``rtol`` (its estimate
         does not contain the distance from the continuum; a
         :class:`~diffusion_pr.spectra.DiscreteSpectrum`'s shells are exact).
