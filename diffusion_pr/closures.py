@@ -1007,11 +1007,12 @@ def _shell_table(ladder: list) -> tuple:
       ``rho - 1`` at most 15), never less than :func:`_shell_residual` says from the ``P`` alone.
 
     Without ``P(n/8)`` (a balance with no root on 6 shells, or ``n`` not divisible by 8), ``R(n/2, n)`` with
-    :func:`_shell_residual`."""
+    :func:`_shell_residual`.  ``diagnostics["shell_weights"]``: the continuum as weights of ``P(n) ... P(n/8)``
+    (for the first moments and the spatial errors of full solves, :func:`_shell_combined`)."""
     p_n, p_h, p_q = ladder[:3]
     r_n, r_h = (4.0 * p_n - p_h) / 3.0, (4.0 * p_h - p_q) / 3.0
     residual, rho_p = _shell_residual(p_n, p_h, p_q)
-    info = {"shell_order_ratio": rho_p, "shell_extrapolation_order": 4}
+    info = {"shell_order_ratio": rho_p, "shell_extrapolation_order": 4, "shell_weights": (4 / 3, -1 / 3, 0.0, 0.0)}
     if len(ladder) < 4:
         return r_n, residual, info
     r_q = (4.0 * p_q - ladder[3]) / 3.0
@@ -1021,6 +1022,7 @@ def _shell_table(ladder: list) -> tuple:
     if rho_p >= SHELL_ORDER_RATIO and rho_r >= ROMBERG_RATIO:
         x_n, x_h = (16.0 * r_n - r_h) / 15.0, (16.0 * r_h - r_q) / 15.0
         info["shell_extrapolation_order"] = 6
+        info["shell_weights"] = (64 / 45, -20 / 45, 1 / 45, 0.0)  # x_n in the P's
         return x_n, float(np.sum(np.abs(x_n - x_h))) / 15.0, info
     return r_n, max(residual, d_top / min(15.0, max(rho_r - 1.0, 1.0))), info
 
@@ -1068,38 +1070,39 @@ def _continuum_result(res: Any, masses: np.ndarray, mom: np.ndarray, *, estimate
 
 
 def _shell_combined(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
-    """The continuum closure from the ``n``-shell result ``res``: Richardson extrapolation in the number of shells.
+    """The continuum closure from the ``n``-shell result ``res`` and full solves of fewer shells on its grids.
 
-    The shell sum is the exponential midpoint rule in ``tau`` (each shell's coefficients at its ``tau``-midpoint),
-    second order in the shell width: measured on the Fig. 1 scene, the cdf differences of 48/96/192/384/768
-    shells fall by 4.00x per doubling.  The ``n/2`` and ``n/4``-shell problems are solved on ``res``'s grids
-    (:func:`~diffusion_pr.solvers.fv.engine.grid_family`, ``n_cells`` its coarsest), so the cell masses combine
-    cell by cell: ``R(n/2, n) = (4 m(n) - m(n/2))/3`` is the answer; ``|R(n/2, n) - R(n/4, n/2)|/15`` in L1 the
-    estimate of its residual (the next term, fourth order in a symmetric rule), added to the grids' estimate
-    ``(4 e(n) + e(n/2))/3`` (the spatial errors of the two solves, not assumed to cancel).  Where the residual
-    keeps the sum above ``rtol``, the ``2n``-shell problem is solved on the same grids and the top three are
-    combined again (one solve per doubling, up to :data:`MAX_CONTINUUM_SHELLS`).  At ``zeta = 0`` every stage
-    commutes and the shells do not matter: ``res`` is returned with ``shell_error = 0``."""
+    The ``n/2``-, ``n/4``- and (where ``n/8 >= MIN_ROMBERG_SHELLS`` shells solve there) ``n/8``-shell problems
+    are solved on ``res``'s grids (:func:`~diffusion_pr.solvers.fv.engine.grid_family`, ``n_cells`` its coarsest),
+    so the cell masses combine cell by cell as :func:`_shell_table` says (Richardson, or Romberg where the
+    observed order allows it), its residual added to the grids' estimate: the solves' own estimates with the
+    table's weights in absolute value (``(4 e(n) + e(n/2))/3`` for Richardson; the spatial errors of the solves
+    are not assumed to cancel).  Where the sum misses ``rtol``, the ``2n``-shell problem is solved on the same
+    grids and the table is made again from the top (one solve per doubling, up to :data:`MAX_CONTINUUM_SHELLS`).
+    Used where the plain grids' correction misses (:func:`_shell_extrapolated`) or no plain masses were kept."""
     n = int(res.diagnostics["n_shells"])
     solved = {n: res}
 
     def on_the_grid(m: int) -> Any:
         return _coarser_on_grid(res, m, scene, rtol, options, plain=None)
 
+    def usable(r: Any) -> bool:
+        return bool(r.success and r.edges is not None and np.array_equal(r.edges, res.edges))
+
     while True:
-        for m in (n // 2, n // 4):
+        for m in (n // 2, n // 4) + ((n // 8,) if n % 8 == 0 and n // 8 >= MIN_ROMBERG_SHELLS else ()):
             if m not in solved:
                 solved[m] = on_the_grid(m)
-        top, half, quarter = solved[n], solved[n // 2], solved[n // 4]
-        others = [r for r in (top, half, quarter) if r is not res]
-        if not all(r.success and r.edges is not None and np.array_equal(r.edges, res.edges) for r in others):
-            why = "; ".join(f"{int(r.diagnostics.get('n_stages', 0))} stages: {r.message}" for r in others
+        three = [solved[n >> k] for k in range(3)]
+        if not all(usable(r) for r in three):
+            why = "; ".join(f"{int(r.diagnostics.get('n_stages', 0))} stages: {r.message}" for r in three
                             if not r.success)
             return _failed_extrapolation(res, why or "a solve's grids differ from the first one's")
-        m_n, m_h, m_q = _masses(top), _masses(half), _masses(quarter)
-        r1 = (4.0 * m_n - m_h) / 3.0
-        residual, rho = _shell_residual(m_n, m_h, m_q)
-        grids = (4.0 * top.error_estimate + half.error_estimate) / 3.0
+        used = three + ([solved[n // 8]] if n % 8 == 0 and n // 8 in solved and usable(solved[n // 8]) else [])
+        masses = [_masses(r) for r in used]
+        x, residual, table = _shell_table(masses)
+        weights = table["shell_weights"][:len(used)]
+        grids = sum(abs(c) * r.error_estimate for c, r in zip(weights, used))
         if grids + residual <= rtol or 2 * n > MAX_CONTINUUM_SHELLS or grids >= SHELL_SHARE * rtol:
             break
         n *= 2  # the residual falls 16x per doubling: one more solve on the same grids
@@ -1107,9 +1110,9 @@ def _shell_combined(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
     estimate = grids + residual
     # the first moments per cell, extrapolated alike
     w = res.weights
-    mom = (4.0 * top.p * top.density * w - half.p * half.density * w) / 3.0
-    return _continuum_result(res, r1, mom, estimate=estimate, grids=grids, residual=residual,
-                             shell_error=float(np.sum(np.abs(m_n - m_h))) / 3.0, n=n, p0=scene[2], rtol=rtol,
-                             extra={"shells_solved": tuple(sorted(solved)), "shell_scheme": "combined solves",
-                                    "shell_order_ratio": rho},
+    mom = sum(c * r.p * r.density * w for c, r in zip(weights, used))
+    return _continuum_result(res, x, mom, estimate=estimate, grids=grids, residual=residual,
+                             shell_error=float(np.sum(np.abs(masses[0] - masses[1]))) / 3.0, n=n, p0=scene[2],
+                             rtol=rtol, extra={"shells_solved": tuple(sorted(m for m, r in solved.items() if usable(r))),
+                                               "shell_scheme": "combined solves", **table},
                              extra_time=sum(r.wall_time for r in solved.values() if r is not res))
