@@ -178,8 +178,9 @@ def spectrum_shells(spectrum: Spectrum, *, E_star: float, n_shells: Optional[int
 def _tau_midpoints(spectrum: Spectrum, weight: Any, ln_edges: np.ndarray, cum_edges: np.ndarray) -> np.ndarray:
     """``ln q`` of each shell's midpoint in diffusion time: where the cumulative ``V0`` reaches half the shell.
 
-    Solved to round-off (regula falsi, Illinois variant, on :meth:`~diffusion_pr.spectra.Spectrum.cumulative`), not interpolated:
-    the rule is symmetric only with the exact midpoint.  A linearly interpolated midpoint (32 points per shell,
+    Solved to 1e-12 of the shell's power (regula falsi, Illinois variant, on
+    :meth:`~diffusion_pr.spectra.Spectrum.cumulative`), not interpolated: the rule is symmetric only with the exact
+    midpoint.  A linearly interpolated midpoint (32 points per shell,
     up to the ninth session) is off by ``O(h^2) x O(h/32)`` in ``ln q``, which adds a third-order term to the
     shells' error expansion: ``R(n/2, n)`` then fell 8x per doubling instead of 16x, and the ``/15`` residual was 2x
     optimistic (Fig. 1 scene, ``local_g1``, ``zeta = 1``: 1.7e-7 at 96 shells against an estimate of 8.4e-8; with
@@ -197,7 +198,7 @@ def _tau_midpoints(spectrum: Spectrum, weight: Any, ln_edges: np.ndarray, cum_ed
     for _ in range(60):
         if not np.any(live):
             break
-        # the secant (regula falsi) point of the bracket, or its midpoint where that stalls
+        # the secant point of the bracket (regula falsi), or its midpoint where that leaves the bracket
         with np.errstate(divide="ignore", invalid="ignore"):
             xs = lo - f_lo * (hi - lo) / (f_hi - f_lo)
         xs = np.where(np.isfinite(xs) & (xs > lo) & (xs < hi), xs, 0.5 * (lo + hi))
@@ -219,7 +220,7 @@ def _tau_midpoints(spectrum: Spectrum, weight: Any, ln_edges: np.ndarray, cum_ed
         live[idx[done]] = False
     if np.any(live):
         raise RuntimeError(f"the diffusion-time midpoints of {int(live.sum())} shells did not converge in 60 "
-                           "bracketed secant steps")
+                           "regula falsi steps")
     return x
 
 
@@ -790,9 +791,9 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
 
 
 def _shell_residual(m_n: np.ndarray, m_h: np.ndarray, m_q: np.ndarray) -> tuple:
-    """``(estimate, rho)``: the L1 error of ``R(n/2, n) = (4 m(n) - m(n/2))/3`` from the masses of ``n``, ``n/2``
-    and ``n/4`` shells, and the observed ratio ``rho = |m(n/2) - m(n/4)| / |m(n) - m(n/2)|`` (L1; 4 for the
-    midpoint rule's second order).
+    """``(estimate, rho, difference)``: the L1 error of ``R(n/2, n) = (4 m(n) - m(n/2))/3`` from the masses of
+    ``n``, ``n/2`` and ``n/4`` shells, the observed ratio ``rho = |m(n/2) - m(n/4)| / |m(n) - m(n/2)|`` (L1; 4 for
+    the midpoint rule's second order) and ``|R(n/2, n) - R(n/4, n/2)|`` in L1.
 
     With an error ``a n^-p`` the extrapolation leaves ``a n^-p (4 - 2^p)/3`` and
     ``R(n/2, n) - R(n/4, n/2) = a n^-p (4 - 2^p)(1 - 2^p)/3``: the error is that difference over ``rho - 1``
@@ -804,7 +805,7 @@ def _shell_residual(m_n: np.ndarray, m_h: np.ndarray, m_q: np.ndarray) -> tuple:
     d_half = float(np.sum(np.abs(m_h - m_q)))
     rho = d_half / d_top if d_top > 0.0 else math.inf
     difference = float(np.sum(np.abs((4.0 * m_n - m_h) / 3.0 - (4.0 * m_h - m_q) / 3.0)))
-    return difference / (15.0 if rho >= SHELL_ORDER_RATIO else max(rho - 1.0, 1.0)), rho
+    return difference / (15.0 if rho >= SHELL_ORDER_RATIO else max(rho - 1.0, 1.0)), rho, difference
 
 
 def _shell_problem(scene: tuple, m: int) -> tuple:
@@ -921,8 +922,9 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
     def solve_plain(m: int, mode: str) -> Optional[tuple]:
         r = _coarser_on_grid(res, m, scene, rtol, options, plain=mode)
         timing["shells"] += r.wall_time
-        if r.diagnostics.get("plain_failure") or "plain_masses" not in r.diagnostics:
-            return None
+        if r.diagnostics.get("plain_failure") or "plain_masses" not in r.diagnostics \
+                or not np.array_equal(r.edges if mode == "only" else r.edges[::2], res.edges):
+            return None  # (the 4N grid's every second edge is the answer's)
         return r.diagnostics["plain_masses"]
 
     def on_the_grids(m: int) -> None:
@@ -1011,12 +1013,12 @@ def _shell_table(ladder: list) -> tuple:
     (for the first moments and the spatial errors of full solves, :func:`_shell_combined`)."""
     p_n, p_h, p_q = ladder[:3]
     r_n, r_h = (4.0 * p_n - p_h) / 3.0, (4.0 * p_h - p_q) / 3.0
-    residual, rho_p = _shell_residual(p_n, p_h, p_q)
+    residual, rho_p, d_top = _shell_residual(p_n, p_h, p_q)
     info = {"shell_order_ratio": rho_p, "shell_extrapolation_order": 4, "shell_weights": (4 / 3, -1 / 3, 0.0, 0.0)}
     if len(ladder) < 4:
         return r_n, residual, info
     r_q = (4.0 * p_q - ladder[3]) / 3.0
-    d_top, d_half = float(np.sum(np.abs(r_n - r_h))), float(np.sum(np.abs(r_h - r_q)))
+    d_half = float(np.sum(np.abs(r_h - r_q)))
     rho_r = d_half / d_top if d_top > 0.0 else math.inf
     info["richardson_order_ratio"] = rho_r
     if rho_p >= SHELL_ORDER_RATIO and rho_r >= ROMBERG_RATIO:
@@ -1113,6 +1115,7 @@ def _shell_combined(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
     mom = sum(c * r.p * r.density * w for c, r in zip(weights, used))
     return _continuum_result(res, x, mom, estimate=estimate, grids=grids, residual=residual,
                              shell_error=float(np.sum(np.abs(masses[0] - masses[1]))) / 3.0, n=n, p0=scene[2],
-                             rtol=rtol, extra={"shells_solved": tuple(sorted(m for m, r in solved.items() if usable(r))),
-                                               "shell_scheme": "combined solves", **table},
+                             rtol=rtol,
+                             extra={"shells_solved": tuple(sorted(m for m, r in solved.items() if usable(r))),
+                                    "shell_scheme": "combined solves", **table},
                              extra_time=sum(r.wall_time for r in solved.values() if r is not res))

@@ -389,8 +389,8 @@ def test_shell_extrapolation_reaches_the_continuum_closure(fig1, closure, zeta, 
     is too large, and the 4N grids extrapolate it in space.  The oracle is the continuum closure from independent
     solves: 384 and 768 shells at rtol 1e-9 on their own grids, Richardson (what is left of it is < 1e-9).
     shell_extrapolation meets rtol against it (measured 1.4e-7 / 1.5e-7 / 3.7e-8 sup in the cdf, 6.5e-7 / 7.1e-7 /
-    1.3e-7 in L1; estimates 9.1e-7 / 9.9e-7 / 3.9e-7), the plain 96-shell answer does not (measured 5.2e-5 / 5.3e-5 / 7.7e-5), and
-    diagnostics["shell_error"] says how far the 48-shell one is (5.7e-4 ... 6.7e-4 in L1)."""
+    1.3e-7 in L1; estimates 9.1e-7 / 9.9e-7 / 3.9e-7), the plain 96-shell answer does not (measured 5.2e-5 /
+    5.3e-5 / 7.7e-5), and diagnostics["shell_error"] says how far the 48-shell one is (5.7e-4 ... 6.7e-4 in L1)."""
     kw = dict(E_star=E, mean_pressure=P0, zeta=zeta, closure=closure)
     fine = {n: closure_distribution(fig1, rtol=1e-9, n_shells=n, **kw) for n in (384, 768)}
     r = closure_distribution(fig1, **kw)  # the default for a continuum spectrum

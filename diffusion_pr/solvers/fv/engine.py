@@ -497,8 +497,8 @@ def _wall_of(pieces: Sequence, time_dependent: bool, p0: float, p_max: float, p_
     return bps, k_min, reached, floor
 
 
-def _prepared_on(problem, p0: float, pieces: Sequence, time_dependent: bool, segment_fn: Any, tau_end: float,
-                 spec: GridSpec, p_floor: Optional[float]) -> Prepared:
+def _prepared_on(problem, p0: float, pieces: Sequence, time_dependent: bool, segment_fn: Optional[Callable],
+                 tau_end: float, spec: GridSpec, p_floor: Optional[float]) -> Prepared:
     """:func:`prepare` on a given grid family (``on_grid``): the classification without the domain probe."""
     _, k_min, reached, floor = _wall_of(pieces, time_dependent, p0, spec.p_max, p_floor)
     has_balance = any(pc.w is not None for pc in pieces)
