@@ -582,3 +582,21 @@ def test_shell_extrapolation_with_full_solves_where_no_plain_grids_are_kept(fig1
     assert r.diagnostics["grid_estimate"] >= 64 / 45 * alone.error_estimate
 
 
+
+
+def test_forced_grids_do_not_make_the_kernels_compile_again(fig1):
+    """The plain solves run on remembered forced grids (engine._forced_edges); a read-only array is another type to
+    numba, and the first plain solve of the 4N path then loaded (or compiled) another specialization of the staged
+    kernel: 47 ms on a warm cache, seconds without one.  After solves through both plain paths (zeta = 1: N/2N
+    grids; zeta = 0.25: the 4N grids too) no compiled kernel has a read-only signature."""
+    import numba
+
+    from diffusion_pr.solvers.fv import _kernels
+
+    for zeta in (1.0, 0.25):
+        closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure="local_g1")
+    dispatchers = [k for k in vars(_kernels).values() if isinstance(k, numba.core.registry.CPUDispatcher)]
+    assert any(k.signatures for k in dispatchers)
+    read_only = [str(sig) for k in dispatchers for sig in k.signatures
+                 if any(isinstance(t, numba.types.Array) and not t.mutable for t in sig)]
+    assert not read_only

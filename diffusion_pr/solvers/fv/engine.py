@@ -1337,16 +1337,18 @@ _EDGES_CACHE: dict = {}
 
 
 def _forced_edges(spec: GridSpec, idx: np.ndarray, depth: int) -> np.ndarray:
-    """:func:`edges_for` of a forced grid (:func:`grid_family`), remembered for the last few (read-only)."""
+    """:func:`edges_for` of a forced grid (:func:`grid_family`), remembered for the last few.
+
+    A copy is returned: writable, as every other grid (a read-only array is another type to numba, and its
+    kernels' first use in a process cost a 47 ms cache load, or a compilation)."""
     key = (spec, tuple(int(i) for i in idx), int(depth))
     hit = _EDGES_CACHE.get(key)
     if hit is None:
         hit = edges_for(spec, idx, depth)
-        hit.setflags(write=False)
         if len(_EDGES_CACHE) >= 8:
             _EDGES_CACHE.pop(next(iter(_EDGES_CACHE)))
         _EDGES_CACHE[key] = hit
-    return hit
+    return hit.copy()
 
 
 def _cells_below_floor(prep: Prepared, edges: np.ndarray) -> int:
