@@ -432,7 +432,7 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
                 lamperti_bounded = p_max < new
     bps, k_min, reached, floor = _wall_of(pieces, time_dependent, p0, p_max, p_floor)
     has_balance = any(pc.w is not None for pc in pieces)
-    has_drift = any(pc.b is not None for pc in pieces)
+    has_drift = any(pc.b is not None for pc in pieces)  # (the domain's depth below the floor depends on both)
     # far from the wall (p0 - z s above the floor) less than the tail tolerance gets below p0 - z s:
     # the domain starts there (what arrives is booked into zero_weight, below the tail tolerance)
     p_lo = p0 - (z * s + shift)
@@ -465,15 +465,10 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
     else:  # stages: the variance a start at p0 accumulates, sum_k 2 dtau_k f_k(p0) (not 2 tau_end max_k f_k)
         w_loc = math.sqrt(2.0 * sum(pc.duration * fk for pc, fk in zip(pieces, f_p0)))
     c_0, w0 = (1.0, max(w_loc, 1e-3 * s)) if w_loc < 0.25 * s else (0.0, s)
-    depth_adaptive = not (reached or truncated or has_drift or has_balance)
     c_wall = 0.0 if (reached or truncated) else C_WALL
     spec = GridSpec(p_wall=floor_domain, p_max=p_max, knots=tuple(pruned), scale=s, c_wall=c_wall, c_0=c_0, w0=w0, p0=p0)
-    return Prepared(mean_conserved=has_balance or not has_drift, p0=p0, tau_end=tau_end, pieces=tuple(pieces), time_dependent=time_dependent, spec=spec,
-                    zero_power=k_min, reached=reached, p_floor=floor, has_balance=has_balance,
-                    lump_below=floor if extra_knots else 0.0,
-                    label=getattr(problem, "label", ""), segment_fn=segment_fn,
-                    balance_per_stage=bool(getattr(problem, "balance_per_stage", False)),
-                    depth_adaptive=depth_adaptive, lamperti_bounded=lamperti_bounded)
+    return _prepared(problem, p0, pieces, time_dependent, segment_fn, tau_end, spec, k_min, reached, floor,
+                     truncated, lamperti_bounded)
 
 
 def _wall_of(pieces: Sequence, time_dependent: bool, p0: float, p_max: float, p_floor: Optional[float]) -> tuple:
@@ -501,15 +496,26 @@ def _prepared_on(problem, p0: float, pieces: Sequence, time_dependent: bool, seg
                  tau_end: float, spec: GridSpec, p_floor: Optional[float]) -> Prepared:
     """:func:`prepare` on a given grid family (``on_grid``): the classification without the domain probe."""
     _, k_min, reached, floor = _wall_of(pieces, time_dependent, p0, spec.p_max, p_floor)
+    truncated = not reached and spec.p_wall > floor  # the domain starts above the floor (prepare's p_lo)
+    return _prepared(problem, p0, pieces, time_dependent, segment_fn, tau_end, spec, k_min, reached, floor,
+                     truncated, False)
+
+
+def _prepared(problem, p0: float, pieces: Sequence, time_dependent: bool, segment_fn: Optional[Callable],
+              tau_end: float, spec: GridSpec, k_min: float, reached: bool, floor: float, truncated: bool,
+              lamperti_bounded: bool) -> Prepared:
+    """The :class:`Prepared` record of a classified problem on its grid family (:func:`prepare`,
+    :func:`_prepared_on`): the floor is an edge whose cells below are lumped where the wall is not reached and the
+    domain is not truncated above it."""
     has_balance = any(pc.w is not None for pc in pieces)
     has_drift = any(pc.b is not None for pc in pieces)
-    truncated = not reached and spec.p_wall > floor  # the domain starts above the floor (prepare's p_lo)
     return Prepared(mean_conserved=has_balance or not has_drift, p0=p0, tau_end=tau_end, pieces=tuple(pieces),
                     time_dependent=time_dependent, spec=spec, zero_power=k_min, reached=reached, p_floor=floor,
                     has_balance=has_balance, lump_below=floor if not (reached or truncated) else 0.0,
                     label=getattr(problem, "label", ""), segment_fn=segment_fn,
                     balance_per_stage=bool(getattr(problem, "balance_per_stage", False)),
-                    depth_adaptive=not (reached or truncated or has_drift or has_balance), lamperti_bounded=False)
+                    depth_adaptive=not (reached or truncated or has_drift or has_balance),
+                    lamperti_bounded=lamperti_bounded)
 
 
 def native_assemble(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray],
@@ -1369,7 +1375,7 @@ def _plain_result(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple],
     ``diagnostics["plain_masses"]`` (the N, 2N and 4N grid's places, None where not integrated); the density is the
     finest integrated grid's (not extrapolated, no estimate: ``success`` is False by construction,
     ``diagnostics["plain_failure"]`` is a balance's failure or None)."""
-    j1 = _cells_below_floor(prep, _coarsest(es[0], ks[0]))  # the N grid's cells below the floor
+    j1 = _cells_below_floor(prep, es[0][::1 << ks[0]])  # the N grid's (every 2^k-th edge) cells below the floor
     broken = [cc["balance_failure"] for _, cc in ys if "balance_failure" in cc]
     timings = {"setup": t_prep, "solve": time.perf_counter() - t_start - t_prep,
                "total": time.perf_counter() - t_start}
@@ -1382,11 +1388,6 @@ def _plain_result(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple],
                         extra={"levels": [int(idx[-1]) << k for k in ks], "plain_masses": tuple(plain),
                                "plain_failure": broken[0] if broken else None,
                                "grid": _grid_of(prep, idx)})
-
-
-def _coarsest(edges: np.ndarray, k: int) -> np.ndarray:
-    """The coarsest (N) grid of a family from its grid with ``N << k`` cells (every ``2^k``-th edge)."""
-    return edges[::1 << k]
 
 
 def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarray, estimate: float, rtol: float,
