@@ -46,6 +46,7 @@ __all__ = [
     "CLOSURES",
     "Shells",
     "spectrum_shells",
+    "shell_grading",
     "local_response",
     "lognormal_gap_distribution",
     "closure_distribution",
@@ -84,6 +85,22 @@ ROMBERG_RATIO = 12.0
 MIN_ROMBERG_SHELLS = 6
 #: the diffusion-time midpoint of a shell is solved to this fraction of the shell's power (:func:`_tau_midpoints`)
 MIDPOINT_TOL = 1e-12
+#: The shells' gradings (:func:`spectrum_shells`): the edges ``ln q = a + (b - a) x(s)`` with ``s`` uniform and
+#: ``x(s)`` = ``s`` ("uniform"), ``1 - (1 - s)^2`` ("end": the last shell ``~h^2`` wide) or ``s^2 (3 - 2 s)``
+#: ("ends": the first and the last; :func:`shell_grading` chooses, docs/closures.md "Graded shells")
+SHELL_GRADINGS: tuple[str, ...] = ("uniform", "end", "ends")
+#: ``kappa = p*(q_max)^2 / tau_last`` (the wall's layer ``p* = zeta q_max E*/2`` against the diffusion length of the
+#: last of :data:`EXTRAPOLATION_SHELLS` uniform shells, ``tau_last = dV0_last/2``) below which the shells are graded
+#: towards the end.  Measured on the Fig. 1 scene (``local_g1``, L1 of Romberg at 48 shells against the continuum):
+#: graded wins at ``kappa = 1.9`` (``zeta = 0.05``: 7.7e-8 against 4.1e-7), uniform at ``kappa = 7.7``
+#: (``zeta = 0.1``: 3.0e-8 against 1.6e-6); the geometric middle.  :data:`START_LAYER_RATIO` likewise for the start
+WALL_LAYER_RATIO = 4.0
+#: ``lambda = p0^2 / tau_first`` (the load's distance from the wall against the diffusion length of the first of
+#: :data:`EXTRAPOLATION_SHELLS` uniform shells) below which a thin wall layer's shells are graded at the start too
+#: ("ends").  Measured (``local_g1_balanced``, ``zeta = 0.01``, R at 48/96 shells): "ends" wins at ``lambda = 1.4``
+#: (Fig. 1 spectrum, ``p0 = 1e-3``: 2.6e-6/3.3e-7 against 5.2e-6/7.1e-7 "end") and far below (``H = 0.8``,
+#: ``p0 = 1e-5``, ``zeta = 1e-3``: order two against one), "end" at ``lambda = 22`` (Fig. 1, ``p0 = 4e-3``)
+START_LAYER_RATIO = 4.0
 
 #: GFMD's contact threshold for exponential walls, relative to p0
 CONTACT_THRESHOLD = 0.01
@@ -127,13 +144,15 @@ class Shells:
         return float(np.sum(self.dV0))
 
 
-def spectrum_shells(spectrum: Spectrum, *, E_star: float, n_shells: Optional[int] = None) -> Shells:
+def spectrum_shells(spectrum: Spectrum, *, E_star: float, n_shells: Optional[int] = None,
+                    grading: str = "uniform") -> Shells:
     r"""Shells ``q_k`` and Persson increments ``dV0_k`` of a spectrum.
 
     * :class:`~diffusion_pr.spectra.DiscreteSpectrum`: its own shells of equal
       ``|q|``, ``dV0_k = (E* q_k/2)^2 sum_{|q| = q_k} |h~(q)|^2`` (exact).
     * continuum (e.g. :class:`~diffusion_pr.spectra.SelfAffineSpectrum`):
-      ``n_shells`` shells uniform in ``ln q`` on ``[q_min, q_max]``;
+      ``n_shells`` shells uniform in ``ln q`` on ``[q_min, q_max]``, or graded (``grading``: edges
+      ``ln q = a + (b - a) x(s)``, ``s`` uniform, ``a, b = ln q_min, ln q_max``, :data:`SHELL_GRADINGS`);
       ``dV0_k = (E*/2)^2 2 pi \int_shell q^3 C(q) dq`` exactly (the spectrum's
       quadrature), and the node ``q_k`` is the shell's midpoint in diffusion time
       (where the cumulative ``V0`` reaches half the shell), which makes the
@@ -147,6 +166,10 @@ def spectrum_shells(spectrum: Spectrum, *, E_star: float, n_shells: Optional[int
         Contact modulus [pressure], > 0.
     n_shells : int, optional
         Continuum only (default :data:`DEFAULT_CONTINUUM_SHELLS`), >= 2.
+    grading : {"uniform", "end", "ends"}
+        Continuum only: ``x(s) = s``, ``1 - (1 - s)^2`` (finer towards ``q_max``, the end of the diffusion
+        time) or ``s^2 (3 - 2 s)`` (towards both ends).  A smooth map of a uniform ``s``: the rule stays
+        symmetric in the width of ``s`` (:func:`shell_grading` says where which pays).
 
     Returns
     -------
@@ -156,9 +179,12 @@ def spectrum_shells(spectrum: Spectrum, *, E_star: float, n_shells: Optional[int
         raise ValueError("spectrum must be a diffusion_pr.spectra.Spectrum (SelfAffineSpectrum or "
                          f"DiscreteSpectrum); got {type(spectrum).__name__}")
     E = float(check_positive("E_star", E_star))
+    if not isinstance(grading, str) or grading not in SHELL_GRADINGS:
+        raise ValueError(f"grading must be one of {SHELL_GRADINGS}; got grading={grading!r}")
     if isinstance(spectrum, DiscreteSpectrum):
-        if n_shells is not None:
-            raise ValueError("n_shells applies to continuum spectra only; a DiscreteSpectrum uses its own shells")
+        if n_shells is not None or grading != "uniform":
+            raise ValueError("n_shells and grading apply to continuum spectra only; a DiscreteSpectrum uses its own "
+                             "shells")
         q = np.asarray(spectrum.q, dtype=float)
         dv = (0.5 * E * q) ** 2 * np.asarray(spectrum.power, dtype=float)
         return Shells(q.copy(), dv, float(q[0]), True)
@@ -167,7 +193,14 @@ def spectrum_shells(spectrum: Spectrum, *, E_star: float, n_shells: Optional[int
         raise ValueError(f"n_shells must be an integer >= 2; got n_shells={n_shells!r}")
     qlo, qhi = float(spectrum.q_min), float(spectrum.q_max)
     weight = lambda q: (0.25 * E * E) * q * q  # noqa: E731
-    ln_edges = np.linspace(math.log(qlo), math.log(qhi), int(n) + 1)
+    if grading == "uniform":
+        ln_edges = np.linspace(math.log(qlo), math.log(qhi), int(n) + 1)
+    else:
+        a, b = math.log(qlo), math.log(qhi)
+        u = np.linspace(0.0, 1.0, int(n) + 1)
+        x = 1.0 - (1.0 - u) ** 2 if grading == "end" else u * u * (3.0 - 2.0 * u)
+        ln_edges = a + (b - a) * x
+        ln_edges[0], ln_edges[-1] = a, b
     cum_edges = np.asarray(spectrum.cumulative(weight, np.exp(ln_edges)), dtype=float)
     dv = np.diff(cum_edges)
     qk = np.exp(_tau_midpoints(spectrum, weight, ln_edges, cum_edges))
@@ -229,24 +262,71 @@ _SHELL_CACHE: dict = {}
 _SHELL_CACHE_SIZE = 32
 
 
-def _cached_shells(spectrum: Spectrum, E: float, n_shells: Optional[int]) -> Shells:
+def _cached_shells(spectrum: Spectrum, E: float, n_shells: Optional[int], grading: str = "uniform") -> Shells:
     """:func:`spectrum_shells`, remembered for hashable spectra (a sweep over zeta, p0 or closures reuses them).
 
     The cached arrays are read-only (the shells of a frozen spectrum never change).
     """
     try:
-        key = (spectrum, float(E), n_shells)
+        key = (spectrum, float(E), n_shells, grading)
         hit = _SHELL_CACHE.get(key)
     except TypeError:  # an unhashable spectrum (e.g. one holding arrays): no cache
-        return spectrum_shells(spectrum, E_star=E, n_shells=n_shells)
+        return spectrum_shells(spectrum, E_star=E, n_shells=n_shells, grading=grading)
     if hit is None:
-        hit = spectrum_shells(spectrum, E_star=E, n_shells=n_shells)
+        hit = spectrum_shells(spectrum, E_star=E, n_shells=n_shells, grading=grading)
         for a in (hit.q, hit.dV0):
             a.setflags(write=False)
         if len(_SHELL_CACHE) >= _SHELL_CACHE_SIZE:
             _SHELL_CACHE.pop(next(iter(_SHELL_CACHE)))
         _SHELL_CACHE[key] = hit
     return hit
+
+
+def shell_grading(spectrum: Spectrum, *, E_star: float, zeta: float, mean_pressure: float) -> tuple[str, float, float]:
+    r"""``(grading, kappa, lambda)``: the shells' grading of the continuum closure (:func:`spectrum_shells`) and why.
+
+    The shell sum freezes each shell's operator at its midpoint.  Where the wall's layer is thick, that error is
+    spread over all shells and uniform shells are best.  Where it is thin, the error comes from the ends:
+
+    * **the end**: ``kappa = p*(q_max)^2 / tau_last`` compares the wall's layer ``p* = zeta q_max E*/2``
+      [pressure] (below it ``g(q; p) ~ p/p*``) with the diffusion length of the last of
+      :data:`EXTRAPOLATION_SHELLS` uniform shells, ``tau_last = dV0_last/2`` [pressure^2].  Each shell freezes the
+      layer at its own ``p*``; the error it leaves sits within a shell's diffusion length of the wall, where the
+      later shells' diffusion smooths it away, but nothing smooths the last shells' (Fig. 1 scene, ``local_g1``,
+      ``zeta = 0.001``: refining the last quarter of 96 uniform shells 2x gives the error of 192 uniform shells,
+      2.0e-6; refining any other quarter leaves 4.9e-6).  That error falls like ``h^1.25`` (differences 2.4x per
+      doubling up to 1536 shells), the order reduction of a frozen boundary layer, and uniform shells needed 384 to
+      1536.  Graded towards ``q_max`` ("end", the last shell ``~h^2`` wide) the order is two again and Romberg
+      applies: 48 shells leave 3.6e-7 before and 4.3e-8 after one Richardson step, against 1.2e-5 and 6.9e-6
+      uniform; at ``zeta = 1`` (``kappa`` 770) uniform is better (Romberg from 48 shells 2.5e-8, graded 3.7e-7).
+    * **the start** (with a thin layer only): ``lambda = p0^2 / tau_first``, the load's distance from the wall
+      against the first uniform shell's diffusion length.  Below :data:`START_LAYER_RATIO` the first shells carry
+      the start from ``delta(p - p0)`` into the wall's layer, and the order falls to one there too (``H = 0.8``,
+      rms slope 0.031, ``p0 = 1e-5``, ``zeta = 1e-3``, balanced: differences 2.0x per doubling with uniform and
+      "end" shells, 3.9x with "ends", whose 48 shells then leave 5e-9 after one Richardson step against 1e-6).
+
+    "uniform" for ``kappa >=`` :data:`WALL_LAYER_RATIO`, else "end", or "ends" where also
+    ``lambda <`` :data:`START_LAYER_RATIO`; the hard wall (``zeta = 0``, its shells commute) "uniform".
+
+    Parameters
+    ----------
+    spectrum : Spectrum
+        A continuum spectrum.
+    E_star, mean_pressure : float
+        Contact modulus and ``p0`` [pressure], > 0.
+    zeta : float
+        Wall range [length], >= 0.
+    """
+    kz = 0.5 * float(check_nonnegative("zeta", zeta)) * float(check_positive("E_star", E_star))
+    p0 = float(check_positive("mean_pressure", mean_pressure))
+    if kz == 0.0 or isinstance(spectrum, DiscreteSpectrum):
+        return "uniform", math.inf, math.inf
+    dv = _cached_shells(spectrum, float(E_star), EXTRAPOLATION_SHELLS).dV0
+    kappa = (kz * float(spectrum.q_max)) ** 2 / (0.5 * float(dv[-1]))
+    lam = p0 * p0 / (0.5 * float(dv[0]))
+    if kappa >= WALL_LAYER_RATIO:
+        return "uniform", kappa, lam
+    return ("ends" if lam < START_LAYER_RATIO else "end"), kappa, lam
 
 
 def local_response(q: Any, p: Any, *, zeta: float, E_star: float) -> np.ndarray:
@@ -749,8 +829,10 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
                          "('local_g1_shell_balanced' is the partition at each shell's q_k)")
     if partition_q is not None and partition_q != "shell":
         check_positive("partition_q", partition_q)
+    grading, kappa, lam = shell_grading(spectrum, E_star=E, zeta=z, mean_pressure=p0) if shell_extrapolation \
+        else ("uniform", None, None)
     shells = _cached_shells(spectrum, E, EXTRAPOLATION_SHELLS if shell_extrapolation and n_shells is None
-                            else n_shells)
+                            else n_shells, grading)
     if backend == "reference":
         n_cells, n_steps = options.pop("n_cells", REFERENCE_RESOLUTION[0]), options.pop("n_steps", REFERENCE_RESOLUTION[1])
         if options:
@@ -776,12 +858,15 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
     res = _solve_shells(problem, shells, closure, backend, rtol, options, keep=shell_extrapolation)
     if not shell_extrapolation:
         return res
-    scene = (spectrum, E, p0, z, closure, partition_q)
+    scene = (spectrum, E, p0, z, closure, partition_q, grading)
     first = int(shells.q.size)
     while True:
         out = _shell_extrapolated(res, scene, rtol, options)
         n = int(res.diagnostics["n_shells"])
         if "shell_extrapolation_failed" not in out.diagnostics or 2 * n > MAX_CONTINUUM_SHELLS:
+            out.diagnostics["shell_grading"] = grading
+            out.diagnostics["wall_layer_ratio"] = kappa
+            out.diagnostics["start_layer_ratio"] = lam
             return out
         # a coarser-shell problem did not solve on these grids (wide shells on a steep spectrum at a small load):
         # all three with twice the shells, on the grids of the finer first solve
@@ -809,10 +894,10 @@ def _shell_residual(m_n: np.ndarray, m_h: np.ndarray, m_q: np.ndarray) -> tuple:
 
 
 def _shell_problem(scene: tuple, m: int) -> tuple:
-    """``(problem, shells)``: the closure of ``scene = (spectrum, E, p0, z, closure, partition_q)`` on ``m``
-    shells of its continuum spectrum."""
-    spectrum, E, p0, z, closure, partition_q = scene
-    shells = _cached_shells(spectrum, E, m)
+    """``(problem, shells)``: the closure of ``scene = (spectrum, E, p0, z, closure, partition_q, grading)`` on
+    ``m`` shells of its continuum spectrum."""
+    spectrum, E, p0, z, closure, partition_q, grading = scene
+    shells = _cached_shells(spectrum, E, m, grading)
     return closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure,
                            partition_q=partition_q), shells
 
@@ -833,7 +918,7 @@ def _solve_shells(problem: Any, shells: Shells, closure: str, backend: str, rtol
 
 def _coarser_on_grid(res: Any, m: int, scene: tuple, rtol: float, options: dict, *,
                      plain: Optional[str]) -> Any:
-    """The ``m``-shell problem of ``scene = (spectrum, E, p0, z, closure, partition_q)`` solved on ``res``'s grids
+    """The ``m``-shell problem of ``scene = (spectrum, E, p0, z, closure, partition_q, grading)`` solved on ``res``'s grids
     (:func:`~diffusion_pr.solvers.fv.engine.grid_family`, ``n_cells`` its coarsest), in full (``plain=None``) or
     for the plain masses of the N and 2N grids (``"only"``) or of the 4N grid (``"finest"``) alone
     (:func:`~diffusion_pr.solvers.fv.engine.plain_masses`); a balance with no root there is a failed result that

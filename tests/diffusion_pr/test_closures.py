@@ -458,36 +458,48 @@ def test_shell_extrapolation_is_checked(fig1):
 
 
 def test_shell_extrapolation_doubles_the_shells_where_its_residual_misses(fig1):
-    """Balanced closure, Fig. 1 scene, zeta = 0.01: near p* = zeta q E*/2 the shells converge at a lower order
-    (the Richardson differences fall 3-11x per doubling, not 16x), so no Romberg step, and from 48/24/12 shells the
-    residual estimate keeps the sum above rtol: the 96-, 192- and 384-shell problems are solved on the same grids
-    and 384/192/96 combined (measured: estimate 6.1e-7, true 4.4e-8 in the cdf against the 384/768 oracle)."""
+    """Balanced closure, Fig. 1 scene, zeta = 0.01 (graded shells): the Richardson differences fall 3-10x per
+    doubling there, not 16x, so no Romberg step, and from 48/24/12 shells the residual estimate keeps the sum above
+    rtol: the 96-shell problem is solved on the same grids and 96/48/24 combined (measured: estimate 7.3e-7, true
+    3.0e-7 in L1 against the uniform 384/768 oracle; before the grading, 384 uniform shells were needed)."""
     kw = dict(E_star=E, mean_pressure=P0, zeta=0.01, closure="local_g1_balanced")
     r = closure_distribution(fig1, **kw)
-    assert r.success and r.diagnostics["n_shells"] == (384, 192, 96)
-    assert r.diagnostics["shells_solved"] == (6, 12, 24, 48, 96, 192, 384)
+    assert r.success and r.diagnostics["n_shells"] == (96, 48, 24) and r.diagnostics["shell_grading"] == "end"
+    assert r.diagnostics["shells_solved"] == (6, 12, 24, 48, 96)
     assert r.diagnostics["shell_scheme"] == "correction from plain grids"  # doubled on the plain grids
     assert r.diagnostics["shell_extrapolation_order"] == 4 and r.diagnostics["richardson_order_ratio"] < 12.0
-    # the oracle at rtol 1e-8 (1e-9 takes 40 s at this wall): its own error is 1% of the tolerance asserted
+    # the oracle at rtol 1e-8 (1e-9 takes 40 s at this wall), uniform shells (independent of the grading): its own
+    # error is about 3e-8 (it moves by that to 1536/3072)
     fine = {n: closure_distribution(fig1, rtol=1e-8, n_shells=n, **kw) for n in (384, 768)}
     oracle = (4.0 * fine[768].cdf(r.edges) - fine[384].cdf(r.edges)) / 3.0
     true = np.max(np.abs(r.cdf(r.edges) - oracle))
     assert true < 1e-6 and true < 10 * r.error_estimate
 
 
-def test_shell_extrapolation_starts_finer_where_coarse_shells_do_not_solve():
-    """A stress scene (H = 0.8, rms slope 0.031, p0 = 1e-5, zeta = 1e-3): the 12-shell problem has no balance on
-    the 48-shell problem's grids (its first shell is far wider than p0), so all start from twice the shells
-    (96/48/24), where the plain grids' correction meets rtol.  The answer agrees with the 768/1536-shell oracle
-    (measured 1.7e-7; estimate 5.6e-7; the oracle moves by 9e-9 from 384/768 to 768/1536)."""
+def test_shell_extrapolation_starts_finer_where_coarse_shells_do_not_solve(monkeypatch):
+    """A stress scene (H = 0.8, rms slope 0.031, p0 = 1e-5, zeta = 1e-3; kappa 2e-3 and lambda 1e-5: a thin layer
+    and a start within a shell's diffusion length of the wall).  With uniform shells the 12-shell problem has no
+    balance on the 48-shell problem's grids (its first shell is far wider than p0), so all start from twice the
+    shells (96/48/24), where the plain grids' correction meets rtol.  The default grades the shells at both ends
+    ("ends"): the first shells are ~h^2 wide, every coarse problem balances and 48/24/12 meet rtol on grids 4x
+    coarser (the differences fall 3.7x per doubling there, 2.0x with uniform shells).  Both answers agree with the
+    uniform 768/1536-shell oracle (measured 1.7e-7 uniform in the sup of the cdf; estimates 5.6e-7 and 7.9e-8)."""
+    from diffusion_pr import closures
+
     spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
     kw = dict(E_star=E, mean_pressure=1e-5, zeta=1e-3, closure="local_g1_balanced")
+    graded = closure_distribution(spec, **kw)
+    assert graded.success and graded.diagnostics["shell_grading"] == "ends"
+    assert graded.diagnostics["n_shells"] == (48, 24, 12) and "shells_first_tried" not in graded.diagnostics
+    monkeypatch.setattr(closures, "WALL_LAYER_RATIO", 0.0)  # the uniform shells of before
     r = closure_distribution(spec, **kw)
     assert r.success and r.diagnostics["shells_first_tried"] == 48 and r.diagnostics["n_shells"] == (96, 48, 24)
     x = np.geomspace(1e-8, 1e3, 3000) * 1e-5
     fine = {n: closure_distribution(spec, rtol=1e-8, n_shells=n, **kw) for n in (768, 1536)}
-    assert np.max(np.abs((4.0 * fine[1536].cdf(x) - fine[768].cdf(x)) / 3.0 - r.cdf(x))) < 1e-6
-    assert abs(r.diagnostics["mean_error"]) < 1e-6 * 1e-5
+    oracle = (4.0 * fine[1536].cdf(x) - fine[768].cdf(x)) / 3.0
+    for answer in (graded, r):
+        assert np.max(np.abs(oracle - answer.cdf(x))) < 1e-6
+        assert abs(answer.diagnostics["mean_error"]) < 1e-6 * 1e-5
 
 
 def test_continuum_closure_is_the_same_from_pypde(fig1):
@@ -534,30 +546,87 @@ def test_plain_masses_are_the_grids_own_and_need_a_fixed_grid(fig1):
             pass
 
 
-def test_shell_extrapolation_after_a_sixth_that_ended_fourth():
-    """A stress scene where extrapolation="sixth" does not balance and the solve ends with the fourth-order scheme
-    (H = 0.5, rms slope 0.3, p0 = 1e-5, zeta = 3e-3): the shell extrapolation's coarser solves follow the scheme the
-    solve ended with (they raised ValueError when they were asked for the sixth's plain grids)."""
+def test_shell_extrapolation_after_a_sixth_that_ended_fourth(monkeypatch):
+    """A stress scene where extrapolation="sixth" does not balance on uniform shells and the solve ends with the
+    fourth-order scheme (H = 0.5, rms slope 0.3, p0 = 1e-5, zeta = 3e-3): the shell extrapolation's coarser solves
+    follow the scheme the solve ended with (they raised ValueError when they were asked for the sixth's plain
+    grids).  The default shells there are graded at both ends (a thin layer and a start near the wall), whose thin
+    first shell balances on the sixth's grids."""
+    from diffusion_pr import closures
+
     spec = dp.SelfAffineSpectrum(0.5, 2 * np.pi / 8192, 2 * np.pi / 8, rms_slope=0.3)
-    r = closure_distribution(spec, E_star=E, mean_pressure=1e-5, zeta=3e-3, closure="local_g1_balanced",
-                             extrapolation="sixth")
+    kw = dict(E_star=E, mean_pressure=1e-5, zeta=3e-3, closure="local_g1_balanced", extrapolation="sixth")
+    graded = closure_distribution(spec, **kw)
+    assert graded.success and graded.diagnostics["shell_grading"] == "ends"
+    assert graded.diagnostics["extrapolation"] == "sixth"
+    monkeypatch.setattr(closures, "WALL_LAYER_RATIO", 0.0)  # uniform shells
+    r = closure_distribution(spec, **kw)
     assert r.success and r.diagnostics["shell_extrapolation"]
     assert str(r.diagnostics["extrapolation"]).startswith("fourth")
+    x = np.geomspace(1e-10, 1e3, 3000) * 1e-5
+    assert np.max(np.abs(graded.cdf(x) - r.cdf(x))) < 2e-6  # the two answers within what both claim
 
 
-def test_shell_extrapolation_sees_an_order_below_two(fig1):
-    """local_g1 at zeta = 0.001: the shell sum converges at an order of about 1.2 there (successive differences
-    fall 2.3-2.4x per doubling up to 1536 shells: the transition of g near p* = zeta q E*/2 moves with q), so
-    R(n/2, n) keeps most of the error and |R(n/2, n) - R(n/4, n/2)|/15 underestimated it (1.2e-6 true against an
-    estimate of 4.4e-7).  With the observed ratio below 3.5 the difference counts over (rho - 1), the shells
-    double to 384, and the answer meets rtol against the oracle R(768, 1536) (measured 1.3e-7; estimate 6.6e-7)."""
+def test_graded_shells_restore_the_order_where_the_wall_layer_is_thin(fig1, monkeypatch):
+    """local_g1 at zeta = 0.001 (kappa = p*(q_max)^2/tau_last = 8e-4): with uniform shells the sum converges at an
+    order of about 1.25 (differences fall 2.4x per doubling up to 1536 shells), the error of the last shells, which
+    freeze the wall's thin layer and are not smoothed by later ones: the observed ratio then counts the residual over
+    (rho - 1) and the shells double to 384.  Graded towards q_max (shell_grading "end") the order is two again: 48 shells
+    meet rtol.  Both answers meet it against the uniform oracle R(768, 1536) at rtol 1e-8 (measured 1.2e-7 graded,
+    estimate 1.9e-7; the oracle moves by 3.7e-8 in L1 to R(1536, 3072))."""
+    from diffusion_pr import closures
+
     kw = dict(E_star=E, mean_pressure=P0, zeta=0.001, closure="local_g1")
-    r = closure_distribution(fig1, **kw)
-    assert r.success and r.diagnostics["n_shells"][0] >= 384
+    graded = closure_distribution(fig1, **kw)
+    assert graded.success and graded.diagnostics["shell_grading"] == "end"
+    assert graded.diagnostics["wall_layer_ratio"] < 1e-3 and graded.diagnostics["n_shells"] == (48, 24, 12)
+    monkeypatch.setattr(closures, "WALL_LAYER_RATIO", 0.0)  # never graded: the uniform shells of before
+    uniform = closure_distribution(fig1, **kw)
+    assert uniform.success and uniform.diagnostics["shell_grading"] == "uniform"
+    assert uniform.diagnostics["n_shells"][0] >= 384 and uniform.diagnostics["shell_order_ratio"] < 3.0
     fine = {n: closure_distribution(fig1, rtol=1e-8, n_shells=n, **kw) for n in (768, 1536)}
-    oracle = (4.0 * fine[1536].cdf(r.edges) - fine[768].cdf(r.edges)) / 3.0
-    true = np.max(np.abs(r.cdf(r.edges) - oracle))
-    assert true < 1e-6 and true < 10 * r.error_estimate
+    for r in (graded, uniform):
+        oracle = (4.0 * fine[1536].cdf(r.edges) - fine[768].cdf(r.edges)) / 3.0
+        cdf = r.cdf(r.edges)
+        l1_true = abs(cdf[0] - oracle[0]) + float(np.sum(np.abs(np.diff(cdf) - np.diff(oracle))))
+        assert l1_true < 1e-6 and l1_true < 2 * r.error_estimate  # (2: the oracle's own 3.7e-8 against 1.9e-7)
+
+
+def test_shell_grading_follows_the_wall_layer(fig1):
+    """shell_grading: kappa = (zeta q_max E*/2)^2 / (dV0_last/2) and lambda = p0^2 / (dV0_first/2) of the 48 uniform
+    shells (the spectrum's own shells are the oracle).  "uniform" at or above WALL_LAYER_RATIO (zeta = 0.1: kappa
+    7.7, where 48 "end" shells leave 1.6e-6 after Romberg against 3.0e-8 uniform), "end" below it (zeta = 0.05:
+    kappa 1.9, 7.7e-8 against 4.1e-7), "ends" where also lambda < START_LAYER_RATIO (p0 = 1e-3: lambda 1.4); the
+    hard wall is never graded.  Graded shells keep exact tau-midpoints and sum to V0."""
+    from diffusion_pr.closures import START_LAYER_RATIO, WALL_LAYER_RATIO, shell_grading
+
+    dv = spectrum_shells(fig1, E_star=E, n_shells=48).dV0
+    for zeta, p0, want in ((0.05, P0, "end"), (0.1, P0, "uniform"), (0.05, 1e-3, "ends"), (0.1, 1e-3, "uniform")):
+        g, kappa, lam = shell_grading(fig1, E_star=E, zeta=zeta, mean_pressure=p0)
+        assert kappa == pytest.approx((0.5 * zeta * E * fig1.q_max) ** 2 / (0.5 * dv[-1]), rel=1e-12)
+        assert lam == pytest.approx(p0 * p0 / (0.5 * dv[0]), rel=1e-12)
+        assert g == want and (kappa < WALL_LAYER_RATIO) == (g != "uniform")
+        assert (g == "ends") == (kappa < WALL_LAYER_RATIO and lam < START_LAYER_RATIO)
+    assert shell_grading(fig1, E_star=E, zeta=0.0, mean_pressure=P0) == ("uniform", math.inf, math.inf)
+    w = lambda q: (0.25 * E * E) * q * q  # noqa: E731
+    a, b = math.log(fig1.q_min), math.log(fig1.q_max)
+    for grading, x, last, first in (("end", lambda u: 1.0 - (1.0 - u) ** 2, 1.0, 2.0),
+                                    ("ends", lambda u: u * u * (3.0 - 2.0 * u), 3.0, 3.0)):
+        for n in (6, 48):
+            sh = spectrum_shells(fig1, E_star=E, n_shells=n, grading=grading)
+            edges = np.exp(a + (b - a) * x(np.linspace(0.0, 1.0, n + 1)))
+            assert np.all((sh.q > edges[:-1]) & (sh.q < edges[1:]))
+            widths = np.diff(np.log(edges))
+            # the last shell ~h^2 wide (both), the first too with "ends" (2h with "end")
+            assert widths[-1] == pytest.approx(last * (b - a) / n ** 2, rel=3.0 / n)
+            assert widths[0] == pytest.approx(first * (b - a) / n ** (2 if grading == "ends" else 1), rel=3.0 / n)
+            cum = fig1.cumulative(w, edges)
+            assert np.allclose(sh.dV0, np.diff(cum), rtol=1e-12, atol=0.0) and sh.V0 == pytest.approx(cum[-1] - cum[0])
+            mid = 0.5 * (cum[1:] + cum[:-1])
+            assert np.all(np.abs(fig1.cumulative(w, sh.q) - mid) <= 2e-12 * sh.dV0 + 1e-15 * mid)
+    for bad in ("both", 2.0, None):
+        with pytest.raises(ValueError, match="grading must be one of"):
+            spectrum_shells(fig1, E_star=E, n_shells=8, grading=bad)
 
 
 def test_shell_extrapolation_with_full_solves_where_no_plain_grids_are_kept(fig1):
