@@ -778,9 +778,11 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         grids; ``diagnostics["shells_solved"]``).
         ``diagnostics["shell_error"]`` is the ``n``-shell problem's distance from
         the continuum, ``L1 |Pr(n) - Pr(n/2)|/3``.  On the Fig. 1 scene at
-        rtol 1e-6: 7.4-20 ms at ``zeta >= 0.1``, 17-165 ms below, where the
-        order is lower and more shells are needed (docs/closures.md, "Exact
-        midpoints and Romberg in the shells").
+        rtol 1e-6: 6-21 ms at ``zeta >= 0.1``; below, where the wall's layer is
+        thin, the shells are graded towards the ends of the diffusion time
+        (:func:`shell_grading`; uniform shells converge at an order of 1-1.25
+        there): 6-96 ms, mostly the balanced closures' larger grids
+        (docs/closures.md, "Graded shells").
         False: the ``n``-shell problem itself within ``rtol`` (its estimate
         does not contain the distance from the continuum; a
         :class:`~diffusion_pr.spectra.DiscreteSpectrum`'s shells are exact).
