@@ -899,8 +899,8 @@ def _shell_residual(m_n: np.ndarray, m_h: np.ndarray, m_q: np.ndarray) -> tuple:
     ``R(n/2, n) - R(n/4, n/2) = a n^-p (4 - 2^p)(1 - 2^p)/3``: the error is that difference over ``rho - 1``
     (``rho = 2^p``).  Where ``rho`` >= :data:`SHELL_ORDER_RATIO` the second order is taken as asymptotic and
     the difference is the fourth-order term, over 15; below it (measured: ``local_g1`` at ``zeta = 0.001``,
-    2.3-2.4 in the sup of the cdf up to 1536 shells, where the transition of ``g`` near ``p* = zeta q E*/2`` moves with ``q``)
-    over ``max(rho - 1, 1)``."""
+    2.3-2.4 in the sup of the cdf up to 1536 uniform shells: the last shells freeze the wall's thin layer,
+    :func:`shell_grading`) over ``max(rho - 1, 1)``."""
     d_top = float(np.sum(np.abs(m_n - m_h)))
     d_half = float(np.sum(np.abs(m_h - m_q)))
     rho = d_half / d_top if d_top > 0.0 else math.inf
@@ -933,9 +933,9 @@ def _solve_shells(problem: Any, shells: Shells, closure: str, backend: str, rtol
 
 def _coarser_on_grid(res: Any, m: int, scene: tuple, rtol: float, options: dict, *,
                      plain: Optional[str]) -> Any:
-    """The ``m``-shell problem of ``scene = (spectrum, E, p0, z, closure, partition_q, grading)`` solved on ``res``'s grids
-    (:func:`~diffusion_pr.solvers.fv.engine.grid_family`, ``n_cells`` its coarsest), in full (``plain=None``) or
-    for the plain masses of the N and 2N grids (``"only"``) or of the 4N grid (``"finest"``) alone
+    """The ``m``-shell problem of ``scene = (spectrum, E, p0, z, closure, partition_q, grading)`` solved on
+    ``res``'s grids (:func:`~diffusion_pr.solvers.fv.engine.grid_family`, ``n_cells`` its coarsest), in full
+    (``plain=None``) or for the plain masses of the N and 2N grids (``"only"``) or of the 4N grid (``"finest"``) alone
     (:func:`~diffusion_pr.solvers.fv.engine.plain_masses`); a balance with no root there is a failed result that
     says so."""
     from .api import solve_problem

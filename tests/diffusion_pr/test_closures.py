@@ -602,9 +602,9 @@ def test_graded_shells_restore_the_order_where_the_wall_layer_is_thin(fig1, monk
     """local_g1 at zeta = 0.001 (kappa = p*(q_max)^2/tau_last = 8e-4): with uniform shells the sum converges at an
     order of about 1.25 (differences fall 2.4x per doubling up to 1536 shells), the error of the last shells, which
     freeze the wall's thin layer and are not smoothed by later ones: the observed ratio then counts the residual over
-    (rho - 1) and the shells double to 384.  Graded towards q_max (shell_grading "end") the order is two again: 48 shells
-    meet rtol.  Both answers meet it against the uniform oracle R(768, 1536) at rtol 1e-8 (measured 1.2e-7 graded,
-    estimate 1.9e-7; the oracle moves by 3.7e-8 in L1 to R(1536, 3072))."""
+    (rho - 1) and the shells double to 384.  Graded towards q_max (shell_grading "end") the order is two again:
+    48 shells meet rtol.  Both answers meet it against the uniform oracle R(768, 1536) at rtol 1e-8 (measured
+    1.2e-7 graded, estimate 1.9e-7; the oracle moves by 3.7e-8 in L1 to R(1536, 3072))."""
     from diffusion_pr import closures
 
     kw = dict(E_star=E, mean_pressure=P0, zeta=0.001, closure="local_g1")
