@@ -93,10 +93,14 @@ MIDPOINT_TOL = 1e-12
 SHELL_GRADINGS: tuple[str, ...] = ("uniform", "end", "ends")
 #: ``kappa = p*(q_max)^2 / tau_last`` (the wall's layer ``p* = zeta q_max E*/2`` against the diffusion length of the
 #: last of :data:`EXTRAPOLATION_SHELLS` uniform shells, ``tau_last = dV0_last/2``) below which the shells are graded
-#: towards the end.  Measured on the Fig. 1 scene (``local_g1``, L1 of Romberg at 48 shells against the continuum):
-#: graded wins at ``kappa = 1.9`` (``zeta = 0.05``: 7.7e-8 against 4.1e-7), uniform at ``kappa = 7.7``
-#: (``zeta = 0.1``: 3.0e-8 against 1.6e-6); the geometric middle.  :data:`START_LAYER_RATIO` likewise for the start
-WALL_LAYER_RATIO = 4.0
+#: towards the end.  Measured on the Fig. 1 scene: ``local_g1`` gains from the grading up to ``kappa`` 2 at least
+#: (Romberg at 48 shells, ``zeta = 0.05``, ``kappa`` 1.9: 7.7e-8 graded against 4.1e-7 uniform; 6.6 against 9.0 ms)
+#: and loses at 7.7 (``zeta = 0.1``: 1.6e-6 against 3.0e-8); ``local_g1_balanced`` loses from ``kappa`` 1.3 on
+#: (``zeta = 0.04``: 64 ms graded against 30 ms uniform, 96 shells both: the graded 48-shell answer is further from
+#: the continuum and its correction's spatial error sends it to the costlier paths) and gains at 0.75 (``zeta =
+#: 0.03``: 65 against 70 ms; ``local_g1_shell_balanced`` 33 against 67 ms).  1: where all three gain.
+#: :data:`START_LAYER_RATIO` likewise for the start
+WALL_LAYER_RATIO = 1.0
 #: ``lambda = p0^2 / tau_first`` (the load's distance from the wall against the diffusion length of the first of
 #: :data:`EXTRAPOLATION_SHELLS` uniform shells) below which a thin wall layer's shells are graded at the start too
 #: ("ends").  Measured (``local_g1_balanced``, ``zeta = 0.01``, R at 48/96 shells): "ends" wins at ``lambda = 1.4``
@@ -300,7 +304,8 @@ def shell_grading(spectrum: Spectrum, *, E_star: float, zeta: float, mean_pressu
       doubling up to 1536 shells), the order reduction of a frozen boundary layer, and uniform shells needed 384 to
       1536.  Graded towards ``q_max`` ("end", the last shell ``~h^2`` wide) the order is two again and Romberg
       applies: 48 shells leave 3.6e-7 before and 4.3e-8 after one Richardson step, against 1.2e-5 and 6.9e-6
-      uniform; at ``zeta = 1`` (``kappa`` 770) uniform is better (Romberg from 48 shells 2.5e-8, graded 3.7e-7).
+      uniform; at ``zeta = 1`` (``kappa`` 770) uniform is better (Romberg from 48 shells 2.5e-8, graded 3.7e-7),
+      and the balanced closures lose from ``kappa`` about 1 on (:data:`WALL_LAYER_RATIO`).
     * **the start** (with a thin layer only): ``lambda = p0^2 / tau_first``, the load's distance from the wall
       against the first uniform shell's diffusion length.  Below :data:`START_LAYER_RATIO` the first shells carry
       the start from ``delta(p - p0)`` into the wall's layer, and the order falls to one there too (``H = 0.8``,
