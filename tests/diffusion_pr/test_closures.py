@@ -498,8 +498,12 @@ def test_shell_extrapolation_starts_finer_where_coarse_shells_do_not_solve(monke
     assert graded.success and graded.diagnostics["shell_grading"] == "ends"
     assert graded.diagnostics["n_shells"] == (48, 24, 12) and "shells_first_tried" not in graded.diagnostics
     monkeypatch.setattr(closures, "WALL_LAYER_RATIO", 0.0)  # the uniform shells of before
+    attempts = []  # every attempt's answer: the restart's time counts the discarded first attempt's too
+    extrapolated = closures._shell_extrapolated
+    monkeypatch.setattr(closures, "_shell_extrapolated", lambda *a: attempts.append(extrapolated(*a)) or attempts[-1])
     r = closure_distribution(spec, **kw)
     assert r.success and r.diagnostics["shells_first_tried"] == 48 and r.diagnostics["n_shells"] == (96, 48, 24)
+    assert len(attempts) == 2 and r.wall_time == pytest.approx(sum(a.wall_time for a in attempts), rel=1e-12)
     x = np.geomspace(1e-8, 1e3, 3000) * 1e-5
     fine = {n: closure_distribution(spec, rtol=1e-8, n_shells=n, **kw) for n in (768, 1536)}
     oracle = (4.0 * fine[1536].cdf(x) - fine[768].cdf(x)) / 3.0
