@@ -197,21 +197,26 @@ def spectrum_shells(spectrum: Spectrum, *, E_star: float, n_shells: Optional[int
     n = DEFAULT_CONTINUUM_SHELLS if n_shells is None else n_shells
     if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 2:
         raise ValueError(f"n_shells must be an integer >= 2; got n_shells={n_shells!r}")
-    qlo, qhi = float(spectrum.q_min), float(spectrum.q_max)
-    weight = lambda q: (0.25 * E * E) * q * q  # noqa: E731
-    if grading == "uniform":
-        ln_edges = np.linspace(math.log(qlo), math.log(qhi), int(n) + 1)
-    else:
-        a, b = math.log(qlo), math.log(qhi)
-        u = np.linspace(0.0, 1.0, int(n) + 1)
-        x = 1.0 - (1.0 - u) ** 2 if grading == "end" else u * u * (3.0 - 2.0 * u)
-        ln_edges = a + (b - a) * x
-        ln_edges[0], ln_edges[-1] = a, b
-    cum_edges = np.asarray(spectrum.cumulative(weight, np.exp(ln_edges)), dtype=float)
+    ln_edges, cum_edges, weight = _shell_edges(spectrum, E, int(n), grading)
     dv = np.diff(cum_edges)
     qk = np.exp(_tau_midpoints(spectrum, weight, ln_edges, cum_edges))
     keep = dv > 0
-    return Shells(qk[keep], dv[keep], qlo, False)
+    return Shells(qk[keep], dv[keep], float(spectrum.q_min), False)
+
+
+def _shell_edges(spectrum: Spectrum, E: float, n: int, grading: str) -> tuple:
+    """``(ln q at the edges, cumulative V0 there [pressure^2], the V0 weight)`` of ``n`` shells of a continuum
+    spectrum graded by ``grading`` (:func:`spectrum_shells`)."""
+    a, b = math.log(float(spectrum.q_min)), math.log(float(spectrum.q_max))
+    weight = lambda q: (0.25 * E * E) * q * q  # noqa: E731
+    if grading == "uniform":
+        ln_edges = np.linspace(a, b, n + 1)
+    else:
+        u = np.linspace(0.0, 1.0, n + 1)
+        x = 1.0 - (1.0 - u) ** 2 if grading == "end" else u * u * (3.0 - 2.0 * u)
+        ln_edges = a + (b - a) * x
+        ln_edges[0], ln_edges[-1] = a, b
+    return ln_edges, np.asarray(spectrum.cumulative(weight, np.exp(ln_edges)), dtype=float), weight
 
 
 def _tau_midpoints(spectrum: Spectrum, weight: Any, ln_edges: np.ndarray, cum_edges: np.ndarray) -> np.ndarray:
@@ -328,7 +333,8 @@ def shell_grading(spectrum: Spectrum, *, E_star: float, zeta: float, mean_pressu
     p0 = float(check_positive("mean_pressure", mean_pressure))
     if kz == 0.0 or isinstance(spectrum, DiscreteSpectrum):
         return "uniform", math.inf, math.inf
-    dv = _cached_shells(spectrum, float(E_star), EXTRAPOLATION_SHELLS).dV0
+    dv = np.diff(_shell_edges(spectrum, float(E_star), EXTRAPOLATION_SHELLS, "uniform")[1])  # no midpoints needed
+    dv = dv[dv > 0]
     kappa = (kz * float(spectrum.q_max)) ** 2 / (0.5 * float(dv[-1]))
     lam = p0 * p0 / (0.5 * float(dv[0]))
     if kappa >= WALL_LAYER_RATIO:
