@@ -875,17 +875,17 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         return res
     scene = (spectrum, E, p0, z, closure, partition_q, grading)
     first = int(shells.q.size)
-    tightened = None
+    tightened = False  # the first solve was repeated on tighter grids (once at most)
     spent = 0.0  # the discarded attempts' time (a retry on tighter grids, a restart from twice the shells)
     while True:
         out = _shell_extrapolated(res, scene, rtol, options)
         n = int(res.diagnostics["n_shells"])
-        if (not out.success and tightened is None and out.diagnostics.get("shell_extrapolation")
+        if (not out.success and not tightened and out.diagnostics.get("shell_extrapolation")
                 and out.diagnostics.get("grid_estimate", 0.0) >= SHELL_SHARE * rtol):
             # the grids' share left no room for the shells' residual (the full-solve fallback weighs each solve's
             # estimate, 1.9x the sum with Romberg's weights: H = 0.5, slope 0.3, p0 = 1e-5, zeta = 30, shell
             # partition, grids 9.3e-7 + shells 4.4e-6): once more on the finer grids of a tighter first solve
-            tightened = out.wall_time
+            tightened = True
             spent += out.wall_time
             res = _solve_shells(problem, shells, closure, backend, GRID_RETRY_FRACTION * rtol, options, keep=True)
             res.diagnostics["grids_tightened"] = f"the grids' estimate {out.diagnostics['grid_estimate']:.2e} " \
