@@ -293,6 +293,29 @@ def _cached_shells(spectrum: Spectrum, E: float, n_shells: Optional[int], gradin
     return hit
 
 
+_END_POWERS: dict = {}
+
+
+def _end_shell_powers(spectrum: Spectrum, E: float) -> tuple[float, float]:
+    """``dV0`` [pressure^2] of the first and last of :data:`EXTRAPOLATION_SHELLS` uniform shells with power (no
+    midpoints needed), remembered for hashable spectra as :func:`_cached_shells` remembers shells (a sweep over
+    ``zeta`` or ``p0`` asks again for every solve)."""
+    try:
+        key = (spectrum, E)
+        hit = _END_POWERS.get(key)
+    except TypeError:  # an unhashable spectrum: no cache
+        key = hit = None
+    if hit is None:
+        dv = np.diff(_shell_edges(spectrum, E, EXTRAPOLATION_SHELLS, "uniform")[1])
+        dv = dv[dv > 0]
+        hit = (float(dv[0]), float(dv[-1]))
+        if key is not None:
+            if len(_END_POWERS) >= _SHELL_CACHE_SIZE:
+                _END_POWERS.pop(next(iter(_END_POWERS)))
+            _END_POWERS[key] = hit
+    return hit
+
+
 def shell_grading(spectrum: Spectrum, *, E_star: float, zeta: float, mean_pressure: float) -> tuple[str, float, float]:
     r"""``(grading, kappa, lambda)``: the shells' grading of the continuum closure (:func:`spectrum_shells`) and why.
 
@@ -333,10 +356,9 @@ def shell_grading(spectrum: Spectrum, *, E_star: float, zeta: float, mean_pressu
     p0 = float(check_positive("mean_pressure", mean_pressure))
     if kz == 0.0 or isinstance(spectrum, DiscreteSpectrum):
         return "uniform", math.inf, math.inf
-    dv = np.diff(_shell_edges(spectrum, float(E_star), EXTRAPOLATION_SHELLS, "uniform")[1])  # no midpoints needed
-    dv = dv[dv > 0]
-    kappa = (kz * float(spectrum.q_max)) ** 2 / (0.5 * float(dv[-1]))
-    lam = p0 * p0 / (0.5 * float(dv[0]))
+    dv_first, dv_last = _end_shell_powers(spectrum, float(E_star))
+    kappa = (kz * float(spectrum.q_max)) ** 2 / (0.5 * dv_last)
+    lam = p0 * p0 / (0.5 * dv_first)
     if kappa >= WALL_LAYER_RATIO:
         return "uniform", kappa, lam
     return ("ends" if lam < START_LAYER_RATIO else "end"), kappa, lam
