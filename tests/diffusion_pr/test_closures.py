@@ -633,6 +633,57 @@ def test_graded_shells_restore_the_order_where_the_wall_layer_is_thin(fig1, monk
         assert l1_true < 1e-6 and l1_true < 2 * r.error_estimate  # (2: the oracle's own 3.7e-8 against 1.9e-7)
 
 
+def _l1_to_oracle(r, fine):
+    """L1 of ``r``'s zero weight and cell masses against the uniform oracle ``R(768, 1536)`` (cdf at its edges)."""
+    oracle = (4.0 * fine[1536].cdf(r.edges) - fine[768].cdf(r.edges)) / 3.0
+    cdf = r.cdf(r.edges)
+    return abs(cdf[0] - oracle[0]) + float(np.sum(np.abs(np.diff(cdf) - np.diff(oracle))))
+
+
+def test_thin_layer_table_does_not_trust_one_fourth_order_ratio(monkeypatch):
+    """H = 0.8, p0 = 0.016, zeta = 0.01, local_g1_balanced ("end" shells, kappa 0.21): the ratios of successive
+    R(n/2, n) differences run 15, 5, 8, 7 per doubling from 24 shells on.  The table of the L1 sums took the first
+    for a fourth order and Romberg at 48 shells claimed 8.7e-7 where the answer was 6.1e-6 from the continuum (the
+    zero weight 3.0e-6 of it).  The thin layer's table (R only; the zero weight and the cells each over their own
+    ratio, at most 2^2.5) solves 192 shells: within rtol of the uniform oracle R(768, 1536) at rtol 1e-8 (which
+    moves by 2e-9 to R(1536, 3072)), measured 5.8e-7 against an estimate of 7.8e-7.  The tolerance: rtol itself,
+    and the estimate at most 3x optimistic (the oracle's own error is 300x below)."""
+    from diffusion_pr import closures
+
+    spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+    kw = dict(E_star=E, mean_pressure=0.016, zeta=0.01, closure="local_g1_balanced")
+    r = closure_distribution(spec, **kw)
+    assert r.success and r.diagnostics["shell_grading"] == "end" and r.diagnostics["shell_extrapolation_order"] == 4
+    assert r.diagnostics["n_shells"][0] >= 96
+    fine = {n: closure_distribution(spec, rtol=1e-8, n_shells=n, **kw) for n in (768, 1536)}
+    true = _l1_to_oracle(r, fine)
+    assert true < 1e-6 and true < 3.0 * r.error_estimate, (true, r.error_estimate)
+    # the table of the L1 sums (as before): 48 shells, Romberg, 7x optimistic
+    monkeypatch.setattr(closures, "_thin_layer_table", lambda ladder: closures._shell_table(ladder))
+    old = closure_distribution(spec, **kw)
+    assert old.diagnostics["n_shells"][0] == 48 and old.diagnostics["shell_extrapolation_order"] == 6
+    assert _l1_to_oracle(old, fine) > 3.0 * old.error_estimate
+
+
+def test_thin_layer_table_bounds_known_series():
+    """The thin layer's table on ladders with known limits: the zero weight converging at first order
+    (``P = 0.4 + 0.05 h``), a cell at ``h^2 + h^2.5 + 30 h^4`` (after one Richardson step ``h^2.5`` and ``h^4``: the
+    observed ratio is 12.6 from 12 to 48 shells, the asymptotic one 2^2.5), ``h = 1/n``.  The answer is R(24, 48); its
+    residual must bound its true error in both entries (the oracle: the series' limits).  Trusting a fourth order
+    at the observed 12.6 (the cap at 16) claims 4.3e-5 for the cell's 5.8e-5; one L1 ratio for both entries
+    under-counts the zero weight."""
+    from diffusion_pr.closures import _thin_layer_table
+
+    def ladder(n):
+        h = 1.0 / n
+        return np.array([0.4 + 0.05 * h, 0.1 + h * h + h ** 2.5 + 30.0 * h ** 4])
+
+    x, residual, info = _thin_layer_table([ladder(n) for n in (48, 24, 12, 6)])
+    true = np.abs(x - np.array([0.4, 0.1]))
+    assert residual >= true.sum() and residual <= 3.0 * true.sum()  # safe, and not by more than 3x
+    assert info["shell_extrapolation_order"] == 4 and info["zero_weight_order_ratios"][0] == pytest.approx(2.0)
+
+
 def test_shell_grading_follows_the_wall_layer(fig1):
     """shell_grading: kappa = (zeta q_max E*/2)^2 / (dV0_last/2) and lambda = p0^2 / (dV0_first/2) of the 48 uniform
     shells (the spectrum's own shells are the oracle).  "uniform" at or above WALL_LAYER_RATIO (zeta = 0.05: kappa
@@ -649,6 +700,10 @@ def test_shell_grading_follows_the_wall_layer(fig1):
         assert g == want and (kappa < WALL_LAYER_RATIO) == (g != "uniform")
         assert (g == "ends") == (kappa < WALL_LAYER_RATIO and lam < START_LAYER_RATIO)
     assert shell_grading(fig1, E_star=E, zeta=0.0, mean_pressure=P0) == ("uniform", math.inf, math.inf)
+    # the partition at each shell's q grades a thin layer at both ends whatever lambda (22 here); a thick one not
+    for closure, want in (("local_g1_shell_balanced", "ends"), ("local_g1_balanced", "end"), ("local_g1", "end")):
+        assert shell_grading(fig1, E_star=E, zeta=0.02, mean_pressure=P0, closure=closure)[0] == want
+        assert shell_grading(fig1, E_star=E, zeta=0.05, mean_pressure=P0, closure=closure)[0] == "uniform"
     w = lambda q: (0.25 * E * E) * q * q  # noqa: E731
     a, b = math.log(fig1.q_min), math.log(fig1.q_max)
     for grading, x, last, first in (("end", lambda u: 1.0 - (1.0 - u) ** 2, 1.0, 2.0),
