@@ -350,7 +350,7 @@ def shell_grading(spectrum: Spectrum, *, E_star: float, zeta: float, mean_pressu
     ``lambda <`` :data:`START_LAYER_RATIO`; the hard wall (``zeta = 0``, its shells commute) "uniform".
     ``local_g1_shell_balanced`` takes "ends" wherever the layer is thin, whatever ``lambda``: measured on 21 scenes
     (two spectra, ``p0`` = 1e-3, 4e-3, 1.6e-2, ``zeta`` = 1e-3 ... 3e-2, docs/closures.md "The thin layer's table")
-    it needed at most the time of "end" on 20 of them and half the shells on 11 (the Fig. 1 scene at
+    it took at most 1.03x the time of "end" on 20 of them and half the shells or fewer on 11 (the Fig. 1 scene at
     ``zeta = 0.01``: 192 shells against 384); one scene lost 1.45x.
 
     Parameters
