@@ -46,10 +46,10 @@ MORE = [(0.3, 0.004, 0.001, c) for c in ("local_g1", "local_g1_balanced", "local
         (0.3, 0.016, 0.01, "local_g1_shell_balanced"), (0.8, 0.016, 0.01, "local_g1_shell_balanced")]
 
 
-def l1_between(r, cdf) -> float:
-    """L1 of ``r``'s zero weight and cell masses against the cdf ``cdf`` on ``r``'s edges."""
-    mine, other = r.cdf(r.edges), cdf(r.edges)
-    return abs(mine[0] - other[0]) + float(np.sum(np.abs(np.diff(mine) - np.diff(other))))
+def l1_between(edges, cdf_a, cdf_b) -> float:
+    """L1 between two distributions' zero weights and masses on the cells of ``edges`` (from their cdfs)."""
+    a, b = cdf_a(edges), cdf_b(edges)
+    return abs(a[0] - b[0]) + float(np.sum(np.abs(np.diff(a) - np.diff(b))))
 
 
 def run_scene(h: float, p0: float, zeta: float, closure: str) -> dict:
@@ -64,9 +64,8 @@ def run_scene(h: float, p0: float, zeta: float, closure: str) -> dict:
     answer = dp.pressure_distribution(spectrum, rtol=RTOL, **kw)  # warm
     oracle = lambda x: (4.0 * fine[3072].cdf(x) - fine[1536].cdf(x)) / 3.0  # noqa: E731
     coarser = lambda x: (4.0 * fine[1536].cdf(x) - fine[768].cdf(x)) / 3.0  # noqa: E731
-    true = l1_between(answer, oracle)
-    mine_o, coarse_o = oracle(answer.edges), coarser(answer.edges)
-    moves = abs(mine_o[0] - coarse_o[0]) + float(np.sum(np.abs(np.diff(mine_o) - np.diff(coarse_o))))
+    true = l1_between(answer.edges, answer.cdf, oracle)
+    moves = l1_between(answer.edges, oracle, coarser)
     d = answer.diagnostics
     return {"H": h, "p0": p0, "zeta": zeta, "closure": closure, "grading": d["shell_grading"],
             "kappa": d["wall_layer_ratio"], "shells": d["n_shells"][0], "order": d["shell_extrapolation_order"],

@@ -1201,26 +1201,24 @@ def _thin_layer_table(ladder: list) -> tuple:
     r_n, r_h = (4.0 * p_n - p_h) / 3.0, (4.0 * p_h - p_q) / 3.0
     r_q = (4.0 * p_q - ladder[3]) / 3.0 if len(ladder) > 3 else None
 
-    def l1(x: np.ndarray) -> float:
-        return float(np.sum(np.abs(x)))
-
-    def ratio(coarse: float, fine: float) -> float:
-        return coarse / fine if fine > 0.0 else math.inf
+    def r_ratio(part: slice, d_r: float) -> float:  # of the R differences, from P(n/8)
+        if r_q is None:
+            return THIN_LAYER_RATIO
+        d_half = float(np.sum(np.abs(r_h[part] - r_q[part])))
+        return d_half / d_r if d_r > 0.0 else math.inf
 
     residual = 0.0
     ratios = []
     for part in (slice(0, 1), slice(1, None)):  # the zero weight, the cells
-        rho_p = ratio(l1(p_h[part] - p_q[part]), l1(p_n[part] - p_h[part]))
-        d_r = l1(r_n[part] - r_h[part])
-        rho_r = ratio(l1(r_h[part] - r_q[part]), d_r) if r_q is not None else THIN_LAYER_RATIO
-        divisor = max(rho_p - 1.0, 1.0) if rho_p < SHELL_ORDER_RATIO else max(min(rho_r, THIN_LAYER_RATIO) - 1.0, 1.0)
-        residual += d_r / divisor
+        below_second, rho_p, d_r = _shell_residual(p_n[part], p_h[part], p_q[part])
+        rho_r = r_ratio(part, d_r)
+        residual += below_second if rho_p < SHELL_ORDER_RATIO else d_r / max(min(rho_r, THIN_LAYER_RATIO) - 1.0, 1.0)
         ratios.append((rho_p, rho_r))
-    d_top = l1(p_n - p_h)
-    info = {"shell_order_ratio": ratio(l1(p_h - p_q), d_top), "shell_extrapolation_order": 4,
+    _, rho_all, d_all = _shell_residual(p_n, p_h, p_q)
+    info = {"shell_order_ratio": rho_all, "shell_extrapolation_order": 4,
             "shell_weights": (4 / 3, -1 / 3, 0.0, 0.0), "zero_weight_order_ratios": ratios[0]}
     if r_q is not None:
-        info["richardson_order_ratio"] = ratio(l1(r_h - r_q), l1(r_n - r_h))
+        info["richardson_order_ratio"] = r_ratio(slice(None), d_all)
     return r_n, residual, info
 
 

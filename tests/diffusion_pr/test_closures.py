@@ -608,6 +608,13 @@ def test_shell_extrapolation_tightens_the_grids_where_they_leave_no_room():
     assert r.wall_time > r.diagnostics["timings"]["total"]  # the first attempt's time is counted
 
 
+def _l1_to_oracle(r, fine):
+    """L1 of ``r``'s zero weight and cell masses against the uniform oracle ``R(768, 1536)`` (cdf at its edges)."""
+    oracle = (4.0 * fine[1536].cdf(r.edges) - fine[768].cdf(r.edges)) / 3.0
+    cdf = r.cdf(r.edges)
+    return abs(cdf[0] - oracle[0]) + float(np.sum(np.abs(np.diff(cdf) - np.diff(oracle))))
+
+
 def test_graded_shells_restore_the_order_where_the_wall_layer_is_thin(fig1, monkeypatch):
     """local_g1 at zeta = 0.001 (kappa = p*(q_max)^2/tau_last = 8e-4): with uniform shells the sum converges at an
     order of about 1.25 (differences fall 2.4x per doubling up to 1536 shells), the error of the last shells, which
@@ -627,17 +634,8 @@ def test_graded_shells_restore_the_order_where_the_wall_layer_is_thin(fig1, monk
     assert uniform.diagnostics["n_shells"][0] >= 384 and uniform.diagnostics["shell_order_ratio"] < 3.0
     fine = {n: closure_distribution(fig1, rtol=1e-8, n_shells=n, **kw) for n in (768, 1536)}
     for r in (graded, uniform):
-        oracle = (4.0 * fine[1536].cdf(r.edges) - fine[768].cdf(r.edges)) / 3.0
-        cdf = r.cdf(r.edges)
-        l1_true = abs(cdf[0] - oracle[0]) + float(np.sum(np.abs(np.diff(cdf) - np.diff(oracle))))
+        l1_true = _l1_to_oracle(r, fine)
         assert l1_true < 1e-6 and l1_true < 2 * r.error_estimate  # (2: the oracle's own 3.7e-8 against 1.9e-7)
-
-
-def _l1_to_oracle(r, fine):
-    """L1 of ``r``'s zero weight and cell masses against the uniform oracle ``R(768, 1536)`` (cdf at its edges)."""
-    oracle = (4.0 * fine[1536].cdf(r.edges) - fine[768].cdf(r.edges)) / 3.0
-    cdf = r.cdf(r.edges)
-    return abs(cdf[0] - oracle[0]) + float(np.sum(np.abs(np.diff(cdf) - np.diff(oracle))))
 
 
 def test_thin_layer_table_does_not_trust_one_fourth_order_ratio(monkeypatch):
