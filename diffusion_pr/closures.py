@@ -35,7 +35,7 @@ import contextlib
 import math
 import time
 from dataclasses import dataclass, replace
-from typing import Any, Optional
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
@@ -992,16 +992,7 @@ def _coarser_on_grid(res: Any, m: int, scene: tuple, rtol: float, options: dict,
     from .api import solve_problem
     from .solvers.fv import engine
 
-    # a sweep's start and grading are the first solve's; the plain masses come from a fourth-order level, and a
-    # full solve follows the scheme the first one ended with (a sixth that did not balance ended fourth, and says
-    # why after the word)
-    sub = {k: v for k, v in options.items() if k not in ("n_start", "n_cells", "wall_grading", "wall_depth")}
-    sub["n_cells"] = int(res.diagnostics["levels"][0])
-    if "extrapolation" in sub:
-        if plain is not None:
-            del sub["extrapolation"]
-        else:
-            sub["extrapolation"] = str(res.diagnostics["extrapolation"]).split()[0]
+    sub = _sub_options(res, options, plain)
     problem, _ = _shell_problem(scene, m)
     with engine.grid_family(res.diagnostics["grid"]), \
             (engine.plain_masses(plain) if plain is not None else contextlib.nullcontext()):
@@ -1010,6 +1001,37 @@ def _coarser_on_grid(res: Any, m: int, scene: tuple, rtol: float, options: dict,
         except RuntimeError as exc:
             return replace(res, success=False, message=f"{type(exc).__name__}: {exc}", wall_time=0.0,
                            diagnostics={"n_stages": len(problem.stages), "plain_failure": str(exc)})
+
+
+def _sub_options(res: Any, options: dict, plain: Optional[str]) -> dict:
+    """The options of a solve on ``res``'s grids: a sweep's start and grading are the first solve's; the plain
+    masses come from a fourth-order level, and a full solve follows the scheme the first one ended with (a sixth
+    that did not balance ended fourth, and says why after the word)."""
+    sub = {k: v for k, v in options.items() if k not in ("n_start", "n_cells", "wall_grading", "wall_depth")}
+    sub["n_cells"] = int(res.diagnostics["levels"][0])
+    if "extrapolation" in sub:
+        if plain is not None:
+            del sub["extrapolation"]
+        else:
+            sub["extrapolation"] = str(res.diagnostics["extrapolation"]).split()[0]
+    return sub
+
+
+def _plain_on_grid(res: Any, ms: Sequence[int], scene: tuple, rtol: float, options: dict, *, plain: str) -> list:
+    """:func:`_coarser_on_grid` with ``plain`` (``"only"`` or ``"finest"``) for each of the shell counts ``ms``,
+    in their order; on the native backend in one batch (:func:`~diffusion_pr.solvers.fv.engine.plain_batch`: the
+    same masses, all their grids dealt to the two threads together)."""
+    from .solvers.fv import engine
+
+    if not ms:
+        return []
+    sub = _sub_options(res, options, plain)
+    if res.backend != "native" or not set(sub) <= {"n_cells", "p_floor", "threads", "max_cells"}:
+        return [_coarser_on_grid(res, m, scene, rtol, options, plain=plain) for m in ms]
+    sub.pop("max_cells", None)  # (plain masses on given grids: no refinement)
+    problems = [_shell_problem(scene, m)[0] for m in ms]
+    with engine.grid_family(res.diagnostics["grid"]), engine.plain_masses(plain):
+        return engine.plain_batch(problems, rtol=rtol, **sub)
 
 
 def _failed_extrapolation(res: Any, why: str) -> Any:
@@ -1070,24 +1092,25 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
     timing = {"shells": 0.0}
     finest = False  # the correction from the 4N grids too, extrapolated in space
 
-    def solve_plain(m: int, mode: str) -> Optional[tuple]:
-        r = _coarser_on_grid(res, m, scene, rtol, options, plain=mode)
-        timing["shells"] += r.wall_time
-        if r.diagnostics.get("plain_failure") or "plain_masses" not in r.diagnostics \
-                or not np.array_equal(r.edges if mode == "only" else r.edges[::2], res.edges):
-            return None  # (the 4N grid's every second edge is the answer's)
-        return r.diagnostics["plain_masses"]
+    def solve_plain(ms: list, mode: str) -> dict:
+        out = {}
+        for m, r in zip(ms, _plain_on_grid(res, ms, scene, rtol, options, plain=mode)):
+            timing["shells"] += r.wall_time
+            ok = not (r.diagnostics.get("plain_failure") or "plain_masses" not in r.diagnostics
+                      or not np.array_equal(r.edges if mode == "only" else r.edges[::2], res.edges))
+            out[m] = r.diagnostics["plain_masses"] if ok else None  # (the 4N grid's every second edge is the answer's)
+        return out
 
-    def on_the_grids(m: int) -> None:
-        if m not in plain:
-            got = solve_plain(m, "only")
+    def on_the_grids(ms: list) -> None:
+        for m, got in solve_plain([m for m in ms if m not in plain], "only").items():
             plain[m] = None if got is None else list(got)
-        if finest and plain[m] is not None and plain[m][2] is None:
-            got = solve_plain(m, "finest")
-            if got is None:
-                plain[m] = None
-            else:
-                plain[m][2] = got[2]
+        if finest:
+            for m, got in solve_plain([m for m in ms if plain[m] is not None and plain[m][2] is None],
+                                      "finest").items():
+                if got is None:
+                    plain[m] = None
+                else:
+                    plain[m][2] = got[2]
 
     def l1(x: np.ndarray) -> float:
         return float(np.sum(np.abs(x)))
@@ -1098,8 +1121,7 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
     top = n
     while True:
         wanted = [top // 2, top // 4] + ([top // 8] if top % 8 == 0 and top // 8 >= MIN_ROMBERG_SHELLS else [])
-        for m in wanted:
-            on_the_grids(m)
+        on_the_grids(wanted)
         if plain[top] is None or plain[top // 2] is None or plain[top // 4] is None:
             return _failed_extrapolation(res, f"a coarser-shell problem did not solve on the {n}-shell grids")
         eighth = top % 8 == 0 and plain.get(top // 8) is not None
@@ -1121,13 +1143,12 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
             break
         if not finest and plain[n][2] is not None and corr_error > residual:
             finest = True  # the correction's spatial error is what misses: extrapolate it in space
-            for m in list(plain):
-                on_the_grids(m)
+            on_the_grids(list(plain))
             continue
         if 2 * top > MAX_CONTINUUM_SHELLS or grids >= SHELL_SHARE * rtol:
             break
         top *= 2
-        on_the_grids(top)
+        on_the_grids([top])
         if plain[top] is None:
             top //= 2
             break

@@ -570,6 +570,39 @@ def test_plain_masses_are_the_grids_own_and_need_a_fixed_grid(fig1):
             pass
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_plain_batch_is_each_problems_own_plain_solve(fig1, threads):
+    """engine.plain_batch deals several problems' grids to the two threads together (the shell ladder's plain
+    solves); oracle: each problem's own solve under the same grid_family and plain_masses, whose masses it must
+    return bit for bit, for both modes, a balanced closure (6, 12 and 24 shells: per-stage balances) and
+    local_g1, one thread or two.  Refuses without a fixed grid or with another n_cells."""
+    from diffusion_pr.api import solve_problem
+    from diffusion_pr.solvers.fv import engine
+
+    for closure in ("local_g1_balanced", "local_g1"):
+        kw = dict(zeta=0.25, E_star=E, mean_pressure=P0, closure=closure)
+        floor = {"p_floor": 1e-12} if closure == "local_g1_balanced" else {}
+        main = closure_problem(spectrum_shells(fig1, E_star=E, n_shells=48), **kw)
+        with engine.plain_masses("keep"):
+            full = solve_problem(main, backend="native", rtol=1e-6, **floor)
+        n0 = full.diagnostics["levels"][0]
+        problems = [closure_problem(spectrum_shells(fig1, E_star=E, n_shells=m), **kw) for m in (24, 6, 12)]
+        for mode, grids in (("only", (0, 1)), ("finest", (2,))):
+            with engine.grid_family(full.diagnostics["grid"]), engine.plain_masses(mode):
+                own = [solve_problem(pb, backend="native", rtol=1e-6, n_cells=n0, threads=threads, **floor)
+                       for pb in problems]
+                batch = engine.plain_batch(problems, rtol=1e-6, n_cells=n0, threads=threads, **floor)
+            for a, b in zip(own, batch):
+                for g in range(3):
+                    x, y = a.diagnostics["plain_masses"][g], b.diagnostics["plain_masses"][g]
+                    assert (np.array_equal(x, y) if g in grids else x is None and y is None)
+                assert np.array_equal(a.edges, b.edges) and b.diagnostics["plain_failure"] is None
+    with engine.plain_masses("only"), pytest.raises(ValueError, match="plain_batch needs grid_family"):
+        engine.plain_batch(problems, rtol=1e-6, n_cells=n0)
+    with engine.grid_family(full.diagnostics["grid"]), engine.plain_masses("only"), \
+            pytest.raises(ValueError, match="n_cells equal to the family's coarsest"):
+        engine.plain_batch(problems, rtol=1e-6, n_cells=n0 + 1)
+
 def test_shell_extrapolation_after_a_sixth_that_ended_fourth(monkeypatch):
     """A stress scene where extrapolation="sixth" does not balance on uniform shells and the solve ends with the
     fourth-order scheme (H = 0.5, rms slope 0.3, p0 = 1e-5, zeta = 3e-3): the shell extrapolation's coarser solves

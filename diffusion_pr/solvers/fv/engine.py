@@ -819,19 +819,25 @@ def _run_grids(tasks: Sequence[Callable], parallel: bool) -> list:
     """
     if not parallel:
         return [t() for t in tasks]
+    finest = _worker().submit(tasks[-1])
+    try:
+        out = [t() for t in tasks[:-1]]
+    finally:
+        last = finest.result()
+    return out + [last]
+
+
+def _worker():
+    """The engine's one worker thread (a forked child makes its own), with the kernels loaded in this thread
+    first (numba's first load is not for two threads at once)."""
     global _POOL, _POOL_PID
     if _POOL is None or _POOL_PID != os.getpid():  # a forked child has the pool object but not its thread
         from concurrent.futures import ThreadPoolExecutor
 
         _POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="diffusion_pr-grid")
         _POOL_PID = os.getpid()
-    _staged_kernels()  # import the kernels in this thread (numba's first load is not for two threads at once)
-    finest = _POOL.submit(tasks[-1])
-    try:
-        out = [t() for t in tasks[:-1]]
-    finally:
-        last = finest.result()
-    return out + [last]
+    _staged_kernels()
+    return _POOL
 
 
 def _f64(a) -> np.ndarray:
@@ -953,6 +959,16 @@ def _sixth(es: Sequence[np.ndarray], ys: Sequence[np.ndarray], r12: np.ndarray, 
     asymptotic = d_lo >= SIXTH_ASYMPTOTIC_RATIO * d_hi
     return (e1[j1:], _lump(hi, j1), hi_mom[j1:], _lump(_aggregate(fine), j1), mean_full,
             est6 if asymptotic else est4, 6 if asymptotic else 4)
+
+
+def _integrator(assemble: Assemble, rtol: float, order: int) -> Callable:
+    """``integrate(prep, edges, n_base, refine, coef=None) -> (y, counters)``: :func:`solve_on_grid` with the
+    tolerances of ``rtol`` (the balance's mean, its last linear step, the partial fractions) and the rational
+    approximation of ``order``."""
+    return lambda pr, e, nb, rf, cf=None: solve_on_grid(pr, e, assemble=assemble, n_base=nb, refine=rf, coef=cf,
+                                                        mean_tol=max(1e-13, MEAN_TOL_FRACTION * rtol),
+                                                        lin_tol=math.sqrt(LINEAR_FRACTION * rtol),
+                                                        partial_fractions=rtol >= PFD_MIN_RTOL, order=order)
 
 
 def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_assemble, n_cells: Optional[int] = None,
@@ -1110,11 +1126,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         raise ValueError("extrapolation='sixth' needs the native operator and coefficients constant within each "
                          "stage (no time-dependent coefficients, no balance substeps); use 'fourth'")
     t_prep = time.perf_counter() - t_start
-    integrate = loop if loop is not None else (
-        lambda pr, e, nb, rf, cf=None: solve_on_grid(pr, e, assemble=assemble, n_base=nb, refine=rf, coef=cf,
-                                            mean_tol=max(1e-13, MEAN_TOL_FRACTION * rtol),
-                                            lin_tol=math.sqrt(LINEAR_FRACTION * rtol),
-                                            partial_fractions=rtol >= PFD_MIN_RTOL, order=rational_order))
+    integrate = loop if loop is not None else _integrator(assemble, rtol, rational_order)
     n = int(n_cells) if n_cells is not None else (
         int(n_start) if n_start is not None else
         int(np.clip(START_CELLS_SIXTH * (1e-4 / rtol) ** (1 / 6), 16, 4096)) if sixth else
@@ -1388,6 +1400,73 @@ def _plain_result(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple],
                         extra={"levels": [int(idx[-1]) << k for k in ks], "plain_masses": tuple(plain),
                                "plain_failure": broken[0] if broken else None,
                                "grid": _grid_of(prep, idx)})
+
+
+def plain_batch(problems: Sequence, *, rtol: float, n_cells: int, p_floor: Optional[float] = None,
+                threads: Optional[int] = None) -> list:
+    """The plain masses of several problems on one grid family, as :func:`solve_fv` gives each of them under
+    :func:`grid_family` and :func:`plain_masses` (``"only"`` or ``"finest"``) with ``n_cells`` its coarsest, the
+    same bit for bit, but with all their grids spread over two threads together.
+
+    One problem at a time, its two grids split 1:2 between the threads (the ``N`` grid here, the ``2N`` grid in
+    the worker) and the ``4N`` grid alone ran in one: this thread waited a third of the kernels' time for the
+    worker, and each problem paid the solver's set-up in turn.  Here every problem is classified first, then
+    the (problem, grid) integrations are dealt to the two threads largest first (cells x stages), each
+    evaluating its own coefficients.  Native operator, compiled stages, coefficients constant within each stage
+    (the shell closures' plain solves); other problems are solved one by one by :func:`solve_fv`.
+
+    Returns the results in the order of ``problems`` (:func:`_plain_result`'s, each with its share of the
+    batch's wall time).
+    """
+    t_start = time.perf_counter()
+    forced, mode = _FORCED_GRID.get(), _PLAIN.get()
+    if forced is None or mode not in ("only", "finest") or int(n_cells) != int(forced[1][-1]):
+        raise ValueError(f"plain_batch needs grid_family, plain_masses('only' or 'finest') and n_cells equal to "
+                         f"the family's coarsest grid; got mode={mode!r}, n_cells={n_cells!r}")
+    threads = DEFAULT_THREADS if threads is None else threads
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads not in (1, 2):
+        raise ValueError(f"threads must be 1 or 2; got threads={threads!r}")
+    preps = [replace(prepare(pb, rtol=rtol, p_floor=p_floor, on_grid=forced[0]), spec=forced[0]) for pb in problems]
+    if not all(_compiled(pr) and not pr.time_dependent and (pr.balance_per_stage or not pr.has_balance)
+               for pr in preps):
+        return [solve_fv(pb, rtol=rtol, backend="native", n_cells=n_cells, p_floor=p_floor, threads=threads)
+                for pb in problems]
+    idx = np.array(forced[1])
+    n_base = int(idx[-1])
+    finest = _forced_edges(forced[0], idx, 4)
+    ks = [0, 1] if mode == "only" else [2]
+    es = [finest[::4 >> k] for k in ks]
+    integrate = _integrator(native_assemble, rtol, cram_order(rtol))
+    t_prep = time.perf_counter() - t_start
+
+    def task(i: int, g: int) -> Callable:
+        return lambda: integrate(preps[i], es[g], n_base, 1 << ks[g],
+                                 _coefficients(preps[i].pieces, [es[g]], centre_drift=False)[0])
+
+    jobs = sorted(((len(pr.pieces) * (es[g].size - 1), i, g) for i, pr in enumerate(preps) for g in range(len(es))),
+                  key=lambda j: -j[0])
+    lists: tuple = ([], [])  # this thread's and the worker's (longest processing time first)
+    load = [0, 0]
+    for work, i, g in jobs:
+        t = 0 if threads == 1 or load[0] <= load[1] else 1
+        lists[t].append((i, g))
+        load[t] += work
+    ys: dict = {}
+
+    def run(items: list) -> None:
+        for i, g in items:
+            ys[i, g] = task(i, g)()
+
+    pending = _worker().submit(run, lists[1]) if lists[1] else None
+    try:
+        run(lists[0])
+    finally:
+        if pending is not None:
+            pending.result()
+    share = (time.perf_counter() - t_start) / max(len(preps), 1)
+    return [replace(_plain_result(pr, es, [ys[i, g] for g in range(len(es))], idx, ks, backend="native", rtol=rtol,
+                                  t_start=t_start, t_prep=t_prep), wall_time=share)
+            for i, pr in enumerate(preps)]
 
 
 def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarray, estimate: float, rtol: float,
