@@ -575,7 +575,8 @@ def test_plain_batch_is_each_problems_own_plain_solve(fig1, threads):
     """engine.plain_batch deals several problems' grids to the two threads together (the shell ladder's plain
     solves); oracle: each problem's own solve under the same grid_family and plain_masses, whose masses it must
     return bit for bit, for both modes, a balanced closure (6, 12 and 24 shells: per-stage balances) and
-    local_g1, one thread or two.  Refuses without a fixed grid or with another n_cells."""
+    local_g1, one thread or two; with a 2-shell local_g1 problem among them (integrated by LAPACK, not the compiled
+    stages) too.  Refuses without a fixed grid or with another n_cells."""
     from diffusion_pr.api import solve_problem
     from diffusion_pr.solvers.fv import engine
 
@@ -586,7 +587,8 @@ def test_plain_batch_is_each_problems_own_plain_solve(fig1, threads):
         with engine.plain_masses("keep"):
             full = solve_problem(main, backend="native", rtol=1e-6, **floor)
         n0 = full.diagnostics["levels"][0]
-        problems = [closure_problem(spectrum_shells(fig1, E_star=E, n_shells=m), **kw) for m in (24, 6, 12)]
+        problems = [closure_problem(spectrum_shells(fig1, E_star=E, n_shells=m), **kw)
+                    for m in ((24, 6, 12) if closure == "local_g1_balanced" else (24, 2, 12))]
         for mode, grids in (("only", (0, 1)), ("finest", (2,))):
             with engine.grid_family(full.diagnostics["grid"]), engine.plain_masses(mode):
                 own = [solve_problem(pb, backend="native", rtol=1e-6, n_cells=n0, threads=threads, **floor)

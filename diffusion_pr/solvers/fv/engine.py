@@ -961,6 +961,14 @@ def _sixth(es: Sequence[np.ndarray], ys: Sequence[np.ndarray], r12: np.ndarray, 
             est6 if asymptotic else est4, 6 if asymptotic else 4)
 
 
+def _threads(threads: Optional[int]) -> int:
+    """The ``threads`` option checked: 1 or 2, :data:`DEFAULT_THREADS` where None."""
+    threads = DEFAULT_THREADS if threads is None else threads
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads not in (1, 2):
+        raise ValueError(f"threads must be 1 or 2; got threads={threads!r}")
+    return int(threads)
+
+
 def _integrator(assemble: Assemble, rtol: float, order: int) -> Callable:
     """``integrate(prep, edges, n_base, refine, coef=None) -> (y, counters)``: :func:`solve_on_grid` with the
     tolerances of ``rtol`` (the balance's mean, its last linear step, the partial fractions) and the rational
@@ -1067,9 +1075,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                 or not 8 <= n_start <= max_cells // depth):
             raise ValueError(f"n_start must be an integer in [8, max_cells/{depth} = {max_cells // depth}]; "
                              f"got n_start={n_start!r}")
-    threads = DEFAULT_THREADS if threads is None else threads
-    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads not in (1, 2):
-        raise ValueError(f"threads must be 1 or 2; got threads={threads!r}")
+    threads = _threads(threads)
     sixth = extrapolation == "sixth"
 
     def again(why_key: str, why: str, **changes) -> PressureDistribution:
@@ -1412,8 +1418,8 @@ def plain_batch(problems: Sequence, *, rtol: float, n_cells: int, p_floor: Optio
     the worker) and the ``4N`` grid alone ran in one: this thread waited a third of the kernels' time for the
     worker, and each problem paid the solver's set-up in turn.  Here every problem is classified first, then
     the (problem, grid) integrations are dealt to the two threads largest first (cells x stages), each
-    evaluating its own coefficients.  Native operator, compiled stages, coefficients constant within each stage
-    (the shell closures' plain solves); other problems are solved one by one by :func:`solve_fv`.
+    evaluating its own coefficients.  Native operator (the shell closures' plain solves; a problem the compiled
+    stages do not take is integrated by LAPACK as in :func:`solve_fv`).
 
     Returns the results in the order of ``problems`` (:func:`_plain_result`'s, each with its share of the
     batch's wall time).
@@ -1423,14 +1429,8 @@ def plain_batch(problems: Sequence, *, rtol: float, n_cells: int, p_floor: Optio
     if forced is None or mode not in ("only", "finest") or int(n_cells) != int(forced[1][-1]):
         raise ValueError(f"plain_batch needs grid_family, plain_masses('only' or 'finest') and n_cells equal to "
                          f"the family's coarsest grid; got mode={mode!r}, n_cells={n_cells!r}")
-    threads = DEFAULT_THREADS if threads is None else threads
-    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads not in (1, 2):
-        raise ValueError(f"threads must be 1 or 2; got threads={threads!r}")
+    threads = _threads(threads)
     preps = [replace(prepare(pb, rtol=rtol, p_floor=p_floor, on_grid=forced[0]), spec=forced[0]) for pb in problems]
-    if not all(_compiled(pr) and not pr.time_dependent and (pr.balance_per_stage or not pr.has_balance)
-               for pr in preps):
-        return [solve_fv(pb, rtol=rtol, backend="native", n_cells=n_cells, p_floor=p_floor, threads=threads)
-                for pb in problems]
     idx = np.array(forced[1])
     n_base = int(idx[-1])
     finest = _forced_edges(forced[0], idx, 4)
@@ -1439,9 +1439,10 @@ def plain_batch(problems: Sequence, *, rtol: float, n_cells: int, p_floor: Optio
     integrate = _integrator(native_assemble, rtol, cram_order(rtol))
     t_prep = time.perf_counter() - t_start
 
-    def task(i: int, g: int) -> Callable:
-        return lambda: integrate(preps[i], es[g], n_base, 1 << ks[g],
-                                 _coefficients(preps[i].pieces, [es[g]], centre_drift=False)[0])
+    def task(i: int, g: int) -> Callable:  # (a time-dependent problem's segments are made by solve_on_grid)
+        pr = preps[i]
+        return lambda: integrate(pr, es[g], n_base, 1 << ks[g], None if pr.time_dependent else
+                                 _coefficients(pr.pieces, [es[g]], centre_drift=False)[0])
 
     jobs = sorted(((len(pr.pieces) * (es[g].size - 1), i, g) for i, pr in enumerate(preps) for g in range(len(es))),
                   key=lambda j: -j[0])
