@@ -1439,11 +1439,6 @@ def plain_batch(problems: Sequence, *, rtol: float, n_cells: int, p_floor: Optio
     integrate = _integrator(native_assemble, rtol, cram_order(rtol))
     t_prep = time.perf_counter() - t_start
 
-    def task(i: int, g: int) -> Callable:  # (a time-dependent problem's segments are made by solve_on_grid)
-        pr = preps[i]
-        return lambda: integrate(pr, es[g], n_base, 1 << ks[g], None if pr.time_dependent else
-                                 _coefficients(pr.pieces, [es[g]], centre_drift=False)[0])
-
     jobs = sorted(((len(pr.pieces) * (es[g].size - 1), i, g) for i, pr in enumerate(preps) for g in range(len(es))),
                   key=lambda j: -j[0])
     lists: tuple = ([], [])  # this thread's and the worker's (longest processing time first)
@@ -1454,9 +1449,11 @@ def plain_batch(problems: Sequence, *, rtol: float, n_cells: int, p_floor: Optio
         load[t] += work
     ys: dict = {}
 
-    def run(items: list) -> None:
+    def run(items: list) -> None:  # (a time-dependent problem's segments are made by solve_on_grid)
         for i, g in items:
-            ys[i, g] = task(i, g)()
+            pr = preps[i]
+            ys[i, g] = integrate(pr, es[g], n_base, 1 << ks[g], None if pr.time_dependent else
+                                 _coefficients(pr.pieces, [es[g]], centre_drift=False)[0])
 
     pending = _worker().submit(run, lists[1]) if lists[1] else None
     try:
