@@ -57,3 +57,9 @@ def drift_rows(kq: np.ndarray, kq_part: np.ndarray, p: np.ndarray) -> np.ndarray
 def balance_rows(kq_part: np.ndarray, p: np.ndarray) -> np.ndarray:
     """``w[k, i] = kq_part_k p / (p + kq_part_k)``."""
     return _model_rows(kq_part, kq_part, p, BALANCE)
+
+
+# cached loads skip numba's registry refresh (only a compile needs it): diffusion_pr._numba_load
+from ._numba_load import load_without_refresh  # noqa: E402
+
+load_without_refresh(globals())

@@ -32,6 +32,7 @@ import contextlib
 import contextvars
 import math
 import os
+import threading
 import time
 from dataclasses import dataclass, field, replace
 from typing import Callable, Optional, Sequence
@@ -852,6 +853,23 @@ class _Kernels:
 
         self._k = k
         self._coef = {}
+        self._rows_lock = threading.Lock()
+        self._rows_kernel = None
+
+    def _staged_run_rows(self):
+        """:func:`._kernels.staged_run_rows` compiled (loaded) for its one signature and closed to others.
+
+        Single-grid rows (C-contiguous) and a group's column views take the same
+        specialization, so a fresh process loads its machine code once.
+        """
+        if self._rows_kernel is None:
+            with self._rows_lock:
+                if self._rows_kernel is None:
+                    kernel = self._k.staged_run_rows
+                    kernel.compile(self._k.staged_run_rows_types())
+                    kernel.disable_compile()
+                    self._rows_kernel = kernel
+        return self._rows_kernel
 
     def _coefficients(self, pfd: bool, order: int) -> tuple:
         """``(alpha, theta, alpha0, c)`` as the kernels take them: the IPF form's CRAM-16 (``pfd`` False), or the
@@ -871,7 +889,7 @@ class _Kernels:
                 f(dt), np.ascontiguousarray(reps, dtype=np.int64), f(cvec), f(y), float(p0), float(mean_tol),
                 float(lin_tol), int(MAX_BALANCE_ITERATIONS), bool(pfd), *self._coefficients(pfd, order))
         with flush_subnormals(FLUSH_SUBNORMALS):
-            y, n_cram, n_newton, info, stage, res = self._k.staged_run_rows(*args)
+            y, n_cram, n_newton, info, stage, res = self._staged_run_rows()(*args)
         return y, int(n_cram), int(n_newton), int(info), int(stage), float(res)
 
     def run(self, lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, pfd, order=16):

@@ -1,0 +1,78 @@
+"""Load the package's cached numba kernels without numba's compiler set-up.
+
+Numba's on-disk cache (``cache=True``) stores machine code. Before it loads a
+cached overload, numba refreshes its target context
+(``numba.core.base.BaseContext.refresh``): it imports and registers every
+lowering implementation it has (``numba.np.linalg``, ``numba.np.arraymath``,
+the typed containers, the random generators, ...). On this project's machine
+that refresh alone is 0.1-0.24 s of a closure's first call in a fresh process,
+and it is only needed to *compile*: unpickling and linking cached machine code
+reads none of those registries. The only part a load needs is the NRT runtime
+(``rtsys.initialize``), whose symbols the kernels' allocations link against.
+
+:func:`load_without_refresh` switches the caches of the given dispatchers (ours
+only; a user's own numba functions keep numba's behaviour) to a load that
+initializes the NRT and skips the refresh. A cache miss still compiles through
+numba's compiler, which refreshes the context itself
+(``numba.core.compiler.CompilerBase.__init__``), so a cold cache or a new
+signature behaves exactly as before. The machine code is the same object code
+either way: the answers are the same bits (``tests/diffusion_pr/test_numba_load.py``).
+
+It relies on two internals of numba's cache (``FunctionCache`` and its
+``_load_overload``), checked when it is applied: where they differ (another numba
+version) it leaves the dispatchers as they are. Set the environment variable
+``DIFFUSION_PR_NUMBA_REFRESH=1`` to keep numba's own load (for instance to
+compare the two).
+"""
+from __future__ import annotations
+
+import os
+from typing import Any
+
+__all__ = ["load_without_refresh", "ENV_KEEP_REFRESH"]
+
+#: environment variable that keeps numba's own cache load (refresh included) when set to ``1``
+ENV_KEEP_REFRESH = "DIFFUSION_PR_NUMBA_REFRESH"
+
+
+def _load_only_cache_class() -> Any:
+    from numba.core.caching import FunctionCache
+    from numba.core.runtime import rtsys
+
+    class LoadOnlyFunctionCache(FunctionCache):
+        """``FunctionCache`` whose load initializes the NRT instead of refreshing the whole target context."""
+
+        def load_overload(self, sig, target_context):
+            rtsys.initialize(target_context)
+            with self._guard_against_spurious_io_errors():
+                return self._load_overload(sig, target_context)
+
+    return LoadOnlyFunctionCache
+
+
+_CLASS: Any = None
+
+
+def load_without_refresh(namespace: dict) -> int:
+    """Give every cached numba dispatcher in ``namespace`` (a module's ``globals()``) the load without refresh.
+
+    Returns the number of dispatchers switched (0 where ``DIFFUSION_PR_NUMBA_REFRESH=1``
+    or where numba's cache internals are not the ones this was written for).
+    """
+    global _CLASS
+    if os.environ.get(ENV_KEEP_REFRESH, "0") == "1":
+        return 0
+    from numba.core.caching import FunctionCache
+    from numba.core.registry import CPUDispatcher
+
+    if not all(hasattr(FunctionCache, name) for name in ("_load_overload", "_guard_against_spurious_io_errors")):
+        return 0
+    if _CLASS is None:
+        _CLASS = _load_only_cache_class()
+    switched = 0
+    for obj in list(namespace.values()):
+        cache = getattr(obj, "_cache", None) if isinstance(obj, CPUDispatcher) else None
+        if type(cache) is FunctionCache:  # exactly numba's: never a cache class we do not know
+            cache.__class__ = _CLASS
+            switched += 1
+    return switched

@@ -1,0 +1,124 @@
+"""Cached kernels load without numba's registry refresh (:mod:`diffusion_pr._numba_load`).
+
+Oracles: numba's own load of the same cache (``DIFFUSION_PR_NUMBA_REFRESH=1``) for
+the answers, bit for bit; ``sys.modules`` for whether the refresh ran (it imports
+``numba.np.linalg``, which nothing on a cached load needs); the dispatchers' cache
+statistics for whether the machine code came from the cache.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import diffusion_pr as dp
+
+_CLOSURE_RUN = textwrap.dedent("""
+    import hashlib, json, sys
+    import numpy as np
+    import diffusion_pr as dp
+    S = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+    r = dp.pressure_distribution(S, E_star=8 / 3, mean_pressure=0.004, zeta=0.25, closure="local_g1", rtol=1e-4)
+    from diffusion_pr.solvers.fv import _kernels as k
+    print(json.dumps(dict(
+        bits=hashlib.sha256(r.weights.tobytes() + r.p.tobytes() + np.float64(r.zero_weight).tobytes()).hexdigest(),
+        refreshed="numba.np.linalg" in sys.modules,
+        signatures=len(k.staged_run_rows.signatures),
+        cache_hits=sum(k.staged_run_rows.stats.cache_hits.values()),
+        success=bool(r.success))))
+""")
+
+
+def _run(code: str, env_extra: dict, cwd=None, args=()) -> dict:
+    env = {**os.environ, **env_extra}
+    out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, check=True, env=env,
+                         cwd=cwd)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+@pytest.fixture(scope="module")
+def warm_closure_cache():
+    """The kernels compiled into the on-disk cache (by this process) before the fresh processes load them."""
+    S = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+    r = dp.pressure_distribution(S, E_star=8 / 3, mean_pressure=0.004, zeta=0.25, closure="local_g1", rtol=1e-4)
+    assert r.success
+
+
+def test_closure_in_a_fresh_process_loads_without_refresh_same_bits(warm_closure_cache):
+    """A fresh process's closure solve loads the cached kernels without the refresh and gets the bits of numba's
+    own load; ``staged_run_rows`` has exactly one specialization although the solve passes both a single grid's
+    contiguous rows and a group's column views."""
+    fast = _run(_CLOSURE_RUN, {"DIFFUSION_PR_NUMBA_REFRESH": "0"})
+    numba_own = _run(_CLOSURE_RUN, {"DIFFUSION_PR_NUMBA_REFRESH": "1"})
+    assert fast["success"] and numba_own["success"]
+    assert fast["bits"] == numba_own["bits"]
+    assert fast["cache_hits"] >= 1 and numba_own["cache_hits"] >= 1  # both loaded machine code, neither compiled
+    assert not fast["refreshed"]
+    assert numba_own["refreshed"]  # the oracle's load is numba's, refresh included
+    assert fast["signatures"] == 1 and numba_own["signatures"] == 1
+
+
+_TINY = textwrap.dedent("""
+    from numba import njit
+    from diffusion_pr._numba_load import load_without_refresh
+
+    @njit(cache=True)
+    def twice(x):
+        return 2 * x
+
+    SWITCHED = load_without_refresh(globals())
+""")
+
+_TINY_RUN = textwrap.dedent("""
+    import json, sys
+    sys.path.insert(0, ".")
+    import tiny_kernels as t
+    a = t.twice(1.5)
+    loaded = sum(t.twice.stats.cache_hits.values())
+    refreshed_after_load = "numba.np.linalg" in sys.modules
+    b = t.twice(int(sys.argv[1]))  # the warm run's first int: compiled by numba's compiler (it refreshes itself)
+    print(json.dumps(dict(a=a, b=b, switched=t.SWITCHED, loaded=loaded, refreshed_after_load=refreshed_after_load,
+                          refreshed_after_compile="numba.np.linalg" in sys.modules)))
+""")
+
+
+def test_load_without_refresh_compiles_on_a_miss_and_loads_on_a_hit(tmp_path):
+    """Cold cache: the function compiles (numba's compiler refreshes); warm cache: it loads without the refresh;
+    a new signature after such a load still compiles and is right."""
+    (tmp_path / "tiny_kernels.py").write_text(_TINY)
+    env = {"DIFFUSION_PR_NUMBA_REFRESH": "0", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    cold = _run(_TINY_RUN.replace("int(sys.argv[1])", "1.0"), env, cwd=tmp_path)  # float only: one signature
+    warm = _run(_TINY_RUN, env, cwd=tmp_path, args=("2",))
+    assert (cold["a"], cold["b"], cold["switched"]) == (3.0, 2.0, 1)
+    assert (warm["a"], warm["b"], warm["switched"]) == (3.0, 4, 1)
+    assert warm["refreshed_after_compile"]
+    assert cold["loaded"] == 0 and cold["refreshed_after_load"]  # compiled: the compiler refreshed
+    assert warm["loaded"] == 1 and not warm["refreshed_after_load"]  # loaded: no refresh
+
+
+def test_opt_out_keeps_numba_cache(monkeypatch):
+    """``DIFFUSION_PR_NUMBA_REFRESH=1`` leaves a module's dispatchers with numba's own cache class."""
+    from numba import njit
+    from numba.core.caching import FunctionCache
+
+    from diffusion_pr._numba_load import ENV_KEEP_REFRESH, load_without_refresh
+
+    def make():
+        @njit(cache=False)
+        def f(x):  # pragma: no cover - numba
+            return x
+
+        f.enable_caching()
+        return {"f": f}
+
+    monkeypatch.setenv(ENV_KEEP_REFRESH, "1")
+    ns = make()
+    assert load_without_refresh(ns) == 0 and type(ns["f"]._cache) is FunctionCache
+    monkeypatch.setenv(ENV_KEEP_REFRESH, "0")
+    assert load_without_refresh(ns) == 1 and type(ns["f"]._cache) is not FunctionCache
+    assert load_without_refresh(ns) == 0  # switched once only
