@@ -40,7 +40,7 @@ from typing import Callable, Optional, Sequence
 import numpy as np
 
 from ...models import breakpoints_of, evaluate_vectorized, wall_reached, zero_power_of
-from ...problem import FokkerPlanckProblem, Stage, StagedProblem
+from ...problem import FokkerPlanckProblem, StagedProblem
 from ...result import PressureDistribution
 from ._fpenv import flush_subnormals
 from .cram import PFD_ERROR_BOUNDS, expm_tridiagonal, pfd_coefficients
