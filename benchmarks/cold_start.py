@@ -1,0 +1,125 @@
+"""Cold start: the first solve in a fresh process, numba's own cache load against the package's.
+
+Each measurement is one fresh Python process (warm on-disk caches, as on every run
+after the first one after installing) that imports ``diffusion_pr`` (lazy), builds
+the Fig. 1 spectrum (this imports numpy and scipy; reported apart), then times its
+first solve and a second, warm one. The two ways of loading the cached numba kernels
+alternate process by process in every round:
+
+* ``package``: the default, cached kernels loaded without numba's registry refresh
+  (:mod:`diffusion_pr._numba_load`);
+* ``numba``: ``DIFFUSION_PR_NUMBA_REFRESH=1``, numba's own load (refresh included).
+
+Cases: the paper's problem (``propagate``; no numba at all) and the three shell
+closures on the Fig. 1 scene of ``ab_closures.py`` (``H = 0.3``, ``E* = 8/3``, ``p0 = 0.004``) for each
+``zeta``. Target (issue 10): the first solve under 0.3 s. Medians over ``--rounds``
+processes per case and mode; writes ``results/cold_start.{json,md}``.
+
+Usage: ``python benchmarks/cold_start.py [--rounds 5] [--quick]``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+OUT = Path(__file__).resolve().parent / "results"
+
+CHILD = r"""
+import json, sys, time
+t0 = time.perf_counter()
+import diffusion_pr as dp
+t1 = time.perf_counter()
+case, zeta = sys.argv[1], float(sys.argv[2])
+if case == "paper":
+    import numpy as np
+    t2 = time.perf_counter()
+    call = lambda: dp.propagate(0.004, 0.03 ** 2, diffusivity=dp.PressureFactor(dp.MuserCutoff(0.0027),
+                                dp.GaussianTail()), backend="native", rtol=1e-6)
+else:
+    import numpy as np
+    S = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+    t2 = time.perf_counter()
+    call = lambda: dp.pressure_distribution(S, E_star=8 / 3, mean_pressure=0.004, zeta=zeta, closure=case,
+                                            rtol=1e-6)
+r = call()
+t3 = time.perf_counter()
+r2 = call()
+t4 = time.perf_counter()
+print(json.dumps(dict(import_s=t1 - t0, setup_s=t2 - t1, first_s=t3 - t2, second_s=t4 - t3,
+                      success=bool(r.success), numba="numba" in sys.modules,
+                      refreshed="numba.np.linalg" in sys.modules)))
+"""
+
+CLOSURES = ("local_g1", "local_g1_balanced", "local_g1_shell_balanced")
+ZETAS = (0.001, 0.01, 0.1, 0.25, 1.0, 4.0)
+
+
+def child(case: str, zeta: float, mode: str, keep_env: bool = False) -> dict:
+    env = {**os.environ, "DIFFUSION_PR_NUMBA_REFRESH": "1" if mode == "numba" else "0"}
+    if not keep_env:  # as a default Python installation: byte code cached (this sandbox sets the variable)
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
+    out = subprocess.run([sys.executable, "-c", CHILD, case, repr(zeta)], capture_output=True, text=True,
+                         check=True, env=env)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--rounds", type=int, default=5, help="fresh processes per case and mode (default: 5)")
+    ap.add_argument("--quick", action="store_true", help="3 rounds, zeta 0.01 and 0.25 only (default: off)")
+    ap.add_argument("--keep-env", action="store_true",
+                    help="keep PYTHONDONTWRITEBYTECODE if set (default: removed, so that the package's "
+                         "modules load from cached byte code as in a default installation)")
+    args = ap.parse_args()
+    keep = args.keep_env
+    rounds = 3 if args.quick else args.rounds
+    zetas = (0.01, 0.25) if args.quick else ZETAS
+    cases = [("paper", 0.0)] + [(c, z) for c in CLOSURES for z in zetas]
+    for case, zeta in cases[:2]:  # caches warm (a first run after installing compiles here)
+        child(case, zeta, "package", keep)
+    t_start = time.time()
+    runs = {(c, z, m): [] for c, z in cases for m in ("package", "numba")}
+    for rnd in range(rounds):
+        for c, z in cases:
+            for m in (("package", "numba") if rnd % 2 == 0 else ("numba", "package")):
+                runs[(c, z, m)].append(child(c, z, m, keep))
+        print(f"round {rnd + 1}/{rounds} done ({time.time() - t_start:.0f} s)", flush=True)
+    rows = []
+    for c, z in cases:
+        row = dict(case=c, zeta=z)
+        for m in ("package", "numba"):
+            rs = runs[(c, z, m)]
+            assert all(r["success"] for r in rs), (c, z, m)
+            row[m] = {k: statistics.median(r[k] for r in rs) for k in ("setup_s", "first_s", "second_s")}
+            row[m]["refreshed"] = sorted({r["refreshed"] for r in rs})
+            row[m]["numba"] = sorted({r["numba"] for r in rs})
+        rows.append(row)
+    load = os.getloadavg()
+    lines = [f"# Cold start: first solve in a fresh process (medians of {rounds} processes per cell, "
+             f"load {load[0]:.2f})", "",
+             "`package`: cached kernels loaded without numba's registry refresh (the default); `numba`: "
+             "`DIFFUSION_PR_NUMBA_REFRESH=1`. `setup`: building the spectrum (numpy and scipy imports). "
+             "Target: first solve under 0.3 s. "
+             + ("PYTHONDONTWRITEBYTECODE as set by the caller." if keep else
+                "Byte code cached (PYTHONDONTWRITEBYTECODE removed), as in a default installation."), "",
+             "| case | zeta | setup [s] | first solve, package [s] | first solve, numba [s] | ratio | "
+             "second solve [ms] |", "|---|---|---|---|---|---|---|"]
+    for row in rows:
+        p, n = row["package"], row["numba"]
+        lines.append(f"| {row['case']} | {row['zeta']:g} | {p['setup_s']:.3f} | {p['first_s']:.3f} | "
+                     f"{n['first_s']:.3f} | {p['first_s'] / n['first_s']:.2f} | {1e3 * p['second_s']:.1f} |")
+    text = "\n".join(lines)
+    print(text)
+    OUT.mkdir(exist_ok=True)
+    (OUT / "cold_start.md").write_text(text + "\n")
+    (OUT / "cold_start.json").write_text(json.dumps(dict(rounds=rounds, load=load, rows=rows), indent=1))
+
+
+if __name__ == "__main__":
+    main()
