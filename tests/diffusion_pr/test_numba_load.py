@@ -122,3 +122,28 @@ def test_opt_out_keeps_numba_cache(monkeypatch):
     monkeypatch.setenv(ENV_KEEP_REFRESH, "0")
     assert load_without_refresh(ns) == 1 and type(ns["f"]._cache) is not FunctionCache
     assert load_without_refresh(ns) == 0  # switched once only
+
+
+_WARMED_RUN = textwrap.dedent("""
+    import json, sys
+    import numpy as np
+    import diffusion_pr as dp
+    from diffusion_pr.solvers import warm_up
+    from diffusion_pr.solvers.fv import _kernels as k
+    from diffusion_pr import _closure_kernels as ck
+    warm_up("native")
+    loads = lambda: sum(k.staged_run_rows.stats.cache_hits.values()) + sum(ck._model_rows.stats.cache_hits.values())
+    before = loads()
+    S = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+    r = dp.pressure_distribution(S, E_star=8 / 3, mean_pressure=0.004, zeta=0.25, closure="local_g1_balanced",
+                                 rtol=1e-4)
+    print(json.dumps(dict(before=before, after=loads(), success=bool(r.success))))
+""")
+
+
+def test_warm_up_loads_every_kernel_a_closure_solve_needs(warm_closure_cache):
+    """After ``warm_up("native")`` a closure solve loads no further machine code: the warm-up's own loads are the
+    coefficient rows' and the staged kernel's (one each)."""
+    out = _run(_WARMED_RUN, {})
+    assert out["success"]
+    assert out["before"] == 2 and out["after"] == 2
