@@ -866,8 +866,9 @@ class _Kernels:
             with self._rows_lock:
                 if self._rows_kernel is None:
                     kernel = self._k.staged_run_rows
-                    kernel.compile(self._k.staged_run_rows_types())
-                    kernel.disable_compile()
+                    if hasattr(kernel, "disable_compile"):  # a dispatcher (a plain function under NUMBA_DISABLE_JIT)
+                        kernel.compile(self._k.staged_run_rows_types())
+                        kernel.disable_compile()
                     self._rows_kernel = kernel
         return self._rows_kernel
 
