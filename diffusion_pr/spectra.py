@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import abc
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import cached_property, lru_cache
 from typing import Callable, Literal
 
@@ -247,7 +247,7 @@ class SelfAffineSpectrum(Spectrum):
         try:
             if name == "C0":
                 c0 = value
-                moments = (self._moment_unit(1), self._moment_unit(3))
+                self._moment_unit(1), self._moment_unit(3)  # (raise OverflowError where they overflow)
             elif name == "h_rms":
                 c0 = value**2 / (2 * math.pi * self._moment_unit(1))
             else:

@@ -33,7 +33,7 @@ Two ways to integrate (``method=``):
 from __future__ import annotations
 
 import time
-from typing import Any, Optional
+from typing import Optional
 
 import numpy as np
 

@@ -28,7 +28,7 @@ not for problems with a balance multiplier).
 from __future__ import annotations
 
 import time
-from typing import Any, Optional
+from typing import Optional
 
 import numpy as np
 
