@@ -27,30 +27,27 @@ compare the two).
 from __future__ import annotations
 
 import os
-from typing import Any
 
-__all__ = ["load_without_refresh", "ENV_KEEP_REFRESH"]
+from numba.core.caching import FunctionCache
+from numba.core.registry import CPUDispatcher
+from numba.core.runtime import rtsys
+
+__all__ = ["load_without_refresh", "ENV_KEEP_REFRESH", "LoadOnlyFunctionCache"]
 
 #: environment variable that keeps numba's own cache load (refresh included) when set to ``1``
 ENV_KEEP_REFRESH = "DIFFUSION_PR_NUMBA_REFRESH"
 
-
-def _load_only_cache_class() -> Any:
-    from numba.core.caching import FunctionCache
-    from numba.core.runtime import rtsys
-
-    class LoadOnlyFunctionCache(FunctionCache):
-        """``FunctionCache`` whose load initializes the NRT instead of refreshing the whole target context."""
-
-        def load_overload(self, sig, target_context):
-            rtsys.initialize(target_context)
-            with self._guard_against_spurious_io_errors():
-                return self._load_overload(sig, target_context)
-
-    return LoadOnlyFunctionCache
+#: the internals of numba's cache the load relies on
+_INTERNALS = ("_load_overload", "_guard_against_spurious_io_errors")
 
 
-_CLASS: Any = None
+class LoadOnlyFunctionCache(FunctionCache):
+    """``FunctionCache`` whose load initializes the NRT instead of refreshing the whole target context."""
+
+    def load_overload(self, sig, target_context):
+        rtsys.initialize(target_context)
+        with self._guard_against_spurious_io_errors():
+            return self._load_overload(sig, target_context)
 
 
 def load_without_refresh(namespace: dict) -> int:
@@ -59,20 +56,12 @@ def load_without_refresh(namespace: dict) -> int:
     Returns the number of dispatchers switched (0 where ``DIFFUSION_PR_NUMBA_REFRESH=1``
     or where numba's cache internals are not the ones this was written for).
     """
-    global _CLASS
-    if os.environ.get(ENV_KEEP_REFRESH, "0") == "1":
+    if os.environ.get(ENV_KEEP_REFRESH, "0") == "1" or not all(hasattr(FunctionCache, n) for n in _INTERNALS):
         return 0
-    from numba.core.caching import FunctionCache
-    from numba.core.registry import CPUDispatcher
-
-    if not all(hasattr(FunctionCache, name) for name in ("_load_overload", "_guard_against_spurious_io_errors")):
-        return 0
-    if _CLASS is None:
-        _CLASS = _load_only_cache_class()
     switched = 0
     for obj in list(namespace.values()):
         cache = getattr(obj, "_cache", None) if isinstance(obj, CPUDispatcher) else None
         if type(cache) is FunctionCache:  # exactly numba's: never a cache class we do not know
-            cache.__class__ = _CLASS
+            cache.__class__ = LoadOnlyFunctionCache
             switched += 1
     return switched

@@ -860,7 +860,9 @@ class _Kernels:
         """:func:`._kernels.staged_run_rows` compiled (loaded) for its one signature and closed to others.
 
         Single-grid rows (C-contiguous) and a group's column views take the same
-        specialization, so a fresh process loads its machine code once.
+        specialization, so a fresh process loads its machine code once.  The lock: two
+        threads may both get here first, and numba's ``compile`` raises once the other
+        thread has disabled compiling.
         """
         if self._rows_kernel is None:
             with self._rows_lock:
