@@ -456,13 +456,14 @@ class _ShellModel:
         return type(self).rows((self,), p.reshape(-1))[0].reshape(p.shape)
 
     @classmethod
-    def rows(cls, items: tuple, p: np.ndarray) -> np.ndarray:
-        """``[m(p) for m in items]`` as a 2-D array in one vectorized pass (same values as calling each)."""
+    def rows(cls, items: tuple, p: np.ndarray, out: Optional[np.ndarray] = None) -> np.ndarray:
+        """``[m(p) for m in items]`` as a 2-D array in one vectorized pass (same values as calling each); written
+        into ``out`` where that is a C-contiguous float block of this shape (check ``result is out``)."""
         common = _common_wall(items, p)
         if common is None:
             return np.array([it(p) for it in items])
         kz, p1 = common
-        return cls._formula(items, kz, p1)
+        return cls._formula(items, kz, p1, out)
 
 
 class _LoadModel(_ShellModel):
@@ -506,10 +507,10 @@ class LocalResponseDiffusivity(_ShellModel):
         return ()
 
     @staticmethod
-    def _formula(items: tuple, kz: float, p: np.ndarray) -> np.ndarray:
+    def _formula(items: tuple, kz: float, p: np.ndarray, out: Optional[np.ndarray] = None) -> np.ndarray:
         from ._closure_kernels import diffusivity_rows
 
-        return diffusivity_rows(_products(kz, items, "q"), p)
+        return diffusivity_rows(_products(kz, items, "q"), p, out)
 
 
 @dataclass(frozen=True)
@@ -526,10 +527,10 @@ class LoadExcessDrift(_LoadModel):
     kz: float
 
     @staticmethod
-    def _formula(items: tuple, kz: float, p: np.ndarray) -> np.ndarray:
+    def _formula(items: tuple, kz: float, p: np.ndarray, out: Optional[np.ndarray] = None) -> np.ndarray:
         from ._closure_kernels import drift_rows
 
-        return drift_rows(_products(kz, items, "q"), _products(kz, items, "q_part"), p)
+        return drift_rows(_products(kz, items, "q"), _products(kz, items, "q_part"), p, out)
 
 
 @dataclass(frozen=True)
@@ -541,10 +542,10 @@ class RigidApproachBalance(_LoadModel):
     kz: float
 
     @staticmethod
-    def _formula(items: tuple, kz: float, p: np.ndarray) -> np.ndarray:
+    def _formula(items: tuple, kz: float, p: np.ndarray, out: Optional[np.ndarray] = None) -> np.ndarray:
         from ._closure_kernels import balance_rows
 
-        return balance_rows(_products(kz, items, "q_part"), p)
+        return balance_rows(_products(kz, items, "q_part"), p, out)
 
 
 def closure_problem(shells: Shells, *, zeta: float, E_star: float, mean_pressure: float, closure: str,
@@ -907,15 +908,19 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         if shells.q.size % 4:
             raise ValueError(f"shell_extrapolation needs n_shells divisible by 4 (n, n/2, n/4 shells); got "
                              f"n_shells={shells.q.size}")
-    res = _solve_shells(problem, shells, closure, backend, rtol, options, keep=shell_extrapolation)
+    scene = (spectrum, E, p0, z, closure, partition_q, grading)
+    # the shells' ladder's plain solves, integrated alongside the main solve's last level where they can be
+    # (engine.plain_alongside): what they gave, by the grid they were solved on
+    alongside: dict = {}
+    res = _solve_shells(problem, shells, closure, backend, rtol, options, keep=shell_extrapolation,
+                        alongside=(scene, rtol, alongside) if shell_extrapolation else None)
     if not shell_extrapolation:
         return res
-    scene = (spectrum, E, p0, z, closure, partition_q, grading)
     first = int(shells.q.size)
     tightened = False  # the first solve was repeated on tighter grids (once at most)
     spent = 0.0  # the discarded attempts' time (a retry on tighter grids, a restart from twice the shells)
     while True:
-        out = _shell_extrapolated(res, scene, rtol, options)
+        out = _shell_extrapolated(res, scene, rtol, options, alongside)
         n = int(res.diagnostics["n_shells"])
         if (not out.success and not tightened and out.diagnostics.get("shell_extrapolation")
                 and out.diagnostics.get("grid_estimate", 0.0) >= SHELL_SHARE * rtol):
@@ -924,7 +929,8 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
             # partition, grids 9.3e-7 + shells 4.4e-6): once more on the finer grids of a tighter first solve
             tightened = True
             spent += out.wall_time
-            res = _solve_shells(problem, shells, closure, backend, GRID_RETRY_FRACTION * rtol, options, keep=True)
+            res = _solve_shells(problem, shells, closure, backend, GRID_RETRY_FRACTION * rtol, options, keep=True,
+                                alongside=(scene, rtol, alongside))
             res.diagnostics["grids_tightened"] = f"the grids' estimate {out.diagnostics['grid_estimate']:.2e} " \
                                                  f"left no room for the shells' residual at rtol {rtol:.1e}"
             continue
@@ -937,7 +943,8 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         # all three with twice the shells, on the grids of the finer first solve
         spent += out.wall_time
         problem, shells = _shell_problem(scene, 2 * n)
-        res = _solve_shells(problem, shells, closure, backend, rtol, options, keep=True)
+        res = _solve_shells(problem, shells, closure, backend, rtol, options, keep=True,
+                            alongside=(scene, rtol, alongside))
         res.diagnostics["shells_first_tried"] = first
 
 
@@ -968,15 +975,44 @@ def _shell_problem(scene: tuple, m: int) -> tuple:
                            partition_q=partition_q), shells
 
 
+def _ladder_below(top: int) -> list:
+    """The shell counts :func:`_shell_corrected` solves first below ``top``: ``top/2``, ``top/4`` and, where it
+    divides and is at least :data:`MIN_ROMBERG_SHELLS`, ``top/8``."""
+    return [top // 2, top // 4] + ([top // 8] if top % 8 == 0 and top // 8 >= MIN_ROMBERG_SHELLS else [])
+
+
+def _batched(backend: str, options: dict) -> bool:
+    """Whether the plain solves on a result's grids go through :func:`~diffusion_pr.solvers.fv.engine.plain_batch`
+    (native, or ``"auto"``, which solves the shells' problems natively; and no option :func:`_sub_options` keeps
+    beyond those it takes)."""
+    kept = set(options) - {"n_start", "n_cells", "wall_grading", "wall_depth", "extrapolation"}
+    return backend in ("native", "auto") and kept <= {"p_floor", "threads", "max_cells"}
+
+
 def _solve_shells(problem: Any, shells: Shells, closure: str, backend: str, rtol: float, options: dict, *,
-                  keep: bool) -> Any:
+                  keep: bool, alongside: Optional[tuple] = None) -> Any:
     """``solve_problem`` with the closure and the shell count in the diagnostics; with ``keep`` the last level's
-    plain masses are kept there too (the shell extrapolation's corrections are taken from them)."""
+    plain masses are kept there too (the shell extrapolation's corrections are taken from them).
+
+    ``alongside = (scene, plain_rtol, stash)``: the ladder's first plain problems (:func:`_ladder_below` the shells
+    solved here) are integrated alongside the solve's levels after the first
+    (:func:`~diffusion_pr.solvers.fv.engine.plain_alongside`, native and batchable options only) and, where the
+    last level ran them, put in ``stash[grid] = (shell counts, results)`` for :func:`_plain_on_grid`."""
     from .api import solve_problem
     from .solvers.fv import engine
 
-    with engine.plain_masses("keep") if keep else contextlib.nullcontext():
+    record = None
+    if keep and alongside is not None and _batched(backend, options) \
+            and options.get("extrapolation", "fourth") == "fourth":
+        scene, plain_rtol, stash = alongside
+        ms = _ladder_below(int(shells.q.size))
+        record = engine.plain_alongside([_shell_problem(scene, m)[0] for m in ms], rtol=plain_rtol,
+                                        p_floor=options.get("p_floor"))
+    with engine.plain_masses("keep") if keep else contextlib.nullcontext(), \
+            record if record is not None else contextlib.nullcontext() as got:
         res = solve_problem(problem, backend=backend, rtol=rtol, **options)
+    if record is not None and got.results is not None and res.diagnostics.get("grid") == got.results[0]:
+        stash[got.results[0]] = (tuple(ms), got.results[1])
     res.diagnostics["closure"] = closure
     res.diagnostics["n_shells"] = int(shells.q.size)
     return res
@@ -1017,14 +1053,19 @@ def _sub_options(res: Any, options: dict, plain: Optional[str]) -> dict:
     return sub
 
 
-def _plain_on_grid(res: Any, ms: Sequence[int], scene: tuple, rtol: float, options: dict, *, plain: str) -> list:
+def _plain_on_grid(res: Any, ms: Sequence[int], scene: tuple, rtol: float, options: dict, *, plain: str,
+                   alongside: Optional[dict] = None) -> list:
     """:func:`_coarser_on_grid` with ``plain`` (``"only"`` or ``"finest"``) for each of the shell counts ``ms``,
     in their order; on the native backend in one batch (:func:`~diffusion_pr.solvers.fv.engine.plain_batch`: the
-    same masses, all their grids dealt to the two threads together)."""
+    same masses, all their grids dealt to the two threads together), or taken from ``alongside`` where the main
+    solve integrated these problems beside its last level (:func:`_solve_shells`: the same masses bit for bit)."""
     from .solvers.fv import engine
 
     if not ms:
         return []
+    grid = res.diagnostics.get("grid")
+    if plain == "only" and alongside and grid in alongside and alongside[grid][0] == tuple(ms):
+        return list(alongside.pop(grid)[1])
     sub = _sub_options(res, options, plain)
     if res.backend != "native" or not set(sub) <= {"n_cells", "p_floor", "threads", "max_cells"}:
         return [_coarser_on_grid(res, m, scene, rtol, options, plain=plain) for m in ms]
@@ -1043,7 +1084,8 @@ def _failed_extrapolation(res: Any, why: str) -> Any:
                    message=f"shell extrapolation failed: {why}; the {n}-shell answer is returned")
 
 
-def _shell_extrapolated(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
+def _shell_extrapolated(res: Any, scene: tuple, rtol: float, options: dict, alongside: Optional[dict] = None
+                        ) -> Any:
     """The continuum closure from ``res`` (:func:`_shell_corrected` where its plain masses were kept, else
     :func:`_shell_combined`)."""
     z = scene[3]
@@ -1051,7 +1093,7 @@ def _shell_extrapolated(res: Any, scene: tuple, rtol: float, options: dict) -> A
         diag = {**res.diagnostics, "shell_error": 0.0 if z == 0.0 else None, "shell_extrapolation": False}
         return replace(res, diagnostics=diag)
     if "plain_masses" in res.diagnostics:
-        out = _shell_corrected(res, scene, rtol, options)
+        out = _shell_corrected(res, scene, rtol, options, alongside)
         if out.success:
             return out
         # the plain grids' correction misses rtol (on steep spectra at small loads its spatial error dominates):
@@ -1066,7 +1108,7 @@ def _shell_extrapolated(res: Any, scene: tuple, rtol: float, options: dict) -> A
     return _shell_combined(res, scene, rtol, options)
 
 
-def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
+def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongside: Optional[dict] = None) -> Any:
     """The continuum closure as ``res`` plus a correction from plain grids.
 
     ``res`` (``n`` shells) is extrapolated in space; the difference between it and the continuum is a
@@ -1090,12 +1132,15 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
     n = int(res.diagnostics["n_shells"])
     plain = {n: list(res.diagnostics["plain_masses"])}
     timing = {"shells": 0.0}
+    beside: list = []  # the shell counts the main solve integrated alongside its last level
     finest = False  # the correction from the 4N grids too, extrapolated in space
 
     def solve_plain(ms: list, mode: str) -> dict:
         out = {}
-        for m, r in zip(ms, _plain_on_grid(res, ms, scene, rtol, options, plain=mode)):
+        for m, r in zip(ms, _plain_on_grid(res, ms, scene, rtol, options, plain=mode, alongside=alongside)):
             timing["shells"] += r.wall_time
+            if r.diagnostics.get("solved_alongside"):
+                beside.append(m)
             ok = not (r.diagnostics.get("plain_failure") or "plain_masses" not in r.diagnostics
                       or not np.array_equal(r.edges if mode == "only" else r.edges[::2], res.edges))
             out[m] = r.diagnostics["plain_masses"] if ok else None  # (the 4N grid's every second edge is the answer's)
@@ -1120,7 +1165,7 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
 
     top = n
     while True:
-        wanted = [top // 2, top // 4] + ([top // 8] if top % 8 == 0 and top // 8 >= MIN_ROMBERG_SHELLS else [])
+        wanted = _ladder_below(top)
         on_the_grids(wanted)
         if plain[top] is None or plain[top // 2] is None or plain[top // 4] is None:
             return _failed_extrapolation(res, f"a coarser-shell problem did not solve on the {n}-shell grids")
@@ -1159,6 +1204,7 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
                              shell_error=l1(plain[n][1] - plain[n // 2][1]) / 3.0, n=top, p0=scene[2], rtol=rtol,
                              extra={"shell_correction_error": corr_error, **table,
                                     "shells_solved": tuple(sorted(m for m in plain if plain[m] is not None)),
+                                    "shells_alongside": tuple(sorted(beside)),
                                     "shell_scheme": "correction from plain grids" + (
                                         ", extrapolated in space (4N grids)" if finest else "")},
                              extra_time=timing["shells"])

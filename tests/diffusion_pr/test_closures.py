@@ -605,6 +605,64 @@ def test_plain_batch_is_each_problems_own_plain_solve(fig1, threads):
             pytest.raises(ValueError, match="n_cells equal to the family's coarsest"):
         engine.plain_batch(problems, rtol=1e-6, n_cells=n0 + 1)
 
+def test_plain_alongside_gives_plain_batchs_masses_and_the_same_closure(fig1, monkeypatch):
+    """engine.plain_alongside integrates the shell ladder's plain problems beside the main solve's last level (its
+    two threads, speculatively: a level that is not the last discards them).  Oracle: plain_batch on the main
+    result's grids, whose masses they must be bit for bit, and the closure with the alongside path switched off
+    (the answer, its estimate and the ladder solved must not change).  A level after the first that reuses two
+    grids (local_g1 at zeta = 0.01 doubles 56 -> 112 cells) runs them too.  A plain problem that raises is no
+    result (the main solve goes on; plain_batch meets the error itself)."""
+    from diffusion_pr import closures
+    from diffusion_pr.api import solve_problem
+    from diffusion_pr.solvers.fv import engine
+
+    floor = {"p_floor": closures.BALANCED_FLOOR * 0.5 * 0.25 * E * (2 * np.pi / 1024)}
+    kw = dict(zeta=0.25, E_star=E, mean_pressure=P0, closure="local_g1_balanced")
+    main = closure_problem(spectrum_shells(fig1, E_star=E, n_shells=48), **kw)
+    problems = [closure_problem(spectrum_shells(fig1, E_star=E, n_shells=m), **kw) for m in (24, 12, 6)]
+    with engine.plain_masses("keep"), engine.plain_alongside(problems, rtol=1e-6, **floor) as record:
+        full = solve_problem(main, backend="native", rtol=1e-6, **floor)
+    assert record.results is not None and record.results[0] == full.diagnostics["grid"]
+    n0 = full.diagnostics["levels"][0]
+    with engine.grid_family(full.diagnostics["grid"]), engine.plain_masses("only"):
+        batch = engine.plain_batch(problems, rtol=1e-6, n_cells=n0, **floor)
+    for a, b in zip(record.results[1], batch):
+        assert a.diagnostics["solved_alongside"] and "solved_alongside" not in b.diagnostics
+        for g in (0, 1):
+            assert np.array_equal(a.diagnostics["plain_masses"][g], b.diagnostics["plain_masses"][g])
+        assert a.diagnostics["plain_masses"][2] is None and np.array_equal(a.edges, b.edges)
+    # the closure with and without the alongside path: the same bits (Fig. 1 scenes, one reusing a level)
+    for closure, zeta in (("local_g1_balanced", 0.25), ("local_g1_shell_balanced", 1.0), ("local_g1", 0.01)):
+        on = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure)
+        assert on.diagnostics["shells_alongside"] == (6, 12, 24)
+        with monkeypatch.context() as m:
+            m.setattr(closures, "_batched", lambda backend, options: False)
+            off = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure)
+        assert off.diagnostics["shells_alongside"] == ()
+        assert np.array_equal(on.density, off.density) and on.zero_weight == off.zero_weight
+        assert on.error_estimate == off.error_estimate
+        assert on.diagnostics["shells_solved"] == off.diagnostics["shells_solved"]
+    # a stash is used only for the ladder it holds, in the mode it was solved in
+    scene = (fig1, E, P0, 0.25, "local_g1_balanced", None, "uniform")
+    sentinel = ((24, 12, 6), ["not a result"] * 3)
+    for ms, mode in (((24, 12), "only"), ((24, 12, 6), "finest")):
+        got = closures._plain_on_grid(full, list(ms), scene, 1e-6, dict(floor), plain=mode,
+                                      alongside={full.diagnostics["grid"]: sentinel})
+        assert got != sentinel[1] and all(r.diagnostics["plain_masses"] is not None for r in got)
+    # a plain problem that raises: no results, the main solve unchanged
+    real = engine._coefficients
+
+    def failing(pieces, grids, centre_drift):
+        if len(pieces) == 12:
+            raise FloatingPointError("deliberate")
+        return real(pieces, grids, centre_drift)
+
+    monkeypatch.setattr(engine, "_coefficients", failing)
+    with engine.plain_masses("keep"), engine.plain_alongside(problems, rtol=1e-6, **floor) as record:
+        again = solve_problem(main, backend="native", rtol=1e-6, **floor)
+    assert record.results is None and np.array_equal(again.density, full.density)
+
+
 def test_shell_extrapolation_after_a_sixth_that_ended_fourth(monkeypatch):
     """A stress scene where extrapolation="sixth" does not balance on uniform shells and the solve ends with the
     fourth-order scheme (H = 0.5, rms slope 0.3, p0 = 1e-5, zeta = 3e-3): the shell extrapolation's coarser solves

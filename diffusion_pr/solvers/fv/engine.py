@@ -120,6 +120,44 @@ def plain_masses(mode: str):
         _PLAIN.reset(token)
 
 
+@dataclass
+class Alongside:
+    """Plain problems to integrate alongside a solve's last level (:func:`plain_alongside`).
+
+    ``problems`` are solved as :func:`plain_batch` would solve them (``plain_masses("only")``: the N and 2N grids, at
+    ``rtol`` with ``p_floor``) on the grids of every level after the first, in the same two threads as that level's
+    own grids; ``results`` holds ``(grid, [results])`` of the last level that ran them (``grid`` as
+    ``diagnostics["grid"]``), None where none did or one of them raised (the caller then solves them itself and meets
+    the error there)."""
+
+    problems: tuple
+    rtol: float
+    p_floor: Optional[float] = None
+    results: Optional[tuple] = None
+
+
+#: the plain problems a solve integrates alongside its levels (:func:`plain_alongside`); None: none
+_ALONGSIDE: contextvars.ContextVar = contextvars.ContextVar("plain_alongside", default=None)
+
+
+@contextlib.contextmanager
+def plain_alongside(problems: Sequence, *, rtol: float, p_floor: Optional[float] = None):
+    """Within the block, a native solve that keeps its plain masses (:func:`plain_masses` ``"keep"``, two threads,
+    fourth order) also integrates ``problems`` on the N and 2N grids of each level after its first, dealt to the
+    two threads together with that level's own three grids (the shells' ladder below the closure's main solve, which
+    :func:`plain_batch` would otherwise solve on the last level's grids once it has converged: the main solve's
+    finest grid runs alone in the worker while this thread, done with the two coarser ones, waits for it).  The
+    masses are the same bit for bit as :func:`plain_batch`'s; where the level is not the last, its plain work is
+    discarded (a speculation: the level after the first nearly always meets ``rtol``, its cells being predicted
+    from the first).  Yields the :class:`Alongside` record whose ``results`` the solve fills."""
+    record = Alongside(problems=tuple(problems), rtol=float(rtol), p_floor=p_floor)
+    token = _ALONGSIDE.set(record)
+    try:
+        yield record
+    finally:
+        _ALONGSIDE.reset(token)
+
+
 #: the largest weight of the logarithmic grading towards the wall (the ``wall_grading`` option's range, and the
 #: regrading's candidates)
 WALL_GRADING_MAX = 10.0
@@ -277,10 +315,12 @@ def _rows(funcs: Sequence, p: np.ndarray, name: str, out: Optional[np.ndarray] =
     """
     kinds = {type(g) for g in funcs}
     if len(kinds) == 1 and callable(getattr(next(iter(kinds)), "rows", None)):
-        # one call for all rows (the closures' models evaluate them in a compiled pass, no temporaries)
-        block = np.asarray(next(iter(kinds)).rows(tuple(funcs), p), dtype=float)
+        # one call for all rows (the closures' models evaluate them in a compiled pass, no temporaries; into
+        # ``out`` itself where they can: a temporary block of a 4N grid's rows and its copy cost 0.1-0.3 ms, mostly
+        # in the page faults of its fresh memory)
+        block = np.asarray(next(iter(kinds)).rows(tuple(funcs), p, out), dtype=float)
         if block.shape == (len(funcs), p.size) and np.all(np.isfinite(block)):
-            if out is None:
+            if out is None or block is out:
                 return block
             out[...] = block
             return out
@@ -812,20 +852,93 @@ _POOL = None
 _POOL_PID = -1
 
 
-def _run_grids(tasks: Sequence[Callable], parallel: bool) -> list:
+def _run_grids(tasks: Sequence[Callable], parallel: bool, side: Optional[tuple] = None) -> list:
     """Run the three grids' integrations; with ``parallel`` the last (finest) in a worker thread.
 
     The compiled kernels release the GIL, so the finest grid (4/7 of the cells)
     overlaps the two coarser ones.  An exception of the worker is re-raised here.
+    ``side``: ``(this thread's, the worker's)`` further tasks (:func:`_alongside_tasks`), run after each thread's
+    grids; they keep their own exceptions.
     """
     if not parallel:
         return [t() for t in tasks]
     finest = _worker().submit(tasks[-1])
+    more = _worker().submit(_run_each, side[1]) if side is not None and side[1] else None
     try:
         out = [t() for t in tasks[:-1]]
+        if side is not None:
+            _run_each(side[0])
     finally:
-        last = finest.result()
+        try:
+            last = finest.result()
+        finally:
+            if more is not None:
+                more.result()
     return out + [last]
+
+
+def _run_each(tasks: Sequence[Callable]) -> None:
+    for t in tasks:
+        t()
+
+
+def _alongside_tasks(record: Alongside, prep: Prepared, es: Sequence[np.ndarray], idx: np.ndarray,
+                     loads: Sequence[int], backend: str) -> Optional[tuple]:
+    """``(this thread's tasks, the worker's tasks, finish)`` for ``record``'s plain problems on a level's N and 2N
+    grids ``es[:2]``, or None where one of them cannot be classified on this level's family (:func:`plain_batch`
+    will meet that error itself).
+
+    The (problem, grid) integrations are dealt largest first (stages x cells) to the less loaded thread, the loads
+    starting from the level's own work in each (``loads``, stages x cells: the N and 2N grids here and the 4N grid in
+    the worker, or only the 4N grid in the worker where a doubled level reuses the others).
+    ``finish()`` returns :func:`plain_batch`'s results (the same masses bit for bit: the same preparation, grids,
+    coefficients and integrator; ``wall_time`` 0, their time is in the level's), or None where one of them raised.
+    """
+    t_start = time.perf_counter()
+    try:
+        preps = [replace(prepare(pb, rtol=record.rtol, p_floor=record.p_floor, on_grid=prep.spec), spec=prep.spec)
+                 for pb in record.problems]
+    except (ValueError, RuntimeError, FloatingPointError):
+        return None
+    n_base = int(idx[-1])
+    grids = (es[0], es[1])
+    integrate = _integrator(native_assemble, record.rtol, cram_order(record.rtol))
+    t_prep = time.perf_counter() - t_start
+    jobs = sorted(((len(pr.pieces) * (grids[g].size - 1), i, g) for i, pr in enumerate(preps) for g in (0, 1)),
+                  key=lambda j: -j[0])
+    load = [int(loads[0]), int(loads[1])]
+    lists: tuple = ([], [])
+    ys: dict = {}
+    errors: list = []
+
+    def task(i: int, g: int) -> Callable:
+        def run() -> None:
+            if errors:
+                return
+            try:
+                pr = preps[i]
+                ys[i, g] = integrate(pr, grids[g], n_base, 1 << g, None if pr.time_dependent else
+                                     _coefficients(pr.pieces, [grids[g]], centre_drift=False)[0])
+            except Exception as exc:  # noqa: BLE001 (a speculation: the plain solve repeats it and raises there)
+                errors.append(exc)
+        return run
+
+    for work, i, g in jobs:
+        t = 0 if load[0] <= load[1] else 1
+        lists[t].append(task(i, g))
+        load[t] += work
+
+    def finish() -> Optional[list]:
+        if errors:
+            return None
+        out = [replace(_plain_result(pr, grids, [ys[i, 0], ys[i, 1]], idx, (0, 1), backend=backend,
+                                     rtol=record.rtol, t_start=t_start, t_prep=t_prep), wall_time=0.0)
+               for i, pr in enumerate(preps)]
+        for r in out:
+            r.diagnostics["solved_alongside"] = True
+        return out
+
+    return lists[0], lists[1], finish
 
 
 def _worker():
@@ -1126,6 +1239,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
 
     forced = _FORCED_GRID.get()
     plain_mode = _PLAIN.get()
+    alongside = _ALONGSIDE.get()
     plain_only = plain_mode in ("only", "finest")
     if plain_only and (forced is None or n_cells is None or sixth):
         raise ValueError(f"plain_masses({plain_mode!r}) needs grid_family, n_cells and extrapolation='fourth'")
@@ -1200,9 +1314,17 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             plain_mode == "finest" or (plain_only and not prep.has_balance
                                        and 3 * n_base * len(prep.pieces) < PARALLEL_MIN_WORK))
         last = len(es) - 1
+        side = None  # the plain problems to integrate alongside (plain_alongside), not on a first level
+        if (alongside is not None and parallel and history and plain_mode == "keep" and forced is None
+                and not sixth and len(es) == 3 and loop is None):
+            alongside.results = None
+            cells = (0 if reuse is not None else es[0].size + es[1].size - 2, es[2].size - 1)
+            side = _alongside_tasks(alongside, prep, es, idx, [len(prep.pieces) * c for c in cells], backend)
         if reuse is not None:
             coef3 = _coefficients(prep.pieces, [es[-1]], centre_drift=assemble is not native_assemble)[0]
-            ys = [reuse[3], reuse[4], integrate(prep, es[-1], n_base, 4, coef3)]
+            new_grid = lambda: integrate(prep, es[-1], n_base, 4, coef3)  # noqa: E731
+            # (the new grid in the worker where plain problems run alongside in this thread)
+            ys = [reuse[3], reuse[4], *(_run_grids([new_grid], True, side) if side is not None else [new_grid()])]
         else:
             if loop is None and not prep.time_dependent:
                 # each coefficient evaluated once for the grids of one thread (the worker's finest grid apart, so
@@ -1214,7 +1336,10 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                          for g, (k, e) in enumerate(zip(ks, es))]
             else:
                 tasks = [lambda e=e, rf=1 << k: integrate(prep, e, n_base, rf) for k, e in zip(ks, es)]
-            ys = _run_grids(tasks, parallel)
+            ys = _run_grids(tasks, parallel, side)
+        if side is not None:
+            done = side[2]()
+            alongside.results = None if done is None else (_grid_of(prep, idx), done)
         grids_integrated += 1 if reuse is not None else len(es)
         reuse = None
         if plain_only:
