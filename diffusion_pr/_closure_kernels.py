@@ -26,9 +26,9 @@ DIFFUSIVITY, DRIFT, BALANCE = 0, 1, 2
 
 
 @njit(cache=True, nogil=True)
-def _model_rows(kq, kq_part, p, model, out):  # pragma: no cover - numba
-    """Row ``k`` of one model (``DIFFUSIVITY``, ``DRIFT`` or ``BALANCE``) at the clamped pressures ``p``, written
-    into ``out`` (``kq.size x p.size``)."""
+def _model_rows(kq, kq_part, p, model):  # pragma: no cover - numba
+    """Row ``k`` of one model (``DIFFUSIVITY``, ``DRIFT`` or ``BALANCE``) at the clamped pressures ``p``."""
+    out = np.empty((kq.size, p.size))
     for k in range(kq.size):
         for i in range(p.size):
             pp = _clamped(p[i])
@@ -44,27 +44,19 @@ def _model_rows(kq, kq_part, p, model, out):  # pragma: no cover - numba
     return out
 
 
-def _target(kq: np.ndarray, p: np.ndarray, out) -> np.ndarray:
-    """``out`` where it is a C-contiguous float block of the rows' shape (written in place: a block of the
-    solver's rows, no temporary and no copy), else a new block."""
-    if out is not None and out.shape == (kq.size, p.size) and out.dtype == np.float64 and out.flags.c_contiguous:
-        return out
-    return np.empty((kq.size, p.size))
-
-
-def diffusivity_rows(kq: np.ndarray, p: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+def diffusivity_rows(kq: np.ndarray, p: np.ndarray) -> np.ndarray:
     """``f[k, i] = g^2``, ``g = p_i / (p_i + kq_k)`` (``p`` clamped at 0; ``kq = kz q_k``)."""
-    return _model_rows(kq, kq, p, DIFFUSIVITY, _target(kq, p, out))
+    return _model_rows(kq, kq, p, DIFFUSIVITY)
 
 
-def drift_rows(kq: np.ndarray, kq_part: np.ndarray, p: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+def drift_rows(kq: np.ndarray, kq_part: np.ndarray, p: np.ndarray) -> np.ndarray:
     """``b[k, i] = part * p / (p + kq_k)^2``, ``part = kq_part_k / (p + kq_part_k)``."""
-    return _model_rows(kq, kq_part, p, DRIFT, _target(kq, p, out))
+    return _model_rows(kq, kq_part, p, DRIFT)
 
 
-def balance_rows(kq_part: np.ndarray, p: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+def balance_rows(kq_part: np.ndarray, p: np.ndarray) -> np.ndarray:
     """``w[k, i] = kq_part_k p / (p + kq_part_k)``."""
-    return _model_rows(kq_part, kq_part, p, BALANCE, _target(kq_part, p, out))
+    return _model_rows(kq_part, kq_part, p, BALANCE)
 
 
 # cached loads skip numba's registry refresh (only a compile needs it): diffusion_pr._numba_load

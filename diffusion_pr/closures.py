@@ -456,14 +456,13 @@ class _ShellModel:
         return type(self).rows((self,), p.reshape(-1))[0].reshape(p.shape)
 
     @classmethod
-    def rows(cls, items: tuple, p: np.ndarray, out: Optional[np.ndarray] = None) -> np.ndarray:
-        """``[m(p) for m in items]`` as a 2-D array in one vectorized pass (same values as calling each); written
-        into ``out`` where that is a C-contiguous float block of this shape (check ``result is out``)."""
+    def rows(cls, items: tuple, p: np.ndarray) -> np.ndarray:
+        """``[m(p) for m in items]`` as a 2-D array in one vectorized pass (same values as calling each)."""
         common = _common_wall(items, p)
         if common is None:
             return np.array([it(p) for it in items])
         kz, p1 = common
-        return cls._formula(items, kz, p1, out)
+        return cls._formula(items, kz, p1)
 
 
 class _LoadModel(_ShellModel):
@@ -507,10 +506,10 @@ class LocalResponseDiffusivity(_ShellModel):
         return ()
 
     @staticmethod
-    def _formula(items: tuple, kz: float, p: np.ndarray, out: Optional[np.ndarray] = None) -> np.ndarray:
+    def _formula(items: tuple, kz: float, p: np.ndarray) -> np.ndarray:
         from ._closure_kernels import diffusivity_rows
 
-        return diffusivity_rows(_products(kz, items, "q"), p, out)
+        return diffusivity_rows(_products(kz, items, "q"), p)
 
 
 @dataclass(frozen=True)
@@ -527,10 +526,10 @@ class LoadExcessDrift(_LoadModel):
     kz: float
 
     @staticmethod
-    def _formula(items: tuple, kz: float, p: np.ndarray, out: Optional[np.ndarray] = None) -> np.ndarray:
+    def _formula(items: tuple, kz: float, p: np.ndarray) -> np.ndarray:
         from ._closure_kernels import drift_rows
 
-        return drift_rows(_products(kz, items, "q"), _products(kz, items, "q_part"), p, out)
+        return drift_rows(_products(kz, items, "q"), _products(kz, items, "q_part"), p)
 
 
 @dataclass(frozen=True)
@@ -542,10 +541,10 @@ class RigidApproachBalance(_LoadModel):
     kz: float
 
     @staticmethod
-    def _formula(items: tuple, kz: float, p: np.ndarray, out: Optional[np.ndarray] = None) -> np.ndarray:
+    def _formula(items: tuple, kz: float, p: np.ndarray) -> np.ndarray:
         from ._closure_kernels import balance_rows
 
-        return balance_rows(_products(kz, items, "q_part"), p, out)
+        return balance_rows(_products(kz, items, "q_part"), p)
 
 
 def closure_problem(shells: Shells, *, zeta: float, E_star: float, mean_pressure: float, closure: str,

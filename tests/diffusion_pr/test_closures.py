@@ -258,19 +258,6 @@ def test_compiled_rows_are_the_numpy_formulas_bit_for_bit(fig1):
     for got, key in ((f, "f"), (b, "b"), (w, "w")):
         assert got.shape == expect[key].shape
         np.testing.assert_array_equal(got, expect[key])  # NaN in the same places, every other value bit for bit
-    # written into a given block (the solver's rows) where it fits, else into a new one; the same bits
-    models = {"f": (LocalResponseDiffusivity, tuple(LocalResponseDiffusivity(float(x), kz) for x in sh.q)),
-              "b": (LoadExcessDrift, tuple(LoadExcessDrift(float(x), float(sh.q_min), kz) for x in sh.q)),
-              "w": (RigidApproachBalance, tuple(RigidApproachBalance(float(sh.q_min), kz) for _ in sh.q))}
-    for key, (cls, items) in models.items():
-        block = np.full(expect[key].shape, -7.0)
-        assert cls.rows(items, p, block) is block
-        np.testing.assert_array_equal(block, expect[key])
-        for unfit in (np.zeros((sh.q.size, p.size + 1)), np.zeros(expect[key].shape, dtype=np.float32),
-                      np.zeros(expect[key].shape[::-1]).T):
-            got = cls.rows(items, p, unfit)
-            assert got is not unfit and not np.any(unfit)
-            np.testing.assert_array_equal(got, expect[key])
     one = LocalResponseDiffusivity(float(sh.q[3]), kz)
     np.testing.assert_array_equal(one(p.reshape(1, -1)), expect["f"][3:4])  # a single model keeps p's shape
 

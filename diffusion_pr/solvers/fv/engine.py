@@ -315,12 +315,10 @@ def _rows(funcs: Sequence, p: np.ndarray, name: str, out: Optional[np.ndarray] =
     """
     kinds = {type(g) for g in funcs}
     if len(kinds) == 1 and callable(getattr(next(iter(kinds)), "rows", None)):
-        # one call for all rows (the closures' models evaluate them in a compiled pass, no temporaries; into
-        # ``out`` itself where they can: a temporary block of a 4N grid's rows and its copy cost 0.1-0.3 ms, mostly
-        # in the page faults of its fresh memory)
-        block = np.asarray(next(iter(kinds)).rows(tuple(funcs), p, out), dtype=float)
+        # one call for all rows (the closures' models evaluate them in a compiled pass, no temporaries)
+        block = np.asarray(next(iter(kinds)).rows(tuple(funcs), p), dtype=float)
         if block.shape == (len(funcs), p.size) and np.all(np.isfinite(block)):
-            if out is None or block is out:
+            if out is None:
                 return block
             out[...] = block
             return out
