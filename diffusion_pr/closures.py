@@ -1065,9 +1065,9 @@ def _plain_on_grid(res: Any, ms: Sequence[int], scene: tuple, rtol: float, optio
     grid = res.diagnostics.get("grid")
     if plain == "only" and alongside and grid in alongside and alongside[grid][0] == tuple(ms):
         return list(alongside.pop(grid)[1])
-    sub = _sub_options(res, options, plain)
-    if res.backend != "native" or not set(sub) <= {"n_cells", "p_floor", "threads", "max_cells"}:
+    if not _batched(res.backend, options):
         return [_coarser_on_grid(res, m, scene, rtol, options, plain=plain) for m in ms]
+    sub = _sub_options(res, options, plain)
     sub.pop("max_cells", None)  # (plain masses on given grids: no refinement)
     problems = [_shell_problem(scene, m)[0] for m in ms]
     with engine.grid_family(res.diagnostics["grid"]), engine.plain_masses(plain):

@@ -880,6 +880,31 @@ def _run_each(tasks: Sequence[Callable]) -> None:
         t()
 
 
+def _plain_preps(problems: Sequence, spec: GridSpec, rtol: float, p_floor: Optional[float]) -> list:
+    """Each plain problem classified on the grid family ``spec`` (:func:`plain_batch`, :func:`_alongside_tasks`)."""
+    return [replace(prepare(pb, rtol=rtol, p_floor=p_floor, on_grid=spec), spec=spec) for pb in problems]
+
+
+def _deal(preps: Sequence[Prepared], grids: Sequence[np.ndarray], load: list, threads: int = 2) -> tuple:
+    """``(this thread's, the worker's)`` lists of ``(problem, grid)`` index pairs: every problem on every grid, dealt
+    largest first (stages x cells) to the less loaded thread, the loads starting at ``load`` (updated)."""
+    jobs = sorted(((len(pr.pieces) * (grids[g].size - 1), i, g) for i, pr in enumerate(preps)
+                   for g in range(len(grids))), key=lambda j: -j[0])
+    lists: tuple = ([], [])
+    for work, i, g in jobs:
+        t = 0 if threads == 1 or load[0] <= load[1] else 1
+        lists[t].append((i, g))
+        load[t] += work
+    return lists
+
+
+def _plain_masses_on(pr: Prepared, edges: np.ndarray, n_base: int, refine: int, integrate: Callable) -> tuple:
+    """One plain problem integrated on one grid with its own coefficient rows (a time-dependent problem's segments
+    are made by :func:`solve_on_grid`)."""
+    return integrate(pr, edges, n_base, refine, None if pr.time_dependent else
+                     _coefficients(pr.pieces, [edges], centre_drift=False)[0])
+
+
 def _alongside_tasks(record: Alongside, prep: Prepared, es: Sequence[np.ndarray], idx: np.ndarray,
                      loads: Sequence[int], backend: str) -> Optional[tuple]:
     """``(this thread's tasks, the worker's tasks, finish)`` for ``record``'s plain problems on a level's N and 2N
@@ -894,18 +919,13 @@ def _alongside_tasks(record: Alongside, prep: Prepared, es: Sequence[np.ndarray]
     """
     t_start = time.perf_counter()
     try:
-        preps = [replace(prepare(pb, rtol=record.rtol, p_floor=record.p_floor, on_grid=prep.spec), spec=prep.spec)
-                 for pb in record.problems]
+        preps = _plain_preps(record.problems, prep.spec, record.rtol, record.p_floor)
     except (ValueError, RuntimeError, FloatingPointError):
         return None
     n_base = int(idx[-1])
     grids = (es[0], es[1])
     integrate = _integrator(native_assemble, record.rtol, cram_order(record.rtol))
     t_prep = time.perf_counter() - t_start
-    jobs = sorted(((len(pr.pieces) * (grids[g].size - 1), i, g) for i, pr in enumerate(preps) for g in (0, 1)),
-                  key=lambda j: -j[0])
-    load = [int(loads[0]), int(loads[1])]
-    lists: tuple = ([], [])
     ys: dict = {}
     errors: list = []
 
@@ -914,17 +934,12 @@ def _alongside_tasks(record: Alongside, prep: Prepared, es: Sequence[np.ndarray]
             if errors:
                 return
             try:
-                pr = preps[i]
-                ys[i, g] = integrate(pr, grids[g], n_base, 1 << g, None if pr.time_dependent else
-                                     _coefficients(pr.pieces, [grids[g]], centre_drift=False)[0])
+                ys[i, g] = _plain_masses_on(preps[i], grids[g], n_base, 1 << g, integrate)
             except Exception as exc:  # noqa: BLE001 (a speculation: the plain solve repeats it and raises there)
                 errors.append(exc)
         return run
 
-    for work, i, g in jobs:
-        t = 0 if load[0] <= load[1] else 1
-        lists[t].append(task(i, g))
-        load[t] += work
+    lists = tuple([task(i, g) for i, g in dealt] for dealt in _deal(preps, grids, [int(loads[0]), int(loads[1])]))
 
     def finish() -> Optional[list]:
         if errors:
@@ -1574,7 +1589,7 @@ def plain_batch(problems: Sequence, *, rtol: float, n_cells: int, p_floor: Optio
         raise ValueError(f"plain_batch needs grid_family, plain_masses('only' or 'finest') and n_cells equal to "
                          f"the family's coarsest grid; got mode={mode!r}, n_cells={n_cells!r}")
     threads = _threads(threads)
-    preps = [replace(prepare(pb, rtol=rtol, p_floor=p_floor, on_grid=forced[0]), spec=forced[0]) for pb in problems]
+    preps = _plain_preps(problems, forced[0], rtol, p_floor)
     idx = np.array(forced[1])
     n_base = int(idx[-1])
     finest = _forced_edges(forced[0], idx, 4)
@@ -1583,21 +1598,12 @@ def plain_batch(problems: Sequence, *, rtol: float, n_cells: int, p_floor: Optio
     integrate = _integrator(native_assemble, rtol, cram_order(rtol))
     t_prep = time.perf_counter() - t_start
 
-    jobs = sorted(((len(pr.pieces) * (es[g].size - 1), i, g) for i, pr in enumerate(preps) for g in range(len(es))),
-                  key=lambda j: -j[0])
-    lists: tuple = ([], [])  # this thread's and the worker's (longest processing time first)
-    load = [0, 0]
-    for work, i, g in jobs:
-        t = 0 if threads == 1 or load[0] <= load[1] else 1
-        lists[t].append((i, g))
-        load[t] += work
+    lists = _deal(preps, es, [0, 0], threads)  # this thread's and the worker's (longest processing time first)
     ys: dict = {}
 
-    def run(items: list) -> None:  # (a time-dependent problem's segments are made by solve_on_grid)
+    def run(items: list) -> None:
         for i, g in items:
-            pr = preps[i]
-            ys[i, g] = integrate(pr, es[g], n_base, 1 << ks[g], None if pr.time_dependent else
-                                 _coefficients(pr.pieces, [es[g]], centre_drift=False)[0])
+            ys[i, g] = _plain_masses_on(preps[i], es[g], n_base, 1 << ks[g], integrate)
 
     pending = _worker().submit(run, lists[1]) if lists[1] else None
     try:
