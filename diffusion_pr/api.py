@@ -391,14 +391,16 @@ def _sweep_start(result: PressureDistribution, previous_needed: Optional[int], c
     where the need falls: a balanced closure's zeta sweep ratcheted up to 1060 cells where 140-630 suffice), times
     the growth of the need since ``previous_needed`` where it grows (at most SWEEP_TREND_MAX: a start just short
     of the need costs a second level of twice the cells), at most ``cap``.  ``wall_grading``: the grading its last
-    level's errors favour, and ``wall_depth`` where it ends (``cells_needed`` is for that grading).  No options after a result of another backend
+    level's errors favour, and ``wall_depth`` where it ends (``cells_needed`` is for that grading, without a remapped
+    monitor: ``diagnostics["remap_factor"]``).  No options after a result of another backend
     or a failed one."""
     d = result.diagnostics
     levels = d.get("levels")
     if result.backend != "native" or not levels or not result.success:
         return {}, None
     needed = int(d.get("cells_needed", levels[0]))
-    start = min(levels[0], needed)  # a regrading can only lower it
+    # a regrading can only lower it; a remapped monitor's cells are the family's without it times its factor
+    start = min(levels[0] / float(d.get("remap_factor", 1.0)), needed)
     if previous_needed:  # where the need grows from entry to entry, start ahead of it
         start *= min(max(needed / previous_needed, 1.0), SWEEP_TREND_MAX)
     options = {"n_start": int(min(math.ceil(start), cap))}

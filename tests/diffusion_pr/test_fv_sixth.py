@@ -130,5 +130,5 @@ def test_n_start_bound_follows_the_finest_grid():
         _closure("local_g1", 0.25, rtol=1e-6, backend="native", extrapolation="sixth", max_cells=4096, n_start=600)
     first = _closure("local_g1_balanced", 0.25, rtol=1e-6, backend="native", extrapolation="sixth")
     again = _closure("local_g1_balanced", 0.3, rtol=1e-6, backend="native", extrapolation="sixth",
-                     n_start=first.diagnostics["levels"][0])
+                     n_start=first.diagnostics["cells_needed"])
     assert len(first.diagnostics["history"]) == 2 and len(again.diagnostics["history"]) == 1

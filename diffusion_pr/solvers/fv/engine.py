@@ -44,7 +44,7 @@ from ...problem import FokkerPlanckProblem, StagedProblem
 from ...result import PressureDistribution
 from ._fpenv import flush_subnormals
 from .cram import PFD_ERROR_BOUNDS, expm_tridiagonal, pfd_coefficients
-from .grid import GridSpec, edges_for, knot_indices
+from .grid import GridSpec, Remap, edges_for, knot_indices
 from .operator import bands as fv_bands
 from .operator import centres
 
@@ -79,6 +79,13 @@ REGRADE_FACTORS = (0.04, 0.07, 0.1, 0.15, 0.2, 0.3, 0.45, 0.7, 1.5, 2.0)
 #: candidate inner scales of the logarithmic grading (``GridSpec.wall_depth``), as fractions of the way from the
 #: floor to ``p0`` in ``ln p``
 REGRADE_DEPTHS = (0.2, 0.35, 0.5, 0.65, 0.8)
+#: after the first level, the monitor may also be remapped by the first level's errors (:func:`_remapped`, a
+#: :class:`~.grid.Remap`): knots of its density's spline, the largest ratio of its densities, and the share of the
+#: cells it must save beyond the logarithmic grading's best candidate to be taken
+REMAP = True
+REMAP_KNOTS = 12
+REMAP_MAX_RATIO = 16.0
+REMAP_PREFERENCE = 0.9
 #: the grid family a solve must use (:func:`grid_family`); None: its own
 _FORCED_GRID: contextvars.ContextVar = contextvars.ContextVar("forced_grid", default=None)
 
@@ -787,7 +794,47 @@ def _depth_fraction(spec: GridSpec) -> float:
     return math.log(spec.wall_depth / spec.p_wall) / math.log(spec.p0 / spec.p_wall)
 
 
-def _regraded(prep: Prepared, edges: np.ndarray, diff: np.ndarray, j: int) -> Optional[tuple]:
+def _cell_errors(diff: np.ndarray, j: int) -> np.ndarray:
+    """The first level's Richardson differences per cell of the N grid (magnitudes), the lumped entry spread evenly
+    over the ``j`` cells below the floor."""
+    d = np.abs(np.asarray(diff, dtype=float))
+    return np.concatenate((np.full(j, d[0] / j) if j > 0 else np.empty(0), d[1:]))
+
+
+def _remapped(spec: GridSpec, edges: np.ndarray, diff: np.ndarray, j: int) -> Optional[tuple]:
+    """``(spec, cell factor)``: ``spec`` remapped (:class:`~.grid.Remap`) so that the first level's errors are
+    about equidistributed, and the ratio of the cells it needs for that error to those ``spec`` needs.
+
+    A cell's error falls like its width to the fourth power, so for a given total the fewest cells have widths
+    ``~ e_i^(-1/5)`` (``e_i`` the error of cell ``i`` on the N grid; Lagrange): the density of the new monitor in
+    ``v = Phi - Phi(p_wall)`` is ``D ~ e^(1/5)``.  ``ln D`` is smoothed (Gaussian weights of one knot spacing at
+    :data:`REMAP_KNOTS` equidistant knots; a sign change of a cell's difference is bridged by half its
+    neighbours'), its range capped at :data:`REMAP_MAX_RATIO`, and ``D`` is the natural cubic spline through it.  The
+    factor is ``(sum e_i rho_i^4 / sum e_i)^(1/4)``, ``rho_i`` the new width over the old at the same cells.
+    None where the density's spline is not safely positive or the errors are not finite.
+    """
+    e = _cell_errors(diff, j)
+    if not np.isfinite(e).all() or e.sum() <= 0.0 or e.size + 1 != edges.size:
+        return None
+    base0 = float(spec.phi(spec.p_wall))
+    v_edges = spec.phi(edges) - base0
+    v_c = 0.5 * (v_edges[:-1] + v_edges[1:])
+    smooth = np.maximum(e, 0.5 * np.maximum(np.r_[e[1:], 0.0], np.r_[0.0, e[:-1]]))
+    log_d = 0.2 * np.log(np.maximum(smooth, 1e-12 * smooth.max()))
+    total = float(v_edges[-1])
+    knots = np.linspace(0.0, total, REMAP_KNOTS)
+    weights = np.exp(-0.5 * ((v_c[None, :] - knots[:, None]) / (knots[1] - knots[0])) ** 2)
+    log_k = (weights @ log_d) / weights.sum(axis=1)
+    log_k = np.maximum(log_k - log_k.max(), -math.log(REMAP_MAX_RATIO))
+    try:
+        remap = Remap(tuple(knots), tuple(np.exp(log_k - 0.5 * log_k.min())))
+    except ValueError:
+        return None
+    rho = remap.total / (total * remap.density(v_c))
+    return replace(spec, remap=remap), float((np.sum(e * rho**4) / np.sum(e)) ** 0.25)
+
+
+def _regraded(prep: Prepared, edges: np.ndarray, diff: np.ndarray, j: int, remap: bool = False) -> Optional[tuple]:
     """``(spec, cell factor)``: the grid family whose logarithmic grading towards the wall (its weight ``c_wall``
     and its inner scale ``wall_depth``) needs the fewest cells for the first level's error, and the ratio of the
     cells it needs to those the old family needs; or None where no candidate saves :data:`REGRADE_GAIN`.
@@ -807,7 +854,7 @@ def _regraded(prep: Prepared, edges: np.ndarray, diff: np.ndarray, j: int) -> Op
     """
     spec = prep.spec
     d = np.abs(diff)
-    if not np.isfinite(d).all() or d.sum() <= 0.0:
+    if not np.isfinite(d).all() or d.sum() <= 0.0 or spec.remap is not None:
         return None
     centres_ = 0.5 * (edges[j:-1] + edges[j + 1:])
     below = 0.5 * (edges[:j] + edges[1:j + 1])  # the cells below the floor, lumped into the first entry
@@ -835,6 +882,10 @@ def _regraded(prep: Prepared, edges: np.ndarray, diff: np.ndarray, j: int) -> Op
     cost[weights > WALL_GRADING_MAX, :] = np.inf
     iw, idp = np.unravel_index(int(np.argmin(cost)), cost.shape)
     best_cost = float(cost[iw, idp])
+    if remap and spec.remap is None:
+        remapped = _remapped(spec, edges, diff, j)
+        if remapped is not None and remapped[1] < 1.0 - REGRADE_GAIN and remapped[1] < REMAP_PREFERENCE * best_cost:
+            return remapped
     if not best_cost < 1.0 - REGRADE_GAIN:
         return None
     return replace(spec, c_wall=float(weights[iw]), wall_depth=_wall_depth(spec, fractions[idp])), best_cost
@@ -1298,6 +1349,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     # estimate 4.6e-4), so the peers keep fresh levels
     reusable = stage_constant and not sixth
     reuse = None
+    remap_factor = 1.0  # the cell factor of a remapped monitor (:func:`_remapped`)
     grading_next = None  # (c_wall, depth fraction, cell factor) the converged level's errors favour (:func:`_regraded`)
     grids_integrated = 0
     while True:
@@ -1464,10 +1516,12 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             prep = trimmed
             n = int(np.clip(math.ceil(n_base * min(need, MAX_GROWTH) * ratio), 16, max_cells // depth))
             continue
-        regraded = _regraded(prep, e1, diff, j1) if (
+        regraded = _regraded(prep, e1, diff, j1, remap=REMAP) if (
             REGRADE and len(history) == 1 and _regradable(prep)) else None
         if regraded is not None:  # the same domain, its cells moved to where the first level's error was
             spec_new, factor = regraded
+            if spec_new.remap is not None:
+                remap_factor = factor
             prep = replace(prep, spec=spec_new)
             n = int(np.clip(math.ceil(n_base * min(need * factor, MAX_GROWTH)), 16, max_cells // depth))
             continue
@@ -1483,6 +1537,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     if grading_next is not None:  # the cells are then those of the favoured grading
         grading_needed, depth_needed, factor = grading_next
         need_last *= factor
+    if prep.spec.remap is not None:  # a sweep starts on the family without the remap (its grading passes on)
+        need_last /= remap_factor
     cells_needed = int(np.clip(math.ceil(cells[0] * need_last), 16, max(16, max_cells // depth)))
     # a balance fixes the mean: the tail cut at p_max takes its share of the mean with it, and the balance moves the
     # whole distribution to make up for it (H = 0.8, rms slope 0.1, zeta = 3, p0 = 1e-5, local_g1_balanced: 5.3e-7
@@ -1511,7 +1567,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                "cram_order": cnt.get("cram_order", 16),
                                **({"cdf_interpolation_error": interp} if sixth else {}),
                                "grids_integrated": grids_integrated, "extrapolation": extrapolation,
-                               "cells_needed": cells_needed, "wall_grading_needed": grading_needed,
+                               "cells_needed": cells_needed, "remap_factor": remap_factor if prep.spec.remap is not None else 1.0,
+                               "wall_grading_needed": grading_needed,
                                "newton_steps": cnt.get("newton_steps", 0),
                                "domain": "Lamperti-bounded" if prep.lamperti_bounded else "from the spread",
                                "wall_grading": float(prep.spec.c_wall), "wall_depth": _depth_fraction(prep.spec),

@@ -8,7 +8,9 @@ The cell density is the derivative of a smooth monotone monitor function ::
 geometrically towards the wall where the wall is not reached, ``f ~ p^k`` with
 ``k >= 2``, so that the density creeping towards 0 is resolved down to the
 floor; the ``asinh`` grades towards the start ``p0`` where the local spread is
-small).  Knots -- the wall, every breakpoint of the coefficients, ``p0`` and
+small).  After the first level a problem may replace ``Phi`` by ``F(Phi)`` (:class:`Remap`: ``F' > 0`` a
+smooth function tabulated from the first level's errors), which moves cells to where the errors are without
+leaving the family of smooth maps.  Knots -- the wall, every breakpoint of the coefficients, ``p0`` and
 ``p_max`` -- are cell edges; between knots the edges are ``Phi^-1`` of equally
 spaced values, so the grid with ``2 n`` cells per segment nests in the one with
 ``n`` (each cell split in two) and the grid spacing is smooth inside every
@@ -17,11 +19,103 @@ is valid.  Pressures in the units of ``p0``.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
+from typing import Optional
 
 import numpy as np
 
-__all__ = ["GridSpec", "edges_for"]
+__all__ = ["GridSpec", "Remap", "edges_for"]
+
+
+@dataclass(frozen=True)
+class Remap:
+    """A smooth increasing map ``F`` of the monitor's values ``v = Phi(p) - Phi(p_wall)`` (dimensionless).
+
+    ``F(v) = integral_0^v D``, with the density ``D > 0`` the natural cubic spline through ``values`` at
+    ``knots`` (``knots[0] = 0``, ``knots[-1]`` the whole ``Phi``); constant beyond the last knot.  ``F`` is then a
+    piecewise quartic, C3, integrated in closed form: a grid uniform in ``F(v)`` is a smooth map of a uniform grid
+    whose cells are ``D`` times denser than ``Phi``'s, so nested grids and Richardson stay valid.
+
+    Raises
+    ------
+    ValueError
+        Where the spline is not positive (its minimum below a fifth of the smallest value).
+    """
+
+    knots: tuple
+    values: tuple
+    _m: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
+    _cum: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
+    _start: tuple = field(init=False, repr=False, compare=False, hash=False)
+
+    def __post_init__(self) -> None:
+        x = np.asarray(self.knots, dtype=float)
+        y = np.asarray(self.values, dtype=float)
+        if x.size < 2 or x[0] != 0.0 or np.any(np.diff(x) <= 0.0) or np.any(y <= 0.0):
+            raise ValueError("Remap needs increasing knots from 0 and positive values")
+        m = _NaturalSpline(x, y).m
+        object.__setattr__(self, "_m", m)
+        h = np.diff(x)
+        inc = 0.5 * h * (y[:-1] + y[1:]) - h**3 * (m[:-1] + m[1:]) / 24.0  # integral of the spline per interval
+        object.__setattr__(self, "_cum", np.concatenate(([0.0], np.cumsum(inc))))
+        probe = np.linspace(0.0, x[-1], 64 * (x.size - 1) + 1)
+        if np.min(self.density(probe)) < 0.2 * np.min(y):
+            raise ValueError("Remap: the density's spline is not safely positive")
+        object.__setattr__(self, "_start", (self.forward(probe), probe))
+
+    @property
+    def total(self) -> float:
+        """``F`` at the last knot."""
+        return float(self._cum[-1])
+
+    def _interval(self, v: np.ndarray) -> tuple:
+        x = np.asarray(self.knots, dtype=float)
+        i = np.clip(np.searchsorted(x, v, side="right") - 1, 0, x.size - 2)
+        return x, i
+
+    def density(self, v: np.ndarray) -> np.ndarray:
+        """``D(v) = F'(v)``."""
+        v = np.asarray(v, dtype=float)
+        x, i = self._interval(v)
+        y, m = np.asarray(self.values, dtype=float), self._m
+        h = x[i + 1] - x[i]
+        a, b = x[i + 1] - np.minimum(v, x[-1]), np.minimum(v, x[-1]) - x[i]
+        out = (m[i] * a**3 + m[i + 1] * b**3) / (6 * h) + (y[i] / h - m[i] * h / 6) * a + (y[i + 1] / h - m[i + 1] * h / 6) * b
+        return np.where(v > x[-1], y[-1], out)
+
+    def forward(self, v: np.ndarray) -> np.ndarray:
+        """``F(v)``."""
+        v = np.asarray(v, dtype=float)
+        x, i = self._interval(v)
+        y, m = np.asarray(self.values, dtype=float), self._m
+        h = x[i + 1] - x[i]
+        w = np.minimum(v, x[-1])
+        b = w - x[i]
+        a = h - b
+        out = (self._cum[i] + (m[i] * (h**4 - a**4) + m[i + 1] * b**4) / (24 * h)
+               + 0.5 * (y[i] / h - m[i] * h / 6) * (h * h - a * a) + 0.5 * (y[i + 1] / h - m[i + 1] * h / 6) * b * b)
+        return out + y[-1] * np.maximum(v - x[-1], 0.0)
+
+    def inverse(self, t: np.ndarray) -> np.ndarray:
+        """``F^-1(t)`` on ``[0, total]``: a tabulated start, then safeguarded Newton to round-off; each value
+        depends on its own ``t`` only (nested grids agree bit for bit)."""
+        t = np.asarray(t, dtype=float)
+        f_tab, v_tab = self._start
+        k = np.clip(np.searchsorted(f_tab, t, side="right") - 1, 0, f_tab.size - 2)
+        lo, hi = v_tab[k], v_tab[k + 1]
+        v = np.interp(t, f_tab, v_tab)
+        tol = 1e-15 * max(self.total, 1.0)
+        for _ in range(40):
+            r = self.forward(v) - t
+            done = np.abs(r) <= tol
+            if np.all(done):
+                break
+            lo = np.where(r < 0, v, lo)
+            hi = np.where(r > 0, v, hi)
+            step = v - r / self.density(v)
+            step = np.where((step <= lo) | (step >= hi), 0.5 * (lo + hi), step)
+            v = np.where(done, v, step)
+        return v
 
 
 @dataclass(frozen=True)
@@ -59,6 +153,7 @@ class GridSpec:
     w0: float
     p0: float
     wall_depth: float = 0.0
+    remap: Optional[Remap] = None
 
     @property
     def all_knots(self) -> np.ndarray:
@@ -66,7 +161,9 @@ class GridSpec:
         return np.array([self.p_wall, *self.knots, self.p_max], dtype=float)
 
     def phi(self, p: np.ndarray) -> np.ndarray:
-        """The monitor function ``Phi`` (dimensionless)."""
+        """The monitor function ``Phi`` (dimensionless; ``F(Phi - Phi(p_wall))`` with a :class:`Remap`)."""
+        if self.remap is not None:
+            return self.remap.forward(self.base.phi(p) - self.base.phi(self.p_wall))
         p = np.asarray(p, dtype=float)
         out = (p - self.p_wall) / self.scale
         if self.c_wall > 0.0:
@@ -76,6 +173,9 @@ class GridSpec:
         return out
 
     def dphi(self, p: np.ndarray) -> np.ndarray:
+        """``dPhi/dp`` (1/pressure)."""
+        if self.remap is not None:
+            return self.remap.density(self.base.phi(p) - self.base.phi(self.p_wall)) * self.base.dphi(p)
         p = np.asarray(p, dtype=float)
         out = np.full_like(p, 1.0 / self.scale)
         if self.c_wall > 0.0:
@@ -83,6 +183,11 @@ class GridSpec:
         if self.c_0 > 0.0:
             out = out + self.c_0 / np.sqrt((p - self.p0) ** 2 + self.w0**2)
         return out
+
+    @property
+    def base(self) -> "GridSpec":
+        """The family without its :class:`Remap` (itself where it has none)."""
+        return self if self.remap is None else replace(self, remap=None)
 
     @property
     def _delta(self) -> float:
@@ -102,8 +207,12 @@ def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float) -> np.ndarr
     Newton steps from the table's start (``Phi`` is smooth and increasing:
     from the table's interpolation error, 1e-4 relative or less, it converges in
     two to four steps); if a step leaves ``[a, b]`` or 8 steps do not converge,
-    the safeguarded bisection-Newton of :func:`_invert_safe` takes over from the start.
+    the safeguarded bisection-Newton of :func:`_invert_safe` takes over from the start.  With a
+    :class:`Remap` ``F``: ``F^-1`` first, then the base monitor's inverse.
     """
+    if spec.remap is not None:
+        base = spec.base
+        return _invert(base, spec.remap.inverse(targets) + float(base.phi(spec.p_wall)), a, b)
     table, phi_table = _table(spec, a, b)
     x0 = np.interp(targets, phi_table, table)
     tol = 1e-14 * np.maximum(np.abs(targets), 1.0)
