@@ -858,3 +858,20 @@ def test_forced_grids_do_not_make_the_kernels_compile_again(fig1):
     read_only = [str(sig) for k in dispatchers for sig in k.signatures
                  if any(isinstance(t, numba.types.Array) and not t.mutable for t in sig)]
     assert not read_only
+
+
+@pytest.mark.xfail(strict=True, reason="known: the shells' Romberg estimate is 7-13x optimistic on this scene")
+def test_shell_estimate_on_a_steep_small_load_scene_is_known_to_be_optimistic():
+    """Found by the seventeenth session's stress comparison (``stress_balance.py --remap``), not fixed: H = 0.8, rms
+    slope 0.031, zeta = 0.03, p0 = 1e-5, ``local_g1_shell_balanced`` in the default (fourth) mode takes Romberg to
+    sixth order on 12/24/48 shells (observed ratios 3.9 and 28) and claims 7.6e-7, but its cdf is 3.7e-6 from the
+    rtol-1e-7 answer (192 shells), and from the sixth mode's (192 shells too; 7.9e-8 from it) -- with and without
+    the remapped monitor alike.  This asserts what the estimate promises; it fails (strict xfail) until the shells'
+    estimate is fixed."""
+    spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+    kw = dict(E_star=E, mean_pressure=1e-5, zeta=0.03, closure="local_g1_shell_balanced")
+    r = closure_distribution(spec, **kw)
+    ref = closure_distribution(spec, rtol=1e-7, **kw)
+    assert r.success and ref.success
+    x = np.geomspace(1e-12, 1e4, 500) * 1e-5
+    assert np.max(np.abs(r.cdf(x) - ref.cdf(x))) <= r.error_estimate + ref.error_estimate
