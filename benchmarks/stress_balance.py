@@ -111,6 +111,24 @@ def against_peer(peer: str, closures=CLOSURES, quick: bool = False) -> list:
     return sorted(rows, reverse=True)
 
 
+def _paired(spec, kw: dict, setting: str, values: dict, seconds: dict) -> dict:
+    """``{key: result or None}``: the scene solved with ``engine.<setting>`` at each of ``values`` (restored after
+    each), its wall time added to ``seconds[key]``; None where the solve raised."""
+    saved = getattr(engine, setting)
+    res = {}
+    for key, value in values.items():
+        setattr(engine, setting, value)
+        t0 = time.perf_counter()
+        try:
+            res[key] = closure_distribution(spec, **kw)
+        except (RuntimeError, ValueError, FloatingPointError):
+            res[key] = None
+        finally:
+            setattr(engine, setting, saved)
+        seconds[key] += time.perf_counter() - t0
+    return res
+
+
 def against_cram16(closures=CLOSURES, quick: bool = False) -> tuple:
     """``(rows, seconds)``: per scene and mode ``(max CDF distance, fell back, spectrum, closure, zeta, p0, mode)``
     between the default answer and the CRAM-16 one, largest first (``inf`` where either fails); and the summed
@@ -120,17 +138,7 @@ def against_cram16(closures=CLOSURES, quick: bool = False) -> tuple:
     for name, spec, closure, zeta, p0 in scenes(quick, closures):
         for mode in MODES:
             kw = dict(E_star=8 / 3, mean_pressure=p0, zeta=zeta, closure=closure, extrapolation=mode)
-            res = {}
-            for key, value in (("default", share), ("cram16", 0.0)):
-                engine.CRAM_SHARE = value
-                t0 = time.perf_counter()
-                try:
-                    res[key] = closure_distribution(spec, **kw)
-                except (RuntimeError, ValueError, FloatingPointError):
-                    res[key] = None
-                finally:
-                    engine.CRAM_SHARE = share
-                seconds[key] += time.perf_counter() - t0
+            res = _paired(spec, kw, "CRAM_SHARE", {"default": share, "cram16": 0.0}, seconds)
             a, b = res["default"], res["cram16"]
             ok = a is not None and b is not None and a.success and b.success
             x = np.geomspace(1e-12 * p0, 1e4 * p0, 500)
@@ -151,17 +159,7 @@ def against_unremapped(closures=CLOSURES, quick: bool = False) -> tuple:
     for name, spec, closure, zeta, p0 in scenes(quick, closures):
         for mode in MODES:
             kw = dict(E_star=8 / 3, mean_pressure=p0, zeta=zeta, closure=closure, extrapolation=mode)
-            res = {}
-            for key, value in (("remap", True), ("plain", False)):
-                engine.REMAP = value
-                t0 = time.perf_counter()
-                try:
-                    res[key] = closure_distribution(spec, **kw)
-                except (RuntimeError, ValueError, FloatingPointError):
-                    res[key] = None
-                finally:
-                    engine.REMAP = True
-                seconds[key] += time.perf_counter() - t0
+            res = _paired(spec, kw, "REMAP", {"remap": True, "plain": False}, seconds)
             a, b = res["remap"], res["plain"]
             ok = a is not None and b is not None and a.success and b.success
             x = np.geomspace(1e-12 * p0, 1e4 * p0, 500)

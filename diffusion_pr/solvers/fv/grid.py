@@ -103,19 +103,8 @@ class Remap:
         f_tab, v_tab = self._start
         k = np.clip(np.searchsorted(f_tab, t, side="right") - 1, 0, f_tab.size - 2)
         lo, hi = v_tab[k], v_tab[k + 1]
-        v = np.interp(t, f_tab, v_tab)
-        tol = 1e-15 * max(self.total, 1.0)
-        for _ in range(40):
-            r = self.forward(v) - t
-            done = np.abs(r) <= tol
-            if np.all(done):
-                break
-            lo = np.where(r < 0, v, lo)
-            hi = np.where(r > 0, v, hi)
-            step = v - r / self.density(v)
-            step = np.where((step <= lo) | (step >= hi), 0.5 * (lo + hi), step)
-            v = np.where(done, v, step)
-        return v
+        return _safeguarded_newton(self.forward, self.density, t, np.interp(t, f_tab, v_tab), lo, hi,
+                                   1e-15 * max(self.total, 1.0), 40)
 
 
 @dataclass(frozen=True)
@@ -251,19 +240,25 @@ _TABLES: dict = {}
 
 def _invert_safe(spec: GridSpec, targets: np.ndarray, x: np.ndarray, a: float, b: float,
                  tol: np.ndarray) -> np.ndarray:
-    """Safeguarded Newton: bisection on the bracket ``[lo, hi]`` where a Newton step would leave it."""
-    lo = np.full_like(targets, a)
-    hi = np.full_like(targets, b)
-    for _ in range(60):
-        r = spec.phi(x) - targets
+    """Safeguarded Newton on ``Phi``: bisection on the bracket ``[a, b]`` where a Newton step would leave it."""
+    return _safeguarded_newton(spec.phi, spec.dphi, targets, x, np.full_like(targets, a), np.full_like(targets, b),
+                               tol, 60)
+
+
+def _safeguarded_newton(f, df, targets: np.ndarray, x: np.ndarray, lo: np.ndarray, hi: np.ndarray, tol,
+                        iterations: int) -> np.ndarray:
+    """``f^-1(targets)`` for an increasing ``f`` from ``x`` in the brackets ``[lo, hi]``: Newton steps, bisection
+    where a step would leave the bracket; converged points stay, so each value depends on its own target only."""
+    for _ in range(iterations):
+        r = f(x) - targets
         done = np.abs(r) <= tol
         if np.all(done):
             break
         lo = np.where(r < 0, x, lo)
         hi = np.where(r > 0, x, hi)
-        step = x - r / spec.dphi(x)
+        step = x - r / df(x)
         bad = (step <= lo) | (step >= hi)
-        x = np.where(done, x, np.where(bad, 0.5 * (lo + hi), step))  # converged points stay
+        x = np.where(done, x, np.where(bad, 0.5 * (lo + hi), step))
     return x
 
 
