@@ -882,7 +882,7 @@ def _regraded(prep: Prepared, edges: np.ndarray, diff: np.ndarray, j: int, remap
     cost[weights > WALL_GRADING_MAX, :] = np.inf
     iw, idp = np.unravel_index(int(np.argmin(cost)), cost.shape)
     best_cost = float(cost[iw, idp])
-    if remap and spec.remap is None:
+    if remap:
         remapped = _remapped(spec, edges, diff, j)
         if remapped is not None and remapped[1] < 1.0 - REGRADE_GAIN and remapped[1] < REMAP_PREFERENCE * best_cost:
             return remapped
@@ -1537,8 +1537,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     if grading_next is not None:  # the cells are then those of the favoured grading
         grading_needed, depth_needed, factor = grading_next
         need_last *= factor
-    if prep.spec.remap is not None:  # a sweep starts on the family without the remap (its grading passes on)
-        need_last /= remap_factor
+    need_last /= remap_factor  # a sweep starts on the family without the remap (its grading passes on)
     cells_needed = int(np.clip(math.ceil(cells[0] * need_last), 16, max(16, max_cells // depth)))
     # a balance fixes the mean: the tail cut at p_max takes its share of the mean with it, and the balance moves the
     # whole distribution to make up for it (H = 0.8, rms slope 0.1, zeta = 3, p0 = 1e-5, local_g1_balanced: 5.3e-7
@@ -1567,7 +1566,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                "cram_order": cnt.get("cram_order", 16),
                                **({"cdf_interpolation_error": interp} if sixth else {}),
                                "grids_integrated": grids_integrated, "extrapolation": extrapolation,
-                               "cells_needed": cells_needed, "remap_factor": remap_factor if prep.spec.remap is not None else 1.0,
+                               "cells_needed": cells_needed, "remap_factor": remap_factor,
                                "wall_grading_needed": grading_needed,
                                "newton_steps": cnt.get("newton_steps", 0),
                                "domain": "Lamperti-bounded" if prep.lamperti_bounded else "from the spread",

@@ -44,6 +44,8 @@ class Remap:
 
     knots: tuple
     values: tuple
+    _x: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
+    _y: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
     _m: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
     _cum: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
     _start: tuple = field(init=False, repr=False, compare=False, hash=False)
@@ -54,7 +56,8 @@ class Remap:
         if x.size < 2 or x[0] != 0.0 or np.any(np.diff(x) <= 0.0) or np.any(y <= 0.0):
             raise ValueError("Remap needs increasing knots from 0 and positive values")
         m = _NaturalSpline(x, y).m
-        object.__setattr__(self, "_m", m)
+        for name, value in (("_x", x), ("_y", y), ("_m", m)):
+            object.__setattr__(self, name, value)
         h = np.diff(x)
         inc = 0.5 * h * (y[:-1] + y[1:]) - h**3 * (m[:-1] + m[1:]) / 24.0  # integral of the spline per interval
         object.__setattr__(self, "_cum", np.concatenate(([0.0], np.cumsum(inc))))
@@ -69,25 +72,25 @@ class Remap:
         return float(self._cum[-1])
 
     def _interval(self, v: np.ndarray) -> tuple:
-        x = np.asarray(self.knots, dtype=float)
-        i = np.clip(np.searchsorted(x, v, side="right") - 1, 0, x.size - 2)
-        return x, i
+        x = self._x
+        return x, np.clip(np.searchsorted(x, v, side="right") - 1, 0, x.size - 2)
 
     def density(self, v: np.ndarray) -> np.ndarray:
         """``D(v) = F'(v)``."""
         v = np.asarray(v, dtype=float)
         x, i = self._interval(v)
-        y, m = np.asarray(self.values, dtype=float), self._m
+        y, m = self._y, self._m
         h = x[i + 1] - x[i]
         a, b = x[i + 1] - np.minimum(v, x[-1]), np.minimum(v, x[-1]) - x[i]
-        out = (m[i] * a**3 + m[i + 1] * b**3) / (6 * h) + (y[i] / h - m[i] * h / 6) * a + (y[i + 1] / h - m[i + 1] * h / 6) * b
+        out = ((m[i] * a**3 + m[i + 1] * b**3) / (6 * h) + (y[i] / h - m[i] * h / 6) * a
+               + (y[i + 1] / h - m[i + 1] * h / 6) * b)
         return np.where(v > x[-1], y[-1], out)
 
     def forward(self, v: np.ndarray) -> np.ndarray:
         """``F(v)``."""
         v = np.asarray(v, dtype=float)
         x, i = self._interval(v)
-        y, m = np.asarray(self.values, dtype=float), self._m
+        y, m = self._y, self._m
         h = x[i + 1] - x[i]
         w = np.minimum(v, x[-1])
         b = w - x[i]
