@@ -91,6 +91,15 @@ def run(quick: bool = False, closures=CLOSURES) -> dict:
     return out
 
 
+def _cdf_distance(a, b, p0: float) -> float:
+    """The largest CDF distance of two results on ``p0 * [1e-12, 1e4]`` (500 points); ``inf`` unless both exist and
+    succeeded."""
+    if a is None or b is None or not (a.success and b.success):
+        return float("inf")
+    x = np.geomspace(1e-12 * p0, 1e4 * p0, 500)
+    return float(np.max(np.abs(a.cdf(x) - b.cdf(x))))
+
+
 def against_peer(peer: str, closures=CLOSURES, quick: bool = False) -> list:
     """``[(max CDF distance, spectrum, closure, zeta, p0)]`` between the native and ``peer`` answers, largest
     first (scenes where either fails are listed with distance ``inf``)."""
@@ -100,11 +109,9 @@ def against_peer(peer: str, closures=CLOSURES, quick: bool = False) -> list:
         try:
             a = closure_distribution(spec, **kw)
             b = closure_distribution(spec, backend=peer, **kw)
-            ok = a.success and b.success
         except (RuntimeError, ValueError, FloatingPointError):
-            ok = False
-        x = np.geomspace(1e-12 * p0, 1e4 * p0, 500)
-        d = float(np.max(np.abs(a.cdf(x) - b.cdf(x)))) if ok else float("inf")
+            a = b = None
+        d = _cdf_distance(a, b, p0)
         rows.append((d, name, closure, zeta, p0))
         if d > 2e-6:
             print(name, closure, zeta, p0, f"| native and {peer} differ by {d:.2e}", flush=True)
@@ -140,9 +147,7 @@ def against_cram16(closures=CLOSURES, quick: bool = False) -> tuple:
             kw = dict(E_star=8 / 3, mean_pressure=p0, zeta=zeta, closure=closure, extrapolation=mode)
             res = _paired(spec, kw, "CRAM_SHARE", {"default": share, "cram16": 0.0}, seconds)
             a, b = res["default"], res["cram16"]
-            ok = a is not None and b is not None and a.success and b.success
-            x = np.geomspace(1e-12 * p0, 1e4 * p0, 500)
-            d = float(np.max(np.abs(a.cdf(x) - b.cdf(x)))) if ok else float("inf")
+            d = _cdf_distance(a, b, p0)
             fell_back = a is not None and "cram" in a.diagnostics
             rows.append((d, fell_back, name, closure, zeta, p0, mode))
             if d > 1e-7 or fell_back:
@@ -161,9 +166,7 @@ def against_unremapped(closures=CLOSURES, quick: bool = False) -> tuple:
             kw = dict(E_star=8 / 3, mean_pressure=p0, zeta=zeta, closure=closure, extrapolation=mode)
             res = _paired(spec, kw, "REMAP", {"remap": True, "plain": False}, seconds)
             a, b = res["remap"], res["plain"]
-            ok = a is not None and b is not None and a.success and b.success
-            x = np.geomspace(1e-12 * p0, 1e4 * p0, 500)
-            d = float(np.max(np.abs(a.cdf(x) - b.cdf(x)))) if ok else float("inf")
+            d = _cdf_distance(a, b, p0)
             remapped = a is not None and a.diagnostics.get("remap_factor", 1.0) != 1.0
             cells = [r.diagnostics["levels"][-1] if r is not None and r.diagnostics.get("levels") else 0
                      for r in (a, b)]

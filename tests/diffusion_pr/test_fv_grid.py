@@ -1,12 +1,12 @@
 """The graded nested grids (diffusion_pr/solvers/fv/grid.py): Phi^-1 and nesting."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from diffusion_pr.solvers.fv import grid
-from dataclasses import replace
-
 from diffusion_pr.solvers.fv.grid import GridSpec, Remap, edges_for, knot_indices
 
 SPECS = [
@@ -73,7 +73,8 @@ def test_remap_density_is_the_derivative_of_its_closed_form_integral():
 def test_remapped_cells_follow_its_density():
     """The grid's steps in F(v) are the edge map's (smooth, about equal: the knots' rounding residual moves them),
     and its cells are D times denser in v than that: (v-spacing) x D(midpoint) / (F-spacing) = 1 up to the O(h^2)
-    of the midpoint rule (measured 4.4e-4 over 800 cells; F-steps within 1.65x), whereas the v-spacing itself varies 8x."""
+    of the midpoint rule (measured 4.4e-4 over 800 cells; F-steps within 1.65x), whereas the v-spacing itself
+    varies 8x."""
     spec = SPECS[-1]
     idx = knot_indices(spec, 200)
     edges = edges_for(spec, idx, 4)

@@ -155,7 +155,7 @@ class GridSpec:
     def phi(self, p: np.ndarray) -> np.ndarray:
         """The monitor function ``Phi`` (dimensionless; ``F(Phi - Phi(p_wall))`` with a :class:`Remap`)."""
         if self.remap is not None:
-            return self.remap.forward(self.base.phi(p) - self.base.phi(self.p_wall))
+            return self.remap.forward(self._base_value(p))
         p = np.asarray(p, dtype=float)
         out = (p - self.p_wall) / self.scale
         if self.c_wall > 0.0:
@@ -167,7 +167,7 @@ class GridSpec:
     def dphi(self, p: np.ndarray) -> np.ndarray:
         """``dPhi/dp`` (1/pressure)."""
         if self.remap is not None:
-            return self.remap.density(self.base.phi(p) - self.base.phi(self.p_wall)) * self.base.dphi(p)
+            return self.remap.density(self._base_value(p)) * self.base.dphi(p)
         p = np.asarray(p, dtype=float)
         out = np.full_like(p, 1.0 / self.scale)
         if self.c_wall > 0.0:
@@ -180,6 +180,11 @@ class GridSpec:
     def base(self) -> "GridSpec":
         """The family without its :class:`Remap` (itself where it has none)."""
         return self if self.remap is None else replace(self, remap=None)
+
+    def _base_value(self, p: np.ndarray) -> np.ndarray:
+        """``v = Phi(p) - Phi(p_wall)`` of the base family: the argument of the :class:`Remap`."""
+        base = self.base
+        return base.phi(p) - base.phi(self.p_wall)
 
     @property
     def _delta(self) -> float:
@@ -203,8 +208,7 @@ def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float) -> np.ndarr
     :class:`Remap` ``F``: ``F^-1`` first, then the base monitor's inverse.
     """
     if spec.remap is not None:
-        base = spec.base
-        return _invert(base, spec.remap.inverse(targets) + float(base.phi(spec.p_wall)), a, b)
+        return _invert(spec.base, spec.remap.inverse(targets) + float(spec.base.phi(spec.p_wall)), a, b)
     table, phi_table = _table(spec, a, b)
     x0 = np.interp(targets, phi_table, table)
     tol = 1e-14 * np.maximum(np.abs(targets), 1.0)
