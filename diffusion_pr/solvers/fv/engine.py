@@ -1516,7 +1516,10 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             prep = trimmed
             n = int(np.clip(math.ceil(n_base * min(need, MAX_GROWTH) * ratio), 16, max_cells // depth))
             continue
-        regraded = _regraded(prep, e1, diff, j1, remap=REMAP) if (
+        # the remap only under the native operator: py-pde's index-space operator on a remapped grid moved its answer
+        # by 2.1e-6 from native's while claiming 4.1e-7 (H 0.8, slope 0.031, zeta 1e-5, p0 1e-4, shell partition)
+        remap = REMAP and assemble is native_assemble and loop is None
+        regraded = _regraded(prep, e1, diff, j1, remap=remap) if (
             REGRADE and len(history) == 1 and _regradable(prep)) else None
         if regraded is not None:  # the same domain, its cells moved to where the first level's error was
             spec_new, factor = regraded
