@@ -83,6 +83,8 @@ SHELL_ORDER_RATIO = 3.0
 #: and Romberg's sixth-order column is used (16 at fourth order; 12 is an order of 3.58).  Measured on the Fig. 1
 #: scene with exact tau-midpoints: 15.5-16.4 at every closure at zeta >= 0.1, 3-11 at zeta <= 0.01
 ROMBERG_RATIO = 12.0
+#: the largest such ratio Romberg trusts
+ROMBERG_MAX_RATIO = 20.0
 #: where the wall's layer is thin (graded shells, :func:`shell_grading`), the largest ratio of successive
 #: ``R(n/2, n)`` differences the shells' table trusts: ``2^2.5``, the order the frozen layer leaves after one
 #: Richardson step (measured there: 5-9 per doubling, with single ratios of 13-16 between them that a sixth order
@@ -112,6 +114,13 @@ WALL_LAYER_RATIO = 1.0
 #: (Fig. 1 spectrum, ``p0 = 1e-3``: 2.6e-6/3.3e-7 against 5.2e-6/7.1e-7 "end") and far below (``H = 0.8``,
 #: ``p0 = 1e-5``, ``zeta = 1e-3``: order two against one), "end" at ``lambda = 22`` (Fig. 1, ``p0 = 4e-3``)
 START_LAYER_RATIO = 4.0
+#: where the start's layer is thin (``lambda <`` :data:`START_LAYER_RATIO`), the ``kappa`` below which the balanced
+#: closures grade both ends although the wall's layer is thick by :data:`WALL_LAYER_RATIO`.  Measured on the 36
+#: stress scenes of ``benchmarks/stress_balance.py`` with ``1 <= kappa < 1000`` and ``lambda < 4`` (eighteenth session,
+#: docs/closures.md "Thin starts"): "ends" took 0.3-0.9x the time of uniform shells on 16 of the 18 with
+#: ``kappa <= 55`` (1.4x on one, 1.1x on one whose uniform answer was 30x off its estimate), and 1.0-2.4x on all 18
+#: with ``kappa >= 74``
+START_WALL_LAYER_RATIO = 60.0
 
 #: GFMD's contact threshold for exponential walls, relative to p0
 CONTACT_THRESHOLD = 0.01
@@ -348,6 +357,12 @@ def shell_grading(spectrum: Spectrum, *, E_star: float, zeta: float, mean_pressu
 
     "uniform" for ``kappa >=`` :data:`WALL_LAYER_RATIO`, else "end", or "ends" where also
     ``lambda <`` :data:`START_LAYER_RATIO`; the hard wall (``zeta = 0``, its shells commute) "uniform".
+    The balanced closures take "ends" where ``lambda <`` :data:`START_LAYER_RATIO` up to ``kappa <``
+    :data:`START_WALL_LAYER_RATIO`: a load far inside a layer that is thick at ``q_max`` only (``H = 0.8``, rms
+    slope 0.1, ``q`` from ``2 pi/4096`` to ``2 pi/16``, ``zeta = 0.3``, ``p0 = 1e-5``: ``kappa`` 55, ``lambda``
+    2e-6) left the uniform shells' Romberg table pre-asymptotic up to 48 shells (``R(n/2, n)`` 2e-4, 2e-6, 1.2e-5,
+    8e-7 from the continuum at 12 ... 96 shells), and its estimate 30x optimistic (8.2e-7 against 2.5e-5); "ends"
+    gives 2.8e-7 against an estimate of 3.7e-7.
     ``local_g1_shell_balanced`` takes "ends" wherever the layer is thin, whatever ``lambda``: measured on 21 scenes
     (two spectra, ``p0`` = 1e-3, 4e-3, 1.6e-2, ``zeta`` = 1e-3 ... 3e-2, docs/closures.md "The thin layer's table")
     it took at most 1.03x the time of "end" on 20 of them and half the shells or fewer on 11 (the Fig. 1 scene at
@@ -371,7 +386,8 @@ def shell_grading(spectrum: Spectrum, *, E_star: float, zeta: float, mean_pressu
     dv_first, dv_last = _end_shell_powers(spectrum, float(E_star))
     kappa = (kz * float(spectrum.q_max)) ** 2 / (0.5 * dv_last)
     lam = p0 * p0 / (0.5 * dv_first)
-    if kappa >= WALL_LAYER_RATIO:
+    thin_start = lam < START_LAYER_RATIO and kappa < START_WALL_LAYER_RATIO and closure in _BALANCED
+    if kappa >= WALL_LAYER_RATIO and not thin_start:
         return "uniform", kappa, lam
     both = lam < START_LAYER_RATIO or closure == "local_g1_shell_balanced"
     return ("ends" if both else "end"), kappa, lam
@@ -1242,6 +1258,9 @@ def _shell_table(ladder: list, thin: bool = False) -> tuple:
     d_half = float(np.sum(np.abs(r_h - r_q)))
     rho_r = d_half / d_top if d_top > 0.0 else math.inf
     info["richardson_order_ratio"] = rho_r
+    if rho_r > ROMBERG_MAX_RATIO:
+        info["shell_order_observed"] = False
+        return r_n, max(residual, d_top), info
     if rho_p >= SHELL_ORDER_RATIO and rho_r >= ROMBERG_RATIO:
         x_n, x_h = (16.0 * r_n - r_h) / 15.0, (16.0 * r_h - r_q) / 15.0
         info["shell_extrapolation_order"] = 6
