@@ -83,7 +83,9 @@ SHELL_ORDER_RATIO = 3.0
 #: and Romberg's sixth-order column is used (16 at fourth order; 12 is an order of 3.58).  Measured on the Fig. 1
 #: scene with exact tau-midpoints: 15.5-16.4 at every closure at zeta >= 0.1, 3-11 at zeta <= 0.01
 ROMBERG_RATIO = 12.0
-#: the largest such ratio Romberg trusts
+#: the largest such ratio Romberg trusts (16 x 1.25): above it the ladder is taken as not yet asymptotic
+#: (:func:`_shell_table`; measured 33 and 42 on two stress scenes whose Romberg estimates were 19x and 3.8x
+#: optimistic, docs/closures.md "Pre-asymptotic shell ladders and thin starts")
 ROMBERG_MAX_RATIO = 20.0
 #: where the wall's layer is thin (graded shells, :func:`shell_grading`), the largest ratio of successive
 #: ``R(n/2, n)`` differences the shells' table trusts: ``2^2.5``, the order the frozen layer leaves after one
@@ -1234,6 +1236,10 @@ def _shell_table(ladder: list, thin: bool = False) -> tuple:
     at small ``zeta`` the order is lower (``zeta = 0.01``: ``R`` falls 3-11x per doubling; ``zeta = 0.001``: 2.4-4x).
     The observed ratio of ``R``'s successive differences decides, with ``P(n/8)``:
 
+    * above :data:`ROMBERG_MAX_RATIO`: the order is not observed (the coarse end of the ladder is pre-asymptotic and
+      a finer ``R`` may lie near the continuum by a crossing of its terms: 33 and 42 on two stress scenes where
+      Romberg was 19x and 3.8x optimistic, docs/closures.md "Pre-asymptotic shell ladders"): ``R(n/2, n)`` with its
+      last difference, undivided, as the residual;
     * at least :data:`ROMBERG_RATIO` (fourth order asymptotic): Romberg's next column,
       ``(16 R(n/2, n) - R(n/4, n/2))/15``, with its difference from the same at half the shells over 15 as the
       residual (that assumes a fourth order only; the sixth it has gives /63, so the estimate is about 4x safe:
