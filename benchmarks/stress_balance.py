@@ -212,6 +212,17 @@ def against_oracle(mode: str = "fourth", closures=CLOSURES, quick: bool = False)
     return sorted(rows, key=lambda r: r[0] / r[1] if r[1] > 0 else float("inf"), reverse=True), seconds
 
 
+def _report(title: str, summary: str, columns: list, rows: list, filename) -> None:
+    """Print the title and summary of a comparison; write it with its table (``rows``: lists of cell strings) to
+    ``results/<filename>`` unless ``filename`` is None."""
+    lines = [title, "", summary, "", "| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    print("\n".join(lines[:3]))
+    if filename is not None:
+        RESULTS.mkdir(exist_ok=True)
+        (RESULTS / filename).write_text("\n".join(lines) + "\n")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="the p0 <= 1e-4 scenes of the two steep spectra")
@@ -226,59 +237,47 @@ def main(argv=None) -> None:
     if args.truth:
         rows, seconds = against_oracle(args.mode, closures, args.quick)
         solved = [r for r in rows if np.isfinite(r[0])]
-        lines = [f"# Estimate against the true error: {len(rows)} scenes, extrapolation {args.mode!r} "
-                 f"({', '.join(closures)}{', quick' if args.quick else ''})", "",
-                 f"rtol 1e-6 against the rtol-1e-8 answer, L1 of the masses; {len(rows) - len(solved)} not solved by "
-                 f"both; true error above rtol on {sum(r[0] > 1e-6 for r in solved)}, above 2x rtol on "
-                 f"{sum(r[0] > 2e-6 for r in solved)}; above the estimate on {sum(r[0] > r[1] for r in solved)}, above "
-                 f"3x it on {sum(r[0] > 3 * r[1] for r in solved)}, above 10x on {sum(r[0] > 10 * r[1] for r in solved)};"
-                 f" summed wall time of the rtol-1e-6 solves {seconds:.1f} s", "",
-                 "| true L1 | estimate | true/estimate | shells | grading | spectrum | closure | zeta | p0 |",
-                 "|---|---|---|---|---|---|---|---|---|"]
-        lines += [f"| {r[0]:.2e} | {r[1]:.2e} | {r[0] / r[1]:.2f} | {r[2]} | {r[3]} | {r[4]} | {r[5]} | {r[6]:g} | "
-                  f"{r[7]:g} |" for r in solved[:25]]
-        print("\n".join(lines[:3]))
-        if not args.quick and closures == CLOSURES:
-            RESULTS.mkdir(exist_ok=True)
-            (RESULTS / f"stress_truth_{args.mode}.md").write_text("\n".join(lines) + "\n")
+        scope = f"({', '.join(closures)}{', quick' if args.quick else ''})"
+        _report(f"# Estimate against the true error: {len(rows)} scenes, extrapolation {args.mode!r} {scope}",
+                f"rtol 1e-6 against the rtol-1e-8 answer, L1 of the masses; {len(rows) - len(solved)} not solved by "
+                f"both; true error above rtol on {sum(r[0] > 1e-6 for r in solved)}, above 2x rtol on "
+                f"{sum(r[0] > 2e-6 for r in solved)}; above the estimate on {sum(r[0] > r[1] for r in solved)}, "
+                f"above 3x it on {sum(r[0] > 3 * r[1] for r in solved)}, above 10x on "
+                f"{sum(r[0] > 10 * r[1] for r in solved)}; summed wall time of the rtol-1e-6 solves {seconds:.1f} s",
+                ["true L1", "estimate", "true/estimate", "shells", "grading", "spectrum", "closure", "zeta", "p0"],
+                [[f"{r[0]:.2e}", f"{r[1]:.2e}", f"{r[0] / r[1]:.2f}", str(r[2]), r[3], r[4], r[5], f"{r[6]:g}",
+                  f"{r[7]:g}"] for r in solved[:25]],
+                f"stress_truth_{args.mode}.md" if not args.quick and closures == CLOSURES else None)
         return
     if args.remap:
         rows, seconds = against_unremapped(closures, args.quick)
         solved = [r for r in rows if np.isfinite(r[0])]
         mapped = [r for r in rows if r[1]]
-        lines = [f"# With and without the remapped monitor: {len(rows)} solves "
-                 f"({', '.join(closures)}{', quick' if args.quick else ''})", "",
-                 f"{len(rows) - len(solved)} not solved by both; {len(mapped)} remapped; largest CDF distance where "
-                 f"both solve {solved[0][0]:.2e} ({', '.join(map(str, solved[0][4:]))}); "
-                 f"{sum(r[0] > 2e-6 for r in solved)} above 2e-6 (both claim 1e-6 in L1); finest grids of the "
-                 f"remapped scenes {sum(r[2] for r in mapped)} cells against {sum(r[3] for r in mapped)}; summed "
-                 f"wall time {seconds['remap']:.1f} s with, {seconds['plain']:.1f} s without", "",
-                 "| CDF distance | remapped | finest cells with | without | spectrum | closure | zeta | p0 | mode |",
-                 "|---|---|---|---|---|---|---|---|---|"]
-        lines += [f"| {r[0]:.2e} | {'yes' if r[1] else ''} | {r[2]} | {r[3]} | {r[4]} | {r[5]} | {r[6]:g} | "
-                  f"{r[7]:g} | {r[8]} |" for r in rows[:25]]
-        print("\n".join(lines[:3]))
-        if not args.quick and closures == CLOSURES:
-            RESULTS.mkdir(exist_ok=True)
-            (RESULTS / "stress_remap.md").write_text("\n".join(lines) + "\n")
+        _report(f"# With and without the remapped monitor: {len(rows)} solves "
+                f"({', '.join(closures)}{', quick' if args.quick else ''})",
+                f"{len(rows) - len(solved)} not solved by both; {len(mapped)} remapped; largest CDF distance where "
+                f"both solve {solved[0][0]:.2e} ({', '.join(map(str, solved[0][4:]))}); "
+                f"{sum(r[0] > 2e-6 for r in solved)} above 2e-6 (both claim 1e-6 in L1); finest grids of the "
+                f"remapped scenes {sum(r[2] for r in mapped)} cells against {sum(r[3] for r in mapped)}; summed "
+                f"wall time {seconds['remap']:.1f} s with, {seconds['plain']:.1f} s without",
+                ["CDF distance", "remapped", "finest cells with", "without", "spectrum", "closure", "zeta", "p0",
+                 "mode"],
+                [[f"{r[0]:.2e}", "yes" if r[1] else "", str(r[2]), str(r[3]), r[4], r[5], f"{r[6]:g}", f"{r[7]:g}",
+                  r[8]] for r in rows[:25]],
+                "stress_remap.md" if not args.quick and closures == CLOSURES else None)
         return
     if args.cram:
         rows, seconds = against_cram16(closures, args.quick)
         solved = [r for r in rows if np.isfinite(r[0])]
-        lines = [f"# Default time integration (CF-12 at rtol 1e-6) against CRAM-16: {len(rows)} solves "
-                 f"({', '.join(closures)}{', quick' if args.quick else ''})", "",
-                 f"{len(rows) - len(solved)} not solved by both; {sum(r[1] for r in rows)} fell back to CRAM-16; "
-                 f"largest CDF distance where both solve {solved[0][0]:.2e} "
-                 f"({', '.join(map(str, solved[0][2:]))}); {sum(r[0] > 1e-7 for r in solved)} above 1e-7; "
-                 f"summed wall time {seconds['default']:.1f} s default, {seconds['cram16']:.1f} s CRAM-16", "",
-                 "| CDF distance | fell back | spectrum | closure | zeta | p0 | mode |", "|---|---|---|---|---|---|---|"]
-        lines += [f"| {r[0]:.2e} | {'yes' if r[1] else ''} | {r[2]} | {r[3]} | {r[4]:g} | {r[5]:g} | {r[6]} |"
-                  for r in rows[:25]]
-        print("\n".join(lines[:3]))
-        if not args.quick:
-            RESULTS.mkdir(exist_ok=True)
-            (RESULTS / f"stress_cram{'' if closures == CLOSURES else '_' + '_'.join(closures)}.md").write_text(
-                "\n".join(lines) + "\n")
+        _report(f"# Default time integration (CF-12 at rtol 1e-6) against CRAM-16: {len(rows)} solves "
+                f"({', '.join(closures)}{', quick' if args.quick else ''})",
+                f"{len(rows) - len(solved)} not solved by both; {sum(r[1] for r in rows)} fell back to CRAM-16; "
+                f"largest CDF distance where both solve {solved[0][0]:.2e} "
+                f"({', '.join(map(str, solved[0][2:]))}); {sum(r[0] > 1e-7 for r in solved)} above 1e-7; "
+                f"summed wall time {seconds['default']:.1f} s default, {seconds['cram16']:.1f} s CRAM-16",
+                ["CDF distance", "fell back", "spectrum", "closure", "zeta", "p0", "mode"],
+                [[f"{r[0]:.2e}", "yes" if r[1] else "", r[2], r[3], f"{r[4]:g}", f"{r[5]:g}", r[6]] for r in rows[:25]],
+                None if args.quick else f"stress_cram{'' if closures == CLOSURES else '_' + '_'.join(closures)}.md")
         return
     if args.peer:
         t0 = time.perf_counter()
