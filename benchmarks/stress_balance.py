@@ -234,10 +234,10 @@ def main(argv=None) -> None:
     ap.add_argument("--mode", default="fourth", choices=MODES, help="the extrapolation mode of --truth")
     args = ap.parse_args(argv)
     closures = tuple(args.closures.split(",")) if args.closures else CLOSURES
+    scope = f"({', '.join(closures)}{', quick' if args.quick else ''})"
     if args.truth:
         rows, seconds = against_oracle(args.mode, closures, args.quick)
         solved = [r for r in rows if np.isfinite(r[0])]
-        scope = f"({', '.join(closures)}{', quick' if args.quick else ''})"
         _report(f"# Estimate against the true error: {len(rows)} scenes, extrapolation {args.mode!r} {scope}",
                 f"rtol 1e-6 against the rtol-1e-8 answer, L1 of the masses; {len(rows) - len(solved)} not solved by "
                 f"both; true error above rtol on {sum(r[0] > 1e-6 for r in solved)}, above 2x rtol on "
@@ -253,8 +253,7 @@ def main(argv=None) -> None:
         rows, seconds = against_unremapped(closures, args.quick)
         solved = [r for r in rows if np.isfinite(r[0])]
         mapped = [r for r in rows if r[1]]
-        _report(f"# With and without the remapped monitor: {len(rows)} solves "
-                f"({', '.join(closures)}{', quick' if args.quick else ''})",
+        _report(f"# With and without the remapped monitor: {len(rows)} solves {scope}",
                 f"{len(rows) - len(solved)} not solved by both; {len(mapped)} remapped; largest CDF distance where "
                 f"both solve {solved[0][0]:.2e} ({', '.join(map(str, solved[0][4:]))}); "
                 f"{sum(r[0] > 2e-6 for r in solved)} above 2e-6 (both claim 1e-6 in L1); finest grids of the "
@@ -269,8 +268,7 @@ def main(argv=None) -> None:
     if args.cram:
         rows, seconds = against_cram16(closures, args.quick)
         solved = [r for r in rows if np.isfinite(r[0])]
-        _report(f"# Default time integration (CF-12 at rtol 1e-6) against CRAM-16: {len(rows)} solves "
-                f"({', '.join(closures)}{', quick' if args.quick else ''})",
+        _report(f"# Default time integration (CF-12 at rtol 1e-6) against CRAM-16: {len(rows)} solves {scope}",
                 f"{len(rows) - len(solved)} not solved by both; {sum(r[1] for r in rows)} fell back to CRAM-16; "
                 f"largest CDF distance where both solve {solved[0][0]:.2e} "
                 f"({', '.join(map(str, solved[0][2:]))}); {sum(r[0] > 1e-7 for r in solved)} above 1e-7; "

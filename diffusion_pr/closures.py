@@ -119,7 +119,7 @@ START_LAYER_RATIO = 4.0
 #: where the start's layer is thin (``lambda <`` :data:`START_LAYER_RATIO`), the ``kappa`` below which the balanced
 #: closures grade both ends although the wall's layer is thick by :data:`WALL_LAYER_RATIO`.  Measured on the 36
 #: stress scenes of ``benchmarks/stress_balance.py`` with ``1 <= kappa < 1000`` and ``lambda < 4`` (eighteenth session,
-#: docs/closures.md "Thin starts"): "ends" took 0.3-0.9x the time of uniform shells on 16 of the 18 with
+#: docs/closures.md "Pre-asymptotic shell ladders and thin starts"): "ends" took 0.3-0.9x the time of uniform shells on 16 of the 18 with
 #: ``kappa <= 55`` (1.4x on one, 1.1x on one whose uniform answer was 30x off its estimate), and 1.0-2.4x on all 18
 #: with ``kappa >= 74``
 START_WALL_LAYER_RATIO = 60.0
@@ -1238,7 +1238,7 @@ def _shell_table(ladder: list, thin: bool = False) -> tuple:
 
     * above :data:`ROMBERG_MAX_RATIO`: the order is not observed (the coarse end of the ladder is pre-asymptotic and
       a finer ``R`` may lie near the continuum by a crossing of its terms: 33 and 42 on two stress scenes where
-      Romberg was 19x and 3.8x optimistic, docs/closures.md "Pre-asymptotic shell ladders"): ``R(n/2, n)`` with its
+      Romberg was 19x and 3.8x optimistic, docs/closures.md "Pre-asymptotic shell ladders and thin starts"): ``R(n/2, n)`` with its
       last difference, undivided, as the residual;
     * at least :data:`ROMBERG_RATIO` (fourth order asymptotic): Romberg's next column,
       ``(16 R(n/2, n) - R(n/4, n/2))/15``, with its difference from the same at half the shells over 15 as the
@@ -1265,7 +1265,6 @@ def _shell_table(ladder: list, thin: bool = False) -> tuple:
     rho_r = d_half / d_top if d_top > 0.0 else math.inf
     info["richardson_order_ratio"] = rho_r
     if rho_r > ROMBERG_MAX_RATIO:
-        info["shell_order_observed"] = False
         return r_n, max(residual, d_top), info
     if rho_p >= SHELL_ORDER_RATIO and rho_r >= ROMBERG_RATIO:
         x_n, x_h = (16.0 * r_n - r_h) / 15.0, (16.0 * r_h - r_q) / 15.0
