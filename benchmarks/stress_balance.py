@@ -25,6 +25,9 @@ scenes remapped, the cells of their last levels and the summed times; writes ``r
 ``--truth [--mode fourth|sixth]``: each scene's rtol-1e-6 answer against its rtol-1e-8 answer (the oracle): the
 L1 error of the masses (the non-contact weight and the answer's cells) against the estimate, the scenes above rtol
 or above 3x their estimate, and the summed times; writes ``results/stress_truth_<mode>.md`` (about 6 minutes).
+``--random N [--seed S]``: the same on ``N`` random scenes off the four spectra (``RANDOM_BOX``: ``H`` 0.2-0.9, rms
+slope 0.01-0.3, sizes 256-8192 and cutoffs 4-64 lattice units, ``zeta`` 1e-4 ... 10, ``p0`` 1e-5 ... 0.3; ``local_g1``
+and both balanced closures); writes ``results/stress_truth_random_<S>.md`` (150 scenes: about 2 minutes).
 """
 from __future__ import annotations
 
@@ -186,29 +189,76 @@ def _l1_to(answer, oracle) -> float:
                  + np.sum(np.abs(np.diff(answer.cdf(x))[1:] - np.diff(oracle.cdf(x))[1:])))
 
 
+def _truth_row(spec, closure: str, zeta: float, p0: float, mode: str = "fourth") -> tuple:
+    """``(true L1, estimate, shells, grading, seconds)`` of one scene's rtol-1e-6 answer against its rtol-1e-8 one
+    (``(inf, nan, "", "no answer" | "no oracle", seconds)`` where one fails or raises; ``seconds``: the rtol-1e-6
+    solve's wall time)."""
+    kw = dict(E_star=8 / 3, mean_pressure=p0, zeta=zeta, closure=closure, extrapolation=mode)
+    seconds, r, ref = 0.0, None, None
+    try:
+        t0 = time.perf_counter()
+        r = closure_distribution(spec, **kw)
+        seconds = time.perf_counter() - t0
+        ref = closure_distribution(spec, rtol=1e-8, **kw)
+    except (RuntimeError, ValueError, FloatingPointError):
+        pass
+    if r is None or not r.success:
+        return float("inf"), float("nan"), "", "no answer", seconds
+    if ref is None or not ref.success:
+        return float("inf"), float("nan"), "", "no oracle", seconds
+    return (_l1_to(r, ref), r.error_estimate, r.diagnostics.get("n_shells", ("",))[0],
+            r.diagnostics.get("shell_grading", ""), seconds)
+
+
 def against_oracle(mode: str = "fourth", closures=CLOSURES, quick: bool = False) -> tuple:
     """``(rows, seconds)``: per scene ``(true L1, estimate, shells, grading, spectrum, closure, zeta, p0)`` of the
     rtol-1e-6 answer against the rtol-1e-8 one (``inf`` where either fails), sorted by true/estimate, largest
     first; and the summed wall time of the rtol-1e-6 solves."""
     rows, seconds = [], 0.0
     for name, spec, closure, zeta, p0 in scenes(quick, closures):
-        kw = dict(E_star=8 / 3, mean_pressure=p0, zeta=zeta, closure=closure, extrapolation=mode)
-        try:
-            t0 = time.perf_counter()
-            r = closure_distribution(spec, **kw)
-            seconds += time.perf_counter() - t0
-            ref = closure_distribution(spec, rtol=1e-8, **kw)
-            ok = r.success and ref.success
-        except (RuntimeError, ValueError, FloatingPointError):
-            ok = False
-        if not ok:
-            rows.append((float("inf"), float("nan"), "", "", name, closure, zeta, p0))
-            continue
-        true = _l1_to(r, ref)
-        rows.append((true, r.error_estimate, r.diagnostics.get("n_shells", ("",))[0],
-                     r.diagnostics.get("shell_grading", ""), name, closure, zeta, p0))
-        if true > 1e-6 or true > 3 * r.error_estimate:
-            print(name, closure, zeta, p0, mode, f"| true {true:.2e} estimate {r.error_estimate:.2e}", flush=True)
+        true, estimate, shells, grading, t = _truth_row(spec, closure, zeta, p0, mode)
+        seconds += t
+        rows.append((true, estimate, shells, grading, name, closure, zeta, p0))
+        if np.isfinite(true) and (true > 1e-6 or true > 3 * estimate):
+            print(name, closure, zeta, p0, mode, f"| true {true:.2e} estimate {estimate:.2e}", flush=True)
+    return sorted(rows, key=lambda r: r[0] / r[1] if r[1] > 0 else float("inf"), reverse=True), seconds
+
+
+#: the box of :func:`random_scenes`: Hurst exponent, rms slope, system size and short-wavelength cutoff [lattice
+#: units, powers of 2], wall range zeta [length], load p0 [pressure, E* = 8/3]
+RANDOM_BOX = dict(hurst=(0.2, 0.9), rms_slope=(0.01, 0.3), size=(256, 8192), cutoff=(4, 64), zeta=(1e-4, 10.0),
+                  p0=(1e-5, 0.3))
+RANDOM_CLOSURES = ("local_g1", "local_g1_balanced", "local_g1_shell_balanced")
+
+
+def random_scenes(n: int, seed: int):
+    """``n`` scenes ``(name, spectrum, closure, zeta, p0)`` drawn from :data:`RANDOM_BOX` with ``seed``: ``H``
+    uniform, the rms slope, ``zeta`` and ``p0`` log-uniform, the size and the cutoff wavelength powers of 2 at
+    least 8 apart, the closure uniform over :data:`RANDOM_CLOSURES`."""
+    rng = np.random.default_rng(seed)
+    b = RANDOM_BOX
+    log_uniform = lambda lo_hi: float(10.0 ** rng.uniform(*np.log10(lo_hi)))  # noqa: E731
+    for _ in range(n):
+        hurst, slope = float(rng.uniform(*b["hurst"])), log_uniform(b["rms_slope"])
+        size = 2 ** int(rng.integers(np.log2(b["size"][0]), np.log2(b["size"][1]) + 1))
+        cutoff = min(2 ** int(rng.integers(np.log2(b["cutoff"][0]), np.log2(b["cutoff"][1]) + 1)), size // 8)
+        zeta, p0 = log_uniform(b["zeta"]), log_uniform(b["p0"])
+        closure = str(rng.choice(RANDOM_CLOSURES))
+        name = f"H {hurst:.3f}, slope {slope:.4f}, q 2pi/{size}..2pi/{cutoff}"
+        yield (name, dp.SelfAffineSpectrum(hurst, 2 * np.pi / size, 2 * np.pi / cutoff, rms_slope=slope), closure,
+               zeta, p0)
+
+
+def against_oracle_random(n: int, seed: int) -> tuple:
+    """:func:`against_oracle` over :func:`random_scenes` (default extrapolation)."""
+    rows, seconds = [], 0.0
+    for i, (name, spec, closure, zeta, p0) in enumerate(random_scenes(n, seed)):
+        true, estimate, shells, grading, t = _truth_row(spec, closure, zeta, p0)
+        seconds += t
+        rows.append((true, estimate, shells, grading, name, closure, zeta, p0))
+        flag = "" if not np.isfinite(true) or (true <= 1e-6 and true <= 3 * estimate) else "  <<<"
+        print(f"{i} {name} {closure} zeta {zeta:.3g} p0 {p0:.3g} | true {true:.2e} estimate {estimate:.2e}{flag}",
+              flush=True)
     return sorted(rows, key=lambda r: r[0] / r[1] if r[1] > 0 else float("inf"), reverse=True), seconds
 
 
@@ -232,21 +282,31 @@ def main(argv=None) -> None:
     ap.add_argument("--remap", action="store_true", help="compare each scene's answer with the unremapped one")
     ap.add_argument("--truth", action="store_true", help="each scene's answer against its rtol-1e-8 answer")
     ap.add_argument("--mode", default="fourth", choices=MODES, help="the extrapolation mode of --truth")
+    ap.add_argument("--random", type=int, default=0, metavar="N",
+                    help="--truth on N random scenes (RANDOM_BOX, all three continuum closures) instead")
+    ap.add_argument("--seed", type=int, default=1, help="the seed of --random (default: 1)")
     args = ap.parse_args(argv)
     closures = tuple(args.closures.split(",")) if args.closures else CLOSURES
     scope = f"({', '.join(closures)}{', quick' if args.quick else ''})"
-    if args.truth:
-        rows, seconds = against_oracle(args.mode, closures, args.quick)
+    if args.truth or args.random:
+        if args.random:
+            rows, seconds = against_oracle_random(args.random, args.seed)
+            scope = (f"(random scenes, seed {args.seed}: H, rms slope, size, cutoff, zeta, p0 in "
+                     + ", ".join(f"{lo:g}..{hi:g}" for lo, hi in RANDOM_BOX.values())
+                     + f"; {', '.join(RANDOM_CLOSURES)})")
+        else:
+            rows, seconds = against_oracle(args.mode, closures, args.quick)
         solved = [r for r in rows if np.isfinite(r[0])]
         _report(f"# Estimate against the true error: {len(rows)} scenes, extrapolation {args.mode!r} {scope}",
                 f"rtol 1e-6 against the rtol-1e-8 answer, L1 of the masses; {len(rows) - len(solved)} not solved by "
-                f"both; true error above rtol on {sum(r[0] > 1e-6 for r in solved)}, above 2x rtol on "
+                f"both ({sum(r[3] == 'no answer' for r in rows)} without an answer at rtol 1e-6); true error above rtol on {sum(r[0] > 1e-6 for r in solved)}, above 2x rtol on "
                 f"{sum(r[0] > 2e-6 for r in solved)}; above the estimate on {sum(r[0] > r[1] for r in solved)}, "
                 f"above 3x it on {sum(r[0] > 3 * r[1] for r in solved)}, above 10x on "
                 f"{sum(r[0] > 10 * r[1] for r in solved)}; summed wall time of the rtol-1e-6 solves {seconds:.1f} s",
                 ["true L1", "estimate", "true/estimate", "shells", "grading", "spectrum", "closure", "zeta", "p0"],
                 [[f"{r[0]:.2e}", f"{r[1]:.2e}", f"{r[0] / r[1]:.2f}", str(r[2]), r[3], r[4], r[5], f"{r[6]:g}",
                   f"{r[7]:g}"] for r in solved[:25]],
+                f"stress_truth_random_{args.seed}.md" if args.random else
                 f"stress_truth_{args.mode}.md" if not args.quick and closures == CLOSURES else None)
         return
     if args.remap:
