@@ -241,10 +241,12 @@ def test_cf12_answer_is_the_cram16_answer_within_its_bound(monkeypatch):
     assert big.error_estimate - one.error_estimate == pytest.approx(added, rel=1e-6)
 
 
-def test_a_cf12_failure_is_repeated_with_cram16():
+def test_a_cf12_failure_is_repeated_with_cram16(monkeypatch):
     """H = 0.8, zeta = 3e-3, p0 = 1e-5: an early shell's balance fails with CF-12 (its approximation is near-best
     on the real axis only) and succeeds with CRAM-16; the solve says so.  (Which scenes fail is fragile: at
-    zeta = 1e-3 stage 0 failed with CF-12 until the domain moved by 1e-7 in the eighth session.)"""
+    zeta = 1e-3 stage 0 failed with CF-12 until the domain moved by 1e-7 in the eighth session; the mass-based
+    Lamperti bound of before the nineteenth session pins the domain it fails on.)"""
+    monkeypatch.setattr(engine, "LAMPERTI_MEAN_ITERATIONS", 0)
     spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
     r = closure_distribution(spec, E_star=8 / 3, mean_pressure=1e-5, zeta=3e-3, closure="local_g1_balanced")
     assert r.success and r.diagnostics["cram_order"] == 16
@@ -622,6 +624,34 @@ def test_lamperti_domain_whose_top_cell_carries_mean_falls_back(monkeypatch):
     assert np.array_equal(off.density, r.density) and off.zero_weight == r.zero_weight
 
 
+def test_a_balance_bounds_the_tails_share_of_the_mean_not_its_mass(monkeypatch):
+    """A balanced closure whose mass-based Lamperti bound (164 p0) passes the check after the solve (top cell 3.5e-10
+    x 164 < rtol) while the tail beyond it holds 1.6e-7 of the mean, which the balance makes up by moving 5e-7 of
+    probability into the non-contact weight (H 0.359, rms slope 0.0236, q 2pi/8192..2pi/4, zeta 3.5e-3,
+    p0 1.07e-3, 96 shells; found by ``stress_balance.py --random 300 --seed 2``).  Oracle: the answer on the
+    conservative domain (no Lamperti bound) at rtol 1e-7.  The mass-based bound's answer is 9.9e-7 from it while
+    claiming 3.1e-7; bounding the tail's share of the mean (``LAMPERTI_MEAN_ITERATIONS``) gives 1.2e-7, within its
+    estimate of 3.2e-7.  Tolerance: rtol / 2 separates the two (the oracle's own error is about 1e-8)."""
+    spec = dp.SelfAffineSpectrum(0.359, 2 * np.pi / 8192, 2 * np.pi / 4, rms_slope=0.0236)
+    kw = dict(E_star=8 / 3, mean_pressure=1.07e-3, zeta=3.5e-3, closure="local_g1_balanced", n_shells=96,
+              shell_extrapolation=False)
+    r = closure_distribution(spec, **kw)
+    monkeypatch.setattr(engine, "LAMPERTI_MEAN_ITERATIONS", 0)
+    by_mass = closure_distribution(spec, **kw)
+    monkeypatch.setattr(engine, "LAMPERTI", False)
+    oracle = closure_distribution(spec, rtol=1e-7, **kw)
+    assert r.success and by_mass.success and oracle.success
+
+    def l1(a) -> float:  # on a's cells, the non-contact weight included
+        x = np.concatenate(([0.0], a.edges))
+        return float(abs(a.zero_weight - oracle.zero_weight) + np.sum(np.abs(np.diff(a.cdf(x))[1:]
+                                                                             - np.diff(oracle.cdf(x))[1:])))
+
+    assert by_mass.diagnostics["domain"] == "Lamperti-bounded" and l1(by_mass) > 5e-7  # the old bound's miss
+    assert r.diagnostics["p_max"] > 1.05 * by_mass.diagnostics["p_max"]
+    assert l1(r) < 5e-7 and l1(r) < 2.0 * r.error_estimate
+
+
 def test_lamperti_domain_that_cuts_the_mean_falls_back(monkeypatch):
     """local_g1 on the Fig. 1 spectrum at zeta = 0.3, p0 = 1e-4: the tail beyond the Lamperti bound held 1e-10 of
     the probability (below rtol) but 4.4e-6 p0 of the mean, so the solve refined to 65536 cells in vain and failed
@@ -659,7 +689,8 @@ def test_sixth_that_does_not_balance_falls_back_to_fourth(monkeypatch):
     the default is CRAM-16 too: on the Lamperti-bounded domain the sixth's 53-cell top cell held 6.7e-12 at
     p_max = 2.3e5 p0, more than rtol in the mean, and on the conservative domain CF-12 does not balance.  Which
     scenes fail is fragile: until the eighth session moved the domain by up to 8 %, this was the shell partition's
-    scene.)"""
+    scene; the mass-based Lamperti bound of before the nineteenth session pins the domain.)"""
+    monkeypatch.setattr(engine, "LAMPERTI_MEAN_ITERATIONS", 0)
     spec = dp.SelfAffineSpectrum(0.5, 2 * np.pi / 8192, 2 * np.pi / 8, rms_slope=0.3)
     kw = dict(E_star=8 / 3, mean_pressure=1e-5, zeta=0.03, closure="local_g1_balanced")
     cf12 = closure_distribution(spec, extrapolation="sixth", **kw)
@@ -982,8 +1013,10 @@ def test_a_later_level_whose_balance_fails_is_repeated_finer(monkeypatch):
     reports failure.  (Fragile by nature: which grid fails a balance this far from its root moves with the
     problem's last digits; the 96-shell problem of this scene was the example until its shells' midpoints were
     solved exactly, tenth session; with the remapped monitor the second level has 183 cells, whose balances converge
-    to an answer 1.6 away in L1 on one grid, and the refinement goes on to 1464 cells: the path is pinned without it.)"""
+    to an answer 1.6 away in L1 on one grid, and the refinement goes on to 1464 cells: the path is pinned without it,
+    and on the mass-based Lamperti bound of before the nineteenth session.)"""
     monkeypatch.setattr(engine, "REMAP", False)
+    monkeypatch.setattr(engine, "LAMPERTI_MEAN_ITERATIONS", 0)
     spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
     kw = dict(E_star=8 / 3, mean_pressure=1e-5, zeta=1e-3, closure="local_g1_balanced", n_shells=48)
     default = closure_distribution(spec, **kw)

@@ -266,7 +266,10 @@ def test_balance_newton_skip_matches_always_newton(monkeypatch, closure_like_pro
     assert r.success and ref.success
     assert ref.diagnostics["levels"] == r.diagnostics["levels"]
     assert r.diagnostics["newton_steps"] <= ref.diagnostics["newton_steps"]
-    diff = float(np.sum(np.abs(r.density * r.weights - ref.density * ref.weights))) + abs(r.zero_weight - ref.zero_weight)
+    # on r's cells through each answer's cdf: a remapped monitor (engine.REMAP) is made from the first level's errors,
+    # so the two grids may differ in the last digits (edges 1e-7 apart moved 1.3e-6 between neighbouring cells)
+    x = np.concatenate(([0.0], r.edges))
+    diff = float(np.sum(np.abs(np.diff(r.cdf(x)) - np.diff(ref.cdf(x)))))
     assert diff < 5e-8
     assert abs(r.diagnostics["mean_error"]) < 1e-6 * 0.004
 
