@@ -715,12 +715,6 @@ def _l1_to_oracle(r, fine):
     return abs(cdf[0] - oracle[0]) + float(np.sum(np.abs(np.diff(cdf) - np.diff(oracle))))
 
 
-def _l1_to(r, ref):
-    """L1 of ``r``'s non-contact weight and cell masses against ``ref``'s on ``r``'s cells."""
-    x = np.concatenate(([0.0], r.edges))
-    return abs(r.zero_weight - ref.zero_weight) + float(np.sum(np.abs(np.diff(r.cdf(x))[1:] - np.diff(ref.cdf(x))[1:])))
-
-
 def test_graded_shells_restore_the_order_where_the_wall_layer_is_thin(fig1, monkeypatch):
     """local_g1 at zeta = 0.001 (kappa = p*(q_max)^2/tau_last = 8e-4): with uniform shells the sum converges at an
     order of about 1.25 (differences fall 2.4x per doubling up to 1536 shells), the error of the last shells, which
@@ -873,7 +867,8 @@ def test_forced_grids_do_not_make_the_kernels_compile_again(fig1):
     ((0.8, 1024, 32, 0.031), 0.03, 1e-5, "local_g1_shell_balanced"),
     pytest.param((0.5, 8192, 8, 0.3), 0.3, 1e-3, "local_g1_balanced", marks=pytest.mark.slow),  # oracle 15 s
 ])
-def test_romberg_is_not_taken_where_the_shells_ratio_is_far_above_its_order(monkeypatch, spectrum, zeta, p0, closure):
+def test_romberg_is_not_taken_where_the_shells_ratio_is_far_above_its_order(monkeypatch, l1_on_cells, spectrum,
+                                                                            zeta, p0, closure):
     """Two stress scenes (``benchmarks/stress_balance.py``) on uniform shells, where the 6/12/24/48-shell ladder is
     not yet asymptotic: ``R(n/2, n)`` falls 33x and 42x per doubling (16 at fourth order), because ``R`` on 12 or 24
     shells happens to lie near the continuum, and Romberg's sixth-order column with its /15 residual claimed 5.4e-7
@@ -891,9 +886,9 @@ def test_romberg_is_not_taken_where_the_shells_ratio_is_far_above_its_order(monk
     r = closure_distribution(spec, **kw)
     assert r.success and ref.success and r.diagnostics["shell_grading"] == "uniform"
     assert r.diagnostics["n_shells"][0] > closures.EXTRAPOLATION_SHELLS * (2 if p0 > 1e-4 else 1)
-    assert _l1_to(r, ref) <= r.error_estimate + ref.error_estimate
+    assert l1_on_cells(r, ref) <= r.error_estimate + ref.error_estimate
 
-def test_a_load_deep_in_a_layer_thick_only_at_q_max_grades_both_ends():
+def test_a_load_deep_in_a_layer_thick_only_at_q_max_grades_both_ends(l1_on_cells):
     """A stress scene (H = 0.8, rms slope 0.1, q from 2 pi/4096 to 2 pi/16, zeta = 0.3, p0 = 1e-5,
     ``local_g1_shell_balanced``: kappa 55, lambda 2e-6) on uniform shells: ``R(n/2, n)`` lies 2e-4, 2e-6, 1.2e-5,
     8e-7 from the continuum at 12, 24, 48, 96 shells, and the 6/12/24/48 table looks asymptotic (ratios 3.5, 3.9 and
@@ -910,4 +905,4 @@ def test_a_load_deep_in_a_layer_thick_only_at_q_max_grades_both_ends():
     r = closure_distribution(spec, **kw)
     ref = closure_distribution(spec, rtol=1e-8, **kw)
     assert r.success and ref.success and r.diagnostics["shell_grading"] == "ends"
-    assert _l1_to(r, ref) <= r.error_estimate + ref.error_estimate
+    assert l1_on_cells(r, ref) <= r.error_estimate + ref.error_estimate

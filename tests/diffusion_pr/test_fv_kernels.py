@@ -624,7 +624,7 @@ def test_lamperti_domain_whose_top_cell_carries_mean_falls_back(monkeypatch):
     assert np.array_equal(off.density, r.density) and off.zero_weight == r.zero_weight
 
 
-def test_a_balance_bounds_the_tails_share_of_the_mean_not_its_mass(monkeypatch):
+def test_a_balance_bounds_the_tails_share_of_the_mean_not_its_mass(monkeypatch, l1_on_cells):
     """A balanced closure whose mass-based Lamperti bound (164 p0) passes the check after the solve (top cell 3.5e-10
     x 164 < rtol) while the tail beyond it holds 1.6e-7 of the mean, which the balance makes up by moving 5e-7 of
     probability into the non-contact weight (H 0.359, rms slope 0.0236, q 2pi/8192..2pi/4, zeta 3.5e-3,
@@ -641,15 +641,10 @@ def test_a_balance_bounds_the_tails_share_of_the_mean_not_its_mass(monkeypatch):
     monkeypatch.setattr(engine, "LAMPERTI", False)
     oracle = closure_distribution(spec, rtol=1e-7, **kw)
     assert r.success and by_mass.success and oracle.success
-
-    def l1(a) -> float:  # on a's cells, the non-contact weight included
-        x = np.concatenate(([0.0], a.edges))
-        return float(abs(a.zero_weight - oracle.zero_weight) + np.sum(np.abs(np.diff(a.cdf(x))[1:]
-                                                                             - np.diff(oracle.cdf(x))[1:])))
-
-    assert by_mass.diagnostics["domain"] == "Lamperti-bounded" and l1(by_mass) > 5e-7  # the old bound's miss
+    # the old bound's miss
+    assert by_mass.diagnostics["domain"] == "Lamperti-bounded" and l1_on_cells(by_mass, oracle) > 5e-7
     assert r.diagnostics["p_max"] > 1.05 * by_mass.diagnostics["p_max"]
-    assert l1(r) < 5e-7 and l1(r) < 2.0 * r.error_estimate
+    assert l1_on_cells(r, oracle) < 5e-7 and l1_on_cells(r, oracle) < 2.0 * r.error_estimate
 
 
 def test_lamperti_domain_that_cuts_the_mean_falls_back(monkeypatch):
