@@ -429,7 +429,6 @@ def _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0,
         x = np.zeros(el.shape)
         r = -grad
         rz = kr.proj_precond(r, minv, zr)
-        rz0 = rz
         d = zr.copy()
         wdiag = zeta / p
         for _ in range(2000):
