@@ -236,22 +236,26 @@ RANDOM_BOX = dict(hurst=(0.2, 0.9), rms_slope=(0.01, 0.3), size=(256, 8192), cut
 RANDOM_CLOSURES = ("local_g1", "local_g1_balanced", "local_g1_shell_balanced")
 
 
-def random_scenes(n: int, seed: int):
-    """``n`` scenes ``(name, spectrum, closure, zeta, p0)`` drawn from :data:`RANDOM_BOX` with ``seed``: ``H``
-    uniform, the rms slope, ``zeta`` and ``p0`` log-uniform, the size and the cutoff wavelength powers of 2 at
-    least 8 apart, the closure uniform over :data:`RANDOM_CLOSURES`."""
-    rng = np.random.default_rng(seed)
+def random_spectrum_scene(rng) -> tuple:
+    """``(name, spectrum, zeta, p0)`` drawn from :data:`RANDOM_BOX` with the generator ``rng``: ``H`` uniform, the rms
+    slope, ``zeta`` and ``p0`` log-uniform, the size and the cutoff wavelength powers of 2 at least 8 apart."""
     b = RANDOM_BOX
     log_uniform = lambda lo_hi: float(10.0 ** rng.uniform(*np.log10(lo_hi)))  # noqa: E731
+    hurst, slope = float(rng.uniform(*b["hurst"])), log_uniform(b["rms_slope"])
+    size = 2 ** int(rng.integers(np.log2(b["size"][0]), np.log2(b["size"][1]) + 1))
+    cutoff = min(2 ** int(rng.integers(np.log2(b["cutoff"][0]), np.log2(b["cutoff"][1]) + 1)), size // 8)
+    zeta, p0 = log_uniform(b["zeta"]), log_uniform(b["p0"])
+    name = f"H {hurst:.3f}, slope {slope:.4f}, q 2pi/{size}..2pi/{cutoff}"
+    return name, dp.SelfAffineSpectrum(hurst, 2 * np.pi / size, 2 * np.pi / cutoff, rms_slope=slope), zeta, p0
+
+
+def random_scenes(n: int, seed: int):
+    """``n`` scenes ``(name, spectrum, closure, zeta, p0)`` drawn with ``seed``: :func:`random_spectrum_scene`, then
+    the closure uniform over :data:`RANDOM_CLOSURES`."""
+    rng = np.random.default_rng(seed)
     for _ in range(n):
-        hurst, slope = float(rng.uniform(*b["hurst"])), log_uniform(b["rms_slope"])
-        size = 2 ** int(rng.integers(np.log2(b["size"][0]), np.log2(b["size"][1]) + 1))
-        cutoff = min(2 ** int(rng.integers(np.log2(b["cutoff"][0]), np.log2(b["cutoff"][1]) + 1)), size // 8)
-        zeta, p0 = log_uniform(b["zeta"]), log_uniform(b["p0"])
-        closure = str(rng.choice(RANDOM_CLOSURES))
-        name = f"H {hurst:.3f}, slope {slope:.4f}, q 2pi/{size}..2pi/{cutoff}"
-        yield (name, dp.SelfAffineSpectrum(hurst, 2 * np.pi / size, 2 * np.pi / cutoff, rms_slope=slope), closure,
-               zeta, p0)
+        name, spectrum, zeta, p0 = random_spectrum_scene(rng)
+        yield name, spectrum, str(rng.choice(RANDOM_CLOSURES)), zeta, p0
 
 
 def _report(title: str, summary: str, columns: list, rows: list, filename) -> None:

@@ -66,8 +66,8 @@ RICHARDSON_DIVISOR = 7.0
 #: the same where a vanishing diffusivity reaches the wall (``f ~ p^k``, ``0 < k < 2``: Feller's exit boundary):
 #: there the extrapolated values converge at second order only, so 2^2 - 1.  Measured on Feller's solution
 #: (``f = p/p_1``, against the closed form; ``benchmarks/fp_random_truth.py``): with 7 the true L1 error was
-#: 2.33-2.34x the estimate on every one of 65 random problems (3 above rtol 1e-6), and successive levels' errors
-#: fell as ``N^-1.9``
+#: 2.05-3.32x the estimate (2.33 on most) on 61 of 65 random problems (3 above rtol 1e-6), and successive levels'
+#: errors fell as ``N^-1.9``; with 3 it is 0.88-1.34x
 EXIT_RICHARDSON_DIVISOR = 3.0
 #: divisor of the sixth-order estimate |R2(N,2N,4N) - R2(M,N,2N)| (63 asymptotically; with 31 the estimate was
 #: up to 3.8x below the true error on the closures, with 15 at most 1.7x, benchmarks/results/closure_sixth.md)
