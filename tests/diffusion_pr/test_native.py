@@ -46,9 +46,11 @@ def mirror_case(p0: float, V: float = 1.0):
             lambda p: cf.mirror_gaussian_density(p, p0, V), cf.persson_zero_weight(p0, V))
 
 
-def feller_case(p0: float, V: float = 1.0):
-    slope = 1.0 / p0
-    return (FokkerPlanckProblem(p0, V, ProportionalDiffusivity(p0)),
+def feller_case(p0: float, V: float = 1.0, p_1: float | None = None):
+    """Feller's problem ``f = p/p_1`` (``p_1 = p0`` unless given) with its closed-form density and zero weight."""
+    p_1 = p0 if p_1 is None else p_1
+    slope = 1.0 / p_1
+    return (FokkerPlanckProblem(p0, V, ProportionalDiffusivity(p_1)),
             lambda p: cf.feller_density(p, p0, V / 2, slope), cf.feller_zero_weight(p0, V / 2, slope))
 
 
@@ -74,9 +76,10 @@ def test_an_exit_wall_is_estimated_at_the_second_order_it_converges_at(exit_weig
     # here.  1.5x leaves room for the estimate's own scatter and catches the divisor 7 (2.3x here) by 1.5x.
     p0, V = 1.0, 1.0
     p_1 = exit_weight * (V / 2) / p0  # the non-contact weight is exp(-p0 p_1 / tau) = exp(-exit_weight)
-    r = native.solve(FokkerPlanckProblem(p0, V, ProportionalDiffusivity(p_1)), rtol=1e-6)
+    problem, dens, zw = feller_case(p0, V, p_1)
+    r = native.solve(problem, rtol=1e-6)
     assert r.success, r.message
-    err = l1_error(r, lambda p: cf.feller_density(p, p0, V / 2, 1.0 / p_1), cf.feller_zero_weight(p0, V / 2, 1.0 / p_1))
+    err = l1_error(r, dens, zw)
     assert err <= 1e-6
     assert err <= 1.5 * r.error_estimate, (err, r.error_estimate)
 
