@@ -39,6 +39,19 @@ BACKENDS = ("auto", "closed_form", "native", "pypde", "fipy")
 N_ETA = 513
 
 
+def _exact_schedule(spectrum: Any, E_star: float, mean_pressure: float, zeta: float) -> dict:
+    """The exact ``V(eta)`` and ``D(eta)`` of a continuum spectrum for
+    :meth:`FokkerPlanckProblem.from_magnification` (none for a discrete spectrum: its ``V`` is a staircase)."""
+    from .cumulants import diffusivity_vs_magnification, variance_vs_magnification
+    from .spectra import DiscreteSpectrum
+
+    if isinstance(spectrum, DiscreteSpectrum):
+        return {}
+    kw = dict(E_star=E_star, mean_pressure=mean_pressure, zeta=zeta)
+    return {"variance_function": lambda e: variance_vs_magnification(spectrum, e, **kw),
+            "diffusivity_function": lambda e: diffusivity_vs_magnification(spectrum, e, **kw)}
+
+
 def _check_backend(backend: object) -> str:
     from .solvers import backend_names
 
@@ -313,7 +326,7 @@ def pressure_distribution(
         v_eta = np.maximum.accumulate(v_eta)
         problem = FokkerPlanckProblem.from_magnification(
             mean_pressure=float(p0), eta=eta, variance_of_eta=v_eta, pressure_factor=factor,
-            drift_of_eta=drift, label="pressure_distribution")
+            drift_of_eta=drift, label="pressure_distribution", **_exact_schedule(spectrum, E, float(p0), float(z)))
         extra.update({"eta": eta, "variance_of_eta": v_eta})
     result = _solve(problem, backend, rtol, options)
     return replace(result, diagnostics={**result.diagnostics, **extra})

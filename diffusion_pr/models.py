@@ -433,11 +433,21 @@ class PressureFactor:
     """Product ``f(p) = c(p) * t(p)``: the pressure factor of ``D(p, eta)``.
 
     This is the ``diffusivity`` that :func:`diffusion_pr.propagate` takes.
-    Dimensionless.
+    Dimensionless.  ``tail=None`` (the default) is the Gaussian tail ``t = 1``.
     """
 
     cutoff: PressureFunction
-    tail: PressureFunction
+    tail: Optional[PressureFunction] = None
+
+    def __post_init__(self) -> None:
+        # ``tail=None`` is the Gaussian tail ``t = 1``, as in :func:`make_tail`
+        if self.tail is None:
+            object.__setattr__(self, "tail", GaussianTail())
+        for name in ("cutoff", "tail"):
+            part = getattr(self, name)
+            if not callable(part):
+                raise ValueError(f"PressureFactor.{name} must be a vectorized callable of the pressure "
+                                 f"(make_cutoff / make_tail turn names into one); got {name}={part!r}")
 
     @property
     def zero_power(self) -> Optional[float]:  # type: ignore[override]

@@ -132,6 +132,8 @@ class FokkerPlanckProblem:
         variance_of_eta: Array,
         pressure_factor: Callable[[Array], Array],
         drift_of_eta: Optional[Callable[[Array, float], Array]] = None,
+        variance_function: Optional[Callable[[Array], Array]] = None,
+        diffusivity_function: Optional[Callable[[Array], Array]] = None,
         label: str = "",
     ) -> "FokkerPlanckProblem":
         """Build the ``tau`` problem from a magnification schedule.
@@ -151,6 +153,23 @@ class FokkerPlanckProblem:
             ``a = A / D(eta)`` with ``D = (1/2) dV/deta``; segments where ``D = 0``
             are skipped (their drift cannot be represented in ``tau``; the
             conversion raises if a drift is given there).
+        variance_function, diffusivity_function : callable, optional
+            The exact ``V(eta)`` (pressure squared) and ``D(eta) = (1/2) dV/deta``
+            (pressure squared per unit magnification), vectorized, consistent with
+            ``variance_of_eta`` at the nodes (a continuum spectrum's
+            :func:`~diffusion_pr.cumulants.variance_vs_magnification` and
+            :func:`~diffusion_pr.cumulants.diffusivity_vs_magnification`).  Given
+            both, ``eta(tau)`` solves ``(V(eta) - V(1))/2 = tau`` to round-off
+            (safeguarded Newton inside the table's bracket) and the drift is
+            divided by the exact ``D``: ``a(p, tau)`` is then as smooth in ``tau``
+            as ``A`` and ``D`` are in ``eta``, which the midpoint time segments
+            need to converge at second order.  Without them ``eta(tau)`` and ``D``
+            are interpolated linearly between the nodes (``D`` from finite
+            differences): ``a`` has a kink at every node, the segments converge
+            erratically and a tight ``rtol`` may be out of reach (a 513-node table
+            took over 200 s to fail at rtol 1e-6 where the exact map takes 0.2 s;
+            docs/backends.md).  A discrete spectrum's staircase ``V`` has no such
+            functions.
         """
         eta = np.asarray(eta, dtype=float)
         v = np.asarray(variance_of_eta, dtype=float)
@@ -158,21 +177,103 @@ class FokkerPlanckProblem:
             raise ValueError("eta and variance_of_eta must be 1-D arrays of equal length >= 2")
         if np.any(np.diff(eta) <= 0) or np.any(np.diff(v) < 0):
             raise ValueError("eta must increase and variance_of_eta must not decrease")
+        if (variance_function is None) != (diffusivity_function is None):
+            raise ValueError("variance_function and diffusivity_function go together (the exact V(eta) and "
+                             "D(eta) = V'(eta)/2); give both or neither")
+        for name, fn in (("variance_function", variance_function), ("diffusivity_function", diffusivity_function),
+                         ("drift_of_eta", drift_of_eta)):
+            if fn is not None and not callable(fn):
+                raise ValueError(f"{name} must be a vectorized callable or None; got {fn!r}")
         variance = float(v[-1] - v[0])
         if drift_of_eta is None:
             return cls(mean_pressure, variance, pressure_factor, label=label)
         tau_nodes = 0.5 * (v - v[0])
-        d_eta = np.gradient(v, eta) * 0.5
+        if variance_function is None:
+            d_eta = np.gradient(v, eta) * 0.5
+
+            def magnification(tau: float) -> tuple[float, float]:
+                e = float(np.interp(tau, tau_nodes, eta))
+                return e, float(np.interp(e, eta, d_eta))
+        else:
+            magnification = _ExactMagnification(eta, tau_nodes, v[0], variance_function, diffusivity_function)
 
         def drift(p: Array, tau: float) -> Array:
-            e = float(np.interp(tau, tau_nodes, eta))
-            d = float(np.interp(e, eta, d_eta))
+            e, d = magnification(float(tau))
             if d <= 0.0:
                 raise ValueError(f"drift given where D(eta) = 0 (eta={e:.6g}); cannot map it to tau")
             return np.asarray(drift_of_eta(p, e), dtype=float) / d
 
+        if variance_function is not None:
+            drift.prefetch_times = magnification.solve  # type: ignore[attr-defined]
+
         return cls(mean_pressure, variance, pressure_factor, drift=drift, label=label,
-                   metadata={"eta": eta, "variance_of_eta": v})
+                   metadata={"eta": eta, "variance_of_eta": v,
+                             "magnification_map": "linear" if variance_function is None else "exact"})
+
+
+#: Newton steps of the exact ``eta(tau)`` map before it gives up on round-off (a bisection step each where the
+#: Newton step leaves the bracket; the bracket halves at least every other step)
+MAGNIFICATION_NEWTON_STEPS = 60
+
+
+class _ExactMagnification:
+    """``tau -> (eta(tau), D(eta(tau)))`` solving ``(V(eta) - V(1))/2 = tau`` inside the table's bracket.
+
+    Safeguarded Newton (bisection where a step leaves the bracket), vectorized over
+    the times of :meth:`solve`; memoized per ``tau`` (the engine announces each
+    grid's segment midpoints at once through the drift's ``prefetch_times``).
+    """
+
+    def __init__(self, eta: Array, tau_nodes: Array, v_start: float, variance_function: Callable,
+                 diffusivity_function: Callable) -> None:
+        self.eta, self.tau_nodes, self.v_start = eta, tau_nodes, float(v_start)
+        self.variance_function, self.diffusivity_function = variance_function, diffusivity_function
+        self.tol = 4.0 * np.finfo(float).eps * max(float(tau_nodes[-1]), np.finfo(float).tiny)
+        self.cache: dict = {}
+
+    def _tau_of(self, e: Array) -> Array:
+        return 0.5 * (np.asarray(self.variance_function(e), dtype=float).reshape(e.shape) - self.v_start)
+
+    def _d_of(self, e: Array) -> Array:
+        return np.asarray(self.diffusivity_function(e), dtype=float).reshape(e.shape)
+
+    def solve(self, taus: Array) -> None:
+        """Solve the map at every time of ``taus`` not yet known (pressure squared, within ``[0, tau_end]``)."""
+        todo = np.array(sorted({float(t) for t in np.ravel(taus)} - self.cache.keys()), dtype=float)
+        if todo.size == 0:
+            return
+        eta, nodes = self.eta, self.tau_nodes
+        i = np.clip(np.searchsorted(nodes, todo, side="right") - 1, 0, eta.size - 2)
+        lo, hi = eta[i].copy(), eta[i + 1].copy()  # nodes[i] <= tau <= nodes[i + 1]
+        width = nodes[i + 1] - nodes[i]
+        frac = np.divide(todo - nodes[i], width, out=np.full(todo.shape, 0.5), where=width > 0)
+        e = np.clip(lo + (hi - lo) * frac, lo, hi)
+        r, d = self._tau_of(e) - todo, self._d_of(e)
+        done = (np.abs(r) <= self.tol) | (hi - lo <= 4.0 * np.finfo(float).eps * hi)
+        for _ in range(MAGNIFICATION_NEWTON_STEPS):
+            if done.all():
+                break
+            act = ~done
+            hi = np.where(act & (r > 0.0), e, hi)
+            lo = np.where(act & (r <= 0.0), e, lo)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                step = np.where(d > 0.0, e - r / np.where(d > 0.0, d, 1.0), np.nan)
+            inside = (step > lo) & (step < hi)
+            e = np.where(act, np.where(inside, step, 0.5 * (lo + hi)), e)
+            k = np.flatnonzero(act)
+            r[k], d[k] = self._tau_of(e[k]) - todo[k], self._d_of(e[k])
+            done = done | (np.abs(r) <= self.tol) | (hi - lo <= 4.0 * np.finfo(float).eps * hi)
+        if not done.all():
+            j = int(np.flatnonzero(~done)[0])
+            raise RuntimeError(f"the magnification map did not converge: tau={todo[j]!r} left a residual "
+                               f"{r[j]:.3e} (pressure^2) after {MAGNIFICATION_NEWTON_STEPS} steps in eta "
+                               f"[{lo[j]!r}, {hi[j]!r}]")
+        self.cache.update(zip(todo.tolist(), zip(e.tolist(), d.tolist())))
+
+    def __call__(self, tau: float) -> tuple[float, float]:
+        if tau not in self.cache:
+            self.solve(np.array([tau]))
+        return self.cache[tau]
 
 
 @dataclass(frozen=True)

@@ -106,6 +106,19 @@ def test_tails_and_products():
     assert prop.slope == 0.25 and prop.zero_power == 1.0
 
 
+def test_pressure_factor_without_a_tail_is_the_gaussian_tail_and_rejects_non_callables():
+    # tail=None means t = 1 (as make_tail(None)); a part that is not callable is refused at construction, naming it,
+    # instead of a TypeError deep inside a solve
+    f = PressureFactor(SmoothstepCutoff(1.0))
+    p = np.array([0.0, 0.5, 2.0])
+    np.testing.assert_array_equal(f(p), SmoothstepCutoff(1.0)(p))
+    assert isinstance(f.tail, GaussianTail) and f.zero_power == SmoothstepCutoff(1.0).zero_power
+    with pytest.raises(ValueError, match="PressureFactor.cutoff must be a vectorized callable"):
+        PressureFactor("muser")
+    with pytest.raises(ValueError, match="PressureFactor.tail must be a vectorized callable"):
+        PressureFactor(SmoothstepCutoff(1.0), 2.0)
+
+
 @pytest.mark.parametrize("bad", [0.0, -1.0, np.nan, np.inf])
 def test_bad_cutoff_pressures(bad):
     for cls in (MuserCutoff, RaisedCosineCutoff, SmoothstepCutoff):

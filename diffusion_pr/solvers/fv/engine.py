@@ -383,8 +383,12 @@ def _pieces_of(problem) -> tuple[float, list, bool, Optional[Callable]]:
             drift0 = (lambda p: problem.drift(p, 0.0))
             return problem.mean_pressure, [_Piece(problem.tau_end, problem.diffusivity, drift0, None)], False, None
 
+        prefetch = getattr(problem.drift, "prefetch_times", None)  # a magnification map solves all midpoints at once
+
         def segments(m: int) -> list:
             nodes = np.linspace(0.0, problem.tau_end, m + 1)
+            if prefetch is not None:
+                prefetch(0.5 * (nodes[:-1] + nodes[1:]))
             out = []
             for t0, t1 in zip(nodes[:-1], nodes[1:]):
                 tm = 0.5 * (t0 + t1)
