@@ -180,3 +180,19 @@ def test_issue7_silently_wrong_scene_now_conserves_the_mean():
     assert r.success and r.diagnostics["p_floor"] < 0.004
     assert abs(r.mean + r.diagnostics["p_min"] * r.zero_weight - 0.004) <= 1e-6 * 0.004
     assert r.zero_weight < 1e-6  # f(p0) = 0.06: the start never gets near the floor 1e-6 p0 in tau = V/2
+
+
+def test_a_diverging_refinement_stops_and_says_so():
+    # a restoring drift with the paper's cutoff at a tiny p_c: below the floor the drift outweighs the diffusion
+    # f ~ (pi p/p_c)^2/2 by ~100x per cell, and the finer grids lose accuracy (mass no longer conserved). At rtol 1e-8
+    # the estimate grew 2.3e-8 -> 5.3e-8 -> 2.5e-7 and, without the divergence rule, went on to 6.1e-6 on 65536 cells:
+    # the solve must stop at the second rise, fail, and say why; the same problem at rtol 1e-7 converges
+    p0, c = 0.272, 0.39
+    f = dp.PressureFactor(dp.MuserCutoff(0.00252))
+    drift = lambda p, tau: -c * (p - p0) / 2.0  # noqa: E731
+    r = dp.propagate(p0, 1.0, diffusivity=f, drift=drift, rtol=1e-8, backend="native")
+    est = [e for _, e in r.diagnostics["history"]]
+    assert not r.success and "refinement diverges" in r.message
+    assert est[-1] > est[-2] > est[-3] and est[-1] > 10 * min(est) and max(r.diagnostics["levels"]) < 65536
+    ok = dp.propagate(p0, 1.0, diffusivity=f, drift=drift, rtol=1e-7, backend="native")
+    assert ok.success and ok.error_estimate <= 1e-7
