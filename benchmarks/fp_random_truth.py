@@ -13,8 +13,11 @@ weight plus the masses of the answer's cells) against an oracle:
   at rtol 1e-8 (a converged finer run: its own estimate is printed and is 100x below rtol);
 * ``drift``: :func:`~diffusion_pr.api.pressure_distribution` on a random self-affine spectrum and wall
   with a restoring drift ``A = -c D(eta) (p - p0)/(2 sqrt(V))`` (the magnification path), against the
-  same at rtol 1e-7 (:data:`DRIFT_ORACLE_RTOL`: at 1e-8 the time-dependent problems need more than
-  ``max_cells`` = 65536 cells and 1-3 minutes each; the oracle's own estimate is in the table).
+  same at rtol 1e-8.
+
+Where the rtol-1e-8 oracle fails (a restoring drift on the Muser cutoff at tiny ``p_c``: its refinement
+diverges, docs/backends.md) the oracle is the same at :data:`FALLBACK_ORACLE_RTOL` = 1e-7; the table
+names the oracle and prints its own estimate.
 
 The box (dimensionless, ``V = 1`` where no spectrum is drawn; the problem is scale-free in
 ``p/sqrt(V)``): ``p0/sqrt(V)`` 1e-3 ... 30, ``p_c/sqrt(V)`` 1e-3 ... 1, ``p_t/sqrt(V)`` 0.1 ... 10,
@@ -41,8 +44,9 @@ KINDS = ("mirror", "feller", "cutoff", "drift")
 CUTOFFS = ("muser", "raised_cosine", "smoothstep")
 TAILS = (None, "linear", "max_linear")
 ORACLE_RTOL = 1e-8
-#: the drift kind's oracle (its midpoint time segments grow with the grid: 1e-8 is beyond max_cells there)
-DRIFT_ORACLE_RTOL = 1e-7
+#: the oracle's rtol where ORACLE_RTOL fails (a restoring drift on the Muser cutoff at tiny p_c diverges at 1e-8:
+#: docs/backends.md); still 10x below the answers' default rtol, and the table says which oracle answered
+FALLBACK_ORACLE_RTOL = 1e-7
 
 
 def random_problems(n: int, seed: int, kinds=KINDS):
@@ -89,7 +93,7 @@ def random_problems(n: int, seed: int, kinds=KINDS):
 def truth_row(kind: str, solve, rtol: float) -> tuple:
     """``(true L1, estimate, oracle estimate, cells, seconds, note)`` of one problem: the native answer at
     ``rtol`` against the closed form (mirror, Feller) or the native answer at :data:`ORACLE_RTOL`
-    (:data:`DRIFT_ORACLE_RTOL` for the drift kind)."""
+    (:data:`FALLBACK_ORACLE_RTOL` where that fails)."""
     try:
         t0 = time.perf_counter()
         r = solve(rtol, "native")
@@ -99,15 +103,22 @@ def truth_row(kind: str, solve, rtol: float) -> tuple:
     if not r.success:
         return float("inf"), float("nan"), float("nan"), 0, seconds, f"no answer: {r.message}"[:80]
     closed = kind in ("mirror", "feller")
-    oracle_rtol = DRIFT_ORACLE_RTOL if kind == "drift" else ORACLE_RTOL
-    try:
-        oracle = solve(oracle_rtol, "closed_form" if closed else "native")
-    except (RuntimeError, ValueError, FloatingPointError):
-        oracle = None
+    oracle = None
+    for oracle_rtol in (ORACLE_RTOL,) if closed else (ORACLE_RTOL, FALLBACK_ORACLE_RTOL):
+        try:
+            oracle = solve(oracle_rtol, "closed_form" if closed else "native")
+        except (RuntimeError, ValueError, FloatingPointError):
+            oracle = None
+        if oracle is not None and oracle.success:
+            break
     if oracle is None or not oracle.success:
         return float("inf"), r.error_estimate, float("nan"), int(r.diagnostics["n_cells"]), seconds, "no oracle"
+    # a finite-volume oracle's cdf between its edges is a spline: where much probability sits just above the floor
+    # (the Muser cutoff's non-contact peak), its interpolation onto the answer's edges can dominate the distance
+    # (docs/backends.md); the same distance on the oracle's cells (the answer's spline there) is printed beside it
+    note = "closed form" if closed else f"rtol {oracle_rtol:g}; on the oracle's cells {_l1_to(oracle, r):.2e}"
     return (_l1_to(r, oracle), r.error_estimate, 0.0 if closed else oracle.error_estimate,
-            int(r.diagnostics["n_cells"]), seconds, "closed form" if closed else f"rtol {oracle_rtol:g}")
+            int(r.diagnostics["n_cells"]), seconds, note)
 
 
 def main(argv=None) -> None:
