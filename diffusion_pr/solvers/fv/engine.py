@@ -204,9 +204,9 @@ MIN_GROWTH = 1.5
 MAX_GROWTH = 8.0
 #: a refinement whose error estimate grew at two levels in a row to more than this factor above the smallest it
 #: had reached diverges and stops (the operator loses accuracy on the finer grids; measured: a restoring drift with
-#: the Muser cutoff at p_c = 0.0025 sqrt(V), whose cells below the floor see a drift ~100x their diffusion, grew
-#: 8.6e-9 -> 2.6e-7 -> 2.7e-6 -> 9.2e-5 at rtol 1e-8 and ran 69 s to max_cells; the suite's 847 solves never rise
-#: twice in a row)
+#: the Muser cutoff at p_c = 0.0025 sqrt(V), whose cells below the floor hold most of the probability at face Peclet
+#: numbers up to ~1e5, grew 8.6e-9 -> 2.6e-7 -> 2.7e-6 -> 9.2e-5 at rtol 1e-8 and ran 69 s to max_cells; in the 847
+#: tests of the suite, slow ones included, no estimate rose twice in a row)
 DIVERGENCE_FACTOR = 10.0
 #: a drift stage is split so that each exponential moves the distribution by at most this many spreads
 DRIFT_SPLIT = 2.0
