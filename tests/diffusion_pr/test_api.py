@@ -174,15 +174,20 @@ def test_the_magnification_map_inverts_the_variance():
     eta = np.geomspace(1.0, 1e4, 513)
     v = dp.variance_vs_magnification(s, eta, **kw)
     seen = []
+
+    def drift_of_eta(p, e):  # A = D(eta): the drift in tau is A / D = 1 where the map divides by the exact D
+        seen.append(e)
+        return dp.diffusivity_vs_magnification(s, e, **kw) * np.ones_like(p)
+
     prob = dp.FokkerPlanckProblem.from_magnification(
         mean_pressure=0.02, eta=eta, variance_of_eta=v, pressure_factor=dp.PressureFactor(dp.SharpCutoff()),
-        drift_of_eta=lambda p, e: seen.append(e) or np.zeros_like(p),
+        drift_of_eta=drift_of_eta,
         variance_function=lambda e: dp.variance_vs_magnification(s, e, **kw),
         diffusivity_function=lambda e: dp.diffusivity_vs_magnification(s, e, **kw))
     taus = np.r_[0.0, np.linspace(0.0, prob.tau_end, 37)[1:-1], 0.5 * (v[100:103] - v[0]), prob.tau_end]
-    for t in taus:
-        prob.drift(np.array([0.02]), float(t))
+    a = np.array([prob.drift(np.array([0.02]), float(t))[0] for t in taus])
     e = np.array(seen)
+    np.testing.assert_allclose(a, 1.0, rtol=0.0, atol=1e-14)
     assert np.allclose(0.5 * (dp.variance_vs_magnification(s, e, **kw) - v[0]), taus,
                        rtol=0.0, atol=16 * np.finfo(float).eps * prob.tau_end)
     assert e[0] == pytest.approx(1.0, rel=1e-12) and e[-1] == pytest.approx(1e4, rel=1e-12)
