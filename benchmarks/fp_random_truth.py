@@ -91,7 +91,7 @@ def random_problems(n: int, seed: int, kinds=KINDS):
 
 
 def truth_row(kind: str, solve, rtol: float) -> tuple:
-    """``(true L1, estimate, oracle estimate, cells, seconds, note)`` of one problem: the native answer at
+    """``(true L1, estimate, oracle estimate, cells, seconds, note, cdf sup)`` of one problem: the native answer at
     ``rtol`` against the closed form (mirror, Feller) or the native answer at :data:`ORACLE_RTOL`
     (:data:`FALLBACK_ORACLE_RTOL` where that fails)."""
     try:
@@ -99,9 +99,9 @@ def truth_row(kind: str, solve, rtol: float) -> tuple:
         r = solve(rtol, "native")
         seconds = time.perf_counter() - t0
     except (RuntimeError, ValueError, FloatingPointError) as exc:
-        return float("inf"), float("nan"), float("nan"), 0, 0.0, f"no answer: {exc}"[:80]
+        return float("inf"), float("nan"), float("nan"), 0, 0.0, f"no answer: {exc}"[:80], float("nan")
     if not r.success:
-        return float("inf"), float("nan"), float("nan"), 0, seconds, f"no answer: {r.message}"[:80]
+        return float("inf"), float("nan"), float("nan"), 0, seconds, f"no answer: {r.message}"[:80], float("nan")
     closed = kind in ("mirror", "feller")
     oracle = None
     for oracle_rtol in (ORACLE_RTOL,) if closed else (ORACLE_RTOL, FALLBACK_ORACLE_RTOL):
@@ -112,13 +112,19 @@ def truth_row(kind: str, solve, rtol: float) -> tuple:
         if oracle is not None and oracle.success:
             break
     if oracle is None or not oracle.success:
-        return float("inf"), r.error_estimate, float("nan"), int(r.diagnostics["n_cells"]), seconds, "no oracle"
-    # a finite-volume oracle's cdf between its edges is a spline: where much probability sits just above the floor
-    # (the Muser cutoff's non-contact peak), its interpolation onto the answer's edges can dominate the distance
-    # (docs/backends.md); the same distance on the oracle's cells (the answer's spline there) is printed beside it
-    note = "closed form" if closed else f"rtol {oracle_rtol:g}; on the oracle's cells {_l1_to(oracle, r):.2e}"
+        return (float("inf"), r.error_estimate, float("nan"), int(r.diagnostics["n_cells"]), seconds, "no oracle",
+                float("nan"))
+    # the users' quantity besides the masses: the answer's cdf between its edges (a spline in the grid's coordinate,
+    # docs/backends.md), its largest distance from the oracle's exact cumulative at the oracle's edges (a
+    # finite-volume oracle) or from the closed form at 5 points inside every answer cell
+    if closed:
+        x = np.concatenate([np.linspace(a, b, 7)[1:-1] for a, b in zip(r.edges[:-1], r.edges[1:])])
+    else:
+        x = oracle.edges
+    cdf_sup = float(np.max(np.abs(r.cdf(x) - oracle.cdf(x))))
+    note = ("closed form" if closed else f"rtol {oracle_rtol:g}") + f"; cdf between the edges {cdf_sup:.2e}"
     return (_l1_to(r, oracle), r.error_estimate, 0.0 if closed else oracle.error_estimate,
-            int(r.diagnostics["n_cells"]), seconds, note)
+            int(r.diagnostics["n_cells"]), seconds, note, cdf_sup)
 
 
 def main(argv=None) -> None:
@@ -134,11 +140,11 @@ def main(argv=None) -> None:
     dp.propagate(1.0, 1.0, diffusivity=dp.ProportionalDiffusivity(1.0), backend="native")  # warm
     rows = []
     for i, (kind, label, solve) in enumerate(random_problems(args.n, args.seed, kinds)):
-        true, est, oracle_est, cells, seconds, note = truth_row(kind, solve, args.rtol)
+        true, est, oracle_est, cells, seconds, note, cdf_sup = truth_row(kind, solve, args.rtol)
         flagged = np.isfinite(true) and (true > args.rtol or true > 3 * est)
         print(f"{i} {kind} {label} | true {true:.2e} estimate {est:.2e} cells {cells} {1e3 * seconds:.1f} ms "
               f"{note}" + ("  <<<" if flagged else ""), flush=True)
-        rows.append((true, est, oracle_est, cells, seconds, note, kind, label))
+        rows.append((true, est, oracle_est, cells, seconds, note, kind, label, cdf_sup))
     solved = [r for r in rows if np.isfinite(r[0])]
     ratios = [r[0] / r[1] for r in solved if r[1] > 0]
     by_kind = ", ".join(f"{k} {sum(r[6] == k for r in rows)}" for k in kinds)
@@ -150,7 +156,9 @@ def main(argv=None) -> None:
             f"above 3x it on {sum(r[0] > 3 * r[1] for r in solved)}, above 10x on "
             f"{sum(r[0] > 10 * r[1] for r in solved)}; true/estimate median {np.median(ratios):.2f}, smallest "
             f"{min(ratios):.2g}, largest {max(ratios):.2f}; median wall time of the rtol-{args.rtol:g} solves "
-            f"{1e3 * np.median([r[4] for r in solved]):.1f} ms (summed {sum(r[4] for r in rows):.1f} s)",
+            f"{1e3 * np.median([r[4] for r in solved]):.1f} ms (summed {sum(r[4] for r in rows):.1f} s); the cdf "
+            f"between the answers' edges above rtol on {sum(r[8] > args.rtol for r in solved)}, largest "
+            f"{max(r[8] for r in solved):.2e}",
             ["true L1", "estimate", "true/estimate", "oracle", "oracle estimate", "cells", "ms", "kind", "problem"],
             [[f"{r[0]:.2e}", f"{r[1]:.2e}", f"{r[0] / r[1]:.2f}", r[5], f"{r[2]:.1e}", str(r[3]),
               f"{1e3 * r[4]:.1f}", r[6], r[7]] for r in solved[:30]],

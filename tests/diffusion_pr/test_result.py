@@ -126,3 +126,49 @@ def test_native_cdf_between_the_edges_meets_rtol(rtol):
     x = np.geomspace(1e-12, 50.0, 5000) * 0.004
     dist = np.max(np.abs(r.cdf(x) - ref.cdf(x)))
     assert dist <= rtol and dist <= 2 * r.error_estimate
+
+
+def test_edge_cdf_spline_in_the_grids_coordinate_is_exact_for_a_log_peak():
+    """Above a floor the non-contact peak's density goes like 1/p on geometrically graded cells (ratio 1.1 here,
+    as the engine's floor grading): the cdf is linear in ln p, so a spline in that coordinate reproduces it to
+    round-off (measured 2.2e-16), where a spline in p misses by 1.1e-6 on these 145 cells.  Oracle: the
+    closed-form cumulative ``A ln(p / p_w)``.  Assert 1e-13 for the coordinate."""
+    from diffusion_pr.result import edge_cdf
+
+    p_w = 1e-6
+    edges = p_w * 1.1 ** np.arange(146)
+    edges = edges[edges <= 1.0]
+    amplitude = 1.0 / np.log(edges[-1] / p_w)
+    cum = amplitude * np.log(edges / p_w)
+    x = np.geomspace(p_w, edges[-1], 5001)
+    exact = amplitude * np.log(x / p_w)
+    assert np.max(np.abs(edge_cdf(edges, cum, (), x, np.log) - exact)) < 1e-13
+    assert np.max(np.abs(edge_cdf(edges, cum, (), x) - exact)) > 1e-7  # why the coordinate matters
+
+
+def test_native_cdf_between_the_edges_meets_rtol_above_a_floor():
+    """A non-contact peak just above the floor (smoothstep cutoff at p_c = 0.00366 sqrt(V), p0 = 0.486 sqrt(V),
+    max-linear tail at 0.129: 88 % of the probability below the floor, much of the rest just above it).  Between
+    the edges of the rtol-1e-6 answer its cdf is a spline in the grid's own coordinate: the largest distance
+    to the rtol-1e-8 oracle at the oracle's 740 edges (its exact cumulative masses there, estimate 2.1e-9) was
+    1.6e-6 with the spline in p and is 1.6e-7 now.  Assert rtol."""
+    import diffusion_pr as dp
+
+    f = dp.PressureFactor(dp.make_cutoff("smoothstep", 0.00366), dp.make_tail("max_linear", 0.129))
+    answer = dp.propagate(0.486, 1.0, diffusivity=f, rtol=1e-6)
+    oracle = dp.propagate(0.486, 1.0, diffusivity=f, rtol=1e-8)
+    assert answer.success and oracle.success and oracle.error_estimate < 1e-8
+    assert np.max(np.abs(answer.cdf(oracle.edges) - oracle.cdf(oracle.edges))) <= 1e-6
+
+
+def test_the_cdf_breaks_its_spline_only_where_the_density_may_kink():
+    """``diagnostics["knots"]`` (where the cdf's spline is broken) holds the floor and the coefficients'
+    breakpoints; the start ``p0`` only where it is one of them (the start's delta has diffused into a smooth
+    density; breaking the spline there cost up to 2e-7 beside it, docs/backends.md)."""
+    import diffusion_pr as dp
+
+    f = dp.PressureFactor(dp.make_cutoff("smoothstep", 0.05))
+    smooth = dp.propagate(0.06, 1.0, diffusivity=f, rtol=1e-6)
+    on_breakpoint = dp.propagate(0.05, 1.0, diffusivity=f, rtol=1e-6)
+    assert smooth.diagnostics["knots"] == pytest.approx((0.06 * 1e-6, 0.05))
+    assert on_breakpoint.diagnostics["knots"] == pytest.approx((0.05 * 1e-6, 0.05))

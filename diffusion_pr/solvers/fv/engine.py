@@ -319,6 +319,16 @@ class Prepared:
     #: the upper end was shortened by the Lamperti bound (:data:`LAMPERTI`); a solve whose top cell then holds
     #: more than rtol is repeated on the conservative domain (:func:`solve_fv`)
     lamperti_bounded: bool = False
+    #: a coefficient has a breakpoint at ``p0``: the density may kink there (else ``p0`` is a knot of the grids only,
+    #: where the final density is smooth, and the cdf's spline runs across it: :func:`density_knots`)
+    kink_at_p0: bool = True
+
+
+def density_knots(prep: Prepared) -> tuple:
+    """The knots where the final density may jump or kink: the floor and the coefficients' breakpoints, ``p0``
+    only where it is one of them (the start's delta has diffused into a smooth density; a cubic spline of the cdf
+    broken at ``p0`` missed by 2e-7 next to it where one across it missed by 3e-8, docs/backends.md)."""
+    return tuple(float(k) for k in prep.spec.knots if prep.kink_at_p0 or k != prep.p0)
 
 
 def _check_f(f: Callable, p: np.ndarray, name: str) -> np.ndarray:
@@ -552,7 +562,7 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
     c_wall = 0.0 if (reached or truncated) else C_WALL
     spec = GridSpec(p_wall=floor_domain, p_max=p_max, knots=tuple(pruned), scale=s, c_wall=c_wall, c_0=c_0, w0=w0, p0=p0)
     return _prepared(problem, p0, pieces, time_dependent, segment_fn, tau_end, spec, k_min, reached, floor,
-                     truncated, lamperti_bounded)
+                     truncated, lamperti_bounded, bps)
 
 
 def _wall_of(pieces: Sequence, time_dependent: bool, p0: float, p_max: float, p_floor: Optional[float]) -> tuple:
@@ -579,15 +589,15 @@ def _wall_of(pieces: Sequence, time_dependent: bool, p0: float, p_max: float, p_
 def _prepared_on(problem, p0: float, pieces: Sequence, time_dependent: bool, segment_fn: Optional[Callable],
                  tau_end: float, spec: GridSpec, p_floor: Optional[float]) -> Prepared:
     """:func:`prepare` on a given grid family (``on_grid``): the classification without the domain probe."""
-    _, k_min, reached, floor = _wall_of(pieces, time_dependent, p0, spec.p_max, p_floor)
+    bps, k_min, reached, floor = _wall_of(pieces, time_dependent, p0, spec.p_max, p_floor)
     truncated = not reached and spec.p_wall > floor  # the domain starts above the floor (prepare's p_lo)
     return _prepared(problem, p0, pieces, time_dependent, segment_fn, tau_end, spec, k_min, reached, floor,
-                     truncated, False)
+                     truncated, False, bps)
 
 
 def _prepared(problem, p0: float, pieces: Sequence, time_dependent: bool, segment_fn: Optional[Callable],
               tau_end: float, spec: GridSpec, k_min: float, reached: bool, floor: float, truncated: bool,
-              lamperti_bounded: bool) -> Prepared:
+              lamperti_bounded: bool, breakpoints: Sequence[float] = ()) -> Prepared:
     """The :class:`Prepared` record of a classified problem on its grid family (:func:`prepare`,
     :func:`_prepared_on`): the floor is an edge whose cells below are lumped where the wall is not reached and the
     domain is not truncated above it."""
@@ -599,7 +609,8 @@ def _prepared(problem, p0: float, pieces: Sequence, time_dependent: bool, segmen
                     label=getattr(problem, "label", ""), segment_fn=segment_fn,
                     balance_per_stage=bool(getattr(problem, "balance_per_stage", False)),
                     depth_adaptive=not (reached or truncated or has_drift or has_balance),
-                    lamperti_bounded=lamperti_bounded)
+                    lamperti_bounded=lamperti_bounded,
+                    kink_at_p0=any(abs(float(b) - p0) <= 1e-9 * p0 for b in breakpoints))
 
 
 def native_assemble(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray],
@@ -1151,9 +1162,10 @@ def _extrapolate(fine: np.ndarray, coarse: np.ndarray, ratio: float) -> np.ndarr
 
 
 def _cdf_interpolation_error(edges: np.ndarray, y: np.ndarray, fine_edges: np.ndarray, fine_y: np.ndarray,
-                             knots: Sequence[float]) -> float:
+                             knots: Sequence[float], coordinate: Optional[Callable] = None) -> float:
     """The largest distance, at the cells' midpoints, between the cdf the result reports (a cubic spline of the
-    cumulative masses ``y = [z, m...]`` at ``edges``, :func:`~diffusion_pr.result.edge_cdf`) and the cumulative
+    cumulative masses ``y = [z, m...]`` at ``edges`` against ``coordinate``, :func:`~diffusion_pr.result.edge_cdf`)
+    and the cumulative
     of ``fine_y`` on ``fine_edges`` (every cell split in two, lumped alike).  Includes the fine masses' own
     error at the midpoints (an over-estimate by that much)."""
     from ...result import edge_cdf
@@ -1161,7 +1173,8 @@ def _cdf_interpolation_error(edges: np.ndarray, y: np.ndarray, fine_edges: np.nd
     cum = y[0] + np.concatenate(([0.0], np.cumsum(y[1:])))
     cum_fine = fine_y[0] + np.concatenate(([0.0], np.cumsum(fine_y[1:])))
     mids = fine_edges[1:-1:2]
-    return float(np.max(np.abs(edge_cdf(edges, cum, knots, mids) - cum_fine[1:-1:2]))) if mids.size else 0.0
+    return float(np.max(np.abs(edge_cdf(edges, cum, knots, mids, coordinate) - cum_fine[1:-1:2]))) if mids.size \
+        else 0.0
 
 
 def _pairs(x: np.ndarray) -> np.ndarray:
@@ -1520,7 +1533,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             # the spline at the N cells' midpoints against the 2N grid's R(2N, 4N) there
             j_out = es[1].size - out_edges.size
             interp = INTERPOLATION_MARGIN * _cdf_interpolation_error(out_edges, out_y, es[2][2 * j_out:],
-                                                                     _lump(r23, 2 * j_out), prep.spec.knots)
+                                                                     _lump(r23, 2 * j_out), density_knots(prep),
+                                                                     prep.spec.phi)
             est += interp
         history.append((n_base, est))
         # the estimate falls like N^-4 (N^-6 with a sixth-order estimate): the cells that meet rtol, as a factor on
@@ -1788,7 +1802,7 @@ def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarr
         "time_integration": extra.get("time_integration", "cram16"), "n_stages": len(prep.pieces),
         "substeps": int(extra.get("substeps", 0)), "timings": dict(timings),
     }
-    diagnostics["knots"] = tuple(float(k) for k in prep.spec.knots)
+    diagnostics["knots"] = density_knots(prep)
     diagnostics["domain_bottom"] = float(prep.spec.p_wall)  # the absorbing lower end of the grids (pressure)
     diagnostics.update({k: v for k, v in extra.items() if k not in diagnostics})
     if prep.label:
