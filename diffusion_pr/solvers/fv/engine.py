@@ -319,16 +319,19 @@ class Prepared:
     #: the upper end was shortened by the Lamperti bound (:data:`LAMPERTI`); a solve whose top cell then holds
     #: more than rtol is repeated on the conservative domain (:func:`solve_fv`)
     lamperti_bounded: bool = False
-    #: a coefficient has a breakpoint at ``p0``: the density may kink there (else ``p0`` is a knot of the grids only,
-    #: where the final density is smooth, and the cdf's spline runs across it: :func:`density_knots`)
-    kink_at_p0: bool = True
+    #: the coefficients' breakpoints, where the density may jump or kink (None: unknown, every knot counts); ``p0``
+    #: and the floor are knots of the grids only, across which the final density is smooth (:func:`density_knots`)
+    breakpoints: Optional[tuple] = None
 
 
 def density_knots(prep: Prepared) -> tuple:
-    """The knots where the final density may jump or kink: the floor and the coefficients' breakpoints, ``p0``
-    only where it is one of them (the start's delta has diffused into a smooth density; a cubic spline of the cdf
-    broken at ``p0`` missed by 2e-7 next to it where one across it missed by 3e-8, docs/backends.md)."""
-    return tuple(float(k) for k in prep.spec.knots if prep.kink_at_p0 or k != prep.p0)
+    """The knots where the final density may jump or kink: the coefficients' breakpoints.  ``p0`` and the floor
+    only where one of them is one too: the start's delta has diffused into a smooth density, and the floor cuts
+    the report, not the problem (a cubic spline of the cdf broken at ``p0`` missed by 2e-7 next to it where one
+    across it missed by 3e-8; at the floor see ``diagnostics["floor_ghosts"]``; docs/backends.md)."""
+    if prep.breakpoints is None:
+        return tuple(float(k) for k in prep.spec.knots)
+    return tuple(float(k) for k in prep.spec.knots if any(abs(k - b) <= 1e-9 * k for b in prep.breakpoints))
 
 
 def _check_f(f: Callable, p: np.ndarray, name: str) -> np.ndarray:
@@ -610,7 +613,7 @@ def _prepared(problem, p0: float, pieces: Sequence, time_dependent: bool, segmen
                     balance_per_stage=bool(getattr(problem, "balance_per_stage", False)),
                     depth_adaptive=not (reached or truncated or has_drift or has_balance),
                     lamperti_bounded=lamperti_bounded,
-                    kink_at_p0=any(abs(float(b) - p0) <= 1e-9 * p0 for b in breakpoints))
+                    breakpoints=tuple(float(b) for b in breakpoints))
 
 
 def native_assemble(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray],
@@ -1150,6 +1153,22 @@ def _lump(y: np.ndarray, j: int) -> np.ndarray:
     return np.r_[y[: j + 1].sum(), y[j + 1:]]
 
 
+#: cells just below the floor whose cumulative masses a result keeps for its cdf's spline (:func:`_floor_ghosts`)
+FLOOR_GHOSTS = 3
+
+
+def _floor_ghosts(edges: np.ndarray, y: np.ndarray, j: int) -> Optional[tuple]:
+    """``(edges, cumulative)`` of the last :data:`FLOOR_GHOSTS` cells below the floor (``edges[j]``; ``y = [z, m...]``
+    unlumped), the cumulative taken from the floor (negative): the density is smooth across the floor, which is
+    a cut of the report, not of the problem, so the cdf's spline runs on below it instead of ending there
+    (``diagnostics["floor_ghosts"]``; None where fewer cells lie below)."""
+    if j < FLOOR_GHOSTS:
+        return None
+    below = y[1 + j - FLOOR_GHOSTS:1 + j]
+    cum = -np.cumsum(below[::-1])[::-1]
+    return tuple(float(e) for e in edges[j - FLOOR_GHOSTS:j]), tuple(float(c) for c in cum)
+
+
 def _aggregate(y_fine: np.ndarray) -> np.ndarray:
     """Sum the fine cells' masses (each coarse cell split in two) onto the coarse cells."""
     return np.r_[y_fine[0], y_fine[1::2] + y_fine[2::2]]
@@ -1162,9 +1181,9 @@ def _extrapolate(fine: np.ndarray, coarse: np.ndarray, ratio: float) -> np.ndarr
 
 
 def _cdf_interpolation_error(edges: np.ndarray, y: np.ndarray, fine_edges: np.ndarray, fine_y: np.ndarray,
-                             knots: Sequence[float], coordinate: Optional[Callable] = None) -> float:
+                             knots: Sequence[float], coordinate=None) -> float:
     """The largest distance, at the cells' midpoints, between the cdf the result reports (a cubic spline of the
-    cumulative masses ``y = [z, m...]`` at ``edges`` against ``coordinate``, :func:`~diffusion_pr.result.edge_cdf`)
+    cumulative masses ``y = [z, m...]`` at ``edges`` in ``coordinate``, :func:`~diffusion_pr.result.edge_cdf`)
     and the cumulative
     of ``fine_y`` on ``fine_edges`` (every cell split in two, lumped alike).  Includes the fine masses' own
     error at the midpoints (an over-estimate by that much)."""
@@ -1534,7 +1553,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             j_out = es[1].size - out_edges.size
             interp = INTERPOLATION_MARGIN * _cdf_interpolation_error(out_edges, out_y, es[2][2 * j_out:],
                                                                      _lump(r23, 2 * j_out), density_knots(prep),
-                                                                     prep.spec.phi)
+                                                                     (prep.spec.phi, None))
             est += interp
         history.append((n_base, est))
         # the estimate falls like N^-4 (N^-6 with a sixth-order estimate): the cells that meet rtol, as a factor on
@@ -1544,6 +1563,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                  (mean_miss / (SAFETY * rtol * prep.p0)) ** (1.0 / order))
         best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(len(es))], mean_full, interp, need)
         best_grid = _grid_of(prep, idx)
+        best_ghosts = _floor_ghosts(e2, r23, j2) if not sixth else None
         best_plain = (_lump(y1, j1), _lump(y2, j2), _lump(y3, 2 * j2)) if plain_mode == "keep" and not sixth \
             else None
         trimmed = _trimmed_depth(prep, float(out_y[0]) + est, rtol) if len(history) == 1 else None
@@ -1636,6 +1656,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                "domain": "Lamperti-bounded" if prep.lamperti_bounded else "from the spread",
                                "wall_grading": float(prep.spec.c_wall), "wall_depth": _depth_fraction(prep.spec),
                                "grid": best_grid,
+                               **({"floor_ghosts": best_ghosts} if best_ghosts is not None else {}),
                                **({"plain_masses": best_plain} if best_plain is not None else {}),
                                "wall_depth_needed": depth_needed,
                                **(extra or {})},
