@@ -1350,6 +1350,7 @@ def _continuum_result(res: Any, masses: np.ndarray, mom: np.ndarray, *, estimate
             "min_density": float(density.min()),
             "timings": {**res.diagnostics["timings"], "shells": extra_time}, **extra}
     diag.pop("plain_masses", None)
+    diag.pop("floor_ghosts", None)  # the n-shell solve's masses below the floor, not these: the spline ends there
     return replace(res, p=bary, density=density, zero_weight=float(masses[0]), success=success, message=message,
                    error_estimate=float(estimate), wall_time=res.wall_time + extra_time, diagnostics=diag)
 
