@@ -1184,9 +1184,8 @@ def _cdf_interpolation_error(edges: np.ndarray, y: np.ndarray, fine_edges: np.nd
                              knots: Sequence[float], coordinate=None) -> float:
     """The largest distance, at the cells' midpoints, between the cdf the result reports (a cubic spline of the
     cumulative masses ``y = [z, m...]`` at ``edges`` in ``coordinate``, :func:`~diffusion_pr.result.edge_cdf`)
-    and the cumulative
-    of ``fine_y`` on ``fine_edges`` (every cell split in two, lumped alike).  Includes the fine masses' own
-    error at the midpoints (an over-estimate by that much)."""
+    and the cumulative of ``fine_y`` on ``fine_edges`` (every cell split in two, lumped alike).  Includes the
+    fine masses' own error at the midpoints (an over-estimate by that much)."""
     from ...result import edge_cdf
 
     cum = y[0] + np.concatenate(([0.0], np.cumsum(y[1:])))
