@@ -28,6 +28,7 @@ Every finite-volume backend (``native``, ``pypde``, ``fipy``) goes through
 """
 from __future__ import annotations
 
+import collections
 import contextlib
 import contextvars
 import math
@@ -988,17 +989,26 @@ def _plain_preps(problems: Sequence, spec: GridSpec, rtol: float, p_floor: Optio
     return [replace(prepare(pb, rtol=rtol, p_floor=p_floor, on_grid=spec), spec=spec) for pb in problems]
 
 
-def _deal(preps: Sequence[Prepared], grids: Sequence[np.ndarray], load: list, threads: int = 2) -> tuple:
-    """``(this thread's, the worker's)`` lists of ``(problem, grid)`` index pairs: every problem on every grid, dealt
-    largest first (stages x cells) to the less loaded thread, the loads starting at ``load`` (updated)."""
+def _largest_first(preps: Sequence[Prepared], grids: Sequence[np.ndarray]) -> collections.deque:
+    """Every ``(problem, grid)`` index pair, largest first (stages x cells), as a queue the two threads take their
+    next integration from (:func:`_drain`): longest processing time first, each thread taking the next job when it
+    is free, so neither waits for the other by more than about one job.  (A deal fixed in advance by the same
+    stages x cells left one thread 1.5 ms longer at ``zeta = 0.1``: the wide shells' balance costs 2-3 exponentials
+    per stage against the main solve's 1.5, and this thread also evaluates the coefficients.)"""
     jobs = sorted(((len(pr.pieces) * (grids[g].size - 1), i, g) for i, pr in enumerate(preps)
                    for g in range(len(grids))), key=lambda j: -j[0])
-    lists: tuple = ([], [])
-    for work, i, g in jobs:
-        t = 0 if threads == 1 or load[0] <= load[1] else 1
-        lists[t].append((i, g))
-        load[t] += work
-    return lists
+    return collections.deque((i, g) for _, i, g in jobs)
+
+
+def _drain(queue: collections.deque, run: Callable) -> None:
+    """``run(i, g)`` for the jobs taken from ``queue`` until it is empty (``popleft`` is atomic: each job is taken
+    by one thread only)."""
+    while True:
+        try:
+            i, g = queue.popleft()
+        except IndexError:
+            return
+        run(i, g)
 
 
 def _plain_masses_on(pr: Prepared, edges: np.ndarray, n_base: int, refine: int, integrate: Callable) -> tuple:
@@ -1009,14 +1019,13 @@ def _plain_masses_on(pr: Prepared, edges: np.ndarray, n_base: int, refine: int, 
 
 
 def _alongside_tasks(record: Alongside, prep: Prepared, es: Sequence[np.ndarray], idx: np.ndarray,
-                     loads: Sequence[int], backend: str) -> Optional[tuple]:
+                     backend: str) -> Optional[tuple]:
     """``(this thread's tasks, the worker's tasks, finish)`` for ``record``'s plain problems on a level's N and 2N
     grids ``es[:2]``, or None where one of them cannot be classified on this level's family (:func:`plain_batch`
     will meet that error itself).
 
-    The (problem, grid) integrations are dealt largest first (stages x cells) to the less loaded thread, the loads
-    starting from the level's own work in each (``loads``, stages x cells: the N and 2N grids here and the 4N grid in
-    the worker, or only the 4N grid in the worker where a doubled level reuses the others).
+    Each thread, once its own grids are integrated, takes the (problem, grid) integrations from one queue, largest
+    first (:func:`_largest_first`, :func:`_drain`).
     ``finish()`` returns :func:`plain_batch`'s results (the same masses bit for bit: the same preparation, grids,
     coefficients and integrator; ``wall_time`` 0, their time is in the level's), or None where one of them raised.
     """
@@ -1032,17 +1041,16 @@ def _alongside_tasks(record: Alongside, prep: Prepared, es: Sequence[np.ndarray]
     ys: dict = {}
     errors: list = []
 
-    def task(i: int, g: int) -> Callable:
-        def run() -> None:
-            if errors:
-                return
-            try:
-                ys[i, g] = _plain_masses_on(preps[i], grids[g], n_base, 1 << g, integrate)
-            except Exception as exc:  # noqa: BLE001 (a speculation: the plain solve repeats it and raises there)
-                errors.append(exc)
-        return run
+    def run(i: int, g: int) -> None:
+        if errors:
+            return
+        try:
+            ys[i, g] = _plain_masses_on(preps[i], grids[g], n_base, 1 << g, integrate)
+        except Exception as exc:  # noqa: BLE001 (a speculation: the plain solve repeats it and raises there)
+            errors.append(exc)
 
-    lists = tuple([task(i, g) for i, g in dealt] for dealt in _deal(preps, grids, [int(loads[0]), int(loads[1])]))
+    queue = _largest_first(preps, grids)
+    drain = lambda: _drain(queue, run)  # noqa: E731 (one for each thread, the same queue)
 
     def finish() -> Optional[list]:
         if errors:
@@ -1054,7 +1062,7 @@ def _alongside_tasks(record: Alongside, prep: Prepared, es: Sequence[np.ndarray]
             r.diagnostics["solved_alongside"] = True
         return out
 
-    return lists[0], lists[1], finish
+    return [drain], [drain], finish
 
 
 def _worker():
@@ -1452,8 +1460,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         if (alongside is not None and parallel and history and plain_mode == "keep" and forced is None
                 and not sixth and len(es) == 3 and loop is None):
             alongside.results = None
-            cells = (0 if reuse is not None else es[0].size + es[1].size - 2, es[2].size - 1)
-            side = _alongside_tasks(alongside, prep, es, idx, [len(prep.pieces) * c for c in cells], backend)
+            side = _alongside_tasks(alongside, prep, es, idx, backend)
         if reuse is not None:
             coef3 = _coefficients(prep.pieces, [es[-1]], centre_drift=assemble is not native_assemble)[0]
             new_grid = lambda: integrate(prep, es[-1], n_base, 4, coef3)  # noqa: E731
@@ -1744,16 +1751,24 @@ def plain_batch(problems: Sequence, *, rtol: float, n_cells: int, p_floor: Optio
     integrate = _integrator(native_assemble, rtol, cram_order(rtol))
     t_prep = time.perf_counter() - t_start
 
-    lists = _deal(preps, es, [0, 0], threads)  # this thread's and the worker's (longest processing time first)
+    queue = _largest_first(preps, es)  # taken by this thread and the worker (longest processing time first)
     ys: dict = {}
+    failed: list = []
 
-    def run(items: list) -> None:
-        for i, g in items:
+    def run(i: int, g: int) -> None:
+        if not failed:
             ys[i, g] = _plain_masses_on(preps[i], es[g], n_base, 1 << ks[g], integrate)
 
-    pending = _worker().submit(run, lists[1]) if lists[1] else None
+    def drain() -> None:
+        try:
+            _drain(queue, run)
+        except BaseException:
+            failed.append(True)  # the other thread stops after its current job
+            raise
+
+    pending = _worker().submit(drain) if threads > 1 and len(queue) > 1 else None
     try:
-        run(lists[0])
+        drain()
     finally:
         if pending is not None:
             pending.result()
