@@ -1189,16 +1189,19 @@ def _extrapolate(fine: np.ndarray, coarse: np.ndarray, ratio: float) -> np.ndarr
 
 
 def _cdf_interpolation_error(edges: np.ndarray, y: np.ndarray, fine_edges: np.ndarray, fine_y: np.ndarray,
-                             knots: Sequence[float], coordinate=None) -> float:
+                             knots: Sequence[float], coordinate=None, ghosts: Optional[tuple] = None) -> float:
     """The largest distance, at the cells' midpoints, between the cdf the result reports (a cubic spline of the
-    cumulative masses ``y = [z, m...]`` at ``edges`` in ``coordinate``, :func:`~diffusion_pr.result.edge_cdf`)
-    and the cumulative of ``fine_y`` on ``fine_edges`` (every cell split in two, lumped alike).  Includes the
-    fine masses' own error at the midpoints (an over-estimate by that much)."""
+    cumulative masses ``y = [z, m...]`` at ``edges`` in ``coordinate``, :func:`~diffusion_pr.result.edge_cdf`,
+    run on through the floor with the result's ``ghosts``, :func:`_floor_ghosts`) and the cumulative of
+    ``fine_y`` on ``fine_edges`` (every cell split in two, lumped alike).  Includes the fine masses' own error at
+    the midpoints (an over-estimate by that much)."""
     from ...result import edge_cdf
 
     cum = y[0] + np.concatenate(([0.0], np.cumsum(y[1:])))
-    cum_fine = fine_y[0] + np.concatenate(([0.0], np.cumsum(fine_y[1:])))
     mids = fine_edges[1:-1:2]
+    if ghosts is not None:  # (the points stay above the floor: the cdf below it is the zero weight)
+        edges, cum = np.r_[ghosts[0], edges], np.r_[y[0] + np.asarray(ghosts[1]), cum]
+    cum_fine = fine_y[0] + np.concatenate(([0.0], np.cumsum(fine_y[1:])))
     return float(np.max(np.abs(edge_cdf(edges, cum, knots, mids, coordinate) - cum_fine[1:-1:2]))) if mids.size \
         else 0.0
 
@@ -1214,8 +1217,9 @@ def _sixth(es: Sequence[np.ndarray], ys: Sequence[np.ndarray], r12: np.ndarray, 
     the cell masses ``ys``, the first extrapolations ``r12 = R(N, 2N)`` (``N`` grid), ``r23 = R(2N, 4N)`` (``2N``
     grid), ``r_mom`` (``R`` of the first moments, ``2N`` grid), ``fine`` (the ``4N`` masses on the ``2N`` grid)
     and the fourth-order estimate ``est4``.  Returns ``(edges, masses, moments, finest masses, mean, estimate,
-    order)`` on the ``N`` grid, lumped below the floor as the engine reports them; ``order`` is 6, or 4 where
-    the fourth-order differences do not yet fall like ``h^4`` (then ``est4`` is the estimate)."""
+    order, floor ghosts)`` on the ``N`` grid, lumped below the floor as the engine reports them; ``order`` is 6, or
+    4 where the fourth-order differences do not yet fall like ``h^4`` (then ``est4`` is the estimate); the ghosts
+    are :func:`_floor_ghosts` of the extrapolated masses."""
     e0, e1, e2 = es[0], es[1], es[2]
     y0, y1, y2 = ys[0], ys[1], ys[2]
     r01 = _extrapolate(_aggregate(y1), y0, 4.0)
@@ -1233,7 +1237,7 @@ def _sixth(es: Sequence[np.ndarray], ys: Sequence[np.ndarray], r12: np.ndarray, 
     d_hi = float(np.sum(np.abs(_lump(_aggregate(_aggregate(r23)), j0) - _lump(_aggregate(r12), j0))))
     asymptotic = d_lo >= SIXTH_ASYMPTOTIC_RATIO * d_hi
     return (e1[j1:], _lump(hi, j1), hi_mom[j1:], _lump(_aggregate(fine), j1), mean_full,
-            est6 if asymptotic else est4, 6 if asymptotic else 4)
+            est6 if asymptotic else est4, 6 if asymptotic else 4, _floor_ghosts(e1, hi, j1))
 
 
 def _threads(threads: Optional[int]) -> int:
@@ -1524,8 +1528,9 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         est = float(np.sum(np.abs(diff))) / (EXIT_RICHARDSON_DIVISOR if exit_wall else RICHARDSON_DIVISOR)
         out_edges, out_y, out_mom, fine_l = e2[j2:], _lump(r23, j2), r_mom[j2:], _lump(fine, j2)
         order = 2 if exit_wall else 4
+        ghosts6 = None
         if sixth:
-            out_edges, out_y, out_mom, fine_l, mean_full, est, order = _sixth(
+            out_edges, out_y, out_mom, fine_l, mean_full, est, order, ghosts6 = _sixth(
                 es, [y for y, _ in ys], r12, r23, r_mom, fine, prep, est)
         # where extrapolation overshoots below 0 (far tails, 1e-17-level), keep the finest grid's own
         # value (>= 0 up to CRAM round-off, which is then cut to 0); the change is added to the estimate
@@ -1559,7 +1564,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             j_out = es[1].size - out_edges.size
             interp = INTERPOLATION_MARGIN * _cdf_interpolation_error(out_edges, out_y, es[2][2 * j_out:],
                                                                      _lump(r23, 2 * j_out), density_knots(prep),
-                                                                     (prep.spec.phi, None))
+                                                                     (prep.spec.phi, None), ghosts6)
             est += interp
         history.append((n_base, est))
         # the estimate falls like N^-4 (N^-6 with a sixth-order estimate): the cells that meet rtol, as a factor on
@@ -1569,7 +1574,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                  (mean_miss / (SAFETY * rtol * prep.p0)) ** (1.0 / order))
         best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(len(es))], mean_full, interp, need)
         best_grid = _grid_of(prep, idx)
-        best_ghosts = _floor_ghosts(e2, r23, j2) if not sixth else None
+        best_ghosts = ghosts6 if sixth else _floor_ghosts(e2, r23, j2)
         best_plain = (_lump(y1, j1), _lump(y2, j2), _lump(y3, 2 * j2)) if plain_mode == "keep" and not sixth \
             else None
         trimmed = _trimmed_depth(prep, float(out_y[0]) + est, rtol) if len(history) == 1 else None
