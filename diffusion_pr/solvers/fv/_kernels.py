@@ -260,11 +260,23 @@ def cram_pfd(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  #
     interchanged the two do the same operations in the same order: the answers
     are the same bit for bit.  Returns ``(x, dx, info)`` as :func:`_pfd_pivoting`.
     """
+    cw, r0 = flux_weights(c, theta, alpha0)
     if t != 0.0 and diag.size > 2:
-        out, dout, done = _pfd_dominant(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d)
+        out, dout, done = _pfd_dominant(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d)
         if done:
             return out, dout, 0
-    return _pfd_pivoting(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d)
+    return _pfd_pivoting(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d)
+
+
+@njit(cache=True, nogil=True)
+def flux_weights(c, theta, alpha0):  # pragma: no cover - numba
+    """``(c_j / theta_j, r(0))`` of the partial fractions ``r(z) = alpha0 + 2 Re sum_j c_j/(z - theta_j)``: the
+    weights of :func:`_flux_form`'s ``w`` and the factor of its ``y``."""
+    cw = c / theta
+    r0 = alpha0
+    for j in range(c.size):
+        r0 -= 2.0 * cw[j].real
+    return cw, r0
 
 
 @njit(cache=True, nogil=True)
@@ -277,7 +289,7 @@ def _block_size(n, m, want_d):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def _pfd_dominant(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  # pragma: no cover - numba
+def _pfd_dominant(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d):  # pragma: no cover - numba
     """:func:`_pfd_pivoting` for matrices that need no row interchange, in real arithmetic on split parts.
 
     The elimination of row ``i`` keeps the pivot row (``|d_i| >= |t l_i|`` in the
@@ -306,9 +318,8 @@ def _pfd_dominant(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d
     thr = np.empty(g_size)
     thi = np.empty(g_size)
     out = np.empty(n)
+    wv = np.zeros(n)  # 2 Re sum_j (c_j / theta_j) x_j: the result is r0 y + t L wv (:func:`_flux_form`)
     dout = np.zeros(n)
-    for i in range(n):
-        out[i] = alpha0 * y[i]
     bad = False
     for g0 in range(0, m, g_size):
         gs = min(g_size, m - g0)
@@ -359,7 +370,7 @@ def _pfd_dominant(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d
         if bad:
             return out, dout, False
         _back_dominant(rr, ri, br, bi, upper, t, n, gs)
-        _accumulate_split(out, c, g0, br, bi, n, gs)
+        _accumulate_split(wv, cw, g0, br, bi, n, gs)
         if not want_d:
             continue
         # q = t W x row by row, eliminated with the stored multipliers
@@ -384,6 +395,7 @@ def _pfd_dominant(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d
                 qi[i + 1, jj] = raw_im - (f_re * q_im + f_im * q_re)
         _back_dominant(rr, ri, qr, qi, upper, t, n, gs)
         _accumulate_split(dout, c, g0, qr, qi, n, gs)
+    _flux_form(lower, upper, t, y, wv, r0, out)
     return out, dout, True
 
 
@@ -416,7 +428,7 @@ def _accumulate_split(out, c, g0, xr, xi, n, g_size):  # pragma: no cover - numb
 
 
 @njit(cache=True, nogil=True)
-def _pfd_pivoting(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  # pragma: no cover - numba
+def _pfd_pivoting(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d):  # pragma: no cover - numba
     """``exp(t L) y`` by CRAM-16 in partial fractions, ``alpha0 y + 2 Re sum_j c_j (t L - theta_j)^-1 y``.
 
     The solves of different poles are independent: a block of poles is
@@ -439,9 +451,8 @@ def _pfd_pivoting(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d
     piv = np.zeros((nd, g_size), dtype=np.bool_)
     r = np.empty((nd, g_size), dtype=np.complex128)
     out = np.empty(n)
+    wv = np.zeros(n)  # as in :func:`_pfd_dominant`
     dout = np.zeros(n)
-    for i in range(n):
-        out[i] = alpha0 * y[i]
     if t == 0.0:
         for i in range(n):
             out[i] = y[i]
@@ -494,7 +505,7 @@ def _pfd_pivoting(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d
                 return out, dout, n
             d[n - 1, jj] = _rec(d[n - 1, jj])
         _back(d, du, du2, b, n, gs)
-        _accumulate(out, c, g0, b, n, gs)
+        _accumulate(wv, cw, g0, b, n, gs)
         if not want_d:
             continue
         # r = t W b row by row, eliminated in the same sweep with the stored multipliers and interchanges
@@ -516,7 +527,32 @@ def _pfd_pivoting(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d
                     r[i + 1, jj] = raw - f * r[i, jj]
         _back(d, du, du2, r, n, gs)
         _accumulate(dout, c, g0, r, n, gs)
+    _flux_form(lower, upper, t, y, wv, r0, out)
     return out, dout, 0
+
+
+@njit(cache=True, nogil=True)
+def _flux_form(lower, upper, t, y, w, r0, out):  # pragma: no cover - numba
+    """``out = r0 y + t L w`` with ``t L w`` as differences of face fluxes: probability conserved to round-off.
+
+    The partial fractions ``alpha0 y + 2 Re sum_j c_j x_j`` (``x_j = (t L - theta_j)^-1 y``) equal
+    ``r(0) y + t L w`` with ``w = 2 Re sum_j (c_j/theta_j) x_j``, since
+    ``(t L - theta)^-1 = (t L (t L - theta)^-1 - 1)/theta``.  ``L`` conserves probability (its
+    column sums vanish: :func:`~diffusion_pr.solvers.fv.operator.bands`), so ``t L w`` is written
+    with the net flux ``F_i = t (lower_i w_i - upper_i w_{i+1})`` from state ``i`` to ``i + 1``
+    (the diagonal is not read): ``(t L w)_i = F_{i-1} - F_i`` telescopes, and the total is
+    ``r(0) sum y`` up to ``eps sum |F|``.  The partial-fraction sum itself loses
+    ``eps sum_i |t L_ii| m_i``: in stiff cells that hold probability (a drift trapping it far below
+    the floor, ``|t L_ii|`` up to 1e8) that was 1e-6 of the mass over a solve (docs/backends.md,
+    "Probability conserved in stiff cells").
+    """
+    n = y.size
+    prev = 0.0
+    for i in range(n - 1):
+        flux = t * (lower[i] * w[i] - upper[i] * w[i + 1])
+        out[i] = r0 * y[i] + (prev - flux)
+        prev = flux
+    out[n - 1] = r0 * y[n - 1] + prev
 
 
 @njit(cache=True, nogil=True)

@@ -215,9 +215,15 @@ _GTSV = _zgtsv()
 
 
 def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: float, y: np.ndarray,
-                     order: int = 16) -> np.ndarray:
+                     order: int = 16, *, flux_form: bool = False) -> np.ndarray:
     """``exp(t L) y`` for the tridiagonal ``L = (lower, diag, upper)``: CRAM-16 in the IPF form, or (``order`` 10
     or 12) the CF approximation in partial fractions (5 or 6 solves instead of 8; see :func:`pfd_coefficients`).
+
+    With ``flux_form`` (``L`` must conserve probability, its columns summing to 0) each partial-fraction sum, or
+    each factor of the IPF form, is written as ``r y + t L w`` with ``t L w`` as differences of face fluxes, so that
+    ``sum y`` is conserved to round-off even where ``|t L_ii|`` is huge in cells that hold probability: the compiled
+    kernels' form (:func:`~diffusion_pr.solvers.fv._kernels._flux_form`, docs/backends.md "Probability conserved in
+    stiff cells").  The diagonal then only enters the shifted solves.
 
     Parameters
     ----------
@@ -246,15 +252,34 @@ def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: 
         thetas, residues, r_inf, _ = pfd_coefficients(order)
         yc = y.astype(np.complex128)
         out = r_inf * y
+        w = np.zeros_like(y)
         for c, theta in zip(residues, thetas):
             _, _, _, x, info = gtsv(tl.copy(), td - theta, tu.copy(), yc.copy(), 1, 1, 1, 1)
             if info != 0:
                 raise FloatingPointError(f"CF-{order}: singular shifted tridiagonal system (LAPACK zgtsv info={info})")
-            out += 2.0 * (c * x).real
-        return out
+            if flux_form:
+                w += 2.0 * (c / theta * x).real
+            else:
+                out += 2.0 * (c * x).real
+        if not flux_form:
+            return out
+        return _flux_sum(lower, upper, t, y, w, r_inf - 2.0 * float(np.sum((residues / thetas).real)))
     for alpha, theta in zip(ALPHA, THETA):
         _, _, _, x, info = gtsv(tl.copy(), td - theta, tu.copy(), y.astype(np.complex128), 1, 1, 1, 1)
         if info != 0:
             raise FloatingPointError(f"CRAM: singular shifted tridiagonal system (LAPACK zgtsv info={info})")
-        y += 2.0 * (alpha * x).real
+        if flux_form:  # y + 2 Re(alpha x) = (1 - 2 Re(alpha/theta)) y + t L 2 Re(alpha x / theta)
+            y = _flux_sum(lower, upper, t, y, 2.0 * (alpha / theta * x).real, 1.0 - 2.0 * (alpha / theta).real)
+        else:
+            y += 2.0 * (alpha * x).real
     return ALPHA0 * y
+
+
+def _flux_sum(lower: np.ndarray, upper: np.ndarray, t: float, y: np.ndarray, w: np.ndarray, r: float) -> np.ndarray:
+    """``r y + t L w`` for a probability-conserving tridiagonal ``L``, ``t L w`` as differences of the net fluxes
+    ``t (lower_i w_i - upper_i w_{i+1})`` from state ``i`` to ``i + 1`` (the diagonal is not read)."""
+    flux = t * (lower * w[:-1] - upper * w[1:])
+    out = r * y
+    out[:-1] -= flux
+    out[1:] += flux
+    return out

@@ -791,7 +791,7 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
         return y, counters
     for k in range(len(pieces)):
         for _ in range(reps[k]):
-            y = expm_tridiagonal(lower[k], diag[k], upper[k], dt[k], y, order)
+            y = expm_tridiagonal(lower[k], diag[k], upper[k], dt[k], y, order, flux_form=bool(partial_fractions))
         counters["cram_applications"] += int(reps[k])
     return y, counters
 
