@@ -138,7 +138,8 @@ def cram_apply_d(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0):  #
 
 @njit(cache=True, nogil=True)
 def _ipf(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0, want_d):  # pragma: no cover - numba
-    """CRAM-16 in IPF form, with the ``A``-derivative of :func:`cram_apply_d` if ``want_d``."""
+    """CRAM-16 in IPF form, with the ``A``-derivative of :func:`cram_apply_d` if ``want_d``; each factor in flux
+    form (``L`` must conserve probability, as every operator of the engine does)."""
     n = diag.size
     out = y.copy()
     dout = np.zeros(n)
@@ -151,6 +152,7 @@ def _ipf(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0, want_d):  #
     ipiv = np.empty(n, dtype=np.int64)
     b = np.empty(n, dtype=np.complex128)
     r = np.empty(n, dtype=np.complex128)
+    w = np.empty(n)
     for j in range(alpha.size):
         th = theta[j]
         for i in range(n - 1):
@@ -173,8 +175,11 @@ def _ipf(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0, want_d):  #
             gttrs(dl, d, du, du2, ipiv, r)
             for i in range(n):
                 dout[i] += 2.0 * (a * r[i]).real
+        # out + 2 Re(a b) = (1 - 2 Re(a/th)) out + t L 2 Re(a b/th), in flux form (:func:`_flux_form`)
+        aw = a / th
         for i in range(n):
-            out[i] += 2.0 * (a * b[i]).real
+            w[i] = 2.0 * (aw * b[i]).real
+        _flux_form(lower, upper, t, out, w, 1.0 - 2.0 * aw.real, out)
     for i in range(n):
         out[i] *= alpha0
         dout[i] *= alpha0
