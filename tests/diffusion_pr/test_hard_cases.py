@@ -228,3 +228,31 @@ def test_probability_trapped_in_stiff_cells_is_conserved():
         assert r.zero_weight > 0.75  # the trapped probability, below the floor
     x = answers[1].edges
     assert np.max(np.abs(answers[0].cdf(x) - answers[1].cdf(x))) < 1e-6
+
+
+def test_an_unstable_grid_fails_clearly():
+    """Random drift problem #122 of seed 7 (``benchmarks/fp_random_truth.py``): a restoring drift on the smoothstep
+    cutoff at ``p_c/sqrt(V)`` 0.009, ``p0/sqrt(V)`` 0.005.  Far below the floor the drift dominates the vanishing
+    diffusion (cell Peclet numbers above 2 on half the faces), the central operator's spectrum leaves the negative
+    real axis, and on fine grids the rational approximation amplifies a mode: at rtol 1e-8 the 5760-cell grid's
+    states summed to 2e3 in absolute value (the solve reported an estimate of 1.5e3 and a mass 1.3e3 off), at rtol
+    1e-7 the 10168-cell grid reached 1e237 and the refinement raised a ValueError on a NaN.  Such a grid is now no
+    result: the solve stops with success False and says why, every number finite; at rtol 1e-6 it converges."""
+    spec = dp.SelfAffineSpectrum(0.8712260578507987, 0.0015339807878856412, 1.5707963267948966,
+                                 C0=165380.1678226687)
+    load, zeta, strength = 2.436587179424186e-05, 0.001166329992459077, 0.4111836988754969
+    V = float(dp.stress_variance(spec, E_star=8 / 3, mean_pressure=load, zeta=zeta))
+
+    def drift(p, eta):
+        D = dp.diffusivity_vs_magnification(spec, eta, E_star=8 / 3, mean_pressure=load, zeta=zeta)
+        return -strength * D * (p - load) / (2.0 * np.sqrt(V))
+
+    def solve(rtol):
+        return dp.pressure_distribution(spec, E_star=8 / 3, mean_pressure=load, zeta=zeta, cutoff="smoothstep",
+                                        p_c=4.202856982669143e-05, drift=drift, rtol=rtol)
+
+    bad = solve(1e-8)
+    assert not bad.success and "exponential integration is unstable on the 5760-cell grid" in bad.message
+    assert np.all(np.isfinite(bad.density)) and np.isfinite(bad.error_estimate)
+    ok = solve(1e-6)
+    assert ok.success and ok.error_estimate <= 1e-6 and abs(ok.diagnostics["mass_error"]) < 1e-9

@@ -1512,6 +1512,18 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             if not history:  # nothing to report: the coarsest level failed
                 raise RuntimeError(failure)
             break
+        unstable = _unstable_grid(es, ys)
+        if unstable is not None:
+            # a first level too coarse for its drift is refined (random drift problem #196 of seed 6: 112 cells
+            # unstable, 448 converged); a level that refinement made unstable is no result (#122 of seed 7: stable
+            # on 1440-2880 cells, unstable on 5760 and beyond), and finer grids only cost more
+            if not history and n_cells is None and depth * n_base * MAX_GROWTH <= max_cells:
+                n = int(math.ceil(n_base * MAX_GROWTH))
+                continue
+            failure = unstable
+            if not history:  # nothing to report: the coarsest level failed
+                raise RuntimeError(failure)
+            break
         r12 = _extrapolate(_aggregate(y2), y1, 4.0)
         fine = _aggregate(y3)
         r23 = _extrapolate(fine, y2, 4.0)
@@ -1675,6 +1687,29 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
 
 
 _EDGES_CACHE: dict = {}
+
+
+#: a grid whose states sum in absolute value to more than this is not a probability distribution any more: the
+#: rational approximation amplified some mode (docs/backends.md "An unstable grid")
+UNSTABLE_L1 = 2.0
+
+
+def _unstable_grid(es: Sequence[np.ndarray], ys: Sequence[tuple]) -> Optional[str]:
+    """Why a level's integration is no result, or None: a grid's state not finite, or its absolute sum above
+    :data:`UNSTABLE_L1` (probabilities sum to 1; a few round-off negatives do not move that).
+
+    The rational approximations hold near the negative real axis.  A drift that dominates the diffusion (cell Peclet
+    numbers ``|a| h / f`` above 2, where the central flux's off-diagonals change sign) gives the operator complex
+    eigenvalues, and one near a pole is amplified at every application: on random drift problem #122 of seed 7
+    (``fp_random_truth.py``, the smoothstep cutoff at ``p_c/sqrt(V)`` 0.009 with ``p0/sqrt(V)`` 0.005) the
+    10168-cell grid reached ``1e237`` at rtol 1e-7, and the refinement then raised on a NaN estimate."""
+    for edges, (y, _) in zip(es, ys):
+        total = float(np.sum(np.abs(y)))
+        if not math.isfinite(total) or total > UNSTABLE_L1:
+            return (f"the exponential integration is unstable on the {edges.size - 1}-cell grid (sum |Pr| = "
+                    f"{total:.3g} instead of 1): a drift dominating the diffusion gives the operator eigenvalues "
+                    "off the negative real axis, where the rational approximation does not hold")
+    return None
 
 
 def _forced_edges(spec: GridSpec, idx: np.ndarray, depth: int) -> np.ndarray:
