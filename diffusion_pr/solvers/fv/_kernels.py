@@ -549,7 +549,7 @@ def _flux_form(lower, upper, t, y, w, r0, out):  # pragma: no cover - numba
     ``r(0) sum y`` up to ``eps sum |F|``.  The partial-fraction sum itself loses
     ``eps sum_i |t L_ii| m_i``: in stiff cells that hold probability (a drift trapping it far below
     the floor, ``|t L_ii|`` up to 1e8) that was 1e-6 of the mass over a solve (docs/backends.md,
-    "Probability conserved in stiff cells").
+    "Probability conserved in stiff cells").  ``out`` may be ``y`` (the IPF form updates in place).
     """
     n = y.size
     prev = 0.0

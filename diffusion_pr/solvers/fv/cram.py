@@ -251,19 +251,15 @@ def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: 
     if order != 16:
         thetas, residues, r_inf, _ = pfd_coefficients(order)
         yc = y.astype(np.complex128)
-        out = r_inf * y
-        w = np.zeros_like(y)
+        acc = np.zeros_like(y)  # 2 Re sum_j c_j x_j; in flux form w = 2 Re sum_j (c_j/theta_j) x_j
         for c, theta in zip(residues, thetas):
             _, _, _, x, info = gtsv(tl.copy(), td - theta, tu.copy(), yc.copy(), 1, 1, 1, 1)
             if info != 0:
                 raise FloatingPointError(f"CF-{order}: singular shifted tridiagonal system (LAPACK zgtsv info={info})")
-            if flux_form:
-                w += 2.0 * (c / theta * x).real
-            else:
-                out += 2.0 * (c * x).real
-        if not flux_form:
-            return out
-        return _flux_sum(lower, upper, t, y, w, r_inf - 2.0 * float(np.sum((residues / thetas).real)))
+            acc += 2.0 * ((c / theta if flux_form else c) * x).real
+        if flux_form:
+            return _flux_sum(lower, upper, t, y, acc, r_inf - 2.0 * float(np.sum((residues / thetas).real)))
+        return r_inf * y + acc
     for alpha, theta in zip(ALPHA, THETA):
         _, _, _, x, info = gtsv(tl.copy(), td - theta, tu.copy(), y.astype(np.complex128), 1, 1, 1, 1)
         if info != 0:
