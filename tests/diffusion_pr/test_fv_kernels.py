@@ -220,7 +220,7 @@ def test_flux_form_conserves_probability_in_stiff_cells(rng, order):
     z, zd = np.zeros(lo.size), np.zeros(diag.size)
     maps = {"kernel": lambda y: cram_pfd(lo, diag, up, z, zd, z, 0.01, y, res, theta, r_inf, False)[0],
             "lapack flux": lambda y: expm_tridiagonal(lo, diag, up, 0.01, y, order, flux_form=True),
-            "plain": lambda y: _plain_pfd(lo, diag, up, 0.01, y, order)}
+            "plain": lambda y: _cram_d((lo, diag, up), (z, zd, z), 0.01, y, pfd=True, order=order)[0]}
     if order == 16:  # the compiled IPF form (rtol below 1e-10)
         maps["kernel ipf"] = lambda y: cram_apply(lo, diag, up, 0.01, y, ALPHA, THETA, ALPHA0)[0]
     ys = {}
@@ -246,18 +246,8 @@ def test_flux_form_conserves_probability_in_stiff_cells(rng, order):
     assert abs(ys["kernel"][:41].sum() - ys["lapack flux"][:41].sum()) <= 1e-11
     (lo, diag, up), y0 = _stiff_trap(rng, scale=1.0)  # nothing stiff: the same numbers up to round-off
     flux = cram_pfd(lo, diag, up, z, zd, z, 0.01, y0, res, theta, r_inf, False)[0]
-    assert np.max(np.abs(flux - _plain_pfd(lo, diag, up, 0.01, y0, order))) <= 1e-14
-
-
-def _plain_pfd(lower, diag, upper, t, y, order):
-    """``r_inf y + 2 Re sum_j c_j (t L - theta_j)^-1 y`` with LAPACK, summed as the kernels did before the flux form."""
-    theta, res, r_inf, _ = pfd_coefficients(order)
-    gtsv = get_lapack_funcs("gtsv", dtype=np.complex128)
-    out = r_inf * y
-    for c, th in zip(res, theta):
-        x = gtsv((t * lower).astype(complex), t * diag - th, (t * upper).astype(complex), y.astype(complex))[3]
-        out = out + 2.0 * (c * x).real
-    return out
+    plain = _cram_d((lo, diag, up), (z, zd, z), 0.01, y0, pfd=True, order=order)[0]
+    assert np.max(np.abs(flux - plain)) <= 1e-14
 
 
 def test_pfd_that_needs_interchanges_is_solved_with_them(rng):
