@@ -67,28 +67,64 @@ def test_cram_derivative_matches_finite_differences(rng):
     assert np.max(np.abs(dout - fd)) <= 1e-7 * np.max(np.abs(fd))
 
 
-def _kernel_bands(edges, f_rows, a_rows, with_drift, with_diffusion):
+def _kernel_bands(edges, f_rows, a_rows, with_drift, with_diffusion, fitted=False):
     geometry = _geometry(edges)
     n = edges.size - 1
     out = (np.empty((len(a_rows), n)), np.empty((len(a_rows), n + 1)), np.empty((len(a_rows), n)))
     for r in range(len(a_rows)):
-        _fill_row(*geometry, f_rows[r if with_diffusion else 0], a_rows[r], with_drift, with_diffusion,
+        _fill_row(*geometry, f_rows[r if with_diffusion else 0], a_rows[r], with_drift, with_diffusion, fitted,
                   out[0][r], out[1][r], out[2][r])
     return out
 
 
-@pytest.mark.parametrize("with_drift", [False, True])
-def test_kernel_bands_match_the_numpy_operator(rng, with_drift):
-    """The bands the compiled stage loop makes (``_fill_row``) equal operator.bands (its formula)."""
+@pytest.mark.parametrize("with_drift,fitted", [(False, False), (True, False), (True, True)])
+def test_kernel_bands_match_the_numpy_operator(rng, with_drift, fitted):
+    """The bands the compiled stage loop makes (``_fill_row``) equal operator.bands (its formula), with the drift's
+    upwinding weight or the central value (cell Peclet numbers here from 0 to about 1e3: both branches)."""
     edges = np.r_[1e-9, np.cumsum(rng.uniform(0.01, 1.0, 200))]
     f_rows, a_rows = rng.uniform(0.0, 1.0, (5, 200)), rng.normal(size=(5, 200))
-    ref = bands(edges, f_rows, a_rows if with_drift else None)
-    for r, x in zip(ref, _kernel_bands(edges, f_rows, a_rows, with_drift, True)):
+    ref = bands(edges, f_rows, a_rows if with_drift else None, fitted=fitted)
+    for r, x in zip(ref, _kernel_bands(edges, f_rows, a_rows, with_drift, True, fitted)):
         assert np.max(np.abs(r - x)) <= 1e-15 * np.max(np.abs(r))
     if with_drift:  # the drift alone (the balance operator): f = 0
-        ref = bands(edges, np.zeros_like(f_rows), a_rows)
+        ref = bands(edges, np.zeros_like(f_rows), a_rows, fitted=False)
         for r, x in zip(ref, _kernel_bands(edges, f_rows[:1], a_rows, True, False)):
             assert x.shape == r.shape and np.max(np.abs(r - x)) <= 1e-15 * np.max(np.abs(r))
+
+
+def test_upwinding_weight_keeps_the_spectrum_real(rng):
+    """A drift dominating a vanishing diffusivity (cell Peclet numbers 1e-3 ... 1e3 on a graded grid): with the
+    upwinding weight (operator.fitted_weight) every off-diagonal entry is >= 0 (a tridiagonal matrix with
+    ``lower * upper > 0`` is similar to a symmetric one: real spectrum), the column sums stay 0 (probability
+    conserved); the central value has negative entries and eigenvalues off the real axis.  Where every
+    ``|Pe| <= 2`` the weight is 0: the bands are the central ones, bit for bit."""
+    from scipy.linalg import eigvals
+
+    from diffusion_pr.solvers.fv.operator import fitted_weight
+
+    n = 120
+    edges = np.r_[0.0, np.geomspace(1e-6, 1.0, n)]
+    c = 0.5 * (edges[1:] + edges[:-1])
+    f = c ** 3  # vanishing at the wall
+    a = -0.4 * (edges[:-1] - 0.3) * rng.uniform(0.5, 1.5, n)  # restoring drift
+    lo, di, up = bands(edges, f, a, fitted=True)
+    d = np.diff(c)
+    pe = a[1:] * d / np.minimum(f[:-1], f[1:])
+    assert np.abs(pe).max() > 100 and np.abs(pe).min() < 1e-2  # both regimes
+    assert lo.min() >= 0.0 and up.min() >= 0.0
+    full = np.diag(di) + np.diag(lo, -1) + np.diag(up, 1)
+    assert np.max(np.abs(full.sum(axis=0))) <= 1e-12 * np.max(np.abs(di))
+    assert np.max(np.abs(eigvals(full).imag)) <= 1e-8 * np.max(np.abs(di))
+    clo, cdi, cup = bands(edges, f, a, fitted=False)
+    assert min(clo.min(), cup.min()) < 0.0
+    assert np.max(np.abs(eigvals(np.diag(cdi) + np.diag(clo, -1) + np.diag(cup, 1)).imag)) > 1e-3 * np.max(np.abs(cdi))
+    # the weight: 0 up to |Pe| = 2, then 1/2 - 1/|Pe|, odd; upwind where f = 0
+    np.testing.assert_array_equal(fitted_weight(np.array([-2.0, -1.0, 0.0, 1.0, 2.0]), 1.0), 0.0)
+    np.testing.assert_allclose(fitted_weight(np.array([-8.0, 4.0, 3.0]), np.array([1.0, 1.0, 0.0])),
+                               [-0.375, 0.25, 0.5], rtol=1e-15)
+    small = 1.9 * np.minimum(f[:-1], f[1:]) / d  # |Pe| = 1.9 everywhere
+    assert all(np.array_equal(x, y) for x, y in zip(bands(edges, f, np.r_[a[0], small], fitted=True),
+                                                   bands(edges, f, np.r_[a[0], small], fitted=False)))
 
 
 def test_gttrf_reports_singular():
@@ -511,10 +547,10 @@ class _PythonKernels:
                            self.order)[0]
         return expm_tridiagonal(*base, t, y)
 
-    def run_rows(self, edges, f_rows, b_rows, w_rows, any_b, *rest):
+    def run_rows(self, edges, f_rows, b_rows, w_rows, any_b, *rest, fitted=None):
         """The native bands from the rows with numpy (operator.bands), then :meth:`run`."""
-        lower, diag, upper = bands(edges, f_rows, b_rows if any_b else None)
-        wl, wd, wu = bands(edges, np.zeros_like(w_rows), w_rows)
+        lower, diag, upper = bands(edges, f_rows, b_rows if any_b else None, fitted=False if fitted is None else fitted)
+        wl, wd, wu = bands(edges, np.zeros_like(w_rows), w_rows, fitted=False)
         return self.run(lower, diag, upper, wl, wd, wu, *rest)
 
     def run(self, lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, pfd,
@@ -808,9 +844,9 @@ def test_second_thread_runs_the_finest_grid_and_keeps_the_answer(monkeypatch, ze
     seen = []
 
     class Recording:
-        def run_rows(self, edges, *rest):
+        def run_rows(self, edges, *rest, **kw):
             seen.append((edges.size - 1, threading.current_thread() is threading.main_thread()))
-            return kernels.run_rows(edges, *rest)
+            return kernels.run_rows(edges, *rest, **kw)
 
     monkeypatch.setattr(engine, "_staged_kernels", lambda: Recording())
     two = engine.solve_fv(prob, rtol=1e-5, backend="native", threads=2)

@@ -205,9 +205,23 @@ def _geometry(edges):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusion,
+def _fitted_weight(shift, f_min):  # pragma: no cover - numba
+    """:func:`.operator.fitted_weight` of one face."""
+    x = abs(shift)
+    if x <= 2.0 * f_min:
+        return 0.0
+    out = 0.5 - f_min / x
+    return out if shift > 0.0 else -out
+
+
+@njit(cache=True, nogil=True)
+def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusion, fitted,
               lower, diag, upper):  # pragma: no cover - numba
-    """One operator's bands (:func:`.operator.bands`'s formula) into ``lower, diag, upper`` (overwritten)."""
+    """One operator's bands (:func:`.operator.bands`'s formula) into ``lower, diag, upper`` (overwritten).
+
+    ``fitted``: the drift takes the upwinding weight of :func:`.operator.fitted_weight` (``f_row`` its
+    diffusivity), as ``operator.bands(..., fitted=True)``; else the central value.
+    """
     n = h.size
     for i in range(n):
         lower[i] = 0.0
@@ -231,8 +245,13 @@ def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusi
     if with_drift:
         for i in range(n - 1):
             ai = a_row[i + 1]
-            cl = ai * half_inv_h[i]
-            cr = ai * half_inv_h[i + 1]
+            s = _fitted_weight(ai / k_int[i], min(f_row[i], f_row[i + 1])) if fitted else 0.0
+            if s == 0.0:  # the central value, bit for bit
+                cl = ai * half_inv_h[i]
+                cr = ai * half_inv_h[i + 1]
+            else:
+                cl = ai * (0.5 + s) / h[i]
+                cr = ai * (0.5 - s) / h[i + 1]
             diag[i + 1] -= cl
             upper[i + 1] -= cr
             lower[i + 1] += cl
@@ -855,21 +874,22 @@ def staged_run(lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, 
     ``stage`` is the failing stage and ``y`` the state before it.
     """
     empty = np.zeros((1, 1))
-    return _run(lower, diag, upper, wl, wd, wu, empty[0], empty, empty, empty, False, balanced, dt, reps, cvec, y,
-                p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c)
+    return _run(lower, diag, upper, wl, wd, wu, empty[0], empty, empty, empty, False, balanced, balanced, dt, reps,
+                cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c)
 
 
 @njit(cache=True, nogil=True)
-def staged_run_rows(edges, f_rows, b_rows, w_rows, any_b, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol,
-                    max_iter, pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
+def staged_run_rows(edges, f_rows, b_rows, w_rows, any_b, balanced, fitted, dt, reps, cvec, y, p0, mean_tol,
+                    lin_tol, max_iter, pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
     """:func:`staged_run` for the native operator, its bands made stage by stage from the coefficient rows.
 
     ``f_rows`` (centres), ``b_rows`` and ``w_rows`` (faces) hold every stage's
     diffusivity, drift and balance; no band array of all stages is formed.
+    ``fitted[k]``: stage ``k``'s drift takes its upwinding weight (:func:`_fill_row`).
     """
     empty = np.zeros((1, 1))
-    return _run(empty, empty, empty, empty, empty, empty, edges, f_rows, b_rows, w_rows, any_b, balanced, dt, reps,
-                cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c)
+    return _run(empty, empty, empty, empty, empty, empty, edges, f_rows, b_rows, w_rows, any_b, balanced, fitted, dt,
+                reps, cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c)
 
 
 def staged_run_rows_types() -> tuple:
@@ -885,13 +905,14 @@ def staged_run_rows_types() -> tuple:
     from numba import types as t
 
     f1, rows, c1 = t.float64[::1], t.float64[:, :], t.complex128[::1]
-    return (f1, rows, rows, rows, t.boolean, t.boolean[::1], f1, t.int64[::1], f1, f1, t.float64, t.float64,
-            t.float64, t.int64, t.boolean, c1, c1, t.float64, c1)
+    b1 = t.boolean[::1]
+    return (f1, rows, rows, rows, t.boolean, b1, b1, f1, t.int64[::1], f1, f1, t.float64, t.float64, t.float64, t.int64,
+            t.boolean, c1, c1, t.float64, c1)
 
 
 @njit(cache=True, nogil=True)
-def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, balanced, dt, reps, cvec, y, p0,
-         mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
+def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, balanced, fitted, dt, reps, cvec, y,
+         p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
     """The stage loop of :func:`staged_run` (bands given) and :func:`staged_run_rows` (bands made per stage)."""
     from_rows = edges.size > 1
     n_stages = f_rows.shape[0] if from_rows else diag.shape[0]
@@ -911,9 +932,9 @@ def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, b
     hist = np.zeros(PREDICTOR_SIZE)
     for k in range(n_stages):
         if from_rows:
-            _fill_row(h, k_int, wall, half_inv_h, f_rows[k], b_rows[k], any_b, True, lo, di, up)
+            _fill_row(h, k_int, wall, half_inv_h, f_rows[k], b_rows[k], any_b, True, fitted[k], lo, di, up)
             if balanced[k]:
-                _fill_row(h, k_int, wall, half_inv_h, f_rows[k], w_rows[k], True, False, wlo, wdi, wup)
+                _fill_row(h, k_int, wall, half_inv_h, f_rows[k], w_rows[k], True, False, False, wlo, wdi, wup)
         else:
             lo[:] = lower[k]
             di[:] = diag[k]

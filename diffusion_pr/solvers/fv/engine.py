@@ -320,6 +320,10 @@ class Prepared:
     #: the upper end was shortened by the Lamperti bound (:data:`LAMPERTI`); a solve whose top cell then holds
     #: more than rtol is repeated on the conservative domain (:func:`solve_fv`)
     lamperti_bounded: bool = False
+    #: the drift takes its upwinding weight (``operator.fitted_weight``) on plain stages: the user's drift of a
+    #: FokkerPlanckProblem; a closure's drift (a StagedProblem) keeps the central value its balance search and its
+    #: validation against the reference solver are built on
+    fitted_drift: bool = False
     #: the coefficients' breakpoints, where the density may jump or kink (None: unknown, every knot counts); ``p0``
     #: and the floor are knots of the grids only, across which the final density is smooth (:func:`density_knots`)
     breakpoints: Optional[tuple] = None
@@ -613,7 +617,7 @@ def _prepared(problem, p0: float, pieces: Sequence, time_dependent: bool, segmen
                     label=getattr(problem, "label", ""), segment_fn=segment_fn,
                     balance_per_stage=bool(getattr(problem, "balance_per_stage", False)),
                     depth_adaptive=not (reached or truncated or has_drift or has_balance),
-                    lamperti_bounded=lamperti_bounded,
+                    lamperti_bounded=lamperti_bounded, fitted_drift=has_drift and isinstance(problem, FokkerPlanckProblem),
                     breakpoints=tuple(float(b) for b in breakpoints))
 
 
@@ -683,17 +687,26 @@ def _coefficients_lazy(pieces: Sequence, grids: Sequence[np.ndarray], groups: Se
     return coef
 
 
-def _stage_bands(edges: np.ndarray, coef: dict, assemble: Assemble) -> tuple:
+def _fitted_stages(prep: Prepared, coef: dict) -> np.ndarray:
+    """Which stages' drift takes its upwinding weight (the native operator): plain drift stages of a problem whose
+    drift is fitted (:attr:`Prepared.fitted_drift`)."""
+    return coef["has_b"] & ~coef["has_w"] & bool(prep.fitted_drift)
+
+
+def _stage_bands(edges: np.ndarray, coef: dict, assemble: Assemble, fitted: Optional[np.ndarray] = None) -> tuple:
     """Rows of the stages' bands ``L_k`` and of their balance operators (0 where a stage has none).
 
-    Without a balance the balance rows are a single row of zeros (never read).
+    Without a balance the balance rows are a single row of zeros (never read).  ``fitted``: per stage, the native
+    operator's drift takes its upwinding weight (:func:`_fitted_stages`; None: nowhere).
     """
     n_stages, n = coef["f"].shape
     any_w = bool(coef["has_w"].any())
     if assemble is native_assemble:  # all stages at once (the compiled path makes them in its kernel)
         any_b = bool(coef["has_b"].any())
-        base = fv_bands(edges, coef["f"], coef["b"] if any_b else None)
-        wb = fv_bands(edges, np.zeros((n_stages if any_w else 1, n)), coef["w"] if any_w else coef["w"][:1])
+        base = fv_bands(edges, coef["f"], coef["b"] if any_b else None,
+                        fitted=False if fitted is None else fitted)
+        wb = fv_bands(edges, np.zeros((n_stages if any_w else 1, n)), coef["w"] if any_w else coef["w"][:1],
+                      fitted=False)
         return base, wb
     rows = []
     wrows = []
@@ -760,7 +773,7 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     compiled = _compiled(prep)
     rows_in_kernel = compiled and assemble is native_assemble  # the kernel makes each stage's bands itself
     if not rows_in_kernel:
-        (lower, diag, upper), (wl, wd, wu) = _stage_bands(edges, coef, assemble)
+        (lower, diag, upper), (wl, wd, wu) = _stage_bands(edges, coef, assemble, _fitted_stages(prep, coef))
     balanced = coef["has_w"]
     reps = _drift_splits(pieces, coef)
     for k in np.flatnonzero(balanced):
@@ -775,7 +788,8 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
                   bool(partial_fractions), order)
         if rows_in_kernel:
             y, n_cram, n_newton, info, stage, residual = _staged_kernels().run_rows(
-                edges, coef["f"], coef["b"], coef["w"], bool(coef["has_b"].any()), *common)
+                edges, coef["f"], coef["b"], coef["w"], bool(coef["has_b"].any()), *common,
+                fitted=_fitted_stages(prep, coef))
         else:
             y, n_cram, n_newton, info, stage, residual = _staged_kernels().run(lower, diag, upper, wl, wd, wu,
                                                                               *common)
@@ -1122,11 +1136,13 @@ class _Kernels:
         return self._coef[key]
 
     def run_rows(self, edges, f_rows, b_rows, w_rows, any_b, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol,
-                 pfd, order=16):
-        """:meth:`run` with the native operator's bands made in the kernel (:func:`._kernels.staged_run_rows`)."""
+                 pfd, order=16, fitted=None):
+        """:meth:`run` with the native operator's bands made in the kernel (:func:`._kernels.staged_run_rows`);
+        ``fitted``: per stage, the drift takes its upwinding weight (None: nowhere)."""
         f = _f64
+        fitted = np.zeros(len(balanced), dtype=np.bool_) if fitted is None else fitted
         args = (f(edges), f_rows, b_rows, w_rows, bool(any_b), np.ascontiguousarray(balanced, dtype=np.bool_),
-                f(dt), np.ascontiguousarray(reps, dtype=np.int64), f(cvec), f(y), float(p0), float(mean_tol),
+                np.ascontiguousarray(fitted, dtype=np.bool_), f(dt), np.ascontiguousarray(reps, dtype=np.int64), f(cvec), f(y), float(p0), float(mean_tol),
                 float(lin_tol), int(MAX_BALANCE_ITERATIONS), bool(pfd), *self._coefficients(pfd, order))
         with flush_subnormals(FLUSH_SUBNORMALS):
             y, n_cram, n_newton, info, stage, res = self._staged_run_rows()(*args)

@@ -4,8 +4,17 @@ State ``y = [z, m_0, ..., m_{n-1}]``: ``z`` the probability absorbed at the
 wall ``p_wall`` (0 where the wall is reached, the floor otherwise), ``m_i`` the
 probability in cell ``i``.  With cell centres ``c_i``, widths ``h_i`` and
 ``u_i = m_i / h_i``, the flux through the face between cells ``i`` and ``i+1``
-is ``-(f_{i+1} u_{i+1} - f_i u_i) / (c_{i+1} - c_i) + a_face (u_i + u_{i+1}) / 2``
-(the central face value FiPy uses too; second order on the smoothly graded grids); through the wall face ``-(f_0 u_0 - 0)/(c_0 - p_wall)``
+is ``-(f_{i+1} u_{i+1} - f_i u_i) / (c_{i+1} - c_i) + a_face ((1/2 + s) u_i + (1/2 - s) u_{i+1})``.
+The central face value ``s = 0`` (FiPy's too; second order on the smoothly graded grids) holds
+wherever the cell Peclet number ``Pe = a_face (c_{i+1} - c_i) / min(f_i, f_{i+1})`` is at most 2 in
+size.  Beyond, the drift's weight leans upwind just enough to keep the off-diagonal entries
+non-negative, ``s = sign(Pe) (1/2 - 1/|Pe|)`` (:func:`fitted_weight`; upwind where ``f = 0``), so the
+operator's spectrum stays real: the central value gives a complex spectrum there, which a rational
+approximation of the exponential amplifies near its poles (docs/backends.md, "An unstable grid").
+Such faces lie where the drift dominates the diffusion, far below the floor in the problems met
+so far; the weight is first order there.  A balance drift (and a user drift on a balanced stage)
+keeps the central value (``fitted=False``): the mean-pressure search is built on it.
+Through the wall face ``-(f_0 u_0 - 0)/(c_0 - p_wall)``
 (``f Pr = 0`` at the wall, Feller's exit condition) plus the drift's outflow
 ``min(a_wall, 0) u_0``; nothing leaves through ``p_max``.  The matrix is
 tridiagonal (``z`` couples to ``m_0`` only), total probability
@@ -18,7 +27,8 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ["bands", "centres"]
+__all__ = ["bands", "centres", "fitted_weight"]
+
 
 
 def centres(edges: np.ndarray) -> np.ndarray:
@@ -26,7 +36,35 @@ def centres(edges: np.ndarray) -> np.ndarray:
     return 0.5 * (edges[1:] + edges[:-1])
 
 
-def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = None
+def fitted_weight(shift: np.ndarray, f_min: np.ndarray) -> np.ndarray:
+    """The drift's upwinding weight ``s = sign(Pe) max(0, 1/2 - 1/|Pe|)`` of ``Pe = shift / f_min``.
+
+    The smallest weight that keeps a face's off-diagonal entries non-negative (the hybrid scheme of
+    D. B. Spalding, Int. J. Numer. Meth. Eng. 4, 551 (1972)): 0 (central) for ``|Pe| <= 2``, approaching upwind
+    (``sign(Pe)/2``) as ``|Pe|`` grows.
+
+    Parameters
+    ----------
+    shift : ndarray
+        Drift times centre distance at the face, ``a (c_{i+1} - c_i)`` (pressure^2 per unit tau).
+    f_min : ndarray
+        The smaller ``f`` of the face's two cells (pressure^2 per unit tau, like ``shift``), >= 0;
+        0 gives the upwind weight ``sign(shift)/2``.
+
+    Returns
+    -------
+    ndarray
+        ``s`` in ``(-1/2, 1/2)``, odd in ``shift``, with ``|s| >= 1/2 - 1/|Pe|``.
+    """
+    shift, f_min = np.broadcast_arrays(np.asarray(shift, dtype=float), np.asarray(f_min, dtype=float))
+    x = np.abs(shift)
+    out = np.zeros(shift.shape)
+    big = x > 2.0 * f_min
+    out[big] = 0.5 - f_min[big] / x[big]
+    return np.where(shift < 0.0, -out, out)
+
+
+def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = None, fitted: bool = True
           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sub-, main and super-diagonal of the operator acting on ``[z, m_0..m_{n-1}]``.
 
@@ -40,6 +78,10 @@ def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = No
     a_faces : ndarray, shape (..., n), optional
         Drift at the faces ``edges[0..n-1]`` (the wall face and the interior
         faces; pressure per unit tau); the top face carries no flux.
+    fitted : bool or ndarray of bool, shape (...)
+        Interior faces take the drift's upwinding weight (:func:`fitted_weight`, the default);
+        False: the central value (the balance operator, a drift on a balanced stage).  One flag
+        per row of the leading axes, or one for all.
 
     Returns
     -------
@@ -68,10 +110,15 @@ def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = No
     upper[..., 0] += out
     if a_faces is not None:
         a_faces = np.asarray(a_faces, dtype=float)
-        # interior faces: G = a (u_i + u_{i+1}) / 2, u = m / h; m_i' -= G, m_{i+1}' += G
+        # interior faces: G = a ((1/2 + s) u_i + (1/2 - s) u_{i+1}), u = m / h; m_i' -= G, m_{i+1}' += G
         ai = a_faces[..., 1:]
         cl = ai * (0.5 / h[:-1])
         cr = ai * (0.5 / h[1:])
+        fitted = np.asarray(fitted, dtype=bool)
+        if fitted.any():  # the weight where it is not 0 (the central value stays bit for bit)
+            s = fitted_weight(ai / k_int, np.minimum(f_c[..., :-1], f_c[..., 1:])) * fitted[..., None]
+            cl = np.where(s != 0.0, ai * (0.5 + s) / h[:-1], cl)
+            cr = np.where(s != 0.0, ai * (0.5 - s) / h[1:], cr)
         diag[..., 1:-1] -= cl
         upper[..., 1:] -= cr
         lower[..., 1:] += cl
