@@ -572,6 +572,28 @@ def test_plain_masses_are_the_grids_own_and_need_a_fixed_grid(fig1):
             pass
 
 
+def test_plain_masses_of_an_unstable_grid_say_so(fig1, monkeypatch):
+    """The unstable-grid check (engine._unstable_grid) on the shell ladder's plain-only solves too: a grid whose
+    states sum in absolute value above UNSTABLE_L1 is reported in ``diagnostics["plain_failure"]`` (which the
+    ladder reads as no plain masses), by a plain solve and by plain_batch alike.  Made to trigger by lowering the
+    bound below 1 (a probability distribution sums to 1); at the default bound the same solve reports no failure."""
+    from diffusion_pr.api import solve_problem
+    from diffusion_pr.solvers.fv import engine
+
+    problem = closure_problem(spectrum_shells(fig1, E_star=E, n_shells=24), zeta=1.0, E_star=E, mean_pressure=P0,
+                              closure="local_g1")
+    with engine.plain_masses("keep"):
+        full = solve_problem(problem, backend="native", rtol=1e-6)
+    n0 = full.diagnostics["levels"][0]
+    with engine.grid_family(full.diagnostics["grid"]), engine.plain_masses("only"):
+        assert solve_problem(problem, backend="native", rtol=1e-6, n_cells=n0).diagnostics["plain_failure"] is None
+        monkeypatch.setattr(engine, "UNSTABLE_L1", 0.5)
+        one = solve_problem(problem, backend="native", rtol=1e-6, n_cells=n0)
+        batch = engine.plain_batch([problem], rtol=1e-6, n_cells=n0)[0]
+    for r in (one, batch):
+        assert not r.success and "exponential integration is unstable" in r.diagnostics["plain_failure"]
+
+
 @pytest.mark.parametrize("threads", [1, 2])
 def test_plain_batch_is_each_problems_own_plain_solve(fig1, threads):
     """engine.plain_batch deals several problems' grids to the two threads together (the shell ladder's plain

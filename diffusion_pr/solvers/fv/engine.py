@@ -1718,7 +1718,9 @@ def _unstable_grid(es: Sequence[np.ndarray], ys: Sequence[tuple]) -> Optional[st
     numbers ``|a| h / f`` above 2, where the central flux's off-diagonals change sign) gives the operator complex
     eigenvalues, and one near a pole is amplified at every application: on random drift problem #122 of seed 7
     (``fp_random_truth.py``, the smoothstep cutoff at ``p_c/sqrt(V)`` 0.009 with ``p0/sqrt(V)`` 0.005) the
-    10168-cell grid reached ``1e237`` at rtol 1e-7, and the refinement then raised on a NaN estimate."""
+    10168-cell grid reached ``1e237`` at rtol 1e-7, and the refinement then raised on a NaN estimate.  A user's drift
+    now leans upwind on such faces (:func:`.operator.fitted_weight`); the check stays for the drifts that keep the
+    central flux (closures, balances, py-pde's and FiPy's operators).  ``es[i]`` is the grid of ``ys[i]``."""
     for edges, (y, _) in zip(es, ys):
         total = float(np.sum(np.abs(y)))
         if not math.isfinite(total) or total > UNSTABLE_L1:
@@ -1760,9 +1762,13 @@ def _plain_result(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple],
     refinement exponents: N and 2N, or 4N), lumped below the floor as an answer is, in
     ``diagnostics["plain_masses"]`` (the N, 2N and 4N grid's places, None where not integrated); the density is the
     finest integrated grid's (not extrapolated, no estimate: ``success`` is False by construction,
-    ``diagnostics["plain_failure"]`` is a balance's failure or None)."""
+    ``diagnostics["plain_failure"]`` is a balance's failure, an unstable grid's (:func:`_unstable_grid`) or
+    None)."""
     j1 = _cells_below_floor(prep, es[0][::1 << ks[0]])  # the N grid's (every 2^k-th edge) cells below the floor
     broken = [cc["balance_failure"] for _, cc in ys if "balance_failure" in cc]
+    unstable = _unstable_grid(es, ys)
+    if unstable is not None:
+        broken.append(unstable)
     timings = {"setup": t_prep, "solve": time.perf_counter() - t_start - t_prep,
                "total": time.perf_counter() - t_start}
     plain = [None, None, None]
