@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
 import statistics
 import sys
@@ -56,7 +55,6 @@ def throughput(sizes, configs, cases_per, repeats, keep=None):
             W, T = (int(v) for v in cfg.split("x"))
             client, cluster, desc = _local_cluster(W, T)
             try:
-                t0 = time.perf_counter()
                 plan = client.run(warm_up_fft, n)
                 t_plan = max(plan.values())
                 times = []

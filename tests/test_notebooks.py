@@ -1,7 +1,6 @@
 """Every notebook in ``notebooks/`` executes top to bottom on small sizes."""
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest

@@ -13,9 +13,10 @@ the discrete flux is the conservative Ito flux ``-(f_{i+1} P_{i+1} - f_i P_i)/d`
 condition).  FiPy's central convection face value is the arithmetic mean, the
 engine's too, so FiPy's assembled operator and the native one agree to
 round-off, except on the faces where the native operator leans a user's drift
-upwind (cell Peclet number above 2, :func:`..fv.operator.fitted_weight`).  Difference: FiPy's constrained wall face carries no drift flux
-(the native operator lets a drift towards the wall carry mass out); the two
-differ only for a drift that does not vanish at the wall.
+upwind (cell Peclet number above 2, :func:`.fv.operator.fitted_weight`).
+Difference: FiPy's constrained wall face carries no drift flux (the native
+operator lets a drift towards the wall carry mass out); the two differ only
+for a drift that does not vanish at the wall.
 
 Two ways to integrate (``method=``):
 

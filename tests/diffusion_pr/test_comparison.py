@@ -156,7 +156,6 @@ def ks_oracle(theory, field: np.ndarray, p_floor: float) -> float:
     """Textbook one-sample Kolmogorov statistic sup |F_theory - F_n| over x >= p_floor."""
     x = np.sort(field)
     n = x.size
-    keep = x >= p_floor
     xs = x[x >= p_floor]
     f = np.asarray(theory.cdf(xs))
     # just below x_i the theory's CDF lacks the delta peak when x_i == 0 (x_i >= p_floor > 0 here)

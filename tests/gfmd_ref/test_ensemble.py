@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from gfmd_ref import ExponentialRepulsion, HardWall, fig1_surface, load_ensemble, run_ensemble, solve_contact
-from gfmd_ref.ensemble import build_cases, case_surface, ingest_fields
+from gfmd_ref.ensemble import build_cases, case_surface
 from gfmd_ref.ensemble_store import STORE_LEVELS, case_key, reduce_pressure_field, store_keys
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -874,6 +874,7 @@ def staged_run(lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, 
     ``stage`` is the failing stage and ``y`` the state before it.
     """
     empty = np.zeros((1, 1))
+    # bands given: no drift weight is chosen here (the ``fitted`` argument, ``balanced`` in its place, is not read)
     return _run(lower, diag, upper, wl, wd, wu, empty[0], empty, empty, empty, False, balanced, balanced, dt, reps,
                 cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c)
 

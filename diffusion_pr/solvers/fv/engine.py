@@ -617,7 +617,8 @@ def _prepared(problem, p0: float, pieces: Sequence, time_dependent: bool, segmen
                     label=getattr(problem, "label", ""), segment_fn=segment_fn,
                     balance_per_stage=bool(getattr(problem, "balance_per_stage", False)),
                     depth_adaptive=not (reached or truncated or has_drift or has_balance),
-                    lamperti_bounded=lamperti_bounded, fitted_drift=has_drift and isinstance(problem, FokkerPlanckProblem),
+                    lamperti_bounded=lamperti_bounded,
+                    fitted_drift=has_drift and isinstance(problem, FokkerPlanckProblem),
                     breakpoints=tuple(float(b) for b in breakpoints))
 
 
@@ -1142,8 +1143,9 @@ class _Kernels:
         f = _f64
         fitted = np.zeros(len(balanced), dtype=np.bool_) if fitted is None else fitted
         args = (f(edges), f_rows, b_rows, w_rows, bool(any_b), np.ascontiguousarray(balanced, dtype=np.bool_),
-                np.ascontiguousarray(fitted, dtype=np.bool_), f(dt), np.ascontiguousarray(reps, dtype=np.int64), f(cvec), f(y), float(p0), float(mean_tol),
-                float(lin_tol), int(MAX_BALANCE_ITERATIONS), bool(pfd), *self._coefficients(pfd, order))
+                np.ascontiguousarray(fitted, dtype=np.bool_), f(dt), np.ascontiguousarray(reps, dtype=np.int64),
+                f(cvec), f(y), float(p0), float(mean_tol), float(lin_tol), int(MAX_BALANCE_ITERATIONS), bool(pfd),
+                *self._coefficients(pfd, order))
         with flush_subnormals(FLUSH_SUBNORMALS):
             y, n_cram, n_newton, info, stage, res = self._staged_run_rows()(*args)
         return y, int(n_cram), int(n_newton), int(info), int(stage), float(res)

@@ -12,8 +12,8 @@ non-negative, ``s = sign(Pe) (1/2 - 1/|Pe|)`` (:func:`fitted_weight`; upwind whe
 operator's spectrum stays real: the central value gives a complex spectrum there, which a rational
 approximation of the exponential amplifies near its poles (docs/backends.md, "An unstable grid").
 Such faces lie where the drift dominates the diffusion, far below the floor in the problems met
-so far; the weight is first order there.  A balance drift (and a user drift on a balanced stage)
-keeps the central value (``fitted=False``): the mean-pressure search is built on it.
+so far; the weight is first order there.  A closure's drift and a balance drift keep the central
+value (``fitted=False``): the mean-pressure search and the closures' validation are built on it.
 Through the wall face ``-(f_0 u_0 - 0)/(c_0 - p_wall)``
 (``f Pr = 0`` at the wall, Feller's exit condition) plus the drift's outflow
 ``min(a_wall, 0) u_0``; nothing leaves through ``p_max``.  The matrix is
@@ -28,7 +28,6 @@ from typing import Optional
 import numpy as np
 
 __all__ = ["bands", "centres", "fitted_weight"]
-
 
 
 def centres(edges: np.ndarray) -> np.ndarray:
@@ -54,7 +53,7 @@ def fitted_weight(shift: np.ndarray, f_min: np.ndarray) -> np.ndarray:
     Returns
     -------
     ndarray
-        ``s`` in ``(-1/2, 1/2)``, odd in ``shift``, with ``|s| >= 1/2 - 1/|Pe|``.
+        ``s`` in ``[-1/2, 1/2]``, odd in ``shift``, with ``|s| >= 1/2 - 1/|Pe|``.
     """
     shift, f_min = np.broadcast_arrays(np.asarray(shift, dtype=float), np.asarray(f_min, dtype=float))
     x = np.abs(shift)
