@@ -694,18 +694,17 @@ def _fitted_stages(prep: Prepared, coef: dict) -> np.ndarray:
     return coef["has_b"] & ~coef["has_w"] & bool(prep.fitted_drift)
 
 
-def _stage_bands(edges: np.ndarray, coef: dict, assemble: Assemble, fitted: Optional[np.ndarray] = None) -> tuple:
+def _stage_bands(edges: np.ndarray, coef: dict, assemble: Assemble, fitted: bool | np.ndarray = False) -> tuple:
     """Rows of the stages' bands ``L_k`` and of their balance operators (0 where a stage has none).
 
     Without a balance the balance rows are a single row of zeros (never read).  ``fitted``: per stage, the native
-    operator's drift takes its upwinding weight (:func:`_fitted_stages`; None: nowhere).
+    operator's drift takes its upwinding weight (:func:`_fitted_stages`; False: nowhere).
     """
     n_stages, n = coef["f"].shape
     any_w = bool(coef["has_w"].any())
     if assemble is native_assemble:  # all stages at once (the compiled path makes them in its kernel)
         any_b = bool(coef["has_b"].any())
-        base = fv_bands(edges, coef["f"], coef["b"] if any_b else None,
-                        fitted=False if fitted is None else fitted)
+        base = fv_bands(edges, coef["f"], coef["b"] if any_b else None, fitted=fitted)
         wb = fv_bands(edges, np.zeros((n_stages if any_w else 1, n)), coef["w"] if any_w else coef["w"][:1],
                       fitted=False)
         return base, wb
