@@ -13,7 +13,10 @@ with the boundary conditions of the physics: ``f Pr = 0`` on the wall face
 (``{"value": 0}`` for ``K v`` and ``v``; Feller's exit condition; the mass
 that leaves is the non-contact weight), no flux at ``p_max``
 (``{"derivative": 0}``), and py-pde's central gradient with ``a Pr = 0`` on
-both faces for the drift.  This differs from the native operator at
+both faces for the drift, whose flux through the wall face is then added as
+the native operator takes it (:func:`.fv.operator.wall_drift`: out where the
+drift points to the wall, back at most what diffusion takes out where it points
+away; the loop adds it to cell 0's rate).  This differs from the native operator at
 ``O(h^2)`` (face coefficient ``(1/h_i + 1/h_{i+1})/2`` against ``1/d``, drift
 at the centres against the faces), an independent discretization of the same
 equation: the engine's Richardson extrapolation makes both agree within rtol.
@@ -35,7 +38,7 @@ import numpy as np
 from ..result import PressureDistribution
 from . import timed_import
 from .fv.engine import MAX_CELLS, Prepared, solve_fv
-from .fv.operator import centres, probe_bands, state_bands
+from .fv.operator import centres, probe_bands, state_bands, wall_drift
 
 __all__ = ["solve", "warm_up", "assemble"]
 
@@ -82,8 +85,20 @@ def assemble(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray],
     """py-pde's operator on the engine's state ``[z, m_0..m_{n-1}]`` (tridiagonal, read by 3 probes)."""
     h = np.diff(edges)
     ops = _ops(h.size)
-    lo, dg, up = probe_bands(lambda m: ops.rate(m, f_c, h, a_centres), h.size)
-    return state_bands(lo, dg, up)
+    lo, dg, up = state_bands(*probe_bands(lambda m: ops.rate(m, f_c, h, a_centres), h.size))
+    if a_faces is not None:  # py-pde's drift carries nothing through the wall: the wall's drift flux (its physics)
+        wall_drift(dg, up, up[0], a_faces[0], h[0], edges[0])
+    return lo, dg, up
+
+
+def _wall_rate(ops: _Operators, f_c: np.ndarray, h: np.ndarray, a_wall: float, p_wall: float) -> float:
+    """The wall's drift term of cell 0's rate per unit of ``m_0`` (:func:`.fv.operator.wall_drift` on py-pde's
+    diffusive outflow, read off with one probe)."""
+    e0 = np.zeros(h.size)
+    e0[0] = 1.0
+    diag, upper = np.zeros(2), np.zeros(1)
+    wall_drift(diag, upper, -float(np.sum(ops.rate(e0, f_c, h, None))), a_wall, h[0], p_wall)
+    return float(diag[1])
 
 
 def _loop(prep: Prepared, edges: np.ndarray, n_base: int, refine: int, tol: float) -> tuple[np.ndarray, dict]:
@@ -105,11 +120,13 @@ def _loop(prep: Prepared, edges: np.ndarray, n_base: int, refine: int, tol: floa
     for pc in pieces:
         f_c = np.maximum(np.asarray(pc.f(c), dtype=float), 0.0)
         a_c = None if pc.b is None else np.asarray(pc.b(c), dtype=float)
+        k_wall = 0.0 if pc.b is None else _wall_rate(ops, f_c, h, float(np.asarray(pc.b(edges[:1]))[0]), edges[0])
 
         class _Piece(pde.PDEBase):  # the piece's equation for py-pde's solver
             def evolution_rate(self, state, t=0.0):
                 out = state.copy()
                 out.data[...] = ops.rate(state.data, f_c, h, a_c)
+                out.data[0] += k_wall * state.data[0]
                 return out
 
         field = pde.ScalarField(ops.grid, m)

@@ -73,15 +73,17 @@ def _kernel_bands(edges, f_rows, a_rows, with_drift, with_diffusion, fitted=Fals
     out = (np.empty((len(a_rows), n)), np.empty((len(a_rows), n + 1)), np.empty((len(a_rows), n)))
     for r in range(len(a_rows)):
         _fill_row(*geometry, f_rows[r if with_diffusion else 0], a_rows[r], with_drift, with_diffusion, fitted,
-                  out[0][r], out[1][r], out[2][r])
+                  edges[0] == 0.0, out[0][r], out[1][r], out[2][r])
     return out
 
 
+@pytest.mark.parametrize("p_wall", [1e-9, 0.0])
 @pytest.mark.parametrize("with_drift,fitted", [(False, False), (True, False), (True, True)])
-def test_kernel_bands_match_the_numpy_operator(rng, with_drift, fitted):
+def test_kernel_bands_match_the_numpy_operator(rng, with_drift, fitted, p_wall):
     """The bands the compiled stage loop makes (``_fill_row``) equal operator.bands (its formula), with the drift's
-    upwinding weight or the central value (cell Peclet numbers here from 0 to about 1e3: both branches)."""
-    edges = np.r_[1e-9, np.cumsum(rng.uniform(0.01, 1.0, 200))]
+    upwinding weight or the central value (cell Peclet numbers here from 0 to about 1e3: both branches), at a wall
+    that is reached (``p_wall = 0``: a drift away from it carries mass back) and at the bottom of one that is not."""
+    edges = np.r_[p_wall, p_wall + np.cumsum(rng.uniform(0.01, 1.0, 200))]
     f_rows, a_rows = rng.uniform(0.0, 1.0, (5, 200)), rng.normal(size=(5, 200))
     ref = bands(edges, f_rows, a_rows if with_drift else None, fitted=fitted)
     for r, x in zip(ref, _kernel_bands(edges, f_rows, a_rows, with_drift, True, fitted)):

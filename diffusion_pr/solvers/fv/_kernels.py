@@ -215,9 +215,12 @@ def _fitted_weight(shift, f_min):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusion, fitted,
+def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusion, fitted, reached,
               lower, diag, upper):  # pragma: no cover - numba
     """One operator's bands (:func:`.operator.bands`'s formula) into ``lower, diag, upper`` (overwritten).
+
+    ``reached``: the wall is ``p = 0`` (a drift away from it carries back what diffusion takes out, at most:
+    :func:`.operator.wall_drift`); else the domain's bottom, which absorbs.
 
     ``fitted``: the drift takes the upwinding weight of :func:`.operator.fitted_weight` (``f_row`` its
     diffusivity), as ``operator.bands(..., fitted=True)``; else the central value.
@@ -242,6 +245,8 @@ def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusi
         out = (f_row[0] / h[0]) * wall
         diag[1] -= out
         upper[0] += out
+    else:
+        out = 0.0
     if with_drift:
         for i in range(n - 1):
             ai = a_row[i + 1]
@@ -256,9 +261,13 @@ def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusi
             upper[i + 1] -= cr
             lower[i + 1] += cl
             diag[i + 2] += cr
-        aw = min(a_row[0], 0.0)
+        aw = min(a_row[0], 0.0)  # towards the wall: out
         diag[1] += aw / h[0]
         upper[0] -= aw / h[0]
+        if reached:
+            back = min(max(a_row[0], 0.0) / h[0], out)  # away: back what diffusion takes out, at most
+            diag[1] += back
+            upper[0] -= back
 
 
 #: poles per block of :func:`cram_pfd` (their eliminations interleave): all of them up to 6 poles, else 4 (CRAM-16:
@@ -924,6 +933,7 @@ def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, b
     wlo = np.empty(n - 1)
     wdi = np.empty(n)
     wup = np.empty(n - 1)
+    reached = from_rows and edges[0] == 0.0
     if from_rows:
         h, k_int, wall, half_inv_h = _geometry(edges)
     else:
@@ -933,9 +943,10 @@ def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, b
     hist = np.zeros(PREDICTOR_SIZE)
     for k in range(n_stages):
         if from_rows:
-            _fill_row(h, k_int, wall, half_inv_h, f_rows[k], b_rows[k], any_b, True, fitted[k], lo, di, up)
+            _fill_row(h, k_int, wall, half_inv_h, f_rows[k], b_rows[k], any_b, True, fitted[k], reached, lo, di, up)
             if balanced[k]:
-                _fill_row(h, k_int, wall, half_inv_h, f_rows[k], w_rows[k], True, False, False, wlo, wdi, wup)
+                _fill_row(h, k_int, wall, half_inv_h, f_rows[k], w_rows[k], True, False, False, reached, wlo, wdi,
+                          wup)
         else:
             lo[:] = lower[k]
             di[:] = diag[k]

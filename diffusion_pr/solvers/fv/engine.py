@@ -475,7 +475,9 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
         shift = 0.0
         f_max = _rows([pc.f for pc in pieces], probe, "the diffusivity").max(axis=1)
         with_b = [pc for pc in pieces if pc.b is not None]
-        b_max = _rows([pc.b for pc in with_b], probe, "the drift").__abs__().max(axis=1) if with_b else []
+        # only a drift away from the wall moves the upper tail up (comparison: the diffusion with the drift
+        # max(a, 0) stays above); a restoring drift may outgrow p (the CIR drift alpha - beta p)
+        b_max = np.maximum(_rows([pc.b for pc in with_b], probe, "the drift"), 0.0).max(axis=1) if with_b else []
         for pc, fm in zip(pieces, f_max):
             var += 2.0 * pc.duration * float(fm)
         for pc, bm in zip(with_b, b_max):

@@ -15,8 +15,11 @@ Such faces lie where the drift dominates the diffusion, far below the floor in t
 so far; the weight is first order there.  A closure's drift and a balance drift keep the central
 value (``fitted=False``): the mean-pressure search and the closures' validation are built on it.
 Through the wall face ``-(f_0 u_0 - 0)/(c_0 - p_wall)``
-(``f Pr = 0`` at the wall, Feller's exit condition) plus the drift's outflow
-``min(a_wall, 0) u_0``; nothing leaves through ``p_max``.  The matrix is
+(``f Pr = 0`` at the wall, Feller's exit condition) plus the drift's flux
+``a_wall u_0``, the sum clipped to an outflow (:func:`wall_drift`: a drift away
+from the wall that outweighs diffusion there makes an entrance boundary, which
+nothing crosses); where the wall is not reached the domain's bottom absorbs
+(a drift away from it carries nothing back); nothing leaves through ``p_max``.  The matrix is
 tridiagonal (``z`` couples to ``m_0`` only), total probability
 ``z + sum m_i`` is conserved exactly and, without drift,
 ``sum c_i m_i + p_wall z`` too (summation by parts).
@@ -27,7 +30,7 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ["bands", "centres", "fitted_weight"]
+__all__ = ["bands", "centres", "fitted_weight", "wall_drift", "wall_drift_rate"]
 
 
 def centres(edges: np.ndarray) -> np.ndarray:
@@ -122,11 +125,37 @@ def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = No
         upper[..., 1:] -= cr
         lower[..., 1:] += cl
         diag[..., 2:] += cr
-        # wall face: outflow only
-        aw = np.minimum(a_faces[..., 0], 0.0)
-        diag[..., 1] += aw / h[0]
-        upper[..., 0] -= aw / h[0]
+        wall_drift(diag, upper, out, a_faces[..., 0], h[0], edges[0])
     return lower, diag, upper
+
+
+def wall_drift(diag: np.ndarray, upper: np.ndarray, out, a_wall, h_0: float, p_wall: float = 0.0) -> None:
+    """Add the drift's flux through the wall face to bands on ``[z, m_0..m_{n-1}]`` (in place).
+
+    ``out`` is the diffusive outflow rate of cell 0 (per unit of ``m_0``; ``upper[..., 0]`` of bands without
+    the wall's drift), ``a_wall`` the drift on the wall face (pressure per unit tau) and ``h_0`` cell 0's width.
+    A drift towards the wall carries ``|a_wall| u_0`` out; a drift away from it carries back what diffusion takes
+    out, at most: the net flux ``(a_wall - out h_0) u_0`` is the continuum's ``a Pr - d(f Pr)/dp`` at the wall
+    where it leaves (Feller's exit boundary: the absorbed mass is the non-contact weight) and 0 where the drift
+    holds probability off the wall (``f = p/p_1`` with ``a_wall p_1 >= 1``, or ``f ~ p^k``, ``1 < k < 2``, with
+    ``a_wall > 0``: an entrance boundary, never reached).  Nothing flows back out of the absorbed mass.
+    ``p_wall > 0`` (the wall is not reached: the domain's bottom, far below the floor) absorbs what crosses it,
+    all of it below the floor and counted in the non-contact weight; a drift away from it carries nothing back.
+    """
+    rate = wall_drift_rate(out, a_wall, h_0, p_wall)
+    diag[..., 1] += rate
+    upper[..., 0] -= rate
+
+
+def wall_drift_rate(out, a_wall, h_0: float, p_wall: float = 0.0):
+    """The wall's drift term of cell 0's rate per unit of ``m_0`` (1/tau), :func:`wall_drift`'s: ``a_wall / h_0``
+    where the drift points to the wall, ``min(a_wall / h_0, out)`` where it points away from the wall ``p_wall = 0``
+    (0 from the bottom ``p_wall > 0`` of a wall that is not reached)."""
+    a_wall = np.asarray(a_wall, dtype=float)
+    towards = np.minimum(a_wall, 0.0) / h_0
+    if p_wall > 0.0:
+        return towards
+    return towards + np.minimum(np.maximum(a_wall, 0.0) / h_0, out)
 
 
 def state_bands(lower_m: np.ndarray, diag_m: np.ndarray, upper_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
