@@ -15,10 +15,11 @@ engine's too, so FiPy's assembled operator and the native one agree to
 round-off, except on the faces where the native operator leans a user's drift
 upwind (cell Peclet number above 2, :func:`.fv.operator.fitted_weight`).
 FiPy's constrained wall face carries no convection, so the drift's flux through
-it enters as an ``ImplicitSourceTerm`` in cell 0, the native operator's
+it is carried by the wall face's diffusion coefficient: its transfer
+``gamma_0 P_0 / (h_0/2)`` is the native operator's net wall outflow
 (:func:`.fv.operator.wall_drift`: out where the drift points to the wall, back
-at most what diffusion takes out where it points away; FiPy treats the latter,
-a growing source, explicitly, so ``assemble`` adds it to the bands it reads).
+at most what diffusion takes out where it points away), implicit in the loop
+as in the assembled matrix.
 
 Two ways to integrate (``method=``):
 
@@ -44,7 +45,7 @@ import numpy as np
 from ..result import PressureDistribution
 from . import timed_import
 from .fv.engine import MAX_CELLS, Prepared, solve_fv
-from .fv.operator import centres, state_bands, wall_drift, wall_drift_rate
+from .fv.operator import centres, state_bands, wall_drift_rate
 
 __all__ = ["solve", "warm_up", "assemble"]
 
@@ -52,12 +53,9 @@ __all__ = ["solve", "warm_up", "assemble"]
 LOOP_STEPS_PER_CELL = 1.0
 
 
-def _terms(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray], value: Optional[np.ndarray] = None,
-           wall_source: bool = True):
-    """FiPy's equation, its variable and the cell widths.  ``wall_source=False``: without the wall's drift term
-    (:func:`assemble` adds it to the bands; FiPy puts a growing source in its right-hand side, not its matrix)."""
-    from fipy import (CellVariable, CentralDifferenceConvectionTerm, DiffusionTerm, FaceVariable, Grid1D,
-                      ImplicitSourceTerm, TransientTerm)
+def _terms(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray], value: Optional[np.ndarray] = None):
+    """FiPy's equation, its variable and the cell widths."""
+    from fipy import CellVariable, CentralDifferenceConvectionTerm, DiffusionTerm, FaceVariable, Grid1D, TransientTerm
 
     h = np.diff(edges)
     c = centres(edges)
@@ -72,15 +70,14 @@ def _terms(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray], va
     vel[1:-1] = np.diff(f_c) / np.diff(c)
     if a_faces is not None:
         vel[1:-1] -= a_faces[1:]
+        # the constrained wall face carries no convection: the net flux a P - d(f P)/dp through it, an outflow
+        # (out where the drift points to the wall; back at most what diffusion takes out where it points away),
+        # is carried by the wall face's transfer coefficient, P_0 / (h_0 / 2) times gamma_0
+        out = gamma[0] / (0.5 * h[0] * h[0])
+        net = out - float(wall_drift_rate(out, a_faces[0], h[0], edges[0]))
+        gamma[0] = max(net, 0.0) * 0.5 * h[0] * h[0]
     eq = (TransientTerm() == DiffusionTerm(coeff=FaceVariable(mesh=mesh, value=gamma))
           + CentralDifferenceConvectionTerm(coeff=FaceVariable(mesh=mesh, rank=1, value=vel[None, :])))
-    if a_faces is not None and wall_source:
-        # the constrained wall face carries no convection: the drift's flux through it, a source in cell 0
-        # (out where the drift points to the wall, back at most the diffusive outflow f_0 P_0 / (h_0/2) where it
-        # points away)
-        wall = np.zeros(n)
-        wall[0] = wall_drift_rate(gamma[0] / (0.5 * h[0] * h[0]), a_faces[0], h[0], edges[0])
-        eq = eq + ImplicitSourceTerm(coeff=CellVariable(mesh=mesh, value=wall))
     return eq, var, h
 
 
@@ -91,7 +88,7 @@ def assemble(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray],
     FiPy builds ``M P_new = b`` with ``M = diag(h/dt) - h L``; one sweep with
     ``dt = 1`` gives ``L`` (on densities), converted to masses ``H L H^-1``.
     """
-    eq, var, h = _terms(edges, f_c, a_faces, wall_source=False)
+    eq, var, h = _terms(edges, f_c, a_faces)
     eq.cacheMatrix()
     eq.sweep(var=var, dt=1.0)
     mat = eq.matrix.matrix.tocsr()
@@ -102,10 +99,7 @@ def assemble(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray],
     dg_u = (h - mat.diagonal(0)) / h
     lo_u = -mat.diagonal(-1) / h[1:]
     # masses: L_m = H L_u H^-1
-    lo, dg, up = state_bands(lo_u * h[1:] / h[:-1], dg_u, up_u * h[:-1] / h[1:])
-    if a_faces is not None:  # the wall's drift term, the loop's ImplicitSourceTerm in cell 0
-        wall_drift(dg, up, up[0], a_faces[0], h[0], edges[0])
-    return lo, dg, up
+    return state_bands(lo_u * h[1:] / h[:-1], dg_u, up_u * h[:-1] / h[1:])
 
 
 def _loop(prep: Prepared, edges: np.ndarray, n_base: int, refine: int) -> tuple[np.ndarray, dict]:
