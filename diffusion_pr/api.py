@@ -150,7 +150,12 @@ def propagate(
 
     ``p = 0`` absorbs: what reaches it is ``zero_weight`` (the non-contact
     peak).  With ``f = 1`` the answer is Persson's mirror Gaussian of
-    variance ``V`` plus ``erfc(p0/sqrt(2V)) delta(p)``.
+    variance ``V`` plus ``erfc(p0/sqrt(2V)) delta(p)``.  Whether the wall is
+    reached at all is Feller's test with the drift: where ``f(p) -> 0`` at
+    ``p = 0`` and the drift away from it outweighs diffusion there (e.g.
+    ``f = p/p_1`` with ``a(0) p_1 >= 1``), ``p = 0`` is an entrance boundary,
+    nothing crosses it and ``zero_weight`` is exactly 0 (the result's
+    ``diagnostics["wall"]`` says which case applied).
 
     Parameters
     ----------

@@ -455,7 +455,7 @@ def test_a_drift_away_from_an_exit_wall_against_the_squared_bessel_process(alpha
     err = l1_error(r, dens, zw)
     assert err <= 1e-6
     assert r.error_estimate / 10 <= err <= 10 * r.error_estimate
-    assert abs(r.zero_weight - zw) <= 1e-6
+    assert abs(r.zero_weight - zw) <= 1e-6 and r.diagnostics["wall"] == "absorbing at p = 0"
 
 
 @pytest.mark.parametrize("p0, V, p_1, alpha, beta", [(1.0, 0.5, 1.0, 2.0, 2.0), (1.0, 0.5, 0.1, 20.0, 4.0),
@@ -469,7 +469,7 @@ def test_an_entrance_wall_is_never_crossed(p0, V, p_1, alpha, beta):
     r = native.solve(FokkerPlanckProblem(p0, V, ProportionalDiffusivity(p_1),
                                          drift=lambda p, tau: alpha - beta * p), rtol=1e-6)
     assert r.success, r.message
-    assert r.zero_weight == 0.0
+    assert r.zero_weight == 0.0 and "entrance boundary" in r.diagnostics["wall"] and "entrance" in r.message
     cdf = cir_cdf(p0, V, p_1, alpha, beta)
     err = float(np.sum(np.abs(np.diff(cdf(r.edges)) - r.density * r.weights)) + cdf(r.edges[0]) + 1 - cdf(r.edges[-1]))
     assert err <= 1e-6

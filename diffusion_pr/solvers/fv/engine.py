@@ -1888,10 +1888,14 @@ def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarr
         problems.append(f"probability {tail:.2e} in the top cell: the domain is too short")
     success = not problems
     wall = "absorbing at p = 0" if prep.reached else f"not reached (k >= 2); floor at p_floor = {prep.p_floor:.6g}"
+    absorbed = "; zero_weight = probability absorbed at p = 0"
+    if prep.reached and z == 0.0 and any(pc.b is not None for pc in prep.pieces):
+        # the wall's net flux was clipped to 0 on every stage (operator.wall_drift): Feller's entrance boundary
+        wall = "p = 0 never reached: the drift away from it outweighs diffusion there (an entrance boundary)"
+        absorbed = "; zero_weight = 0: p = 0 is an entrance boundary (the drift holds probability off it)"
     if success:
         message = (f"converged: L1 error estimate {estimate:.2e} <= rtol {rtol:.1e} on {c.size} cells"
-                   + ("; zero_weight = probability absorbed at p = 0" if prep.reached
-                      else f"; zero_weight = probability below p_floor = {prep.p_floor:.3g}"))
+                   + (absorbed if prep.reached else f"; zero_weight = probability below p_floor = {prep.p_floor:.3g}"))
     else:
         message = "; ".join(problems)
     diagnostics = {
