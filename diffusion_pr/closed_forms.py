@@ -22,6 +22,17 @@ integrated diffusivity ``\int D deta``) and ``slope`` in 1/pressure.
   with mass ``exp(-p0/(a tau))`` absorbed in ``delta(p)``. It is the law of the
   Ito process ``dp = sqrt(2 a p) dW`` killed at 0, so the full mean stays
   ``p0`` (martingale) and the variance is ``2 a p0 tau``.
+* The same with an affine drift, ``dPr/dtau = -d/dp[(alpha - beta p) Pr] +
+  d^2 (a p Pr)/dp^2`` (the Cox-Ingersoll-Ross process absorbed at 0; J. C. Cox,
+  J. E. Ingersoll and S. A. Ross, Econometrica 53, 385 (1985),
+  doi:10.2307/1911242): ``Z = 2 p/a`` is a squared Bessel process of dimension
+  ``delta = 2 alpha/a`` run on the clock ``s = (exp(beta tau) - 1)/beta`` and
+  scaled by ``exp(-beta tau)``; for ``delta < 2`` it reaches 0 (Feller's exit
+  boundary) with probability ``Q(1 - delta/2, z0/2s)``, the regularized upper
+  incomplete gamma function (A. Goeing-Jaeschke and M. Yor, Bernoulli 9, 313
+  (2003), doi:10.3150/bj/1068128980); for ``delta >= 2`` never (an entrance
+  boundary).  :func:`cir_density`, :func:`cir_zero_weight`.  ``alpha = beta =
+  0`` is Feller's solution.
 """
 from __future__ import annotations
 
@@ -32,7 +43,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy import special
 
-from ._validation import check_finite_array, check_positive
+from ._validation import check_finite, check_finite_array, check_positive
 
 __all__ = [
     "Moments",
@@ -266,3 +277,98 @@ def feller_moments(mean_pressure: float, tau: float, slope: float) -> Moments:
     t = check_positive("tau", tau)
     a = check_positive("slope", slope)
     return Moments(p0, 2.0 * a * p0 * t, math.exp(-p0 / (a * t)))
+
+
+def _cir_clock(tau: float, slope: float, drift_at_wall: float, restoring_rate: float) -> tuple:
+    """``(delta, s, scale)``: the squared Bessel process's dimension, its clock ``s`` [in units of ``Z``] and the
+    factor ``exp(beta tau)`` by which ``Z`` is stretched (``Y_s = exp(beta tau) Z_tau``)."""
+    beta_tau = restoring_rate * tau
+    return 2.0 * drift_at_wall / slope, tau * float(special.exprel(beta_tau)), math.exp(beta_tau)
+
+
+def _cir_args(mean_pressure, tau, slope, drift_at_wall, restoring_rate) -> tuple:
+    p0 = check_positive("mean_pressure", mean_pressure)
+    t = check_positive("tau", tau)
+    a = check_positive("slope", slope)
+    alpha = float(check_finite("drift_at_wall", drift_at_wall))
+    beta = float(check_finite("restoring_rate", restoring_rate))
+    if abs(beta * t) > 700.0:
+        raise ValueError(f"restoring_rate * tau must lie in [-700, 700] (exp overflows beyond); got "
+                         f"restoring_rate={beta!r}, tau={t!r}")
+    return p0, t, a, alpha, beta
+
+
+def cir_density(p: ArrayLike, mean_pressure: float, tau: float, slope: float, drift_at_wall: float = 0.0,
+                restoring_rate: float = 0.0) -> np.ndarray | float:
+    r"""Density of ``dPr/dtau = -d/dp[(alpha - beta p) Pr] + d^2(a p Pr)/dp^2`` from ``delta(p - p0)``, absorbed at 0.
+
+    The Ito process ``dp = (alpha - beta p) dtau + sqrt(2 a p) dW`` killed at ``p = 0``.  With ``Z = 2 p/a``,
+    ``z0 = 2 p0/a``, ``delta = 2 alpha/a``, ``nu = delta/2 - 1``, ``s = (exp(beta tau) - 1)/beta`` and
+    ``y = exp(beta tau) Z``:
+
+        Pr(p) = (2/a) exp(beta tau) (1/2s) (y/z0)^(nu/2) exp(-(y + z0)/2s) I_|nu|(sqrt(y z0)/s),
+
+    the squared Bessel process's transition density on the clock ``s``; ``I_|nu|`` (not ``I_nu``) is the
+    process killed at 0 where ``delta < 2``, and the same function where ``delta >= 2`` (0 is never reached:
+    then ``2 k p`` is noncentral chi-square with ``delta`` degrees of freedom and noncentrality
+    ``2 k p0 exp(-beta tau)``, ``k = beta/(a (1 - exp(-beta tau)))``; Cox, Ingersoll and Ross 1985,
+    doi:10.2307/1911242).  ``alpha = beta = 0`` is :func:`feller_density`.  Evaluated overflow-free with
+    ``ive`` and in logarithms; at ``p = 0`` the limit ``p -> 0+``.  The ``delta(p)`` weight is
+    :func:`cir_zero_weight`.
+
+    Parameters
+    ----------
+    p : float or array_like
+        Pressure(s) [pressure], any shape; 0 for ``p < 0``.
+    mean_pressure : float
+        ``p0`` [pressure], > 0.
+    tau : float
+        Integrated diffusivity ``\int D deta`` [pressure^2], > 0.
+    slope : float
+        ``a = 1/p1`` in ``f(p) = a p`` [1/pressure], > 0.
+    drift_at_wall : float
+        ``alpha`` [1/pressure: pressure per unit ``tau``], the drift at ``p = 0``; any sign (``alpha >= a`` makes
+        ``p = 0`` an entrance boundary, never reached).
+    restoring_rate : float
+        ``beta`` [1/pressure^2], any sign; ``|beta tau| <= 700``.
+
+    Returns
+    -------
+    float or numpy.ndarray
+        Density [1/pressure], shape of ``p``.
+    """
+    pa = check_finite_array("p", p, min_size=0)
+    p0, t, a, alpha, beta = _cir_args(mean_pressure, tau, slope, drift_at_wall, restoring_rate)
+    delta, s, scale = _cir_clock(t, a, alpha, beta)
+    nu = delta / 2.0 - 1.0
+    z0 = 2.0 * p0 / a
+    y = 2.0 * np.maximum(pa, 0.0) / a * scale
+    pos = y > 0.0
+    ys = np.where(pos, y, 1.0)
+    x = np.sqrt(ys * z0) / s
+    with np.errstate(divide="ignore", under="ignore"):
+        log_bessel = np.log(special.ive(abs(nu), x))  # I e^-x: exp(-(y + z0)/2s) I = exp(-(sqrt y - sqrt z0)^2/2s) ive
+        log_dens = (math.log(2.0 / a * scale / (2.0 * s)) + 0.5 * nu * np.log(ys / z0)
+                    - (np.sqrt(ys) - math.sqrt(z0)) ** 2 / (2.0 * s) + log_bessel)
+    dens = np.where(pos, np.exp(log_dens), 0.0)
+    # p -> 0+: (y/z0)^(nu/2) I_|nu|(x) -> (z0/2s)^|nu| / Gamma(1 + |nu|) y^((nu + |nu|)/2): finite where nu <= 0
+    at_zero = 0.0 if nu > 0.0 else (2.0 / a * scale / (2.0 * s) * math.exp(-z0 / (2.0 * s))
+                                    * math.exp(abs(nu) * math.log(z0 / (2.0 * s)) - math.lgamma(1.0 + abs(nu))))
+    dens = np.where((pa >= 0) & ~pos, at_zero, dens)
+    return _out(np.where(pa >= 0, dens, 0.0))
+
+
+def cir_zero_weight(mean_pressure: float, tau: float, slope: float, drift_at_wall: float = 0.0,
+                    restoring_rate: float = 0.0) -> float:
+    """Mass absorbed at ``p = 0`` by the process of :func:`cir_density` [dimensionless].
+
+    ``Q(1 - delta/2, z0/2s)`` for ``delta = 2 alpha/a < 2`` (the time a squared Bessel process of dimension
+    ``delta < 2`` takes from ``z0`` to 0 is ``z0/(2 G)``, ``G ~ Gamma(1 - delta/2)``; Goeing-Jaeschke and Yor 2003,
+    doi:10.3150/bj/1068128980), 0 for ``delta >= 2`` (entrance boundary).  ``alpha = beta = 0``:
+    ``exp(-p0/(a tau))``, :func:`feller_zero_weight`.  Parameters as :func:`cir_density`.
+    """
+    p0, t, a, alpha, beta = _cir_args(mean_pressure, tau, slope, drift_at_wall, restoring_rate)
+    delta, s, _ = _cir_clock(t, a, alpha, beta)
+    if delta >= 2.0:
+        return 0.0
+    return float(special.gammaincc(1.0 - delta / 2.0, 2.0 * p0 / a / (2.0 * s)))

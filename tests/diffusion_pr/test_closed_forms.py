@@ -15,6 +15,8 @@ from scipy.integrate import quad
 
 from diffusion_pr.closed_forms import (
     Moments,
+    cir_density,
+    cir_zero_weight,
     feller_density,
     feller_moments,
     feller_zero_weight,
@@ -246,3 +248,79 @@ def test_feller_small_tau_is_gaussian():
 def test_bad_input(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+# --------------------------------------------------------------------------- Feller with an affine drift (CIR)
+#: (p0, tau, a, alpha, beta): exit walls (2 alpha/a < 2) with and without a restoring drift, a drift towards the
+#: wall (alpha < 0), a growing drift (beta < 0), entrance walls (2 alpha/a >= 2), the boundary case 2 alpha/a = 2
+CIR_CASES = [(1.0, 0.25, 1.0, 0.3, 0.0), (1.0, 0.25, 1.0, 0.5, 1.5), (0.1, 1.0, 3.0, -1.0, 0.5),
+             (1.0, 0.5, 1.0, -0.8, -1.0), (0.01, 0.5, 50.0, 10.0, -2.0), (1.0, 0.25, 1.0, 2.0, 2.0),
+             (1.0, 0.25, 1.0, 1.0, 0.7), (1.0, 0.25, 1.0, 3.0, 0.0)]
+
+
+@pytest.mark.parametrize("p0,tau,a,alpha,beta", CIR_CASES)
+def test_cir_normalization(p0, tau, a, alpha, beta):
+    # the density (a Bessel function) and the zero weight (an incomplete gamma function) are independent formulas:
+    # together they hold all the probability; quadrature tolerance 1e-10
+    f = lambda p: cir_density(p, p0, tau, a, alpha, beta)
+    scale = math.sqrt(2 * a * (p0 + abs(alpha) * tau) * tau) + a * tau
+    total = _quad0inf(f, scale, p0) + cir_zero_weight(p0, tau, a, alpha, beta)
+    assert total == pytest.approx(1.0, abs=1e-10)
+
+
+@pytest.mark.parametrize("p0,tau,a,alpha,beta", [c for c in CIR_CASES if 2 * c[3] / c[2] < 2])
+def test_cir_solves_the_equation_and_its_wall_flux_fills_the_zero_weight(p0, tau, a, alpha, beta):
+    # residual of dPr/dtau = -d/dp[(alpha - beta p) Pr] + d^2(a p Pr)/dp^2 by central differences on the scale of
+    # the spread, w (h = 1e-3 w, dtau = 1e-5 tau: truncation ~1e-6 relative, round-off ~1e-10; tolerance 1e-5 of
+    # max |dPr/dtau|), and the flux into the wall, (a - alpha) Pr(0+) (diffusion's d(a p Pr)/dp at 0+ is
+    # a Pr(0+)), equal to d zero_weight/dtau (rel 1e-6)
+    w = max(p0, math.sqrt(2 * a * p0 * tau) + a * tau)
+    p = np.linspace(0.02, 3.0, 400) * w
+    h, dt = 1e-3 * w, 1e-5 * tau
+    P = lambda pp, t: cir_density(pp, p0, t, a, alpha, beta)
+    lhs = (P(p, tau + dt) - P(p, tau - dt)) / (2 * dt)
+    flux = lambda pp: (alpha - beta * pp) * P(pp, tau)
+    diff = lambda pp: a * pp * P(pp, tau)
+    rhs = -(flux(p + h) - flux(p - h)) / (2 * h) + (diff(p + h) - 2 * diff(p) + diff(p - h)) / h**2
+    assert np.max(np.abs(lhs - rhs)) < 1e-5 * np.max(np.abs(lhs))
+    dzw = (cir_zero_weight(p0, tau + dt, a, alpha, beta) - cir_zero_weight(p0, tau - dt, a, alpha, beta)) / (2 * dt)
+    assert dzw == pytest.approx((a - alpha) * cir_density(0.0, p0, tau, a, alpha, beta), rel=1e-6)
+
+
+@pytest.mark.parametrize("p0,tau,a,alpha,beta", [c for c in CIR_CASES if 2 * c[3] / c[2] >= 2 and c[4] != 0])
+def test_cir_entrance_against_the_noncentral_chi_square(p0, tau, a, alpha, beta):
+    # Cox, Ingersoll and Ross: 2 k p is noncentral chi-square (scipy's ncx2, an independent implementation), and
+    # the mean is p0 exp(-beta tau) + (alpha/beta)(1 - exp(-beta tau)); nothing is absorbed
+    from scipy.stats import ncx2
+
+    k = beta / (a * (1 - math.exp(-beta * tau)))
+    law = ncx2(df=2 * alpha / a, nc=2 * k * p0 * math.exp(-beta * tau))
+    f = lambda p: cir_density(p, p0, tau, a, alpha, beta)
+    for x in (0.1, 0.5, 1.0, 2.0):
+        assert quad(f, 0.0, x * p0, epsabs=1e-14, limit=200)[0] == pytest.approx(law.cdf(2 * k * x * p0), abs=1e-12)
+    scale = math.sqrt(2 * a * p0 * tau) + a * tau
+    mean = p0 * math.exp(-beta * tau) + alpha / beta * (1 - math.exp(-beta * tau))
+    assert _quad0inf(lambda p: p * f(p), scale, p0) == pytest.approx(mean, rel=1e-9)
+    assert cir_zero_weight(p0, tau, a, alpha, beta) == 0.0 and (f(0.0) == 0.0 or alpha == a)  # I_0(0) = 1
+
+
+def test_cir_limits():
+    # alpha = beta = 0 is Feller's solution (round-off); beta -> 0 is continuous (exprel's clock; 1e-9 relative)
+    p = np.linspace(0.0, 4.0, 81)
+    assert np.allclose(cir_density(p, 1.0, 0.3, 2.0), feller_density(p, 1.0, 0.3, 2.0), rtol=1e-13, atol=0)
+    assert cir_zero_weight(1.0, 0.3, 2.0) == pytest.approx(feller_zero_weight(1.0, 0.3, 2.0), rel=1e-14)
+    for alpha in (0.4, 3.0):
+        near = cir_density(p[1:], 1.0, 0.3, 2.0, alpha, 1e-12)
+        assert np.allclose(near, cir_density(p[1:], 1.0, 0.3, 2.0, alpha, 0.0), rtol=1e-9, atol=0)
+    assert cir_density(-1.0, 1.0, 0.3, 2.0, 0.4, 1.0) == 0.0
+
+
+@pytest.mark.parametrize("kw, name", [(dict(slope=0.0), "slope"), (dict(drift_at_wall=float("nan")), "drift_at_wall"),
+                                      (dict(restoring_rate=float("inf")), "restoring_rate"),
+                                      (dict(restoring_rate=1e4), "restoring_rate"), (dict(tau=-1.0), "tau")])
+def test_cir_bad_input(kw, name):
+    args = dict(mean_pressure=1.0, tau=0.5, slope=1.0, drift_at_wall=0.2, restoring_rate=0.0)
+    args.update(kw)
+    for fun in (cir_zero_weight, lambda **k: cir_density(0.5, **k)):
+        with pytest.raises(ValueError, match=name):
+            fun(**args)
