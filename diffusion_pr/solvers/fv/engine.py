@@ -68,7 +68,8 @@ RICHARDSON_DIVISOR = 7.0
 #: there the extrapolated values converge at second order only, so 2^2 - 1.  Measured on Feller's solution
 #: (``f = p/p_1``, against the closed form; ``benchmarks/fp_random_truth.py``): with 7 the true L1 error was
 #: 2.05-3.32x the estimate (2.33 on most) on 61 of 65 random problems (3 above rtol 1e-6), and successive levels'
-#: errors fell as ``N^-1.9``; with 3 it is 0.88-1.34x
+#: errors fell as ``N^-1.9``; with 3 it is 0.88-1.34x.  Since the exit walls' grading (:data:`C_EXIT_WALL`) only an
+#: exit wall on another problem's ungraded grid family uses it (:func:`_exit_wall`)
 EXIT_RICHARDSON_DIVISOR = 3.0
 #: the weight of the logarithmic grading towards an exit wall (``f ~ p^k``, ``0 < k < 2``, the wall reached): its
 #: wall face is first order (the density at ``p = 0`` and ``d(f Pr)/dp`` there from the wall cell alone), so cells
