@@ -56,6 +56,8 @@ __all__ = [
     "feller_density",
     "feller_zero_weight",
     "feller_moments",
+    "cir_density",
+    "cir_zero_weight",
 ]
 
 _SQRT2PI = math.sqrt(2.0 * math.pi)
