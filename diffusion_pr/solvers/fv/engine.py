@@ -75,9 +75,9 @@ EXIT_RICHARDSON_DIVISOR = 3.0
 #: wall face is first order (the density at ``p = 0`` and ``d(f Pr)/dp`` there from the wall cell alone), so cells
 #: that shrink geometrically towards ``p = 0`` down to :data:`EXIT_WALL_DEPTH` make that error negligible, and the
 #: extrapolated masses converge at fourth order as elsewhere (:data:`RICHARDSON_DIVISOR`).  Measured (twenty-seventh
-#: session, rtol 1e-6, against Feller's solution and the absorbed squared Bessel / CIR closed forms): 3292-40448
-#: cells and 7-46 ms ungraded (one case failed at 65536 cells), 290-670 cells and 3-7 ms graded, the errors falling
-#: 16x per doubling instead of 4x (docs/backends.md "Exit walls graded")
+#: session, rtol 1e-6, against Feller's solution and the absorbed squared Bessel / CIR closed forms): 4184-65536
+#: cells and 7-1456 ms ungraded (one case failed at 65536 cells), 272-512 cells and 1.2-12 ms graded, the errors
+#: falling 16x per doubling instead of 4x (docs/backends.md "Exit walls graded")
 C_EXIT_WALL = 1.0
 #: the inner scale of that grading, ``delta = EXIT_WALL_DEPTH rtol s`` (``s`` the spread): cells are about uniform
 #: below it.  The first-order wall error left is about ``1e-4 delta / s`` (measured at delta = 1e-4 s: the
