@@ -7,7 +7,8 @@ The cell density is the derivative of a smooth monotone monitor function ::
 (``s``: the width of the final distribution; the logarithm grades the cells
 geometrically towards the wall where the wall is not reached, ``f ~ p^k`` with
 ``k >= 2``, so that the density creeping towards 0 is resolved down to the
-floor; the ``asinh`` grades towards the start ``p0`` where the local spread is
+floor, and towards an exit wall, ``0 < k < 2``, down to ``delta`` of order ``rtol``
+times the spread, so that its first-order wall face costs nothing; the ``asinh`` grades towards the start ``p0`` where the local spread is
 small).  After the first level a problem may replace ``Phi`` by ``F(Phi)`` (:class:`Remap`: ``F' > 0`` a
 smooth function tabulated from the first level's errors), which moves cells to where the errors are without
 leaving the family of smooth maps.  Knots -- the wall, every breakpoint of the coefficients, ``p0`` and
