@@ -50,26 +50,17 @@ def _besq_case(p0: float, V: float, p_1: float, alpha: float):
     """``(problem, density, zero_weight)``: ``f = p/p_1``, constant drift ``alpha`` away from the wall, ``alpha p_1 < 1``.
 
     ``Z = 2 p_1 p`` is the squared Bessel process of dimension ``delta = 2 alpha p_1 < 2``, absorbed at 0 (Feller's
-    exit boundary).  Its absorbed transition density is
-    ``(1/2t) (z/z0)^(nu/2) exp(-(z + z0)/2t) I_|nu|(sqrt(z z0)/t)``, ``nu = delta/2 - 1``, ``t = tau = V/2``, and the
-    time it reaches 0 is ``z0 / (2 G)`` with ``G ~ Gamma(1 - delta/2)`` (A. Goeing-Jaeschke and M. Yor, Bernoulli 9,
-    313 (2003), doi:10.3150/bj/1068128980), so the non-contact weight is ``Q(1 - delta/2, z0/2t)``.  ``alpha = 0`` is
-    Feller's solution (``Q(1, x) = exp(-x)``)."""
-    from scipy.special import gammaincc, ive
-
+    exit boundary): ``closed_forms.cir_density`` / ``cir_zero_weight`` with ``beta = 0`` (its absorbed transition
+    density with ``I_|nu|``, and the non-contact weight ``Q(1 - delta/2, z0/2t)``, ``t = tau = V/2``; A.
+    Goeing-Jaeschke and M. Yor, Bernoulli 9, 313 (2003), doi:10.3150/bj/1068128980; tested on its own in
+    test_closed_forms).  ``alpha = 0`` is Feller's solution (``Q(1, x) = exp(-x)``)."""
+    from diffusion_pr import closed_forms as cf
     from diffusion_pr.models import ProportionalDiffusivity
     from diffusion_pr.problem import FokkerPlanckProblem
 
-    delta, t, z0 = 2.0 * p_1 * alpha, V / 2, 2.0 * p_1 * p0
-    nu = delta / 2 - 1
-
-    def density(p):
-        z = 2.0 * p_1 * p
-        return 2.0 * p_1 / (2 * t) * (z / z0) ** (nu / 2) * np.exp(-(np.sqrt(z) - np.sqrt(z0)) ** 2 / (2 * t)) \
-            * ive(abs(nu), np.sqrt(z * z0) / t)
-
+    args = (p0, V / 2, 1.0 / p_1, alpha)
     problem = FokkerPlanckProblem(p0, V, ProportionalDiffusivity(p_1), drift=lambda p, tau: np.full_like(p, alpha))
-    return problem, density, float(gammaincc(1 - delta / 2, z0 / (2 * t)))
+    return problem, (lambda p: cf.cir_density(p, *args)), cf.cir_zero_weight(*args)
 
 
 @pytest.fixture

@@ -38,7 +38,7 @@ import numpy as np
 from ..result import PressureDistribution
 from . import timed_import
 from .fv.engine import MAX_CELLS, Prepared, solve_fv
-from .fv.operator import centres, probe_bands, state_bands, wall_drift
+from .fv.operator import centres, probe_bands, state_bands, wall_drift, wall_drift_rate
 
 __all__ = ["solve", "warm_up", "assemble"]
 
@@ -96,9 +96,7 @@ def _wall_rate(ops: _Operators, f_c: np.ndarray, h: np.ndarray, a_wall: float, p
     diffusive outflow, read off with one probe)."""
     e0 = np.zeros(h.size)
     e0[0] = 1.0
-    diag, upper = np.zeros(2), np.zeros(1)
-    wall_drift(diag, upper, -float(np.sum(ops.rate(e0, f_c, h, None))), a_wall, h[0], p_wall)
-    return float(diag[1])
+    return float(wall_drift_rate(-float(np.sum(ops.rate(e0, f_c, h, None))), a_wall, h[0], p_wall))
 
 
 def _loop(prep: Prepared, edges: np.ndarray, n_base: int, refine: int, tol: float) -> tuple[np.ndarray, dict]:

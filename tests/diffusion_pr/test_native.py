@@ -474,15 +474,10 @@ def test_an_exit_wall_with_an_affine_drift_against_the_absorbed_cir_process(p0, 
     L1 2.7e-8 ... 1.0e-7, each about half its estimate.  Tolerances: rtol, the estimate within 10x (issue 10), the
     zero weight within rtol; cell masses by 24-point Gauss-Legendre quadrature of the closed form (its density is
     analytic in p on every cell, exact to round-off here)."""
-    from scipy.special import roots_legendre
-
     r = native.solve(FokkerPlanckProblem(p0, V, ProportionalDiffusivity(p_1),
                                          drift=lambda p, tau: alpha - beta * p), rtol=1e-6)
     assert r.success, r.message
-    x, w = roots_legendre(24)
-    lo, hi = r.edges[:-1, None], r.edges[1:, None]
-    dens = cf.cir_density(0.5 * (lo + hi) + 0.5 * (hi - lo) * x, p0, V / 2, 1 / p_1, alpha, beta)
-    exact = 0.5 * (hi - lo)[:, 0] * (dens @ w)
+    exact = cell_mass(lambda p: cf.cir_density(p, p0, V / 2, 1 / p_1, alpha, beta), r.edges, n=24)
     zw = cf.cir_zero_weight(p0, V / 2, 1 / p_1, alpha, beta)
     err = float(np.sum(np.abs(r.density * r.weights - exact)) + abs(r.zero_weight - zw) + abs(1 - zw - exact.sum()))
     assert err <= 1e-6 and r.error_estimate / 10 <= err <= 10 * r.error_estimate, (err, r.error_estimate)
