@@ -17,7 +17,6 @@ from diffusion_pr.closures import closure_distribution as _closure_distribution
 from diffusion_pr.closures import closure_problem, spectrum_shells
 from diffusion_pr.solvers.fv import engine
 from diffusion_pr.solvers.fv._kernels import (ALPHA, ALPHA0, BAD_PREDICTION, PFD_RESIDUES, THETA, _fill_row,
-                                              _fill_row_log, _log_geometry,
                                               _geometry, _pfd_dominant, flux_weights, _pfd_pivoting, cram_apply, cram_apply_d,
                                               cram_pfd, gttrf, gttrs)
 from diffusion_pr.solvers.fv.operator import bands
@@ -68,54 +67,14 @@ def test_cram_derivative_matches_finite_differences(rng):
     assert np.max(np.abs(dout - fd)) <= 1e-7 * np.max(np.abs(fd))
 
 
-def _kernel_bands(edges, f_rows, a_rows, with_drift, with_diffusion, fitted=False, log_scale=0.0):
+def _kernel_bands(edges, f_rows, a_rows, with_drift, with_diffusion, fitted=False):
     geometry = _geometry(edges)
     n = edges.size - 1
     out = (np.empty((len(a_rows), n)), np.empty((len(a_rows), n + 1)), np.empty((len(a_rows), n)))
-    lg = _log_geometry(edges, geometry[0], geometry[1], log_scale) if log_scale > 0.0 else None
     for r in range(len(a_rows)):
-        if lg is not None:
-            _fill_row_log(geometry[0], geometry[2], lg, f_rows[r if with_diffusion else 0], a_rows[r], with_drift,
-                          with_diffusion, out[0][r], out[1][r], out[2][r])
-            continue
         _fill_row(*geometry, f_rows[r if with_diffusion else 0], a_rows[r], with_drift, with_diffusion, fitted,
                   edges[0] == 0.0, out[0][r], out[1][r], out[2][r])
     return out
-
-
-@pytest.mark.parametrize("with_drift", [False, True])
-def test_kernel_bands_in_ln_p_match_the_numpy_operator(rng, with_drift):
-    """The compiled ``ln p`` form (``_log_geometry`` + ``_fill_row_log``) equals operator.bands(log_scale=...) on a
-    graded grid over 20 decades whose weight runs from 1 to 0 (log_scale mid-way), and the balance operator (f = 0)
-    too; probability is conserved (column sums 0 but at the bottom face, which absorbs)."""
-    edges = 1e-20 * np.exp(np.r_[0.0, np.cumsum(rng.uniform(0.05, 0.9, 120))])
-    c = 0.5 * (edges[1:] + edges[:-1])
-    f_rows = rng.uniform(0.5, 1.5, (4, 120)) * (c / (c + 1e-9)) ** 2
-    a_rows = rng.normal(size=(4, 120)) * edges[:-1]
-    log_scale = 1e-11
-    ref = bands(edges, f_rows, a_rows if with_drift else None, fitted=False, log_scale=log_scale)
-    for r, x in zip(ref, _kernel_bands(edges, f_rows, a_rows, with_drift, True, log_scale=log_scale)):
-        assert np.max(np.abs(r - x)) <= 1e-14 * np.max(np.abs(r))
-    lower, diag, upper = ref
-    col = diag.copy()
-    col[..., :-1] += lower
-    col[..., 1:] += upper
-    assert np.max(np.abs(col)) <= 1e-13 * np.max(np.abs(diag))  # columns of [z, m]: what leaves m_0 enters z
-    if with_drift:
-        balance = bands(edges, np.zeros_like(f_rows), a_rows, fitted=False, log_scale=log_scale)
-        for r, x in zip(balance, _kernel_bands(edges, f_rows[:1], a_rows, True, False, log_scale=log_scale)):
-            assert np.max(np.abs(r - x)) <= 1e-14 * np.max(np.abs(r))
-    # the two limits: far above log_scale the p form, far below the same scheme on x = ln p (D = f/p^2 at the
-    # centres, the drift a/p minus the Ito drift D at the faces), each to the weight's distance from 0 or 1
-    d_c = f_rows / c**2
-    d_face = np.concatenate([d_c[:, :1], 0.5 * (d_c[:, :-1] + d_c[:, 1:])], axis=1)
-    x_form = bands(np.log(edges), d_c, (a_rows / edges[:-1] if with_drift else 0.0) - d_face, fitted=False)
-    p_form = bands(edges, f_rows, a_rows if with_drift else None, fitted=False)
-    for limit, faces in ((p_form, edges[1:-1] > 1e4 * log_scale), (x_form, edges[1:-1] < 1e-4 * log_scale)):
-        assert faces.sum() > 20
-        for band in (0, 2):  # lower, upper: the interior faces' entries
-            want, got = limit[band][:, 1:][:, faces], ref[band][:, 1:][:, faces]
-            assert np.max(np.abs(want - got) / np.abs(want)) < 1e-3
 
 
 @pytest.mark.parametrize("p_wall", [1e-9, 0.0])
