@@ -28,9 +28,6 @@ or above 3x their estimate, and the summed times; writes ``results/stress_truth_
 ``--random N [--seed S]``: the same on ``N`` random scenes off the four spectra (``RANDOM_BOX``: ``H`` 0.2-0.9, rms
 slope 0.01-0.3, sizes 256-8192 and cutoffs 4-64 lattice units, ``zeta`` 1e-4 ... 10, ``p0`` 1e-5 ... 0.3; ``local_g1``
 and both balanced closures); writes ``results/stress_truth_random_<S>.md`` (150 scenes: about 2 minutes).
-``--p-oracle`` (with ``--truth`` or ``--random``): the oracles with the ``p`` form everywhere
-(``engine.LOG_FLUX_FRACTION = 0``), a discretization independent of the answers' ``ln p`` form deep below
-``kz q_min``; the result files get the suffix ``_p_oracle``.
 """
 from __future__ import annotations
 
@@ -192,23 +189,6 @@ def _l1_to(answer, oracle) -> float:
                  + np.sum(np.abs(np.diff(answer.cdf(x))[1:] - np.diff(oracle.cdf(x))[1:])))
 
 
-#: the oracles of --truth / --random with the p form everywhere (--p-oracle)
-P_ORACLE = False
-
-
-def _oracle(spec, **kw):
-    """The rtol-1e-8 oracle of a scene: the answers' operator, or with ``P_ORACLE`` the ``p`` form everywhere."""
-    from diffusion_pr.solvers.fv import engine
-
-    saved = engine.LOG_FLUX_FRACTION
-    if P_ORACLE:
-        engine.LOG_FLUX_FRACTION = 0.0
-    try:
-        return closure_distribution(spec, rtol=1e-8, **kw)
-    finally:
-        engine.LOG_FLUX_FRACTION = saved
-
-
 def _truth_row(spec, closure: str, zeta: float, p0: float, mode: str = "fourth") -> tuple:
     """``(true L1, estimate, shells, grading, seconds)`` of one scene's rtol-1e-6 answer against its rtol-1e-8 one
     (``(inf, nan, "", "no answer" | "no oracle", seconds)`` where one fails or raises; ``seconds``: the rtol-1e-6
@@ -219,7 +199,7 @@ def _truth_row(spec, closure: str, zeta: float, p0: float, mode: str = "fourth")
         t0 = time.perf_counter()
         r = closure_distribution(spec, **kw)
         seconds = time.perf_counter() - t0
-        ref = _oracle(spec, **kw)
+        ref = closure_distribution(spec, rtol=1e-8, **kw)
     except (RuntimeError, ValueError, FloatingPointError):
         pass
     if r is None or not r.success:
@@ -301,15 +281,10 @@ def main(argv=None) -> None:
     ap.add_argument("--random", type=int, default=0, metavar="N",
                     help="--truth on N random scenes (RANDOM_BOX, all three continuum closures) instead")
     ap.add_argument("--seed", type=int, default=1, help="the seed of --random (default: 1)")
-    ap.add_argument("--p-oracle", action="store_true",
-                    help="--truth / --random: the oracles with the p form everywhere (engine.LOG_FLUX_FRACTION = 0)")
     args = ap.parse_args(argv)
     closures = tuple(args.closures.split(",")) if args.closures else CLOSURES
     scope = f"({', '.join(closures)}{', quick' if args.quick else ''})"
     if args.truth or args.random:
-        global P_ORACLE
-        P_ORACLE = bool(args.p_oracle)
-        suffix = "_p_oracle" if P_ORACLE else ""
         if args.random:
             rows, seconds = against_oracle(among=random_scenes(args.random, args.seed))
             scope = (f"(random scenes, seed {args.seed}: H, rms slope, size, cutoff, zeta, p0 in "
@@ -328,8 +303,8 @@ def main(argv=None) -> None:
                 ["true L1", "estimate", "true/estimate", "shells", "grading", "spectrum", "closure", "zeta", "p0"],
                 [[f"{r[0]:.2e}", f"{r[1]:.2e}", f"{r[0] / r[1]:.2f}", str(r[2]), r[3], r[4], r[5], f"{r[6]:g}",
                   f"{r[7]:g}"] for r in solved[:25]],
-                f"stress_truth_random_{args.seed}{suffix}.md" if args.random else
-                f"stress_truth_{args.mode}{suffix}.md" if not args.quick and closures == CLOSURES else None)
+                f"stress_truth_random_{args.seed}.md" if args.random else
+                f"stress_truth_{args.mode}.md" if not args.quick and closures == CLOSURES else None)
         return
     if args.remap:
         rows, seconds = against_unremapped(closures, args.quick)

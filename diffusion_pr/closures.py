@@ -612,10 +612,8 @@ def closure_problem(shells: Shells, *, zeta: float, E_star: float, mean_pressure
         else:
             qp = shells.q_min if partition_q is None else (float(q) if partition_q == "shell" else float(partition_q))
             stages.append(Stage(0.5 * float(dv), f, LoadExcessDrift(float(q), qp, kz), RigidApproachBalance(qp, kz)))
-    # below kz q_min every shell's f_k = (p/(p + kz q_k))^2 ~ p^2: ln p diffuses (the engine's ln p form there);
-    # q_min, not the first shell's q_k, so that the n-, n/2- and n/4-shell problems share one operator per grid
     return StagedProblem(float(check_positive("mean_pressure", mean_pressure)), tuple(stages), label=closure,
-                         balance_per_stage=True, p2_scale=kz * float(shells.q_min) if kz > 0.0 else None)
+                         balance_per_stage=True)
 
 
 # --------------------------------------------------------------------------- closed form

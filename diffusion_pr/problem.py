@@ -341,22 +341,12 @@ class StagedProblem:
         engine resolves it by substeps refined with the grids).  True: one
         number ``A`` per stage, the one with ``<p> = p0`` at the stage's end
         (the closures: the rigid-body approach restores the load shell by shell).
-    p2_scale : float or None
-        Pressure (> 0) below which every stage's diffusivity grows like ``p^2``
-        from a wall that is not reached (``ln p`` diffuses with a constant
-        diffusivity there: the shell closures, ``kz q_min``), or None (default).
-        A declaration about the coefficients, not a new physics: the native
-        operator writes its fluxes far below it in ``ln p``
-        (:func:`diffusion_pr.solvers.fv.operator.bands`, ``log_scale``), which
-        resolves that layer on 1.4-1.6x fewer cells (docs/closures.md, "The
-        deep layer in ln p").
     """
 
     mean_pressure: float
     stages: tuple
     label: str = ""
     balance_per_stage: bool = False
-    p2_scale: Optional[float] = None
 
     def __post_init__(self) -> None:
         try:
@@ -374,11 +364,6 @@ class StagedProblem:
         object.__setattr__(self, "stages", stages)
         if not isinstance(self.balance_per_stage, (bool, np.bool_)):
             raise ValueError(f"balance_per_stage must be True or False; got {self.balance_per_stage!r}")
-        if self.p2_scale is not None:
-            if isinstance(self.p2_scale, (bool, np.bool_)) or not isinstance(self.p2_scale, (int, float, np.floating)) \
-                    or not (np.isfinite(self.p2_scale) and self.p2_scale > 0.0):
-                raise ValueError(f"p2_scale must be None or a finite pressure > 0; got p2_scale={self.p2_scale!r}")
-            object.__setattr__(self, "p2_scale", float(self.p2_scale))
 
     @property
     def tau_end(self) -> float:

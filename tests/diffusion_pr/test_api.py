@@ -317,16 +317,15 @@ def test_balanced_closure_sweep_follows_the_need_and_the_grading():
 
 
 def test_sweep_start_stays_within_max_cells():
-    """The sweep's start follows an upward trend of the need (up to 1.5x): with max_cells = 1800 the balanced
-    closure's need rises from 163 to 463 cells over zeta = 1e-3 ... 1e-2 (265 to 650 before the ``ln p`` form of the
-    twenty-eighth session, with max_cells = 2600 here), and the start is capped at the engine's bound max_cells / 4
-    (an uncapped start raised ValueError for n_start)."""
+    """The sweep's start follows an upward trend of the need (up to 1.5x): with max_cells = 2600 the balanced
+    closure's need rises from 265 to 650 cells over zeta = 1e-3 ... 1e-2, and the start is capped at the engine's
+    bound max_cells / 4 (an uncapped start raised ValueError for n_start)."""
     spec = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
     rs = dp.pressure_distributions(spec, zetas=np.geomspace(0.001, 0.01, 5), E_star=8 / 3, mean_pressure=0.004,
-                                   closure="local_g1_balanced", rtol=1e-6, max_cells=1800)
+                                   closure="local_g1_balanced", rtol=1e-6, max_cells=2600)
     assert all(r.success for r in rs)
-    assert max(r.diagnostics["levels"][-1] for r in rs) <= 1800
-    assert rs[-1].diagnostics["levels"][0] == 1800 // 4
+    assert max(r.diagnostics["levels"][-1] for r in rs) <= 2600
+    assert rs[-1].diagnostics["levels"][0] == 2600 // 4
 
 
 def test_wall_grading_option_is_checked_and_applies_where_regrading_does():

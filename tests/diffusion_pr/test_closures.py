@@ -692,13 +692,9 @@ def test_shell_extrapolation_after_a_sixth_that_ended_fourth(monkeypatch):
     fourth-order scheme (H = 0.5, rms slope 0.3, p0 = 1e-5, zeta = 3e-3): the shell extrapolation's coarser solves
     follow the scheme the solve ended with (they raised ValueError when they were asked for the sixth's plain
     grids).  The default shells there are graded at both ends (a thin layer and a start near the wall), whose thin
-    first shell balances on the sixth's grids.  The scene was found with the ``p`` form everywhere; with the ``ln p``
-    form below ``LOG_FLUX_FRACTION kz q_min`` its uniform shells balance with the sixth too, so the test keeps the
-    ``p`` form (the path under test is the fallback, not the operator)."""
+    first shell balances on the sixth's grids."""
     from diffusion_pr import closures
-    from diffusion_pr.solvers.fv import engine
 
-    monkeypatch.setattr(engine, "LOG_FLUX_FRACTION", 0.0)
     spec = dp.SelfAffineSpectrum(0.5, 2 * np.pi / 8192, 2 * np.pi / 8, rms_slope=0.3)
     kw = dict(E_star=E, mean_pressure=1e-5, zeta=3e-3, closure="local_g1_balanced", extrapolation="sixth")
     graded = closure_distribution(spec, **kw)

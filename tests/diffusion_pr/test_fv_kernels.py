@@ -339,10 +339,8 @@ def test_a_cf12_failure_is_repeated_with_cram16(monkeypatch):
     """H = 0.8, zeta = 3e-3, p0 = 1e-5: an early shell's balance fails with CF-12 (its approximation is near-best
     on the real axis only) and succeeds with CRAM-16; the solve says so.  (Which scenes fail is fragile: at
     zeta = 1e-3 stage 0 failed with CF-12 until the domain moved by 1e-7 in the eighth session; the mass-based
-    Lamperti bound of before the nineteenth session pins the domain it fails on; the ``ln p`` form of the
-    twenty-eighth session changes it too, so the p form is kept here.)"""
+    Lamperti bound of before the nineteenth session pins the domain it fails on.)"""
     monkeypatch.setattr(engine, "LAMPERTI_MEAN_ITERATIONS", 0)
-    monkeypatch.setattr(engine, "LOG_FLUX_FRACTION", 0.0)  # the scene was found with the p form everywhere
     spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
     r = closure_distribution(spec, E_star=8 / 3, mean_pressure=1e-5, zeta=3e-3, closure="local_g1_balanced")
     assert r.success and r.diagnostics["cram_order"] == 16
@@ -551,12 +549,10 @@ class _PythonKernels:
                            self.order)[0]
         return expm_tridiagonal(*base, t, y)
 
-    def run_rows(self, edges, f_rows, b_rows, w_rows, any_b, *rest, fitted=None, log_scale=0.0):
-        """The native bands from the rows with numpy (operator.bands, its ``ln p`` form below ``log_scale`` too),
-        then :meth:`run`."""
-        lower, diag, upper = bands(edges, f_rows, b_rows if any_b else None, fitted=False if fitted is None else fitted,
-                                   log_scale=log_scale)
-        wl, wd, wu = bands(edges, np.zeros_like(w_rows), w_rows, fitted=False, log_scale=log_scale)
+    def run_rows(self, edges, f_rows, b_rows, w_rows, any_b, *rest, fitted=None):
+        """The native bands from the rows with numpy (operator.bands), then :meth:`run`."""
+        lower, diag, upper = bands(edges, f_rows, b_rows if any_b else None, fitted=False if fitted is None else fitted)
+        wl, wd, wu = bands(edges, np.zeros_like(w_rows), w_rows, fitted=False)
         return self.run(lower, diag, upper, wl, wd, wu, *rest)
 
     def run(self, lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, pfd,
@@ -782,10 +778,8 @@ def test_sixth_that_does_not_balance_falls_back_to_fourth(monkeypatch):
     the default is CRAM-16 too: on the Lamperti-bounded domain the sixth's 53-cell top cell held 6.7e-12 at
     p_max = 2.3e5 p0, more than rtol in the mean, and on the conservative domain CF-12 does not balance.  Which
     scenes fail is fragile: until the eighth session moved the domain by up to 8 %, this was the shell partition's
-    scene; the mass-based Lamperti bound of before the nineteenth session pins the domain, and the p form everywhere
-    the grids: with the ``ln p`` form below 1e-2 kz q_min the scene changes.)"""
+    scene; the mass-based Lamperti bound of before the nineteenth session pins the domain.)"""
     monkeypatch.setattr(engine, "LAMPERTI_MEAN_ITERATIONS", 0)
-    monkeypatch.setattr(engine, "LOG_FLUX_FRACTION", 0.0)  # the scene was found with the p form everywhere
     spec = dp.SelfAffineSpectrum(0.5, 2 * np.pi / 8192, 2 * np.pi / 8, rms_slope=0.3)
     kw = dict(E_star=8 / 3, mean_pressure=1e-5, zeta=0.03, closure="local_g1_balanced")
     cf12 = closure_distribution(spec, extrapolation="sixth", **kw)
@@ -1129,11 +1123,8 @@ def test_a_later_level_whose_balance_fails_is_repeated_finer(monkeypatch):
     first level solves; the second level's balances fail (injected: until the twenty-fourth session's flux form the
     balance of stage 0 failed there by itself, on 444 cells, the mean 0.1 p0 off after 30 steps); the level is
     repeated with twice the cells and solves, within 2e-6 of the default (CF-12) answer in the cdf (both claim
-    1e-6).  Without the repetition the solve reports failure (the first level's answer is no result).  With the
-    ``ln p`` form (twenty-eighth session) the first level's 79 cells already meet rtol here (1.4e-8): no second level
-    to fail, so the scene keeps the p form."""
+    1e-6).  Without the repetition the solve reports failure (the first level's answer is no result)."""
     monkeypatch.setattr(engine, "REMAP", False)
-    monkeypatch.setattr(engine, "LOG_FLUX_FRACTION", 0.0)  # the scene was found with the p form everywhere
     monkeypatch.setattr(engine, "LAMPERTI_MEAN_ITERATIONS", 0)
     spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
     kw = dict(E_star=8 / 3, mean_pressure=1e-5, zeta=1e-3, closure="local_g1_balanced", n_shells=48)

@@ -270,74 +270,6 @@ def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusi
             upper[0] -= back
 
 
-@njit(cache=True, nogil=True)
-def _log_geometry(edges, h, k_int, log_scale):  # pragma: no cover - numba
-    """Per-face factors of the bands blended into the ``ln p`` form (:func:`.operator.bands` with ``log_scale``),
-    shape ``(6, n - 1)``: the diffusive flux's coefficients of ``f_i m_i`` and ``f_{i+1} m_{i+1}`` in the face's
-    outflow from cell ``i`` (rows 0, 1) and from cell ``i+1`` (rows 2, 3), and the drift's of ``a m_i`` and
-    ``a m_{i+1}`` (rows 4, 5).  Per face ``i+1/2``, with ``t`` the weight, ``D = f/c^2`` and ``v = m/(x_{i+1}-x_i)``:
-    ``(1 - t)`` times the ``p`` form plus ``t`` times ``-(D v)' + (a/p - D) v`` in ``x = ln p``."""
-    n = edges.size - 1
-    x_h = np.empty(n)
-    x_c = np.empty(n)
-    inv_c2 = np.empty(n)
-    for i in range(n):
-        lo = math.log(edges[i])
-        hi = math.log(edges[i + 1])
-        x_h[i] = hi - lo
-        x_c[i] = 0.5 * (hi + lo)
-        c = 0.5 * (edges[i + 1] + edges[i])
-        inv_c2[i] = 1.0 / (c * c)
-    out = np.zeros((6, max(n - 1, 1)))
-    for i in range(n - 1):
-        t = log_scale / (log_scale + edges[i + 1])
-        lam = 1.0 / (x_c[i + 1] - x_c[i])
-        q_l = 0.25 * t * inv_c2[i]  # the Ito drift -D_face = -(D_i + D_{i+1})/2, central in v (times 1/2)
-        q_r = 0.25 * t * inv_c2[i + 1]
-        out[0, i] = (1.0 - t) * k_int[i] / h[i] + t * lam * inv_c2[i] / x_h[i] - q_l / x_h[i]
-        out[1, i] = -q_r / x_h[i]
-        out[2, i] = (1.0 - t) * k_int[i] / h[i + 1] + t * lam * inv_c2[i + 1] / x_h[i + 1] + q_r / x_h[i + 1]
-        out[3, i] = q_l / x_h[i + 1]
-        out[4, i] = (1.0 - t) * 0.5 / h[i] + t * 0.5 / (edges[i + 1] * x_h[i])
-        out[5, i] = (1.0 - t) * 0.5 / h[i + 1] + t * 0.5 / (edges[i + 1] * x_h[i + 1])
-    return out
-
-
-@njit(cache=True, nogil=True)
-def _fill_row_log(h, wall, lg, f_row, a_row, with_drift, with_diffusion, lower, diag, upper):  # pragma: no cover
-    """:func:`_fill_row` with the interior faces blended into the ``ln p`` form (the factors ``lg`` of
-    :func:`_log_geometry`): a wall that is not reached (the bottom absorbs), the central drift."""
-    n = h.size
-    for i in range(n):
-        lower[i] = 0.0
-        upper[i] = 0.0
-    for i in range(n + 1):
-        diag[i] = 0.0
-    if with_diffusion:
-        for i in range(n - 1):
-            left = lg[0, i] * f_row[i] + lg[1, i] * f_row[i + 1]
-            right = lg[2, i] * f_row[i + 1] + lg[3, i] * f_row[i]
-            diag[i + 1] -= left
-            upper[i + 1] += right
-            diag[i + 2] -= right
-            lower[i + 1] += left
-        out = (f_row[0] / h[0]) * wall
-        diag[1] -= out
-        upper[0] += out
-    if with_drift:
-        for i in range(n - 1):
-            ai = a_row[i + 1]
-            cl = ai * lg[4, i]
-            cr = ai * lg[5, i]
-            diag[i + 1] -= cl
-            upper[i + 1] -= cr
-            lower[i + 1] += cl
-            diag[i + 2] += cr
-        aw = min(a_row[0], 0.0)  # towards the bottom: out (it absorbs; a drift away carries nothing back)
-        diag[1] += aw / h[0]
-        upper[0] -= aw / h[0]
-
-
 #: poles per block of :func:`cram_pfd` (their eliminations interleave): all of them up to 6 poles, else 4 (CRAM-16:
 #: two blocks of 4), while the block's arrays (4 per row, 7 with the derivative; 16 bytes per row, array and pole)
 #: stay within 80000 pole-row-arrays (1.3 MB, about the L2 cache), else fewer (at least 2).  Measured per cell and
@@ -953,22 +885,21 @@ def staged_run(lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, 
     empty = np.zeros((1, 1))
     # bands given: no drift weight is chosen here (the ``fitted`` argument, ``balanced`` in its place, is not read)
     return _run(lower, diag, upper, wl, wd, wu, empty[0], empty, empty, empty, False, balanced, balanced, dt, reps,
-                cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c, 0.0)
+                cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c)
 
 
 @njit(cache=True, nogil=True)
 def staged_run_rows(edges, f_rows, b_rows, w_rows, any_b, balanced, fitted, dt, reps, cvec, y, p0, mean_tol,
-                    lin_tol, max_iter, pfd, alpha, theta, alpha0, c, log_scale):  # pragma: no cover - numba
+                    lin_tol, max_iter, pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
     """:func:`staged_run` for the native operator, its bands made stage by stage from the coefficient rows.
 
     ``f_rows`` (centres), ``b_rows`` and ``w_rows`` (faces) hold every stage's
     diffusivity, drift and balance; no band array of all stages is formed.
-    ``fitted[k]``: stage ``k``'s drift takes its upwinding weight (:func:`_fill_row`).  ``log_scale > 0``: the
-    interior faces blend in the ``ln p`` form (:func:`_fill_row_log`; ``fitted`` must then be False everywhere).
+    ``fitted[k]``: stage ``k``'s drift takes its upwinding weight (:func:`_fill_row`).
     """
     empty = np.zeros((1, 1))
     return _run(empty, empty, empty, empty, empty, empty, edges, f_rows, b_rows, w_rows, any_b, balanced, fitted, dt,
-                reps, cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c, log_scale)
+                reps, cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c)
 
 
 def staged_run_rows_types() -> tuple:
@@ -986,12 +917,12 @@ def staged_run_rows_types() -> tuple:
     f1, rows, c1 = t.float64[::1], t.float64[:, :], t.complex128[::1]
     b1 = t.boolean[::1]
     return (f1, rows, rows, rows, t.boolean, b1, b1, f1, t.int64[::1], f1, f1, t.float64, t.float64, t.float64, t.int64,
-            t.boolean, c1, c1, t.float64, c1, t.float64)
+            t.boolean, c1, c1, t.float64, c1)
 
 
 @njit(cache=True, nogil=True)
 def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, balanced, fitted, dt, reps, cvec, y,
-         p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c, log_scale):  # pragma: no cover - numba
+         p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
     """The stage loop of :func:`staged_run` (bands given) and :func:`staged_run_rows` (bands made per stage)."""
     from_rows = edges.size > 1
     n_stages = f_rows.shape[0] if from_rows else diag.shape[0]
@@ -1007,17 +938,11 @@ def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, b
         h, k_int, wall, half_inv_h = _geometry(edges)
     else:
         h, k_int, wall, half_inv_h = np.empty(1), np.empty(1), 0.0, np.empty(1)
-    in_log = from_rows and log_scale > 0.0
-    lg = _log_geometry(edges, h, k_int, log_scale) if in_log else np.empty((6, 1))
     n_cram = 0
     n_newton = 0
     hist = np.zeros(PREDICTOR_SIZE)
     for k in range(n_stages):
-        if in_log:
-            _fill_row_log(h, wall, lg, f_rows[k], b_rows[k], any_b, True, lo, di, up)
-            if balanced[k]:
-                _fill_row_log(h, wall, lg, f_rows[k], w_rows[k], True, False, wlo, wdi, wup)
-        elif from_rows:
+        if from_rows:
             _fill_row(h, k_int, wall, half_inv_h, f_rows[k], b_rows[k], any_b, True, fitted[k], reached, lo, di, up)
             if balanced[k]:
                 _fill_row(h, k_int, wall, half_inv_h, f_rows[k], w_rows[k], True, False, False, reached, wlo, wdi,

@@ -253,11 +253,6 @@ PFD_MIN_RTOL = 1e-10
 CRAM_SHARE = 1e-5
 #: the error estimate carries the time integration's bound, CRAM_AMPLIFICATION * applications * uniform error
 CRAM_AMPLIFICATION = 10.0
-#: the ``ln p`` form's weight is 1/2 at this fraction of the stages' ``p2_scale`` (operator.log_weight): measured
-#: on the Fig. 1 scene's balanced closures, 1e-3 ... 1e-1 gave 4.5-5.4x smaller errors at zeta = 1e-3 and 1e-2;
-#: at zeta = 0.1, 1e-2 gave 2x and 1e-1 spoiled the Richardson order (the form then reaches the layer near p*
-#: where f is not ~ p^2); docs/closures.md "The deep layer in ln p"
-LOG_FLUX_FRACTION = 1e-2
 #: cells per balance substep (the substeps double with the cells, so Richardson removes their O(dtau^2) error)
 SUBSTEP_CELLS = 16
 #: e-folds of p resolved below the floor where the wall is not reached: ln(10/rtol), at least this many;
@@ -345,10 +340,6 @@ class Prepared:
     #: the coefficients' breakpoints, where the density may jump or kink (None: unknown, every knot counts); ``p0``
     #: and the floor are knots of the grids only, across which the final density is smooth (:func:`density_knots`)
     breakpoints: Optional[tuple] = None
-    #: > 0: the interior faces far below this pressure take the flux in ``ln p`` (``operator.bands``' ``log_scale``):
-    #: a wall that is not reached with every stage's ``f ~ p^2`` below ``p2_scale`` (:func:`_log_scale`); 0: the ``p``
-    #: form everywhere
-    log_scale: float = 0.0
 
 
 def density_knots(prep: Prepared) -> tuple:
@@ -636,16 +627,6 @@ def _prepared_on(problem, p0: float, pieces: Sequence, time_dependent: bool, seg
                      truncated, False, bps)
 
 
-def _log_scale(problem, time_dependent: bool, reached: bool, truncated: bool, fitted: bool) -> float:
-    """:attr:`Prepared.log_scale`: :data:`LOG_FLUX_FRACTION` of a :class:`StagedProblem`'s ``p2_scale`` (every
-    stage's ``f ~ p^2`` below it: ``ln p`` diffuses with a constant diffusivity) where the domain's bottom lies
-    below the floor of a wall that is not reached and the drift is central; else 0."""
-    scale = getattr(problem, "p2_scale", None)
-    if scale is None or reached or truncated or fitted or time_dependent:
-        return 0.0
-    return LOG_FLUX_FRACTION * float(scale)
-
-
 def _prepared(problem, p0: float, pieces: Sequence, time_dependent: bool, segment_fn: Optional[Callable],
               tau_end: float, spec: GridSpec, k_min: float, reached: bool, floor: float, truncated: bool,
               lamperti_bounded: bool, breakpoints: Sequence[float] = ()) -> Prepared:
@@ -654,8 +635,6 @@ def _prepared(problem, p0: float, pieces: Sequence, time_dependent: bool, segmen
     domain is not truncated above it."""
     has_balance = any(pc.w is not None for pc in pieces)
     has_drift = any(pc.b is not None for pc in pieces)
-    fitted = has_drift and isinstance(problem, FokkerPlanckProblem)
-    log_scale = _log_scale(problem, time_dependent, reached, truncated, fitted)
     return Prepared(mean_conserved=has_balance or not has_drift, p0=p0, tau_end=tau_end, pieces=tuple(pieces),
                     time_dependent=time_dependent, spec=spec, zero_power=k_min, reached=reached, p_floor=floor,
                     has_balance=has_balance, lump_below=floor if not (reached or truncated) else 0.0,
@@ -663,7 +642,8 @@ def _prepared(problem, p0: float, pieces: Sequence, time_dependent: bool, segmen
                     balance_per_stage=bool(getattr(problem, "balance_per_stage", False)),
                     depth_adaptive=not (reached or truncated or has_drift or has_balance),
                     lamperti_bounded=lamperti_bounded,
-                    fitted_drift=fitted, breakpoints=tuple(float(b) for b in breakpoints), log_scale=log_scale)
+                    fitted_drift=has_drift and isinstance(problem, FokkerPlanckProblem),
+                    breakpoints=tuple(float(b) for b in breakpoints))
 
 
 def native_assemble(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray],
@@ -738,21 +718,19 @@ def _fitted_stages(prep: Prepared, coef: dict) -> np.ndarray:
     return coef["has_b"] & ~coef["has_w"] & bool(prep.fitted_drift)
 
 
-def _stage_bands(edges: np.ndarray, coef: dict, assemble: Assemble, fitted: bool | np.ndarray = False,
-                 log_scale: float = 0.0) -> tuple:
+def _stage_bands(edges: np.ndarray, coef: dict, assemble: Assemble, fitted: bool | np.ndarray = False) -> tuple:
     """Rows of the stages' bands ``L_k`` and of their balance operators (0 where a stage has none).
 
     Without a balance the balance rows are a single row of zeros (never read).  ``fitted``: per stage, the native
-    operator's drift takes its upwinding weight (:func:`_fitted_stages`; False: nowhere).  ``log_scale``: the
-    native operator's ``ln p`` form below it (:attr:`Prepared.log_scale`; a library's own operator ignores it).
+    operator's drift takes its upwinding weight (:func:`_fitted_stages`; False: nowhere).
     """
     n_stages, n = coef["f"].shape
     any_w = bool(coef["has_w"].any())
     if assemble is native_assemble:  # all stages at once (the compiled path makes them in its kernel)
         any_b = bool(coef["has_b"].any())
-        base = fv_bands(edges, coef["f"], coef["b"] if any_b else None, fitted=fitted, log_scale=log_scale)
+        base = fv_bands(edges, coef["f"], coef["b"] if any_b else None, fitted=fitted)
         wb = fv_bands(edges, np.zeros((n_stages if any_w else 1, n)), coef["w"] if any_w else coef["w"][:1],
-                      fitted=False, log_scale=log_scale)
+                      fitted=False)
         return base, wb
     rows = []
     wrows = []
@@ -819,8 +797,7 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     compiled = _compiled(prep)
     rows_in_kernel = compiled and assemble is native_assemble  # the kernel makes each stage's bands itself
     if not rows_in_kernel:
-        (lower, diag, upper), (wl, wd, wu) = _stage_bands(edges, coef, assemble, _fitted_stages(prep, coef),
-                                                          prep.log_scale)
+        (lower, diag, upper), (wl, wd, wu) = _stage_bands(edges, coef, assemble, _fitted_stages(prep, coef))
     balanced = coef["has_w"]
     reps = _drift_splits(pieces, coef)
     for k in np.flatnonzero(balanced):
@@ -836,7 +813,7 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
         if rows_in_kernel:
             y, n_cram, n_newton, info, stage, residual = _staged_kernels().run_rows(
                 edges, coef["f"], coef["b"], coef["w"], bool(coef["has_b"].any()), *common,
-                fitted=_fitted_stages(prep, coef), log_scale=prep.log_scale)
+                fitted=_fitted_stages(prep, coef))
         else:
             y, n_cram, n_newton, info, stage, residual = _staged_kernels().run(lower, diag, upper, wl, wd, wu,
                                                                               *common)
@@ -1184,16 +1161,15 @@ class _Kernels:
         return self._coef[key]
 
     def run_rows(self, edges, f_rows, b_rows, w_rows, any_b, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol,
-                 pfd, order=16, fitted=None, log_scale=0.0):
+                 pfd, order=16, fitted=None):
         """:meth:`run` with the native operator's bands made in the kernel (:func:`._kernels.staged_run_rows`);
-        ``fitted``: per stage, the drift takes its upwinding weight (None: nowhere); ``log_scale``: the ``ln p``
-        form below it (:attr:`Prepared.log_scale`)."""
+        ``fitted``: per stage, the drift takes its upwinding weight (None: nowhere)."""
         f = _f64
         fitted = np.zeros(len(balanced), dtype=np.bool_) if fitted is None else fitted
         args = (f(edges), f_rows, b_rows, w_rows, bool(any_b), np.ascontiguousarray(balanced, dtype=np.bool_),
                 np.ascontiguousarray(fitted, dtype=np.bool_), f(dt), np.ascontiguousarray(reps, dtype=np.int64),
                 f(cvec), f(y), float(p0), float(mean_tol), float(lin_tol), int(MAX_BALANCE_ITERATIONS), bool(pfd),
-                *self._coefficients(pfd, order), float(log_scale))
+                *self._coefficients(pfd, order))
         with flush_subnormals(FLUSH_SUBNORMALS):
             y, n_cram, n_newton, info, stage, res = self._staged_run_rows()(*args)
         return y, int(n_cram), int(n_newton), int(info), int(stage), float(res)

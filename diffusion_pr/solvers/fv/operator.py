@@ -23,19 +23,6 @@ nothing crosses); where the wall is not reached the domain's bottom absorbs
 tridiagonal (``z`` couples to ``m_0`` only), total probability
 ``z + sum m_i`` is conserved exactly and, without drift,
 ``sum c_i m_i + p_wall z`` too (summation by parts).
-
-Where the wall is not reached and ``f`` grows like ``p^2`` towards it (``ln p`` diffuses: the
-shell closures at ``zeta > 0``, ``f_k = (p/(p + kz q_k))^2``), the interior faces far below that
-scale take the same scheme written in ``x = ln p`` (:func:`log_weight`, ``log_scale``): with
-``v_i = m_i / (x_{i+1} - x_i)`` and ``D = f / p^2``, ``J = -(D_{i+1} v_{i+1} - D_i v_i) / (xi_{i+1} - xi_i)
-+ (a/p - D)_face (v_i + v_{i+1}) / 2`` (``xi`` the centres in ``x``, ``-D`` the Ito drift of ``ln p``),
-blended with the ``p`` form by the weight ``theta = log_scale / (log_scale + p_face)``.  There the
-coefficients are constant in ``x`` (``D -> 1/(kz q)^2``; a closure's drift cancels the Ito drift), so the
-scheme's error is the density's own curvature in ``x``; the ``p`` form's is 4.5-5.4x larger on the
-balanced closures' deep, log-flat layer (docs/closures.md, "The deep layer in ln p").  The blend is smooth
-in ``x``, so nested grids keep a smooth error expansion (a switch at one face would move by half a coarse
-cell between the grids and spoil the Richardson step).  Probability stays conserved exactly (fluxes per
-face); the mean only where ``theta`` vanishes.
 """
 from __future__ import annotations
 
@@ -43,7 +30,7 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ["bands", "centres", "fitted_weight", "log_weight", "wall_drift", "wall_drift_rate"]
+__all__ = ["bands", "centres", "fitted_weight", "wall_drift", "wall_drift_rate"]
 
 
 def centres(edges: np.ndarray) -> np.ndarray:
@@ -79,26 +66,8 @@ def fitted_weight(shift: np.ndarray, f_min: np.ndarray) -> np.ndarray:
     return np.where(shift < 0.0, -out, out)
 
 
-def log_weight(p_faces: np.ndarray, log_scale: float) -> np.ndarray:
-    """The weight ``theta = log_scale / (log_scale + p)`` of the ``ln p`` form at faces ``p`` (:func:`bands`).
-
-    Parameters
-    ----------
-    p_faces : ndarray
-        Face pressures (pressure), > 0.
-    log_scale : float
-        Pressure (> 0) where the two forms weigh equally: 1 far below it, 0 far above.
-
-    Returns
-    -------
-    ndarray
-        ``theta`` in (0, 1), smooth in ``ln p``.
-    """
-    return log_scale / (log_scale + np.asarray(p_faces, dtype=float))
-
-
-def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = None, fitted: bool = True,
-          log_scale: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = None, fitted: bool = True
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sub-, main and super-diagonal of the operator acting on ``[z, m_0..m_{n-1}]``.
 
     Parameters
@@ -115,10 +84,6 @@ def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = No
         Interior faces take the drift's upwinding weight (:func:`fitted_weight`, the default);
         False: the central value (the balance operator, a drift on a balanced stage).  One flag
         per row of the leading axes, or one for all.
-    log_scale : float
-        0 (default): the ``p`` form everywhere.  > 0 (pressure): the interior faces blend in the ``ln p`` form
-        with the weight :func:`log_weight` (module docstring); needs ``edges[0] > 0`` (a wall that is not
-        reached) and the central drift (``fitted`` False).  The wall face keeps the ``p`` form.
 
     Returns
     -------
@@ -137,17 +102,6 @@ def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = No
     # interior face i+1/2: diffusive flux J = -(g_{i+1} m_{i+1} - g_i m_i)/d; m_i' -= J, m_{i+1}' += J
     left = k_int * g[..., :-1]
     right = k_int * g[..., 1:]
-    if log_scale > 0.0:
-        if not edges[0] > 0.0:
-            raise ValueError(f"log_scale > 0 needs a domain bottom above p = 0; got edges[0] = {edges[0]!r}")
-        if np.any(fitted) and a_faces is not None:
-            raise ValueError("log_scale > 0 takes the central drift (fitted=False)")
-        theta = log_weight(edges[1:-1], log_scale)
-        lam, x_c, x_h = _log_geometry(edges)
-        d_c = f_c / c**2  # D = f/p^2, the diffusivity of ln p
-        ito = -0.25 * theta * (d_c[..., :-1] + d_c[..., 1:])  # -D at the face, times 1/2 (central in v)
-        left = (1.0 - theta) * left + theta * lam * d_c[..., :-1] / x_h[:-1] + ito / x_h[:-1]
-        right = (1.0 - theta) * right + theta * lam * d_c[..., 1:] / x_h[1:] - ito / x_h[1:]
     diag[..., 1:-1] -= left
     upper[..., 1:] += right
     diag[..., 2:] -= right
@@ -162,9 +116,6 @@ def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = No
         ai = a_faces[..., 1:]
         cl = ai * (0.5 / h[:-1])
         cr = ai * (0.5 / h[1:])
-        if log_scale > 0.0:  # a/p, central in v = m / (x_{i+1} - x_i)
-            cl = (1.0 - theta) * cl + theta * ai * (0.5 / (edges[1:-1] * x_h[:-1]))
-            cr = (1.0 - theta) * cr + theta * ai * (0.5 / (edges[1:-1] * x_h[1:]))
         fitted = np.asarray(fitted, dtype=bool)
         if fitted.any():  # the weight where it is not 0 (the central value stays bit for bit)
             s = fitted_weight(ai / k_int, np.minimum(f_c[..., :-1], f_c[..., 1:])) * fitted[..., None]
@@ -176,13 +127,6 @@ def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = No
         diag[..., 2:] += cr
         wall_drift(diag, upper, out, a_faces[..., 0], h[0], edges[0])
     return lower, diag, upper
-
-
-def _log_geometry(edges: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(1/(xi_{i+1} - xi_i), xi, x_{i+1} - x_i)`` of the cells in ``x = ln p`` (``edges[0] > 0``)."""
-    x = np.log(edges)
-    x_c = 0.5 * (x[1:] + x[:-1])
-    return 1.0 / np.diff(x_c), x_c, np.diff(x)
 
 
 def wall_drift(diag: np.ndarray, upper: np.ndarray, out, a_wall, h_0: float, p_wall: float = 0.0) -> None:
