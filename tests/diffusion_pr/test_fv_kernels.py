@@ -1215,3 +1215,25 @@ def test_flushing_keeps_the_closure_answers(monkeypatch, closure, zeta):
     # relative 1e-15 of a 2.7e-284 cell on an AMD EPYC (the Intel machine of the earlier sessions: < 1e-300)
     np.testing.assert_allclose(b.cdf(a.edges), a.cdf(a.edges), rtol=1e-12, atol=1e-300)
     assert a.zero_weight == b.zero_weight and a.mean_pressure == b.mean_pressure
+
+
+def test_a_regraded_family_that_diverges_falls_back_to_the_first_levels(monkeypatch):
+    """A random stress scene (seed 1, #6: H 0.744, rms slope 0.080, zeta 1.6e-4, p0 2.3e-3, shell partition): after
+    the first level (79 cells, estimate 1.4e-6) the regrade chose a family on which the estimates grew, 2.4e-6 on 67
+    and 3.9e-5 on 134 cells, and the solve ended "refinement diverges" (success False).  The engine now repeats such a
+    solve once on the first level's family (diagnostics["regrade"] says so): it converges on 158 cells (measured
+    estimate 1.05e-7), as it does with REGRADE off, and meets rtol against the rtol-1e-8 answer (measured 2.7e-8 in
+    L1).  Without the fallback the scene fails again."""
+    spec = dp.SelfAffineSpectrum(0.7436781800396086, 2 * np.pi / 4096, 2 * np.pi / 64, C0=12829661.04187144)
+    kw = dict(E_star=8 / 3, mean_pressure=0.002325724273202303, zeta=0.00015774818944194223,
+              closure="local_g1_shell_balanced")
+    r = _closure_distribution(spec, **kw)
+    assert r.success and "regraded one failed" in r.diagnostics["regrade"]
+    assert r.diagnostics["history"][-1][0] > r.diagnostics["history"][0][0]  # refined, on the first level's family
+    ref = _closure_distribution(spec, rtol=1e-8, **kw)
+    x = np.concatenate(([0.0], r.edges))
+    true = abs(r.zero_weight - ref.zero_weight) + float(np.sum(np.abs(np.diff(r.cdf(x))[1:] - np.diff(ref.cdf(x))[1:])))
+    assert true < 1e-6 and true < 10 * r.error_estimate
+    monkeypatch.setattr(engine, "REGRADE", False)  # the oracle of the fallback: no regrade at all
+    plain = _closure_distribution(spec, **kw)
+    assert np.array_equal(plain.edges, r.edges) and np.allclose(plain.cdf(x), r.cdf(x), rtol=0.0, atol=1e-12)
