@@ -1191,12 +1191,7 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
                 else:
                     plain[m][2] = got[2]
 
-    def l1(x: np.ndarray) -> float:
-        return float(np.sum(np.abs(x)))
-
-    def agg(x: np.ndarray) -> np.ndarray:  # [zero weight, cells] of a grid, aggregated to the grid half as fine
-        return np.r_[x[0], x[1::2] + x[2::2]]
-
+    l1, agg = _l1, _aggregated
     top = n
     while True:
         wanted = _ladder_below(top)
@@ -1248,6 +1243,17 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
                              extra_time=timing["shells"])
 
 
+def _l1(x: np.ndarray) -> float:
+    """The L1 norm of masses ``[zero weight, cells]``."""
+    return float(np.sum(np.abs(x)))
+
+
+def _aggregated(x: np.ndarray) -> np.ndarray:
+    """Masses ``[zero weight, cells]`` of a grid aggregated to the grid half as fine (the inverse of
+    :func:`_split_to_finer`)."""
+    return np.r_[x[0], x[1::2] + x[2::2]]
+
+
 def _split_to_finer(x: np.ndarray) -> np.ndarray:
     """Masses ``[zero weight, cells]`` of a grid onto the grid twice as fine (its cells halved in the monitor
     coordinate): each cell's mass shared by its two halves as a density linear across the cell would share it, the
@@ -1281,12 +1287,7 @@ def _correction_in_space(c_coarse: np.ndarray, c_fine: np.ndarray, own: list) ->
     Measured (docs/closures.md "The correction extrapolated in space"): against the correction from the ``4N``
     grids, the extrapolated one is 40-1000x closer than ``c_2N`` on the Fig. 1 scenes (``rho`` of the correction
     0.001-0.025, of the problem 0.003-0.026)."""
-    def l1(v: np.ndarray) -> float:
-        return float(np.sum(np.abs(v)))
-
-    def agg(v: np.ndarray) -> np.ndarray:
-        return np.r_[v[0], v[1::2] + v[2::2]]
-
+    l1, agg = _l1, _aggregated
     second = l1(agg(c_fine) - c_coarse) / 3.0
     p_n, p_2n, p_4n = own
     if p_4n is None or second == 0.0:
