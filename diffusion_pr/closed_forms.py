@@ -33,6 +33,16 @@ integrated diffusivity ``\int D deta``) and ``slope`` in 1/pressure.
   (2003), doi:10.3150/bj/1068128980); for ``delta >= 2`` never (an entrance
   boundary).  :func:`cir_density`, :func:`cir_zero_weight`.  ``alpha = beta =
   0`` is Feller's solution.
+* The mirror Gaussian with a constant drift ``a``, ``dPr/dtau = d^2 Pr/dp^2 -
+  a dPr/dp`` absorbed at ``p = 0`` (Brownian motion with drift killed at 0,
+  method of images with the Girsanov weight; e.g. A. N. Borodin and
+  P. Salminen, *Handbook of Brownian Motion*, 2nd ed., Birkhaeuser 2002,
+  doi:10.1007/978-3-0348-8163-0, part II, 2.1.15.6): with the shift
+  ``S = a tau`` and ``V = 2 tau``, ``Pr(p) = phi(p; p0 + S, V) (1 - exp(-2 p
+  p0 / V))``, and the weight ``Phi(-(p0 + S)/sqrt V) + exp(-2 S p0 / V)
+  Phi((S - p0)/sqrt V)`` in ``delta(p)``.
+  :func:`drifted_mirror_gaussian_density`,
+  :func:`drifted_mirror_gaussian_zero_weight`.
 """
 from __future__ import annotations
 
@@ -58,6 +68,8 @@ __all__ = [
     "feller_moments",
     "cir_density",
     "cir_zero_weight",
+    "drifted_mirror_gaussian_density",
+    "drifted_mirror_gaussian_zero_weight",
 ]
 
 _SQRT2PI = math.sqrt(2.0 * math.pi)
@@ -374,3 +386,66 @@ def cir_zero_weight(mean_pressure: float, tau: float, slope: float, drift_at_wal
     if delta >= 2.0:
         return 0.0
     return float(special.gammaincc(1.0 - delta / 2.0, 2.0 * p0 / a / (2.0 * s)))
+
+
+def drifted_mirror_gaussian_density(p: ArrayLike, mean_pressure: float, variance: float,
+                                    drift_shift: float) -> np.ndarray | float:
+    """The mirror Gaussian carried by a constant drift: ``phi(p; p0 + S, V) (1 - exp(-2 p p0 / V))`` for ``p > 0``.
+
+    The continuous part of the solution of ``dPr/dtau = d^2 Pr/dp^2 - a dPr/dp``
+    from ``delta(p - p0)``, absorbed at ``p = 0``, at ``V = 2 tau`` and ``S = a tau``
+    (the images' Girsanov weights combine into the mirror's own factor); the
+    ``delta(p)`` weight is :func:`drifted_mirror_gaussian_zero_weight`. ``S = 0``
+    is :func:`mirror_gaussian_density`. The mean is not conserved (the drift
+    moves it).
+
+    Parameters
+    ----------
+    p : float or array_like
+        Pressure(s) [pressure], any shape.
+    mean_pressure : float
+        ``p0`` [pressure], the start, > 0.
+    variance : float
+        ``V = 2 tau`` [pressure^2] of the unrestricted Gaussian, > 0.
+    drift_shift : float
+        ``S = a tau`` [pressure], the displacement the drift alone makes (any sign, finite).
+
+    Returns
+    -------
+    float or numpy.ndarray
+        Density [1/pressure], shape of ``p``.
+    """
+    pa = check_finite_array("p", p, min_size=0)
+    p0 = check_positive("mean_pressure", mean_pressure)
+    v = check_positive("variance", variance)
+    shift = check_finite("drift_shift", drift_shift)
+    pp = np.maximum(pa, 0.0)
+    dens = _phi(pp, p0 + shift, v) * (-np.expm1(-2.0 * pp * p0 / v))
+    return _out(np.where(pa > 0, dens, 0.0))
+
+
+def drifted_mirror_gaussian_zero_weight(mean_pressure: float, variance: float, drift_shift: float) -> float:
+    """Non-contact weight of :func:`drifted_mirror_gaussian_density` [dimensionless].
+
+    ``Phi(-(p0 + S)/sqrt V) + exp(-2 S p0 / V) Phi((S - p0)/sqrt V)``, the
+    probability that Brownian motion with drift has hit 0 (the second term in
+    logarithms: ``log_ndtr``, no overflow for a strong drift towards the wall).
+    ``S = 0`` is :func:`persson_zero_weight`.
+
+    Parameters
+    ----------
+    mean_pressure : float
+        ``p0`` [pressure], > 0.
+    variance : float
+        ``V = 2 tau`` [pressure^2], > 0.
+    drift_shift : float
+        ``S = a tau`` [pressure], any sign, finite.
+    """
+    p0 = check_positive("mean_pressure", mean_pressure)
+    v = check_positive("variance", variance)
+    shift = check_finite("drift_shift", drift_shift)
+    sd = math.sqrt(v)
+    first = float(special.log_ndtr(-(p0 + shift) / sd))
+    second = -2.0 * shift * p0 / v + float(special.log_ndtr((shift - p0) / sd))
+    hi = max(first, second)
+    return float(min(1.0, math.exp(hi) * (math.exp(first - hi) + math.exp(second - hi))))

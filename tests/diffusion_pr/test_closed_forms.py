@@ -17,6 +17,8 @@ from diffusion_pr.closed_forms import (
     Moments,
     cir_density,
     cir_zero_weight,
+    drifted_mirror_gaussian_density,
+    drifted_mirror_gaussian_zero_weight,
     feller_density,
     feller_moments,
     feller_zero_weight,
@@ -322,5 +324,57 @@ def test_cir_bad_input(kw, name):
     args = dict(mean_pressure=1.0, tau=0.5, slope=1.0, drift_at_wall=0.2, restoring_rate=0.0)
     args.update(kw)
     for fun in (cir_zero_weight, lambda **k: cir_density(0.5, **k)):
+        with pytest.raises(ValueError, match=name):
+            fun(**args)
+
+
+# --------------------------------------------------------------------------- the mirror Gaussian with a constant drift
+#: (p0, V, S): towards the wall (S < 0: by 5 spreads, then one that empties the contact), none, away from it
+DRIFTED_CASES = [(1.0, 0.01, -0.5), (0.3, 1.0, -2.0), (1.0, 1.5, 0.0), (0.1, 1.0, 5.0), (2.0, 0.5, -40.0)]
+
+
+@pytest.mark.parametrize("p0,V,S", DRIFTED_CASES)
+def test_drifted_mirror_normalization_and_limit(p0, V, S):
+    # the density and the weight are separate formulas (images, and the hitting law of Brownian motion with drift):
+    # together they hold all the probability (quadrature 1e-10); S = 0 is Persson's mirror Gaussian exactly
+    f = lambda p: drifted_mirror_gaussian_density(p, p0, V, S)
+    total = _quad0inf(f, math.sqrt(V), max(p0 + S, 1e-3 * p0)) + drifted_mirror_gaussian_zero_weight(p0, V, S)
+    assert total == pytest.approx(1.0, abs=1e-10)
+    p = np.linspace(-0.5, 4.0, 91)
+    if S == 0.0:
+        assert np.array_equal(drifted_mirror_gaussian_density(p, p0, V, S), mirror_gaussian_density(p, p0, V))
+        assert drifted_mirror_gaussian_zero_weight(p0, V, S) == pytest.approx(persson_zero_weight(p0, V), rel=1e-13)
+    assert np.all(drifted_mirror_gaussian_density(p[p <= 0], p0, V, S) == 0.0)
+
+
+def test_drifted_mirror_solves_the_equation_and_its_wall_flux_fills_the_zero_weight():
+    # dPr/dtau = d^2 Pr/dp^2 - a dPr/dp at V = 2 tau, S = a tau, by central differences (h = 1e-4, dtau = 1e-5 tau;
+    # truncation ~1e-7 relative, tolerance 1e-5 of max |dPr/dtau|); the flux into the wall, dPr/dp at 0+ (the density
+    # vanishes there, so the drift carries nothing), equals d zero_weight/dtau (rel 1e-6)
+    a, p0, tau = -3.0, 0.7, 0.1
+    P = lambda x, t: drifted_mirror_gaussian_density(x, p0, 2 * t, a * t)
+    p = np.linspace(0.01, 2.0, 300)
+    h, dt = 1e-4, 1e-5 * tau
+    lhs = (P(p, tau + dt) - P(p, tau - dt)) / (2 * dt)
+    rhs = (P(p + h, tau) - 2 * P(p, tau) + P(p - h, tau)) / h**2 - a * (P(p + h, tau) - P(p - h, tau)) / (2 * h)
+    assert np.max(np.abs(lhs - rhs)) < 1e-5 * np.max(np.abs(lhs))
+    zw = lambda t: drifted_mirror_gaussian_zero_weight(p0, 2 * t, a * t)
+    dzw = (zw(tau + dt) - zw(tau - dt)) / (2 * dt)
+    wall_flux = (4 * P(h, tau) - P(2 * h, tau)) / (2 * h)  # one-sided, second order (P(0) = 0)
+    assert dzw == pytest.approx(wall_flux, rel=1e-6)
+
+
+def test_drifted_mirror_strong_drift_to_the_wall_has_no_overflow():
+    # exp(-2 S p0 / V) = exp(3200) alone overflows; in logarithms the weight is 1 to round-off and the density tiny
+    assert drifted_mirror_gaussian_zero_weight(2.0, 0.005, -4.0) == pytest.approx(1.0, abs=1e-15)
+    assert np.all(np.isfinite(drifted_mirror_gaussian_density(np.linspace(0, 3, 31), 2.0, 0.005, -4.0)))
+
+
+@pytest.mark.parametrize("kw, name", [(dict(drift_shift=float("nan")), "drift_shift"),
+                                      (dict(variance=0.0), "variance"), (dict(mean_pressure=-1.0), "mean_pressure")])
+def test_drifted_mirror_bad_input(kw, name):
+    args = dict(mean_pressure=1.0, variance=0.5, drift_shift=-0.2)
+    args.update(kw)
+    for fun in (drifted_mirror_gaussian_zero_weight, lambda **k: drifted_mirror_gaussian_density(0.5, **k)):
         with pytest.raises(ValueError, match=name):
             fun(**args)

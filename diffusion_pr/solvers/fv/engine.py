@@ -465,6 +465,47 @@ def _tail_quantile(mass: float) -> float:
     return z
 
 
+def _affine_envelope_bound(pieces: Sequence, with_b: Sequence, b_rows: np.ndarray, f_max: np.ndarray,
+                           probe: np.ndarray, p0: float, z: float) -> Optional[tuple]:
+    """``(p0 + shift + z s, shift, s)``, the upper tail's bound by an affine envelope of the drift, or None where no
+    drift grows with ``p`` on the probe.
+
+    Each stage's drift away from the wall is bounded by ``c + g p`` (``g`` its largest slope on the probe, ``c`` the
+    smallest intercept that covers it), its diffusivity by ``F`` (its largest value).  The diffusion with that drift
+    stays above (comparison theorem), and is linear: ``Y = exp(-g tau) (X + c/g)`` is a martingale whose quadratic
+    variation is at most ``2 F (1 - exp(-2 g dtau))/(2 g)`` per stage.  So the mean bound and the variance propagate
+    through the stages as ``M <- exp(g dtau) M + c expm1(g dtau)/g``, ``V <- exp(2 g dtau) V + F expm1(2 g dtau)/g``,
+    and ``M + z sqrt(V)`` bounds the tail as ``p0 + shift + z s`` does for a bounded drift (``g = 0`` is that bound).
+    A drift that grows with ``p`` (the CIR drift ``alpha - beta p`` with ``beta < 0``) outruns the bounded one once
+    ``|beta| tau`` nears 1: only this one closes there.  A growth beyond double precision (``g dtau > 350``): None.
+    """
+    slopes = {}
+    for pc, row in zip(with_b, b_rows):
+        up = np.maximum(row, 0.0)
+        g = max(0.0, float(np.max(np.diff(up) / np.diff(probe))))
+        slopes[id(pc)] = (g, max(0.0, float(np.max(up - g * probe))))
+    if not any(g > 0.0 for g, _ in slopes.values()):
+        return None
+    mean, var = p0, 0.0
+    for pc, fm in zip(pieces, f_max):
+        g, c = slopes.get(id(pc), (0.0, 0.0))
+        d = pc.duration
+        if g * d > 350.0:  # exp(2 g dtau) beyond double precision (a drift that rises steeply near the wall)
+            return None
+        if g > 0.0:
+            grow = math.exp(g * d)
+            mean = grow * mean + c * math.expm1(g * d) / g
+            var = grow * grow * var + float(fm) * math.expm1(2.0 * g * d) / g
+        else:
+            mean += c * d
+            var += 2.0 * d * float(fm)
+    spread = math.sqrt(var)
+    bound = mean + z * spread
+    if not (math.isfinite(bound) and spread > 0.0):
+        return None
+    return bound, mean - p0, spread
+
+
 def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: bool = True,
             on_grid: Optional[GridSpec] = None) -> Prepared:
     """Classify the wall, bound the domain and fix the grid family of ``problem``.
@@ -497,7 +538,8 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
         with_b = [pc for pc in pieces if pc.b is not None]
         # only a drift away from the wall moves the upper tail up (comparison: the diffusion with the drift
         # max(a, 0) stays above); a restoring drift may outgrow p (the CIR drift alpha - beta p)
-        b_max = np.maximum(_rows([pc.b for pc in with_b], probe, "the drift"), 0.0).max(axis=1) if with_b else []
+        b_rows = _rows([pc.b for pc in with_b], probe, "the drift") if with_b else np.zeros((0, probe.size))
+        b_max = np.maximum(b_rows, 0.0).max(axis=1) if with_b else []
         for pc, fm in zip(pieces, f_max):
             var += 2.0 * pc.duration * float(fm)
         for pc, bm in zip(with_b, b_max):
@@ -505,6 +547,10 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
         s = math.sqrt(var)
         z = _tail_quantile(TAIL_FRACTION * max(rtol, 1e-15))
         new = p0 + shift + z * s
+        grown = _affine_envelope_bound(pieces, with_b, b_rows, f_max, probe, p0, z) if with_b else None
+        if grown is not None and grown[0] < new:  # a drift that grows with p: its affine envelope bounds tighter
+            new, shift, s = grown
+        growing = grown is not None and new == grown[0]
         if new <= p_hi:
             if points == PROBE_POINTS:
                 break
@@ -512,8 +558,14 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
             continue
         p_hi = 1.5 * new
     else:
-        raise ValueError("could not bound the pressure domain: the diffusivity (or drift) grows faster than "
-                         f"linearly in p (the spread estimate exceeded {p_hi:.3g} after 60 iterations)")
+        raise ValueError("could not bound the pressure domain: the diffusivity grows faster than linearly in p, or "
+                         "the drift faster than exponentially in the diffusion time (the spread estimate exceeded "
+                         f"{p_hi:.3g} after 60 iterations)")
+    # a drift towards the wall moves the lower tail down (comparison: below p0 the process is above the one with
+    # the drift -max(-a, 0) there, and every excursion below p0 starts at p0): the domain's bottom takes it
+    below = probe <= p0
+    shift_down = sum(pc.duration * float(np.maximum(-row[below], 0.0).max(initial=0.0))
+                     for pc, row in zip(with_b, b_rows))
     if s <= 0.0 or not np.isfinite(s):
         raise ValueError("the diffusivity is 0 on the whole domain (0, "
                          f"{p_hi:.3g}]: Pr stays delta(p - p0) and has no density to resolve")
@@ -528,7 +580,7 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
         _rows(with_w, probe, "the balance")
     p_max = new
     lamperti_bounded = False
-    if LAMPERTI and lamperti and not time_dependent and len(pieces) >= COMPILED_MIN_PIECES:
+    if LAMPERTI and lamperti and not growing and not time_dependent and len(pieces) >= COMPILED_MIN_PIECES:
         # the upper tail in the Lamperti coordinate Y = int dp / sqrt(2 F), F = sum dtau_k f_k: Y - Y(p0) is
         # a unit-variance diffusion whose Ito drift -F'/(2 sqrt(2F)) points down where F grows, so z units of
         # Y bound the tail like z spreads do for constant f (checked after the solve: the top cell's mass)
@@ -559,7 +611,7 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
     has_drift = any(pc.b is not None for pc in pieces)  # (the domain's depth below the floor depends on both)
     # far from the wall (p0 - z s above the floor) less than the tail tolerance gets below p0 - z s:
     # the domain starts there (what arrives is booked into zero_weight, below the tail tolerance)
-    p_lo = p0 - (z * s + shift)
+    p_lo = p0 - (z * s + shift + shift_down)
     truncated = p_lo > floor
     if truncated:
         floor_domain = p_lo
@@ -1889,7 +1941,9 @@ def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarr
     ``success`` requires all of: the error estimate <= rtol, total probability
     within rtol of 1, the mean (with the floor's mass counted at the floor)
     within ``rtol p0`` of ``p0``, negative probability (kept, never clipped)
-    below rtol, and the probability in the top cell below rtol.
+    below rtol, the probability in the top cell below rtol, and, where the domain
+    starts above the wall and the floor (a truncated bottom), the probability that
+    left through it below rtol.
     """
     h = np.diff(edges)
     m = np.asarray(y[1:], dtype=float)
@@ -1919,6 +1973,9 @@ def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarr
         problems.append(f"negative probability {negative_mass:.2e} > rtol")
     if tail > rtol:
         problems.append(f"probability {tail:.2e} in the top cell: the domain is too short")
+    if edges[0] > prep.p_floor and z > rtol:  # a bottom above the wall (and the floor): what left was a tail
+        problems.append(f"probability {z:.2e} left through the domain's bottom at p = {edges[0]:.6g} (above the "
+                        "wall, where less than the tail tolerance was to arrive): the domain is too short")
     success = not problems
     wall = "absorbing at p = 0" if prep.reached else f"not reached (k >= 2); floor at p_floor = {prep.p_floor:.6g}"
     absorbed = "; zero_weight = probability absorbed at p = 0"
