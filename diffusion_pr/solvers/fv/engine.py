@@ -479,13 +479,12 @@ def _affine_envelope_bound(pieces: Sequence, with_b: Sequence, b_rows: np.ndarra
     A drift that grows with ``p`` (the CIR drift ``alpha - beta p`` with ``beta < 0``) outruns the bounded one once
     ``|beta| tau`` nears 1: only this one closes there.  A growth beyond double precision (``g dtau > 350``): None.
     """
-    slopes = {}
-    for pc, row in zip(with_b, b_rows):
-        up = np.maximum(row, 0.0)
-        g = max(0.0, float(np.max(np.diff(up) / np.diff(probe))))
-        slopes[id(pc)] = (g, max(0.0, float(np.max(up - g * probe))))
-    if not any(g > 0.0 for g, _ in slopes.values()):
+    up = np.maximum(b_rows, 0.0)
+    rates = np.maximum((np.diff(up, axis=1) / np.diff(probe)).max(axis=1), 0.0)
+    if not np.any(rates > 0.0):
         return None
+    intercepts = np.maximum((up - rates[:, None] * probe).max(axis=1), 0.0)
+    slopes = {id(pc): (float(g), float(c)) for pc, g, c in zip(with_b, rates, intercepts)}
     mean, var = p0, 0.0
     for pc, fm in zip(pieces, f_max):
         g, c = slopes.get(id(pc), (0.0, 0.0))
@@ -547,8 +546,10 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
         s = math.sqrt(var)
         z = _tail_quantile(TAIL_FRACTION * max(rtol, 1e-15))
         new = p0 + shift + z * s
-        grown = _affine_envelope_bound(pieces, with_b, b_rows, f_max, probe, p0, z) if with_b else None
-        if grown is not None and grown[0] < new:  # a drift that grows with p: its affine envelope bounds tighter
+        # where that bound does not close on this probe, a drift that grows with p may: its affine envelope (tried
+        # only there, so that every problem the bounded drift closes keeps its domain, and no time is spent on it)
+        grown = _affine_envelope_bound(pieces, with_b, b_rows, f_max, probe, p0, z) if with_b and new > p_hi else None
+        if grown is not None and grown[0] < new:
             new, shift, s = grown
         growing = grown is not None and new == grown[0]
         if new <= p_hi:
