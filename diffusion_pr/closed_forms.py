@@ -101,6 +101,13 @@ def _phi(p: np.ndarray, m: float, var: float) -> np.ndarray:
     return np.exp(-((p - m) ** 2) / (2.0 * var)) / (_SQRT2PI * math.sqrt(var))
 
 
+def _mirrored(p: np.ndarray, p0: float, var: float, centre: float) -> np.ndarray:
+    """``phi(p; centre, V) (1 - exp(-2 p p0 / V))`` for ``p > 0``, 0 for ``p <= 0``: the image at ``-p0`` taken off
+    (``-expm1``, accurate for small ``p p0 / V``); ``centre = p0`` is the mirror Gaussian, ``p0 + S`` the drifted one."""
+    pp = np.maximum(p, 0.0)
+    return np.where(p > 0, _phi(pp, centre, var) * (-np.expm1(-2.0 * pp * p0 / var)), 0.0)
+
+
 def gaussian_density(p: ArrayLike, mean_pressure: float, variance: float) -> np.ndarray | float:
     """Normal density ``phi(p; p0, V)`` [1/pressure] (Müser 2008, Eq. 2).
 
@@ -156,9 +163,7 @@ def mirror_gaussian_density(p: ArrayLike, mean_pressure: float, variance: float)
     pa = check_finite_array("p", p, min_size=0)
     p0 = check_positive("mean_pressure", mean_pressure)
     v = check_positive("variance", variance)
-    pp = np.maximum(pa, 0.0)
-    dens = _phi(pp, p0, v) * (-np.expm1(-2.0 * pp * p0 / v))
-    return _out(np.where(pa > 0, dens, 0.0))
+    return _out(_mirrored(pa, p0, v, p0))
 
 
 def persson_zero_weight(mean_pressure: float, variance: float) -> float:
@@ -419,9 +424,7 @@ def drifted_mirror_gaussian_density(p: ArrayLike, mean_pressure: float, variance
     p0 = check_positive("mean_pressure", mean_pressure)
     v = check_positive("variance", variance)
     shift = check_finite("drift_shift", drift_shift)
-    pp = np.maximum(pa, 0.0)
-    dens = _phi(pp, p0 + shift, v) * (-np.expm1(-2.0 * pp * p0 / v))
-    return _out(np.where(pa > 0, dens, 0.0))
+    return _out(_mirrored(pa, p0, v, p0 + shift))
 
 
 def drifted_mirror_gaussian_zero_weight(mean_pressure: float, variance: float, drift_shift: float) -> float:

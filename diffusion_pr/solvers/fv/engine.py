@@ -538,7 +538,7 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
         # only a drift away from the wall moves the upper tail up (comparison: the diffusion with the drift
         # max(a, 0) stays above); a restoring drift may outgrow p (the CIR drift alpha - beta p)
         b_rows = _rows([pc.b for pc in with_b], probe, "the drift") if with_b else np.zeros((0, probe.size))
-        b_max = np.maximum(b_rows, 0.0).max(axis=1) if with_b else []
+        b_max = np.maximum(b_rows, 0.0).max(axis=1)  # (empty without a drift)
         for pc, fm in zip(pieces, f_max):
             var += 2.0 * pc.duration * float(fm)
         for pc, bm in zip(with_b, b_max):
