@@ -15,6 +15,8 @@ Oracles and tolerances:
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from scipy.special import ndtr
@@ -563,15 +565,50 @@ def test_a_drift_that_grows_with_p_is_bounded_by_its_affine_envelope(rate, p0):
 
 
 @pytest.mark.parametrize("p0, p_1, alpha_p1, beta_tau", [(1.0, 1.0, 0.5, -1.0), (0.0309, 27.1, 0.479, -1.41),
-                                                         (4.2, 1.99, 0.62, -1.41)])
+                                                         (4.2, 1.99, 0.62, -1.41), (0.00269, 52.6, 0.875, -1.86),
+                                                         (3.2, 0.103, 0.915, -1.69)])
 def test_a_growing_cir_drift_against_the_absorbed_cir_process(p0, p_1, alpha_p1, beta_tau):
     """``f = p/p_1``, ``a = alpha - beta p`` with ``beta tau <= -1`` (the random CIR audit's problems, seed 11, #184
     and #65 among them): refused with "could not bound the pressure domain" before the affine envelope (53 of that
-    audit's 200, all with ``beta tau <= -0.83``; now 11, all "drift-dominated stage" at ``beta tau <= -1.69``).
+    audit's 200, all with ``beta tau <= -0.83``; then 11, all "drift-dominated stage" at ``beta tau <= -1.69``, the
+    last two here: their domains were 4.6-17x the exact tail quantile, bounded with the largest diffusivity; since
+    the thirty-first session the affine diffusivity's Chernoff bound closes them, and none of the 200 is refused).
     Oracle: ``closed_forms.cir_density`` / ``cir_zero_weight``.  Tolerances as the other CIR test's."""
     V = 1.0
     alpha, beta = alpha_p1 / p_1, beta_tau / (V / 2)
     cir_solved_against_its_closed_form(p0, V, p_1, alpha, beta)
+
+
+@pytest.mark.parametrize("p0, p_1, alpha_p1, beta_tau", [(1.0, 1.0, 0.5, -1.0), (0.00269, 52.6, 0.875, -1.86),
+                                                         (3.2, 0.103, 0.915, -1.69)])
+def test_the_affine_chernoff_bound_against_the_cir_tail(p0, p_1, alpha_p1, beta_tau):
+    """``engine._affine_chernoff_bound`` for the CIR process (drift and diffusivity affine, so the envelope is the
+    process itself): the exact tail beyond the bound (``closed_forms.cir_density`` integrated) is at most the
+    tolerated mass, and not far below it (a Chernoff bound is within a few e-folds of the quantile: measured
+    1.0e-11 ... 1.5e-11 against 5e-10).  Breaks that fail it (and the growing-CIR solves): the diffusivity's slope
+    halved, ``B`` without its ``1/(1 - w)``, ``psi = d`` for a growing drift, the bound taken at the largest
+    ``theta`` instead of the smallest one."""
+    from scipy.integrate import quad
+
+    V = 1.0
+    tau, alpha, beta = V / 2, alpha_p1 / p_1, beta_tau / (V / 2)
+    problem = FokkerPlanckProblem(p0, V, ProportionalDiffusivity(p_1), drift=lambda p, t: alpha - beta * p)
+    pieces = engine._pieces_of(problem)[1]
+    probe = np.linspace(0.0, 40.0 * p0 + 40.0 * tau / p_1 * 50, 4097)[1:]
+    b_rows = engine._rows([pc.b for pc in pieces], probe, "the drift")
+    rates = np.maximum((np.diff(b_rows, axis=1) / np.diff(probe)).max(axis=1), 0.0)
+    intercepts = np.maximum((b_rows - rates[:, None] * probe).max(axis=1), 0.0)
+    slopes = {id(pc): (float(g), float(c)) for pc, g, c in zip(pieces, rates, intercepts)}
+    mass = 5e-10
+    z = engine._tail_quantile(2 * mass)  # the one-sided tail of z is mass
+    bound = engine._affine_chernoff_bound(pieces, slopes, probe, p0, math.sqrt(2 * tau * p0 / p_1), z)
+    assert bound is not None and bound > p0
+    dens = lambda p: float(cf.cir_density(p, p0, tau, 1 / p_1, alpha, beta))  # noqa: E731
+    tail, lo = 0.0, bound
+    for _ in range(80):
+        tail += quad(dens, lo, 1.5 * lo, limit=200)[0]
+        lo *= 1.5
+    assert 1e-3 * mass <= tail <= mass, tail
 
 
 def test_probability_through_a_truncated_bottom_is_reported(monkeypatch):

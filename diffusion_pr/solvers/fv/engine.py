@@ -466,7 +466,7 @@ def _tail_quantile(mass: float) -> float:
 
 
 def _affine_envelope_bound(pieces: Sequence, with_b: Sequence, b_rows: np.ndarray, f_max: np.ndarray,
-                           probe: np.ndarray, p0: float, z: float) -> Optional[tuple]:
+                           probe: np.ndarray, p0: float, z: float, bounded: float) -> Optional[tuple]:
     """``(p0 + shift + z s, shift, s)``, the upper tail's bound by an affine envelope of the drift, or None where no
     drift grows with ``p`` on the probe.
 
@@ -478,6 +478,8 @@ def _affine_envelope_bound(pieces: Sequence, with_b: Sequence, b_rows: np.ndarra
     and ``M + z sqrt(V)`` bounds the tail as ``p0 + shift + z s`` does for a bounded drift (``g = 0`` is that bound).
     A drift that grows with ``p`` (the CIR drift ``alpha - beta p`` with ``beta < 0``) outruns the bounded one once
     ``|beta| tau`` nears 1: only this one closes there.  A growth beyond double precision (``g dtau > 350``): None.
+    Where this bound is below ``bounded`` (the bounded drift's), a diffusivity that grows with ``p`` tightens it
+    further (:func:`_affine_chernoff_bound`); elsewhere the caller keeps ``bounded`` and nothing more is computed.
     """
     up = np.maximum(b_rows, 0.0)
     rates = np.maximum((np.diff(up, axis=1) / np.diff(probe)).max(axis=1), 0.0)
@@ -502,7 +504,60 @@ def _affine_envelope_bound(pieces: Sequence, with_b: Sequence, b_rows: np.ndarra
     bound = mean + z * spread
     if not (math.isfinite(bound) and spread > 0.0):
         return None
+    # a diffusivity that grows with p too (the CIR diffusivity p/p_1): with it bounded by F0 + F1 p as well, the
+    # dominating diffusion is affine, and its exponential moments bound the tail tighter than F = max f does
+    chernoff = _affine_chernoff_bound(pieces, slopes, probe, p0, spread, z) if bound < bounded else None
+    if chernoff is not None and chernoff < bound:
+        bound = chernoff
     return bound, mean - p0, spread
+
+
+def _affine_chernoff_bound(pieces: Sequence, slopes: dict, probe: np.ndarray, p0: float, spread: float,
+                           z: float) -> Optional[float]:
+    """The Chernoff bound ``min_theta (log E exp(theta X) + ln(1/mass))/theta`` of the affine diffusion whose drift
+    is ``c + g p`` (``slopes``, :func:`_affine_envelope_bound`) and whose diffusivity is ``F0 + F1 p`` (each stage's
+    affine envelope of ``f`` on the probe, ``F1`` its largest slope, ``F0 >= 0`` the smallest intercept covering it),
+    started at ``p0``; ``mass`` is the one-sided Gaussian tail of ``z``.  None where ``f`` does not grow with ``p``
+    (the bound with ``F = max f`` is then as tight) or no ``theta`` has a finite moment.
+
+    The generator ``(c + g x) d/dx + (F0 + F1 x) d^2/dx^2`` maps ``exp(A + B x)`` to itself with the Riccati
+    equations ``B' = g B + F1 B^2``, ``A' = c B + F0 B^2`` in the time left; per stage of length ``d``, with
+    ``psi = expm1(g d)/g`` and ``w = F1 B psi`` (finite while ``w < 1``): ``B <- B exp(g d)/(1 - w)``,
+    ``A += c B psi L(w) + F0 B^2 psi (1/(1 - w) + g psi H(w))``, ``L(w) = -log1p(-w)/w``,
+    ``H(w) = (w/(1 - w) + log1p(-w))/w^2`` (both 1 and 1/2 at ``w = 0``, series below 1e-3), applied from the last
+    stage back to the first.  (Affine processes: Duffie, Filipovic and Schachermayer, Ann. Appl. Probab. 13 (2003)
+    984, doi:10.1214/aoap/1060202833.)"""
+    f_rows = _rows([pc.f for pc in pieces], probe, "the diffusivity")
+    f_slopes = np.maximum((np.diff(f_rows, axis=1) / np.diff(probe)).max(axis=1), 0.0)
+    if not np.any(f_slopes > 0.0):
+        return None
+    f_intercepts = np.maximum((f_rows - f_slopes[:, None] * probe).max(axis=1), 0.0)
+    mass = 0.5 * math.erfc(z / math.sqrt(2.0))
+    theta = np.geomspace(1e-3, 1e3, 241) / spread
+    b = theta.copy()
+    a = np.zeros_like(theta)
+    ok = np.ones(theta.size, dtype=bool)
+    for pc, f1, f0 in zip(reversed(pieces), f_slopes[::-1], f_intercepts[::-1]):
+        g, c = slopes.get(id(pc), (0.0, 0.0))
+        d = pc.duration
+        psi = math.expm1(g * d) / g if g > 0.0 else d
+        w = float(f1) * b * psi
+        ok &= w < 1.0
+        w = np.where(ok, w, 0.0)
+        small = np.abs(w) < 1e-3
+        w_safe = np.where(small, 0.5, w)
+        ell = np.where(small, 1.0 + w / 2.0 + w * w / 3.0 + w ** 3 / 4.0,
+                       -np.log1p(-w_safe) / w_safe)
+        h = np.where(small, 0.5 + 2.0 * w / 3.0 + 0.75 * w * w + 0.8 * w ** 3,
+                     (w_safe / (1.0 - w_safe) + np.log1p(-w_safe)) / (w_safe * w_safe))
+        a = a + c * b * psi * ell + float(f0) * b * b * psi * (1.0 / (1.0 - w) + g * psi * h)
+        b = b * math.exp(g * d) / (1.0 - w)
+        ok &= np.isfinite(a) & np.isfinite(b)
+    if not np.any(ok):
+        return None
+    x = (a[ok] + b[ok] * p0 + math.log(1.0 / mass)) / theta[ok]
+    best = float(x.min())
+    return best if math.isfinite(best) and best > p0 else None
 
 
 def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: bool = True,
@@ -548,7 +603,8 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
         new = p0 + shift + z * s
         # where that bound does not close on this probe, a drift that grows with p may: its affine envelope (tried
         # only there, so that every problem the bounded drift closes keeps its domain, and no time is spent on it)
-        grown = _affine_envelope_bound(pieces, with_b, b_rows, f_max, probe, p0, z) if with_b and new > p_hi else None
+        grown = _affine_envelope_bound(pieces, with_b, b_rows, f_max, probe, p0, z, new) if with_b and new > p_hi \
+            else None
         if grown is not None and grown[0] < new:
             new, shift, s = grown
         growing = grown is not None and new == grown[0]
