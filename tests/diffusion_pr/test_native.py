@@ -595,13 +595,12 @@ def test_the_affine_chernoff_bound_against_the_cir_tail(p0, p_1, alpha_p1, beta_
     problem = FokkerPlanckProblem(p0, V, ProportionalDiffusivity(p_1), drift=lambda p, t: alpha - beta * p)
     pieces = engine._pieces_of(problem)[1]
     probe = np.linspace(0.0, 40.0 * p0 + 40.0 * tau / p_1 * 50, 4097)[1:]
-    b_rows = engine._rows([pc.b for pc in pieces], probe, "the drift")
-    rates = np.maximum((np.diff(b_rows, axis=1) / np.diff(probe)).max(axis=1), 0.0)
-    intercepts = np.maximum((b_rows - rates[:, None] * probe).max(axis=1), 0.0)
+    rates, intercepts = engine._affine_envelope(engine._rows([pc.b for pc in pieces], probe, "the drift"), probe)
     slopes = {id(pc): (float(g), float(c)) for pc, g, c in zip(pieces, rates, intercepts)}
+    f_rows = engine._rows([pc.f for pc in pieces], probe, "the diffusivity")
     mass = 5e-10
     z = engine._tail_quantile(2 * mass)  # the one-sided tail of z is mass
-    bound = engine._affine_chernoff_bound(pieces, slopes, probe, p0, math.sqrt(2 * tau * p0 / p_1), z)
+    bound = engine._affine_chernoff_bound(pieces, slopes, f_rows, probe, p0, math.sqrt(2 * tau * p0 / p_1), z)
     assert bound is not None and bound > p0
     dens = lambda p: float(cf.cir_density(p, p0, tau, 1 / p_1, alpha, beta))  # noqa: E731
     tail, lo = 0.0, bound

@@ -465,7 +465,14 @@ def _tail_quantile(mass: float) -> float:
     return z
 
 
-def _affine_envelope_bound(pieces: Sequence, with_b: Sequence, b_rows: np.ndarray, f_max: np.ndarray,
+def _affine_envelope(rows: np.ndarray, probe: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(slopes, intercepts)``, each row's affine envelope on the probe: ``g`` its largest slope between probe
+    points (at least 0), ``c >= 0`` the smallest intercept with ``c + g p`` above the row at every probe point."""
+    slopes = np.maximum((np.diff(rows, axis=1) / np.diff(probe)).max(axis=1), 0.0)
+    return slopes, np.maximum((rows - slopes[:, None] * probe).max(axis=1), 0.0)
+
+
+def _affine_envelope_bound(pieces: Sequence, with_b: Sequence, b_rows: np.ndarray, f_rows: np.ndarray,
                            probe: np.ndarray, p0: float, z: float, bounded: float) -> Optional[tuple]:
     """``(p0 + shift + z s, shift, s)``, the upper tail's bound by an affine envelope of the drift, or None where no
     drift grows with ``p`` on the probe.
@@ -481,14 +488,12 @@ def _affine_envelope_bound(pieces: Sequence, with_b: Sequence, b_rows: np.ndarra
     Where this bound is below ``bounded`` (the bounded drift's), a diffusivity that grows with ``p`` tightens it
     further (:func:`_affine_chernoff_bound`); elsewhere the caller keeps ``bounded`` and nothing more is computed.
     """
-    up = np.maximum(b_rows, 0.0)
-    rates = np.maximum((np.diff(up, axis=1) / np.diff(probe)).max(axis=1), 0.0)
+    rates, intercepts = _affine_envelope(np.maximum(b_rows, 0.0), probe)
     if not np.any(rates > 0.0):
         return None
-    intercepts = np.maximum((up - rates[:, None] * probe).max(axis=1), 0.0)
     slopes = {id(pc): (float(g), float(c)) for pc, g, c in zip(with_b, rates, intercepts)}
     mean, var = p0, 0.0
-    for pc, fm in zip(pieces, f_max):
+    for pc, fm in zip(pieces, f_rows.max(axis=1)):
         g, c = slopes.get(id(pc), (0.0, 0.0))
         d = pc.duration
         if g * d > 350.0:  # exp(2 g dtau) beyond double precision (a drift that rises steeply near the wall)
@@ -506,17 +511,17 @@ def _affine_envelope_bound(pieces: Sequence, with_b: Sequence, b_rows: np.ndarra
         return None
     # a diffusivity that grows with p too (the CIR diffusivity p/p_1): with it bounded by F0 + F1 p as well, the
     # dominating diffusion is affine, and its exponential moments bound the tail tighter than F = max f does
-    chernoff = _affine_chernoff_bound(pieces, slopes, probe, p0, spread, z) if bound < bounded else None
+    chernoff = _affine_chernoff_bound(pieces, slopes, f_rows, probe, p0, spread, z) if bound < bounded else None
     if chernoff is not None and chernoff < bound:
         bound = chernoff
     return bound, mean - p0, spread
 
 
-def _affine_chernoff_bound(pieces: Sequence, slopes: dict, probe: np.ndarray, p0: float, spread: float,
-                           z: float) -> Optional[float]:
+def _affine_chernoff_bound(pieces: Sequence, slopes: dict, f_rows: np.ndarray, probe: np.ndarray, p0: float,
+                           spread: float, z: float) -> Optional[float]:
     """The Chernoff bound ``min_theta (log E exp(theta X) + ln(1/mass))/theta`` of the affine diffusion whose drift
     is ``c + g p`` (``slopes``, :func:`_affine_envelope_bound`) and whose diffusivity is ``F0 + F1 p`` (each stage's
-    affine envelope of ``f`` on the probe, ``F1`` its largest slope, ``F0 >= 0`` the smallest intercept covering it),
+    affine envelope of its row of ``f`` on the probe, ``f_rows``: :func:`_affine_envelope`),
     started at ``p0``; ``mass`` is the one-sided Gaussian tail of ``z``.  None where ``f`` does not grow with ``p``
     (the bound with ``F = max f`` is then as tight) or no ``theta`` has a finite moment.
 
@@ -527,11 +532,9 @@ def _affine_chernoff_bound(pieces: Sequence, slopes: dict, probe: np.ndarray, p0
     ``H(w) = (w/(1 - w) + log1p(-w))/w^2`` (both 1 and 1/2 at ``w = 0``, series below 1e-3), applied from the last
     stage back to the first.  (Affine processes: Duffie, Filipovic and Schachermayer, Ann. Appl. Probab. 13 (2003)
     984, doi:10.1214/aoap/1060202833.)"""
-    f_rows = _rows([pc.f for pc in pieces], probe, "the diffusivity")
-    f_slopes = np.maximum((np.diff(f_rows, axis=1) / np.diff(probe)).max(axis=1), 0.0)
+    f_slopes, f_intercepts = _affine_envelope(f_rows, probe)
     if not np.any(f_slopes > 0.0):
         return None
-    f_intercepts = np.maximum((f_rows - f_slopes[:, None] * probe).max(axis=1), 0.0)
     mass = 0.5 * math.erfc(z / math.sqrt(2.0))
     theta = np.geomspace(1e-3, 1e3, 241) / spread
     b = theta.copy()
@@ -588,7 +591,8 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
         probe = np.linspace(0.0, p_hi, points + 1)[1:]
         var = 0.0
         shift = 0.0
-        f_max = _rows([pc.f for pc in pieces], probe, "the diffusivity").max(axis=1)
+        f_rows = _rows([pc.f for pc in pieces], probe, "the diffusivity")
+        f_max = f_rows.max(axis=1)
         with_b = [pc for pc in pieces if pc.b is not None]
         # only a drift away from the wall moves the upper tail up (comparison: the diffusion with the drift
         # max(a, 0) stays above); a restoring drift may outgrow p (the CIR drift alpha - beta p)
@@ -603,7 +607,7 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
         new = p0 + shift + z * s
         # where that bound does not close on this probe, a drift that grows with p may: its affine envelope (tried
         # only there, so that every problem the bounded drift closes keeps its domain, and no time is spent on it)
-        grown = _affine_envelope_bound(pieces, with_b, b_rows, f_max, probe, p0, z, new) if with_b and new > p_hi \
+        grown = _affine_envelope_bound(pieces, with_b, b_rows, f_rows, probe, p0, z, new) if with_b and new > p_hi \
             else None
         if grown is not None and grown[0] < new:
             new, shift, s = grown
