@@ -156,7 +156,10 @@ def breakpoints_of(f: Callable, p_lo: float, p_hi: float) -> tuple[float, ...]:
     method = getattr(f, "breakpoints", None)
     declared = getattr(f, "declared", None)
     if callable(method) and (not callable(declared) or declared()):
-        return tuple(sorted(float(b) for b in method() if p_lo < float(b) < p_hi))
+        declared_points = method()
+        if not declared_points:  # (most models: smooth)
+            return ()
+        return tuple(sorted(float(b) for b in declared_points if p_lo < float(b) < p_hi))
     x = np.linspace(p_lo, p_hi, 4097)
     y = evaluate_vectorized(f, x)
     d = np.abs(np.diff(y))

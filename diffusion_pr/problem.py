@@ -22,6 +22,7 @@ needs.  A magnification-dependent drift ``A(p, eta)`` becomes
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Callable, Optional
 
@@ -313,7 +314,7 @@ class Stage:
             d = float(self.duration)
         except (TypeError, ValueError):
             raise ValueError(f"Stage.duration must be a finite number >= 0 (pressure^2); got {self.duration!r}") from None
-        if not np.isfinite(d) or d < 0.0:
+        if not math.isfinite(d) or d < 0.0:
             raise ValueError(f"Stage.duration must be a finite number >= 0 (pressure^2); got {self.duration!r}")
         object.__setattr__(self, "duration", d)
         for name in ("diffusivity", "drift", "balance"):

@@ -587,21 +587,20 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
     # spread: sqrt(2 sum dtau max f) on an expanding probe, plus the drift displacement
     p_hi = p0 * 4.0
     points = PROBE_POINTS_COARSE
+    with_b = [pc for pc in pieces if pc.b is not None]
+    durations = np.array([pc.duration for pc in pieces], dtype=float)
+    durations_b = np.array([pc.duration for pc in with_b], dtype=float)
     for _ in range(60):
         probe = np.linspace(0.0, p_hi, points + 1)[1:]
-        var = 0.0
-        shift = 0.0
         f_rows = _rows([pc.f for pc in pieces], probe, "the diffusivity")
         f_max = f_rows.max(axis=1)
-        with_b = [pc for pc in pieces if pc.b is not None]
         # only a drift away from the wall moves the upper tail up (comparison: the diffusion with the drift
         # max(a, 0) stays above); a restoring drift may outgrow p (the CIR drift alpha - beta p)
         b_rows = _rows([pc.b for pc in with_b], probe, "the drift") if with_b else np.zeros((0, probe.size))
         b_max = np.maximum(b_rows, 0.0).max(axis=1)  # (empty without a drift)
-        for pc, fm in zip(pieces, f_max):
-            var += 2.0 * pc.duration * float(fm)
-        for pc, bm in zip(with_b, b_max):
-            shift += pc.duration * float(bm)
+        # sum_k 2 dtau_k max f_k and sum_k dtau_k max b_k, added in stage order (cumsum is sequential)
+        var = _ordered_sum(2.0 * durations * f_max)
+        shift = _ordered_sum(durations_b * b_max)
         s = math.sqrt(var)
         z = _tail_quantile(TAIL_FRACTION * max(rtol, 1e-15))
         new = p0 + shift + z * s
@@ -625,8 +624,7 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
     # a drift towards the wall moves the lower tail down (comparison: below p0 the process is above the one with
     # the drift -max(-a, 0) there, and every excursion below p0 starts at p0): the domain's bottom takes it
     below = probe <= p0
-    shift_down = sum(pc.duration * float(np.maximum(-row[below], 0.0).max(initial=0.0))
-                     for pc, row in zip(with_b, b_rows))
+    shift_down = _ordered_sum(durations_b * np.maximum(-b_rows[:, below], 0.0).max(axis=1, initial=0.0))
     if s <= 0.0 or not np.isfinite(s):
         raise ValueError("the diffusivity is 0 on the whole domain (0, "
                          f"{p_hi:.3g}]: Pr stays delta(p - p0) and has no density to resolve")
@@ -646,9 +644,11 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
         # a unit-variance diffusion whose Ito drift -F'/(2 sqrt(2F)) points down where F grows, so z units of
         # Y bound the tail like z spreads do for constant f (checked after the solve: the top cell's mass)
         nodes = np.linspace(p0, p_max, 2049)
-        F = np.zeros_like(nodes)
-        for pc, f_row in zip(pieces, _rows([pc.f for pc in pieces], nodes, "the diffusivity")):
-            F += pc.duration * np.maximum(f_row, 0.0)
+        # sum_k dtau_k max(f_k, 0), reduced over the stages in their order (as a loop of += adds them), in place
+        weighted = _rows([pc.f for pc in pieces], nodes, "the diffusivity")
+        np.maximum(weighted, 0.0, out=weighted)
+        weighted *= durations[:, None]
+        F = np.add.reduce(weighted, axis=0)
         if np.all(np.diff(F) >= 0.0) and F[0] > 0.0:
             rho = 1.0 / np.sqrt(2.0 * F)
             y_l = np.concatenate(([0.0], np.cumsum(0.5 * np.diff(nodes) * (rho[1:] + rho[:-1]))))
@@ -708,6 +708,12 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
                     wall_depth=EXIT_WALL_DEPTH * max(rtol, 1e-15) * s if exit_graded else 0.0)
     return _prepared(problem, p0, pieces, time_dependent, segment_fn, tau_end, spec, k_min, reached, floor,
                      truncated, lamperti_bounded, bps)
+
+
+def _ordered_sum(terms: np.ndarray) -> float:
+    """``terms[0] + terms[1] + ...`` added left to right (``cumsum`` is sequential; ``sum`` is pairwise), 0 where
+    empty: the same bits as a Python loop of ``+=`` from 0."""
+    return float(np.cumsum(terms)[-1]) if terms.size else 0.0
 
 
 def _wall_of(pieces: Sequence, time_dependent: bool, p0: float, p_max: float, p_floor: Optional[float]) -> tuple:
