@@ -644,9 +644,9 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
         # a unit-variance diffusion whose Ito drift -F'/(2 sqrt(2F)) points down where F grows, so z units of
         # Y bound the tail like z spreads do for constant f (checked after the solve: the top cell's mass)
         nodes = np.linspace(p0, p_max, 2049)
-        # sum_k dtau_k max(f_k, 0), reduced over the stages in their order (as a loop of += adds them), in place
-        weighted = _rows([pc.f for pc in pieces], nodes, "the diffusivity")
-        np.maximum(weighted, 0.0, out=weighted)
+        # sum_k dtau_k max(f_k, 0), reduced over the stages in their order (as a loop of += adds them); a new
+        # block, weighted in place (a model's rows are never written to)
+        weighted = np.maximum(_rows([pc.f for pc in pieces], nodes, "the diffusivity"), 0.0)
         weighted *= durations[:, None]
         F = np.add.reduce(weighted, axis=0)
         if np.all(np.diff(F) >= 0.0) and F[0] > 0.0:
