@@ -11,6 +11,9 @@ Units: pressures ``p`` and the wall products ``kz q`` [pressure]; rows dimension
 """
 from __future__ import annotations
 
+import math
+from typing import Optional
+
 import numpy as np
 from numba import njit
 
@@ -26,37 +29,84 @@ DIFFUSIVITY, DRIFT, BALANCE = 0, 1, 2
 
 
 @njit(cache=True, nogil=True)
-def _model_rows(kq, kq_part, p, model):  # pragma: no cover - numba
-    """Row ``k`` of one model (``DIFFUSIVITY``, ``DRIFT`` or ``BALANCE``) at the clamped pressures ``p``."""
-    out = np.empty((kq.size, p.size))
+def _model_rows(kq, kq_part, p, model, out):  # pragma: no cover - numba
+    """Row ``k`` of one model (``DIFFUSIVITY``, ``DRIFT`` or ``BALANCE``) at the clamped pressures ``p``, written
+    into ``out`` (``kq.size x p.size``); returns whether every value is finite."""
+    finite = True
     for k in range(kq.size):
         for i in range(p.size):
             pp = _clamped(p[i])
             if model == DIFFUSIVITY:
                 g = pp / (pp + kq[k])
-                out[k, i] = g * g
+                v = g * g
             elif model == DRIFT:
                 part = kq_part[k] / (pp + kq_part[k])
                 denom = pp + kq[k]
-                out[k, i] = part * pp / (denom * denom)
+                v = part * pp / (denom * denom)
             else:
-                out[k, i] = kq_part[k] * pp / (pp + kq_part[k])
+                v = kq_part[k] * pp / (pp + kq_part[k])
+            out[k, i] = v
+            if not math.isfinite(v):
+                finite = False
+    return finite
+
+
+def _c1(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=float).reshape(-1)
+
+
+def model_rows(kq: np.ndarray, kq_part: np.ndarray, p: np.ndarray, model: int) -> np.ndarray:
+    """The rows of ``model`` for the shells' products ``kq`` (and ``kq_part``) at the pressures ``p`` (a new array;
+    a NaN of ``p`` stays NaN)."""
+    kq, kq_part, p = _c1(kq), _c1(kq_part), _c1(p)
+    out = np.empty((kq.size, p.size))
+    _model_rows(kq, kq_part, p, model, out)
     return out
 
 
 def diffusivity_rows(kq: np.ndarray, p: np.ndarray) -> np.ndarray:
     """``f[k, i] = g^2``, ``g = p_i / (p_i + kq_k)`` (``p`` clamped at 0; ``kq = kz q_k``)."""
-    return _model_rows(kq, kq, p, DIFFUSIVITY)
+    return model_rows(kq, kq, p, DIFFUSIVITY)
 
 
 def drift_rows(kq: np.ndarray, kq_part: np.ndarray, p: np.ndarray) -> np.ndarray:
     """``b[k, i] = part * p / (p + kq_k)^2``, ``part = kq_part_k / (p + kq_part_k)``."""
-    return _model_rows(kq, kq_part, p, DRIFT)
+    return model_rows(kq, kq_part, p, DRIFT)
 
 
 def balance_rows(kq_part: np.ndarray, p: np.ndarray) -> np.ndarray:
     """``w[k, i] = kq_part_k p / (p + kq_part_k)``."""
-    return _model_rows(kq_part, kq_part, p, BALANCE)
+    return model_rows(kq_part, kq_part, p, BALANCE)
+
+
+class RowPlan:
+    """The rows of one model for a fixed set of shells, made once per problem and evaluated on many grids.
+
+    ``plan(p, out=None)`` writes the rows at the pressures ``p`` (1-D) into ``out`` (a C-contiguous float array of
+    shape ``(shells, p.size)``; a new one where None or of another layout) in one compiled call that releases the
+    GIL, and returns it, or None where a value is not finite (the caller then takes its checked path, which says
+    where).  The same bits as :func:`model_rows`.
+    """
+
+    __slots__ = ("kq", "kq_part", "model")
+
+    def __init__(self, kq: np.ndarray, kq_part: np.ndarray, model: int) -> None:
+        self.kq, self.kq_part, self.model = _c1(kq), _c1(kq_part), int(model)
+
+    def __len__(self) -> int:
+        return int(self.kq.size)
+
+    def __call__(self, p: np.ndarray, out: Optional[np.ndarray] = None) -> Optional[np.ndarray]:
+        p = _c1(p)
+        shape = (self.kq.size, p.size)
+        target = out if (out is not None and out.shape == shape and out.dtype == np.float64
+                         and out.flags.c_contiguous) else np.empty(shape)
+        if not _model_rows(self.kq, self.kq_part, p, self.model, target):
+            return None
+        if out is not None and target is not out:
+            out[...] = target
+            return out
+        return target
 
 
 # cached loads skip numba's registry refresh (only a compile needs it): diffusion_pr._numba_load

@@ -460,13 +460,13 @@ def contact_fraction(theory: Any, *, zeta: float, mean_pressure: float) -> float
 
 
 # --------------------------------------------------------------------------- model callables
-def _common_wall(items: tuple, p: Any) -> Optional[tuple]:
-    """``(kz, p as a contiguous 1-D float array)`` when all ``items`` share one ``kz > 0`` (their rows
-    vectorize), else None.  The formulas clamp ``p`` at 0."""
+def _common_kz(items: tuple) -> Optional[float]:
+    """The ``kz > 0`` that all ``items`` share (their rows vectorize), else None.  The formulas clamp ``p`` at
+    0."""
     kz = {it.kz for it in items}
     if len(kz) != 1 or kz == {0.0}:
         return None
-    return kz.pop(), np.ascontiguousarray(p, dtype=float).reshape(-1)
+    return kz.pop()
 
 
 def _products(kz: float, items: tuple, name: str) -> np.ndarray:
@@ -475,11 +475,14 @@ def _products(kz: float, items: tuple, name: str) -> np.ndarray:
 
 
 class _ShellModel:
-    """A shell model of ``p`` that is the constant ``_HARD_WALL`` for the hard wall (``kz = 0``) and
-    ``_formula(items, kz, p)`` otherwise (``p`` clamped at 0), evaluated row-wise for many shells at once by the
-    compiled kernels of :mod:`diffusion_pr._closure_kernels` (imported on first use)."""
+    """A shell model of ``p`` that is the constant ``_HARD_WALL`` for the hard wall (``kz = 0``) and one of the
+    compiled formulas of :mod:`diffusion_pr._closure_kernels` otherwise (``p`` clamped at 0; imported on first
+    use), evaluated row-wise for many shells at once.  Each model names its formula (``_MODEL``) and the wall
+    products it takes (``_PRODUCTS``: the attributes multiplied by ``kz`` for ``kq`` and ``kq_part``)."""
 
     _HARD_WALL = 0.0
+    _MODEL = 0
+    _PRODUCTS = ("q", "q")
 
     def __call__(self, p: np.ndarray) -> np.ndarray:
         p = np.asarray(p, dtype=float)
@@ -488,13 +491,27 @@ class _ShellModel:
         return type(self).rows((self,), p.reshape(-1))[0].reshape(p.shape)
 
     @classmethod
+    def row_plan(cls, items: tuple) -> Any:
+        """The rows of ``items`` as a reusable compiled evaluator (:class:`diffusion_pr._closure_kernels.RowPlan`:
+        ``plan(p, out=None)``), or None where they do not share one ``kz > 0``.  The engine makes one per problem
+        and model and evaluates it on every probe and grid (the same bits as :meth:`rows`)."""
+        kz = _common_kz(items)
+        if kz is None:
+            return None
+        from ._closure_kernels import RowPlan
+
+        return RowPlan(_products(kz, items, cls._PRODUCTS[0]), _products(kz, items, cls._PRODUCTS[1]), cls._MODEL)
+
+    @classmethod
     def rows(cls, items: tuple, p: np.ndarray) -> np.ndarray:
         """``[m(p) for m in items]`` as a 2-D array in one vectorized pass (same values as calling each)."""
-        common = _common_wall(items, p)
-        if common is None:
+        kz = _common_kz(items)
+        if kz is None:
             return np.array([it(p) for it in items])
-        kz, p1 = common
-        return cls._formula(items, kz, p1)
+        from ._closure_kernels import model_rows
+
+        return model_rows(_products(kz, items, cls._PRODUCTS[0]), _products(kz, items, cls._PRODUCTS[1]), p,
+                          cls._MODEL)
 
 
 class _LoadModel(_ShellModel):
@@ -529,6 +546,8 @@ class LocalResponseDiffusivity(_ShellModel):
     kz: float
 
     _HARD_WALL = 1.0  # f = 1: Persson
+    _MODEL = 0  # _closure_kernels.DIFFUSIVITY: g(q_k)^2
+    _PRODUCTS = ("q", "q")
 
     @property
     def zero_power(self) -> float:
@@ -536,12 +555,6 @@ class LocalResponseDiffusivity(_ShellModel):
 
     def breakpoints(self) -> tuple[float, ...]:
         return ()
-
-    @staticmethod
-    def _formula(items: tuple, kz: float, p: np.ndarray) -> np.ndarray:
-        from ._closure_kernels import diffusivity_rows
-
-        return diffusivity_rows(_products(kz, items, "q"), p)
 
 
 @dataclass(frozen=True)
@@ -557,11 +570,8 @@ class LoadExcessDrift(_LoadModel):
     q_part: float
     kz: float
 
-    @staticmethod
-    def _formula(items: tuple, kz: float, p: np.ndarray) -> np.ndarray:
-        from ._closure_kernels import drift_rows
-
-        return drift_rows(_products(kz, items, "q"), _products(kz, items, "q_part"), p)
+    _MODEL = 1  # _closure_kernels.DRIFT
+    _PRODUCTS = ("q", "q_part")
 
 
 @dataclass(frozen=True)
@@ -572,11 +582,8 @@ class RigidApproachBalance(_LoadModel):
     q_part: float
     kz: float
 
-    @staticmethod
-    def _formula(items: tuple, kz: float, p: np.ndarray) -> np.ndarray:
-        from ._closure_kernels import balance_rows
-
-        return balance_rows(_products(kz, items, "q_part"), p)
+    _MODEL = 2  # _closure_kernels.BALANCE
+    _PRODUCTS = ("q_part", "q_part")
 
 
 def closure_problem(shells: Shells, *, zeta: float, E_star: float, mean_pressure: float, closure: str,

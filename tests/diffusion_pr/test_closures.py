@@ -811,10 +811,10 @@ def test_plain_alongside_gives_plain_batchs_masses_and_the_same_closure(fig1, mo
     # a plain problem that raises: no results, the main solve unchanged
     real = engine._coefficients
 
-    def failing(pieces, grids, centre_drift):
+    def failing(pieces, grids, centre_drift, *args, **kwargs):
         if len(pieces) == 12:
             raise FloatingPointError("deliberate")
-        return real(pieces, grids, centre_drift)
+        return real(pieces, grids, centre_drift, *args, **kwargs)
 
     monkeypatch.setattr(engine, "_coefficients", failing)
     with engine.plain_masses("keep"), engine.plain_alongside(problems, rtol=1e-6, **floor) as record:

@@ -340,6 +340,28 @@ class Prepared:
     #: the coefficients' breakpoints, where the density may jump or kink (None: unknown, every knot counts); ``p0``
     #: and the floor are knots of the grids only, across which the final density is smooth (:func:`density_knots`)
     breakpoints: Optional[tuple] = None
+    #: the pieces' coefficient rows as compiled evaluators made once (:func:`row_plans`; None: none)
+    row_plans: Optional[dict] = field(default=None, compare=False)
+
+
+def row_plans(pieces: Sequence) -> Optional[dict]:
+    """``{"f": plan, "b": plan, "w": plan}``: for each coefficient, the rows of the pieces that have it as one
+    evaluator ``plan(p, out=None)`` where their type offers ``row_plan(items)`` (the closures' shell models:
+    the wall products gathered once per problem instead of on every grid), else None; None where no piece's
+    coefficient has one.  A plan returns the same bits as the type's ``rows`` (:func:`_rows` tries it first)."""
+    plans = {}
+    for key in ("f", "b", "w"):
+        funcs = [getattr(pc, key) for pc in pieces if getattr(pc, key) is not None]
+        kinds = {type(g) for g in funcs}
+        maker = getattr(next(iter(kinds)), "row_plan", None) if len(kinds) == 1 else None
+        plans[key] = maker(tuple(funcs)) if callable(maker) else None
+    return plans if any(v is not None for v in plans.values()) else None
+
+
+def _plan(prep_or_plans, key: str) -> Optional[Callable]:
+    """The row plan of ``key`` in a :class:`Prepared`'s or a :func:`row_plans` dict (None where there is none)."""
+    plans = prep_or_plans.row_plans if isinstance(prep_or_plans, Prepared) else prep_or_plans
+    return None if plans is None else plans[key]
 
 
 def density_knots(prep: Prepared) -> tuple:
@@ -361,12 +383,18 @@ def _check_f(f: Callable, p: np.ndarray, name: str) -> np.ndarray:
     return out
 
 
-def _rows(funcs: Sequence, p: np.ndarray, name: str, out: Optional[np.ndarray] = None) -> np.ndarray:
+def _rows(funcs: Sequence, p: np.ndarray, name: str, out: Optional[np.ndarray] = None,
+          plan: Optional[Callable] = None) -> np.ndarray:
     """``[g(p) for g in funcs]`` as rows, checked like :func:`_check_f`.
 
+    ``plan``: the rows' compiled evaluator made once for ``funcs`` (:func:`row_plans`), tried first.
     Callables of one type that offers ``rows(items, p)`` (the closures' models)
     are evaluated in one vectorized pass; the values are the same.
     """
+    if plan is not None:
+        block = plan(p, out)
+        if block is not None:
+            return block
     kinds = {type(g) for g in funcs}
     if len(kinds) == 1 and callable(getattr(next(iter(kinds)), "rows", None)):
         # one call for all rows (the closures' models evaluate them in a compiled pass, no temporaries)
@@ -563,6 +591,59 @@ def _affine_chernoff_bound(pieces: Sequence, slopes: dict, f_rows: np.ndarray, p
     return best if math.isfinite(best) and best > p0 else None
 
 
+#: the largest work array :func:`_work_arrays` keeps for a thread [bytes] (a larger one is allocated per call)
+WORK_MAX_BYTES = 1 << 24
+
+_WORK = threading.local()
+
+
+def _thread_work(prefix: str) -> Callable:
+    """``get(name, shape)``: an uninitialized float array of ``shape`` that this thread keeps between calls under
+    ``prefix + name`` (one buffer per key; one above :data:`WORK_MAX_BYTES` is allocated afresh).
+
+    Why: large temporaries made afresh in the main thread (:func:`prepare`'s probe rows, stages x 1024 and x 2049
+    points; the grids' coefficient rows, stages x cells) are mapped and returned to the system by glibc's allocator
+    on every call, because freeing them leaves the main heap's top above its trim threshold.  Measured on this
+    machine: 450 page faults and about 1.5 ms of a 12 ms closure call in ``prepare`` alone, while the worker
+    thread waits; 1390 faults and 4 ms of the main thread's 8.4 ms of coefficient rows at ``zeta = 0.01`` (the
+    worker's own arena did not fault).  The contract: a key's array is dead before the same thread asks for that
+    key again (each user below says why), and nothing that outlives its user is a view of one.
+    """
+    store = getattr(_WORK, "store", None)
+    if store is None:
+        store = _WORK.store = {}
+
+    def get(name: str, shape: tuple) -> np.ndarray:
+        n = math.prod(shape)
+        if 8 * n > WORK_MAX_BYTES:
+            return np.empty(shape)
+        key = prefix + name
+        buf = store.get(key)
+        if buf is None or buf.size < n:
+            buf = store[key] = np.empty(n)
+        return buf[:n].reshape(shape)
+
+    return get
+
+
+@contextlib.contextmanager
+def _work_arrays(prefix: str):
+    """:func:`_thread_work` of ``prefix`` for the duration of a ``with`` block that does not hand its arrays out;
+    a nested block of the same prefix in the same thread (a user's coefficient that solves a problem itself) gets
+    fresh arrays."""
+    busy = getattr(_WORK, "busy", None)
+    if busy is None:
+        busy = _WORK.busy = set()
+    if prefix in busy:
+        yield lambda name, shape: np.empty(shape)
+        return
+    busy.add(prefix)
+    try:
+        yield _thread_work(prefix)
+    finally:
+        busy.discard(prefix)
+
+
 def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: bool = True,
             on_grid: Optional[GridSpec] = None) -> Prepared:
     """Classify the wall, bound the domain and fix the grid family of ``problem``.
@@ -582,8 +663,19 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
     """
     p0, pieces, time_dependent, segment_fn = _pieces_of(problem)
     tau_end = float(sum(pc.duration for pc in pieces))
+    plans = None if time_dependent else row_plans(pieces)
     if on_grid is not None:
-        return _prepared_on(problem, p0, pieces, time_dependent, segment_fn, tau_end, on_grid, p_floor)
+        return _prepared_on(problem, p0, pieces, time_dependent, segment_fn, tau_end, on_grid, p_floor, plans)
+    with _work_arrays("prepare:") as work:
+        return _prepare_probed(problem, rtol, p_floor, lamperti, p0, pieces, time_dependent, segment_fn, tau_end,
+                               plans, work)
+
+
+def _prepare_probed(problem, rtol: float, p_floor: Optional[float], lamperti: bool, p0: float, pieces: Sequence,
+                    time_dependent: bool, segment_fn: Optional[Callable], tau_end: float, plans: Optional[dict],
+                    work: Callable) -> Prepared:
+    """:func:`prepare` with the domain probe, the Lamperti bound and the grid family, its large rows in the
+    thread's work arrays ``work`` (:func:`_work_arrays`: none of them outlives the call)."""
     # spread: sqrt(2 sum dtau max f) on an expanding probe, plus the drift displacement
     p_hi = p0 * 4.0
     points = PROBE_POINTS_COARSE
@@ -592,12 +684,14 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
     durations_b = np.array([pc.duration for pc in with_b], dtype=float)
     for _ in range(60):
         probe = np.linspace(0.0, p_hi, points + 1)[1:]
-        f_rows = _rows([pc.f for pc in pieces], probe, "the diffusivity")
+        f_rows = _rows([pc.f for pc in pieces], probe, "the diffusivity", plan=_plan(plans, "f"),
+                       out=work("f", (len(pieces), probe.size)))
         f_max = f_rows.max(axis=1)
         # only a drift away from the wall moves the upper tail up (comparison: the diffusion with the drift
         # max(a, 0) stays above); a restoring drift may outgrow p (the CIR drift alpha - beta p)
-        b_rows = _rows([pc.b for pc in with_b], probe, "the drift") if with_b else np.zeros((0, probe.size))
-        b_max = np.maximum(b_rows, 0.0).max(axis=1)  # (empty without a drift)
+        b_rows = _rows([pc.b for pc in with_b], probe, "the drift", plan=_plan(plans, "b"),
+                       out=work("b", (len(with_b), probe.size))) if with_b else np.zeros((0, probe.size))
+        b_max = np.maximum(b_rows, 0.0, out=work("b+", b_rows.shape)).max(axis=1)  # (empty without a drift)
         # sum_k 2 dtau_k max f_k and sum_k dtau_k max b_k, added in stage order (cumsum is sequential)
         var = _ordered_sum(2.0 * durations * f_max)
         shift = _ordered_sum(durations_b * b_max)
@@ -623,8 +717,9 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
                          f"{p_hi:.3g} after 60 iterations)")
     # a drift towards the wall moves the lower tail down (comparison: below p0 the process is above the one with
     # the drift -max(-a, 0) there, and every excursion below p0 starts at p0): the domain's bottom takes it
-    below = probe <= p0
-    shift_down = _ordered_sum(durations_b * np.maximum(-b_rows[:, below], 0.0).max(axis=1, initial=0.0))
+    below = b_rows[:, :int(np.searchsorted(probe, p0, side="right"))]  # (the probe increases: probe <= p0)
+    towards = np.negative(below, out=work("b+", below.shape))
+    shift_down = _ordered_sum(durations_b * np.maximum(towards, 0.0, out=towards).max(axis=1, initial=0.0))
     if s <= 0.0 or not np.isfinite(s):
         raise ValueError("the diffusivity is 0 on the whole domain (0, "
                          f"{p_hi:.3g}]: Pr stays delta(p - p0) and has no density to resolve")
@@ -636,7 +731,7 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
                          "to double precision (the contact is lost)")
     with_w = [pc.w for pc in pieces if pc.w is not None]  # the balance does not set the spread: checked once
     if with_w:
-        _rows(with_w, probe, "the balance")
+        _rows(with_w, probe, "the balance", plan=_plan(plans, "w"), out=work("w", (len(with_w), probe.size)))
     p_max = new
     lamperti_bounded = False
     if LAMPERTI and lamperti and not growing and not time_dependent and len(pieces) >= COMPILED_MIN_PIECES:
@@ -644,9 +739,11 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
         # a unit-variance diffusion whose Ito drift -F'/(2 sqrt(2F)) points down where F grows, so z units of
         # Y bound the tail like z spreads do for constant f (checked after the solve: the top cell's mass)
         nodes = np.linspace(p0, p_max, 2049)
-        # sum_k dtau_k max(f_k, 0), reduced over the stages in their order (as a loop of += adds them); a new
-        # block, weighted in place (a model's rows are never written to)
-        weighted = np.maximum(_rows([pc.f for pc in pieces], nodes, "the diffusivity"), 0.0)
+        # sum_k dtau_k max(f_k, 0), reduced over the stages in their order (as a loop of += adds them); a work
+        # block of its own, weighted in place (a model's own rows are never written to)
+        weighted = np.maximum(_rows([pc.f for pc in pieces], nodes, "the diffusivity", plan=_plan(plans, "f"),
+                                    out=work("f", (len(pieces), nodes.size))), 0.0,
+                              out=work("weighted", (len(pieces), nodes.size)))
         weighted *= durations[:, None]
         F = np.add.reduce(weighted, axis=0)
         if np.all(np.diff(F) >= 0.0) and F[0] > 0.0:
@@ -696,7 +793,8 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
     if p0 not in pruned:
         pruned = sorted([x for x in pruned if abs(x - p0) > 1e-9 * p0 or x in extra_knots] + [p0])
     # grading towards p0 where the local spread is small compared with the global one
-    f_p0 = [max(float(v), 0.0) for v in _rows([pc.f for pc in pieces], np.array([p0]), "the diffusivity")[:, 0]]
+    f_p0 = [max(float(v), 0.0) for v in _rows([pc.f for pc in pieces], np.array([p0]), "the diffusivity",
+                                              plan=_plan(plans, "f"))[:, 0]]
     if time_dependent:
         w_loc = math.sqrt(2.0 * tau_end * max(f_p0))
     else:  # stages: the variance a start at p0 accumulates, sum_k 2 dtau_k f_k(p0) (not 2 tau_end max_k f_k)
@@ -707,7 +805,7 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
     spec = GridSpec(p_wall=floor_domain, p_max=p_max, knots=tuple(pruned), scale=s, c_wall=c_wall, c_0=c_0, w0=w0, p0=p0,
                     wall_depth=EXIT_WALL_DEPTH * max(rtol, 1e-15) * s if exit_graded else 0.0)
     return _prepared(problem, p0, pieces, time_dependent, segment_fn, tau_end, spec, k_min, reached, floor,
-                     truncated, lamperti_bounded, bps)
+                     truncated, lamperti_bounded, bps, plans)
 
 
 def _ordered_sum(terms: np.ndarray) -> float:
@@ -738,17 +836,17 @@ def _wall_of(pieces: Sequence, time_dependent: bool, p0: float, p_max: float, p_
 
 
 def _prepared_on(problem, p0: float, pieces: Sequence, time_dependent: bool, segment_fn: Optional[Callable],
-                 tau_end: float, spec: GridSpec, p_floor: Optional[float]) -> Prepared:
+                 tau_end: float, spec: GridSpec, p_floor: Optional[float], plans: Optional[dict] = None) -> Prepared:
     """:func:`prepare` on a given grid family (``on_grid``): the classification without the domain probe."""
     bps, k_min, reached, floor = _wall_of(pieces, time_dependent, p0, spec.p_max, p_floor)
     truncated = not reached and spec.p_wall > floor  # the domain starts above the floor (prepare's p_lo)
     return _prepared(problem, p0, pieces, time_dependent, segment_fn, tau_end, spec, k_min, reached, floor,
-                     truncated, False, bps)
+                     truncated, False, bps, plans)
 
 
 def _prepared(problem, p0: float, pieces: Sequence, time_dependent: bool, segment_fn: Optional[Callable],
               tau_end: float, spec: GridSpec, k_min: float, reached: bool, floor: float, truncated: bool,
-              lamperti_bounded: bool, breakpoints: Sequence[float] = ()) -> Prepared:
+              lamperti_bounded: bool, breakpoints: Sequence[float] = (), plans: Optional[dict] = None) -> Prepared:
     """The :class:`Prepared` record of a classified problem on its grid family (:func:`prepare`,
     :func:`_prepared_on`): the floor is an edge whose cells below are lumped where the wall is not reached and the
     domain is not truncated above it."""
@@ -762,7 +860,7 @@ def _prepared(problem, p0: float, pieces: Sequence, time_dependent: bool, segmen
                     depth_adaptive=not (reached or truncated or has_drift or has_balance),
                     lamperti_bounded=lamperti_bounded,
                     fitted_drift=has_drift and isinstance(problem, FokkerPlanckProblem),
-                    breakpoints=tuple(float(b) for b in breakpoints))
+                    breakpoints=tuple(float(b) for b in breakpoints), row_plans=plans)
 
 
 def native_assemble(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray],
@@ -784,22 +882,28 @@ def _substeps(prep: Prepared, piece: _Piece, n_base: int, refine: int) -> int:
     return refine * max(1, int(round(n_base / SUBSTEP_CELLS * piece.duration / prep.tau_end)))
 
 
-def _coefficients(pieces: Sequence, grids: Sequence[np.ndarray], centre_drift: bool) -> list:
+def _coefficients(pieces: Sequence, grids: Sequence[np.ndarray], centre_drift: bool,
+                  plans: Optional[dict] = None, work: Optional[Callable] = None) -> list:
     """Every stage's ``f`` (centres), drift and balance (faces; centres too if ``centre_drift``) as rows, per grid.
 
-    Each callable is evaluated once, on the points of all ``grids`` (edge arrays) together.
+    Each callable is evaluated once, on the points of all ``grids`` (edge arrays) together; ``plans``: the
+    pieces' :func:`row_plans`; ``work``: the rows in these work arrays (:func:`_thread_work`; the caller keeps
+    its contract), else new ones.
     """
     cs = [centres(e) for e in grids]
     faces = [e[:-1] for e in grids]
     cut = np.cumsum([0] + [c.size for c in cs])
     c_all, f_all = np.concatenate(cs), np.concatenate(faces)
     k_stages = len(pieces)
-    rows = {"f": np.empty((k_stages, c_all.size)), "b": np.zeros((k_stages, c_all.size)),
-            "w": np.zeros((k_stages, c_all.size))}
-    if centre_drift:
-        rows["b_c"], rows["w_c"] = np.zeros((k_stages, c_all.size)), np.zeros((k_stages, c_all.size))
+    shape = (k_stages, c_all.size)
+    keys = ("f", "b", "w", "b_c", "w_c") if centre_drift else ("f", "b", "w")
+    rows = {key: np.empty(shape) if work is None else work(key, shape) for key in keys}
+    for key in keys[1:]:  # (the stages without a drift or a balance have rows of zeros)
+        if not all(getattr(pc, key[0]) is not None for pc in pieces):
+            rows[key].fill(0.0)
     has = {"b": np.zeros(k_stages, dtype=bool), "w": np.zeros(k_stages, dtype=bool)}
-    np.maximum(_rows([pc.f for pc in pieces], c_all, "the diffusivity", out=rows["f"]), 0.0, out=rows["f"])
+    np.maximum(_rows([pc.f for pc in pieces], c_all, "the diffusivity", out=rows["f"], plan=_plan(plans, "f")), 0.0,
+               out=rows["f"])
     for key, name in (("b", "the drift"), ("w", "the balance")):
         idx = [k for k, pc in enumerate(pieces) if getattr(pc, key) is not None]
         if not idx:
@@ -809,23 +913,28 @@ def _coefficients(pieces: Sequence, grids: Sequence[np.ndarray], centre_drift: b
         every = len(idx) == k_stages  # all stages: write in place
         for suffix, pts in (("", f_all), ("_c", c_all)) if centre_drift else (("", f_all),):
             if every:
-                _rows(funcs, pts, name, out=rows[key + suffix])
+                _rows(funcs, pts, name, out=rows[key + suffix], plan=_plan(plans, key))
             else:
-                rows[key + suffix][idx] = _rows(funcs, pts, name)
+                rows[key + suffix][idx] = _rows(funcs, pts, name, plan=_plan(plans, key))
     return [{**{key: v[:, cut[g]:cut[g + 1]] for key, v in rows.items()},  # views: no copies
              "has_b": has["b"], "has_w": has["w"]} for g in range(len(grids))]
 
 
 def _coefficients_lazy(pieces: Sequence, grids: Sequence[np.ndarray], groups: Sequence[tuple],
-                       centre_drift: bool) -> Callable:
+                       centre_drift: bool, plans: Optional[dict] = None) -> Callable:
     """``coef(g)``: :func:`_coefficients` of ``grids[g]``, evaluated for its whole group (a tuple of grid
-    indices) when the first grid of the group is asked for; each group is asked for from one thread."""
+    indices) when the first grid of the group is asked for; each group is asked for from one thread.
+
+    The rows are that thread's work arrays (:func:`_thread_work`, key ``"level:"``): they are read only by the
+    group's integrations, which that thread runs before it asks for another level's group (the levels of a solve
+    follow one another; no other user takes that key)."""
     cache: dict = {}
 
     def coef(g: int) -> dict:
         if g not in cache:
             grp = next(grp for grp in groups if g in grp)
-            cache.update(zip(grp, _coefficients(pieces, [grids[k] for k in grp], centre_drift)))
+            cache.update(zip(grp, _coefficients(pieces, [grids[k] for k in grp], centre_drift, plans,
+                                                work=_thread_work("level:"))))
         return cache[g]
 
     return coef
@@ -912,7 +1021,8 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     y[j + 1] = (prep.p0 - cl) / (cr - cl)
     pieces = prep.segment_fn(refine * max(4, n_base // 8)) if prep.time_dependent else prep.pieces
     if coef is None:
-        coef = _coefficients(pieces, [edges], centre_drift=assemble is not native_assemble)[0]
+        coef = _coefficients(pieces, [edges], centre_drift=assemble is not native_assemble,
+                             plans=prep.row_plans if pieces is prep.pieces else None)[0]
     compiled = _compiled(prep)
     rows_in_kernel = compiled and assemble is native_assemble  # the kernel makes each stage's bands itself
     if not rows_in_kernel:
@@ -1171,9 +1281,12 @@ def _drain(queue: collections.deque, run: Callable) -> None:
 
 def _plain_masses_on(pr: Prepared, edges: np.ndarray, n_base: int, refine: int, integrate: Callable) -> tuple:
     """One plain problem integrated on one grid with its own coefficient rows (a time-dependent problem's segments
-    are made by :func:`solve_on_grid`)."""
-    return integrate(pr, edges, n_base, refine, None if pr.time_dependent else
-                     _coefficients(pr.pieces, [edges], centre_drift=False)[0])
+    are made by :func:`solve_on_grid`), in this thread's work arrays: they are dead when the integration returns."""
+    if pr.time_dependent:
+        return integrate(pr, edges, n_base, refine, None)
+    with _work_arrays("plain:") as work:
+        return integrate(pr, edges, n_base, refine,
+                         _coefficients(pr.pieces, [edges], centre_drift=False, plans=pr.row_plans, work=work)[0])
 
 
 def _alongside_tasks(record: Alongside, prep: Prepared, es: Sequence[np.ndarray], idx: np.ndarray,
@@ -1629,7 +1742,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             alongside.results = None
             side = _alongside_tasks(alongside, prep, es, idx, backend)
         if reuse is not None:
-            coef3 = _coefficients(prep.pieces, [es[-1]], centre_drift=assemble is not native_assemble)[0]
+            coef3 = _coefficients(prep.pieces, [es[-1]], centre_drift=assemble is not native_assemble,
+                                  plans=prep.row_plans)[0]
             new_grid = lambda: integrate(prep, es[-1], n_base, 4, coef3)  # noqa: E731
             # (the new grid in the worker where plain problems run alongside in this thread)
             ys = [reuse[3], reuse[4], *(_run_grids([new_grid], True, side) if side is not None else [new_grid()])]
@@ -1639,7 +1753,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                 # that it is evaluated and integrated while this thread evaluates and integrates the coarser ones)
                 coefs = _coefficients_lazy(prep.pieces, es, ((last,), tuple(range(last))) if parallel
                                            else (tuple(range(last + 1)),),
-                                           centre_drift=assemble is not native_assemble)
+                                           centre_drift=assemble is not native_assemble, plans=prep.row_plans)
                 tasks = [lambda e=e, rf=1 << k, g=g: integrate(prep, e, n_base, rf, coefs(g))
                          for g, (k, e) in enumerate(zip(ks, es))]
             else:

@@ -1,0 +1,123 @@
+"""The engine's coefficient-row plans and work arrays (diffusion_pr.solvers.fv.engine).
+
+Both are speed measures with no effect on any answer: the oracles are the paths they replace (a model type's
+``rows``; freshly allocated arrays), compared bit for bit.
+"""
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+import diffusion_pr as dp
+from diffusion_pr import StagedProblem, Stage
+from diffusion_pr.closures import (LoadExcessDrift, LocalResponseDiffusivity, RigidApproachBalance,
+                                   spectrum_shells)
+from diffusion_pr.solvers import native
+from diffusion_pr.solvers.fv import engine
+
+E = 8 / 3
+P0 = 0.004
+
+
+@pytest.fixture(scope="module")
+def fig1():
+    return dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+
+
+def _models(fig1, kz):
+    sh = spectrum_shells(fig1, E_star=E)
+    return {
+        "f": tuple(LocalResponseDiffusivity(float(x), kz) for x in sh.q),
+        "b": tuple(LoadExcessDrift(float(x), float(sh.q_min), kz) for x in sh.q),
+        "w": tuple(RigidApproachBalance(float(sh.q_min), kz) for _ in sh.q),
+    }
+
+
+def test_row_plans_are_the_models_rows_bit_for_bit(fig1):
+    """A plan (made once per problem) gives the bits of its type's ``rows`` (which test_closures checks against
+    the numpy formulas), into a given C-contiguous ``out`` in place and into any other ``out`` by a copy; a
+    non-finite value gives None (the engine's checked path then says where); no plan where the shells do not
+    share one wall product (the hard wall, mixed ``kz``)."""
+    kz = 0.5 * 0.25 * E
+    p = np.r_[-1.0, 0.0, np.geomspace(1e-300, 10.0, 501)]
+    for key, items in _models(fig1, kz).items():
+        plan = type(items[0]).row_plan(items)
+        expect = type(items[0]).rows(items, p)
+        assert len(plan) == len(items)
+        np.testing.assert_array_equal(plan(p), expect)
+        out = np.empty(expect.shape)
+        assert plan(p, out) is out
+        np.testing.assert_array_equal(out, expect)
+        strided = np.empty((expect.shape[0], 2 * expect.shape[1]))[:, ::2]
+        assert plan(p, strided) is strided
+        np.testing.assert_array_equal(strided, expect)
+        assert plan(np.r_[p, np.nan]) is None
+    assert LocalResponseDiffusivity.row_plan(_models(fig1, 0.0)["f"]) is None
+    mixed = _models(fig1, kz)["f"][:3] + _models(fig1, 2 * kz)["f"][:3]
+    assert LocalResponseDiffusivity.row_plan(mixed) is None
+
+
+def test_row_plans_follow_the_pieces_that_have_each_coefficient(fig1):
+    """``row_plans``: the drift's plan covers the stages with a drift, in their order (the rows
+    ``_coefficients`` scatters back to those stages); a user's callables have none."""
+    m = _models(fig1, 0.5 * 0.25 * E)
+    stages = tuple(Stage(1e-6, f, drift=b if k % 3 else None) for k, (f, b) in enumerate(zip(m["f"], m["b"])))
+    _, pieces, _, _ = engine._pieces_of(StagedProblem(P0, stages))
+    plans = engine.row_plans(pieces)
+    with_b = tuple(s.drift for s in stages if s.drift is not None)
+    assert plans["w"] is None and len(plans["f"]) == len(stages) and len(plans["b"]) == len(with_b)
+    p = np.linspace(0.0, 0.02, 33)
+    np.testing.assert_array_equal(plans["b"](p), LoadExcessDrift.rows(with_b, p))
+    user = tuple(Stage(0.1, lambda p: np.ones_like(p)) for _ in range(3))
+    assert engine.row_plans(engine._pieces_of(StagedProblem(1.0, user))[1]) is None
+
+
+def test_work_arrays_are_per_thread_per_key_and_never_nested():
+    """The same key gives this thread the same memory again, another key or thread other memory; a block above
+    WORK_MAX_BYTES and a nested block of the same prefix get fresh arrays."""
+    get = engine._thread_work("test:")
+    a = get("x", (3, 5))
+    assert a.shape == (3, 5) and a.flags.c_contiguous
+    assert np.shares_memory(a, get("x", (2, 7))) and not np.shares_memory(a, get("y", (3, 5)))
+    other = []
+    t = threading.Thread(target=lambda: other.append(engine._thread_work("test:")("x", (3, 5))))
+    t.start()
+    t.join()
+    assert not np.shares_memory(a, other[0])
+    big = (engine.WORK_MAX_BYTES // 8 + 1,)
+    assert not np.shares_memory(get("x", big), get("x", big))
+    with engine._work_arrays("test:") as outer:
+        b = outer("x", (4,))
+        with engine._work_arrays("test:") as inner:
+            assert not np.shares_memory(b, inner("x", (4,)))
+        with engine._work_arrays("other:") as third:
+            assert np.shares_memory(third("x", (4,)), engine._thread_work("other:")("x", (4,)))
+
+
+def _bits(r):
+    return np.concatenate([[r.zero_weight, r.error_estimate], r.edges, r.cdf(r.edges)])
+
+
+def _partial_drift_problem():
+    """24 stages, a drift on two of three (the zero rows of the others come from reused memory)."""
+    one = lambda p: np.ones_like(p)  # noqa: E731
+    return StagedProblem(1.0, tuple(Stage(1.0 / 24, one, drift=(lambda p: 0.5 + 0 * p) if k % 3 else None)
+                                    for k in range(24)))
+
+
+def test_answers_do_not_depend_on_the_work_arrays(fig1, monkeypatch):
+    """The same bits with every work array fresh (WORK_MAX_BYTES = 0): the Fig. 1 closures on two threads with the
+    ladder's plain problems alongside (zeta 0.25) and in a batch after the solve (zeta 0.01), and a staged problem
+    whose stages have a drift on two of three, solved after a problem that filled the same rows everywhere."""
+    def answers():
+        out = [_bits(dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=z, closure=c, rtol=1e-6))
+               for c, z in (("local_g1_balanced", 0.25), ("local_g1_shell_balanced", 0.01), ("local_g1", 1.0))]
+        return out + [_bits(native.solve(_partial_drift_problem(), rtol=1e-6))]
+
+    reused = answers()
+    monkeypatch.setattr(engine, "WORK_MAX_BYTES", 0)
+    fresh = answers()
+    for a, b in zip(reused, fresh):
+        np.testing.assert_array_equal(a, b)
