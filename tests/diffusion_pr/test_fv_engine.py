@@ -60,18 +60,20 @@ def test_row_plans_are_the_models_rows_bit_for_bit(fig1):
 
 
 def test_row_plans_follow_the_pieces_that_have_each_coefficient(fig1):
-    """``row_plans``: the drift's plan covers the stages with a drift, in their order (the rows
-    ``_coefficients`` scatters back to those stages); a user's callables have none."""
+    """``row_plans``: the drift's stages, callables and plan are those of the stages with a drift, in their order
+    (the rows ``_coefficients`` scatters back to those stages); a user's callables have no plan."""
     m = _models(fig1, 0.5 * 0.25 * E)
     stages = tuple(Stage(1e-6, f, drift=b if k % 3 else None) for k, (f, b) in enumerate(zip(m["f"], m["b"])))
     _, pieces, _, _ = engine._pieces_of(StagedProblem(P0, stages))
     plans = engine.row_plans(pieces)
     with_b = tuple(s.drift for s in stages if s.drift is not None)
-    assert plans["w"] is None and len(plans["f"]) == len(stages) and len(plans["b"]) == len(with_b)
+    assert plans["b"].stages == tuple(k for k in range(len(stages)) if k % 3) and plans["b"].funcs == with_b
+    assert plans["f"].every and not plans["b"].every and plans["w"].stages == () and plans["w"].plan is None
+    assert len(plans["f"].plan) == len(stages) and len(plans["b"].plan) == len(with_b)
     p = np.linspace(0.0, 0.02, 33)
-    np.testing.assert_array_equal(plans["b"](p), LoadExcessDrift.rows(with_b, p))
+    np.testing.assert_array_equal(plans["b"].plan(p), LoadExcessDrift.rows(with_b, p))
     user = tuple(Stage(0.1, lambda p: np.ones_like(p)) for _ in range(3))
-    assert engine.row_plans(engine._pieces_of(StagedProblem(1.0, user))[1]) is None
+    assert all(v.plan is None for v in engine.row_plans(engine._pieces_of(StagedProblem(1.0, user))[1]).values())
 
 
 def test_work_arrays_are_per_thread_per_key_and_never_nested():

@@ -340,28 +340,43 @@ class Prepared:
     #: the coefficients' breakpoints, where the density may jump or kink (None: unknown, every knot counts); ``p0``
     #: and the floor are knots of the grids only, across which the final density is smooth (:func:`density_knots`)
     breakpoints: Optional[tuple] = None
-    #: the pieces' coefficient rows as compiled evaluators made once (:func:`row_plans`; None: none)
+    #: the pieces' coefficients gathered once (:func:`row_plans`; None for a time-dependent problem)
     row_plans: Optional[dict] = field(default=None, compare=False)
 
 
-def row_plans(pieces: Sequence) -> Optional[dict]:
-    """``{"f": plan, "b": plan, "w": plan}``: for each coefficient, the rows of the pieces that have it as one
-    evaluator ``plan(p, out=None)`` where their type offers ``row_plan(items)`` (the closures' shell models:
-    the wall products gathered once per problem instead of on every grid), else None; None where no piece's
-    coefficient has one.  A plan returns the same bits as the type's ``rows`` (:func:`_rows` tries it first)."""
-    plans = {}
+@dataclass(frozen=True)
+class StageRows:
+    """One coefficient (``f``, ``b`` or ``w``) of a problem's pieces, gathered once (:func:`row_plans`)."""
+
+    #: the pieces that have it, in their order
+    stages: tuple
+    #: their callables
+    funcs: tuple
+    #: whether every piece has it
+    every: bool
+    #: ``plan(p, out=None)``: the rows of ``funcs`` in one compiled call, where their type offers
+    #: ``row_plan(items)`` (the closures' shell models: the wall products gathered once per problem instead of on
+    #: every grid); the same bits as the type's ``rows`` (:func:`_rows` tries it first); else None
+    plan: Optional[Callable]
+
+
+def row_plans(pieces: Sequence) -> dict:
+    """``{"f": StageRows, "b": StageRows, "w": StageRows}`` of ``pieces``: which have each coefficient, its
+    callables and their compiled plan (:class:`StageRows`), gathered once per problem instead of on every probe
+    and grid (a pass of Python over the stages each time)."""
+    out = {}
     for key in ("f", "b", "w"):
-        funcs = [getattr(pc, key) for pc in pieces if getattr(pc, key) is not None]
+        stages = tuple(k for k, pc in enumerate(pieces) if getattr(pc, key) is not None)
+        funcs = tuple(getattr(pieces[k], key) for k in stages)
         kinds = {type(g) for g in funcs}
         maker = getattr(next(iter(kinds)), "row_plan", None) if len(kinds) == 1 else None
-        plans[key] = maker(tuple(funcs)) if callable(maker) else None
-    return plans if any(v is not None for v in plans.values()) else None
+        out[key] = StageRows(stages, funcs, len(stages) == len(pieces), maker(funcs) if callable(maker) else None)
+    return out
 
 
-def _plan(prep_or_plans, key: str) -> Optional[Callable]:
-    """The row plan of ``key`` in a :class:`Prepared`'s or a :func:`row_plans` dict (None where there is none)."""
-    plans = prep_or_plans.row_plans if isinstance(prep_or_plans, Prepared) else prep_or_plans
-    return None if plans is None else plans[key]
+def _plan(plans: Optional[dict], key: str) -> Optional[Callable]:
+    """The compiled plan of ``key`` in a :func:`row_plans` dict (None where there is none)."""
+    return None if plans is None else plans[key].plan
 
 
 def density_knots(prep: Prepared) -> tuple:
@@ -895,27 +910,27 @@ def _coefficients(pieces: Sequence, grids: Sequence[np.ndarray], centre_drift: b
     cut = np.cumsum([0] + [c.size for c in cs])
     c_all, f_all = np.concatenate(cs), np.concatenate(faces)
     k_stages = len(pieces)
+    layout = row_plans(pieces) if plans is None else plans
     shape = (k_stages, c_all.size)
     keys = ("f", "b", "w", "b_c", "w_c") if centre_drift else ("f", "b", "w")
     rows = {key: np.empty(shape) if work is None else work(key, shape) for key in keys}
     for key in keys[1:]:  # (the stages without a drift or a balance have rows of zeros)
-        if not all(getattr(pc, key[0]) is not None for pc in pieces):
+        if not layout[key[0]].every:
             rows[key].fill(0.0)
     has = {"b": np.zeros(k_stages, dtype=bool), "w": np.zeros(k_stages, dtype=bool)}
-    np.maximum(_rows([pc.f for pc in pieces], c_all, "the diffusivity", out=rows["f"], plan=_plan(plans, "f")), 0.0,
+    np.maximum(_rows(layout["f"].funcs, c_all, "the diffusivity", out=rows["f"], plan=layout["f"].plan), 0.0,
                out=rows["f"])
     for key, name in (("b", "the drift"), ("w", "the balance")):
-        idx = [k for k, pc in enumerate(pieces) if getattr(pc, key) is not None]
-        if not idx:
+        sr = layout[key]
+        if not sr.stages:
             continue
+        idx = list(sr.stages)
         has[key][idx] = True
-        funcs = [getattr(pieces[k], key) for k in idx]
-        every = len(idx) == k_stages  # all stages: write in place
         for suffix, pts in (("", f_all), ("_c", c_all)) if centre_drift else (("", f_all),):
-            if every:
-                _rows(funcs, pts, name, out=rows[key + suffix], plan=_plan(plans, key))
+            if sr.every:  # all stages: write in place
+                _rows(sr.funcs, pts, name, out=rows[key + suffix], plan=sr.plan)
             else:
-                rows[key + suffix][idx] = _rows(funcs, pts, name, plan=_plan(plans, key))
+                rows[key + suffix][idx] = _rows(sr.funcs, pts, name, plan=sr.plan)
     return [{**{key: v[:, cut[g]:cut[g + 1]] for key, v in rows.items()},  # views: no copies
              "has_b": has["b"], "has_w": has["w"]} for g in range(len(grids))]
 
