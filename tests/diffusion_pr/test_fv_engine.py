@@ -123,3 +123,34 @@ def test_answers_do_not_depend_on_the_work_arrays(fig1, monkeypatch):
     fresh = answers()
     for a, b in zip(reused, fresh):
         np.testing.assert_array_equal(a, b)
+
+
+def test_two_user_threads_solving_at_once_get_the_serial_bits(fig1):
+    """Two threads of one process (a Dask worker with two threads) solving different closure scenes at once share
+    the engine's one worker thread; each keeps its own work arrays, so every answer is its serial solve's bit for
+    bit (each scene solved 4 times per thread, so that the solves overlap)."""
+    scenes = (("local_g1_balanced", 0.25), ("local_g1_shell_balanced", 1.0))
+
+    def solve(closure, zeta):
+        return _bits(dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure,
+                                              rtol=1e-6))
+
+    serial = [solve(*sc) for sc in scenes]
+    got: dict = {}
+    errors: list = []
+
+    def run(k):
+        try:
+            got[k] = [solve(*scenes[k]) for _ in range(4)]
+        except Exception as exc:  # noqa: BLE001 (re-raised below, in the test's thread)
+            errors.append(exc)
+
+    threads = [threading.Thread(target=run, args=(k,)) for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors
+    for k in range(2):
+        for answer in got[k]:
+            np.testing.assert_array_equal(answer, serial[k])
