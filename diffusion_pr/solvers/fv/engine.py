@@ -697,6 +697,7 @@ def _prepare_probed(problem, rtol: float, p_floor: Optional[float], lamperti: bo
     with_b = [pc for pc in pieces if pc.b is not None]
     durations = np.array([pc.duration for pc in pieces], dtype=float)
     durations_b = np.array([pc.duration for pc in with_b], dtype=float)
+    z = _tail_quantile(TAIL_FRACTION * max(rtol, 1e-15))
     for _ in range(60):
         probe = np.linspace(0.0, p_hi, points + 1)[1:]
         f_rows = _rows([pc.f for pc in pieces], probe, "the diffusivity", plan=_plan(plans, "f"),
@@ -711,7 +712,6 @@ def _prepare_probed(problem, rtol: float, p_floor: Optional[float], lamperti: bo
         var = _ordered_sum(2.0 * durations * f_max)
         shift = _ordered_sum(durations_b * b_max)
         s = math.sqrt(var)
-        z = _tail_quantile(TAIL_FRACTION * max(rtol, 1e-15))
         new = p0 + shift + z * s
         # where that bound does not close on this probe, a drift that grows with p may: its affine envelope (tried
         # only there, so that every problem the bounded drift closes keeps its domain, and no time is spent on it)
