@@ -606,8 +606,10 @@ def _affine_chernoff_bound(pieces: Sequence, slopes: dict, f_rows: np.ndarray, p
     return best if math.isfinite(best) and best > p0 else None
 
 
-#: the largest work array :func:`_work_arrays` keeps for a thread [bytes] (a larger one is allocated per call)
-WORK_MAX_BYTES = 1 << 24
+#: the largest work array :func:`_thread_work` keeps for a thread [bytes]; a larger one is allocated per call.  4 MB
+#: covers the Fig. 1 closures (at most 1.9 MB: 96 shells on 2528 cells) and bounds what a thread keeps to about
+#: 15 keys x 4 MB (prepare, a level and a plain solve, five each at most)
+WORK_MAX_BYTES = 1 << 22
 
 _WORK = threading.local()
 
