@@ -30,8 +30,13 @@ DIFFUSIVITY, DRIFT, BALANCE = 0, 1, 2
 
 @njit(cache=True, nogil=True)
 def _model_rows(kq, kq_part, p, model, out):  # pragma: no cover - numba
-    """Row ``k`` of one model (``DIFFUSIVITY``, ``DRIFT`` or ``BALANCE``) at the clamped pressures ``p``, written
-    into ``out`` (``kq.size x p.size``); returns whether every value is finite."""
+    """Row ``k`` of one model at the clamped pressures ``p``, written into ``out`` (``kq.size x p.size``); returns
+    whether every value is finite.  The models (``kq = kz q_k``, ``kq_part = kz q_part``):
+
+    * ``DIFFUSIVITY``: ``f[k, i] = g^2``, ``g = p_i / (p_i + kq_k)``;
+    * ``DRIFT``: ``b[k, i] = part * p_i / (p_i + kq_k)^2``, ``part = kq_part_k / (p_i + kq_part_k)``;
+    * ``BALANCE``: ``w[k, i] = kq_part_k p_i / (p_i + kq_part_k)``.
+    """
     finite = True
     for k in range(kq.size):
         for i in range(p.size):
@@ -62,21 +67,6 @@ def model_rows(kq: np.ndarray, kq_part: np.ndarray, p: np.ndarray, model: int) -
     out = np.empty((kq.size, p.size))
     _model_rows(kq, kq_part, p, model, out)
     return out
-
-
-def diffusivity_rows(kq: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """``f[k, i] = g^2``, ``g = p_i / (p_i + kq_k)`` (``p`` clamped at 0; ``kq = kz q_k``)."""
-    return model_rows(kq, kq, p, DIFFUSIVITY)
-
-
-def drift_rows(kq: np.ndarray, kq_part: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """``b[k, i] = part * p / (p + kq_k)^2``, ``part = kq_part_k / (p + kq_part_k)``."""
-    return model_rows(kq, kq_part, p, DRIFT)
-
-
-def balance_rows(kq_part: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """``w[k, i] = kq_part_k p / (p + kq_part_k)``."""
-    return model_rows(kq_part, kq_part, p, BALANCE)
 
 
 class RowPlan:
