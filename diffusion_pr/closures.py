@@ -505,13 +505,12 @@ class _ShellModel:
     @classmethod
     def rows(cls, items: tuple, p: np.ndarray) -> np.ndarray:
         """``[m(p) for m in items]`` as a 2-D array in one vectorized pass (same values as calling each)."""
-        kz = _common_kz(items)
-        if kz is None:
+        plan = cls.row_plan(items)
+        if plan is None:
             return np.array([it(p) for it in items])
         from ._closure_kernels import model_rows
 
-        return model_rows(_products(kz, items, cls._PRODUCTS[0]), _products(kz, items, cls._PRODUCTS[1]), p,
-                          cls._MODEL)
+        return model_rows(plan.kq, plan.kq_part, p, plan.model)  # (a plan's call says None where one is not finite)
 
 
 class _LoadModel(_ShellModel):
