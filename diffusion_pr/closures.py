@@ -481,8 +481,6 @@ class _ShellModel:
     products it takes (``_PRODUCTS``: the attributes multiplied by ``kz`` for ``kq`` and ``kq_part``)."""
 
     _HARD_WALL = 0.0
-    _MODEL = 0
-    _PRODUCTS = ("q", "q")
 
     def __call__(self, p: np.ndarray) -> np.ndarray:
         p = np.asarray(p, dtype=float)
