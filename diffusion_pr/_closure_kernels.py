@@ -12,6 +12,7 @@ Units: pressures ``p`` and the wall products ``kz q`` [pressure]; rows dimension
 from __future__ import annotations
 
 import math
+import threading
 from typing import Optional
 
 import numpy as np
@@ -56,6 +57,37 @@ def _model_rows(kq, kq_part, p, model, out):  # pragma: no cover - numba
     return finite
 
 
+def model_rows_types() -> tuple:
+    """The one argument signature :func:`_model_rows` is loaded for (:func:`_rows_kernel`): the products, the
+    pressures, the model and a C-contiguous row block."""
+    from numba import types as t
+
+    f1 = t.float64[::1]
+    return (f1, f1, f1, t.int64, t.float64[:, ::1])
+
+
+_LOAD_LOCK = threading.Lock()
+_LOADED = False
+
+
+def _rows_kernel():
+    """:func:`_model_rows`, its cached machine code loaded for :func:`model_rows_types` on first use.
+
+    Loaded by signature, as the engine loads its staged kernel: a first call with arguments goes through numba's
+    ``_compile_for_args``, which also initializes numba's extension entry points (``entrypoints.init_all``,
+    a scan of the installed distributions) that a cached load never needs; 5-30 ms of a fresh process's first
+    closure call.  Other signatures still compile as usual.  The lock: two threads may both get here first.
+    """
+    global _LOADED
+    if not _LOADED:
+        with _LOAD_LOCK:
+            if not _LOADED:
+                if hasattr(_model_rows, "compile"):  # a dispatcher (a plain function under NUMBA_DISABLE_JIT)
+                    _model_rows.compile(model_rows_types())
+                _LOADED = True
+    return _model_rows
+
+
 def _c1(a: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=float).reshape(-1)
 
@@ -65,7 +97,7 @@ def model_rows(kq: np.ndarray, kq_part: np.ndarray, p: np.ndarray, model: int) -
     a NaN of ``p`` stays NaN)."""
     kq, kq_part, p = _c1(kq), _c1(kq_part), _c1(p)
     out = np.empty((kq.size, p.size))
-    _model_rows(kq, kq_part, p, model, out)
+    _rows_kernel()(kq, kq_part, p, int(model), out)
     return out
 
 
@@ -91,7 +123,7 @@ class RowPlan:
         shape = (self.kq.size, p.size)
         target = out if (out is not None and out.shape == shape and out.dtype == np.float64
                          and out.flags.c_contiguous) else np.empty(shape)
-        if not _model_rows(self.kq, self.kq_part, p, self.model, target):
+        if not _rows_kernel()(self.kq, self.kq_part, p, self.model, target):
             return None
         if out is not None and target is not out:
             out[...] = target

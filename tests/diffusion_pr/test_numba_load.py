@@ -25,10 +25,14 @@ _CLOSURE_RUN = textwrap.dedent("""
     S = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
     r = dp.pressure_distribution(S, E_star=8 / 3, mean_pressure=0.004, zeta=0.25, closure="local_g1", rtol=1e-4)
     from diffusion_pr.solvers.fv import _kernels as k
+    from diffusion_pr import _closure_kernels as ck
+    from numba.core import entrypoints
     print(json.dumps(dict(
         bits=hashlib.sha256(r.weights.tobytes() + r.p.tobytes() + np.float64(r.zero_weight).tobytes()).hexdigest(),
         refreshed="numba.np.linalg" in sys.modules,
+        entry_points=getattr(entrypoints, "_already_initialized", None),
         signatures=len(k.staged_run_rows.signatures),
+        rows_signatures=len(ck._model_rows.signatures),
         cache_hits=sum(k.staged_run_rows.stats.cache_hits.values()),
         success=bool(r.success))))
 """)
@@ -64,7 +68,8 @@ def warm_closure_cache():
 def test_closure_in_a_fresh_process_loads_without_refresh_same_bits(warm_closure_cache):
     """A fresh process's closure solve loads the cached kernels without the refresh and gets the bits of numba's
     own load; ``staged_run_rows`` has exactly one specialization although the solve passes both a single grid's
-    contiguous rows and a group's column views."""
+    contiguous rows and a group's column views, and both kernels are loaded by signature (numba's extension entry
+    points are not initialized)."""
     fast = _run(_CLOSURE_RUN, {"DIFFUSION_PR_NUMBA_REFRESH": "0"})
     numba_own = _run(_CLOSURE_RUN, {"DIFFUSION_PR_NUMBA_REFRESH": "1"})
     assert fast["success"] and numba_own["success"]
@@ -73,6 +78,11 @@ def test_closure_in_a_fresh_process_loads_without_refresh_same_bits(warm_closure
     assert not fast["refreshed"]
     assert numba_own["refreshed"]  # the oracle's load is numba's, refresh included
     assert fast["signatures"] == 1 and numba_own["signatures"] == 1
+    assert fast["rows_signatures"] == 1 and numba_own["rows_signatures"] == 1
+    # both kernels loaded by their signatures: numba's argument dispatch (``_compile_for_args``) never ran, nor the
+    # scan of the installed distributions for numba extensions that it starts (5-30 ms of a first closure call)
+    if fast["entry_points"] is not None:
+        assert fast["entry_points"] is False
 
 
 _TINY = textwrap.dedent("""
