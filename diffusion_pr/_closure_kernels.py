@@ -12,7 +12,6 @@ Units: pressures ``p`` and the wall products ``kz q`` [pressure]; rows dimension
 from __future__ import annotations
 
 import math
-import threading
 from typing import Optional
 
 import numpy as np
@@ -58,34 +57,12 @@ def _model_rows(kq, kq_part, p, model, out):  # pragma: no cover - numba
 
 
 def model_rows_types() -> tuple:
-    """The one argument signature :func:`_model_rows` is loaded for (:func:`_rows_kernel`): the products, the
+    """The one argument signature :func:`_model_rows` is loaded for (``_rows_kernel``): the products, the
     pressures, the model and a C-contiguous row block."""
     from numba import types as t
 
     f1 = t.float64[::1]
     return (f1, f1, f1, t.int64, t.float64[:, ::1])
-
-
-_LOAD_LOCK = threading.Lock()
-_LOADED = False
-
-
-def _rows_kernel():
-    """:func:`_model_rows`, its cached machine code loaded for :func:`model_rows_types` on first use.
-
-    Loaded by signature, as the engine loads its staged kernel: a first call with arguments goes through numba's
-    ``_compile_for_args``, which also initializes numba's extension entry points (``entrypoints.init_all``,
-    a scan of the installed distributions) that a cached load never needs; 5-30 ms of a fresh process's first
-    closure call.  Other signatures still compile as usual.  The lock: two threads may both get here first.
-    """
-    global _LOADED
-    if not _LOADED:
-        with _LOAD_LOCK:
-            if not _LOADED:
-                if hasattr(_model_rows, "compile"):  # a dispatcher (a plain function under NUMBA_DISABLE_JIT)
-                    _model_rows.compile(model_rows_types())
-                _LOADED = True
-    return _model_rows
 
 
 def _c1(a: np.ndarray) -> np.ndarray:
@@ -132,6 +109,11 @@ class RowPlan:
 
 
 # cached loads skip numba's registry refresh (only a compile needs it): diffusion_pr._numba_load
-from ._numba_load import load_without_refresh  # noqa: E402
+from ._numba_load import LoadedBySignature, load_without_refresh  # noqa: E402
 
 load_without_refresh(globals())
+
+#: :func:`_model_rows` loaded for :func:`model_rows_types` on first use, as the engine loads its staged kernel (a first
+#: call with arguments would go through numba's argument dispatch and its scan for extensions: 0-17 ms of a fresh
+#: process's first closure call in alternating runs); other signatures still compile as usual
+_rows_kernel = LoadedBySignature(_model_rows, model_rows_types)

@@ -27,12 +27,14 @@ compare the two).
 from __future__ import annotations
 
 import os
+import threading
+from typing import Callable
 
 from numba.core.caching import FunctionCache
 from numba.core.registry import CPUDispatcher
 from numba.core.runtime import rtsys
 
-__all__ = ["load_without_refresh", "ENV_KEEP_REFRESH", "LoadOnlyFunctionCache"]
+__all__ = ["load_without_refresh", "ENV_KEEP_REFRESH", "LoadOnlyFunctionCache", "LoadedBySignature"]
 
 #: environment variable that keeps numba's own cache load (refresh included) when set to ``1``
 ENV_KEEP_REFRESH = "DIFFUSION_PR_NUMBA_REFRESH"
@@ -65,3 +67,35 @@ def load_without_refresh(namespace: dict) -> int:
             cache.__class__ = LoadOnlyFunctionCache
             switched += 1
     return switched
+
+
+class LoadedBySignature:
+    """A numba dispatcher whose machine code is loaded for one signature on first use; calling the object returns it.
+
+    ``LoadedBySignature(kernel, types, close=False)``: ``kernel.compile(types())`` runs once (a cache load; a
+    compile on a miss), so that no call goes through numba's argument dispatch (``_compile_for_args``), which
+    types every argument and also scans the installed distributions for numba extensions
+    (``entrypoints.init_all``) that a cached load never needs. ``close``: no other signature compiles afterwards
+    (``disable_compile``). Under ``NUMBA_DISABLE_JIT`` the kernel is a plain function and is returned as it is.
+    The lock: two threads may both get here first, and numba's ``compile`` raises once the other thread has
+    disabled compiling.
+    """
+
+    __slots__ = ("_kernel", "_types", "_close", "_lock", "_loaded")
+
+    def __init__(self, kernel, types: Callable[[], tuple], close: bool = False) -> None:
+        self._kernel, self._types, self._close = kernel, types, bool(close)
+        self._lock = threading.Lock()
+        self._loaded = False
+
+    def __call__(self):
+        if not self._loaded:
+            with self._lock:
+                if not self._loaded:
+                    kernel = self._kernel
+                    if hasattr(kernel, "disable_compile"):  # a dispatcher, not a plain function
+                        kernel.compile(self._types())
+                        if self._close:
+                            kernel.disable_compile()
+                    self._loaded = True
+        return self._kernel

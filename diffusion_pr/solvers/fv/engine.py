@@ -1374,30 +1374,14 @@ class _Kernels:
     """The compiled staged integration (:mod:`._kernels`), loaded on first use."""
 
     def __init__(self) -> None:
+        from ..._numba_load import LoadedBySignature
         from . import _kernels as k
 
         self._k = k
         self._coef = {}
-        self._rows_lock = threading.Lock()
-        self._rows_kernel = None
-
-    def _staged_run_rows(self):
-        """:func:`._kernels.staged_run_rows` compiled (loaded) for its one signature and closed to others.
-
-        Single-grid rows (C-contiguous) and a group's column views take the same
-        specialization, so a fresh process loads its machine code once.  The lock: two
-        threads may both get here first, and numba's ``compile`` raises once the other
-        thread has disabled compiling.
-        """
-        if self._rows_kernel is None:
-            with self._rows_lock:
-                if self._rows_kernel is None:
-                    kernel = self._k.staged_run_rows
-                    if hasattr(kernel, "disable_compile"):  # a dispatcher (a plain function under NUMBA_DISABLE_JIT)
-                        kernel.compile(self._k.staged_run_rows_types())
-                        kernel.disable_compile()
-                    self._rows_kernel = kernel
-        return self._rows_kernel
+        # compiled (loaded) for its one signature and closed to others: single-grid rows (C-contiguous) and a
+        # group's column views take the same specialization, so a fresh process loads its machine code once
+        self._staged_run_rows = LoadedBySignature(k.staged_run_rows, k.staged_run_rows_types, close=True)
 
     def _coefficients(self, pfd: bool, order: int) -> tuple:
         """``(alpha, theta, alpha0, c)`` as the kernels take them: the IPF form's CRAM-16 (``pfd`` False), or the
