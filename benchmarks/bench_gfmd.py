@@ -342,6 +342,18 @@ def _raw_pair(pair, x=None):
     return lambda: (fwd.execute(), bwd.execute())
 
 
+def _raw_single_pair(pair):
+    """A function that runs the single-precision FFT pair of the ``ccg`` preconditioner
+    (the solver's own plans, in place on the pair's float32 array), plan execution only."""
+    w = pair.single_array()
+    w[...] = np.random.default_rng(0).normal(size=w.shape)
+    if pair.name != "fftw":
+        ones = np.ones((w.shape[0], w.shape[1] // 2 + 1), dtype=np.float32)
+        return lambda: pair.apply_single(ones)
+    _, _, fwd, bwd = pair._single
+    return lambda: (fwd.execute(), bwd.execute())
+
+
 def _uptime():
     try:
         with open("/proc/loadavg") as fh:
@@ -392,8 +404,10 @@ def part_breakdown(n, reps=15, threads=None):
     streaming passes: 8 array reads, 4 writes, the memory traffic of its gap,
     direction, step and update; the floor's definition since issue 10, although the
     solver now makes one full pass per iteration and works on the contact set's index
-    list otherwise). Both ``ccg`` (preconditioned, about 2.8 pairs per iteration) and
-    ``pk`` (plain, about 1.3) are measured in the same run."""
+    list otherwise). Both ``ccg`` (preconditioned, about 2.8 pairs per iteration, one of
+    them the preconditioner's in single precision, which the floor counts at the raw
+    single-precision pair's cost) and ``pk`` (plain, about 1.3) are measured in the same
+    run."""
     import gfmd_ref as g
     from gfmd_ref import _kernels as kr
     from gfmd_ref.solver import _Elastic
@@ -422,11 +436,17 @@ def part_breakdown(n, reps=15, threads=None):
     ops = {}
     if pr.name == "fftw":
         ops["FFT pair (plan execution only)"] = _raw_pair(pr)
+        ops["FFT pair, single precision (plan execution only)"] = _raw_single_pair(pr)
+    w32 = pr.single_array()
+    Kn32 = (el.K / (n * n)).astype(np.float32)
+    ops["apply_single (single-precision pair, multiplier)"] = lambda: pr.apply_single(Kn32)
     ops["apply_route (pair, multiplier and Parseval dot)"] = lambda: pr.apply_route(el.Gn, t, w)
+    ops["apply_route, no dot (the exact u = G p)"] = lambda: pr.apply_route(el.Gn, t, w, dot=False)
     ops["pk_gap (the one full pass: u, h, mask -> masked gap)"] = lambda: kr.pk_gap(
-        u, h, p, c, idx, nc, w, True, gcon, ol, olg)
+        u, h, p, c, idx, nc, w32, True, gcon, ol, olg)
     ops["gather_sum (contact set)"] = lambda: kr.gather_sum(w, idx, nc)
-    ops["pk_direction (contact set)"] = lambda: kr.pk_direction(w, False, gcon, idx, nc, t, 0.0, 1.0)
+    ops["contact_sums (contact set, float32 z)"] = lambda: kr.contact_sums(w32, gcon, idx, nc)
+    ops["pk_direction (contact set)"] = lambda: kr.pk_direction(w32, False, gcon, idx, nc, t, 0.0, 1.0)
     # tau = 0: the step and the rescaling leave the state as it is
     idx2 = np.empty_like(idx)
     ops["pk_step (contact set + overlaps, new index list)"] = lambda: kr.pk_step(
@@ -447,6 +467,8 @@ def part_breakdown(n, reps=15, threads=None):
             v = 1e3 * _median_time(f, reps)
             times[k] = min(times.get(k, np.inf), v)
     raw = times.get("FFT pair (plan execution only)", times["apply_route (pair, multiplier and Parseval dot)"])
+    raw32 = times.get("FFT pair, single precision (plan execution only)",
+                      times["apply_single (single-precision pair, multiplier)"])
     vec = times["vector floor (4 passes: 8 reads, 4 writes)"]
     out = dict(n=n, fft=pr.name, threads=pr.threads, load=_uptime(), op_ms=times, methods={})
     print(f"  breakdown n={n} ({pr.name}, {pr.threads} thread(s), load {out['load']}):")
@@ -455,14 +477,17 @@ def part_breakdown(n, reps=15, threads=None):
     for method, r in runs.items():
         per_it = 1e3 * (r.wall_time - r.info["fft_planning_time"]) / r.iterations
         ppi = r.info["fft_pairs"] / r.iterations
-        floor = ppi * raw + vec
+        spi = r.info.get("fft_pairs_single", 0) / r.iterations  # of which in single precision
+        floor = (ppi - spi) * raw + spi * raw32 + vec
         out["methods"][method] = dict(
             iterations=r.iterations, fft_pairs=r.info["fft_pairs"], wall_time=r.wall_time,
+            fft_pairs_single=r.info.get("fft_pairs_single", 0),
             ms_per_iteration=per_it, fft_pairs_per_iteration=ppi, floor_ms_per_iteration=floor,
             ratio_to_floor=per_it / floor, one_pair_plus_vector_ms=raw + vec,
             ms_per_fft_pair=1e3 * r.wall_time / r.info["fft_pairs"])
-        print(f"    {method}: {r.iterations} it, {r.info['fft_pairs']} FFT pairs ({ppi:.2f}/it), "
-              f"{per_it:.2f} ms/it; floor {floor:.2f} ms/it ({ppi:.2f} x {raw:.2f} + {vec:.2f}); "
+        print(f"    {method}: {r.iterations} it, {r.info['fft_pairs']} FFT pairs ({ppi:.2f}/it, {spi:.2f} single), "
+              f"{per_it:.2f} ms/it; floor {floor:.2f} ms/it ({ppi - spi:.2f} x {raw:.2f} + {spi:.2f} x {raw32:.2f}"
+              f" + {vec:.2f}); "
               f"ratio {per_it / floor:.2f}; total {r.wall_time:.2f} s", flush=True)
     return out
 

@@ -23,6 +23,7 @@ for the two cores).  On an idle multi-core machine pass ``threads=`` explicitly
 """
 from __future__ import annotations
 
+import math
 import os
 import threading
 import time
@@ -31,7 +32,7 @@ from typing import Any, Dict, Optional, Tuple
 import numpy as np
 import scipy.fft as sfft
 
-from ._kernels import spectral_multiply
+from ._kernels import spectral_multiply, spectral_scale
 
 #: FFT threads used when a caller does not say (see module doc for the measurement).
 DEFAULT_THREADS = 1
@@ -64,16 +65,24 @@ class _Pair:
     """What both pairs share: the work arrays' bookkeeping (``_work``, ``work_array``)."""
 
     _work: Dict[int, np.ndarray]
+    _single: Any
+
+    def single_array(self) -> np.ndarray:  # pragma: no cover - overridden
+        raise NotImplementedError
 
     def work_array(self, index: int) -> np.ndarray:  # pragma: no cover - overridden
         raise NotImplementedError
 
-    def make_work_arrays(self, count: int) -> float:
-        """Make work arrays ``0 .. count-1`` now; returns the seconds spent (0 if made)."""
+    def make_work_arrays(self, count: int, single: bool = False) -> float:
+        """Make work arrays ``0 .. count-1`` (and, with ``single``, the single-precision
+        one of ``apply_single``) now; returns the seconds spent (0 if made)."""
         t0 = time.perf_counter()
         new = [k for k in range(count) if k not in self._work]
         for k in new:
             self.work_array(k)
+        if single and self._single is None:
+            new.append(-1)
+            self.single_array()
         return time.perf_counter() - t0 if new else 0.0
 
 
@@ -86,6 +95,7 @@ class ScipyPair(_Pair):
         self.shape = shape
         self.threads = threads
         self._work: Dict[int, np.ndarray] = {}
+        self._single: Optional[np.ndarray] = None
 
     def rfft(self, x: np.ndarray) -> np.ndarray:
         return sfft.rfft2(x, workers=self.threads)
@@ -112,15 +122,35 @@ class ScipyPair(_Pair):
             self._work[index] = np.zeros(self.shape)
         return self._work[index]
 
-    def apply_route(self, mult_n: np.ndarray, src: np.ndarray, dst: np.ndarray) -> float:
+    def apply_route(self, mult_n: np.ndarray, src: np.ndarray, dst: np.ndarray, dot: bool = True) -> float:
         """``dst = irfft2(mult_n * rfft2(src)) * n^2`` (``src`` is kept unless it is
         ``dst``; any arrays of the grid's shape, work arrays or not); returns
-        ``src . dst`` (by Parseval, see :func:`gfmd_ref._kernels.spectral_multiply`)."""
+        ``src . dst`` (by Parseval, see :func:`gfmd_ref._kernels.spectral_multiply`), or
+        NaN with ``dot=False`` (then the multiply skips the dot)."""
         X = sfft.rfft2(src, workers=self.threads)
-        dot = spectral_multiply(X, mult_n, self.shape[1])
+        if dot:
+            dot = spectral_multiply(X, mult_n, self.shape[1])
+        else:
+            spectral_scale(X, mult_n)
+            dot = math.nan
         dst[...] = sfft.irfft2(X, s=self.shape, workers=self.threads, overwrite_x=True,
                                norm="forward")
         return dot
+
+    def single_array(self) -> np.ndarray:
+        """The single-precision work array of :meth:`apply_single` (made once, then reused)."""
+        if self._single is None:
+            self._single = np.zeros(self.shape, dtype=np.float32)
+        return self._single
+
+    def apply_single(self, mult_n32: np.ndarray) -> None:
+        """:meth:`apply_route` in single precision, in place on :meth:`single_array`:
+        ``w = irfft2(mult_n32 * rfft2(w)) * n^2`` with ``float32`` data and a ``float32``
+        multiplier (for a preconditioner, whose rounding only perturbs a search direction)."""
+        w = self.single_array()
+        X = sfft.rfft2(w, workers=self.threads)
+        spectral_scale(X, mult_n32)
+        w[...] = sfft.irfft2(X, s=self.shape, workers=self.threads, overwrite_x=True, norm="forward")
 
 
 class FFTWPair(_Pair):
@@ -150,6 +180,7 @@ class FFTWPair(_Pair):
         self._scale = 1.0 / (n0 * n1)
         self._plans: Dict[int, Tuple[np.ndarray, Any, Any]] = {}
         self._work: Dict[int, np.ndarray] = {}
+        self._single: Optional[Tuple[np.ndarray, np.ndarray, Any, Any]] = None
 
     def rfft(self, x: np.ndarray) -> np.ndarray:
         self._real[...] = x
@@ -172,7 +203,7 @@ class FFTWPair(_Pair):
         """``out = irfft2(mult_n * rfft2(x)) * n^2`` (``mult_n = mult / n^2``), no allocation."""
         self._real[...] = x
         self._forward.execute()
-        spectral_multiply(self._spec, mult_n, self.shape[1])
+        spectral_scale(self._spec, mult_n)
         self._backward.execute()
         out[...] = self._real
         return out
@@ -203,23 +234,56 @@ class FFTWPair(_Pair):
         self._work[index] = buf
         return buf
 
+    def single_array(self) -> np.ndarray:
+        """The single-precision work array of :meth:`apply_single`: an aligned ``float32``
+        ``(n, n)`` array with its own spectrum buffer and plans (made once per pair)."""
+        import pyfftw
+
+        if self._single is None:
+            n0, n1 = self.shape
+            buf = pyfftw.empty_aligned(self.shape, dtype="float32")
+            buf[...] = 0.0
+            spec = pyfftw.empty_aligned((n0, n1 // 2 + 1), dtype="complex64")
+            flags = ("FFTW_MEASURE", "FFTW_DESTROY_INPUT")
+            fwd = pyfftw.FFTW(buf, spec, axes=(0, 1), threads=self.threads, flags=flags,
+                              planning_timelimit=PLANNING_TIMELIMIT)
+            bwd = pyfftw.FFTW(spec, buf, axes=(0, 1), direction="FFTW_BACKWARD", threads=self.threads,
+                              flags=flags, planning_timelimit=PLANNING_TIMELIMIT)
+            self._single = (buf, spec, fwd, bwd)
+        return self._single[0]
+
+    def apply_single(self, mult_n32: np.ndarray) -> None:
+        """:meth:`apply_route` in single precision, in place on :meth:`single_array`:
+        ``w = irfft2(mult_n32 * rfft2(w)) * n^2`` with ``float32`` data and a ``float32``
+        multiplier (for a preconditioner, whose rounding only perturbs a search direction)."""
+        self.single_array()
+        _, spec, fwd, bwd = self._single
+        fwd.execute()
+        spectral_scale(spec, mult_n32)
+        bwd.execute()
+
     def _plans_of(self, buf: np.ndarray) -> Tuple[np.ndarray, Any, Any]:
         owner, fwd, bwd = self._plans.get(id(buf), (None, None, None))
         if owner is not buf:
             raise ValueError("apply_route needs work arrays made by this pair's work_array()")
         return owner, fwd, bwd
 
-    def apply_route(self, mult_n: np.ndarray, src: np.ndarray, dst: np.ndarray) -> float:
+    def apply_route(self, mult_n: np.ndarray, src: np.ndarray, dst: np.ndarray, dot: bool = True) -> float:
         """``dst = irfft2(mult_n * rfft2(src)) * n^2`` (``src`` is kept unless it is
         ``dst``); both must be :meth:`work_array` s of this pair (ValueError otherwise).
         Returns ``src . dst`` (by Parseval, see
-        :func:`gfmd_ref._kernels.spectral_multiply`)."""
+        :func:`gfmd_ref._kernels.spectral_multiply`), or NaN with ``dot=False`` (then
+        the multiply skips the dot: :func:`gfmd_ref._kernels.spectral_scale`)."""
         fwd = self._plans_of(src)[1]
         bwd = self._plans_of(dst)[2]
         fwd.execute()
-        dot = spectral_multiply(self._spec, mult_n, self.shape[1])
+        if dot:
+            out = spectral_multiply(self._spec, mult_n, self.shape[1])
+        else:
+            spectral_scale(self._spec, mult_n)
+            out = math.nan
         bwd.execute()
-        return dot
+        return out
 
 
 #: pairs per thread: a pair's buffers and work arrays hold a solve's state, so two
