@@ -350,7 +350,7 @@ def _raw_single_pair(pair):
     if pair.name != "fftw":
         ones = np.ones((w.shape[0], w.shape[1] // 2 + 1), dtype=np.float32)
         return lambda: pair.apply_single(ones)
-    _, _, fwd, bwd = pair._single
+    _, fwd, bwd = pair._single[0]
     return lambda: (fwd.execute(), bwd.execute())
 
 
@@ -404,9 +404,9 @@ def part_breakdown(n, reps=15, threads=None):
     streaming passes: 8 array reads, 4 writes, the memory traffic of its gap,
     direction, step and update; the floor's definition since issue 10, although the
     solver now makes one full pass per iteration and works on the contact set's index
-    list otherwise). Both ``ccg`` (preconditioned, about 2.8 pairs per iteration, one of
-    them the preconditioner's in single precision, which the floor counts at the raw
-    single-precision pair's cost) and ``pk`` (plain, about 1.3) are measured in the same
+    list otherwise). Both ``ccg`` (preconditioned, 3 pairs per iteration, two of them in
+    single precision: the preconditioner's and the step length's, which the floor counts
+    at the raw single-precision pair's cost) and ``pk`` (plain, about 1.3) are measured in the same
     run."""
     import gfmd_ref as g
     from gfmd_ref import _kernels as kr
@@ -432,7 +432,7 @@ def part_breakdown(n, reps=15, threads=None):
     ol = np.empty(n2, dtype=idx.dtype)
     kr.pk_gap(u, h, p, c, idx, nc, w, True, gcon, ol, olg)
     t[...] = 0.0
-    kr.pk_direction(w, True, gcon, idx, nc, t, 0.0, 0.5)
+    kr.pk_direction(w, True, gcon, idx, nc, t, 0.0, 0.5, t)
     ops = {}
     if pr.name == "fftw":
         ops["FFT pair (plan execution only)"] = _raw_pair(pr)
@@ -440,17 +440,21 @@ def part_breakdown(n, reps=15, threads=None):
     w32 = pr.single_array()
     Kn32 = (el.K / (n * n)).astype(np.float32)
     ops["apply_single (single-precision pair, multiplier)"] = lambda: pr.apply_single(Kn32)
+    Gn32 = el.Gn.astype(np.float32)
+    pr.single_array(1)[...] = t
+    ops["apply_single, t32 -> r32 (the step length's r = G t)"] = lambda: pr.apply_single(Gn32, 1, 2)
+    ops["contact_dot (contact set, float32 r)"] = lambda: kr.contact_dot(pr.single_array(2), t, idx, nc)
     ops["apply_route (pair, multiplier and Parseval dot)"] = lambda: pr.apply_route(el.Gn, t, w)
     ops["apply_route, no dot (the exact u = G p)"] = lambda: pr.apply_route(el.Gn, t, w, dot=False)
     ops["pk_gap (the one full pass: u, h, mask -> masked gap)"] = lambda: kr.pk_gap(
         u, h, p, c, idx, nc, w32, True, gcon, ol, olg)
     ops["gather_sum (contact set)"] = lambda: kr.gather_sum(w, idx, nc)
     ops["contact_sums (contact set, float32 z)"] = lambda: kr.contact_sums(w32, gcon, idx, nc)
-    ops["pk_direction (contact set)"] = lambda: kr.pk_direction(w32, False, gcon, idx, nc, t, 0.0, 1.0)
+    ops["pk_direction (contact set)"] = lambda: kr.pk_direction(w32, False, gcon, idx, nc, t, 0.0, 1.0, t)
     # tau = 0: the step and the rescaling leave the state as it is
     idx2 = np.empty_like(idx)
     ops["pk_step (contact set + overlaps, new index list)"] = lambda: kr.pk_step(
-        p, c, t, idx, nc, ol, olg, 0, 0.0, idx2)
+        p, c, t, idx, nc, ol, olg, 0, 0.0, idx2, t)
     ops["pk_rescale (contact set; exact u)"] = lambda: kr.pk_rescale(p, idx, nc, 1.0, u, w, 0.0, True)
     ops["pk_rescale (incremental u: a full pass)"] = lambda: kr.pk_rescale(p, idx, nc, 1.0, u, w, 0.0, False)
     a = [p.copy(), u.copy(), t.copy(), w.copy()]

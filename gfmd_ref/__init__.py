@@ -17,7 +17,7 @@ from .ensemble_store import load_ensemble
 from .histogram import PressureHistogram, pressure_histogram
 from .interactions import ExponentialRepulsion, HardWall
 from .scene import FIG1, fig1_surface
-from .solver import N_WORK_ARRAYS, ContactResult, ConvergenceWarning, solve_contact
+from .solver import N_SINGLE_ARRAYS, N_WORK_ARRAYS, ContactResult, ConvergenceWarning, solve_contact
 from .surface import self_affine_surface, spectral_rms_slope
 
 __all__ = [
@@ -50,4 +50,4 @@ def warm_up_fft(n: int) -> float:
     the plans.
     """
     pair, planning = fft_pair((int(n), int(n)))
-    return planning + pair.make_work_arrays(N_WORK_ARRAYS, single=True)
+    return planning + pair.make_work_arrays(N_WORK_ARRAYS, single=N_SINGLE_ARRAYS)

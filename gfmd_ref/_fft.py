@@ -95,7 +95,7 @@ class ScipyPair(_Pair):
         self.shape = shape
         self.threads = threads
         self._work: Dict[int, np.ndarray] = {}
-        self._single: Optional[np.ndarray] = None
+        self._single: Dict[int, np.ndarray] = {}
 
     def rfft(self, x: np.ndarray) -> np.ndarray:
         return sfft.rfft2(x, workers=self.threads)
@@ -137,20 +137,24 @@ class ScipyPair(_Pair):
                                norm="forward")
         return dot
 
-    def single_array(self) -> np.ndarray:
-        """The single-precision work array of :meth:`apply_single` (made once, then reused)."""
-        if self._single is None:
-            self._single = np.zeros(self.shape, dtype=np.float32)
-        return self._single
+    def single_array(self, index: int = 0) -> np.ndarray:
+        """Single-precision work array number ``index`` of :meth:`apply_single` (made
+        once, then reused)."""
+        if index not in self._single:
+            self._single[index] = np.zeros(self.shape, dtype=np.float32)
+        return self._single[index]
 
-    def apply_single(self, mult_n32: np.ndarray) -> None:
-        """:meth:`apply_route` in single precision, in place on :meth:`single_array`:
-        ``w = irfft2(mult_n32 * rfft2(w)) * n^2`` with ``float32`` data and a ``float32``
-        multiplier (for a preconditioner, whose rounding only perturbs a search direction)."""
-        w = self.single_array()
+    def apply_single(self, mult_n32: np.ndarray, src: int = 0, dst: Optional[int] = None) -> None:
+        """:meth:`apply_route` in single precision between the single-precision work
+        arrays ``src`` and ``dst`` (default: in place on ``src``; ``src`` is kept
+        otherwise): ``dst = irfft2(mult_n32 * rfft2(src)) * n^2`` with ``float32`` data
+        and a ``float32`` multiplier (for a preconditioner or a step length, whose
+        rounding only perturbs a search)."""
+        w = self.single_array(src)
         X = sfft.rfft2(w, workers=self.threads)
         spectral_scale(X, mult_n32)
-        w[...] = sfft.irfft2(X, s=self.shape, workers=self.threads, overwrite_x=True, norm="forward")
+        self.single_array(src if dst is None else dst)[...] = sfft.irfft2(
+            X, s=self.shape, workers=self.threads, overwrite_x=True, norm="forward")
 
 
 class FFTWPair(_Pair):
@@ -180,7 +184,8 @@ class FFTWPair(_Pair):
         self._scale = 1.0 / (n0 * n1)
         self._plans: Dict[int, Tuple[np.ndarray, Any, Any]] = {}
         self._work: Dict[int, np.ndarray] = {}
-        self._single: Optional[Tuple[np.ndarray, np.ndarray, Any, Any]] = None
+        self._single: Dict[int, Tuple[np.ndarray, Any, Any]] = {}
+        self._spec32: Optional[np.ndarray] = None
 
     def rfft(self, x: np.ndarray) -> np.ndarray:
         self._real[...] = x
@@ -234,33 +239,37 @@ class FFTWPair(_Pair):
         self._work[index] = buf
         return buf
 
-    def single_array(self) -> np.ndarray:
-        """The single-precision work array of :meth:`apply_single`: an aligned ``float32``
-        ``(n, n)`` array with its own spectrum buffer and plans (made once per pair)."""
+    def single_array(self, index: int = 0) -> np.ndarray:
+        """Single-precision work array number ``index`` of :meth:`apply_single`: an
+        aligned ``float32`` ``(n, n)`` array with its own plans into and out of the
+        pair's single-precision spectrum buffer (made once per pair; the forward plan
+        keeps its input)."""
         import pyfftw
 
-        if self._single is None:
+        if index not in self._single:
             n0, n1 = self.shape
+            if self._spec32 is None:
+                self._spec32 = pyfftw.empty_aligned((n0, n1 // 2 + 1), dtype="complex64")
             buf = pyfftw.empty_aligned(self.shape, dtype="float32")
             buf[...] = 0.0
-            spec = pyfftw.empty_aligned((n0, n1 // 2 + 1), dtype="complex64")
-            flags = ("FFTW_MEASURE", "FFTW_DESTROY_INPUT")
-            fwd = pyfftw.FFTW(buf, spec, axes=(0, 1), threads=self.threads, flags=flags,
+            fwd = pyfftw.FFTW(buf, self._spec32, axes=(0, 1), threads=self.threads, flags=("FFTW_MEASURE",),
                               planning_timelimit=PLANNING_TIMELIMIT)
-            bwd = pyfftw.FFTW(spec, buf, axes=(0, 1), direction="FFTW_BACKWARD", threads=self.threads,
-                              flags=flags, planning_timelimit=PLANNING_TIMELIMIT)
-            self._single = (buf, spec, fwd, bwd)
-        return self._single[0]
+            bwd = pyfftw.FFTW(self._spec32, buf, axes=(0, 1), direction="FFTW_BACKWARD", threads=self.threads,
+                              flags=("FFTW_MEASURE", "FFTW_DESTROY_INPUT"), planning_timelimit=PLANNING_TIMELIMIT)
+            self._single[index] = (buf, fwd, bwd)
+        return self._single[index][0]
 
-    def apply_single(self, mult_n32: np.ndarray) -> None:
-        """:meth:`apply_route` in single precision, in place on :meth:`single_array`:
-        ``w = irfft2(mult_n32 * rfft2(w)) * n^2`` with ``float32`` data and a ``float32``
-        multiplier (for a preconditioner, whose rounding only perturbs a search direction)."""
-        self.single_array()
-        _, spec, fwd, bwd = self._single
-        fwd.execute()
-        spectral_scale(spec, mult_n32)
-        bwd.execute()
+    def apply_single(self, mult_n32: np.ndarray, src: int = 0, dst: Optional[int] = None) -> None:
+        """:meth:`apply_route` in single precision between the single-precision work
+        arrays ``src`` and ``dst`` (default: in place on ``src``; ``src`` is kept
+        otherwise): ``dst = irfft2(mult_n32 * rfft2(src)) * n^2`` with ``float32`` data
+        and a ``float32`` multiplier (for a preconditioner or a step length, whose
+        rounding only perturbs a search)."""
+        self.single_array(src)
+        self.single_array(src if dst is None else dst)
+        self._single[src][1].execute()
+        spectral_scale(self._spec32, mult_n32)
+        self._single[src if dst is None else dst][2].execute()
 
     def _plans_of(self, buf: np.ndarray) -> Tuple[np.ndarray, Any, Any]:
         owner, fwd, bwd = self._plans.get(id(buf), (None, None, None))

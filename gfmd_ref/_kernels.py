@@ -136,6 +136,22 @@ def contact_sums(z, gcon, idx, nc):
 
 
 @njit(cache=True)
+def contact_dot(r, t, idx, nc):
+    """``(sum_c r, sum_c r t)`` over the contact set ``idx[:nc]``, one pass (``r`` may be
+    single precision, sums in double): the mean shift and ``t.Gt`` of the step length."""
+    rf = r.ravel()
+    tf = t.ravel()
+    s = 0.0
+    d = 0.0
+    for k in range(nc):
+        i = idx[k]
+        v = float(rf[i])
+        s += v
+        d += v * tf[i]
+    return s, d
+
+
+@njit(cache=True)
 def pk_gap(u, h, p, c, idx, nc, masked, want_masked, gcon, ol, olg):
     """Gap ``g = u - h - gbar`` with ``gbar`` the mean of ``u - h`` over the contact set,
     one full pass. ``gcon[k]`` = ``g`` at ``idx[k]``; the overlaps (``g < 0`` off the set)
@@ -183,13 +199,16 @@ def pk_gap(u, h, p, c, idx, nc, masked, want_masked, gcon, ol, olg):
 
 
 @njit(cache=True)
-def pk_direction(z, from_gap, gcon, idx, nc, t, shift, beta):
+def pk_direction(z, from_gap, gcon, idx, nc, t, shift, beta, t2):
     """Polonsky-Keer direction on the contact set (``t`` is zero elsewhere):
     ``t = g + beta t`` (``from_gap``: plain conjugate gradients) or, preconditioned,
     ``t = z - shift + beta t`` with ``z = K (masked g)`` and ``shift = mean_c z`` (so
-    that a step along ``t`` keeps the load). Returns ``(sum t, sum g t)``."""
+    that a step along ``t`` keeps the load). ``t2`` receives a copy of ``t`` on the set
+    (the single-precision direction the step's FFT reads; pass ``t`` itself where there
+    is none). Returns ``(sum t, sum g t)``."""
     zf = z.ravel()
     tf = t.ravel()
+    t2f = t2.ravel()
     st = 0.0
     sgt = 0.0
     for k in range(nc):
@@ -197,22 +216,25 @@ def pk_direction(z, from_gap, gcon, idx, nc, t, shift, beta):
         x = gcon[k] if from_gap else zf[i] - shift
         v = x + beta * tf[i]
         tf[i] = v
+        t2f[i] = v
         st += v
         sgt += gcon[k] * v
     return st, sgt
 
 
 @njit(cache=True)
-def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new):
+def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new, t2):
     """Polonsky-Keer step of the pressures: ``p -= tau t`` on the contact set, projected
     on ``p >= 0`` (a projected node leaves the set: ``c`` false, ``p`` and ``t`` zero);
     ``p = -tau g`` at the overlaps ``ol[:n_overlap]`` (they join the set where that is
     positive). One pass over the two sorted lists in index order, which writes the new
     set's indices to ``idx_new`` in increasing order. The load is restored by
-    :func:`pk_rescale`. Returns ``(n_projected, sum p, new nc)``."""
+    :func:`pk_rescale`. ``t2`` (the single-precision copy of ``t``, or ``t`` itself) is
+    zeroed with ``t``. Returns ``(n_projected, sum p, new nc)``."""
     pf = p.ravel()
     cf = c.ravel()
     tf = t.ravel()
+    t2f = t2.ravel()
     nproj = 0
     s = 0.0
     k = 0
@@ -227,6 +249,7 @@ def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new):
                 pf[i] = 0.0
                 cf[i] = False
                 tf[i] = 0.0
+                t2f[i] = 0.0
                 nproj += 1
                 continue
         else:

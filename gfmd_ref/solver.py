@@ -88,6 +88,8 @@ class ContactResult:
 
 #: work arrays of the FFT pair the hard-wall solver uses (pressure, displacement, direction, scratch)
 N_WORK_ARRAYS = 4
+#: single-precision work arrays of the ``ccg`` solver (the preconditioned gap, the direction, r = G t)
+N_SINGLE_ARRAYS = 3
 
 
 class _Elastic:
@@ -200,6 +202,9 @@ PK_STALL_WINDOW = 200
 #: ``ccg``: the preconditioner's FFT pair in single precision (see :func:`_ccg_hard`;
 #: False restores the double-precision preconditioner of earlier versions)
 SINGLE_PRECOND = True
+#: ``ccg``: also ``r = G t`` of the step length in single precision, and then the exact
+#: ``u = G p`` (double) after every step (False: ``r`` in double, ``u`` updated with it)
+SINGLE_STEP = True
 #: Newton stall window (Newton steps without halving the best residual).
 NEWTON_STALL_STEPS = 20
 #: FIRE stall window (steps without halving the best residual).
@@ -233,13 +238,19 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     ``single`` (default :data:`SINGLE_PRECOND`): the preconditioner's FFT pair runs in
     single precision (``float32`` data and multiplier, :meth:`FFTWPair.apply_single`;
     the gap is written to it by :func:`~._kernels.pk_gap`, ``zbar`` and ``g.z`` are
-    summed in double over the contact set by :func:`~._kernels.contact_sums`). Its
-    rounding (relative 1e-7) only perturbs the search direction: the step ``tau``, the
-    exact ``u = G p`` and every residual stay in double precision, so the answer is
-    a converged solution to ``tol`` as before. Measured on the Fig. 1 surface (seeds
-    1-3, tol 1e-8 and 1e-10, 256^2-2048^2): the same iteration counts, pressures
-    within 7e-8 p0 of the double-precision preconditioner's, 6-14 % less time at
-    1024^2 and 2048^2 (a single pair costs 4.0 ms against 6.5-7.3 ms at 1024^2).
+    summed in double over the contact set by :func:`~._kernels.contact_sums`); with
+    :data:`SINGLE_STEP` (default) also ``r = G t`` of the step length (from a float32
+    copy of ``t`` that :func:`~._kernels.pk_direction` and :func:`~._kernels.pk_step`
+    keep; ``rbar`` and ``t.r`` by :func:`~._kernels.contact_dot`), and then the exact
+    ``u = G p`` in double after every step (``r`` no longer updates ``u``). The
+    rounding (relative 1e-7) only perturbs the search direction and the step length:
+    ``p``, ``u``, the step itself and every residual stay in double precision, so the
+    answer is a converged solution to ``tol`` as before. Measured on the Fig. 1
+    surface (seeds 1-3, tol 1e-8 and 1e-10, 256^2-2048^2): the same iteration counts,
+    pressures within 7e-8 p0 of the double-precision solver's; a single pair costs 4.0
+    ms against 6.2-7.3 ms at 1024^2; the preconditioner's pair in single precision
+    gave 0.83-0.87x the time at 1024^2 and 2048^2, the step length's 0.94-0.98x more
+    (docs/gfmd.md "Single-precision search").
 
     ``u = G p`` is updated incrementally, ``u <- scale (u - tau G t)``; the part of a
     step that is not along ``t`` (projections onto ``p >= 0``, overlap fixes) is
@@ -265,7 +276,8 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         single = SINGLE_PRECOND
     single = bool(precond and single)
     # 0 once made (warm_up_fft)
-    el.fft_planning_time += el.fft.make_work_arrays(N_WORK_ARRAYS, single=single)
+    step32 = single and SINGLE_STEP
+    el.fft_planning_time += el.fft.make_work_arrays(N_WORK_ARRAYS, single=(N_SINGLE_ARRAYS if step32 else 1) if single else 0)
     p, u, t, w = (el.fft.work_array(k) for k in range(N_WORK_ARRAYS))
     p[...] = p0
     u[...] = 0.0
@@ -286,6 +298,11 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         Kn32 = Kn.astype(np.float32)
         w32 = el.fft.single_array()
     mdst = w32 if single else w
+    t2 = t  # the direction's single-precision copy (step32), else t itself
+    if step32:
+        Gn32 = el.Gn.astype(np.float32)
+        t2, r32 = el.fft.single_array(1), el.fft.single_array(2)
+        t2[...] = 0.0
     hist = []
     stamps = []
     tstart = time.perf_counter()
@@ -346,7 +363,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
             zbar = zsum / nc if nc > 0 else 0.0
             gz = sgz - zbar * sg
             beta = delta * gz / gold if gold > 0.0 else 0.0
-            st, sgt = kr.pk_direction(w32, False, gcon, idx, nc, t, zbar, beta)
+            st, sgt = kr.pk_direction(w32, False, gcon, idx, nc, t, zbar, beta, t2)
             gold = gz
         elif precond:
             # w: masked g -> z = K (masked g); sum_c g z = (masked g).z by Parseval
@@ -355,18 +372,25 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
             zbar = contact_mean(w)
             gz = sgz - zbar * sg  # sum_c g (z - zbar), the preconditioned residual norm
             beta = delta * gz / gold if gold > 0.0 else 0.0
-            st, sgt = kr.pk_direction(w, False, gcon, idx, nc, t, zbar, beta)
+            st, sgt = kr.pk_direction(w, False, gcon, idx, nc, t, zbar, beta, t)
             gold = gz
         else:
             beta = delta * gn / gold if gold > 0.0 else 0.0
-            st, sgt = kr.pk_direction(w, True, gcon, idx, nc, t, 0.0, beta)
+            st, sgt = kr.pk_direction(w, True, gcon, idx, nc, t, 0.0, beta, t)
             gold = gn
-        srt = el.fft.apply_route(el.Gn, t, w)  # w = r = G t; sum_c r t = t.r (Parseval)
-        n_fft += 1
-        rbar = contact_mean(w)
+        if step32:
+            el.fft.apply_single(Gn32, 1, 2)  # r32 = G t in single precision (tau only)
+            n_fft += 1
+            n_single += 1
+            rsum, srt = kr.contact_dot(r32, t, idx, nc)
+            rbar = rsum / nc if nc > 0 else 0.0
+        else:
+            srt = el.fft.apply_route(el.Gn, t, w)  # w = r = G t; sum_c r t = t.r (Parseval)
+            n_fft += 1
+            rbar = contact_mean(w)
         den = srt - rbar * st  # sum_c (r - rbar) t
         tau = sgt / den if den != 0 else 0.0
-        nproj, psum, nc = kr.pk_step(p, c, t, idx, nc, ol, olg, n_ol, tau, idx_next)
+        nproj, psum, nc = kr.pk_step(p, c, t, idx, nc, ol, olg, n_ol, tau, idx_next, t2)
         idx, idx_next = idx_next, idx
         if not psum > 0.0:  # the step removed every contact: no load can be restored (never seen)
             lost = f"a step removed every contact (sum p = {psum:g} after step {it + 1})"
@@ -378,7 +402,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         if nproj or n_ol:
             pending = True
         big = nproj + n_ol > lazy_max_changes
-        exact = (pending and (it % lazy == 0 or big)) or since_exact >= refresh
+        exact = step32 or (pending and (it % lazy == 0 or big)) or since_exact >= refresh
         psum = kr.pk_rescale(p, idx, nc, scale, u, w, tau, exact)  # not exact: u <- scale (u - tau r)
         if exact:
             el.fft.apply_route(el.Gn, p, u, dot=False)

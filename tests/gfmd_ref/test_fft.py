@@ -179,6 +179,11 @@ def test_single_precision_route_is_the_double_route_to_float32_rounding(rng, mak
     pair.apply_single((mult / x.size).astype(np.float32))
     err = np.max(np.abs(w - want)) / np.max(np.abs(want))
     assert 1e-12 < err < 2e-6
+    src, dst = pair.single_array(1), pair.single_array(2)  # between two arrays: src kept
+    src[...] = x
+    pair.apply_single((mult / x.size).astype(np.float32), 1, 2)
+    assert np.array_equal(src, x.astype(np.float32))
+    assert 1e-12 < np.max(np.abs(dst - want)) / np.max(np.abs(want)) < 2e-6
 
 
 def test_contact_sums_are_the_sums_over_the_contact_set(rng):
@@ -195,25 +200,45 @@ def test_contact_sums_are_the_sums_over_the_contact_set(rng):
     assert d == pytest.approx(np.sum(gcon[:500] * zz), rel=1e-12)
 
 
+def test_contact_dot_is_the_sums_over_the_contact_set(rng):
+    """``contact_dot`` (sum of r and of r t over the index list, float32 r accumulated in
+    double) against numpy on the same float64 values: round-off of 500 terms, 1e-12."""
+    from gfmd_ref._kernels import contact_dot
+
+    r = rng.normal(size=(32, 32)).astype(np.float32)
+    t = rng.normal(size=(32, 32))
+    idx = np.sort(rng.choice(r.size, size=500, replace=False)).astype(np.int32)
+    s, d = contact_dot(r, t, idx, 500)
+    rr = r.ravel()[idx].astype(float)
+    assert s == pytest.approx(np.sum(rr), rel=1e-12, abs=1e-12)
+    assert d == pytest.approx(np.sum(rr * t.ravel()[idx]), rel=1e-12)
+
+
 @pytest.mark.parametrize("n", [256, 512])
-def test_single_precision_preconditioner_changes_nothing_beyond_tol(monkeypatch, n):
-    """``ccg`` with the preconditioner's FFT pair in single precision (the default) against
-    the double-precision preconditioner, tol 1e-10 on Fig. 1 surfaces: the rounding only
-    perturbs search directions, so both must converge in the same number of iterations
-    (measured identical at 256^2-2048^2; assert within 2) to pressures within the
-    bound that any two tol-1e-10 answers obey (1e-7 p0, see
-    test_preconditioned_ccg_agrees_with_plain_pk; measured 6e-13 ... 2e-11 p0) with the
-    same contact set up to 4 edge nodes. The single path must really have run."""
+def test_single_precision_routes_change_nothing_beyond_tol(monkeypatch, n):
+    """``ccg`` with its preconditioner's and its step length's FFT pairs in single precision
+    (the default), with the preconditioner's only, and with neither (the earlier
+    solver), tol 1e-10 on Fig. 1 surfaces: the rounding only perturbs search directions
+    and step lengths (u, the residual and every convergence decision stay in double),
+    so all three must converge in the same number of iterations (measured identical at
+    256^2-2048^2; assert within 2) to pressures within the bound that any two tol-1e-10
+    answers obey (1e-7 p0, see test_preconditioned_ccg_agrees_with_plain_pk; measured
+    2e-13 ... 2e-11 p0) with the same contact set up to 4 edge nodes. The counters show
+    which routes ran in single precision."""
     import gfmd_ref.solver as sv
 
     h, length = fig1_surface(n, seed=3)
     kw = dict(length=length, E_star=8 / 3, mean_pressure=0.004, interaction=HardWall(), tol=1e-10,
               method="ccg")
-    single = solve_contact(h, **kw)
+    both = solve_contact(h, **kw)
+    monkeypatch.setattr(sv, "SINGLE_STEP", False)
+    precond = solve_contact(h, **kw)
     monkeypatch.setattr(sv, "SINGLE_PRECOND", False)
     double = solve_contact(h, **kw)
-    assert single.converged and double.converged
-    assert single.info["fft_pairs_single"] == single.iterations and double.info["fft_pairs_single"] == 0
-    assert abs(single.iterations - double.iterations) <= 2
-    assert np.count_nonzero((single.pressure > 0) != (double.pressure > 0)) <= 4
-    assert np.max(np.abs(single.pressure - double.pressure)) < 1e-7 * 0.004
+    assert both.info["fft_pairs_single"] == 2 * both.iterations
+    assert precond.info["fft_pairs_single"] == precond.iterations and double.info["fft_pairs_single"] == 0
+    for r in (both, precond):
+        assert r.converged and double.converged
+        assert abs(r.iterations - double.iterations) <= 2
+        assert np.count_nonzero((r.pressure > 0) != (double.pressure > 0)) <= 4
+        assert np.max(np.abs(r.pressure - double.pressure)) < 1e-7 * 0.004
