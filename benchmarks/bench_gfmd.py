@@ -509,7 +509,8 @@ def part_match(n, repeats, our_tols=(1e-6, 1e-7, 1e-8), tamaas_tol=1e-8, ref_tol
     result). Then ``repeats`` interleaved rounds (ours at every tol in ``our_tols``,
     Tamaas at ``tamaas_tol``, ours ``pk`` at 1e-8, ...); each run's pressure field is
     compared with the reference (max and L2 error in units of p0). The matched
-    comparison uses our loosest tol whose max error is <= Tamaas' max error."""
+    comparison uses the fastest (median time) of our tols whose max error is <= Tamaas'
+    max error."""
     import gfmd_ref as g
 
     from gfmd_ref._fft import fft_pair

@@ -1,7 +1,7 @@
 """Hard wall at n^2 (default 2048^2) at matched final-field error against Tamaas, with intermediate tolerances.
 
 ``bench_gfmd.part_match`` with our ``ccg`` at tol 1e-7, 4e-8, 2e-8 and 1e-8 (the
-matched comparison takes our loosest tol whose max error is at most Tamaas'),
+matched comparison takes the fastest of our tols whose max error is at most Tamaas'),
 Tamaas 2.9 ``PolonskyKeerRey`` at 1e-8, interleaved rounds (2 at 2048^2, 3 below), one FFT thread and
 ``OMP_NUM_THREADS=1``.  Writes ``benchmarks/results/gfmd_match_{n}_quiet.json`` (the log beside it is
 this script's output).  About 8 minutes at 2048^2 and 3 at 1024^2 on an idle 2-core machine; needs

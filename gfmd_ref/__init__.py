@@ -45,9 +45,9 @@ def warm_up_fft(n: int) -> float:
     """Plan the FFTs for ``(n, n)`` grids now; returns the seconds spent (0 if done).
 
     The first :func:`solve_contact` on a new grid size pays this planning
-    (about 2-3 s at 1024^2 with FFTW, including the plans of the hard-wall solver's
-    work arrays and of its single-precision preconditioner; nothing with scipy.fft); later calls in the same process reuse
-    the plans.
+    (about 1-2 s at 1024^2 with FFTW, including the plans of the hard-wall solver's
+    work arrays, double and single precision; nothing with scipy.fft); later calls in
+    the same process reuse the plans.
     """
     pair, planning = fft_pair((int(n), int(n)))
     return planning + pair.make_work_arrays(N_WORK_ARRAYS, single=N_SINGLE_ARRAYS)
