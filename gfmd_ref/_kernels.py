@@ -308,6 +308,40 @@ def exp_log_mean(u, h, zeta):
 
 
 @njit(cache=True)
+def exp_z0_residual(u, h, p, p0, zeta, e):
+    """:func:`exp_log_mean` and :func:`exp_residual` in one, with one exponential per node
+    instead of two: ``z0 = zeta log(mean(exp(-(u - h)/zeta)))`` (the same bits as
+    :func:`exp_log_mean`) and ``max |sigma - p| / p0`` with the wall pressure
+    ``sigma = p0 exp(-(z0 + u - h)/zeta) = p0 e n / s`` from the stored
+    ``e = exp(-(u - h)/zeta - m)`` (``m`` the largest exponent, ``s = sum e``; ``e <= 1``
+    never overflows, and ``n/s <= n``). Returns ``(z0, residual)``; ``e`` is scratch."""
+    uf = u.ravel()
+    hf = h.ravel()
+    pf = p.ravel()
+    ef = e.ravel()
+    n = uf.size
+    m = -np.inf
+    for i in range(n):
+        x = -(uf[i] - hf[i]) / zeta
+        ef[i] = x
+        if x > m:
+            m = x
+    s = 0.0
+    for i in range(n):
+        v = math.exp(ef[i] - m)
+        ef[i] = v
+        s += v
+    z0 = zeta * (m + math.log(s / n))
+    scale = p0 * n / s
+    r = 0.0
+    for i in range(n):
+        a = abs(scale * ef[i] - pf[i])
+        if a > r:
+            r = a
+    return z0, r / p0
+
+
+@njit(cache=True)
 def exp_pressure(z, h, p0, zeta, out):
     """``out = p0 exp(-(z - h)/zeta)`` with the exponent clamped (see module doc)."""
     zf = z.ravel()
@@ -335,29 +369,43 @@ def exp_residual(u, h, z0, p, p0, zeta):
 @njit(cache=True)
 def dual_gradient(u, h, p, p0, zeta, grad):
     """Gradient of the dual energy: ``u - h + zeta (log(p/p0) + 1)``; returns the dual
-    energy per node ``mean(p u / 2 - p h + zeta p log(p/p0))``."""
+    energy per node ``mean(p u / 2 - p h + zeta p log(p/p0))`` and the mean magnitude of
+    its terms (the scale of its round-off, see :func:`dual_energy`)."""
     uf = u.ravel()
     hf = h.ravel()
     pf = p.ravel()
     gf = grad.ravel()
     e = 0.0
+    a = 0.0
     for i in range(uf.size):
         lp = math.log(pf[i] / p0)
         gf[i] = uf[i] - hf[i] + zeta * (lp + 1.0)
-        e += 0.5 * pf[i] * uf[i] - pf[i] * hf[i] + zeta * pf[i] * lp
-    return e / uf.size
+        t1 = 0.5 * pf[i] * uf[i]
+        t2 = pf[i] * hf[i]
+        t3 = zeta * pf[i] * lp
+        e += t1 - t2 + t3
+        a += abs(t1) + abs(t2) + abs(t3)
+    return e / uf.size, a / uf.size
 
 
 @njit(cache=True)
 def dual_energy(u, h, p, p0, zeta):
+    """The dual energy per node (as :func:`dual_gradient`, without the gradient) and the
+    mean magnitude of its terms. The energy is a small difference of those terms near
+    the solution, so its round-off scales with the magnitude, not with the energy."""
     uf = u.ravel()
     hf = h.ravel()
     pf = p.ravel()
     e = 0.0
+    a = 0.0
     for i in range(uf.size):
         lp = math.log(pf[i] / p0)
-        e += 0.5 * pf[i] * uf[i] - pf[i] * hf[i] + zeta * pf[i] * lp
-    return e / uf.size
+        t1 = 0.5 * pf[i] * uf[i]
+        t2 = pf[i] * hf[i]
+        t3 = zeta * pf[i] * lp
+        e += t1 - t2 + t3
+        a += abs(t1) + abs(t2) + abs(t3)
+    return e / uf.size, a / uf.size
 
 
 @njit(cache=True)
@@ -430,6 +478,68 @@ def newton_pred_residual(r, p, zeta, p0):
         if v > m:
             m = v
     return m / (zeta * p0)
+
+
+@njit(cache=True)
+def ncg_update(x, r, d, gd, wdiag, minv, p, a):
+    """One projected-CG update of the Newton direction, one pass: ``x += a d`` and
+    ``r -= a (G d + wdiag d)`` (``gd = G d``). Returns ``(sum minv r, sum p r)`` of the
+    new ``r``: the shifts of :func:`ncg_shift`."""
+    xf = x.ravel()
+    rf = r.ravel()
+    df = d.ravel()
+    gf = gd.ravel()
+    wf = wdiag.ravel()
+    mf = minv.ravel()
+    pf = p.ravel()
+    sm = 0.0
+    sp = 0.0
+    for i in range(xf.size):
+        di = df[i]
+        xf[i] += a * di
+        v = rf[i] - a * (gf[i] + wf[i] * di)
+        rf[i] = v
+        sm += mf[i] * v
+        sp += pf[i] * v
+    return sm, sp
+
+
+@njit(cache=True)
+def ncg_shift(r, minv, p, c, cp):
+    """``r -= c`` (the constraint projection of :func:`proj_precond`, ``c = (minv.r)/sum
+    minv``), one pass. Returns ``(r.z, max |p (r - cp)|)`` with ``z = minv r`` after the
+    shift and ``cp`` the shift of :func:`newton_pred_residual` (``sum p r / sum p``
+    before it): the preconditioned norm and the predicted residual (times ``zeta p0``)."""
+    rf = r.ravel()
+    mf = minv.ravel()
+    pf = p.ravel()
+    rz = 0.0
+    m = 0.0
+    for i in range(rf.size):
+        v = rf[i]
+        e = abs(pf[i] * (v - cp))
+        if e > m:
+            m = e
+        v -= c
+        rf[i] = v
+        rz += v * (mf[i] * v)
+    return rz, m
+
+
+@njit(cache=True)
+def ncg_direction(d, r, minv, wdiag, beta):
+    """``d = minv r + beta d`` (the next projected-CG direction), one pass. Returns
+    ``sum wdiag d^2``, the diagonal part of ``d.A d``."""
+    df = d.ravel()
+    rf = r.ravel()
+    mf = minv.ravel()
+    wf = wdiag.ravel()
+    s = 0.0
+    for i in range(df.size):
+        v = mf[i] * rf[i] + beta * df[i]
+        df[i] = v
+        s += wf[i] * v * v
+    return s
 
 
 # --------------------------------------------------------------------------- FIRE helpers

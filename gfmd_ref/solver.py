@@ -447,13 +447,23 @@ def _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0,
     """
     n2 = h.size
     pmin = max(p0 * 1e-300, 1e-300)
-    p = np.full(el.shape, p0) if p_init is None else np.maximum(p_init, pmin)
+    # work arrays of the cached FFT pair, transformed where they lie: the pressure and
+    # u = G p, and the CG direction d and G d, which the line search reuses for the trial
+    # pressure and its u (the pairs swap names when a step is accepted)
+    el.fft_planning_time += el.fft.make_work_arrays(N_WORK_ARRAYS)
+    p, u, d, gd = (el.fft.work_array(k) for k in range(N_WORK_ARRAYS))
+    if p_init is None:
+        p[...] = p0
+    else:
+        np.maximum(p_init, pmin, out=p)
     p *= p0 / p.mean()
-    u = el.apply(el.G, p)
+    el.fft.apply_route(el.Gn, p, u, dot=False)
     grad = np.empty(el.shape)
     minv = np.empty(el.shape)
-    ptry = np.empty(el.shape)
-    zr = np.empty(el.shape)
+    wdiag = np.empty(el.shape)
+    x = np.empty(el.shape)
+    r = np.empty(el.shape)
+    scratch = np.empty(el.shape)
     hist = list(hist0)
     stamps = []
     tstart = time.perf_counter()
@@ -465,9 +475,8 @@ def _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0,
     bar = _Progress(progress, "gfmd_ref newton", tol)
     stall = _Stall(stall_steps)
     while True:
-        E = kr.dual_gradient(u, h, p, p0, zeta, grad)
-        z0 = kr.exp_log_mean(u, h, zeta)
-        res = kr.exp_residual(u, h, z0, p, p0, zeta)
+        E, E_scale = kr.dual_gradient(u, h, p, p0, zeta, grad)
+        z0, res = kr.exp_z0_residual(u, h, p, p0, zeta, scratch)
         hist.append(res)
         stamps.append((it, time.perf_counter() - tstart))
         bar.update(res, it)
@@ -481,46 +490,50 @@ def _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0,
             stop = _stalled_message(stall, res).replace("iterations", "Newton steps")
             stop = stop.replace("(at iteration", "(at Newton step")
             break
-        # --- inexact Newton direction by projected PCG
-        np.divide(1.0, el.g_diag + zeta / p, out=minv)
+        # --- inexact Newton direction by projected PCG on (G + diag(zeta/p)) x = -grad,
+        # three fused passes and one FFT pair per iteration (kernels ncg_*)
+        np.divide(zeta, p, out=wdiag)
+        np.add(wdiag, el.g_diag, out=minv)
+        np.divide(1.0, minv, out=minv)
+        sum_minv = float(np.sum(minv))
+        sum_p = float(np.sum(p))
         target = max(0.1 * res * min(1.0, res), 0.25 * tol)
-        x = np.zeros(el.shape)
-        r = -grad
-        rz = kr.proj_precond(r, minv, zr)
-        d = zr.copy()
-        wdiag = zeta / p
+        x[...] = 0.0
+        np.negative(grad, out=r)
+        rz, _ = kr.ncg_shift(r, minv, p, float(np.dot(minv.ravel(), r.ravel())) / sum_minv, 0.0)
+        d[...] = 0.0
+        dwd = kr.ncg_direction(d, r, minv, wdiag, 0.0)
         for _ in range(2000):
-            Ad = el.apply(el.G, d)
-            Ad += wdiag * d
+            dAd = el.fft.apply_route(el.Gn, d, gd) + dwd  # d.G d by Parseval, + d.diag d
             it += 1
             cg_total += 1
-            dAd = float(np.vdot(d, Ad))
             if dAd <= 0:
                 break
             a = rz / dAd
-            x += a * d
-            r -= a * Ad
-            rz_new = kr.proj_precond(r, minv, zr)
-            if it >= max_iter or kr.newton_pred_residual(r, p, zeta, p0) <= target:
+            sm, sp = kr.ncg_update(x, r, d, gd, wdiag, minv, p, a)
+            rz_new, pred = kr.ncg_shift(r, minv, p, sm / sum_minv, sp / sum_p)
+            if it >= max_iter or pred / (zeta * p0) <= target:
                 break
-            d *= rz_new / rz
-            d += zr
+            dwd = kr.ncg_direction(d, r, minv, wdiag, rz_new / rz)
             rz = rz_new
-        # --- line search
+        # --- line search: the trial pressure and its u in the direction's work arrays
+        ptry, utry = d, gd
         slope = float(np.vdot(grad, x)) / n2
         alpha = 1.0
         accepted = False
         for _ls in range(30):
             kr.dual_step(p, x, alpha, p0, pmin, ptry)
-            utry = el.apply(el.G, ptry)
+            el.fft.apply_route(el.Gn, ptry, utry, dot=False)
             it += 1
-            Et = kr.dual_energy(utry, h, ptry, p0, zeta)
+            Et, _ = kr.dual_energy(utry, h, ptry, p0, zeta)
             if Et <= E + 1e-4 * alpha * slope:
                 accepted = True
                 break
-            if abs(Et - E) <= 1e-11 * abs(E):
-                # energy differences at round-off: judge by the force residual instead
-                rt = kr.exp_residual(utry, h, kr.exp_log_mean(utry, h, zeta), ptry, p0, zeta)
+            if abs(Et - E) <= 1e-11 * max(abs(E), E_scale):
+                # energy differences at round-off (of the energy's terms, whose magnitude
+                # E_scale can exceed |E| by 1e4 near the solution): judge by the force
+                # residual instead
+                rt = kr.exp_z0_residual(utry, h, ptry, p0, zeta, scratch)[1]
                 if rt < (1.0 - 1e-4 * alpha) * res:
                     accepted = True
                     break
@@ -529,14 +542,14 @@ def _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0,
             stop = (f"stalled: the line search found no decrease of the dual energy in 30 "
                     f"halvings (round-off level); residual {res:.3e}")
             break
-        p, ptry = ptry, p
-        u = utry
+        p, d = ptry, p
+        u, gd = utry, u
         newton += 1
     bar.close()
     z0 = kr.exp_log_mean(u, h, zeta)
     disp = u + z0
     return dict(
-        pressure=p,
+        pressure=p.copy(),  # p is a work array of the cached FFT pair: the next solve reuses it
         gap=disp - h,
         displacement=disp,
         converged=converged,
