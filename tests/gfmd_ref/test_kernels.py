@@ -1,0 +1,82 @@
+"""The exponential wall's fused kernels against the numpy formulas they replace."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gfmd_ref import _kernels as kr
+
+
+@pytest.fixture
+def fields(rng):
+    n = 64
+    u = rng.normal(scale=0.3, size=(n, n))
+    h = rng.normal(scale=0.3, size=(n, n))
+    p = 0.004 * np.exp(rng.normal(scale=0.5, size=(n, n)))
+    return u, h, p
+
+
+@pytest.mark.parametrize("zeta", [1.0, 0.01, 1e-4])
+def test_exp_z0_residual_is_the_two_kernels_it_fuses(fields, zeta):
+    """``exp_z0_residual`` against ``exp_log_mean`` (z0: the same bits, the same operations)
+    and ``exp_residual`` (the residual from exponentials of a differently rounded
+    exponent: both err by a few eps times the largest exponent |u - h|/zeta, which is
+    1e4 at zeta = 1e-4, where measured 1.7e-12 apart; the bound asserted is 8 eps times it)."""
+    u, h, p = fields
+    z0, res = kr.exp_z0_residual(u, h, p, 0.004, zeta, np.empty_like(u))
+    assert z0 == kr.exp_log_mean(u, h, zeta)
+    bound = max(1e-13, 8 * np.finfo(float).eps * np.max(np.abs(u - h)) / zeta)
+    assert res == pytest.approx(kr.exp_residual(u, h, z0, p, 0.004, zeta), rel=bound)
+
+
+def test_exp_z0_residual_at_the_solution_is_zero(fields):
+    """At ``p = p0 exp(-(z0 + u - h)/zeta)`` (the wall law itself) the residual is round-off."""
+    u, h, _ = fields
+    zeta = 0.3
+    z0 = kr.exp_log_mean(u, h, zeta)
+    p = 0.004 * np.exp(-(z0 + u - h) / zeta)
+    _, res = kr.exp_z0_residual(u, h, p, 0.004, zeta, np.empty_like(u))
+    assert res < 1e-13 * np.max(p) / 0.004
+
+
+def test_dual_energy_and_its_scale(fields):
+    """Both energy kernels return mean(p u/2 - p h + zeta p ln(p/p0)) (numpy, 1e-13) and
+    the mean magnitude of those terms (the scale of its round-off); the gradient kernel
+    also writes u - h + zeta (ln(p/p0) + 1)."""
+    u, h, p = fields
+    zeta, p0 = 0.2, 0.004
+    t = np.stack([0.5 * p * u, -p * h, zeta * p * np.log(p / p0)])
+    grad = np.empty_like(u)
+    e1, s1 = kr.dual_gradient(u, h, p, p0, zeta, grad)
+    e2, s2 = kr.dual_energy(u, h, p, p0, zeta)
+    assert e1 == e2 and s1 == s2
+    assert e1 == pytest.approx(np.mean(np.sum(t, axis=0)), rel=1e-12, abs=1e-15 * s1)
+    assert s1 == pytest.approx(np.mean(np.sum(np.abs(t), axis=0)), rel=1e-13)
+    assert np.allclose(grad, u - h + zeta * (np.log(p / p0) + 1.0), rtol=1e-14, atol=1e-15)
+
+
+def test_newton_cg_passes_are_the_projected_pcg_update(fields, rng):
+    """``ncg_update``, ``ncg_shift`` and ``ncg_direction`` against the numpy update of the
+    projected PCG they fuse: x += a d, r -= a (Gd + w d), the shift r -= (minv.r)/sum minv,
+    r.z with z = minv r, the predicted residual max |p (r - sum p r / sum p)|, and
+    d = z + beta d with sum w d^2 (1e-12: round-off of sums of 4096 terms)."""
+    u, h, p = fields
+    x, r, d, gd = (rng.normal(size=u.shape) for _ in range(4))
+    w = 0.01 / p
+    minv = 1.0 / (0.5 + w)
+    a, beta = 0.7, 0.3
+    x0, r0, d0 = x.copy(), r.copy(), d.copy()
+    sm, sp = kr.ncg_update(x, r, d, gd, w, minv, p, a)
+    r1 = r0 - a * (gd + w * d0)
+    assert np.allclose(x, x0 + a * d0, rtol=1e-15, atol=1e-15) and np.allclose(r, r1, rtol=1e-15, atol=1e-15)
+    assert sm == pytest.approx(np.sum(minv * r1), rel=1e-12) and sp == pytest.approx(np.sum(p * r1), rel=1e-12)
+    c, cp = sm / np.sum(minv), sp / np.sum(p)
+    rz, pred = kr.ncg_shift(r, minv, p, c, cp)
+    r2 = r1 - c
+    assert np.allclose(r, r2, rtol=1e-14, atol=1e-14)
+    assert rz == pytest.approx(np.sum(r2 * minv * r2), rel=1e-12)
+    assert pred == pytest.approx(np.max(np.abs(p * (r1 - cp))), rel=1e-12)
+    dwd = kr.ncg_direction(d, r, minv, w, beta)
+    d1 = minv * r2 + beta * d0
+    assert np.allclose(d, d1, rtol=1e-14, atol=1e-15)
+    assert dwd == pytest.approx(np.sum(w * d1 * d1), rel=1e-12)
