@@ -144,17 +144,24 @@ class ScipyPair(_Pair):
             self._single[index] = np.zeros(self.shape, dtype=np.float32)
         return self._single[index]
 
-    def apply_single(self, mult_n32: np.ndarray, src: int = 0, dst: Optional[int] = None) -> None:
+    def apply_single(self, mult_n32: np.ndarray, src: int = 0, dst: Optional[int] = None,
+                     dot: bool = False) -> float:
         """:meth:`apply_route` in single precision between the single-precision work
         arrays ``src`` and ``dst`` (default: in place on ``src``; ``src`` is kept
         otherwise): ``dst = irfft2(mult_n32 * rfft2(src)) * n^2`` with ``float32`` data
         and a ``float32`` multiplier (for a preconditioner or a step length, whose
-        rounding only perturbs a search)."""
+        rounding only perturbs a search). Returns ``src . dst`` by Parseval (summed in
+        double) with ``dot``, else NaN."""
         w = self.single_array(src)
         X = sfft.rfft2(w, workers=self.threads)
-        spectral_scale(X, mult_n32)
+        if dot:
+            out = spectral_multiply(X, mult_n32, self.shape[1])
+        else:
+            spectral_scale(X, mult_n32)
+            out = math.nan
         self.single_array(src if dst is None else dst)[...] = sfft.irfft2(
             X, s=self.shape, workers=self.threads, overwrite_x=True, norm="forward")
+        return out
 
 
 class FFTWPair(_Pair):
@@ -259,17 +266,24 @@ class FFTWPair(_Pair):
             self._single[index] = (buf, fwd, bwd)
         return self._single[index][0]
 
-    def apply_single(self, mult_n32: np.ndarray, src: int = 0, dst: Optional[int] = None) -> None:
+    def apply_single(self, mult_n32: np.ndarray, src: int = 0, dst: Optional[int] = None,
+                     dot: bool = False) -> float:
         """:meth:`apply_route` in single precision between the single-precision work
         arrays ``src`` and ``dst`` (default: in place on ``src``; ``src`` is kept
         otherwise): ``dst = irfft2(mult_n32 * rfft2(src)) * n^2`` with ``float32`` data
         and a ``float32`` multiplier (for a preconditioner or a step length, whose
-        rounding only perturbs a search)."""
+        rounding only perturbs a search). Returns ``src . dst`` by Parseval (summed in
+        double) with ``dot``, else NaN."""
         self.single_array(src)
         self.single_array(src if dst is None else dst)
         self._single[src][1].execute()
-        spectral_scale(self._spec32, mult_n32)
+        if dot:
+            out = spectral_multiply(self._spec32, mult_n32, self.shape[1])
+        else:
+            spectral_scale(self._spec32, mult_n32)
+            out = math.nan
         self._single[src if dst is None else dst][2].execute()
+        return out
 
     def _plans_of(self, buf: np.ndarray) -> Tuple[np.ndarray, Any, Any]:
         owner, fwd, bwd = self._plans.get(id(buf), (None, None, None))

@@ -527,10 +527,12 @@ def ncg_shift(r, minv, p, c, cp):
 
 
 @njit(cache=True)
-def ncg_direction(d, r, minv, wdiag, beta):
-    """``d = minv r + beta d`` (the next projected-CG direction), one pass. Returns
-    ``sum wdiag d^2``, the diagonal part of ``d.A d``."""
+def ncg_direction(d, r, minv, wdiag, beta, d2):
+    """``d = minv r + beta d`` (the next projected-CG direction), one pass; ``d2``
+    receives a copy (the single-precision input of the next FFT; pass ``d`` itself where
+    there is none). Returns ``sum wdiag d^2``, the diagonal part of ``d.A d``."""
     df = d.ravel()
+    d2f = d2.ravel()
     rf = r.ravel()
     mf = minv.ravel()
     wf = wdiag.ravel()
@@ -538,6 +540,7 @@ def ncg_direction(d, r, minv, wdiag, beta):
     for i in range(df.size):
         v = mf[i] * rf[i] + beta * df[i]
         df[i] = v
+        d2f[i] = v
         s += wf[i] * v * v
     return s
 

@@ -76,7 +76,7 @@ def test_newton_cg_passes_are_the_projected_pcg_update(fields, rng):
     assert np.allclose(r, r2, rtol=1e-14, atol=1e-14)
     assert rz == pytest.approx(np.sum(r2 * minv * r2), rel=1e-12)
     assert pred == pytest.approx(np.max(np.abs(p * (r1 - cp))), rel=1e-12)
-    dwd = kr.ncg_direction(d, r, minv, w, beta)
+    dwd = kr.ncg_direction(d, r, minv, w, beta, d)
     d1 = minv * r2 + beta * d0
     assert np.allclose(d, d1, rtol=1e-14, atol=1e-15)
     assert dwd == pytest.approx(np.sum(w * d1 * d1), rel=1e-12)
