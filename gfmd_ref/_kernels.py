@@ -308,37 +308,43 @@ def exp_log_mean(u, h, zeta):
 
 
 @njit(cache=True)
-def exp_z0_residual(u, h, p, p0, zeta, e):
-    """:func:`exp_log_mean` and :func:`exp_residual` in one, with one exponential per node
-    instead of two: ``z0 = zeta log(mean(exp(-(u - h)/zeta)))`` (the same bits as
-    :func:`exp_log_mean`) and ``max |sigma - p| / p0`` with the wall pressure
-    ``sigma = p0 exp(-(z0 + u - h)/zeta) = p0 e n / s`` from the stored
-    ``e = exp(-(u - h)/zeta - m)`` (``m`` the largest exponent, ``s = sum e``; ``e <= 1``
-    never overflows, and ``n/s <= n``). Returns ``(z0, residual)``; ``e`` is scratch."""
+def exp_exponents(u, h, zeta, e):
+    """``e = x - m`` with the wall's exponents ``x = -(u - h)/zeta`` and their largest
+    ``m`` (returned): the first half of :func:`exp_log_mean`, whose exponentials
+    ``exp(e)`` numpy then takes in place (vectorized: 0.9 ms against 4.6 ms per 1024^2
+    for a compiled loop of ``math.exp``), see :func:`gfmd_ref.solver._z0_residual`."""
     uf = u.ravel()
     hf = h.ravel()
-    pf = p.ravel()
     ef = e.ravel()
-    n = uf.size
     m = -np.inf
-    for i in range(n):
+    for i in range(uf.size):
         x = -(uf[i] - hf[i]) / zeta
-        ef[i] = x
         if x > m:
             m = x
+    for i in range(uf.size):
+        ef[i] = -(uf[i] - hf[i]) / zeta - m
+    return m
+
+
+@njit(cache=True)
+def exp_sum_residual(e, p, p0):
+    """From ``e = exp(x - m)`` (:func:`exp_exponents`): ``s = sum e`` and the force
+    residual ``max |sigma - p| / p0`` with the wall pressure ``sigma = p0 exp(-(z0 + u -
+    h)/zeta) = p0 e n / s`` (``e <= 1`` never overflows, and ``n/s <= n``). Returns
+    ``(s, residual)``."""
+    ef = e.ravel()
+    pf = p.ravel()
+    n = ef.size
     s = 0.0
     for i in range(n):
-        v = math.exp(ef[i] - m)
-        ef[i] = v
-        s += v
-    z0 = zeta * (m + math.log(s / n))
+        s += ef[i]
     scale = p0 * n / s
     r = 0.0
     for i in range(n):
         a = abs(scale * ef[i] - pf[i])
         if a > r:
             r = a
-    return z0, r / p0
+    return s, r / p0
 
 
 @njit(cache=True)
@@ -367,42 +373,43 @@ def exp_residual(u, h, z0, p, p0, zeta):
 
 
 @njit(cache=True)
-def dual_gradient(u, h, p, p0, zeta, grad):
-    """Gradient of the dual energy: ``u - h + zeta (log(p/p0) + 1)``; returns the dual
-    energy per node ``mean(p u / 2 - p h + zeta p log(p/p0))`` and the mean magnitude of
-    its terms (the scale of its round-off, see :func:`dual_energy`)."""
+def dual_gradient(u, h, p, lp, zeta, grad):
+    """Gradient of the dual energy: ``u - h + zeta (lp + 1)`` with ``lp = log(p/p0)``
+    (taken by numpy, vectorized); returns the dual energy per node ``mean(p u / 2 - p h
+    + zeta p lp)`` and the mean magnitude of its terms (the scale of its round-off, see
+    :func:`dual_energy`)."""
     uf = u.ravel()
     hf = h.ravel()
     pf = p.ravel()
+    lf = lp.ravel()
     gf = grad.ravel()
     e = 0.0
     a = 0.0
     for i in range(uf.size):
-        lp = math.log(pf[i] / p0)
-        gf[i] = uf[i] - hf[i] + zeta * (lp + 1.0)
+        gf[i] = uf[i] - hf[i] + zeta * (lf[i] + 1.0)
         t1 = 0.5 * pf[i] * uf[i]
         t2 = pf[i] * hf[i]
-        t3 = zeta * pf[i] * lp
+        t3 = zeta * pf[i] * lf[i]
         e += t1 - t2 + t3
         a += abs(t1) + abs(t2) + abs(t3)
     return e / uf.size, a / uf.size
 
 
 @njit(cache=True)
-def dual_energy(u, h, p, p0, zeta):
+def dual_energy(u, h, p, lp, zeta):
     """The dual energy per node (as :func:`dual_gradient`, without the gradient) and the
     mean magnitude of its terms. The energy is a small difference of those terms near
     the solution, so its round-off scales with the magnitude, not with the energy."""
     uf = u.ravel()
     hf = h.ravel()
     pf = p.ravel()
+    lf = lp.ravel()
     e = 0.0
     a = 0.0
     for i in range(uf.size):
-        lp = math.log(pf[i] / p0)
         t1 = 0.5 * pf[i] * uf[i]
         t2 = pf[i] * hf[i]
-        t3 = zeta * pf[i] * lp
+        t3 = zeta * pf[i] * lf[i]
         e += t1 - t2 + t3
         a += abs(t1) + abs(t2) + abs(t3)
     return e / uf.size, a / uf.size
