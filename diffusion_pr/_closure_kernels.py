@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _clamped(x):  # pragma: no cover - numba
     """``max(x, 0)`` that keeps a NaN (as ``np.maximum`` does)."""
     return 0.0 if x < 0.0 else x
@@ -28,7 +28,7 @@ def _clamped(x):  # pragma: no cover - numba
 DIFFUSIVITY, DRIFT, BALANCE = 0, 1, 2
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _model_rows(kq, kq_part, p, model, out):  # pragma: no cover - numba
     """Row ``k`` of one model at the clamped pressures ``p``, written into ``out`` (``kq.size x p.size``); returns
     whether every value is finite.  The models (``kq = kz q_k``, ``kq_part = kz q_part``):

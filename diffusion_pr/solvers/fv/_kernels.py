@@ -36,12 +36,12 @@ from .cram import ALPHA, ALPHA0, PFD_RESIDUES, THETA
 __all__ = ["cram_pfd", "gttrf", "gttrs", "cram_apply", "cram_apply_d", "balanced_stage", "staged_run", "staged_run_rows", "staged_run_rows_types", "ALPHA", "THETA", "ALPHA0", "PFD_RESIDUES"]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _cabs1(z):  # pragma: no cover - numba
     return abs(z.real) + abs(z.imag)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _rec(z):  # pragma: no cover - numba
     """``1/z`` by one real division (``conj(z)/|z|^2``); numba's complex division where that could over/underflow."""
     x = z.real
@@ -54,14 +54,14 @@ def _rec(z):  # pragma: no cover - numba
     return 1.0 / z
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def cram_apply(lower, diag, upper, t, y, alpha, theta, alpha0):  # pragma: no cover - numba
     """``exp(t L) y`` (CRAM-16, IPF form) for the tridiagonal ``L``; returns ``(y_new, info)``."""
     out, _, info = _ipf(lower, diag, upper, lower, diag, upper, t, y, alpha, theta, alpha0, False)
     return out, info
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def gttrf(dl, d, du, du2, ipiv):  # pragma: no cover - numba
     """LU factorization with partial pivoting of the tridiagonal ``(dl, d, du)``, in place; LAPACK ``zgttrf``.
 
@@ -104,7 +104,7 @@ def gttrf(dl, d, du, du2, ipiv):  # pragma: no cover - numba
     return 0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def gttrs(dl, d, du, du2, ipiv, b):  # pragma: no cover - numba
     """Solve with the factors of :func:`gttrf`, ``b <- A^-1 b`` in place; LAPACK ``zgttrs`` (no transpose)."""
     n = d.size
@@ -122,7 +122,7 @@ def gttrs(dl, d, du, du2, ipiv, b):  # pragma: no cover - numba
         b[i] = (b[i] - du[i] * b[i + 1] - du2[i] * b[i + 2]) * d[i]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def cram_apply_d(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0):  # pragma: no cover - numba
     """``exp(t (L - A W)) y`` (CRAM-16, IPF form, as :func:`cram_apply`) and its derivative in ``A``.
 
@@ -136,7 +136,7 @@ def cram_apply_d(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0):  #
     return _ipf(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0, True)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ipf(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0, want_d):  # pragma: no cover - numba
     """CRAM-16 in IPF form, with the ``A``-derivative of :func:`cram_apply_d` if ``want_d``; each factor in flux
     form (``L`` must conserve probability, as every operator of the engine does)."""
@@ -186,7 +186,7 @@ def _ipf(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0, want_d):  #
     return out, dout, 0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _geometry(edges):  # pragma: no cover - numba
     """Per-grid factors of the bands: ``(h, 1/(c_{i+1} - c_i), 1/(c_0 - p_wall), 1/(2h))``."""
     n = edges.size - 1
@@ -204,7 +204,7 @@ def _geometry(edges):  # pragma: no cover - numba
     return h, k_int, 1.0 / (c[0] - edges[0]), half_inv_h
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _fitted_weight(shift, f_min):  # pragma: no cover - numba
     """:func:`.operator.fitted_weight` of one face."""
     x = abs(shift)
@@ -214,7 +214,7 @@ def _fitted_weight(shift, f_min):  # pragma: no cover - numba
     return out if shift > 0.0 else -out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusion, fitted, reached,
               lower, diag, upper):  # pragma: no cover - numba
     """One operator's bands (:func:`.operator.bands`'s formula) into ``lower, diag, upper`` (overwritten).
@@ -281,7 +281,7 @@ _PFD_BLOCK_WORDS = 80000
 _PFD_MAX_BLOCK = 6
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def cram_pfd(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  # pragma: no cover - numba
     """``exp(t L) y`` by CRAM-16 in partial fractions, ``alpha0 y + 2 Re sum_j c_j (t L - theta_j)^-1 y``.
 
@@ -301,7 +301,7 @@ def cram_pfd(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  #
     return _pfd_pivoting(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def flux_weights(c, theta, alpha0):  # pragma: no cover - numba
     """``(c_j / theta_j, r(0))`` of the partial fractions ``r(z) = alpha0 + 2 Re sum_j c_j/(z - theta_j)``: the
     weights of :func:`_flux_form`'s ``w`` and the factor of its ``y``."""
@@ -312,7 +312,7 @@ def flux_weights(c, theta, alpha0):  # pragma: no cover - numba
     return cw, r0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _block_size(n, m, want_d):  # pragma: no cover - numba
     """Poles per block of :func:`_pfd_pivoting` and :func:`_pfd_dominant` (see :data:`_PFD_BLOCK_WORDS`)."""
     g_size = m if m <= _PFD_MAX_BLOCK else 4
@@ -321,7 +321,7 @@ def _block_size(n, m, want_d):  # pragma: no cover - numba
     return g_size
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _pfd_dominant(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d):  # pragma: no cover - numba
     """:func:`_pfd_pivoting` for matrices that need no row interchange, in real arithmetic on split parts.
 
@@ -432,7 +432,7 @@ def _pfd_dominant(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d
     return out, dout, True
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _back_dominant(rr, ri, br, bi, upper, t, n, g_size):  # pragma: no cover - numba
     """Back substitution of :func:`_pfd_dominant`: ``x_i = (b_i - t u_i x_{i+1}) / d_i``, split parts."""
     for jj in range(g_size):
@@ -449,7 +449,7 @@ def _back_dominant(rr, ri, br, bi, upper, t, n, g_size):  # pragma: no cover - n
             bi[i, jj] = a * ri[i, jj] + b * rr[i, jj]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _accumulate_split(out, c, g0, xr, xi, n, g_size):  # pragma: no cover - numba
     """:func:`_accumulate` on split parts."""
     for i in range(n):
@@ -460,7 +460,7 @@ def _accumulate_split(out, c, g0, xr, xi, n, g_size):  # pragma: no cover - numb
         out[i] += 2.0 * s
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _pfd_pivoting(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d):  # pragma: no cover - numba
     """``exp(t L) y`` by CRAM-16 in partial fractions, ``alpha0 y + 2 Re sum_j c_j (t L - theta_j)^-1 y``.
 
@@ -564,7 +564,7 @@ def _pfd_pivoting(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d
     return out, dout, 0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _flux_form(lower, upper, t, y, w, r0, out):  # pragma: no cover - numba
     """``out = r0 y + t L w`` with ``t L w`` as differences of face fluxes: probability conserved to round-off.
 
@@ -588,7 +588,7 @@ def _flux_form(lower, upper, t, y, w, r0, out):  # pragma: no cover - numba
     out[n - 1] = r0 * y[n - 1] + prev
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _accumulate(out, c, g0, x, n, g_size):  # pragma: no cover - numba
     """``out += 2 Re sum_j c_j x_j`` over the block of poles starting at ``g0``."""
     for i in range(n):
@@ -599,7 +599,7 @@ def _accumulate(out, c, g0, x, n, g_size):  # pragma: no cover - numba
         out[i] += 2.0 * s
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _back(d, du, du2, b, n, g_size):  # pragma: no cover - numba
     """Back substitution of :func:`cram_pfd` for a block of poles (``d`` holds reciprocal pivots)."""
     for jj in range(g_size):
@@ -611,7 +611,7 @@ def _back(d, du, du2, b, n, g_size):  # pragma: no cover - numba
             b[i, jj] = (b[i, jj] - du[i, jj] * b[i + 1, jj] - du2[i, jj] * b[i + 2, jj]) * d[i, jj]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _matvec(lower, diag, upper, y, out):  # pragma: no cover - numba
     n = diag.size
     for i in range(n):
@@ -621,7 +621,7 @@ def _matvec(lower, diag, upper, y, out):  # pragma: no cover - numba
         out[i] += upper[i] * y[i + 1]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _shifted(lower, diag, upper, wl, wd, wu, A, lo, di, up):  # pragma: no cover - numba
     """``(lo, di, up) <- L0 - A Lw``: the bands of the stage operator at the multiplier ``A``."""
     for i in range(diag.size - 1):
@@ -631,7 +631,7 @@ def _shifted(lower, diag, upper, wl, wd, wu, A, lo, di, up):  # pragma: no cover
         di[i] = diag[i] - A * wd[i]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _dot(a, b):  # pragma: no cover - numba
     s = 0.0
     for i in range(a.size):
@@ -639,7 +639,7 @@ def _dot(a, b):  # pragma: no cover - numba
     return s
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _expm(lo, di, up, wl, wd, wu, t, y, pfd, want_d, alpha, theta, alpha0, c):  # pragma: no cover - numba
     """One CRAM application, partial fractions (``pfd``) or IPF, with its ``A``-derivative if ``want_d``."""
     if pfd:
@@ -650,7 +650,7 @@ def _expm(lo, di, up, wl, wd, wu, t, y, pfd, want_d, alpha, theta, alpha0, c):  
     return x, x, info
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _expm_at(lower, diag, upper, wl, wd, wu, A, lo, di, up, dt, y, pfd, want_d, alpha, theta, alpha0,
              c):  # pragma: no cover - numba
     """``exp(dt (L0 - A Lw)) y`` (and its ``A``-derivative if ``want_d``), the shifted bands made in ``lo, di, up``."""
@@ -670,7 +670,7 @@ RATIO_RANGE = 4.0
 BAD_PREDICTION = 0.5
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _predicted_ratio(hist):  # pragma: no cover - numba
     """The next ratio ``A / A_midpoint``: the last three extrapolated by a parabola (fewer: a line, a constant)."""
     k = int(hist[0])
@@ -687,7 +687,7 @@ def _predicted_ratio(hist):  # pragma: no cover - numba
     return r
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _push_ratio(hist, r):  # pragma: no cover - numba
     if not 1.0 / RATIO_RANGE < r < RATIO_RANGE:
         hist[0] = 0.0
@@ -698,7 +698,7 @@ def _push_ratio(hist, r):  # pragma: no cover - numba
     hist[0] = min(hist[0] + 1.0, 3.0)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol, lin_tol, max_iter, hist,
                    pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
     """``m`` balance substeps of length ``dt`` on ``dy/dtau = (L0 - A Lw) y``, one ``A`` per substep.
@@ -870,7 +870,7 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
     return y, n_cram, n_newton, 0, 0.0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def staged_run(lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, max_iter,
                pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
     """All stages of one grid in one call: row ``k`` of the band arrays is stage ``k``'s operator.
@@ -888,7 +888,7 @@ def staged_run(lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, 
                 cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def staged_run_rows(edges, f_rows, b_rows, w_rows, any_b, balanced, fitted, dt, reps, cvec, y, p0, mean_tol,
                     lin_tol, max_iter, pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
     """:func:`staged_run` for the native operator, its bands made stage by stage from the coefficient rows.
@@ -920,7 +920,7 @@ def staged_run_rows_types() -> tuple:
             t.boolean, c1, c1, t.float64, c1)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, balanced, fitted, dt, reps, cvec, y,
          p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
     """The stage loop of :func:`staged_run` (bands given) and :func:`staged_run_rows` (bands made per stage)."""
