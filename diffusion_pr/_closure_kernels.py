@@ -4,7 +4,9 @@ Each kernel evaluates one model for many shells on one pressure grid in a single
 pass, with the same floating-point operations in the same order as the numpy
 formulas they replace (``tests/diffusion_pr/test_closures.py`` checks the bits),
 3-4x faster than numpy on the 96 x (N + 2N + 4N) rows of a closure solve: the
-numpy form made three temporaries of the full row block per model.
+numpy form made three temporaries of the full row block per model.  Compiled with
+numba's numpy error model (IEEE division): without the ZeroDivisionError branch on
+every division the row loop vectorizes, 11 us instead of 45 us per 48 x 700 block.
 
 Units: pressures ``p`` and the wall products ``kz q`` [pressure]; rows dimensionless
 (``f``), [pressure per unit tau] (``b``) and [pressure per unit tau per unit A] (``w``).

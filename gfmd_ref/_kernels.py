@@ -1,5 +1,9 @@
 """Real-space Numba kernels (module level, ``cache=True``, no fastmath).
 
+Compiled with numba's numpy error model: a division by zero gives IEEE inf/NaN instead
+of a ZeroDivisionError branch on every division, which kept loops such as the
+exponents' ``-(u - h)/zeta`` from vectorizing (the same values otherwise).
+
 All arrays are C-contiguous float64 ``(n, n)``; the kernels loop over the flat view.
 
 Overflow guard: every exponential ``exp(x)`` of the exponential wall is evaluated
@@ -18,7 +22,7 @@ EXP_MAX = 700.0
 EXP_MIN = -745.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _clamp_exp(x):
     if x > EXP_MAX:
         x = EXP_MAX
@@ -27,7 +31,7 @@ def _clamp_exp(x):
     return math.exp(x)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def spectral_multiply(spec, mult, n_last):
     """``spec *= mult`` for the half spectrum of a real ``(n0, n_last)`` field ``x`` and
     a real multiplier; returns ``sum_k w_k mult_k |X_k|^2`` (``w_k`` = 1 on the columns
@@ -84,7 +88,7 @@ def spectral_multiply(spec, mult, n_last):
     return s
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def spectral_scale(spec, mult):
     """``spec *= mult`` (a real multiplier on a half spectrum) without the dot product of
     :func:`spectral_multiply`, for the transforms whose dot is not used (the exact
@@ -111,7 +115,7 @@ def spectral_scale(spec, mult):
 # contact set is also kept as a one-byte mask ``c`` (``c = p > 0``).
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def gather_sum(x, idx, nc):
     """``sum_k x[idx[k]]``, ``k < nc``: the sum of ``x`` over the contact set."""
     xf = x.ravel()
@@ -121,7 +125,7 @@ def gather_sum(x, idx, nc):
     return s
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def contact_sums(z, gcon, idx, nc):
     """``(sum_c z, sum_c g z)`` over the contact set ``idx[:nc]`` (``gcon[k]`` = ``g`` at
     ``idx[k]``), one pass: the mean of the preconditioned gap and its dot with the gap."""
@@ -135,7 +139,7 @@ def contact_sums(z, gcon, idx, nc):
     return s, d
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def contact_dot(r, t, idx, nc):
     """``(sum_c r, sum_c r t)`` over the contact set ``idx[:nc]``, one pass (``r`` may be
     single precision, sums in double): the mean shift and ``t.Gt`` of the step length."""
@@ -151,7 +155,7 @@ def contact_dot(r, t, idx, nc):
     return s, d
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def pk_gap(u, h, p, c, idx, nc, masked, want_masked, gcon, ol, olg):
     """Gap ``g = u - h - gbar`` with ``gbar`` the mean of ``u - h`` over the contact set,
     one full pass. ``gcon[k]`` = ``g`` at ``idx[k]``; the overlaps (``g < 0`` off the set)
@@ -198,7 +202,7 @@ def pk_gap(u, h, p, c, idx, nc, masked, want_masked, gcon, ol, olg):
     return sg, gn, comp, pen, m
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def pk_direction(z, from_gap, gcon, idx, nc, t, shift, beta, t2):
     """Polonsky-Keer direction on the contact set (``t`` is zero elsewhere):
     ``t = g + beta t`` (``from_gap``: plain conjugate gradients) or, preconditioned,
@@ -222,7 +226,7 @@ def pk_direction(z, from_gap, gcon, idx, nc, t, shift, beta, t2):
     return st, sgt
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new, t2):
     """Polonsky-Keer step of the pressures: ``p -= tau t`` on the contact set, projected
     on ``p >= 0`` (a projected node leaves the set: ``c`` false, ``p`` and ``t`` zero);
@@ -266,7 +270,7 @@ def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new, t2):
     return nproj, s, n
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def pk_rescale(p, idx, nc, scale, u, r, tau, exact):
     """``p *= scale`` on the contact set (the load back at ``p0``); unless ``exact`` (an
     exact ``u = G p`` follows) also the incremental ``u = scale (u - tau r)`` (``r = G t``;
@@ -290,7 +294,7 @@ def pk_rescale(p, idx, nc, scale, u, r, tau, exact):
 # --------------------------------------------------------------------------- exponential wall
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def exp_log_mean(u, h, zeta):
     """``zeta * log(mean(exp(-(u - h)/zeta)))`` evaluated stably (log-sum-exp)."""
     uf = u.ravel()
@@ -307,7 +311,7 @@ def exp_log_mean(u, h, zeta):
     return zeta * (m + math.log(s / n))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def exp_exponents(u, h, zeta, e):
     """``e = x - m`` with the wall's exponents ``x = -(u - h)/zeta`` and their largest
     ``m`` (returned): the first half of :func:`exp_log_mean`, whose exponentials
@@ -326,7 +330,7 @@ def exp_exponents(u, h, zeta, e):
     return m
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def exp_sum_residual(e, p, p0):
     """From ``e = exp(x - m)`` (:func:`exp_exponents`): ``s = sum e`` and the force
     residual ``max |sigma - p| / p0`` with the wall pressure ``sigma = p0 exp(-(z0 + u -
@@ -347,7 +351,7 @@ def exp_sum_residual(e, p, p0):
     return s, r / p0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def exp_pressure(z, h, p0, zeta, out):
     """``out = p0 exp(-(z - h)/zeta)`` with the exponent clamped (see module doc)."""
     zf = z.ravel()
@@ -357,7 +361,7 @@ def exp_pressure(z, h, p0, zeta, out):
         of[i] = p0 * _clamp_exp(-(zf[i] - hf[i]) / zeta)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def exp_residual(u, h, z0, p, p0, zeta):
     """Max over nodes of ``|p0 exp(-(z0 + u - h)/zeta) - p| / p0``."""
     uf = u.ravel()
@@ -372,7 +376,7 @@ def exp_residual(u, h, z0, p, p0, zeta):
     return r / p0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dual_gradient(u, h, p, lp, zeta, grad):
     """Gradient of the dual energy: ``u - h + zeta (lp + 1)`` with ``lp = log(p/p0)``
     (taken by numpy, vectorized); returns the dual energy per node ``mean(p u / 2 - p h
@@ -395,7 +399,7 @@ def dual_gradient(u, h, p, lp, zeta, grad):
     return e / uf.size, a / uf.size
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dual_energy(u, h, p, lp, zeta):
     """The dual energy per node (as :func:`dual_gradient`, without the gradient) and the
     mean magnitude of its terms. The energy is a small difference of those terms near
@@ -415,7 +419,7 @@ def dual_energy(u, h, p, lp, zeta):
     return e / uf.size, a / uf.size
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dual_step(p, dp, alpha, p0, pmin, out):
     """Trial point along a Newton direction: linear where ``dp >= 0``, multiplicative
     ``p exp(alpha dp / p)`` where ``dp < 0`` (stays positive), floored at ``pmin``,
@@ -442,7 +446,7 @@ def dual_step(p, dp, alpha, p0, pmin, out):
         of[i] = v
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def proj_precond(r, minv, z):
     """Constraint-projected diagonal preconditioner. ``r`` is first shifted in place by
     the constant ``c = (w.r)/(sum w)``, ``w = M^-1 1`` (a constant gradient is in the
@@ -467,7 +471,7 @@ def proj_precond(r, minv, z):
     return rz
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def newton_pred_residual(r, p, zeta, p0):
     """Predicted force residual of a Newton-CG iterate: ``max |p (r - c)| / (zeta p0)``
     with ``c = sum(p r)/sum(p)`` (a constant shift of the dual gradient is a shift of z0)."""
@@ -487,7 +491,7 @@ def newton_pred_residual(r, p, zeta, p0):
     return m / (zeta * p0)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def ncg_update(x, r, d, gd, wdiag, minv, p, a):
     """One projected-CG update of the Newton direction, one pass: ``x += a d`` and
     ``r -= a (G d + wdiag d)`` (``gd = G d``). Returns ``(sum minv r, sum p r)`` of the
@@ -511,7 +515,7 @@ def ncg_update(x, r, d, gd, wdiag, minv, p, a):
     return sm, sp
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def ncg_shift(r, minv, p, c, cp):
     """``r -= c`` (the constraint projection of :func:`proj_precond`, ``c = (minv.r)/sum
     minv``), one pass. Returns ``(r.z, max |p (r - cp)|)`` with ``z = minv r`` after the
@@ -533,7 +537,7 @@ def ncg_shift(r, minv, p, c, cp):
     return rz, m
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def ncg_direction(d, r, minv, wdiag, beta, d2):
     """``d = minv r + beta d`` (the next projected-CG direction), one pass; ``d2``
     receives a copy (the single-precision input of the next FFT; pass ``d`` itself where
@@ -555,7 +559,7 @@ def ncg_direction(d, r, minv, wdiag, beta, d2):
 # --------------------------------------------------------------------------- FIRE helpers
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def project_active(z, h, v, pel, contact):
     """Active-set hard wall for FIRE. A contact node (``contact[i]``) that still carries
     compression (``pel > 0``) stays on the wall (``z = h``, ``v = 0``): contact nodes
@@ -578,7 +582,7 @@ def project_active(z, h, v, pel, contact):
     return nc
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def hard_force(contact, pel, f):
     """Hard-wall projected force of a displacement field: a contact node carries ``max(p_el, 0)`` as wall reaction, so its net force is ``max(-p_el, 0)``
     (no tension); a free node feels ``-p_el``. Returns ``(max |f|, sum of reactions)``."""

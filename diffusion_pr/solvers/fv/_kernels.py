@@ -21,7 +21,9 @@ in one compiled call per grid:
   stages as rows of 2-D arrays).
 
 Module-level ``numba.njit(cache=True)``, no fastmath (the results agree with the
-LAPACK path to round-off; ``tests/diffusion_pr/test_fv_kernels.py``).  Imported
+LAPACK path to round-off; ``tests/diffusion_pr/test_fv_kernels.py``), numba's numpy
+error model (IEEE division, no ZeroDivisionError branch per division: the same bits on
+the 178 A/B answers, 0.87-1.00x the closures' time; thirty-fifth session).  Imported
 lazily by the engine: a single-stage problem never loads numba.
 """
 from __future__ import annotations
