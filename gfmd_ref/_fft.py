@@ -65,25 +65,25 @@ class _Pair:
     """What both pairs share: the work arrays' bookkeeping (``_work``, ``work_array``)."""
 
     _work: Dict[int, np.ndarray]
-    _single: Any
+    _single: Dict[int, Any]
 
-    def single_array(self) -> np.ndarray:  # pragma: no cover - overridden
+    def single_array(self, index: int = 0) -> np.ndarray:  # pragma: no cover - overridden
         raise NotImplementedError
 
     def work_array(self, index: int) -> np.ndarray:  # pragma: no cover - overridden
         raise NotImplementedError
 
-    def make_work_arrays(self, count: int, single: bool = False) -> float:
-        """Make work arrays ``0 .. count-1`` (and, with ``single``, the single-precision
-        one of ``apply_single``) now; returns the seconds spent (0 if made)."""
+    def make_work_arrays(self, count: int, single: int = 0) -> float:
+        """Make work arrays ``0 .. count-1`` and the single-precision ones ``0 .. single-1``
+        (:meth:`single_array`) now; returns the seconds spent (0 if all were made)."""
         t0 = time.perf_counter()
         new = [k for k in range(count) if k not in self._work]
         for k in new:
             self.work_array(k)
-        if single and self._single is None:
-            new.append(-1)
-            self.single_array()
-        return time.perf_counter() - t0 if new else 0.0
+        new_single = [k for k in range(int(single)) if k not in self._single]
+        for k in new_single:
+            self.single_array(k)
+        return time.perf_counter() - t0 if new or new_single else 0.0
 
 
 class ScipyPair(_Pair):
