@@ -47,7 +47,8 @@ def warm_up_fft(n: int) -> float:
     The first :func:`solve_contact` on a new grid size pays this planning
     (about 1-2 s at 1024^2 with FFTW, including the plans of the hard-wall solver's
     work arrays, double and single precision; nothing with scipy.fft); later calls in
-    the same process reuse the plans.
+    the same process reuse the plans, and later processes read FFTW's wisdom from
+    :func:`gfmd_ref._fft.wisdom_path` (0.9 s -> 0.17 s at 512^2).
     """
     pair, planning = fft_pair((int(n), int(n)))
     return planning + pair.make_work_arrays(N_WORK_ARRAYS, single=N_SINGLE_ARRAYS)

@@ -14,6 +14,14 @@ bounded by ``PLANNING_TIMELIMIT`` per plan) reported by :func:`fft_pair` and
 ``FFTW_MIN_N``) and machines without pyfftw use scipy.fft. Set the environment
 variable ``GFMD_REF_FFT=scipy`` to force scipy.
 
+FFTW's wisdom (the plans it measured) is kept between processes in a file
+(:func:`wisdom_path`: ``GFMD_REF_FFTW_WISDOM`` names it, ``off`` disables it; by
+default ``$XDG_CACHE_HOME/gfmd_ref/`` or ``~/.cache/gfmd_ref/``), read before the first
+plan of a process and rewritten (atomically) after a plan was measured: a later process
+plans the same transforms in milliseconds (measured 0.9 s -> 0.01 s at 512^2, with the
+same plans, hence the same answers bit for bit). A file that cannot be read or written
+is ignored: wisdom only saves time, it never changes what a transform computes.
+
 Threads: ``DEFAULT_THREADS`` is 1, chosen by measurement on the 2-core
 development machine while other jobs kept it loaded (``benchmarks/bench_gfmd.py
 --part threads``, table in ``docs/gfmd.md``): one FFTW thread was faster than two
@@ -42,6 +50,77 @@ FFT_WORKERS = DEFAULT_THREADS
 FFTW_MIN_N = 256
 #: seconds FFTW may spend planning one transform (the best plan found so far is used).
 PLANNING_TIMELIMIT = 5.0
+#: a plan made faster than this came from wisdom: nothing new to save
+_WISDOM_NEW_PLAN_SECONDS = 0.02
+_WISDOM_LOCK = threading.Lock()
+_WISDOM_STATE = {"loaded": False, "imported": False}
+
+
+def wisdom_path() -> Optional[str]:
+    """The file FFTW's wisdom is kept in between processes, or None (``GFMD_REF_FFTW_WISDOM
+    =off``). Its name carries the machine type and the pyfftw version (wisdom of another
+    FFTW build is not read)."""
+    v = os.environ.get("GFMD_REF_FFTW_WISDOM", "").strip()
+    if v.lower() in ("off", "0", "no", "false"):
+        return None
+    if v:
+        return v
+    import platform
+
+    try:
+        import pyfftw
+
+        version = pyfftw.__version__
+    except ImportError:  # pragma: no cover - only called with pyfftw
+        return None
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "gfmd_ref", f"fftw-wisdom-{platform.machine()}-pyfftw{version}.json")
+
+
+def _load_wisdom() -> None:
+    """Read the wisdom file once per process (before the first plan); ignored if absent or unreadable."""
+    with _WISDOM_LOCK:
+        if _WISDOM_STATE["loaded"]:
+            return
+        _WISDOM_STATE["loaded"] = True
+        path = wisdom_path()
+        if path is None or not os.path.exists(path):
+            return
+        try:
+            import json
+
+            import pyfftw
+
+            with open(path, encoding="ascii") as fh:
+                data = json.load(fh)
+            ok = pyfftw.import_wisdom(tuple(data[k].encode("ascii") for k in ("double", "single", "long")))
+            _WISDOM_STATE["imported"] = bool(all(ok))
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            pass  # wisdom only saves planning time
+
+
+def _save_wisdom() -> None:
+    """Write this process's wisdom to the wisdom file (a temporary file renamed over it, so a
+    reader never sees half a file); ignored where the directory is not writable."""
+    path = wisdom_path()
+    if path is None:
+        return
+    try:
+        import json
+        import tempfile
+
+        import pyfftw
+
+        double, single, long = pyfftw.export_wisdom()
+        os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+        with _WISDOM_LOCK:
+            fd, tmp = tempfile.mkstemp(dir=os.path.dirname(path) or ".", suffix=".tmp")
+            with os.fdopen(fd, "w", encoding="ascii") as fh:
+                json.dump({"double": double.decode("ascii"), "single": single.decode("ascii"),
+                           "long": long.decode("ascii")}, fh)
+            os.replace(tmp, path)
+    except (OSError, ValueError, UnicodeDecodeError):
+        pass
 
 
 def fft_threads() -> int:
@@ -178,6 +257,8 @@ class FFTWPair(_Pair):
     def __init__(self, shape: Tuple[int, int], threads: int = DEFAULT_THREADS):
         import pyfftw
 
+        _load_wisdom()
+        t0 = time.perf_counter()
         n0, n1 = shape
         self.shape = shape
         self.threads = threads
@@ -193,6 +274,13 @@ class FFTWPair(_Pair):
         self._work: Dict[int, np.ndarray] = {}
         self._single: Dict[int, Tuple[np.ndarray, Any, Any]] = {}
         self._spec32: Optional[np.ndarray] = None
+        self._planned(t0)
+
+    @staticmethod
+    def _planned(t0: float) -> None:
+        """Save the wisdom if the plans made since ``t0`` were measured (not read from wisdom)."""
+        if time.perf_counter() - t0 > _WISDOM_NEW_PLAN_SECONDS:
+            _save_wisdom()
 
     def rfft(self, x: np.ndarray) -> np.ndarray:
         self._real[...] = x
@@ -235,6 +323,7 @@ class FFTWPair(_Pair):
 
         if index in self._work:
             return self._work[index]
+        t0 = time.perf_counter()
         buf = pyfftw.empty_aligned(self.shape, dtype="float64")
         buf[...] = 0.0
         # no FFTW_DESTROY_INPUT: the forward transform keeps its input (as fast at 1024^2)
@@ -243,6 +332,7 @@ class FFTWPair(_Pair):
         bwd = pyfftw.FFTW(self._spec, buf, axes=(0, 1), direction="FFTW_BACKWARD", threads=self.threads,
                           flags=("FFTW_MEASURE", "FFTW_DESTROY_INPUT"), planning_timelimit=PLANNING_TIMELIMIT)
         self._plans[id(buf)] = (buf, fwd, bwd)
+        self._planned(t0)
         self._work[index] = buf
         return buf
 
@@ -254,6 +344,7 @@ class FFTWPair(_Pair):
         import pyfftw
 
         if index not in self._single:
+            t0 = time.perf_counter()
             n0, n1 = self.shape
             if self._spec32 is None:
                 self._spec32 = pyfftw.empty_aligned((n0, n1 // 2 + 1), dtype="complex64")
@@ -264,6 +355,7 @@ class FFTWPair(_Pair):
             bwd = pyfftw.FFTW(self._spec32, buf, axes=(0, 1), direction="FFTW_BACKWARD", threads=self.threads,
                               flags=("FFTW_MEASURE", "FFTW_DESTROY_INPUT"), planning_timelimit=PLANNING_TIMELIMIT)
             self._single[index] = (buf, fwd, bwd)
+            self._planned(t0)
         return self._single[index][0]
 
     def apply_single(self, mult_n32: np.ndarray, src: int = 0, dst: Optional[int] = None,

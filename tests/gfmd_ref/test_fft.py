@@ -282,3 +282,69 @@ def test_make_work_arrays_plans_the_single_precision_arrays_too(make):
     assert sorted(pair._work) == list(range(N_WORK_ARRAYS))
     assert sorted(pair._single) == list(range(N_SINGLE_ARRAYS))
     assert pair.make_work_arrays(N_WORK_ARRAYS, single=N_SINGLE_ARRAYS) == 0.0
+
+
+_WISDOM_CHILD = """
+import json, sys
+import numpy as np
+import gfmd_ref as g
+from gfmd_ref._fft import _WISDOM_STATE, wisdom_path
+g.warm_up_fft(256)
+h, L = g.fig1_surface(256, seed=3)
+r = g.solve_contact(h, length=L, E_star=8 / 3, mean_pressure=0.004, interaction=g.HardWall(), tol=1e-9)
+print(json.dumps(dict(path=wisdom_path(), fft=r.info["fft"], imported=_WISDOM_STATE["imported"],
+                      p=r.pressure.ravel()[::97].tolist())))
+"""
+
+
+def _wisdom_child(env_value, tmp_path):
+    import json
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, GFMD_REF_FFTW_WISDOM=env_value)
+    env.pop("GFMD_REF_FFT", None)
+    out = subprocess.run([sys.executable, "-c", _WISDOM_CHILD], env=env, capture_output=True, text=True,
+                         cwd=tmp_path, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_fftw_wisdom_is_kept_between_processes(tmp_path):
+    """The first process measures its plans and writes FFTW's wisdom to the file; the next
+    one reads it, plans the same transforms and so computes the same answer bit for bit
+    (two processes that each measured could pick different plans: answers 1e-13 apart).
+    The file is JSON with FFTW's three wisdom strings."""
+    import json
+
+    path = tmp_path / "wisdom.json"
+    first = _wisdom_child(str(path), tmp_path)
+    assert first["fft"] == "fftw" and first["path"] == str(path) and path.exists()
+    assert not first["imported"]
+    data = json.loads(path.read_text())
+    assert set(data) == {"double", "single", "long"} and "fftw" in data["double"]
+    assert "fftwf" in data["single"]  # the single-precision plans are kept too
+    second = _wisdom_child(str(path), tmp_path)
+    assert second["imported"] and second["p"] == first["p"]
+
+
+def test_a_broken_wisdom_file_is_ignored_and_off_writes_none(tmp_path, monkeypatch):
+    """Wisdom only saves time: an unreadable file does not stop a solve (and is replaced by
+    a valid one after the process measured its plans), and ``off`` reads and writes none.
+    Oracle for the answers: the scipy path's, to the solvers' tol-level agreement (1e-7
+    p0, as test_solver_gives_the_same_answer_with_either_fft)."""
+    import json
+
+    path = tmp_path / "wisdom.json"
+    path.write_text("not json {")
+    broken = _wisdom_child(str(path), tmp_path)
+    assert broken["fft"] == "fftw" and not broken["imported"]
+    assert set(json.loads(path.read_text())) == {"double", "single", "long"}
+    off = _wisdom_child("off", tmp_path)
+    assert off["path"] is None and not off["imported"]
+    h, length = fig1_surface(256, seed=3)
+    monkeypatch.setenv("GFMD_REF_FFT", "scipy")
+    monkeypatch.setattr("gfmd_ref._fft._LOCAL", threading.local())
+    ref = solve_contact(h, length=length, E_star=8 / 3, mean_pressure=0.004, interaction=HardWall(), tol=1e-9)
+    for r in (broken, off):
+        assert np.max(np.abs(np.asarray(r["p"]) - ref.pressure.ravel()[::97])) < 1e-7 * 0.004
