@@ -362,21 +362,6 @@ def exp_pressure(z, h, p0, zeta, out):
 
 
 @njit(cache=True, error_model="numpy")
-def exp_residual(u, h, z0, p, p0, zeta):
-    """Max over nodes of ``|p0 exp(-(z0 + u - h)/zeta) - p| / p0``."""
-    uf = u.ravel()
-    hf = h.ravel()
-    pf = p.ravel()
-    r = 0.0
-    for i in range(uf.size):
-        s = p0 * _clamp_exp(-(z0 + uf[i] - hf[i]) / zeta)
-        a = abs(s - pf[i])
-        if a > r:
-            r = a
-    return r / p0
-
-
-@njit(cache=True, error_model="numpy")
 def dual_gradient(u, h, p, lp, zeta, grad):
     """Gradient of the dual energy: ``u - h + zeta (lp + 1)`` with ``lp = log(p/p0)``
     (taken by numpy, vectorized); returns the dual energy per node ``mean(p u / 2 - p h
@@ -447,51 +432,6 @@ def dual_step(p, dp, alpha, p0, pmin, out):
 
 
 @njit(cache=True, error_model="numpy")
-def proj_precond(r, minv, z):
-    """Constraint-projected diagonal preconditioner. ``r`` is first shifted in place by
-    the constant ``c = (w.r)/(sum w)``, ``w = M^-1 1`` (a constant gradient is in the
-    null space of the constraint ``sum dp = 0``; removing it avoids cancellation),
-    then ``z = M^-1 r`` has ``sum(z) = 0``. Returns ``r . z``."""
-    rf = r.ravel()
-    mf = minv.ravel()
-    zf = z.ravel()
-    n = rf.size
-    a = 0.0
-    b = 0.0
-    for i in range(n):
-        a += mf[i] * rf[i]
-        b += mf[i]
-    c = a / b
-    rz = 0.0
-    for i in range(n):
-        v = rf[i] - c
-        rf[i] = v
-        zf[i] = mf[i] * v
-        rz += v * zf[i]
-    return rz
-
-
-@njit(cache=True, error_model="numpy")
-def newton_pred_residual(r, p, zeta, p0):
-    """Predicted force residual of a Newton-CG iterate: ``max |p (r - c)| / (zeta p0)``
-    with ``c = sum(p r)/sum(p)`` (a constant shift of the dual gradient is a shift of z0)."""
-    rf = r.ravel()
-    pf = p.ravel()
-    a = 0.0
-    b = 0.0
-    for i in range(rf.size):
-        a += pf[i] * rf[i]
-        b += pf[i]
-    c = a / b
-    m = 0.0
-    for i in range(rf.size):
-        v = abs(pf[i] * (rf[i] - c))
-        if v > m:
-            m = v
-    return m / (zeta * p0)
-
-
-@njit(cache=True, error_model="numpy")
 def ncg_update(x, r, d, gd, wdiag, minv, p, a):
     """One projected-CG update of the Newton direction, one pass: ``x += a d`` and
     ``r -= a (G d + wdiag d)`` (``gd = G d``). Returns ``(sum minv r, sum p r)`` of the
@@ -517,10 +457,13 @@ def ncg_update(x, r, d, gd, wdiag, minv, p, a):
 
 @njit(cache=True, error_model="numpy")
 def ncg_shift(r, minv, p, c, cp):
-    """``r -= c`` (the constraint projection of :func:`proj_precond`, ``c = (minv.r)/sum
-    minv``), one pass. Returns ``(r.z, max |p (r - cp)|)`` with ``z = minv r`` after the
-    shift and ``cp`` the shift of :func:`newton_pred_residual` (``sum p r / sum p``
-    before it): the preconditioned norm and the predicted residual (times ``zeta p0``)."""
+    """``r -= c``, one pass: the projection of the diagonal preconditioner on the
+    constraint ``sum dp = 0`` (``c = (minv.r)/sum minv``: a constant gradient is in the
+    constraint's null space, and removing it avoids cancellation; then ``z = minv r`` has
+    ``sum z = 0``). Returns ``(r.z, max |p (r - cp)|)`` with ``z = minv r`` after the
+    shift and ``cp = sum p r / sum p`` before it (a constant shift of the dual gradient is
+    a shift of ``z0``): the preconditioned norm and the predicted force residual of the
+    Newton iterate, times ``zeta p0``."""
     rf = r.ravel()
     mf = minv.ravel()
     pf = p.ravel()
