@@ -140,6 +140,15 @@ def check_threads(threads: Optional[int]) -> int:
     return int(threads)
 
 
+def _multiply(spec: np.ndarray, mult: np.ndarray, n_last: int, dot: bool) -> float:
+    """``spec *= mult`` in place; returns the Parseval dot of :func:`spectral_multiply` with
+    ``dot``, else NaN (and the multiply skips it: :func:`spectral_scale`)."""
+    if dot:
+        return spectral_multiply(spec, mult, n_last)
+    spectral_scale(spec, mult)
+    return math.nan
+
+
 class _Pair:
     """What both pairs share: the work arrays' bookkeeping (``_work``, ``work_array``)."""
 
@@ -147,6 +156,16 @@ class _Pair:
     _single: Dict[int, Any]
 
     def single_array(self, index: int = 0) -> np.ndarray:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def apply_single(self, mult_n32: np.ndarray, src: int = 0, dst: Optional[int] = None,
+                     dot: bool = False) -> float:  # pragma: no cover - overridden
+        """:meth:`apply_route` in single precision between the single-precision work
+        arrays ``src`` and ``dst`` (default: in place on ``src``; ``src`` is kept
+        otherwise): ``dst = irfft2(mult_n32 * rfft2(src)) * n^2`` with ``float32`` data
+        and a ``float32`` multiplier (for a preconditioner or a step length, whose
+        rounding only perturbs a search). Returns ``src . dst`` by Parseval (summed in
+        double) with ``dot``, else NaN."""
         raise NotImplementedError
 
     def work_array(self, index: int) -> np.ndarray:  # pragma: no cover - overridden
@@ -207,14 +226,10 @@ class ScipyPair(_Pair):
         ``src . dst`` (by Parseval, see :func:`gfmd_ref._kernels.spectral_multiply`), or
         NaN with ``dot=False`` (then the multiply skips the dot)."""
         X = sfft.rfft2(src, workers=self.threads)
-        if dot:
-            dot = spectral_multiply(X, mult_n, self.shape[1])
-        else:
-            spectral_scale(X, mult_n)
-            dot = math.nan
+        out = _multiply(X, mult_n, self.shape[1], dot)
         dst[...] = sfft.irfft2(X, s=self.shape, workers=self.threads, overwrite_x=True,
                                norm="forward")
-        return dot
+        return out
 
     def single_array(self, index: int = 0) -> np.ndarray:
         """Single-precision work array number ``index`` of :meth:`apply_single` (made
@@ -225,19 +240,10 @@ class ScipyPair(_Pair):
 
     def apply_single(self, mult_n32: np.ndarray, src: int = 0, dst: Optional[int] = None,
                      dot: bool = False) -> float:
-        """:meth:`apply_route` in single precision between the single-precision work
-        arrays ``src`` and ``dst`` (default: in place on ``src``; ``src`` is kept
-        otherwise): ``dst = irfft2(mult_n32 * rfft2(src)) * n^2`` with ``float32`` data
-        and a ``float32`` multiplier (for a preconditioner or a step length, whose
-        rounding only perturbs a search). Returns ``src . dst`` by Parseval (summed in
-        double) with ``dot``, else NaN."""
+        """See :meth:`_Pair.apply_single`."""
         w = self.single_array(src)
         X = sfft.rfft2(w, workers=self.threads)
-        if dot:
-            out = spectral_multiply(X, mult_n32, self.shape[1])
-        else:
-            spectral_scale(X, mult_n32)
-            out = math.nan
+        out = _multiply(X, mult_n32, self.shape[1], dot)
         self.single_array(src if dst is None else dst)[...] = sfft.irfft2(
             X, s=self.shape, workers=self.threads, overwrite_x=True, norm="forward")
         return out
@@ -360,20 +366,11 @@ class FFTWPair(_Pair):
 
     def apply_single(self, mult_n32: np.ndarray, src: int = 0, dst: Optional[int] = None,
                      dot: bool = False) -> float:
-        """:meth:`apply_route` in single precision between the single-precision work
-        arrays ``src`` and ``dst`` (default: in place on ``src``; ``src`` is kept
-        otherwise): ``dst = irfft2(mult_n32 * rfft2(src)) * n^2`` with ``float32`` data
-        and a ``float32`` multiplier (for a preconditioner or a step length, whose
-        rounding only perturbs a search). Returns ``src . dst`` by Parseval (summed in
-        double) with ``dot``, else NaN."""
+        """See :meth:`_Pair.apply_single`."""
         self.single_array(src)
         self.single_array(src if dst is None else dst)
         self._single[src][1].execute()
-        if dot:
-            out = spectral_multiply(self._spec32, mult_n32, self.shape[1])
-        else:
-            spectral_scale(self._spec32, mult_n32)
-            out = math.nan
+        out = _multiply(self._spec32, mult_n32, self.shape[1], dot)
         self._single[src if dst is None else dst][2].execute()
         return out
 
@@ -392,11 +389,7 @@ class FFTWPair(_Pair):
         fwd = self._plans_of(src)[1]
         bwd = self._plans_of(dst)[2]
         fwd.execute()
-        if dot:
-            out = spectral_multiply(self._spec, mult_n, self.shape[1])
-        else:
-            spectral_scale(self._spec, mult_n)
-            out = math.nan
+        out = _multiply(self._spec, mult_n, self.shape[1], dot)
         bwd.execute()
         return out
 

@@ -362,6 +362,16 @@ def exp_pressure(z, h, p0, zeta, out):
 
 
 @njit(cache=True, error_model="numpy")
+def _energy_terms(p, u, h, lp, zeta):
+    """One node's dual-energy density ``p u/2 - p h + zeta p lp`` and the sum of its terms'
+    magnitudes."""
+    t1 = 0.5 * p * u
+    t2 = p * h
+    t3 = zeta * p * lp
+    return t1 - t2 + t3, abs(t1) + abs(t2) + abs(t3)
+
+
+@njit(cache=True, error_model="numpy")
 def dual_gradient(u, h, p, lp, zeta, grad):
     """Gradient of the dual energy: ``u - h + zeta (lp + 1)`` with ``lp = log(p/p0)``
     (taken by numpy, vectorized); returns the dual energy per node ``mean(p u / 2 - p h
@@ -376,11 +386,9 @@ def dual_gradient(u, h, p, lp, zeta, grad):
     a = 0.0
     for i in range(uf.size):
         gf[i] = uf[i] - hf[i] + zeta * (lf[i] + 1.0)
-        t1 = 0.5 * pf[i] * uf[i]
-        t2 = pf[i] * hf[i]
-        t3 = zeta * pf[i] * lf[i]
-        e += t1 - t2 + t3
-        a += abs(t1) + abs(t2) + abs(t3)
+        de, da = _energy_terms(pf[i], uf[i], hf[i], lf[i], zeta)
+        e += de
+        a += da
     return e / uf.size, a / uf.size
 
 
@@ -390,17 +398,12 @@ def dual_energy(u, h, p, lp, zeta):
     mean magnitude of its terms. The energy is a small difference of those terms near
     the solution, so its round-off scales with the magnitude, not with the energy."""
     uf = u.ravel()
-    hf = h.ravel()
-    pf = p.ravel()
-    lf = lp.ravel()
     e = 0.0
     a = 0.0
     for i in range(uf.size):
-        t1 = 0.5 * pf[i] * uf[i]
-        t2 = pf[i] * hf[i]
-        t3 = zeta * pf[i] * lf[i]
-        e += t1 - t2 + t3
-        a += abs(t1) + abs(t2) + abs(t3)
+        de, da = _energy_terms(p.flat[i], uf[i], h.flat[i], lp.flat[i], zeta)
+        e += de
+        a += da
     return e / uf.size, a / uf.size
 
 
