@@ -278,12 +278,10 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     # work arrays of the cached FFT pair, transformed where they lie (no copies): the
     # pressure ``p``, ``u = G p`` (G p0 = 0: a uniform pressure does not deform), the
     # direction ``t`` and ``w``, which holds in turn the masked gap, K of it and r = G t
-    if single is None:
-        single = SINGLE_PRECOND
-    single = bool(precond and single)
-    # 0 once made (warm_up_fft)
+    single = bool(precond and (SINGLE_PRECOND if single is None else single))
     step32 = single and SINGLE_STEP
-    el.fft_planning_time += el.fft.make_work_arrays(N_WORK_ARRAYS, single=(N_SINGLE_ARRAYS if step32 else 1) if single else 0)
+    n_single_arrays = (N_SINGLE_ARRAYS if step32 else 1) if single else 0
+    el.fft_planning_time += el.fft.make_work_arrays(N_WORK_ARRAYS, single=n_single_arrays)  # 0 once made
     p, u, t, w = (el.fft.work_array(k) for k in range(N_WORK_ARRAYS))
     p[...] = p0
     u[...] = 0.0
@@ -361,24 +359,22 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
             lazy = 1  # stagnation safeguard: fall back to exact u every iteration
             lazy_max_changes = 0
             delta = 0.0  # and restart the conjugate directions
-        if precond and single:
-            el.fft.apply_single(Kn32)  # w32: masked g -> z = K (masked g), single precision
+        if precond:
+            # masked g -> z = K (masked g), in place; g.z over the contact set
+            if single:
+                el.fft.apply_single(Kn32)
+                n_single += 1
+                z = w32
+                zsum, sgz = kr.contact_sums(w32, gcon, idx, nc)
+                zbar = zsum / nc if nc > 0 else 0.0
+            else:
+                z = w
+                sgz = el.fft.apply_route(Kn, w, w)  # sum_c g z = (masked g).z by Parseval
+                zbar = contact_mean(w)
             n_fft += 1
-            n_single += 1
-            zsum, sgz = kr.contact_sums(w32, gcon, idx, nc)
-            zbar = zsum / nc if nc > 0 else 0.0
-            gz = sgz - zbar * sg
-            beta = delta * gz / gold if gold > 0.0 else 0.0
-            st, sgt = kr.pk_direction(w32, False, gcon, idx, nc, t, zbar, beta, t2)
-            gold = gz
-        elif precond:
-            # w: masked g -> z = K (masked g); sum_c g z = (masked g).z by Parseval
-            sgz = el.fft.apply_route(Kn, w, w)
-            n_fft += 1
-            zbar = contact_mean(w)
             gz = sgz - zbar * sg  # sum_c g (z - zbar), the preconditioned residual norm
             beta = delta * gz / gold if gold > 0.0 else 0.0
-            st, sgt = kr.pk_direction(w, False, gcon, idx, nc, t, zbar, beta, t)
+            st, sgt = kr.pk_direction(z, False, gcon, idx, nc, t, zbar, beta, t2)
             gold = gz
         else:
             beta = delta * gn / gold if gold > 0.0 else 0.0
