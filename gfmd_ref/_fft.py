@@ -154,6 +154,8 @@ class _Pair:
 
     _work: Dict[int, np.ndarray]
     _single: Dict[int, Any]
+    _defer_wisdom = False  # plans measured now are saved by make_work_arrays, once
+    _wisdom_dirty = False
 
     def single_array(self, index: int = 0) -> np.ndarray:  # pragma: no cover - overridden
         raise NotImplementedError
@@ -175,12 +177,19 @@ class _Pair:
         """Make work arrays ``0 .. count-1`` and the single-precision ones ``0 .. single-1``
         (:meth:`single_array`) now; returns the seconds spent (0 if all were made)."""
         t0 = time.perf_counter()
-        new = [k for k in range(count) if k not in self._work]
-        for k in new:
-            self.work_array(k)
-        new_single = [k for k in range(int(single)) if k not in self._single]
-        for k in new_single:
-            self.single_array(k)
+        self._defer_wisdom = True  # FFTW: one wisdom file write for all the plans measured here
+        try:
+            new = [k for k in range(count) if k not in self._work]
+            for k in new:
+                self.work_array(k)
+            new_single = [k for k in range(int(single)) if k not in self._single]
+            for k in new_single:
+                self.single_array(k)
+        finally:
+            self._defer_wisdom = False
+            if self._wisdom_dirty:
+                self._wisdom_dirty = False
+                _save_wisdom()
         return time.perf_counter() - t0 if new or new_single else 0.0
 
 
@@ -282,11 +291,14 @@ class FFTWPair(_Pair):
         self._spec32: Optional[np.ndarray] = None
         self._planned(t0)
 
-    @staticmethod
-    def _planned(t0: float) -> None:
-        """Save the wisdom if the plans made since ``t0`` were measured (not read from wisdom)."""
+    def _planned(self, t0: float) -> None:
+        """Save the wisdom if the plans made since ``t0`` were measured (not read from
+        wisdom); within :meth:`make_work_arrays`, once at its end."""
         if time.perf_counter() - t0 > _WISDOM_NEW_PLAN_SECONDS:
-            _save_wisdom()
+            if self._defer_wisdom:
+                self._wisdom_dirty = True
+            else:
+                _save_wisdom()
 
     def rfft(self, x: np.ndarray) -> np.ndarray:
         self._real[...] = x

@@ -348,3 +348,22 @@ def test_a_broken_wisdom_file_is_ignored_and_off_writes_none(tmp_path, monkeypat
     ref = solve_contact(h, length=length, E_star=8 / 3, mean_pressure=0.004, interaction=HardWall(), tol=1e-9)
     for r in (broken, off):
         assert np.max(np.abs(np.asarray(r["p"]) - ref.pressure.ravel()[::97])) < 1e-7 * 0.004
+
+
+def test_make_work_arrays_writes_the_wisdom_file_once(monkeypatch):
+    """The plans measured by one ``make_work_arrays`` call are saved in one write of the
+    wisdom file at its end, not one per plan (7 work arrays: 7 writes before). Every plan
+    is counted as measured here (threshold below 0), so the count does not depend on
+    what wisdom this process already holds."""
+    import gfmd_ref._fft as fft_mod
+    from gfmd_ref import N_SINGLE_ARRAYS, N_WORK_ARRAYS
+
+    writes = []
+    monkeypatch.setattr(fft_mod, "_WISDOM_NEW_PLAN_SECONDS", -1.0)
+    monkeypatch.setattr(fft_mod, "_save_wisdom", lambda: writes.append(1))
+    pair = FFTWPair((256, 256))
+    assert len(writes) == 1  # the pair's own plans
+    pair.make_work_arrays(N_WORK_ARRAYS, single=N_SINGLE_ARRAYS)
+    assert len(writes) == 2
+    pair.work_array(N_WORK_ARRAYS)  # a plan made on its own is saved at once
+    assert len(writes) == 3
