@@ -56,10 +56,29 @@ _WISDOM_LOCK = threading.Lock()
 _WISDOM_STATE = {"loaded": False, "imported": False}
 
 
+def _cpu_tag() -> str:
+    """A short tag of this processor's model (Linux: ``/proc/cpuinfo``; else the
+    platform's processor string), so that machines of different kinds sharing a home
+    directory keep their own plans."""
+    import hashlib
+    import platform
+
+    model = platform.processor()
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    model = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return hashlib.sha256(model.encode()).hexdigest()[:8]
+
+
 def wisdom_path() -> Optional[str]:
     """The file FFTW's wisdom is kept in between processes, or None (``GFMD_REF_FFTW_WISDOM
-    =off``). Its name carries the machine type and the pyfftw version (wisdom of another
-    FFTW build is not read)."""
+    =off``). Its name carries the machine type, a tag of the processor model and the
+    pyfftw version (wisdom of another FFTW build is not read)."""
     v = os.environ.get("GFMD_REF_FFTW_WISDOM", "").strip()
     if v.lower() in ("off", "0", "no", "false"):
         return None
@@ -74,7 +93,8 @@ def wisdom_path() -> Optional[str]:
     except ImportError:  # pragma: no cover - only called with pyfftw
         return None
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(base, "gfmd_ref", f"fftw-wisdom-{platform.machine()}-pyfftw{version}.json")
+    return os.path.join(base, "gfmd_ref",
+                        f"fftw-wisdom-{platform.machine()}-{_cpu_tag()}-pyfftw{version}.json")
 
 
 def _load_wisdom() -> None:
