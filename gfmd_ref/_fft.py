@@ -18,8 +18,8 @@ FFTW's wisdom (the plans it measured) is kept between processes in a file
 (:func:`wisdom_path`: ``GFMD_REF_FFTW_WISDOM`` names it, ``off`` disables it; by
 default ``$XDG_CACHE_HOME/gfmd_ref/`` or ``~/.cache/gfmd_ref/``), read before the first
 plan of a process and rewritten (atomically) after a plan was measured: a later process
-plans the same transforms in milliseconds (measured 0.9 s -> 0.01 s at 512^2, with the
-same plans, hence the same answers bit for bit). A file that cannot be read or written
+makes the same plans from it (``warm_up_fft(512)`` measured 1.10 s -> 0.17 s), hence the
+same answers bit for bit. A file that cannot be read or written
 is ignored: wisdom only saves time, it never changes what a transform computes.
 
 Threads: ``DEFAULT_THREADS`` is 1, chosen by measurement on the 2-core
@@ -357,43 +357,41 @@ class FFTWPair(_Pair):
         (measured 2-3 ms of a 12 ms :meth:`apply_into` at 1024^2 in a solve), and a
         field that must survive its transform (the pressure, a search direction) is
         transformed where it lies."""
-        import pyfftw
-
         if index in self._work:
             return self._work[index]
-        t0 = time.perf_counter()
-        buf = pyfftw.empty_aligned(self.shape, dtype="float64")
-        buf[...] = 0.0
-        # no FFTW_DESTROY_INPUT: the forward transform keeps its input (as fast at 1024^2)
-        fwd = pyfftw.FFTW(buf, self._spec, axes=(0, 1), threads=self.threads, flags=("FFTW_MEASURE",),
-                          planning_timelimit=PLANNING_TIMELIMIT)
-        bwd = pyfftw.FFTW(self._spec, buf, axes=(0, 1), direction="FFTW_BACKWARD", threads=self.threads,
-                          flags=("FFTW_MEASURE", "FFTW_DESTROY_INPUT"), planning_timelimit=PLANNING_TIMELIMIT)
+        buf, fwd, bwd = self._planned_array("float64", self._spec)
         self._plans[id(buf)] = (buf, fwd, bwd)
-        self._planned(t0)
         self._work[index] = buf
         return buf
+
+    def _planned_array(self, dtype: str, spec: np.ndarray) -> Tuple[np.ndarray, Any, Any]:
+        """A zeroed aligned ``(n, n)`` array of ``dtype`` with its plans into and out of
+        ``spec`` (the forward keeps its input: as fast at 1024^2); the wisdom is saved if
+        they were measured (:meth:`_planned`)."""
+        import pyfftw
+
+        t0 = time.perf_counter()
+        buf = pyfftw.empty_aligned(self.shape, dtype=dtype)
+        buf[...] = 0.0
+        fwd = pyfftw.FFTW(buf, spec, axes=(0, 1), threads=self.threads, flags=("FFTW_MEASURE",),
+                          planning_timelimit=PLANNING_TIMELIMIT)
+        bwd = pyfftw.FFTW(spec, buf, axes=(0, 1), direction="FFTW_BACKWARD", threads=self.threads,
+                          flags=("FFTW_MEASURE", "FFTW_DESTROY_INPUT"), planning_timelimit=PLANNING_TIMELIMIT)
+        self._planned(t0)
+        return buf, fwd, bwd
 
     def single_array(self, index: int = 0) -> np.ndarray:
         """Single-precision work array number ``index`` of :meth:`apply_single`: an
         aligned ``float32`` ``(n, n)`` array with its own plans into and out of the
         pair's single-precision spectrum buffer (made once per pair; the forward plan
         keeps its input)."""
-        import pyfftw
-
         if index not in self._single:
-            t0 = time.perf_counter()
-            n0, n1 = self.shape
             if self._spec32 is None:
+                import pyfftw
+
+                n0, n1 = self.shape
                 self._spec32 = pyfftw.empty_aligned((n0, n1 // 2 + 1), dtype="complex64")
-            buf = pyfftw.empty_aligned(self.shape, dtype="float32")
-            buf[...] = 0.0
-            fwd = pyfftw.FFTW(buf, self._spec32, axes=(0, 1), threads=self.threads, flags=("FFTW_MEASURE",),
-                              planning_timelimit=PLANNING_TIMELIMIT)
-            bwd = pyfftw.FFTW(self._spec32, buf, axes=(0, 1), direction="FFTW_BACKWARD", threads=self.threads,
-                              flags=("FFTW_MEASURE", "FFTW_DESTROY_INPUT"), planning_timelimit=PLANNING_TIMELIMIT)
-            self._single[index] = (buf, fwd, bwd)
-            self._planned(t0)
+            self._single[index] = self._planned_array("float32", self._spec32)
         return self._single[index][0]
 
     def apply_single(self, mult_n32: np.ndarray, src: int = 0, dst: Optional[int] = None,

@@ -466,17 +466,18 @@ def _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0,
     that decrease ``p`` are taken multiplicatively (``p exp(dp/p)``) so ``p`` stays
     positive, with an Armijo backtracking on ``Phi``.
 
-    Work (thirty-fifth session, docs/gfmd.md "Single-precision search"): the state lives
-    in the FFT pair's work arrays; a CG iteration is one FFT pair and three fused passes
-    (:func:`~._kernels.ncg_update`, :func:`~._kernels.ncg_shift`,
+    Work (thirty-fifth session, docs/gfmd.md "The exponential wall's Newton-CG"): the
+    state lives in the FFT pair's work arrays; a CG iteration is one FFT pair and three
+    fused passes (:func:`~._kernels.ncg_update`, :func:`~._kernels.ncg_shift`,
     :func:`~._kernels.ncg_direction`); ``G d`` runs in single precision
     (:data:`SINGLE_NEWTON_CG`) in every Newton step whose forcing asks the CG for no more
     than :data:`SINGLE_CG_MIN_FORCING` of the predicted residual (else in double); the
     line search, ``u = G p`` and the residual (:func:`_z0_residual`, one vectorized
-    exponential per node; the logarithms by numpy too) stay in double. The line search judges by the force residual
-    where the energy change is below the round-off of the energy's terms (their mean
-    magnitude, which exceeds ``|Phi|`` by orders near the solution). Measured on the
-    Fig. 1 surface at 1024^2: the same iterations as before, 0.66-0.80x the time.
+    exponential per node; the logarithms by numpy too) stay in double. The line search
+    judges by the force residual where the energy change is below the round-off of the
+    energy's terms (their mean magnitude, which exceeds ``|Phi|`` by orders near the
+    solution). Measured on the Fig. 1 surface at 1024^2: the same iterations as before,
+    0.63-0.73x the time.
     """
     n2 = h.size
     pmin = max(p0 * 1e-300, 1e-300)
@@ -592,8 +593,7 @@ def _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0,
         u, gd = utry, u
         newton += 1
     bar.close()
-    z0 = kr.exp_log_mean(u, h, zeta)
-    disp = u + z0
+    disp = u + z0  # z0 of this u: every exit leaves the loop after computing it, u unchanged since
     return dict(
         pressure=p.copy(),  # p is a work array of the cached FFT pair: the next solve reuses it
         gap=disp - h,
