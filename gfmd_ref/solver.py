@@ -229,7 +229,7 @@ def _full_contact_hard(h, p0, el):
 
 
 def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, lazy_frac=1e-4,
-              stall_window=CCG_STALL_WINDOW, precond=False, single=None):
+              stall_window=CCG_STALL_WINDOW, precond=False, single=None, p_start=None):
     """Polonsky & Keer (1999) constrained conjugate gradients on the pressures
     (Wear 231, 206, doi:10.1016/S0043-1648(99)00113-1).
 
@@ -269,7 +269,9 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     if the residual has not halved for ``5 lazy`` iterations the solver falls back to
     an exact ``u`` every iteration. Grids below 512^2 always use the exact ``u``.
 
-    Start: uniform ``p0`` (a coarse-grid start was measured slower, see docs/gfmd.md).
+    Start: uniform ``p0`` (a coarse-grid start and a low-pass start were measured slower, see docs/gfmd.md).
+    ``p_start`` (private, for ``benchmarks/gfmd_start.py``): a start pressure (``>= 0``, rescaled to the mean
+    ``p0``); its contact set is where it is positive.
     Every FFT pair goes between work arrays of the cached FFT pair
     (:meth:`FFTWPair.apply_route`: no copy in or out), one full pass per iteration
     (the gap) and the rest on the contact set's index list (see :mod:`._kernels`).
@@ -283,14 +285,22 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     n_single_arrays = (N_SINGLE_ARRAYS if step32 else 1) if single else 0
     el.fft_planning_time += el.fft.make_work_arrays(N_WORK_ARRAYS, single=n_single_arrays)  # 0 once made
     p, u, t, w = (el.fft.work_array(k) for k in range(N_WORK_ARRAYS))
-    p[...] = p0
-    u[...] = 0.0
     t[...] = 0.0
-    c = np.ones(el.shape, dtype=np.bool_)  # the contact set p > 0, one byte per node
     index = np.int32 if n2 < 2 ** 31 else np.int64  # 4 bytes per entry where they suffice
-    idx = np.arange(n2, dtype=index)  # and its flat indices (two lists, swapped every step)
     idx_next = np.empty(n2, dtype=index)
-    nc = n2
+    if p_start is None:
+        p[...] = p0
+        u[...] = 0.0
+        c = np.ones(el.shape, dtype=np.bool_)  # the contact set p > 0, one byte per node
+        idx = np.arange(n2, dtype=index)  # and its flat indices (two lists, swapped every step)
+        nc = n2
+    else:
+        p[...] = np.maximum(p_start, 0.0) * (p0 / float(np.mean(np.maximum(p_start, 0.0))))
+        el.fft.apply_route(el.Gn, p, u, dot=False)  # u = G p
+        c = p > 0.0
+        idx = np.flatnonzero(c.ravel()).astype(index)
+        nc = int(idx.size)
+        idx = np.concatenate((idx, np.empty(n2 - nc, dtype=index)))
     gcon = np.empty(n2)  # the gap on the contact set, in the order of idx
     ol = np.empty(n2, dtype=index)  # overlaps (g < 0 off the set) and their gaps
     olg = np.empty(n2)

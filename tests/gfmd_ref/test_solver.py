@@ -405,6 +405,31 @@ def test_preconditioned_ccg_agrees_with_plain_pk():
     assert a.iterations <= b.iterations / 2
 
 
+def test_ccg_from_a_given_start_pressure():
+    """The private ``p_start`` of ``_ccg_hard`` (benchmarks/gfmd_start.py measures the low-pass start with it):
+    started at the converged answer (times 3: the start is rescaled to the mean p0) the solve is converged at once
+    (0 iterations, the same contact set; the start's own u = G p is exact), and started at a low-pass answer
+    (modes above k = 8 removed, 128^2) it converges to the uniform start's answer within 1e-7 p0 (two answers at
+    tol 1e-10 differ by about 4e-8 p0 at contact edges, test above).  A start whose contact set or load were
+    ignored would take the uniform path's 30-odd iterations or stop elsewhere."""
+    from gfmd_ref import solver
+
+    h, L = fig1_surface(128, seed=1)
+    el = solver._Elastic(128, L, E, None)
+    hs = float(np.std(h))
+    base = solver._ccg_hard(h, P0, el, 1e-10, 500, False, hs, precond=True, lazy=1)
+    assert base["converged"] and base["iterations"] > 20
+    again = solver._ccg_hard(h, P0, el, 1e-10, 500, False, hs, precond=True, lazy=1, p_start=3.0 * base["pressure"])
+    assert again["converged"] and again["iterations"] == 0
+    assert np.array_equal(again["pressure"] > 0, base["pressure"] > 0)
+    hk = np.fft.rfft2(h)
+    k = np.hypot(np.fft.fftfreq(128, 1 / 128)[:, None], np.fft.rfftfreq(128, 1 / 128)[None, :])
+    hk[k > 8] = 0.0
+    lp = solver._ccg_hard(np.fft.irfft2(hk, s=h.shape), P0, el, 1e-3, 500, False, hs, precond=True, lazy=1)
+    started = solver._ccg_hard(h, P0, el, 1e-10, 500, False, hs, precond=True, lazy=1, p_start=lp["pressure"])
+    assert started["converged"] and np.max(np.abs(started["pressure"] - base["pressure"])) < 1e-7 * P0
+
+
 def test_a_step_that_removes_every_contact_is_reported(fig1_64, monkeypatch):
     """If a Polonsky-Keer step left no node in contact (sum p = 0), the load could not be
     restored (the old kernel divided by zero into inf); the solver stops and says so
