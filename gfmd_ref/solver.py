@@ -305,7 +305,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     ol = np.empty(n2, dtype=index)  # overlaps (g < 0 off the set) and their gaps
     olg = np.empty(n2)
     psum = p0 * n2
-    n_fft = 0
+    n_fft = 0 if p_start is None else 1  # (the start's u = G p)
     n_single = 0
     Kn = el.K / (el.n * el.n) if precond else None
     if single:
