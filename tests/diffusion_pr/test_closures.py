@@ -943,6 +943,47 @@ def test_thin_layer_table_bounds_known_series():
     assert info["shell_extrapolation_order"] == 4 and info["zero_weight_order_ratios"][0] == pytest.approx(2.0)
 
 
+def test_uniform_table_below_second_order_does_not_trust_a_faster_r_ratio(monkeypatch):
+    """The uniform shells' table on a ladder with a term below second order, ``P = 1 + 8 h^2 + h^1.5 - 200 h^4``
+    (``h = 1/n``; 48, 24, 12, 6 shells): the P differences fall 3.14x per doubling and, while the ``h^4`` term still
+    leads in ``R``, the R differences 9.6x.  R(24, 48) is 1.33e-3 from the limit 1 (the oracle: the series' own
+    limit).  Divided by the R ratio minus 1 (as before) the residual claimed 5.1e-4; divided by the P ratio minus 1,
+    since the P differences show no clear second order (below SECOND_ORDER_CLEAR), it bounds the truth, by at most
+    3x."""
+    from diffusion_pr import closures
+
+    ladder = [np.array([0.0, 1.0 + 8.0 / n ** 2 + 1.0 / n ** 1.5 - 200.0 / n ** 4]) for n in (48, 24, 12, 6)]
+    x, residual, info = closures._shell_table(ladder)
+    true = abs(x[1] - 1.0)
+    assert info["shell_order_ratio"] == pytest.approx(3.14, abs=0.01) and info["shell_extrapolation_order"] == 4
+    assert true <= residual <= 3.0 * true
+    monkeypatch.setattr(closures, "SECOND_ORDER_CLEAR", 0.0)  # the R ratio trusted whatever the P ratio
+    assert closures._shell_table(ladder)[1] < 0.5 * true
+
+
+def test_uniform_ladder_below_second_order_meets_rtol():
+    """Random seed 5, scene 234 of ``benchmarks/stress_balance.py --random 250 --seed 5`` (``local_g1``, ``H`` 0.785,
+    ``q`` from ``2 pi/8192`` to ``2 pi/64``, ``zeta`` 2.91, ``p0`` 6.0e-4; uniform shells, ``kappa`` 78, a thin start
+    ``lambda`` 1.5e-3): its P differences fell 3.03x per doubling at 48 shells and its R differences 5.45x, and
+    R(24, 48) was 1.35e-6 from the rtol-1e-8 answer (which agrees with R(768, 1536) of uniform shells at rtol 1e-8
+    to 3.8e-9) against a claimed 8.6e-7.  With the P ratio as the divisor it solves 96 shells: measured 2.5e-7
+    against an estimate of 5.7e-7.  Tolerance: rtol, and the estimate at most 3x optimistic."""
+    from diffusion_pr import closures
+
+    spec = dp.SelfAffineSpectrum(0.7845346538596203, 2 * np.pi / 8192, 2 * np.pi / 64, C0=1205070503.773731)
+    kw = dict(E_star=E, mean_pressure=0.0006022650141953662, zeta=2.9105108588108473, closure="local_g1")
+    oracle = closure_distribution(spec, rtol=1e-8, **kw)
+    r = closure_distribution(spec, **kw)
+    assert r.success and oracle.success and r.diagnostics["shell_grading"] == "uniform"
+
+    def l1(a):
+        x, y = a.cdf(a.edges), oracle.cdf(a.edges)
+        return abs(x[0] - y[0]) + float(np.sum(np.abs(np.diff(x) - np.diff(y))))
+
+    assert r.diagnostics["shell_order_ratio"] < closures.SECOND_ORDER_CLEAR
+    assert l1(r) < 1e-6 and l1(r) < 3.0 * r.error_estimate, (l1(r), r.error_estimate)
+
+
 def test_shell_grading_follows_the_wall_layer(fig1):
     """shell_grading: kappa = (zeta q_max E*/2)^2 / (dV0_last/2) and lambda = p0^2 / (dV0_first/2) of the 48 uniform
     shells (the spectrum's own shells are the oracle).  "uniform" at or above WALL_LAYER_RATIO (zeta = 0.05: kappa
