@@ -984,6 +984,34 @@ def test_uniform_ladder_below_second_order_meets_rtol():
     assert l1(r) < 1e-6 and l1(r) < 3.0 * r.error_estimate, (l1(r), r.error_estimate)
 
 
+def test_thin_start_table_counts_a_crossing_undivided(monkeypatch):
+    """Random seed 7, scene 54 of ``benchmarks/stress_balance.py --random 250 --seed 7`` (``local_g1_shell_balanced``,
+    ``H`` 0.790, ``q`` from ``2 pi/2048`` to ``2 pi/8``, ``zeta`` 0.161, ``p0`` 6.7e-5; "ends" shells, ``lambda``
+    4.8e-5): the R differences of its 6-48-shell ladder fell 70x at the last doubling, a crossing of terms, and the
+    thin layer's table divided the last one by 2^2.5 - 1: R(24, 48) was 1.31e-6 from the rtol-1e-8 answer (which
+    agrees with R(768, 1536) of uniform shells at rtol 1e-8 to 1.3e-9) against a claimed 9.1e-7.  Counted undivided
+    (shells graded at both ends) it solves 192 shells: measured 4.5e-8 against an estimate of 3.3e-7.  Tolerance:
+    rtol, and the estimate at most 3x optimistic; the rule off, the old answer misses rtol."""
+    from diffusion_pr import closures
+
+    spec = dp.SelfAffineSpectrum(0.7901175467891104, 2 * np.pi / 2048, 2 * np.pi / 8, C0=1610216.250921402)
+    kw = dict(E_star=E, mean_pressure=6.69553841547732e-05, zeta=0.16074799068709744,
+              closure="local_g1_shell_balanced")
+    oracle = closure_distribution(spec, rtol=1e-8, **kw)
+
+    def l1(a):
+        x, y = a.cdf(a.edges), oracle.cdf(a.edges)
+        return abs(x[0] - y[0]) + float(np.sum(np.abs(np.diff(x) - np.diff(y))))
+
+    r = closure_distribution(spec, **kw)
+    assert r.success and oracle.success and r.diagnostics["shell_grading"] == "ends"
+    assert l1(r) < 1e-6 and l1(r) < 3.0 * r.error_estimate, (l1(r), r.error_estimate)
+    table = closures._shell_table
+    monkeypatch.setattr(closures, "_shell_table", lambda ladder, thin=False, start=False: table(ladder, thin, False))
+    old = closure_distribution(spec, **kw)
+    assert old.diagnostics["n_shells"][0] < r.diagnostics["n_shells"][0] and l1(old) > 1e-6
+
+
 def test_shell_grading_follows_the_wall_layer(fig1):
     """shell_grading: kappa = (zeta q_max E*/2)^2 / (dV0_last/2) and lambda = p0^2 / (dV0_first/2) of the 48 uniform
     shells (the spectrum's own shells are the oracle).  "uniform" at or above WALL_LAYER_RATIO (zeta = 0.05: kappa
