@@ -295,12 +295,14 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         idx = np.arange(n2, dtype=index)  # and its flat indices (two lists, swapped every step)
         nc = n2
     else:
-        p[...] = np.maximum(p_start, 0.0) * (p0 / float(np.mean(np.maximum(p_start, 0.0))))
+        np.maximum(p_start, 0.0, out=p)
+        p *= p0 / float(np.mean(p))
         el.fft.apply_route(el.Gn, p, u, dot=False)  # u = G p
         c = p > 0.0
-        idx = np.flatnonzero(c.ravel()).astype(index)
-        nc = int(idx.size)
-        idx = np.concatenate((idx, np.empty(n2 - nc, dtype=index)))
+        on = np.flatnonzero(c.ravel())
+        nc = int(on.size)
+        idx = np.empty(n2, dtype=index)
+        idx[:nc] = on
     gcon = np.empty(n2)  # the gap on the contact set, in the order of idx
     ol = np.empty(n2, dtype=index)  # overlaps (g < 0 off the set) and their gaps
     olg = np.empty(n2)
