@@ -8,6 +8,8 @@ alternate process by process in every round:
 
 * ``package``: the default, cached kernels loaded without numba's registry refresh
   (:mod:`diffusion_pr._numba_load`);
+* ``eager``: the package's load with numba's own unserialization (``DIFFUSION_PR_NUMBA_LAZY_LINK=0``: each
+  kernel's shared bitcode parsed on load, as numba does, not when first linked);
 * ``numba``: ``DIFFUSION_PR_NUMBA_REFRESH=1``, numba's own load (refresh included).
 
 Cases: the paper's problem (``propagate``; no numba at all) and the three shell
@@ -56,12 +58,14 @@ print(json.dumps(dict(import_s=t1 - t0, setup_s=t2 - t1, first_s=t3 - t2, second
                       refreshed="numba.np.linalg" in sys.modules)))
 """
 
+MODES = ("package", "eager", "numba")
 CLOSURES = ("local_g1", "local_g1_balanced", "local_g1_shell_balanced")
 ZETAS = (0.001, 0.01, 0.1, 0.25, 1.0, 4.0)
 
 
 def child(case: str, zeta: float, mode: str, keep_env: bool = False) -> dict:
-    env = {**os.environ, "DIFFUSION_PR_NUMBA_REFRESH": "1" if mode == "numba" else "0"}
+    env = {**os.environ, "DIFFUSION_PR_NUMBA_REFRESH": "1" if mode == "numba" else "0",
+           "DIFFUSION_PR_NUMBA_LAZY_LINK": "0" if mode == "eager" else "1"}
     if not keep_env:  # as a default Python installation: byte code cached (this sandbox sets the variable)
         env.pop("PYTHONDONTWRITEBYTECODE", None)
     out = subprocess.run([sys.executable, "-c", CHILD, case, repr(zeta)], capture_output=True, text=True,
@@ -84,16 +88,16 @@ def main() -> None:
     for case, zeta in cases[:2]:  # caches warm (a first run after installing compiles here)
         child(case, zeta, "package", keep)
     t_start = time.time()
-    runs = {(c, z, m): [] for c, z in cases for m in ("package", "numba")}
+    runs = {(c, z, m): [] for c, z in cases for m in MODES}
     for rnd in range(rounds):
         for c, z in cases:
-            for m in (("package", "numba") if rnd % 2 == 0 else ("numba", "package")):
+            for m in (MODES if rnd % 2 == 0 else MODES[::-1]):
                 runs[(c, z, m)].append(child(c, z, m, keep))
         print(f"round {rnd + 1}/{rounds} done ({time.time() - t_start:.0f} s)", flush=True)
     rows = []
     for c, z in cases:
         row = dict(case=c, zeta=z)
-        for m in ("package", "numba"):
+        for m in MODES:
             rs = runs[(c, z, m)]
             assert all(r["success"] for r in rs), (c, z, m)
             row[m] = {k: statistics.median(r[k] for r in rs) for k in ("setup_s", "first_s", "second_s")}
@@ -103,17 +107,20 @@ def main() -> None:
     load = os.getloadavg()
     lines = [f"# Cold start: first solve in a fresh process (medians of {rounds} processes per cell, "
              f"load {load[0]:.2f})", "",
-             "`package`: cached kernels loaded without numba's registry refresh (the default); `numba`: "
-             "`DIFFUSION_PR_NUMBA_REFRESH=1`. `setup`: building the spectrum (numpy and scipy imports). "
+             "`package`: cached kernels loaded without numba's registry refresh and with their shared bitcode "
+             "parsed only when linked (the default); `eager`: the same with numba's own unserialization "
+             "(`DIFFUSION_PR_NUMBA_LAZY_LINK=0`); `numba`: `DIFFUSION_PR_NUMBA_REFRESH=1`. `setup`: building the spectrum (numpy and scipy imports). "
              "Target: first solve under 0.3 s. "
              + ("PYTHONDONTWRITEBYTECODE as set by the caller." if keep else
                 "Byte code cached (PYTHONDONTWRITEBYTECODE removed), as in a default installation."), "",
-             "| case | zeta | setup [s] | first solve, package [s] | first solve, numba [s] | ratio | "
-             "second solve [ms] |", "|---|---|---|---|---|---|---|"]
+             "| case | zeta | setup [s] | first solve, package [s] | first solve, eager [s] | "
+             "first solve, numba [s] | package/eager | package/numba | second solve [ms] |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
-        p, n = row["package"], row["numba"]
+        p, e, n = row["package"], row["eager"], row["numba"]
         lines.append(f"| {row['case']} | {row['zeta']:g} | {p['setup_s']:.3f} | {p['first_s']:.3f} | "
-                     f"{n['first_s']:.3f} | {p['first_s'] / n['first_s']:.2f} | {1e3 * p['second_s']:.1f} |")
+                     f"{e['first_s']:.3f} | {n['first_s']:.3f} | {p['first_s'] / e['first_s']:.2f} | "
+                     f"{p['first_s'] / n['first_s']:.2f} | {1e3 * p['second_s']:.1f} |")
     text = "\n".join(lines)
     print(text)
     OUT.mkdir(exist_ok=True)

@@ -23,33 +23,167 @@ It relies on two internals of numba's cache (``FunctionCache`` and its
 version) it leaves the dispatchers as they are. Set the environment variable
 ``DIFFUSION_PR_NUMBA_REFRESH=1`` to keep numba's own load (for instance to
 compare the two).
+
+**The shared bitcode, parsed only when it is linked.** A cached overload holds
+its machine code (an object file) and the LLVM bitcode of the same functions,
+which numba keeps to link them into *other* functions it compiles later. Numba
+parses that bitcode on every load, to list the functions the library defines
+(the execution engine answers an entry point's address only for a name on that
+list). For the staged kernel (325 kB of machine code, 635 kB of bitcode) the
+parse and the list take 31 ms of a 75 ms load, and nothing on a load links the
+library into anything. :func:`_unserialize_lazily` takes the list from the
+object file's own symbol table instead (an ELF64 file: 0.5 ms) and parses the
+bitcode only if numba asks for the library's module to link it
+(``_get_module_for_linking``). On all 281 cached overloads of this package the
+two lists are the same names (``tests/diffusion_pr/test_numba_load.py``).
+Where the object file is not ELF64 little-endian (macOS, Windows) or numba's
+library internals differ, numba's own unserialization runs.
+``DIFFUSION_PR_NUMBA_LAZY_LINK=0`` keeps numba's (to compare the two).
 """
 from __future__ import annotations
 
 import os
+import struct
 import threading
-from typing import Callable
+from typing import Callable, Optional
 
+from numba.core import codegen as _codegen
 from numba.core.caching import FunctionCache
 from numba.core.registry import CPUDispatcher
 from numba.core.runtime import rtsys
 
-__all__ = ["load_without_refresh", "ENV_KEEP_REFRESH", "LoadOnlyFunctionCache", "LoadedBySignature"]
+__all__ = ["load_without_refresh", "ENV_KEEP_REFRESH", "ENV_LAZY_LINK", "LoadOnlyFunctionCache",
+           "LoadedBySignature", "elf_defined_symbols"]
 
 #: environment variable that keeps numba's own cache load (refresh included) when set to ``1``
 ENV_KEEP_REFRESH = "DIFFUSION_PR_NUMBA_REFRESH"
+#: environment variable that keeps numba's own unserialization (the shared bitcode parsed on every load) when ``0``
+ENV_LAZY_LINK = "DIFFUSION_PR_NUMBA_LAZY_LINK"
 
 #: the internals of numba's cache the load relies on
 _INTERNALS = ("_load_overload", "_guard_against_spurious_io_errors")
+#: the internals of numba's code library the lazy unserialization relies on
+_LIBRARY_INTERNALS = ("enable_object_caching", "_set_compiled_object", "_finalize_final_module",
+                      "_get_module_for_linking", "_unserialize")
+
+_ELF_SYMTAB, _ELF_UNDEF, _ELF_OBJECT, _ELF_FUNC = 2, 0, 1, 2
+
+
+def elf_defined_symbols(object_code: bytes) -> Optional[set]:
+    """The names of the data objects and functions an ELF64 little-endian object file defines; ``None`` otherwise.
+
+    Symbols with a name, a section (not ``SHN_UNDEF``) and the type ``STT_OBJECT`` or ``STT_FUNC``, whatever
+    their binding: for numba's cached libraries this is the set numba builds from the library's bitcode (its
+    functions and global variables that are not declarations).
+    """
+    data = bytes(object_code)
+    if len(data) < 64 or data[:4] != b"\x7fELF" or data[4] != 2 or data[5] != 1:
+        return None
+    try:
+        (shoff,) = struct.unpack_from("<Q", data, 0x28)
+        shentsize, shnum = struct.unpack_from("<HH", data, 0x3A)
+        sections = [struct.unpack_from("<IIQQQQIIQQ", data, shoff + i * shentsize) for i in range(shnum)]
+        names = set()
+        for _, kind, _, _, offset, size, link, _, _, entsize in sections:
+            if kind != _ELF_SYMTAB or entsize < 24:
+                continue
+            strings = sections[link][4]
+            for j in range(size // entsize):
+                name, info, _, shndx, _, _ = struct.unpack_from("<IBBHQQ", data, offset + j * entsize)
+                if name and shndx != _ELF_UNDEF and (info & 0xF) in (_ELF_OBJECT, _ELF_FUNC):
+                    start = strings + name
+                    names.add(data[start:data.index(b"\0", start)].decode())
+        return names
+    except (struct.error, IndexError, ValueError, UnicodeDecodeError):
+        return None
+
+
+_LAZY_CLASSES: dict = {}
+
+
+def _lazily_linked_class(cls: type) -> type:
+    """``cls`` (numba's code library class) whose shared module is parsed from its bitcode when first linked."""
+    lazy = _LAZY_CLASSES.get(cls)
+    if lazy is None:
+        def _get_module_for_linking(self):
+            bitcode = self.__dict__.pop("_lazy_shared_bitcode", None)
+            if bitcode is not None and self._shared_module is None:
+                from llvmlite import binding as ll
+
+                self._shared_module = ll.parse_bitcode(bitcode)
+            return cls._get_module_for_linking(self)
+
+        lazy = type(cls.__name__, (cls,), {"_get_module_for_linking": _get_module_for_linking,
+                                           "__module__": __name__})
+        _LAZY_CLASSES[cls] = lazy
+    return lazy
+
+
+def _unserialize_lazily(codegen, state):
+    """Numba's ``CPUCodeLibrary._unserialize`` for an object-code library, with its shared bitcode kept unparsed.
+
+    The steps are numba's (``numba/core/codegen.py``, 0.61-0.68) but for the shared module, which
+    :func:`_lazily_linked_class` parses on the first link, and the list of defined symbols, which comes from the
+    object file (:func:`elf_defined_symbols`). Anything else (bitcode libraries, another object format) goes to
+    numba's own unserialization.
+    """
+    name, kind, data = state
+    names = elf_defined_symbols(data[0]) if kind == "object" else None
+    engine = getattr(codegen, "_engine", None)
+    if not names or not isinstance(getattr(engine, "_defined_symbols", None), set):
+        return codegen._library_class._unserialize(codegen, state)
+    object_code, shared_bitcode = data
+    library = codegen.create_library(name)
+    library.__class__ = _lazily_linked_class(type(library))
+    library._lazy_shared_bitcode = shared_bitcode
+    library.enable_object_caching()
+    library._set_compiled_object(object_code)
+    library._finalize_final_module()
+    engine._defined_symbols |= names
+    return library
+
+
+def _lazy_link_enabled() -> bool:
+    return (os.environ.get(ENV_LAZY_LINK, "1") != "0"
+            and all(hasattr(_codegen.CPUCodeLibrary, n) for n in _LIBRARY_INTERNALS))
+
+
+_LAZY_LOCK = threading.RLock()
 
 
 class LoadOnlyFunctionCache(FunctionCache):
-    """``FunctionCache`` whose load initializes the NRT instead of refreshing the whole target context."""
+    """``FunctionCache`` whose load initializes the NRT instead of refreshing the whole target context.
+
+    Its libraries are unserialized by :func:`_unserialize_lazily` (their shared bitcode parsed when first linked),
+    unless ``DIFFUSION_PR_NUMBA_LAZY_LINK=0``.
+    """
 
     def load_overload(self, sig, target_context):
         rtsys.initialize(target_context)
         with self._guard_against_spurious_io_errors():
-            return self._load_overload(sig, target_context)
+            if not _lazy_link_enabled():
+                return self._load_overload(sig, target_context)
+            codegen = target_context.codegen()
+            with _LAZY_LOCK:  # the instance attribute shadows numba's method for this load only
+                nested = "unserialize_library" in vars(codegen)
+                if not nested:
+                    codegen.unserialize_library = lambda state: _unserialize_lazily(codegen, state)
+                try:
+                    loaded = self._load_overload(sig, target_context)
+                finally:
+                    if not nested:
+                        del codegen.unserialize_library
+            if loaded is not None and not _entry_points_defined(loaded):  # never a null entry point: numba's load
+                return self._load_overload(sig, target_context)
+            return loaded
+
+
+def _entry_points_defined(compile_result) -> bool:
+    """Both entry points of a loaded overload (the function and its CPython wrapper) have addresses."""
+    fndesc, library = getattr(compile_result, "fndesc", None), getattr(compile_result, "library", None)
+    if fndesc is None or library is None:
+        return True  # not a compile result: nothing to check
+    return all(library.get_pointer_to_function(n) for n in (fndesc.llvm_func_name, fndesc.llvm_cpython_wrapper_name))
 
 
 def load_without_refresh(namespace: dict) -> int:

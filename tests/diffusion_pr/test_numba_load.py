@@ -172,3 +172,99 @@ def test_warm_up_loads_every_kernel_a_closure_solve_needs(warm_closure_cache):
     out = _run(_WARMED_RUN, {})
     assert out["success"]
     assert out["before"] == 2 and out["after"] == 2
+
+
+# --- the shared bitcode parsed only when linked (``_unserialize_lazily``) ---------------------------------------
+
+def _lazy_supported() -> bool:
+    from diffusion_pr._numba_load import _lazy_link_enabled
+
+    return _numba_supported() and _lazy_link_enabled()
+
+
+needs_lazy = pytest.mark.skipif(not _lazy_supported(), reason="numba's library internals differ: numba's own "
+                                                              "unserialization runs")
+
+
+def test_elf_symbols_are_the_bitcode_symbols_numba_lists(warm_closure_cache):
+    """Oracle: numba's own list of a library's defined symbols, from its shared bitcode (``_load_defined_symbols``:
+    functions and global variables that are not declarations). The object file's symbol table gives the same names
+    for every overload of the package's staged and row kernels (the entry points among them)."""
+    from llvmlite import binding as ll
+
+    from diffusion_pr import _closure_kernels as ck
+    from diffusion_pr._numba_load import elf_defined_symbols
+    from diffusion_pr.solvers.fv import _kernels as k
+
+    checked = 0
+    for kernel in (k.staged_run_rows, ck._model_rows):
+        codegen = kernel.targetctx.codegen()
+        for sig in kernel.signatures:
+            # what the on-disk cache holds for this overload (a loaded library's object code is consumed by the load)
+            payload = kernel._cache._cache_file.load(kernel._cache._index_key(sig, codegen))
+            name, kind, (object_code, bitcode) = payload[0]
+            assert kind == "object"
+            module = ll.parse_bitcode(bitcode)
+            numba_list = {gv.name for group in (module.functions, module.global_variables) for gv in group
+                          if not gv.is_declaration}
+            elf = elf_defined_symbols(object_code)
+            if elf is None:  # pragma: no cover - not an ELF64 platform
+                pytest.skip("object files are not ELF64 here: numba's own unserialization runs")
+            assert elf == numba_list
+            assert kernel.overloads[sig].fndesc.llvm_func_name in elf  # the entry point numba asks the engine for
+            checked += 1
+    assert checked >= 2
+    assert elf_defined_symbols(b"\x7fELF" + b"\x01" * 60) is None  # 32-bit: not read
+    assert elf_defined_symbols(b"not an object file" * 4) is None
+
+
+_TINY_LINK = textwrap.dedent("""
+    from numba import njit
+    from diffusion_pr._numba_load import load_without_refresh
+
+    @njit(cache=True)
+    def twice(x):
+        return 2.0 * x
+
+    load_without_refresh(globals())
+
+    @njit(cache=False)
+    def four_times(x):  # compiled in every process: links the cached ``twice`` into itself
+        return twice(twice(x))
+""")
+
+_TINY_LINK_RUN = textwrap.dedent("""
+    import json, sys
+    sys.path.insert(0, ".")
+    import tiny_link as t
+    a = t.twice(1.5)
+    lib = t.twice.overloads[t.twice.signatures[0]].library
+    lazy_before = "_lazy_shared_bitcode" in vars(lib)
+    b = t.four_times(1.25)
+    print(json.dumps(dict(a=a, b=b, loaded=sum(t.twice.stats.cache_hits.values()), lazy_before=lazy_before,
+                          parsed_after="_lazy_shared_bitcode" not in vars(lib) and lib._shared_module is not None)))
+""")
+
+
+@needs_lazy
+def test_lazily_loaded_library_links_into_a_later_compile(tmp_path):
+    """A cached kernel loaded without its bitcode, then linked into a function compiled afterwards: the bitcode is
+    parsed at that link and the caller is right (oracle: arithmetic). Without the lazy parse numba's linking of an
+    object-code library fails ("library unfit for linking")."""
+    (tmp_path / "tiny_link.py").write_text(_TINY_LINK)
+    env = {"DIFFUSION_PR_NUMBA_REFRESH": "0", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    cold = _run(_TINY_LINK_RUN, env, cwd=tmp_path)
+    warm = _run(_TINY_LINK_RUN, env, cwd=tmp_path)
+    assert (cold["a"], cold["b"], cold["loaded"]) == (3.0, 5.0, 0)  # compiled: nothing lazy
+    assert not cold["lazy_before"]
+    assert (warm["a"], warm["b"], warm["loaded"]) == (3.0, 5.0, 1)
+    assert warm["lazy_before"] and warm["parsed_after"]
+
+
+@needs_lazy
+def test_lazy_link_gives_the_bits_of_numba_unserialization(warm_closure_cache):
+    """Oracle: the same fresh-process closure solve with numba's own unserialization (``..._LAZY_LINK=0``)."""
+    lazy = _run(_CLOSURE_RUN, {"DIFFUSION_PR_NUMBA_REFRESH": "0", "DIFFUSION_PR_NUMBA_LAZY_LINK": "1"})
+    own = _run(_CLOSURE_RUN, {"DIFFUSION_PR_NUMBA_REFRESH": "0", "DIFFUSION_PR_NUMBA_LAZY_LINK": "0"})
+    assert lazy["success"] and own["success"] and lazy["cache_hits"] >= 1
+    assert lazy["bits"] == own["bits"]
