@@ -10,6 +10,8 @@ alternate process by process in every round:
   (:mod:`diffusion_pr._numba_load`);
 * ``eager``: the package's load with numba's own unserialization (``DIFFUSION_PR_NUMBA_LAZY_LINK=0``: each
   kernel's shared bitcode parsed on load, as numba does, not when first linked);
+* ``nrt``: the package's load with numba's runtime functions compiled in the process, as numba does
+  (``DIFFUSION_PR_NUMBA_NRT_CACHE=0``), not loaded from the package's cache of their machine code;
 * ``numba``: ``DIFFUSION_PR_NUMBA_REFRESH=1``, numba's own load (refresh included).
 
 Cases: the paper's problem (``propagate``; no numba at all) and the three shell
@@ -58,14 +60,15 @@ print(json.dumps(dict(import_s=t1 - t0, setup_s=t2 - t1, first_s=t3 - t2, second
                       refreshed="numba.np.linalg" in sys.modules)))
 """
 
-MODES = ("package", "eager", "numba")
+MODES = ("package", "eager", "nrt", "numba")
 CLOSURES = ("local_g1", "local_g1_balanced", "local_g1_shell_balanced")
 ZETAS = (0.001, 0.01, 0.1, 0.25, 1.0, 4.0)
 
 
 def child(case: str, zeta: float, mode: str, keep_env: bool = False) -> dict:
     env = {**os.environ, "DIFFUSION_PR_NUMBA_REFRESH": "1" if mode == "numba" else "0",
-           "DIFFUSION_PR_NUMBA_LAZY_LINK": "0" if mode == "eager" else "1"}
+           "DIFFUSION_PR_NUMBA_LAZY_LINK": "0" if mode == "eager" else "1",
+           "DIFFUSION_PR_NUMBA_NRT_CACHE": "0" if mode == "nrt" else "1"}
     if not keep_env:  # as a default Python installation: byte code cached (this sandbox sets the variable)
         env.pop("PYTHONDONTWRITEBYTECODE", None)
     out = subprocess.run([sys.executable, "-c", CHILD, case, repr(zeta)], capture_output=True, text=True,
@@ -75,14 +78,16 @@ def child(case: str, zeta: float, mode: str, keep_env: bool = False) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--rounds", type=int, default=5, help="fresh processes per case and mode (default: 5)")
-    ap.add_argument("--quick", action="store_true", help="3 rounds, zeta 0.01 and 0.25 only (default: off)")
+    ap.add_argument("--rounds", type=int, default=None,
+                    help="fresh processes per case and mode (default: 5, or 3 with --quick)")
+    ap.add_argument("--quick", action="store_true",
+                    help="zeta 0.01 and 0.25 only, 3 rounds unless --rounds says (default: off)")
     ap.add_argument("--keep-env", action="store_true",
                     help="keep PYTHONDONTWRITEBYTECODE if set (default: removed, so that the package's "
                          "modules load from cached byte code as in a default installation)")
     args = ap.parse_args()
     keep = args.keep_env
-    rounds = 3 if args.quick else args.rounds
+    rounds = args.rounds if args.rounds is not None else (3 if args.quick else 5)
     zetas = (0.01, 0.25) if args.quick else ZETAS
     cases = [("paper", 0.0)] + [(c, z) for c in CLOSURES for z in zetas]
     for case, zeta in cases[:2]:  # caches warm (a first run after installing compiles here)
@@ -108,18 +113,20 @@ def main() -> None:
     lines = [f"# Cold start: first solve in a fresh process (medians of {rounds} processes per cell, "
              f"load {load[0]:.2f})", "",
              "`package`: cached kernels loaded without numba's registry refresh and with their shared bitcode "
-             "parsed only when linked (the default); `eager`: the same with numba's own unserialization "
-             "(`DIFFUSION_PR_NUMBA_LAZY_LINK=0`); `numba`: `DIFFUSION_PR_NUMBA_REFRESH=1`. `setup`: building the spectrum (numpy and scipy imports). "
+             "parsed only when linked and numba's runtime loaded from the package's cache (the default); `eager`: "
+             "the same with numba's own unserialization (`DIFFUSION_PR_NUMBA_LAZY_LINK=0`); `nrt`: the same with "
+             "numba's runtime compiled in the process (`DIFFUSION_PR_NUMBA_NRT_CACHE=0`); `numba`: `DIFFUSION_PR_NUMBA_REFRESH=1`. `setup`: building the spectrum (numpy and scipy imports). "
              "Target: first solve under 0.3 s. "
              + ("PYTHONDONTWRITEBYTECODE as set by the caller." if keep else
                 "Byte code cached (PYTHONDONTWRITEBYTECODE removed), as in a default installation."), "",
-             "| case | zeta | setup [s] | first solve, package [s] | first solve, eager [s] | "
-             "first solve, numba [s] | package/eager | package/numba | second solve [ms] |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| case | zeta | setup [s] | first solve, package [s] | eager [s] | nrt [s] | numba [s] | "
+             "package/eager | package/nrt | package/numba | second solve [ms] |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
-        p, e, n = row["package"], row["eager"], row["numba"]
+        p, e, r, n = row["package"], row["eager"], row["nrt"], row["numba"]
         lines.append(f"| {row['case']} | {row['zeta']:g} | {p['setup_s']:.3f} | {p['first_s']:.3f} | "
-                     f"{e['first_s']:.3f} | {n['first_s']:.3f} | {p['first_s'] / e['first_s']:.2f} | "
+                     f"{e['first_s']:.3f} | {r['first_s']:.3f} | {n['first_s']:.3f} | "
+                     f"{p['first_s'] / e['first_s']:.2f} | {p['first_s'] / r['first_s']:.2f} | "
                      f"{p['first_s'] / n['first_s']:.2f} | {1e3 * p['second_s']:.1f} |")
     text = "\n".join(lines)
     print(text)

@@ -39,12 +39,32 @@ two lists are the same names (``tests/diffusion_pr/test_numba_load.py``).
 Where the object file is not ELF64 little-endian (macOS, Windows) or numba's
 library internals differ, numba's own unserialization runs.
 ``DIFFUSION_PR_NUMBA_LAZY_LINK=0`` keeps numba's (to compare the two).
+
+**The runtime's machine code, cached.** Numba builds and optimizes the LLVM
+module of its runtime functions (``NRT_incref``, ``NRT_decref``, the atomic
+counters; ``nrtdynmod.compile_nrt_functions``) in every process before its
+first load: 55-63 ms when nothing else has set up LLVM yet, about 19 ms of a
+closure's first solve. :func:`initialize_runtime` runs numba's
+``rtsys.initialize`` with that one step replaced: the first process compiles
+the module as numba does and writes its object code next to the package's
+numba cache (``__pycache__/numba_nrt-<key>.nbo``, or under
+``NUMBA_CACHE_DIR``), keyed by the numba and llvmlite versions, the CPU and
+features (``codegen.magic_tuple()``, as numba keys its own cache) and the
+runtime's debug switches; later processes load it with numba's own
+unserialization (3-4 ms). A file that does not define the runtime's functions is
+ignored and the module compiled; an unwritable folder leaves numba's behaviour.
+``DIFFUSION_PR_NUMBA_NRT_CACHE=0`` keeps numba's.
 """
 from __future__ import annotations
 
+import hashlib
 import os
+import pickle
 import struct
+import sys
+import tempfile
 import threading
+from pathlib import Path
 from typing import Callable, Optional
 
 from numba.core import codegen as _codegen
@@ -52,13 +72,16 @@ from numba.core.caching import FunctionCache
 from numba.core.registry import CPUDispatcher
 from numba.core.runtime import rtsys
 
-__all__ = ["load_without_refresh", "ENV_KEEP_REFRESH", "ENV_LAZY_LINK", "LoadOnlyFunctionCache",
-           "LoadedBySignature", "elf_defined_symbols"]
+__all__ = ["load_without_refresh", "ENV_KEEP_REFRESH", "ENV_LAZY_LINK", "ENV_NRT_CACHE", "LoadOnlyFunctionCache",
+           "LoadedBySignature", "elf_defined_symbols", "initialize_runtime"]
 
 #: environment variable that keeps numba's own cache load (refresh included) when set to ``1``
 ENV_KEEP_REFRESH = "DIFFUSION_PR_NUMBA_REFRESH"
 #: environment variable that keeps numba's own unserialization (the shared bitcode parsed on every load) when ``0``
 ENV_LAZY_LINK = "DIFFUSION_PR_NUMBA_LAZY_LINK"
+
+#: environment variable that compiles numba's runtime functions in every process (numba's way) when ``0``
+ENV_NRT_CACHE = "DIFFUSION_PR_NUMBA_NRT_CACHE"
 
 #: the internals of numba's cache the load relies on
 _INTERNALS = ("_load_overload", "_guard_against_spurious_io_errors")
@@ -159,7 +182,7 @@ class LoadOnlyFunctionCache(FunctionCache):
     """
 
     def load_overload(self, sig, target_context):
-        rtsys.initialize(target_context)
+        initialize_runtime(target_context)
         with self._guard_against_spurious_io_errors():
             if not _lazy_link_enabled():
                 return self._load_overload(sig, target_context)
@@ -233,3 +256,82 @@ class LoadedBySignature:
                             kernel.disable_compile()
                     self._loaded = True
         return self._kernel
+
+
+# --- numba's runtime functions (NRT), cached ---------------------------------------------------------------------
+
+#: the runtime functions numba compiles on its first load or compile in a process (``nrtdynmod.create_nrt_module``)
+_NRT_REQUIRED = ("NRT_incref", "NRT_decref", "NRT_MemInfo_data_fast", "nrt_atomic_add", "nrt_atomic_sub")
+
+
+def _nrt_cache_file(codegen) -> Optional[Path]:
+    """Where the runtime's machine code is kept: next to the package's own numba cache, keyed like numba's index."""
+    try:
+        import llvmlite
+        import numba
+        from numba.core import config
+
+        key = repr((numba.__version__, llvmlite.__version__, codegen.magic_tuple(), bool(config.NRT_STATS),
+                    bool(config.DEBUG_NRT), sys.version_info[:2]))
+    except Exception:  # pragma: no cover - another numba: no cache
+        return None
+    digest = hashlib.sha256(key.encode()).hexdigest()[:20]
+    base = os.environ.get("NUMBA_CACHE_DIR")
+    folder = Path(base) / "diffusion_pr" if base else Path(__file__).resolve().parent / "__pycache__"
+    return folder / f"numba_nrt-{digest}.nbo"
+
+
+def _compile_nrt_functions_cached(ctx):
+    """``nrtdynmod.compile_nrt_functions`` with the machine code kept on disk and loaded by later processes."""
+    from numba.core.runtime import nrtdynmod
+
+    codegen = ctx.codegen()
+    path = _nrt_cache_file(codegen)
+    if path is not None:
+        try:
+            state = pickle.loads(path.read_bytes())
+            names = elf_defined_symbols(state[2][0]) if state[1] == "object" else None
+            if names is not None and all(n in names for n in _NRT_REQUIRED):
+                return codegen.unserialize_library(state)  # numba's own: the runtime is linked into new compiles
+        except (OSError, pickle.UnpicklingError, EOFError, IndexError, TypeError, ValueError, AttributeError):
+            pass
+    ir_module, library = nrtdynmod.create_nrt_module(ctx)
+    library.add_ir_module(ir_module)
+    library.enable_object_caching()
+    library.finalize()
+    if path is not None:
+        try:
+            state = library.serialize_using_object_code()
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with tempfile.NamedTemporaryFile(dir=path.parent, delete=False, suffix=".tmp") as fh:
+                fh.write(pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL))
+            os.replace(fh.name, path)
+        except (OSError, RuntimeError, ValueError):
+            pass  # an unwritable folder: compiled in every process, as numba does
+    return library
+
+
+def initialize_runtime(target_context) -> None:
+    """``rtsys.initialize`` with the runtime's machine code loaded from disk (compiled and kept on the first run).
+
+    Numba builds and optimizes the runtime's LLVM module in every process (19-28 ms here). Its steps are kept; only
+    ``nrtdynmod.compile_nrt_functions`` is replaced, for this one call. ``DIFFUSION_PR_NUMBA_NRT_CACHE=0`` keeps
+    numba's.
+    """
+    from numba.core.runtime import nrtdynmod
+
+    if getattr(rtsys, "_init", False) is True:
+        return
+    if (os.environ.get(ENV_NRT_CACHE, "1") == "0" or not hasattr(rtsys, "_init")
+            or not hasattr(nrtdynmod, "create_nrt_module")):
+        rtsys.initialize(target_context)
+        return
+    with _LAZY_LOCK:
+        if rtsys._init:
+            return
+        own = nrtdynmod.compile_nrt_functions
+        nrtdynmod.compile_nrt_functions = _compile_nrt_functions_cached
+        try:
+            rtsys.initialize(target_context)
+        finally:
+            nrtdynmod.compile_nrt_functions = own

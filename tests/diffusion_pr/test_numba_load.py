@@ -268,3 +268,60 @@ def test_lazy_link_gives_the_bits_of_numba_unserialization(warm_closure_cache):
     own = _run(_CLOSURE_RUN, {"DIFFUSION_PR_NUMBA_REFRESH": "0", "DIFFUSION_PR_NUMBA_LAZY_LINK": "0"})
     assert lazy["success"] and own["success"] and lazy["cache_hits"] >= 1
     assert lazy["bits"] == own["bits"]
+
+
+# --- numba's runtime functions, cached (``initialize_runtime``) ----------------------------------------------------
+
+_NRT_RUN = textwrap.dedent("""
+    import json, sys
+    sys.path.insert(0, ".")
+    import numpy as np
+    import tiny_link as t
+    from numba import njit
+    from numba.core.runtime import rtsys
+    a = t.twice(1.5)  # a cached load: initializes the runtime
+    loaded_runtime = getattr(rtsys.library, "_compiled_object", 0) is None  # unserialized: consumed by the load
+
+    @njit
+    def fresh(n):  # compiled after that: links the runtime, allocates and returns an array (reference counts)
+        out = np.empty(n)
+        for i in range(n):
+            out[i] = t.twice(i)
+        return out
+
+    b = fresh(4)
+    print(json.dumps(dict(a=a, b=b.tolist(), loaded_runtime=loaded_runtime)))
+""")
+
+
+@needs_lazy
+def test_runtime_machine_code_is_cached_and_links_into_later_compiles(tmp_path):
+    """First process: the runtime compiled (numba's way) and written; second: loaded from that file, and a function
+    compiled afterwards allocates and returns an array through it (oracle: arithmetic). A corrupt file is ignored
+    and rewritten."""
+    (tmp_path / "tiny_link.py").write_text(_TINY_LINK)
+    env = {"DIFFUSION_PR_NUMBA_REFRESH": "0", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    first = _run(_NRT_RUN, env, cwd=tmp_path)
+    files = list((tmp_path / "cache" / "diffusion_pr").glob("numba_nrt-*.nbo"))
+    assert len(files) == 1
+    second = _run(_NRT_RUN, env, cwd=tmp_path)
+    for out in (first, second):
+        assert out["a"] == 3.0 and out["b"] == [0.0, 2.0, 4.0, 6.0]
+    assert not first["loaded_runtime"] and second["loaded_runtime"]
+    files[0].write_bytes(b"not a pickle")
+    third = _run(_NRT_RUN, env, cwd=tmp_path)
+    assert not third["loaded_runtime"] and third["b"] == [0.0, 2.0, 4.0, 6.0]
+    fourth = _run(_NRT_RUN, env, cwd=tmp_path)
+    assert fourth["loaded_runtime"]
+    off = _run(_NRT_RUN, {**env, "DIFFUSION_PR_NUMBA_NRT_CACHE": "0"}, cwd=tmp_path)
+    assert not off["loaded_runtime"] and off["b"] == [0.0, 2.0, 4.0, 6.0]
+
+
+@needs_lazy
+def test_cached_runtime_gives_the_bits_of_numba_runtime(warm_closure_cache):
+    """Oracle: the same fresh-process closure solve with numba compiling its runtime (``..._NRT_CACHE=0``)."""
+    _run(_CLOSURE_RUN, {"DIFFUSION_PR_NUMBA_REFRESH": "0", "DIFFUSION_PR_NUMBA_NRT_CACHE": "1"})  # file written
+    cached = _run(_CLOSURE_RUN, {"DIFFUSION_PR_NUMBA_REFRESH": "0", "DIFFUSION_PR_NUMBA_NRT_CACHE": "1"})
+    own = _run(_CLOSURE_RUN, {"DIFFUSION_PR_NUMBA_REFRESH": "0", "DIFFUSION_PR_NUMBA_NRT_CACHE": "0"})
+    assert cached["success"] and own["success"]
+    assert cached["bits"] == own["bits"]
