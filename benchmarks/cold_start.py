@@ -12,6 +12,8 @@ alternate process by process in every round:
   kernel's shared bitcode parsed on load, as numba does, not when first linked);
 * ``nrt``: the package's load with numba's runtime functions compiled in the process, as numba does
   (``DIFFUSION_PR_NUMBA_NRT_CACHE=0``), not loaded from the package's cache of their machine code;
+* ``env``: the package's load with the environments of numba's own functions rebuilt numba's way, importing
+  their modules (``DIFFUSION_PR_NUMBA_LAZY_ENV=0``);
 * ``numba``: ``DIFFUSION_PR_NUMBA_REFRESH=1``, numba's own load (refresh included).
 
 Cases: the paper's problem (``propagate``; no numba at all) and the three shell
@@ -60,7 +62,7 @@ print(json.dumps(dict(import_s=t1 - t0, setup_s=t2 - t1, first_s=t3 - t2, second
                       refreshed="numba.np.linalg" in sys.modules)))
 """
 
-MODES = ("package", "eager", "nrt", "numba")
+MODES = ("package", "eager", "nrt", "env", "numba")
 CLOSURES = ("local_g1", "local_g1_balanced", "local_g1_shell_balanced")
 ZETAS = (0.001, 0.01, 0.1, 0.25, 1.0, 4.0)
 
@@ -68,7 +70,8 @@ ZETAS = (0.001, 0.01, 0.1, 0.25, 1.0, 4.0)
 def child(case: str, zeta: float, mode: str, keep_env: bool = False) -> dict:
     env = {**os.environ, "DIFFUSION_PR_NUMBA_REFRESH": "1" if mode == "numba" else "0",
            "DIFFUSION_PR_NUMBA_LAZY_LINK": "0" if mode == "eager" else "1",
-           "DIFFUSION_PR_NUMBA_NRT_CACHE": "0" if mode == "nrt" else "1"}
+           "DIFFUSION_PR_NUMBA_NRT_CACHE": "0" if mode == "nrt" else "1",
+           "DIFFUSION_PR_NUMBA_LAZY_ENV": "0" if mode == "env" else "1"}
     if not keep_env:  # as a default Python installation: byte code cached (this sandbox sets the variable)
         env.pop("PYTHONDONTWRITEBYTECODE", None)
     out = subprocess.run([sys.executable, "-c", CHILD, case, repr(zeta)], capture_output=True, text=True,
@@ -115,19 +118,20 @@ def main() -> None:
              "`package`: cached kernels loaded without numba's registry refresh and with their shared bitcode "
              "parsed only when linked and numba's runtime loaded from the package's cache (the default); `eager`: "
              "the same with numba's own unserialization (`DIFFUSION_PR_NUMBA_LAZY_LINK=0`); `nrt`: the same with "
-             "numba's runtime compiled in the process (`DIFFUSION_PR_NUMBA_NRT_CACHE=0`); `numba`: `DIFFUSION_PR_NUMBA_REFRESH=1`. `setup`: building the spectrum (numpy and scipy imports). "
+             "numba's runtime compiled in the process (`DIFFUSION_PR_NUMBA_NRT_CACHE=0`); `env`: the same with the "
+             "environments of numba's functions rebuilt numba's way (`DIFFUSION_PR_NUMBA_LAZY_ENV=0`); `numba`: `DIFFUSION_PR_NUMBA_REFRESH=1`. `setup`: building the spectrum (numpy and scipy imports). "
              "Target: first solve under 0.3 s. "
              + ("PYTHONDONTWRITEBYTECODE as set by the caller." if keep else
                 "Byte code cached (PYTHONDONTWRITEBYTECODE removed), as in a default installation."), "",
-             "| case | zeta | setup [s] | first solve, package [s] | eager [s] | nrt [s] | numba [s] | "
-             "package/eager | package/nrt | package/numba | second solve [ms] |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| case | zeta | setup [s] | first solve, package [s] | " + " | ".join(f"{m} [s]" for m in MODES[1:])
+             + " | " + " | ".join(f"package/{m}" for m in MODES[1:]) + " | second solve [ms] |",
+             "|---|---|---|---|" + "---|" * (2 * len(MODES) - 1)]
     for row in rows:
-        p, e, r, n = row["package"], row["eager"], row["nrt"], row["numba"]
-        lines.append(f"| {row['case']} | {row['zeta']:g} | {p['setup_s']:.3f} | {p['first_s']:.3f} | "
-                     f"{e['first_s']:.3f} | {r['first_s']:.3f} | {n['first_s']:.3f} | "
-                     f"{p['first_s'] / e['first_s']:.2f} | {p['first_s'] / r['first_s']:.2f} | "
-                     f"{p['first_s'] / n['first_s']:.2f} | {1e3 * p['second_s']:.1f} |")
+        p = row["package"]["first_s"]
+        lines.append(f"| {row['case']} | {row['zeta']:g} | {row['package']['setup_s']:.3f} | {p:.3f} | "
+                     + " | ".join(f"{row[m]['first_s']:.3f}" for m in MODES[1:]) + " | "
+                     + " | ".join(f"{p / row[m]['first_s']:.2f}" for m in MODES[1:])
+                     + f" | {1e3 * row['package']['second_s']:.1f} |")
     text = "\n".join(lines)
     print(text)
     OUT.mkdir(exist_ok=True)

@@ -54,9 +54,19 @@ runtime's debug switches; later processes load it with numba's own
 unserialization (3-4 ms). A file that does not define the runtime's functions is
 ignored and the module compiled; an unwritable folder leaves numba's behaviour.
 ``DIFFUSION_PR_NUMBA_NRT_CACHE=0`` keeps numba's.
+
+**Environments without their modules' imports.** Unpickling a cached overload
+rebuilds the environment of every function it calls, numba's own
+implementations among them, and numba imports each one's module to do so: 22
+numba modules for the staged kernel (``numba.np.arrayobj``, ``numba.np.npyimpl``,
+...), though only object-mode code reads an environment's globals.
+:func:`_rebuild_env_lazily` gives those environments a one-entry globals dict
+instead, for ``numba.*`` modules not yet imported; about 35 ms of a first
+solve. ``DIFFUSION_PR_NUMBA_LAZY_ENV=0`` keeps numba's.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import pickle
@@ -68,18 +78,21 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from numba.core import codegen as _codegen
+from numba.core import environment as _environment
 from numba.core.caching import FunctionCache
 from numba.core.registry import CPUDispatcher
 from numba.core.runtime import rtsys
 
-__all__ = ["load_without_refresh", "ENV_KEEP_REFRESH", "ENV_LAZY_LINK", "ENV_NRT_CACHE", "LoadOnlyFunctionCache",
-           "LoadedBySignature", "elf_defined_symbols", "initialize_runtime"]
+__all__ = ["load_without_refresh", "ENV_KEEP_REFRESH", "ENV_LAZY_LINK", "ENV_NRT_CACHE", "ENV_LAZY_ENV",
+           "LoadOnlyFunctionCache", "LoadedBySignature", "elf_defined_symbols", "initialize_runtime"]
 
 #: environment variable that keeps numba's own cache load (refresh included) when set to ``1``
 ENV_KEEP_REFRESH = "DIFFUSION_PR_NUMBA_REFRESH"
 #: environment variable that keeps numba's own unserialization (the shared bitcode parsed on every load) when ``0``
 ENV_LAZY_LINK = "DIFFUSION_PR_NUMBA_LAZY_LINK"
 
+#: environment variable that rebuilds the environments of numba's own functions numba's way (importing their modules)
+ENV_LAZY_ENV = "DIFFUSION_PR_NUMBA_LAZY_ENV"
 #: environment variable that compiles numba's runtime functions in every process (numba's way) when ``0``
 ENV_NRT_CACHE = "DIFFUSION_PR_NUMBA_NRT_CACHE"
 
@@ -184,21 +197,66 @@ class LoadOnlyFunctionCache(FunctionCache):
     def load_overload(self, sig, target_context):
         initialize_runtime(target_context)
         with self._guard_against_spurious_io_errors():
-            if not _lazy_link_enabled():
+            lazy_link, lazy_env = _lazy_link_enabled(), _lazy_env_enabled()
+            if not (lazy_link or lazy_env):
                 return self._load_overload(sig, target_context)
             codegen = target_context.codegen()
-            with _LAZY_LOCK:  # the instance attribute shadows numba's method for this load only
-                nested = "unserialize_library" in vars(codegen)
-                if not nested:
-                    codegen.unserialize_library = lambda state: _unserialize_lazily(codegen, state)
-                try:
-                    loaded = self._load_overload(sig, target_context)
-                finally:
-                    if not nested:
-                        del codegen.unserialize_library
+            with _LAZY_LOCK, contextlib.ExitStack() as shadows:  # numba's functions shadowed for this load only
+                if lazy_link:
+                    shadows.enter_context(_shadowed(codegen, "unserialize_library",
+                                                    lambda state: _unserialize_lazily(codegen, state)))
+                if lazy_env:
+                    shadows.enter_context(_shadowed(_environment, "_rebuild_env", _rebuild_env_lazily))
+                loaded = self._load_overload(sig, target_context)
             if loaded is not None and not _entry_points_defined(loaded):  # never a null entry point: numba's load
                 return self._load_overload(sig, target_context)
             return loaded
+
+
+@contextlib.contextmanager
+def _shadowed(owner, name: str, value):
+    """``owner.name = value`` inside the block; afterwards the instance attribute is gone or the old value back."""
+    own = vars(owner)
+    had, old = name in own, own.get(name)
+    setattr(owner, name, value)
+    try:
+        yield
+    finally:
+        if had:
+            setattr(owner, name, old)
+        else:
+            delattr(owner, name)
+
+
+_own_rebuild_env = getattr(_environment, "_rebuild_env", None)
+
+
+def _rebuild_env_lazily(modname, consts, env_name):
+    """Numba's ``_rebuild_env`` without importing a numba module that is not imported yet.
+
+    A cached overload carries the environments of every function it calls, numba's own implementations among them
+    (``np.empty``'s in ``numba.np.arrayobj``, broadcasting's in ``numba.np.npyimpl``, complex arithmetic's in
+    ``numba.cpython.numbers``). Numba rebuilds each one around its module's globals, importing the module: 22
+    modules for the staged kernel. An environment's globals are read only by object-mode code, which numba's own
+    implementations never are; their constants are restored as numba does. So for a ``numba.*`` module that is not
+    imported the environment gets ``{"__name__": modname}`` (which keeps it cachable and picklable); any other
+    module, and any imported one, goes through numba's own function.
+    """
+    env = _environment.lookup_environment(env_name)
+    if env is not None:
+        return env
+    if modname in sys.modules or not str(modname).startswith("numba."):
+        return _own_rebuild_env(modname, consts, env_name)
+    env = _environment.Environment({"__name__": modname})
+    env.consts[:] = consts
+    env.env_name = env_name
+    _environment.Environment._memo[env_name] = env
+    return env
+
+
+def _lazy_env_enabled() -> bool:
+    return (os.environ.get(ENV_LAZY_ENV, "1") != "0" and _own_rebuild_env is not None
+            and hasattr(_environment, "lookup_environment") and hasattr(_environment.Environment, "_memo"))
 
 
 def _entry_points_defined(compile_result) -> bool:

@@ -30,6 +30,7 @@ _CLOSURE_RUN = textwrap.dedent("""
     print(json.dumps(dict(
         bits=hashlib.sha256(r.weights.tobytes() + r.p.tobytes() + np.float64(r.zero_weight).tobytes()).hexdigest(),
         refreshed="numba.np.linalg" in sys.modules,
+        arrayobj="numba.np.arrayobj" in sys.modules,
         entry_points=getattr(entrypoints, "_already_initialized", None),
         signatures=len(k.staged_run_rows.signatures),
         rows_signatures=len(ck._model_rows.signatures),
@@ -325,3 +326,34 @@ def test_cached_runtime_gives_the_bits_of_numba_runtime(warm_closure_cache):
     own = _run(_CLOSURE_RUN, {"DIFFUSION_PR_NUMBA_REFRESH": "0", "DIFFUSION_PR_NUMBA_NRT_CACHE": "0"})
     assert cached["success"] and own["success"]
     assert cached["bits"] == own["bits"]
+
+
+@needs_lazy
+def test_environments_rebuilt_without_importing_numba_modules(warm_closure_cache):
+    """Oracle: the same fresh-process closure solve with numba's rebuild of the environments (``..._LAZY_ENV=0``),
+    which imports ``numba.np.arrayobj`` for ``np.empty``'s environment: the same bits, and the lazy rebuild leaves
+    that module unimported."""
+    lazy = _run(_CLOSURE_RUN, {"DIFFUSION_PR_NUMBA_REFRESH": "0", "DIFFUSION_PR_NUMBA_LAZY_ENV": "1"})
+    own = _run(_CLOSURE_RUN, {"DIFFUSION_PR_NUMBA_REFRESH": "0", "DIFFUSION_PR_NUMBA_LAZY_ENV": "0"})
+    assert lazy["success"] and own["success"] and lazy["cache_hits"] >= 1
+    assert lazy["bits"] == own["bits"]
+    assert own["arrayobj"] and not lazy["arrayobj"]
+
+
+def test_lazy_environment_keeps_numba_semantics_for_other_modules():
+    """An environment already in numba's memo is returned as it is; a module that is imported, or not numba's, is
+    rebuilt numba's way (its real globals); a numba module not yet imported gets ``{"__name__": modname}``."""
+    from numba.core import environment as E
+
+    from diffusion_pr._numba_load import _rebuild_env_lazily
+
+    own = _rebuild_env_lazily("json", [1, "a"], "test-env-json")  # imported or not: not numba's, numba's way
+    assert own.globals is sys.modules["json"].__dict__ and list(own.consts) == [1, "a"]
+    assert _rebuild_env_lazily("json", [], "test-env-json") is own  # from the memo
+    imported = _rebuild_env_lazily("numba.core.types", [], "test-env-types")  # numba's, imported: numba's way
+    assert imported.globals is sys.modules["numba.core.types"].__dict__
+    name = "numba.not_a_module_for_this_test"
+    lazy = _rebuild_env_lazily(name, [2.5], "test-env-lazy")
+    assert lazy.globals == {"__name__": name} and list(lazy.consts) == [2.5] and lazy.env_name == "test-env-lazy"
+    assert E.lookup_environment("test-env-lazy") is lazy
+    assert name not in sys.modules
