@@ -358,15 +358,29 @@ def _compile_nrt_functions_cached(ctx):
     library.enable_object_caching()
     library.finalize()
     if path is not None:
-        try:
-            state = library.serialize_using_object_code()
-            path.parent.mkdir(parents=True, exist_ok=True)
-            with tempfile.NamedTemporaryFile(dir=path.parent, delete=False, suffix=".tmp") as fh:
-                fh.write(pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL))
-            os.replace(fh.name, path)
-        except (OSError, RuntimeError, ValueError):
-            pass  # an unwritable folder: compiled in every process, as numba does
+        _write_atomically(path, library)
     return library
+
+
+def _write_atomically(path: Path, library) -> None:
+    """The library's serialized state written to ``path`` through a temporary file in the same folder (so that a
+    process starting at the same time reads the old file or the new one, never half of one); nothing where the
+    folder is not writable (then the runtime is compiled in every process, as numba does)."""
+    tmp = None
+    try:
+        state = library.serialize_using_object_code()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path.parent, delete=False, suffix=".tmp") as fh:
+            tmp = fh.name
+            fh.write(pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL))
+        os.replace(tmp, path)
+        tmp = None
+    except (OSError, RuntimeError, ValueError):
+        pass
+    finally:
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
 
 
 def initialize_runtime(target_context) -> None:

@@ -357,3 +357,17 @@ def test_lazy_environment_keeps_numba_semantics_for_other_modules():
     assert lazy.globals == {"__name__": name} and list(lazy.consts) == [2.5] and lazy.env_name == "test-env-lazy"
     assert E.lookup_environment("test-env-lazy") is lazy
     assert name not in sys.modules
+
+
+@needs_lazy
+def test_runtime_cache_in_an_unwritable_place_leaves_numba_behaviour(tmp_path):
+    """Where the runtime's file cannot be written (here its folder's name is taken by a file), every process
+    compiles the runtime as numba does, and the answers are right (oracle: arithmetic); no temporary file is left."""
+    (tmp_path / "tiny_link.py").write_text(_TINY_LINK)
+    (tmp_path / "cache").mkdir()
+    (tmp_path / "cache" / "diffusion_pr").write_text("a file where the folder would be")
+    env = {"DIFFUSION_PR_NUMBA_REFRESH": "0", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    for _ in range(2):
+        out = _run(_NRT_RUN, env, cwd=tmp_path)
+        assert out["a"] == 3.0 and out["b"] == [0.0, 2.0, 4.0, 6.0] and not out["loaded_runtime"]
+    assert not list((tmp_path / "cache").glob("*.tmp"))
