@@ -61,7 +61,7 @@ implementations among them, and numba imports each one's module to do so: 22
 numba modules for the staged kernel (``numba.np.arrayobj``, ``numba.np.npyimpl``,
 ...), though only object-mode code reads an environment's globals.
 :func:`_rebuild_env_lazily` gives those environments a one-entry globals dict
-instead, for ``numba.*`` modules not yet imported; about 35 ms of a first
+instead, for ``numba.*`` modules not yet imported; about 33 ms of a first
 solve. ``DIFFUSION_PR_NUMBA_LAZY_ENV=0`` keeps numba's.
 """
 from __future__ import annotations
@@ -190,8 +190,12 @@ _LAZY_LOCK = threading.RLock()
 class LoadOnlyFunctionCache(FunctionCache):
     """``FunctionCache`` whose load initializes the NRT instead of refreshing the whole target context.
 
-    Its libraries are unserialized by :func:`_unserialize_lazily` (their shared bitcode parsed when first linked),
-    unless ``DIFFUSION_PR_NUMBA_LAZY_LINK=0``.
+    The NRT's machine code comes from the package's cache (:func:`initialize_runtime`, unless
+    ``DIFFUSION_PR_NUMBA_NRT_CACHE=0``); for the load itself, numba's unserialization is shadowed by
+    :func:`_unserialize_lazily` (the shared bitcode parsed when first linked; unless
+    ``DIFFUSION_PR_NUMBA_LAZY_LINK=0``) and numba's rebuild of environments by :func:`_rebuild_env_lazily` (no
+    imports of numba modules; unless ``DIFFUSION_PR_NUMBA_LAZY_ENV=0``). A loaded overload whose entry points have
+    no address is loaded again numba's way.
     """
 
     def load_overload(self, sig, target_context):
