@@ -390,7 +390,8 @@ def _write_atomically(path: Path, library) -> None:
 def initialize_runtime(target_context) -> None:
     """``rtsys.initialize`` with the runtime's machine code loaded from disk (compiled and kept on the first run).
 
-    Numba builds and optimizes the runtime's LLVM module in every process (19-28 ms here). Its steps are kept; only
+    Numba builds and optimizes the runtime's LLVM module in every process (55-63 ms alone here, about 18 ms of a
+    closure's first solve). Its steps are kept; only
     ``nrtdynmod.compile_nrt_functions`` is replaced, for this one call. ``DIFFUSION_PR_NUMBA_NRT_CACHE=0`` keeps
     numba's.
     """
@@ -402,12 +403,5 @@ def initialize_runtime(target_context) -> None:
             or not hasattr(nrtdynmod, "create_nrt_module")):
         rtsys.initialize(target_context)
         return
-    with _LAZY_LOCK:
-        if rtsys._init:
-            return
-        own = nrtdynmod.compile_nrt_functions
-        nrtdynmod.compile_nrt_functions = _compile_nrt_functions_cached
-        try:
-            rtsys.initialize(target_context)
-        finally:
-            nrtdynmod.compile_nrt_functions = own
+    with _LAZY_LOCK, _shadowed(nrtdynmod, "compile_nrt_functions", _compile_nrt_functions_cached):
+        rtsys.initialize(target_context)  # (returns at once where another thread initialized it meanwhile)
