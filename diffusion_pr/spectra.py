@@ -36,7 +36,6 @@ from typing import Callable, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import integrate as _integrate
 
 from ._validation import (
     check_finite_array,
@@ -364,6 +363,8 @@ class SelfAffineSpectrum(Spectrum):
             return super().integrate(weight)
         if method != "quad":
             raise ValueError(f"method must be 'gauss' or 'quad'; got {method!r}")
+        from scipy import integrate as _integrate
+
         f = (lambda q: 1.0) if weight is None else weight
         total = 0.0
         for lo, hi in self._segments():

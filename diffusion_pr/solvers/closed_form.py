@@ -26,7 +26,6 @@ from typing import Optional, Tuple
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import closed_forms as cf
 from ..models import GaussianTail, PressureFactor, ProportionalDiffusivity, SharpCutoff
 from ..problem import FokkerPlanckProblem, _unit
 from ..result import PressureDistribution
@@ -150,7 +149,8 @@ def solve(problem: FokkerPlanckProblem, *, rtol: float = 1e-6, tail_mass: float 
     Feller's density is below ``tail_mass``, so the cost does not grow with
     ``p0 / sqrt(V)``.
     """
-    from .fv.engine import MAX_RATIO
+    from .. import closed_forms as cf  # scipy.special: imported here, where a closed form is evaluated, not by
+    from .fv.engine import MAX_RATIO     # exact_kind (the "auto" choice of every solve)
 
     t0 = time.perf_counter()
     kind = exact_kind(problem)

@@ -29,6 +29,23 @@ def test_import_is_light_and_lazy():
         assert name in dir(dp) and getattr(dp, name) is not None
 
 
+def test_spectrum_and_closure_solve_import_no_scipy_integrate_or_special():
+    """A fresh interpreter: building a spectrum and solving a shell closure imports neither ``scipy.integrate``
+    (0.43 s here; the spectrum needs it only for ``integrate(method="quad")``) nor ``scipy.special`` (0.21 s; only
+    the closed forms evaluate it, not the backend's ``exact_kind`` that every ``"auto"`` solve asks). Oracle:
+    ``sys.modules``; then the closed form itself does import ``scipy.special``."""
+    code = ("import sys, numpy as np, diffusion_pr as d\n"
+            "S = d.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)\n"
+            "r = d.pressure_distribution(S, E_star=8 / 3, mean_pressure=0.004, zeta=0.25, closure='local_g1', "
+            "rtol=1e-4)\n"
+            "assert r.success\n"
+            "heavy = sorted(m for m in ('scipy.integrate', 'scipy.special') if m in sys.modules)\n"
+            "assert not heavy, heavy\n"
+            "assert d.pressure_distribution(S, E_star=8 / 3, mean_pressure=0.004).backend == 'closed_form'\n"
+            "assert 'scipy.special' in sys.modules\n")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=300)
+
+
 def test_propagate_default_is_the_exact_mirror_gaussian():
     r = dp.propagate(1.0, 1.0)
     assert r.backend == "closed_form" and r.success
