@@ -6,8 +6,9 @@ the Fig. 1 spectrum (this imports numpy and scipy; reported apart), then times i
 first solve and a second, warm one. The two ways of loading the cached numba kernels
 alternate process by process in every round:
 
-* ``package``: the default, cached kernels loaded without numba's registry refresh
-  (:mod:`diffusion_pr._numba_load`);
+* ``package``: the default, cached kernels loaded without numba's registry refresh, with their shared bitcode
+  parsed only when linked, numba's runtime from the package's cache and numba's environments rebuilt without
+  their modules' imports (:mod:`diffusion_pr._numba_load`);
 * ``eager``: the package's load with numba's own unserialization (``DIFFUSION_PR_NUMBA_LAZY_LINK=0``: each
   kernel's shared bitcode parsed on load, as numba does, not when first linked);
 * ``nrt``: the package's load with numba's runtime functions compiled in the process, as numba does
@@ -119,7 +120,9 @@ def main() -> None:
              "parsed only when linked and numba's runtime loaded from the package's cache (the default); `eager`: "
              "the same with numba's own unserialization (`DIFFUSION_PR_NUMBA_LAZY_LINK=0`); `nrt`: the same with "
              "numba's runtime compiled in the process (`DIFFUSION_PR_NUMBA_NRT_CACHE=0`); `env`: the same with the "
-             "environments of numba's functions rebuilt numba's way (`DIFFUSION_PR_NUMBA_LAZY_ENV=0`); `numba`: `DIFFUSION_PR_NUMBA_REFRESH=1`. `setup`: importing numpy and building the spectrum (scipy.integrate too, before the thirty-seventh session). "
+             "environments of numba's functions rebuilt numba's way (`DIFFUSION_PR_NUMBA_LAZY_ENV=0`); `numba`: "
+             "`DIFFUSION_PR_NUMBA_REFRESH=1`. `setup`: importing numpy and building the spectrum (scipy.integrate "
+             "too, before the thirty-seventh session). "
              "Target: first solve under 0.3 s. "
              + ("PYTHONDONTWRITEBYTECODE as set by the caller." if keep else
                 "Byte code cached (PYTHONDONTWRITEBYTECODE removed), as in a default installation."), "",

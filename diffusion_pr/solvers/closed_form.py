@@ -149,8 +149,10 @@ def solve(problem: FokkerPlanckProblem, *, rtol: float = 1e-6, tail_mass: float 
     Feller's density is below ``tail_mass``, so the cost does not grow with
     ``p0 / sqrt(V)``.
     """
-    from .. import closed_forms as cf  # scipy.special: imported here, where a closed form is evaluated, not by
-    from .fv.engine import MAX_RATIO     # exact_kind (the "auto" choice of every solve)
+    # the closed forms (and scipy.special) are imported here, where one is evaluated, not by exact_kind: that is
+    # asked by the "auto" choice of every solve
+    from .. import closed_forms as cf
+    from .fv.engine import MAX_RATIO
 
     t0 = time.perf_counter()
     kind = exact_kind(problem)
