@@ -5,6 +5,29 @@ import numpy as np
 import pytest
 
 
+def pytest_report_header(config) -> str:
+    """The numerical stack's versions and the CPU on the report's first lines: answers that follow a branch decided
+    at round-off (a regrade, a balance retry; tests/diffusion_pr/test_fv_kernels.py) and constants recomputed by
+    another LAPACK can change with them, so a failing run says which ones it had."""
+    import importlib.metadata as md
+    import platform
+
+    names = ("numpy", "scipy", "numba", "llvmlite", "py-pde", "fipy", "pyfftw", "dask")
+    versions = []
+    for name in names:
+        try:
+            versions.append(f"{name} {md.version(name)}")
+        except md.PackageNotFoundError:
+            versions.append(f"{name} -")
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            cpu = next((ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")), cpu)
+    except OSError:
+        pass
+    return f"numerical stack: {', '.join(versions)}; CPU: {cpu}"
+
+
 def _l1_on_cells(answer, ref) -> float:
     """L1 distance of ``answer``'s non-contact weight and cell masses from ``ref``'s on ``answer``'s cells (through
     each distribution's cdf, so the two grids need not be the same)."""

@@ -147,15 +147,26 @@ def test_partial_fraction_residues_give_the_same_rational_function():
 
 @pytest.mark.parametrize("order", [10, 12])
 def test_cf_coefficients_are_the_stored_ones_and_meet_their_bound(order):
-    """The stored CF-10/12 constants are :func:`cf_coefficients`'s output (to round-off of another BLAS), and
-    ``r(x)`` is within the stated uniform bound of ``exp(x)`` on 40000 points of ``[-1e6, 0]`` (oracle: exp itself;
-    measured 1.36e-10 and 1.63e-12, the best approximations' errors: Carpenter, Ruttan, Varga 1984)."""
+    """The stored CF-10/12 constants are :func:`cf_coefficients`'s output, and ``r(x)`` is within the stated uniform
+    bound of ``exp(x)`` on 40000 points of ``[-1e6, 0]`` (oracle: exp itself; measured 1.36e-10 and 1.63e-12, the best
+    approximations' errors: Carpenter, Ruttan, Varga 1984).
+
+    "The same output" is decided on the rational functions, not on the digits of the poles: the poles come from a
+    singular vector of a Hankel matrix whose singular value is the approximation's error (1.4e-10, 1.6e-12), so
+    another numpy/LAPACK build moves them by far more than eps.  Measured between the build the constants were made
+    with and numpy 2.4.6 (OpenBLAS): poles 2.6e-10 / 2.9e-8 apart (relative), residues 2.4e-9 / 4.3e-7, ``r_inf``
+    4.8e-15 / 2.5e-14, while the two rational functions differ by at most 4.9e-15 / 8.5e-14 on ``(-inf, 0]`` (0.00003
+    and 0.05 of the bound).  Tolerances: poles 1e-6 and residues 1e-5 relative (30x the measured CF-12 spread), and
+    the functions and ``r_inf`` within a tenth of the bound, which a change in a stored constant that matters for
+    the answers cannot pass (a pole moved by 1e-9 relative already moves ``r`` by more)."""
     theta, res, r_inf, bound = pfd_coefficients(order)
     t2, c2, r2 = cf_coefficients(order)
-    assert np.allclose(theta, t2, rtol=1e-10, atol=0) and np.allclose(res, c2, rtol=1e-8, atol=1e-12)
-    assert r_inf == pytest.approx(r2, rel=1e-6)
+    assert np.allclose(theta, t2, rtol=1e-6, atol=0) and np.allclose(res, c2, rtol=1e-5, atol=0)
+    assert abs(r_inf - r2) < 0.1 * bound
     x = -np.r_[0.0, np.geomspace(1e-10, 1e6, 40000)]
     r = r_inf + 2.0 * np.real(np.sum(res[:, None] / (x[None, :] - theta[:, None]), axis=0))
+    r_again = r2 + 2.0 * np.real(np.sum(c2[:, None] / (x[None, :] - t2[:, None]), axis=0))
+    assert np.max(np.abs(r - r_again)) < 0.1 * bound
     err = np.max(np.abs(r - np.exp(x)))
     assert err <= bound and err > 0.5 * bound  # the bound is the error, not a loose cover of it
 
@@ -1074,17 +1085,23 @@ def test_wall_depth_maps_fractions_to_the_inner_scale_and_back():
     assert engine._wall_depth(spec, 0.0) == 0.0 and spec._delta == 1e-9 and engine._depth_fraction(spec) == 0.0
 
 
-def _balance_fails_on(monkeypatch, n_bases) -> list:
-    """Make the balance of every grid of the levels whose coarsest grid has ``n_bases`` cells report a failure (the
-    counters of :func:`engine.solve_on_grid`, as the kernel reports a multiplier that does not converge); returns
+def _balance_fails_on(monkeypatch, n_bases=None, levels: int = 0) -> list:
+    """Make the balance of every grid of some levels report a failure (the counters of
+    :func:`engine.solve_on_grid`, as the kernel reports a multiplier that does not converge): the levels whose
+    coarsest grid has ``n_bases`` cells, or else the first ``levels`` levels attempted, whatever their cells; returns
     the list of ``(cells, n_base)`` of the grids it failed."""
     real = engine.solve_on_grid
     failed = []
+    seen = []  # the coarsest cells of the levels attempted, in order
 
     def solve(prep, edges, **kw):
         y, counters = real(prep, edges, **kw)
-        if counters.get("substeps", 0) and kw.get("n_base") in n_bases:
-            failed.append((edges.size - 1, kw.get("n_base")))
+        n_base = kw.get("n_base")
+        if counters.get("substeps", 0) and n_base not in seen:
+            seen.append(n_base)
+        chosen = n_bases if n_bases is not None else seen[:levels]
+        if counters.get("substeps", 0) and n_base in chosen:
+            failed.append((edges.size - 1, n_base))
             counters = dict(counters, balance_failure="the balance multiplier A of stage 5 did not converge "
                                                       "(injected by the test)")
         return y, counters
@@ -1095,21 +1112,22 @@ def _balance_fails_on(monkeypatch, n_bases) -> list:
 
 def test_a_first_level_whose_balance_fails_is_repeated_finer(monkeypatch):
     """py-pde's operator with CRAM-16 on a stress scene (H = 0.8, rms slope 0.1, zeta = p0 = 1e-5,
-    local_g1_balanced) whose first level's balances fail (injected: until the twenty-fourth session's flux form the
-    balance of stage 5 failed there by itself, on 158 cells): the first level is repeated with twice the cells (at
-    most twice), and at 4x it solves, within 2e-6 of native in the cdf (both claim 1e-6).  Without the repetition the
-    solve raises with the balance's message."""
+    local_g1_balanced) whose first levels' balances fail (injected into the first two levels attempted, whatever
+    their cells: with py-pde 0.59 / numpy 2.4 the balance of stage 5 fails there by itself again on 158 cells, as it
+    did until the twenty-fourth session's flux form, so the uninjected solve already repeats its level): the first
+    level is repeated with twice the cells (at most twice), and at 4x the start it solves, within 2e-6 of native in
+    the cdf (both claim 1e-6).  Without the repetition the solve raises with the balance's message."""
     pytest.importorskip("pde")
     monkeypatch.setattr(engine, "CRAM_SHARE", 0.0)
     spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 4096, 2 * np.pi / 16, rms_slope=0.1)
     kw = dict(E_star=8 / 3, mean_pressure=1e-5, zeta=1e-5, closure="local_g1_balanced")
     native = closure_distribution(spec, **kw)
     plain = closure_distribution(spec, backend="pypde", **kw)
-    first = plain.diagnostics["history"][0][0]
-    failed = _balance_fails_on(monkeypatch, (first, 2 * first))
+    failed = _balance_fails_on(monkeypatch, levels=2)
     r = closure_distribution(spec, backend="pypde", **kw)
-    assert {n for _, n in failed} == {first, 2 * first}
-    assert r.success and r.diagnostics["history"][0][0] == 4 * first
+    start = failed[0][1]
+    assert {n for _, n in failed} == {start, 2 * start}
+    assert r.success and r.diagnostics["history"][0][0] == 4 * start
     x = np.geomspace(1e-12, 1e4, 500) * 1e-5
     assert np.max(np.abs(r.cdf(x) - native.cdf(x))) < 2e-6
     assert np.max(np.abs(plain.cdf(x) - native.cdf(x))) < 2e-6
@@ -1217,20 +1235,55 @@ def test_flushing_keeps_the_closure_answers(monkeypatch, closure, zeta):
     assert a.zero_weight == b.zero_weight and a.mean_pressure == b.mean_pressure
 
 
+def _regraded_family_diverges(monkeypatch) -> list:
+    """Make every grid of a regraded (or remapped) family lose accuracy with its cells: ``1e-10 x cells^2`` of
+    probability moved from the fullest cell to one a quarter of the way from it to the top, so that the levels' Richardson differences, and
+    with them the estimates, grow with every refinement (the first level's family is left alone); returns the specs
+    it was applied to."""
+    real_regraded, real_solve = engine._regraded, engine.solve_on_grid
+    regraded = []
+
+    def regrade(*args, **kw):
+        out = real_regraded(*args, **kw)
+        if out is not None:
+            regraded.append(out[0])
+        return out
+
+    def solve(prep, edges, **kw):
+        y, counters = real_solve(prep, edges, **kw)
+        if any(prep.spec is spec for spec in regraded):
+            j = 1 + int(np.argmax(y[1:]))  # the fullest cell
+            k = j + (edges.size - 1 - j) // 4  # a cell above it (its index scales with the cells)
+            moved = min(1e-10 * (edges.size - 1) ** 2, 0.5 * y[j])
+            y = y.copy()
+            y[j] -= moved
+            y[k] += moved
+        return y, counters
+
+    monkeypatch.setattr(engine, "_regraded", regrade)
+    monkeypatch.setattr(engine, "solve_on_grid", solve)
+    return regraded
+
+
 def test_a_regraded_family_that_diverges_falls_back_to_the_first_levels(monkeypatch):
     """A random stress scene (seed 1, #6: H 0.744, rms slope 0.080, zeta 1.6e-4, p0 2.3e-3, shell partition): after
-    the first level (79 cells, estimate 1.4e-6) the regrade chose a family on which the estimates grew, 2.4e-6 on 67
-    and 3.9e-5 on 134 cells, and the solve ended "refinement diverges" (success False).  The engine now repeats such a
-    solve once on the first level's family (diagnostics["regrade"] says so): it converges on 158 cells (measured
-    estimate 1.05e-7), as it does with REGRADE off, and meets rtol against the rtol-1e-8 answer (measured 4.8e-8 in
-    L1).  Without the fallback the scene fails again."""
+    the first level (79 cells, estimate 1.4e-6) the regrade chooses a family with less grading at the wall.  On the
+    machine of the earlier sessions the estimates grew on it, 2.4e-6 on 67 and 3.9e-5 on 134 cells, and the solve
+    ended "refinement diverges"; with numpy 2.4 / an AMD EPYC they fall to 1.9e-7 on 134 cells and it converges.
+    So the divergence is injected (:func:`_regraded_family_diverges`: the regraded grids lose accuracy with their
+    cells).  The engine repeats such a solve once on the first level's family (diagnostics["regrade"] says so): it
+    converges (158 cells), on the same grids as with REGRADE off, and meets rtol against the rtol-1e-8 answer
+    (measured 4.8e-8 in L1).  With the fallback taken out of the engine (a deliberate break) the injected scene
+    ends with success False ("refinement diverges ... 2.05e-05 misses rtol"), and this test fails."""
     spec = dp.SelfAffineSpectrum(0.7436781800396086, 2 * np.pi / 4096, 2 * np.pi / 64, C0=12829661.04187144)
     kw = dict(E_star=8 / 3, mean_pressure=0.002325724273202303, zeta=0.00015774818944194223,
               closure="local_g1_shell_balanced")
+    ref = _closure_distribution(spec, rtol=1e-8, **kw)  # before the injection
+    regraded = _regraded_family_diverges(monkeypatch)
     r = _closure_distribution(spec, **kw)
-    assert r.success and "regraded one failed" in r.diagnostics["regrade"]
+    assert regraded and r.success and "regraded one failed" in r.diagnostics["regrade"]
+    assert "refinement diverges" in r.diagnostics["regrade"]
     assert r.diagnostics["history"][-1][0] > r.diagnostics["history"][0][0]  # refined, on the first level's family
-    ref = _closure_distribution(spec, rtol=1e-8, **kw)
     x = np.concatenate(([0.0], r.edges))
     true = abs(r.zero_weight - ref.zero_weight) + float(np.sum(np.abs(np.diff(r.cdf(x))[1:] - np.diff(ref.cdf(x))[1:])))
     assert true < 1e-6 and true < 10 * r.error_estimate
