@@ -32,7 +32,6 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
-from pathlib import Path
 
 import numpy as np
 from numba import njit
@@ -42,9 +41,8 @@ from diffusion_pr import closed_forms as cf
 from diffusion_pr.problem import FokkerPlanckProblem
 from diffusion_pr.solvers import get_backend
 
-OUT = Path(__file__).resolve().parent / "results"
-SPECTRUM = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
-PAPER_PC = {4.0: 0.0027, 1.0: 0.0027, 0.25: 0.0027, 0.01: 0.0082}
+from bench_fokker_planck import OUT, PAPER_PC, SPECTRUM, cell_mass  # the same problems and exact cell masses
+
 #: the competitor's grid per Fig. 1 scene, tuned by hand on 256 cells (the best of w = 1e-4 ... 3e-2 and a bottom
 #: 1e-8 ... 0.1 of the floor): (w, bottom / floor)
 FIG1_GRID = {4.0: (1e-4, 0.1), 1.0: (1e-3, 0.1), 0.25: (1e-2, 1e-4), 0.01: (3e-2, 1e-8)}
@@ -189,13 +187,6 @@ def adaptive(rtol: float, f, p0: float, V: float, knots: tuple, w: float, bottom
             break
         n = int(np.ceil(n * max(1.5, min(8.0, (est / (0.5 * rtol)) ** 0.25))))
     return e2, r23, z23, est, level
-
-
-def cell_mass(fun, edges, n=8):
-    x, wts = np.polynomial.legendre.leggauss(n)
-    a, b = edges[:-1], edges[1:]
-    pts = 0.5 * (b - a)[:, None] * x[None, :] + 0.5 * (a + b)[:, None]
-    return np.sum(0.5 * (b - a)[:, None] * wts[None, :] * fun(pts), axis=1)
 
 
 def cases():
