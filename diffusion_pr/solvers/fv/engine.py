@@ -974,9 +974,9 @@ def _stage_bands(edges: np.ndarray, coef: dict, assemble: Assemble, fitted: bool
     if assemble is native_assemble:  # all stages at once (the compiled path makes them in its kernel)
         any_b = bool(coef["has_b"].any())
         base = fv_bands(edges, coef["f"], coef["b"] if any_b else None, fitted=fitted)
-        wb = fv_bands(edges, np.zeros((n_stages if any_w else 1, n)), coef["w"] if any_w else coef["w"][:1],
-                      fitted=False)
-        return base, wb
+        if not any_w:  # (assembling the zero row cost as much as the stages' own bands on a one-stage problem)
+            return base, (np.zeros((1, n)), np.zeros((1, n + 1)), np.zeros((1, n)))
+        return base, fv_bands(edges, np.zeros((n_stages, n)), coef["w"], fitted=False)
     rows = []
     wrows = []
     zero = np.zeros(n)
