@@ -23,7 +23,7 @@ import diffusion_pr as dp
 from diffusion_pr.problem import FokkerPlanckProblem
 from diffusion_pr.solvers import get_backend
 
-SPECTRUM = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+from bench_fokker_planck import SPECTRUM  # the Fig. 1 spectrum of the other benchmarks
 
 
 def cases() -> dict:
