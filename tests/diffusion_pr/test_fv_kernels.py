@@ -1290,3 +1290,42 @@ def test_a_regraded_family_that_diverges_falls_back_to_the_first_levels(monkeypa
     monkeypatch.setattr(engine, "REGRADE", False)  # the oracle of the fallback: no regrade at all
     plain = _closure_distribution(spec, **kw)
     assert np.array_equal(plain.edges, r.edges) and np.allclose(plain.cdf(x), r.cdf(x), rtol=0.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("order", [10, 12])
+@pytest.mark.parametrize("weak_diagonal", [False, True])
+def test_stacked_shifted_solves_are_the_separate_solves_bit_for_bit(rng, order, weak_diagonal):
+    """LAPACK's partial fractions solve all poles in one zgtsv call, the shifted systems stacked with zero couplings:
+    each block's solution has the bits of its own zgtsv solve, with row interchanges inside the blocks
+    (``weak_diagonal``: off-diagonals 1e3 times the shifted diagonal, so that zgtsv swaps rows) and without."""
+    from diffusion_pr.solvers.fv import cram
+
+    gtsv = get_lapack_funcs("gtsv", dtype=np.complex128)
+    n = 301
+    scale = 1e4 if weak_diagonal else 1.0  # off-diagonals far above or below the shifted diagonal
+    tl = rng.normal(size=n - 1) * scale + 0j
+    tu = rng.normal(size=n - 1) * scale + 0j
+    td = (rng.normal(size=n) if weak_diagonal else 100.0 + rng.uniform(size=n)) + 0j
+    y = rng.uniform(size=n)
+    theta = pfd_coefficients(order)[0]
+    stacked = cram._shifted_solves(tl, td, tu, y, theta, order)
+    swaps = 0
+    for j, th in enumerate(theta):
+        dl = tl.copy()
+        out = gtsv(dl, td - th, tu.copy(), y.astype(np.complex128), 1, 1, 1, 1)
+        assert out[4] == 0
+        assert np.array_equal(stacked[j], out[3])
+        swaps += int(np.any(out[0][:-1] != 0))  # a fill-in left in dl[:n-2]: rows were interchanged
+    assert swaps == (theta.size if weak_diagonal else 0)
+
+
+def test_a_singular_stacked_block_names_its_pole_and_row():
+    """A shifted system that is singular raises with the pole and the row of the zero pivot, not a result."""
+    from diffusion_pr.solvers.fv import cram
+
+    theta = pfd_coefficients(12)[0]
+    n = 5
+    td = np.zeros(n, dtype=np.complex128)
+    td[2] = theta[3]  # row 3 of the fourth pole's system is zero
+    with pytest.raises(FloatingPointError, match=r"pole 3, row 3"):
+        cram._shifted_solves(np.zeros(n - 1, complex), td, np.zeros(n - 1, complex), np.ones(n), theta, 12)

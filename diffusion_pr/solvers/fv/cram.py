@@ -250,13 +250,10 @@ def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: 
     gtsv = _GTSV
     if order != 16:
         thetas, residues, r_inf, _ = pfd_coefficients(order)
-        yc = y.astype(np.complex128)
-        acc = np.zeros_like(y)  # 2 Re sum_j c_j x_j; in flux form w = 2 Re sum_j (c_j/theta_j) x_j
-        for c, theta in zip(residues, thetas):
-            _, _, _, x, info = gtsv(tl.copy(), td - theta, tu.copy(), yc.copy(), 1, 1, 1, 1)
-            if info != 0:
-                raise FloatingPointError(f"CF-{order}: singular shifted tridiagonal system (LAPACK zgtsv info={info})")
-            acc += 2.0 * ((c / theta if flux_form else c) * x).real
+        x = _shifted_solves(tl, td, tu, y, thetas, order)
+        # 2 Re sum_j c_j x_j; in flux form w = 2 Re sum_j (c_j/theta_j) x_j (the rows added in order, from 0, as a
+        # loop of += adds them: numpy reduces over the first axis of a C-ordered array row by row)
+        acc = np.add.reduce(2.0 * ((residues / thetas if flux_form else residues)[:, None] * x).real, axis=0)
         if flux_form:
             return _flux_sum(lower, upper, t, y, acc, r_inf - 2.0 * float(np.sum((residues / thetas).real)))
         return r_inf * y + acc
@@ -269,6 +266,32 @@ def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: 
         else:
             y += 2.0 * (alpha * x).real
     return ALPHA0 * y
+
+
+def _shifted_solves(tl: np.ndarray, td: np.ndarray, tu: np.ndarray, y: np.ndarray, thetas: np.ndarray,
+                    order: int) -> np.ndarray:
+    """``x_j = (t L - theta_j)^-1 y`` for every pole ``theta_j``, as the rows of a ``(poles, n)`` array.
+
+    One LAPACK ``zgtsv`` call solves all of them: the shifted systems stacked on one diagonal, with zero couplings
+    between the blocks.  Where a sub-diagonal entry is zero ``zgtsv`` neither eliminates nor interchanges rows, and
+    the back substitution subtracts exact zeros, so every block's solution has the bits of its own solve (checked
+    against separate solves in the tests); one call instead of one per pole saves its fixed cost (copies and the
+    call, about 10 us each: 1/3 of a grid's exponential on the Fig. 1 scenes' grids).
+    """
+    m, n = thetas.size, y.size
+    dl = np.zeros((m, n), dtype=np.complex128)
+    du = np.zeros((m, n), dtype=np.complex128)
+    dl[:, :-1] = tl
+    du[:, :-1] = tu
+    d = td[None, :] - thetas[:, None]
+    b = np.empty((m, n), dtype=np.complex128)
+    b[:] = y
+    _, _, _, x, info = _GTSV(dl.ravel()[:-1], d.ravel(), du.ravel()[:-1], b.ravel(), 1, 1, 1, 1)
+    if info != 0:
+        pole, row = divmod(int(info) - 1, n)
+        raise FloatingPointError(f"CF-{order}: singular shifted tridiagonal system (LAPACK zgtsv info={info}: "
+                                 f"pole {pole}, row {row + 1})")
+    return x.reshape(m, n)
 
 
 def _flux_sum(lower: np.ndarray, upper: np.ndarray, t: float, y: np.ndarray, w: np.ndarray, r: float) -> np.ndarray:
