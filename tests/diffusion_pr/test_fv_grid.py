@@ -52,6 +52,8 @@ def test_doubled_grid_nests_bit_for_bit(spec):
     finer = edges_for(spec, 2 * idx, 4)
     assert np.array_equal(finer[::2], fine)
     assert np.array_equal(edges_for(spec, idx, 2), fine[::2])
+    # the doubling level inverts only its new edges (known=): the same grid, bit for bit
+    assert np.array_equal(edges_for(spec, 2 * idx, 4, known=fine), finer)
 
 
 def test_remap_density_is_the_derivative_of_its_closed_form_integral():

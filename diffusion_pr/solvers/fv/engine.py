@@ -392,7 +392,7 @@ def density_knots(prep: Prepared) -> tuple:
 def _check_f(f: Callable, p: np.ndarray, name: str) -> np.ndarray:
     """``f(p)`` checked vectorized (:func:`~diffusion_pr.models.evaluate_vectorized`) and finite."""
     out = evaluate_vectorized(f, p, name)
-    if not np.all(np.isfinite(out)):
+    if not np.isfinite(out).all():
         bad = p[~np.isfinite(out)][0]
         raise ValueError(f"{name} returned a non-finite value at p={bad!r}")
     return out
@@ -414,7 +414,7 @@ def _rows(funcs: Sequence, p: np.ndarray, name: str, out: Optional[np.ndarray] =
     if len(kinds) == 1 and callable(getattr(next(iter(kinds)), "rows", None)):
         # one call for all rows (the closures' models evaluate them in a compiled pass, no temporaries)
         block = np.asarray(next(iter(kinds)).rows(tuple(funcs), p), dtype=float)
-        if block.shape == (len(funcs), p.size) and np.all(np.isfinite(block)):
+        if block.shape == (len(funcs), p.size) and np.isfinite(block).all():
             if out is None:
                 return block
             out[...] = block
@@ -1032,7 +1032,7 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     c = centres(edges)
     n = c.size
     y = np.zeros(n + 1)
-    j = int(np.searchsorted(edges, prep.p0))  # p0 == edges[j]
+    j = int(edges.searchsorted(prep.p0))  # p0 == edges[j]
     cl, cr = c[j - 1], c[j]
     y[j] = (cr - prep.p0) / (cr - cl)
     y[j + 1] = (prep.p0 - cl) / (cr - cl)
@@ -1433,7 +1433,7 @@ def _lump(y: np.ndarray, j: int) -> np.ndarray:
     """``[z + m_0 + .. + m_{j-1}, m_j, ...]``: the first ``j`` cells (below the floor) lumped into ``z``."""
     if j <= 0:
         return y
-    return np.r_[y[: j + 1].sum(), y[j + 1:]]
+    return np.concatenate(((y[: j + 1].sum(),), y[j + 1:]))
 
 
 #: cells just below the floor whose cumulative masses a result keeps for its cdf's spline (:func:`_floor_ghosts`)
@@ -1454,7 +1454,10 @@ def _floor_ghosts(edges: np.ndarray, y: np.ndarray, j: int) -> Optional[tuple]:
 
 def _aggregate(y_fine: np.ndarray) -> np.ndarray:
     """Sum the fine cells' masses (each coarse cell split in two) onto the coarse cells."""
-    return np.r_[y_fine[0], y_fine[1::2] + y_fine[2::2]]
+    out = np.empty(y_fine.size // 2 + 1)
+    out[0] = y_fine[0]
+    np.add(y_fine[1::2], y_fine[2::2], out=out[1:])
+    return out
 
 
 def _extrapolate(fine: np.ndarray, coarse: np.ndarray, ratio: float) -> np.ndarray:
@@ -1729,7 +1732,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             break
         # the coarser grids are every 2nd / 4th (/ 8th) edge of it (a forced grid's remembered: the shells' plain
         # solves ask for the same one several times)
-        finest = _forced_edges(prep.spec, idx, depth) if forced is not None else edges_for(prep.spec, idx, depth)
+        finest = _forced_edges(prep.spec, idx, depth) if forced is not None else edges_for(
+            prep.spec, idx, depth, known=reuse[2] if reuse is not None else None)
         es = [finest[::depth >> k] for k in range(depth.bit_length())]  # coarsest first
         ks = list(range(len(es)))  # each grid's refinement exponent (its cells are n_base << k)
         if plain_only:  # the N and 2N grids alone, or the 4N grid alone (plain_masses)
@@ -1815,13 +1819,13 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         mom2 = centres(e2) * y2[1:]
         mom3 = centres(e3) * y3[1:]
         r_mom = _extrapolate(_pairs(mom3), mom2, 4.0)
-        mean_full = float(np.sum(r_mom) + e2[0] * r23[0])
+        mean_full = float(r_mom.sum() + e2[0] * r23[0])
         # the quantity reported: cells below the floor lumped into zero_weight (before any other step)
         j1 = _cells_below_floor(prep, e1)
         j2 = 2 * j1
         diff = _lump(_aggregate(r23), j1) - _lump(r12, j1)  # the Richardson differences on the N grid
         exit_wall = _exit_wall(prep)
-        est = float(np.sum(np.abs(diff))) / (EXIT_RICHARDSON_DIVISOR if exit_wall else RICHARDSON_DIVISOR)
+        est = float(np.abs(diff).sum()) / (EXIT_RICHARDSON_DIVISOR if exit_wall else RICHARDSON_DIVISOR)
         out_edges, out_y, out_mom, fine_l = e2[j2:], _lump(r23, j2), r_mom[j2:], _lump(fine, j2)
         order = 2 if exit_wall else 4
         ghosts6 = None
@@ -1831,7 +1835,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         # where extrapolation overshoots below 0 (far tails, 1e-17-level), keep the finest grid's own
         # value (>= 0 up to CRAM round-off, which is then cut to 0); the change is added to the estimate
         neg = out_y < 0.0
-        if np.any(neg):
+        if neg.any():
             repl = np.maximum(fine_l[neg], 0.0)
             est += float(np.sum(np.abs(out_y[neg] - repl)))
             out_y = out_y.copy()
@@ -1998,7 +2002,7 @@ def _unstable_grid(es: Sequence[np.ndarray], ys: Sequence[tuple]) -> Optional[st
     now leans upwind on such faces (:func:`.operator.fitted_weight`); the check stays for the drifts that keep the
     central flux (closures, balances, py-pde's and FiPy's operators).  ``es[i]`` is the grid of ``ys[i]``."""
     for edges, (y, _) in zip(es, ys):
-        total = float(np.sum(np.abs(y)))
+        total = float(np.abs(y).sum())
         if not math.isfinite(total) or total > UNSTABLE_L1:
             return (f"the exponential integration is unstable on the {edges.size - 1}-cell grid (sum |Pr| = "
                     f"{total:.3g} instead of 1): a drift dominating the diffusion gives the operator eigenvalues "
@@ -2023,7 +2027,7 @@ def _forced_edges(spec: GridSpec, idx: np.ndarray, depth: int) -> np.ndarray:
 
 def _cells_below_floor(prep: Prepared, edges: np.ndarray) -> int:
     """How many cells of the grid ``edges`` lie below the floor (lumped into the zero weight of an answer)."""
-    return int(np.searchsorted(edges, prep.lump_below)) if prep.lump_below > 0 else 0
+    return int(edges.searchsorted(prep.lump_below)) if prep.lump_below > 0 else 0
 
 
 def _grid_of(prep: Prepared, idx: np.ndarray) -> tuple:
@@ -2133,13 +2137,13 @@ def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarr
     starts above the wall and the floor (a truncated bottom), the probability that
     left through it below rtol.
     """
-    h = np.diff(edges)
+    h = edges[1:] - edges[:-1]
     m = np.asarray(y[1:], dtype=float)
     c = centres(edges)
     if moments is not None:
         ok = m > 1e-300
         bary = np.where(ok, moments / np.where(ok, m, 1.0), c)
-        c = np.clip(bary, edges[:-1], edges[1:])
+        c = np.minimum(np.maximum(bary, edges[:-1]), edges[1:])  # (np.clip's values, without its overhead)
     z = float(y[0])
     density = m / h
     mass = float(m.sum() + z)

@@ -217,11 +217,11 @@ def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float) -> np.ndarr
     for _ in range(8):
         r = spec.phi(x) - targets
         done = np.abs(r) <= tol
-        if np.all(done):
+        if done.all():
             return x
         # converged points stay: each edge's value depends on its own target only (nested grids agree bit for bit)
         x = np.where(done, x, x - r / spec.dphi(x))
-        if not (np.all(x >= a) and np.all(x <= b)):
+        if not ((x >= a).all() and (x <= b).all()):
             break
     return _invert_safe(spec, targets, x0, a, b, tol)
 
@@ -342,7 +342,7 @@ def knot_indices(spec: GridSpec, n_cells: int) -> np.ndarray:
 MIN_GAP = 3
 
 
-def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1) -> np.ndarray:
+def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1, known: Optional[np.ndarray] = None) -> np.ndarray:
     """Edges of the grid whose knots sit at edge indices ``factor * idx`` (pressure).
 
     The edge with index ``i`` is ``Phi^-1(T(i / (factor n)))`` with ``n = idx[-1]`` and
@@ -352,6 +352,10 @@ def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1) -> np.ndarray:
     Richardson extrapolation and for py-pde's uniform-grid operators), the grid
     with ``factor = 2`` nests exactly in the one with ``factor = 1``, and every
     knot is an edge.
+
+    ``known``: the grid of ``idx // 2`` with the same ``factor`` (the level this one doubles, whose edges are every
+    second one of this grid, bit for bit: each edge is the inverse of its own target): taken as they are, only the
+    new edges between them are inverted (half the work).
 
     Raises
     ------
@@ -376,6 +380,11 @@ def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1) -> np.ndarray:
         else:  # knots crowded: equal Phi steps per segment (nested, piecewise smooth)
             targets = np.concatenate([ph[j] + (ph[j + 1] - ph[j]) * np.arange(factor * (idx[j + 1] - idx[j])) /
                                       (factor * (idx[j + 1] - idx[j])) for j in range(k.size - 1)] + [ph[-1:]])
-    edges = _invert(spec, targets, k[0], k[-1])
+    if known is not None and known.size == (targets.size + 1) // 2 and targets.size % 2:
+        edges = np.empty(targets.size)
+        edges[::2] = known
+        edges[1::2] = _invert(spec, targets[1::2], k[0], k[-1])
+    else:
+        edges = _invert(spec, targets, k[0], k[-1])
     edges[factor * idx] = k  # knots exactly
     return edges

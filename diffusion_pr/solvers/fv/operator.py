@@ -90,12 +90,12 @@ def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = No
     lower, diag, upper : ndarray, shapes (..., n), (..., n+1), (..., n)
     """
     f_c = np.asarray(f_c, dtype=float)
-    h = np.diff(edges)
+    h = edges[1:] - edges[:-1]
     c = centres(edges)
     n = c.size
     lead = f_c.shape[:-1]
     g = f_c / h  # m -> f u
-    k_int = 1.0 / np.diff(c)  # inverse centre distances of the interior faces
+    k_int = 1.0 / (c[1:] - c[:-1])  # inverse centre distances of the interior faces
     lower = np.zeros(lead + (n,))  # entry (row r+1, col r) of the (n+1)x(n+1) matrix
     diag = np.zeros(lead + (n + 1,))
     upper = np.zeros(lead + (n,))  # entry (row r, col r+1)
