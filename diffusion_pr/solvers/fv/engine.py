@@ -31,6 +31,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import contextvars
+import functools
 import math
 import os
 import threading
@@ -494,9 +495,11 @@ def _exit_wall(prep: Prepared) -> bool:
     return _is_exit(prep.reached, prep.zero_power) and prep.spec.c_wall == 0.0
 
 
+@functools.lru_cache(maxsize=64)
 def _tail_quantile(mass: float) -> float:
     """``z`` with ``erfc(z / sqrt 2) = mass``: a diffusion whose quadratic variation is at most ``s^2`` leaves
-    ``p0 + z s`` with probability at most ``mass`` (time change to Brownian motion, reflection principle)."""
+    ``p0 + z s`` with probability at most ``mass`` (time change to Brownian motion, reflection principle).  A pure
+    function of one number, remembered: every solve at the same rtol asks for the same one."""
     z = math.sqrt(max(2.0 * math.log(1.0 / mass), 1.0))
     for _ in range(50):  # Newton on ln erfc (erfc is log-concave: monotone convergence from above)
         g = math.log(math.erfc(z / math.sqrt(2.0))) - math.log(mass)
@@ -707,12 +710,13 @@ def _prepare_probed(problem, rtol: float, p_floor: Optional[float], lamperti: bo
         f_max = f_rows.max(axis=1)
         # only a drift away from the wall moves the upper tail up (comparison: the diffusion with the drift
         # max(a, 0) stays above); a restoring drift may outgrow p (the CIR drift alpha - beta p)
-        b_rows = _rows([pc.b for pc in with_b], probe, "the drift", plan=_plan(plans, "b"),
-                       out=work("b", (len(with_b), probe.size))) if with_b else np.zeros((0, probe.size))
-        b_max = np.maximum(b_rows, 0.0, out=work("b+", b_rows.shape)).max(axis=1)  # (empty without a drift)
         # sum_k 2 dtau_k max f_k and sum_k dtau_k max b_k, added in stage order (cumsum is sequential)
         var = _ordered_sum(2.0 * durations * f_max)
-        shift = _ordered_sum(durations_b * b_max)
+        shift = 0.0  # (what the empty sum gives, without its arrays)
+        if with_b:
+            b_rows = _rows([pc.b for pc in with_b], probe, "the drift", plan=_plan(plans, "b"),
+                           out=work("b", (len(with_b), probe.size)))
+            shift = _ordered_sum(durations_b * np.maximum(b_rows, 0.0, out=work("b+", b_rows.shape)).max(axis=1))
         s = math.sqrt(var)
         new = p0 + shift + z * s
         # where that bound does not close on this probe, a drift that grows with p may: its affine envelope (tried
@@ -734,9 +738,11 @@ def _prepare_probed(problem, rtol: float, p_floor: Optional[float], lamperti: bo
                          f"{p_hi:.3g} after 60 iterations)")
     # a drift towards the wall moves the lower tail down (comparison: below p0 the process is above the one with
     # the drift -max(-a, 0) there, and every excursion below p0 starts at p0): the domain's bottom takes it
-    below = b_rows[:, :int(np.searchsorted(probe, p0, side="right"))]  # (the probe increases: probe <= p0)
-    towards = np.negative(below, out=work("b+", below.shape))
-    shift_down = _ordered_sum(durations_b * np.maximum(towards, 0.0, out=towards).max(axis=1, initial=0.0))
+    shift_down = 0.0
+    if with_b:
+        below = b_rows[:, :int(np.searchsorted(probe, p0, side="right"))]  # (the probe increases: probe <= p0)
+        towards = np.negative(below, out=work("b+", below.shape))
+        shift_down = _ordered_sum(durations_b * np.maximum(towards, 0.0, out=towards).max(axis=1, initial=0.0))
     if s <= 0.0 or not np.isfinite(s):
         raise ValueError("the diffusivity is 0 on the whole domain (0, "
                          f"{p_hi:.3g}]: Pr stays delta(p - p0) and has no density to resolve")
