@@ -1329,3 +1329,57 @@ def test_a_singular_stacked_block_names_its_pole_and_row():
     td[2] = theta[3]  # row 3 of the fourth pole's system is zero
     with pytest.raises(FloatingPointError, match=r"pole 3, row 3"):
         cram._shifted_solves(np.zeros(n - 1, complex), td, np.zeros(n - 1, complex), np.ones(n), theta, 12)
+
+
+def test_many_grids_in_one_call_are_each_grids_own_exponential_bit_for_bit(rng):
+    """expm_tridiagonal_many (a level's grids, every pole, one zgtsv call) against expm_tridiagonal on each grid
+    alone (CF-10 and CF-12, flux form): the same bits, for grids of 3, 80 and 317 states with random rates, and
+    t = 0 returns the starts."""
+    from diffusion_pr.solvers.fv.cram import expm_tridiagonal_many
+
+    systems, ys = [], []
+    for n in (3, 80, 317):
+        lo, up = rng.uniform(0.1, 2.0, n - 1) * n, rng.uniform(0.1, 2.0, n - 1) * n
+        systems.append((lo, -(np.r_[lo, 0.0] + np.r_[0.0, up]), up))
+        ys.append(rng.uniform(size=n))
+    for order in (10, 12):
+        many = expm_tridiagonal_many(systems, 0.3, ys, order)
+        for (lo, di, up), y, out in zip(systems, ys, many):
+            assert np.array_equal(out, expm_tridiagonal(lo, di, up, 0.3, y, order, flux_form=True))
+    assert all(np.array_equal(a, b) for a, b in zip(expm_tridiagonal_many(systems, 0.0, ys, 12), ys))
+
+
+def test_a_singular_system_among_many_names_its_grid_pole_and_row(monkeypatch):
+    """A zero pivot (LAPACK info > 0; the real generators shifted by complex poles never give one, so it is
+    injected) raises with the grid, the pole and the row it is in, not a result: info 4 + 9 + 2 of a stack of
+    grids with 4 and 5 states is pole 1, grid 1, row 2."""
+    from diffusion_pr.solvers.fv import cram
+
+    monkeypatch.setattr(cram, "_GTSV", lambda dl, d, du, b, *flags: (dl, d, du, b, 4 + 9 + 2))
+    gen = lambda n: (np.ones(n - 1), -2.0 * np.ones(n), np.ones(n - 1))  # noqa: E731
+    with pytest.raises(FloatingPointError, match=r"grid 1, pole 1, row 2"):
+        cram.expm_tridiagonal_many([gen(4), gen(5)], 1.0, [np.ones(4), np.ones(5)], 12)
+
+
+@pytest.mark.parametrize("case", ["fig1", "two_stages", "feller"])
+def test_a_level_in_one_lapack_call_is_the_grid_by_grid_solve_bit_for_bit(monkeypatch, case):
+    """The engine integrates a level's grids in one LAPACK call per stage where it can (one to three plain stages,
+    CF-10/12): the same answer, bit for bit, as grid by grid (the Fig. 1 scene at zeta = 0.25, two stages of
+    different diffusivities, Feller's solution with its doubling level), and the path is taken."""
+    if case == "fig1":
+        prob = dp.FokkerPlanckProblem(0.004, 1e-5, dp.PressureFactor(dp.MuserCutoff(0.0027), dp.GaussianTail()))
+    elif case == "feller":
+        prob = dp.FokkerPlanckProblem(1.0, 1.0, dp.ProportionalDiffusivity(1.0))
+    else:
+        from diffusion_pr.problem import Stage, StagedProblem
+        prob = StagedProblem(1.0, (Stage(0.3, dp.PressureFactor(dp.MuserCutoff(0.5), dp.GaussianTail())),
+                                   Stage(0.2, dp.ProportionalDiffusivity(1.0))))
+    calls = []
+    one = engine._integrate_level
+    monkeypatch.setattr(engine, "_integrate_level", lambda *a: calls.append(1) or one(*a))
+    fast = engine.solve_fv(prob, rtol=1e-6, backend="native")
+    assert calls and fast.success
+    monkeypatch.setattr(engine, "_one_call_level", lambda prep, order: False)
+    slow = engine.solve_fv(prob, rtol=1e-6, backend="native")
+    assert np.array_equal(fast.edges, slow.edges) and np.array_equal(fast.density, slow.density)
+    assert fast.zero_weight == slow.zero_weight and fast.error_estimate == slow.error_estimate

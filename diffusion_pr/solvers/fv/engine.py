@@ -45,7 +45,7 @@ from ...models import breakpoints_of, evaluate_vectorized, wall_reached, zero_po
 from ...problem import FokkerPlanckProblem, StagedProblem
 from ...result import PressureDistribution
 from ._fpenv import flush_subnormals
-from .cram import PFD_ERROR_BOUNDS, expm_tridiagonal, pfd_coefficients
+from .cram import PFD_ERROR_BOUNDS, expm_tridiagonal, expm_tridiagonal_many, pfd_coefficients
 from .grid import GridSpec, Remap, edges_for, knot_indices
 from .operator import bands as fv_bands
 from .operator import centres
@@ -1017,6 +1017,37 @@ def _drift_splits(pieces: Sequence, coef: dict) -> np.ndarray:
     return splits
 
 
+def _start(prep: Prepared, edges: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """The start ``[z, m...]`` on a grid (cell centres ``c``): delta(p - p0) split between the two cells at ``p0``
+    (an edge) so that the mean is ``p0``."""
+    y = np.zeros(c.size + 1)
+    j = int(edges.searchsorted(prep.p0))  # p0 == edges[j]
+    cl, cr = c[j - 1], c[j]
+    y[j] = (cr - prep.p0) / (cr - cl)
+    y[j + 1] = (prep.p0 - cl) / (cr - cl)
+    return y
+
+
+def _one_call_level(prep: Prepared, order: int) -> bool:
+    """Whether a level's grids integrate in one LAPACK call per stage (:func:`_integrate_level`): LAPACK's stages
+    (not the compiled kernels), constant coefficients, no drift (its splits differ per grid) and no balance, and
+    partial fractions (CF-10/12)."""
+    return (not prep.time_dependent and not prep.has_balance and not _compiled(prep) and order != 16
+            and all(pc.b is None for pc in prep.pieces))
+
+
+def _integrate_level(prep: Prepared, es: Sequence[np.ndarray], coefs: Callable, order: int) -> list:
+    """``[(y, counters)]`` of every grid of a level, as :func:`solve_on_grid` gives them (bit for bit), each stage's
+    exponential for all grids in one LAPACK call (:func:`~.cram.expm_tridiagonal_many`; where
+    :func:`_one_call_level`)."""
+    ys = [_start(prep, e, centres(e)) for e in es]
+    bands = [_stage_bands(e, coefs(g), native_assemble)[0] for g, e in enumerate(es)]
+    for k, pc in enumerate(prep.pieces):
+        ys = expm_tridiagonal_many([(lo[k], di[k], up[k]) for lo, di, up in bands], float(pc.duration), ys, order)
+    return [(y, {"cram_applications": len(prep.pieces), "substeps": 0, "newton_steps": 0, "cram_order": order})
+            for y in ys]
+
+
 def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = native_assemble,
                   n_base: int = 64, refine: int = 1, mean_tol: float = 1e-13,
                   lin_tol: float = 0.0, coef: Optional[dict] = None,
@@ -1037,11 +1068,7 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     """
     c = centres(edges)
     n = c.size
-    y = np.zeros(n + 1)
-    j = int(edges.searchsorted(prep.p0))  # p0 == edges[j]
-    cl, cr = c[j - 1], c[j]
-    y[j] = (cr - prep.p0) / (cr - cl)
-    y[j + 1] = (prep.p0 - cl) / (cr - cl)
+    y = _start(prep, edges, c)
     pieces = prep.segment_fn(refine * max(4, n_base // 8)) if prep.time_dependent else prep.pieces
     if coef is None:
         coef = _coefficients(pieces, [edges], centre_drift=assemble is not native_assemble,
@@ -1720,6 +1747,9 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     # check where a fresh level passes (p0 = 1, V = 4, Muser cutoff at 0.75: mean off by 3e-3 at 102 cells,
     # estimate 4.6e-4), so the peers keep fresh levels
     reusable = stage_constant and not sixth
+    # LAPACK's plain stages: each stage's exponential for all grids of a level in one call (the same bits)
+    one_call = (loop is None and assemble is native_assemble and rtol >= PFD_MIN_RTOL
+                and _one_call_level(prep, rational_order))
     reuse = None
     remap_factor = 1.0  # the cell factor of a remapped monitor (:func:`_remapped`)
     grading_next = None  # (c_wall, depth fraction, cell factor) the converged level's errors favour (:func:`_regraded`)
@@ -1775,7 +1805,10 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                          for g, (k, e) in enumerate(zip(ks, es))]
             else:
                 tasks = [lambda e=e, rf=1 << k: integrate(prep, e, n_base, rf) for k, e in zip(ks, es)]
-            ys = _run_grids(tasks, parallel, side)
+            if one_call:
+                ys = _integrate_level(prep, es, coefs, rational_order)
+            else:
+                ys = _run_grids(tasks, parallel, side)
         if side is not None:
             done = side[2]()
             alongside.results = None if done is None else (_grid_of(prep, idx), done)
