@@ -21,6 +21,7 @@ is valid.  Pressures in the units of ``p0``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+import math
 from typing import Optional
 
 import numpy as np
@@ -158,11 +159,21 @@ class GridSpec:
         if self.remap is not None:
             return self.remap.forward(self._base_value(p))
         p = np.asarray(p, dtype=float)
-        out = (p - self.p_wall) / self.scale
-        if self.c_wall > 0.0:
-            out = out + self.c_wall * np.log((p - self.p_wall + self._delta) / self._delta)
+        rel = np.subtract(p, self.p_wall, out=np.empty(p.shape))  # (an array also for a 0-d p: written in place)
+        out = rel / self.scale
+        if self.c_wall > 0.0:  # (in place: the same operations, without their temporaries)
+            delta = self._delta
+            rel += delta
+            rel /= delta
+            term = np.log(rel, out=rel)
+            term *= self.c_wall
+            out += term
         if self.c_0 > 0.0:
-            out = out + self.c_0 * np.arcsinh((p - self.p0) / self.w0)
+            z = np.subtract(p, self.p0, out=np.empty(p.shape))
+            z /= self.w0
+            term = np.arcsinh(z, out=z)
+            term *= self.c_0
+            out += term
         return out
 
     def dphi(self, p: np.ndarray) -> np.ndarray:
@@ -171,10 +182,16 @@ class GridSpec:
             return self.remap.density(self._base_value(p)) * self.base.dphi(p)
         p = np.asarray(p, dtype=float)
         out = np.full_like(p, 1.0 / self.scale)
-        if self.c_wall > 0.0:
-            out = out + self.c_wall / (p - self.p_wall + self._delta)
+        if self.c_wall > 0.0:  # (in place: the same operations, without their temporaries)
+            w = np.subtract(p, self.p_wall, out=np.empty(p.shape))
+            w += self._delta
+            out += np.divide(self.c_wall, w, out=w)
         if self.c_0 > 0.0:
-            out = out + self.c_0 / np.sqrt((p - self.p0) ** 2 + self.w0**2)
+            z = np.subtract(p, self.p0, out=np.empty(p.shape))
+            z *= z
+            z += self.w0**2
+            w = np.sqrt(z, out=z)
+            out += np.divide(self.c_0, w, out=w)
         return out
 
     @property
@@ -287,28 +304,28 @@ class _NaturalSpline:
     def min_slope(self) -> float:
         """The smallest first derivative on ``[x_0, x_-1]``, exact: on each piece ``r'`` is quadratic, so its minimum
         is at an end, or inside where ``r''`` (linear, ``m_i`` to ``m_{i+1}``) changes sign from - to +."""
-        h, y, m = self.h, self.y, self.m
-        ml, mr = m[:-1], m[1:]
-        mid = (y[1:] - y[:-1]) / h - (mr - ml) * h / 6.0  # r' without its quadratic terms
-        lowest = np.minimum(mid - ml * h / 2.0, mid + mr * h / 2.0)  # r' at the left and right ends
-        inside = (ml < 0.0) & (mr > 0.0)
-        if np.any(inside):  # r'' = 0 at b = t - x_i = -m_i h / (m_{i+1} - m_i)
-            b = -ml[inside] * h[inside] / (mr[inside] - ml[inside])
-            a = h[inside] - b
-            lowest[inside] = np.minimum(lowest[inside], mid[inside] + (mr[inside] * b * b - ml[inside] * a * a)
-                                        / (2.0 * h[inside]))
-        return float(lowest.min())
+        lowest = math.inf
+        # (plain floats: a few pieces, where numpy's calls would cost more than the arithmetic)
+        for h, yl, yr, ml, mr in zip(self.h.tolist(), self.y[:-1].tolist(), self.y[1:].tolist(),
+                                     self.m[:-1].tolist(), self.m[1:].tolist()):
+            mid = (yr - yl) / h - (mr - ml) * h / 6.0  # r' without its quadratic terms
+            lowest = min(lowest, mid - ml * h / 2.0, mid + mr * h / 2.0)  # r' at the left and right ends
+            if ml < 0.0 < mr:  # r'' = 0 at b = t - x_i = -m_i h / (m_{i+1} - m_i)
+                b = -ml * h / (mr - ml)
+                a = h - b
+                lowest = min(lowest, mid + (mr * b * b - ml * a * a) / (2.0 * h))
+        return lowest
 
     def on_pieces(self, t: np.ndarray, counts: np.ndarray) -> np.ndarray:
         """The spline at ``t`` whose first ``counts[0]`` points lie on the first piece, the next ``counts[1]`` on the
         second, ... (the last piece's count includes its right end): :meth:`__call__`'s values bit for bit, without
         its search and gathers."""
         x, y, h, m = self.x, self.y, self.h, self.m
-        rep = lambda v: np.repeat(v, counts)  # noqa: E731
-        hi6 = rep(6 * h)
-        a, b = rep(x[1:]) - t, t - rep(x[:-1])
-        return (rep(m[:-1]) * a**3 / hi6 + rep(m[1:]) * b**3 / hi6
-                + rep(y[:-1] / h - m[:-1] * h / 6.0) * a + rep(y[1:] / h - m[1:] * h / 6.0) * b)
+        # every piece's numbers repeated onto its points in one call
+        xr, xl, hi6, ml, mr, cl, cr = np.repeat(np.array([x[1:], x[:-1], 6 * h, m[:-1], m[1:], y[:-1] / h - m[:-1] * h / 6.0,
+                                                          y[1:] / h - m[1:] * h / 6.0]), counts, axis=1)
+        a, b = xr - t, t - xl
+        return ml * a**3 / hi6 + mr * b**3 / hi6 + cl * a + cr * b
 
     def __call__(self, t: np.ndarray, nu: int = 0) -> np.ndarray:
         x, y, h, m = self.x, self.y, self.h, self.m
