@@ -154,3 +154,13 @@ def test_two_user_threads_solving_at_once_get_the_serial_bits(fig1):
     for k in range(2):
         for answer in got[k]:
             np.testing.assert_array_equal(answer, serial[k])
+
+
+def test_probe_points_are_linspace_bit_for_bit(rng):
+    """The domain probe's points without np.linspace's overhead: its values, bit for bit, over 12 decades of
+    p_hi and both probe sizes (the domain, and so every answer, depends on them)."""
+    from diffusion_pr.solvers.fv.engine import PROBE_POINTS, PROBE_POINTS_COARSE, _probe_points
+
+    for p_hi in [*10.0 ** rng.uniform(-9, 9, 400), 4.0, 0.016]:
+        for n in (PROBE_POINTS_COARSE, PROBE_POINTS):
+            assert np.array_equal(_probe_points(float(p_hi), n), np.linspace(0.0, p_hi, n + 1)[1:])

@@ -704,7 +704,7 @@ def _prepare_probed(problem, rtol: float, p_floor: Optional[float], lamperti: bo
     durations_b = np.array([pc.duration for pc in with_b], dtype=float)
     z = _tail_quantile(TAIL_FRACTION * max(rtol, 1e-15))
     for _ in range(60):
-        probe = np.linspace(0.0, p_hi, points + 1)[1:]
+        probe = _probe_points(p_hi, points)
         f_rows = _rows([pc.f for pc in pieces], probe, "the diffusivity", plan=_plan(plans, "f"),
                        out=work("f", (len(pieces), probe.size)))
         f_max = f_rows.max(axis=1)
@@ -834,7 +834,18 @@ def _prepare_probed(problem, rtol: float, p_floor: Optional[float], lamperti: bo
 def _ordered_sum(terms: np.ndarray) -> float:
     """``terms[0] + terms[1] + ...`` added left to right (``cumsum`` is sequential; ``sum`` is pairwise), 0 where
     empty: the same bits as a Python loop of ``+=`` from 0."""
+    if terms.size == 1:
+        return float(terms[0])
     return float(np.cumsum(terms)[-1]) if terms.size else 0.0
+
+
+def _probe_points(p_hi: float, points: int) -> np.ndarray:
+    """``np.linspace(0, p_hi, points + 1)[1:]``, its values (``k (p_hi / points)``, the last ``p_hi`` exactly)
+    without its overhead (the domain probe asks for several)."""
+    probe = np.arange(1, points + 1, dtype=float)
+    probe *= p_hi / points
+    probe[-1] = p_hi
+    return probe
 
 
 def _wall_of(pieces: Sequence, time_dependent: bool, p0: float, p_max: float, p_floor: Optional[float]) -> tuple:
