@@ -293,6 +293,10 @@ class _NaturalSpline:
     def __init__(self, x: np.ndarray, y: np.ndarray) -> None:
         n = x.size
         h = np.diff(x)
+        if n == 3:  # one interior knot (the wall, p0 and p_max): LAPACK's elimination of the 3x3 system, exactly
+            m1 = 6.0 * ((y[2] - y[1]) / h[1] - (y[1] - y[0]) / h[0]) / (2.0 * (h[0] + h[1]))
+            self.x, self.y, self.h, self.m = x, y, h, np.array([0.0, m1, 0.0])
+            return
         a = np.zeros((n, n))
         b = np.zeros(n)
         a[0, 0] = a[-1, -1] = 1.0
