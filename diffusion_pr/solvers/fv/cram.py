@@ -288,34 +288,37 @@ def expm_tridiagonal_many(systems: Sequence[tuple], t: float, ys: Sequence[np.nd
     thetas, residues, r_inf, _ = pfd_coefficients(order)
     m, sizes = thetas.size, [y.size for y in ys]
     total = sum(sizes)
-    dl = np.zeros((m, total), dtype=np.complex128)
-    du = np.zeros((m, total), dtype=np.complex128)
-    d = np.empty((m, total), dtype=np.complex128)
-    b = np.empty((m, total), dtype=np.complex128)
+    # the grids' bands and states one after another; a grid's last state is coupled to nothing (zero bands there)
+    lower_row = np.zeros(total)
+    upper_row = np.zeros(total)
+    diag_row = np.empty(total)
+    y_row = np.empty(total)
     off = 0
     for (lower, diag, upper), y, n in zip(systems, ys, sizes):
-        dl[:, off:off + n - 1] = t * lower
-        du[:, off:off + n - 1] = t * upper
-        d[:, off:off + n] = (t * diag)[None, :] - thetas[:, None]
-        b[:, off:off + n] = y
+        lower_row[off:off + n - 1] = lower
+        upper_row[off:off + n - 1] = upper
+        diag_row[off:off + n] = diag
+        y_row[off:off + n] = y
         off += n
+    dl = np.empty((m, total), dtype=np.complex128)
+    dl[:] = t * lower_row
+    du = np.empty((m, total), dtype=np.complex128)
+    du[:] = t * upper_row
+    d = (t * diag_row)[None, :] - thetas[:, None]
+    b = np.empty((m, total), dtype=np.complex128)
+    b[:] = y_row
     _, _, _, x, info = _GTSV(dl.ravel()[:-1], d.ravel(), du.ravel()[:-1], b.ravel(), 1, 1, 1, 1)
     if info != 0:
         pole, row = divmod(int(info) - 1, total)
         grid = int(np.searchsorted(np.cumsum(sizes), row, side="right"))
         raise FloatingPointError(f"CF-{order}: singular shifted tridiagonal system (LAPACK zgtsv info={info}: grid "
                                  f"{grid}, pole {pole}, row {row - sum(sizes[:grid]) + 1})")
-    x = x.reshape(m, total)
-    weights = (residues / thetas)[:, None]  # in flux form w = 2 Re sum_j (c_j/theta_j) x_j
-    r = r_inf - 2.0 * float(np.sum((residues / thetas).real))
-    out, off = [], 0
-    for (lower, diag, upper), y, n in zip(systems, ys, sizes):
-        # the rows added in order, from 0, as a loop of += adds them (numpy reduces over the first axis of a
-        # C-ordered array row by row)
-        acc = np.add.reduce(2.0 * (weights * x[:, off:off + n]).real, axis=0)
-        out.append(_flux_sum(lower, upper, t, y, acc, r))
-        off += n
-    return out
+    # in flux form w = 2 Re sum_j (c_j/theta_j) x_j, the rows added in order, from 0, as a loop of += adds them
+    # (numpy reduces over the first axis of a C-ordered array row by row); then r y + t L w as flux differences
+    # (:func:`_flux_sum`), the zero bands between grids carrying no flux
+    w = np.add.reduce(2.0 * ((residues / thetas)[:, None] * x.reshape(m, total)).real, axis=0)
+    out = _flux_sum(lower_row[:-1], upper_row[:-1], t, y_row, w, r_inf - 2.0 * float(np.sum((residues / thetas).real)))
+    return [part.copy() for part in np.split(out, np.cumsum(sizes)[:-1])]  # (each grid its own array)
 
 
 def _shifted_solves(tl: np.ndarray, td: np.ndarray, tu: np.ndarray, y: np.ndarray, thetas: np.ndarray,
