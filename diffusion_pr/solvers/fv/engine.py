@@ -420,10 +420,10 @@ def _rows(funcs: Sequence, p: np.ndarray, name: str, out: Optional[np.ndarray] =
                 return block
             out[...] = block
             return out
-    res = np.array([_check_f(g, p, f"{name} of stage {k}") for k, g in enumerate(funcs)]).reshape(len(funcs), p.size)
     if out is None:
-        return res
-    out[...] = res
+        out = np.empty((len(funcs), p.size))
+    for k, g in enumerate(funcs):  # (each row written where it goes: no list, no stacked copy)
+        out[k] = _check_f(g, p, f"{name} of stage {k}")
     return out
 
 
