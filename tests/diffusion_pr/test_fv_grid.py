@@ -56,6 +56,18 @@ def test_doubled_grid_nests_bit_for_bit(spec):
     assert np.array_equal(edges_for(spec, 2 * idx, 4, known=fine), finer)
 
 
+def test_crowded_knots_nest_and_take_known_edges_bit_for_bit():
+    """Knots 0.02 apart on a scale of 1 (the residual spline would not be monotone: equal Phi steps per segment
+    instead): the doubled grid still nests, and inverting only its new edges gives it bit for bit."""
+    spec = GridSpec(p_wall=0.0, p_max=8.0, knots=(1.0, 1.02, 1.05), scale=1.0, c_wall=0.0, c_0=0.0, w0=1.0, p0=1.0)
+    for n in (20, 97):
+        idx = knot_indices(spec, n)
+        fine, finer = edges_for(spec, idx, 4), edges_for(spec, 2 * idx, 4)
+        assert np.array_equal(finer[::2], fine)
+        assert np.array_equal(edges_for(spec, 2 * idx, 4, known=fine), finer)
+        assert np.all(np.diff(finer) > 0)
+
+
 def test_remap_density_is_the_derivative_of_its_closed_form_integral():
     """F is the spline's integral in closed form: F' = D (central differences, h = 1e-5: error ~1e-10), F(0) = 0,
     F(last knot) = total, linear beyond it; F^-1(F(v)) = v to round-off; a constant density gives F = c v."""

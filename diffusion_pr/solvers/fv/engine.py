@@ -1887,7 +1887,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         neg = out_y < 0.0
         if neg.any():
             repl = np.maximum(fine_l[neg], 0.0)
-            est += float(np.sum(np.abs(out_y[neg] - repl)))
+            est += float(np.abs(out_y[neg] - repl).sum())
             out_y = out_y.copy()
             out_y[neg] = repl
         # where the exact mean is p0 (no drift, or a balance), the computed mean's miss is a known error: the L1

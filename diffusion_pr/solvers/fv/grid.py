@@ -237,8 +237,9 @@ def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float) -> np.ndarr
         if done.all():
             return x
         # converged points stay: each edge's value depends on its own target only (nested grids agree bit for bit)
-        x = np.where(done, x, x - r / spec.dphi(x))
-        if not ((x >= a).all() and (x <= b).all()):
+        step = x - r / spec.dphi(x)
+        x = np.where(done, x, step) if done.any() else step
+        if not (a <= x.min() and x.max() <= b):
             break
     return _invert_safe(spec, targets, x0, a, b, tol)
 
@@ -390,21 +391,30 @@ def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1, known: Optional[
     tot = ph[-1] - ph[0]
     resid = ph - (ph[0] + tot * xk)
     x = np.arange(n * factor + 1) / (n * factor)
+    # the new edges only (odd indices; the knots, at factor * idx, are even): their targets alone
+    new_only = known is not None and factor % 2 == 0 and known.size == n * factor // 2 + 1
+    if new_only:
+        x = x[1::2]
     targets = ph[0] + tot * x
     if k.size > 2:
         r = _NaturalSpline(xk, resid)
         # T' = tot + r' must stay well positive: r' is quadratic on each segment between knots (its minimum exact)
         if tot + r.min_slope() > 0.2 * tot:
             counts = factor * np.diff(idx)
-            counts[-1] += 1  # the last edge (x = 1) on the last piece
+            if new_only:
+                counts //= 2  # each piece's odd points
+            else:
+                counts[-1] += 1  # the last edge (x = 1) on the last piece
             targets = targets + r.on_pieces(x, counts)
         else:  # knots crowded: equal Phi steps per segment (nested, piecewise smooth)
             targets = np.concatenate([ph[j] + (ph[j + 1] - ph[j]) * np.arange(factor * (idx[j + 1] - idx[j])) /
                                       (factor * (idx[j + 1] - idx[j])) for j in range(k.size - 1)] + [ph[-1:]])
-    if known is not None and known.size == (targets.size + 1) // 2 and targets.size % 2:
-        edges = np.empty(targets.size)
+            if new_only:
+                targets = targets[1::2]
+    if new_only:
+        edges = np.empty(n * factor + 1)
         edges[::2] = known
-        edges[1::2] = _invert(spec, targets[1::2], k[0], k[-1])
+        edges[1::2] = _invert(spec, targets, k[0], k[-1])
     else:
         edges = _invert(spec, targets, k[0], k[-1])
     edges[factor * idx] = k  # knots exactly
