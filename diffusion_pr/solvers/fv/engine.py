@@ -1802,7 +1802,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         if reuse is not None:
             coef3 = _coefficients(prep.pieces, [es[-1]], centre_drift=assemble is not native_assemble,
                                   plans=prep.row_plans)[0]
-            new_grid = lambda: integrate(prep, es[-1], n_base, 4, coef3)  # noqa: E731
+            new_grid = (lambda: _integrate_level(prep, es[-1:], lambda g: coef3, rational_order)[0]) if one_call \
+                else (lambda: integrate(prep, es[-1], n_base, 4, coef3))
             # (the new grid in the worker where plain problems run alongside in this thread)
             ys = [reuse[3], reuse[4], *(_run_grids([new_grid], True, side) if side is not None else [new_grid()])]
         else:
