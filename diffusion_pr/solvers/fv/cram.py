@@ -318,7 +318,8 @@ def expm_tridiagonal_many(systems: Sequence[tuple], t: float, ys: Sequence[np.nd
     # (:func:`_flux_sum`), the zero bands between grids carrying no flux
     w = np.add.reduce(2.0 * ((residues / thetas)[:, None] * x.reshape(m, total)).real, axis=0)
     out = _flux_sum(lower_row[:-1], upper_row[:-1], t, y_row, w, r_inf - 2.0 * float(np.sum((residues / thetas).real)))
-    return [part.copy() for part in np.split(out, np.cumsum(sizes)[:-1])]  # (each grid its own array)
+    ends = np.cumsum(sizes).tolist()
+    return [out[a:b].copy() for a, b in zip([0, *ends[:-1]], ends)]  # (each grid its own array)
 
 
 def _shifted_solves(tl: np.ndarray, td: np.ndarray, tu: np.ndarray, y: np.ndarray, thetas: np.ndarray,

@@ -951,7 +951,7 @@ def _coefficients(pieces: Sequence, grids: Sequence[np.ndarray], centre_drift: b
             else:
                 rows[key + suffix][idx] = _rows(sr.funcs, pts, name, plan=sr.plan)
     return [{**{key: v[:, cut[g]:cut[g + 1]] for key, v in rows.items()},  # views: no copies
-             "has_b": has["b"], "has_w": has["w"]} for g in range(len(grids))]
+             "has_b": has["b"], "has_w": has["w"], "c": cs[g]} for g in range(len(grids))]
 
 
 def _coefficients_lazy(pieces: Sequence, grids: Sequence[np.ndarray], groups: Sequence[tuple],
@@ -990,7 +990,7 @@ def _stage_bands(edges: np.ndarray, coef: dict, assemble: Assemble, fitted: bool
     any_w = bool(coef["has_w"].any())
     if assemble is native_assemble:  # all stages at once (the compiled path makes them in its kernel)
         any_b = bool(coef["has_b"].any())
-        base = fv_bands(edges, coef["f"], coef["b"] if any_b else None, fitted=fitted)
+        base = fv_bands(edges, coef["f"], coef["b"] if any_b else None, fitted=fitted, c=coef.get("c"))
         if not any_w:  # (assembling the zero row cost as much as the stages' own bands on a one-stage problem)
             return base, (np.zeros((1, n)), np.zeros((1, n + 1)), np.zeros((1, n)))
         return base, fv_bands(edges, np.zeros((n_stages, n)), coef["w"], fitted=False)
@@ -1051,7 +1051,7 @@ def _integrate_level(prep: Prepared, es: Sequence[np.ndarray], coefs: Callable, 
     """``[(y, counters)]`` of every grid of a level, as :func:`solve_on_grid` gives them (bit for bit), each stage's
     exponential for all grids in one LAPACK call (:func:`~.cram.expm_tridiagonal_many`; where
     :func:`_one_call_level`)."""
-    ys = [_start(prep, e, centres(e)) for e in es]
+    ys = [_start(prep, e, coefs(g)["c"]) for g, e in enumerate(es)]
     bands = [_stage_bands(e, coefs(g), native_assemble)[0] for g, e in enumerate(es)]
     for k, pc in enumerate(prep.pieces):
         ys = expm_tridiagonal_many([(lo[k], di[k], up[k]) for lo, di, up in bands], float(pc.duration), ys, order)
@@ -2083,7 +2083,7 @@ def _cells_below_floor(prep: Prepared, edges: np.ndarray) -> int:
 
 def _grid_of(prep: Prepared, idx: np.ndarray) -> tuple:
     """``diagnostics["grid"]``: the family and the knot indices of a level (what :func:`grid_family` takes)."""
-    return prep.spec, tuple(int(i) for i in idx)
+    return prep.spec, tuple(idx.tolist())
 
 
 def _plain_result(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple], idx: np.ndarray,

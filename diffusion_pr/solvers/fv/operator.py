@@ -66,8 +66,8 @@ def fitted_weight(shift: np.ndarray, f_min: np.ndarray) -> np.ndarray:
     return np.where(shift < 0.0, -out, out)
 
 
-def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = None, fitted: bool = True
-          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = None, fitted: bool = True,
+          c: Optional[np.ndarray] = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sub-, main and super-diagonal of the operator acting on ``[z, m_0..m_{n-1}]``.
 
     Parameters
@@ -84,6 +84,8 @@ def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = No
         Interior faces take the drift's upwinding weight (:func:`fitted_weight`, the default);
         False: the central value (the balance operator, a drift on a balanced stage).  One flag
         per row of the leading axes, or one for all.
+    c : ndarray, shape (n,), optional
+        The cell centres :func:`centres` gives, where the caller has them.
 
     Returns
     -------
@@ -91,7 +93,7 @@ def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = No
     """
     f_c = np.asarray(f_c, dtype=float)
     h = edges[1:] - edges[:-1]
-    c = centres(edges)
+    c = centres(edges) if c is None else c
     n = c.size
     lead = f_c.shape[:-1]
     g = f_c / h  # m -> f u
