@@ -225,7 +225,8 @@ def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: 
     each factor of the IPF form, is written as ``r y + t L w`` with ``t L w`` as differences of face fluxes, so that
     ``sum y`` is conserved to round-off even where ``|t L_ii|`` is huge in cells that hold probability: the compiled
     kernels' form (:func:`~diffusion_pr.solvers.fv._kernels._flux_form`, docs/backends.md "Probability conserved in
-    stiff cells").  The diagonal then only enters the shifted solves.
+    stiff cells").  The diagonal then only enters the shifted solves.  In flux form with ``order`` 10 or 12 this is
+    :func:`expm_tridiagonal_many` on one grid (all poles in one LAPACK call).
 
     Parameters
     ----------
