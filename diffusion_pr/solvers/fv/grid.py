@@ -181,7 +181,7 @@ class GridSpec:
         if self.remap is not None:
             return self.remap.density(self._base_value(p)) * self.base.dphi(p)
         p = np.asarray(p, dtype=float)
-        out = np.full_like(p, 1.0 / self.scale)
+        out = np.full(p.shape, 1.0 / self.scale)
         if self.c_wall > 0.0:  # (in place: the same operations, without their temporaries)
             w = np.subtract(p, self.p_wall, out=np.empty(p.shape))
             w += self._delta
@@ -293,7 +293,7 @@ class _NaturalSpline:
 
     def __init__(self, x: np.ndarray, y: np.ndarray) -> None:
         n = x.size
-        h = np.diff(x)
+        h = x[1:] - x[:-1]
         if n == 3:  # one interior knot (the wall, p0 and p_max): LAPACK's elimination of the 3x3 system, exactly
             m1 = 6.0 * ((y[2] - y[1]) / h[1] - (y[1] - y[0]) / h[0]) / (2.0 * (h[0] + h[1]))
             self.x, self.y, self.h, self.m = x, y, h, np.array([0.0, m1, 0.0])
@@ -400,7 +400,7 @@ def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1, known: Optional[
         r = _NaturalSpline(xk, resid)
         # T' = tot + r' must stay well positive: r' is quadratic on each segment between knots (its minimum exact)
         if tot + r.min_slope() > 0.2 * tot:
-            counts = factor * np.diff(idx)
+            counts = factor * (idx[1:] - idx[:-1])
             if new_only:
                 counts //= 2  # each piece's odd points
             else:
