@@ -1308,7 +1308,7 @@ def test_stacked_shifted_solves_are_the_separate_solves_bit_for_bit(rng, order, 
     td = (rng.normal(size=n) if weak_diagonal else 100.0 + rng.uniform(size=n)) + 0j
     y = rng.uniform(size=n)
     theta = pfd_coefficients(order)[0]
-    stacked = cram._shifted_solves(tl, td, tu, y, theta, order)
+    stacked = cram._shifted_solves(np.r_[tl, 0.0], td, np.r_[tu, 0.0], y, theta, order, [n])
     swaps = 0
     for j, th in enumerate(theta):
         dl = tl.copy()
@@ -1328,7 +1328,7 @@ def test_a_singular_stacked_block_names_its_pole_and_row():
     td = np.zeros(n, dtype=np.complex128)
     td[2] = theta[3]  # row 3 of the fourth pole's system is zero
     with pytest.raises(FloatingPointError, match=r"pole 3, row 3"):
-        cram._shifted_solves(np.zeros(n - 1, complex), td, np.zeros(n - 1, complex), np.ones(n), theta, 12)
+        cram._shifted_solves(np.zeros(n, complex), td, np.zeros(n, complex), np.ones(n), theta, 12, [n])
 
 
 def test_many_grids_in_one_call_are_each_grids_own_exponential_bit_for_bit(rng):

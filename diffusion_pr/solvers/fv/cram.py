@@ -255,7 +255,8 @@ def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: 
     gtsv = _GTSV
     if order != 16:
         thetas, residues, r_inf, _ = pfd_coefficients(order)
-        x = _shifted_solves(tl, td, tu, y, thetas, order)
+        zero = np.zeros(1, dtype=np.complex128)
+        x = _shifted_solves(np.concatenate((tl, zero)), td, np.concatenate((tu, zero)), y, thetas, order, [y.size])
         # 2 Re sum_j c_j x_j (the rows added in order, from 0, as a loop of += adds them: numpy reduces over the
         # first axis of a C-ordered array row by row)
         return r_inf * y + np.add.reduce(2.0 * (residues[:, None] * x).real, axis=0)
@@ -287,7 +288,7 @@ def expm_tridiagonal_many(systems: Sequence[tuple], t: float, ys: Sequence[np.nd
     if t == 0.0:
         return ys
     thetas, residues, r_inf, _ = pfd_coefficients(order)
-    m, sizes = thetas.size, [y.size for y in ys]
+    sizes = [y.size for y in ys]
     total = sum(sizes)
     # the grids' bands and states one after another; a grid's last state is coupled to nothing (zero bands there)
     lower_row = np.zeros(total)
@@ -301,51 +302,48 @@ def expm_tridiagonal_many(systems: Sequence[tuple], t: float, ys: Sequence[np.nd
         diag_row[off:off + n] = diag
         y_row[off:off + n] = y
         off += n
-    dl = np.empty((m, total), dtype=np.complex128)
-    dl[:] = t * lower_row
-    du = np.empty((m, total), dtype=np.complex128)
-    du[:] = t * upper_row
-    d = (t * diag_row)[None, :] - thetas[:, None]
-    b = np.empty((m, total), dtype=np.complex128)
-    b[:] = y_row
-    _, _, _, x, info = _GTSV(dl.ravel()[:-1], d.ravel(), du.ravel()[:-1], b.ravel(), 1, 1, 1, 1)
-    if info != 0:
-        pole, row = divmod(int(info) - 1, total)
-        grid = int(np.searchsorted(np.cumsum(sizes), row, side="right"))
-        raise FloatingPointError(f"CF-{order}: singular shifted tridiagonal system (LAPACK zgtsv info={info}: grid "
-                                 f"{grid}, pole {pole}, row {row - sum(sizes[:grid]) + 1})")
+    x = _shifted_solves(t * lower_row, t * diag_row, t * upper_row, y_row, thetas, order, sizes)
     # in flux form w = 2 Re sum_j (c_j/theta_j) x_j, the rows added in order, from 0, as a loop of += adds them
     # (numpy reduces over the first axis of a C-ordered array row by row); then r y + t L w as flux differences
     # (:func:`_flux_sum`), the zero bands between grids carrying no flux
-    w = np.add.reduce(2.0 * ((residues / thetas)[:, None] * x.reshape(m, total)).real, axis=0)
+    w = np.add.reduce(2.0 * ((residues / thetas)[:, None] * x).real, axis=0)
     out = _flux_sum(lower_row[:-1], upper_row[:-1], t, y_row, w, r_inf - 2.0 * float(np.sum((residues / thetas).real)))
     ends = np.cumsum(sizes).tolist()
     return [out[a:b].copy() for a, b in zip([0, *ends[:-1]], ends)]  # (each grid its own array)
 
 
-def _shifted_solves(tl: np.ndarray, td: np.ndarray, tu: np.ndarray, y: np.ndarray, thetas: np.ndarray,
-                    order: int) -> np.ndarray:
-    """``x_j = (t L - theta_j)^-1 y`` for every pole ``theta_j``, as the rows of a ``(poles, n)`` array.
+def _shifted_solves(dl_row: np.ndarray, d_row: np.ndarray, du_row: np.ndarray, y_row: np.ndarray, thetas: np.ndarray,
+                    order: int, sizes: Sequence[int]) -> np.ndarray:
+    """``x_j = (t L - theta_j)^-1 y`` for every pole ``theta_j``, as the rows of a ``(poles, n)`` array, for grids laid
+    end to end (``sizes`` their states): ``dl_row``, ``du_row`` the sub- and super-diagonal of ``t L`` with a zero at
+    each grid's last state, ``d_row`` its diagonal.
 
     One LAPACK ``zgtsv`` call solves all of them: the shifted systems stacked on one diagonal, with zero couplings
     between the blocks.  Where a sub-diagonal entry is zero ``zgtsv`` neither eliminates nor interchanges rows, and
     the back substitution subtracts exact zeros, so every block's solution has the bits of its own solve (checked
-    against separate solves in the tests); one call instead of one per pole saves its fixed cost (copies and the
-    call, about 10 us each: 1/3 of a grid's exponential on the Fig. 1 scenes' grids).
+    against separate solves in the tests); one call instead of one per pole and grid saves their fixed costs.
+
+    Raises
+    ------
+    FloatingPointError
+        When a shifted system is singular (LAPACK ``info > 0``), naming the pole, the row and (of several grids)
+        the grid.
     """
-    m, n = thetas.size, y.size
-    dl = np.zeros((m, n), dtype=np.complex128)
-    du = np.zeros((m, n), dtype=np.complex128)
-    dl[:, :-1] = tl
-    du[:, :-1] = tu
-    d = td[None, :] - thetas[:, None]
+    m, n = thetas.size, y_row.size
+    dl = np.empty((m, n), dtype=np.complex128)
+    dl[:] = dl_row
+    du = np.empty((m, n), dtype=np.complex128)
+    du[:] = du_row
+    d = d_row[None, :] - thetas[:, None]
     b = np.empty((m, n), dtype=np.complex128)
-    b[:] = y
+    b[:] = y_row
     _, _, _, x, info = _GTSV(dl.ravel()[:-1], d.ravel(), du.ravel()[:-1], b.ravel(), 1, 1, 1, 1)
     if info != 0:
         pole, row = divmod(int(info) - 1, n)
-        raise FloatingPointError(f"CF-{order}: singular shifted tridiagonal system (LAPACK zgtsv info={info}: "
-                                 f"pole {pole}, row {row + 1})")
+        grid = int(np.searchsorted(np.cumsum(sizes), row, side="right"))
+        where = f"grid {grid}, " if len(sizes) > 1 else ""
+        raise FloatingPointError(f"CF-{order}: singular shifted tridiagonal system (LAPACK zgtsv info={info}: {where}"
+                                 f"pole {pole}, row {row - sum(sizes[:grid]) + 1})")
     return x.reshape(m, n)
 
 
