@@ -323,25 +323,15 @@ class _NaturalSpline:
 
     def on_pieces(self, t: np.ndarray, counts: np.ndarray) -> np.ndarray:
         """The spline at ``t`` whose first ``counts[0]`` points lie on the first piece, the next ``counts[1]`` on the
-        second, ... (the last piece's count includes its right end): :meth:`__call__`'s values bit for bit, without
-        its search and gathers."""
+        second, ... (the last piece's count includes its right end; ``edges_for`` knows each point's piece, so there
+        is no search): ``m_i a^3/(6 h) + m_{i+1} b^3/(6 h) + (y_i/h - m_i h/6) a + (y_{i+1}/h - m_{i+1} h/6) b`` with
+        ``a = x_{i+1} - t``, ``b = t - x_i``."""
         x, y, h, m = self.x, self.y, self.h, self.m
         # every piece's numbers repeated onto its points in one call
         xr, xl, hi6, ml, mr, cl, cr = np.repeat(np.array([x[1:], x[:-1], 6 * h, m[:-1], m[1:], y[:-1] / h - m[:-1] * h / 6.0,
                                                           y[1:] / h - m[1:] * h / 6.0]), counts, axis=1)
         a, b = xr - t, t - xl
         return ml * a**3 / hi6 + mr * b**3 / hi6 + cl * a + cr * b
-
-    def __call__(self, t: np.ndarray, nu: int = 0) -> np.ndarray:
-        x, y, h, m = self.x, self.y, self.h, self.m
-        i = np.clip(np.searchsorted(x, t, side="right") - 1, 0, x.size - 2)
-        a, b = x[i + 1] - t, t - x[i]
-        hi = h[i]
-        if nu == 1:
-            return (-m[i] * a * a / (2 * hi) + m[i + 1] * b * b / (2 * hi)
-                    + (y[i + 1] - y[i]) / hi - (m[i + 1] - m[i]) * hi / 6.0)
-        return (m[i] * a**3 / (6 * hi) + m[i + 1] * b**3 / (6 * hi)
-                + (y[i] / hi - m[i] * hi / 6.0) * a + (y[i + 1] / hi - m[i + 1] * hi / 6.0) * b)
 
 
 def knot_indices(spec: GridSpec, n_cells: int) -> np.ndarray:
