@@ -1806,21 +1806,20 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                 else (lambda: integrate(prep, es[-1], n_base, 4, coef3))
             # (the new grid in the worker where plain problems run alongside in this thread)
             ys = [reuse[3], reuse[4], *(_run_grids([new_grid], True, side) if side is not None else [new_grid()])]
-        else:
-            if loop is None and not prep.time_dependent:
-                # each coefficient evaluated once for the grids of one thread (the worker's finest grid apart, so
-                # that it is evaluated and integrated while this thread evaluates and integrates the coarser ones)
-                coefs = _coefficients_lazy(prep.pieces, es, ((last,), tuple(range(last))) if parallel
-                                           else (tuple(range(last + 1)),),
-                                           centre_drift=assemble is not native_assemble, plans=prep.row_plans)
-                tasks = [lambda e=e, rf=1 << k, g=g: integrate(prep, e, n_base, rf, coefs(g))
-                         for g, (k, e) in enumerate(zip(ks, es))]
-            else:
-                tasks = [lambda e=e, rf=1 << k: integrate(prep, e, n_base, rf) for k, e in zip(ks, es)]
+        elif loop is None and not prep.time_dependent:
+            # each coefficient evaluated once for the grids of one thread (the worker's finest grid apart, so
+            # that it is evaluated and integrated while this thread evaluates and integrates the coarser ones)
+            coefs = _coefficients_lazy(prep.pieces, es, ((last,), tuple(range(last))) if parallel
+                                       else (tuple(range(last + 1)),),
+                                       centre_drift=assemble is not native_assemble, plans=prep.row_plans)
             if one_call:
                 ys = _integrate_level(prep, es, coefs, rational_order)
             else:
-                ys = _run_grids(tasks, parallel, side)
+                ys = _run_grids([lambda e=e, rf=1 << k, g=g: integrate(prep, e, n_base, rf, coefs(g))
+                                 for g, (k, e) in enumerate(zip(ks, es))], parallel, side)
+        else:
+            ys = _run_grids([lambda e=e, rf=1 << k: integrate(prep, e, n_base, rf) for k, e in zip(ks, es)], parallel,
+                            side)
         if side is not None:
             done = side[2]()
             alongside.results = None if done is None else (_grid_of(prep, idx), done)
