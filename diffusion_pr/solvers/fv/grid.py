@@ -328,8 +328,9 @@ class _NaturalSpline:
         ``a = x_{i+1} - t``, ``b = t - x_i``."""
         x, y, h, m = self.x, self.y, self.h, self.m
         # every piece's numbers repeated onto its points in one call
-        xr, xl, hi6, ml, mr, cl, cr = np.repeat(np.array([x[1:], x[:-1], 6 * h, m[:-1], m[1:], y[:-1] / h - m[:-1] * h / 6.0,
-                                                          y[1:] / h - m[1:] * h / 6.0]), counts, axis=1)
+        pieces = np.array([x[1:], x[:-1], 6 * h, m[:-1], m[1:], y[:-1] / h - m[:-1] * h / 6.0,
+                           y[1:] / h - m[1:] * h / 6.0])
+        xr, xl, hi6, ml, mr, cl, cr = np.repeat(pieces, counts, axis=1)
         a, b = xr - t, t - xl
         return ml * a**3 / hi6 + mr * b**3 / hi6 + cl * a + cr * b
 
