@@ -1047,12 +1047,18 @@ def _one_call_level(prep: Prepared, order: int) -> bool:
             and all(pc.b is None for pc in prep.pieces))
 
 
-def _integrate_level(prep: Prepared, es: Sequence[np.ndarray], coefs: Callable, order: int) -> list:
+def _integrate_level(prep: Prepared, es: Sequence[np.ndarray], order: int) -> list:
     """``[(y, counters)]`` of every grid of a level, as :func:`solve_on_grid` gives them (bit for bit), each stage's
     exponential for all grids in one LAPACK call (:func:`~.cram.expm_tridiagonal_many`; where
-    :func:`_one_call_level`)."""
-    ys = [_start(prep, e, coefs(g)["c"]) for g, e in enumerate(es)]
-    bands = [_stage_bands(e, coefs(g), native_assemble)[0] for g, e in enumerate(es)]
+    :func:`_one_call_level`).  The stages' ``f`` evaluated once on all grids' centres, as :func:`_coefficients`
+    evaluates it (plain stages have no drift or balance rows to make)."""
+    cs = [centres(e) for e in es]
+    ends = np.cumsum([c.size for c in cs]).tolist()
+    f_rows = prep.row_plans["f"]
+    f_all = _rows(f_rows.funcs, np.concatenate(cs), "the diffusivity", plan=f_rows.plan)
+    np.maximum(f_all, 0.0, out=f_all)
+    ys = [_start(prep, e, c) for e, c in zip(es, cs)]
+    bands = [fv_bands(e, f_all[:, a:b], None, fitted=False, c=c) for e, c, a, b in zip(es, cs, [0, *ends[:-1]], ends)]
     for k, pc in enumerate(prep.pieces):
         ys = expm_tridiagonal_many([(lo[k], di[k], up[k]) for lo, di, up in bands], float(pc.duration), ys, order)
     return [(y, {"cram_applications": len(prep.pieces), "substeps": 0, "newton_steps": 0, "cram_order": order})
@@ -1800,23 +1806,24 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             alongside.results = None
             side = _alongside_tasks(alongside, prep, es, idx, backend)
         if reuse is not None:
-            coef3 = _coefficients(prep.pieces, [es[-1]], centre_drift=assemble is not native_assemble,
-                                  plans=prep.row_plans)[0]
-            new_grid = (lambda: _integrate_level(prep, es[-1:], lambda g: coef3, rational_order)[0]) if one_call \
-                else (lambda: integrate(prep, es[-1], n_base, 4, coef3))
+            if one_call:
+                new_grid = lambda: _integrate_level(prep, es[-1:], rational_order)[0]  # noqa: E731
+            else:
+                coef3 = _coefficients(prep.pieces, [es[-1]], centre_drift=assemble is not native_assemble,
+                                      plans=prep.row_plans)[0]
+                new_grid = lambda: integrate(prep, es[-1], n_base, 4, coef3)  # noqa: E731
             # (the new grid in the worker where plain problems run alongside in this thread)
             ys = [reuse[3], reuse[4], *(_run_grids([new_grid], True, side) if side is not None else [new_grid()])]
+        elif one_call:
+            ys = _integrate_level(prep, es, rational_order)
         elif loop is None and not prep.time_dependent:
             # each coefficient evaluated once for the grids of one thread (the worker's finest grid apart, so
             # that it is evaluated and integrated while this thread evaluates and integrates the coarser ones)
             coefs = _coefficients_lazy(prep.pieces, es, ((last,), tuple(range(last))) if parallel
                                        else (tuple(range(last + 1)),),
                                        centre_drift=assemble is not native_assemble, plans=prep.row_plans)
-            if one_call:
-                ys = _integrate_level(prep, es, coefs, rational_order)
-            else:
-                ys = _run_grids([lambda e=e, rf=1 << k, g=g: integrate(prep, e, n_base, rf, coefs(g))
-                                 for g, (k, e) in enumerate(zip(ks, es))], parallel, side)
+            ys = _run_grids([lambda e=e, rf=1 << k, g=g: integrate(prep, e, n_base, rf, coefs(g))
+                             for g, (k, e) in enumerate(zip(ks, es))], parallel, side)
         else:
             ys = _run_grids([lambda e=e, rf=1 << k: integrate(prep, e, n_base, rf) for k, e in zip(ks, es)], parallel,
                             side)
