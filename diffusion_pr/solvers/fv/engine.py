@@ -1083,13 +1083,13 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     PFD_MIN_RTOL) of ``order`` (:func:`cram_order`; LAPACK's stages too, in partial fractions where ``order`` is
     below 16); ``coef``: the stage coefficients on this grid, if already evaluated.
     """
-    c = centres(edges)
-    n = c.size
-    y = _start(prep, edges, c)
     pieces = prep.segment_fn(refine * max(4, n_base // 8)) if prep.time_dependent else prep.pieces
     if coef is None:
         coef = _coefficients(pieces, [edges], centre_drift=assemble is not native_assemble,
                              plans=prep.row_plans if pieces is prep.pieces else None)[0]
+    c = coef["c"]  # (the centres the coefficients were evaluated at)
+    n = c.size
+    y = _start(prep, edges, c)
     compiled = _compiled(prep)
     rows_in_kernel = compiled and assemble is native_assemble  # the kernel makes each stage's bands itself
     if not rows_in_kernel:
