@@ -854,9 +854,11 @@ def _wall_of(pieces: Sequence, time_dependent: bool, p0: float, p_max: float, p_
     bps: list[float] = []
     k_min = math.inf
     scale = p0
+    seen = set()  # (a model shared by several stages is asked once: its breakpoints are the same)
     for pc in pieces[:1] if time_dependent else pieces:
         for g in (pc.f, pc.b, pc.w):
-            if g is not None:
+            if g is not None and id(g) not in seen:
+                seen.add(id(g))
                 bps.extend(breakpoints_of(g, 0.0, p_max))
     if bps:
         scale = min(p0, min(bps))
@@ -1168,6 +1170,13 @@ def _regradable(prep: Prepared) -> bool:
     return prep.spec.c_wall > 0.0 and not prep.depth_adaptive and not prep.reached
 
 
+def _delta_of(spec: GridSpec, wall_depth: float) -> float:
+    """``replace(spec, wall_depth=wall_depth)._delta`` without making the family (the same number)."""
+    if wall_depth > 0.0:
+        return wall_depth
+    return spec.p_wall if spec.p_wall > 0.0 else 1e-12 * spec.p_max
+
+
 def _wall_depth(spec: GridSpec, fraction: float) -> float:
     """``GridSpec.wall_depth`` for ``fraction`` of the way from the floor to ``p0`` in ``ln p`` (0: the default)."""
     if fraction <= 0.0 or spec.p_wall <= 0.0:
@@ -1254,7 +1263,7 @@ def _regraded(prep: Prepared, edges: np.ndarray, diff: np.ndarray, j: int, remap
     phi_tot = float(spec.phi(knots[-1]) - spec.phi(knots[0]))
     dphi = spec.dphi(pts)
     fractions = (0.0,) + (REGRADE_DEPTHS if spec.p_wall > 0.0 else ())
-    deltas = np.array([replace(spec, wall_depth=_wall_depth(spec, k))._delta for k in fractions])
+    deltas = np.array([_delta_of(spec, _wall_depth(spec, k)) for k in fractions])
     weights = spec.c_wall * np.array((1.0,) + REGRADE_FACTORS)
     x = pts - spec.p_wall
     span = knots[-1] - spec.p_wall

@@ -21,6 +21,7 @@ is valid.  Pressures in the units of ``p0``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+import functools
 import math
 from typing import Optional
 
@@ -50,6 +51,7 @@ class Remap:
     _y: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
     _m: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
     _cum: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
+    _pieces: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
     _start: tuple = field(init=False, repr=False, compare=False, hash=False)
 
     def __post_init__(self) -> None:
@@ -62,54 +64,74 @@ class Remap:
             object.__setattr__(self, name, value)
         h = np.diff(x)
         inc = 0.5 * h * (y[:-1] + y[1:]) - h**3 * (m[:-1] + m[1:]) / 24.0  # integral of the spline per interval
-        object.__setattr__(self, "_cum", np.concatenate(([0.0], np.cumsum(inc))))
+        cum = np.concatenate(([0.0], np.cumsum(inc)))
+        object.__setattr__(self, "_cum", cum)
+        # each piece's numbers once, gathered onto the points in one call (computed per piece with the operations
+        # and operands that :meth:`_both`'s formulas would apply per point: the same bits)
+        c_l, c_r = y[:-1] / h - m[:-1] * h / 6, y[1:] / h - m[1:] * h / 6
+        object.__setattr__(self, "_pieces", np.array([x[:-1], x[1:], h, m[:-1], m[1:], 6 * h, c_l, c_r, cum[:-1],
+                                                      h**4, 24 * h, 0.5 * c_l, h * h, 0.5 * c_r]))
         probe = np.linspace(0.0, x[-1], 64 * (x.size - 1) + 1)
-        if np.min(self.density(probe)) < 0.2 * np.min(y):
+        f_probe, d_probe = self._both(probe)
+        if np.min(d_probe) < 0.2 * np.min(y):
             raise ValueError("Remap: the density's spline is not safely positive")
-        object.__setattr__(self, "_start", (self.forward(probe), probe))
+        object.__setattr__(self, "_start", (f_probe, probe))
 
     @property
     def total(self) -> float:
         """``F`` at the last knot."""
         return float(self._cum[-1])
 
-    def _interval(self, v: np.ndarray) -> tuple:
+    def _both(self, v: np.ndarray, forward: bool = True, density: bool = True) -> tuple:
+        """``(F(v), D(v))`` (None for the one not asked), one search and one gather of the piece table:
+        ``D = (m_i a^3 + m_{i+1} b^3)/(6 h) + (y_i/h - m_i h/6) a + (y_{i+1}/h - m_{i+1} h/6) b`` and its integral,
+        ``a = x_{i+1} - w``, ``b = w - x_i``, ``w = min(v, x_-1)``; beyond the last knot ``D = y_-1``."""
+        v = np.asarray(v, dtype=float)
         x = self._x
-        return x, np.clip(np.searchsorted(x, v, side="right") - 1, 0, x.size - 2)
+        i = np.clip(np.searchsorted(x, v, side="right") - 1, 0, x.size - 2)
+        xl, xr, h, ml, mr, h6, c_l, c_r, cum, h4, h24, c_l2, hh, c_r2 = self._pieces[:, i]
+        w = np.minimum(v, x[-1])
+        b = w - xl
+        f_out = d_out = None
+        if forward:
+            a = h - b
+            f_out = cum + (ml * (h4 - a**4) + mr * b**4) / h24 + c_l2 * (hh - a * a) + c_r2 * b * b
+            f_out += self._y[-1] * np.maximum(v - x[-1], 0.0)
+        if density:
+            a = xr - w
+            d_out = np.where(v > x[-1], self._y[-1], (ml * a**3 + mr * b**3) / h6 + c_l * a + c_r * b)
+        return f_out, d_out
 
     def density(self, v: np.ndarray) -> np.ndarray:
         """``D(v) = F'(v)``."""
-        v = np.asarray(v, dtype=float)
-        x, i = self._interval(v)
-        y, m = self._y, self._m
-        h = x[i + 1] - x[i]
-        a, b = x[i + 1] - np.minimum(v, x[-1]), np.minimum(v, x[-1]) - x[i]
-        out = ((m[i] * a**3 + m[i + 1] * b**3) / (6 * h) + (y[i] / h - m[i] * h / 6) * a
-               + (y[i + 1] / h - m[i + 1] * h / 6) * b)
-        return np.where(v > x[-1], y[-1], out)
+        return self._both(v, forward=False)[1]
 
     def forward(self, v: np.ndarray) -> np.ndarray:
         """``F(v)``."""
-        v = np.asarray(v, dtype=float)
-        x, i = self._interval(v)
-        y, m = self._y, self._m
-        h = x[i + 1] - x[i]
-        w = np.minimum(v, x[-1])
-        b = w - x[i]
-        a = h - b
-        out = (self._cum[i] + (m[i] * (h**4 - a**4) + m[i + 1] * b**4) / (24 * h)
-               + 0.5 * (y[i] / h - m[i] * h / 6) * (h * h - a * a) + 0.5 * (y[i + 1] / h - m[i + 1] * h / 6) * b * b)
-        return out + y[-1] * np.maximum(v - x[-1], 0.0)
+        return self._both(v, density=False)[0]
 
     def inverse(self, t: np.ndarray) -> np.ndarray:
-        """``F^-1(t)`` on ``[0, total]``: a tabulated start, then safeguarded Newton to round-off; each value
-        depends on its own ``t`` only (nested grids agree bit for bit)."""
+        """``F^-1(t)`` on ``[0, total]``: a tabulated start, then safeguarded Newton to round-off (as
+        :func:`_safeguarded_newton`, with ``F`` and ``D`` from one search); each value depends on its own ``t``
+        only (nested grids agree bit for bit)."""
         t = np.asarray(t, dtype=float)
         f_tab, v_tab = self._start
         k = np.clip(np.searchsorted(f_tab, t, side="right") - 1, 0, f_tab.size - 2)
         lo, hi = v_tab[k], v_tab[k + 1]
-        return _safeguarded_newton(self.forward, self.density, t, np.interp(t, f_tab, v_tab), lo, hi,
-                                   1e-15 * max(self.total, 1.0), 40)
+        x = np.interp(t, f_tab, v_tab)
+        tol = 1e-15 * max(self.total, 1.0)
+        for _ in range(40):
+            f, d = self._both(x)
+            r = f - t
+            done = np.abs(r) <= tol
+            if done.all():
+                break
+            lo = np.where(r < 0, x, lo)
+            hi = np.where(r > 0, x, hi)
+            step = x - r / d
+            bad = (step <= lo) | (step >= hi)
+            x = np.where(done, x, np.where(bad, 0.5 * (lo + hi), step))
+        return x
 
 
 @dataclass(frozen=True)
@@ -194,15 +216,19 @@ class GridSpec:
             out += np.divide(self.c_0, w, out=w)
         return out
 
-    @property
+    @functools.cached_property
     def base(self) -> "GridSpec":
-        """The family without its :class:`Remap` (itself where it has none)."""
+        """The family without its :class:`Remap` (itself where it has none; made once per family)."""
         return self if self.remap is None else replace(self, remap=None)
+
+    @functools.cached_property
+    def _base_wall(self) -> np.ndarray:
+        """``Phi(p_wall)`` of the base family (a 0-d array, computed once)."""
+        return self.base.phi(self.p_wall)
 
     def _base_value(self, p: np.ndarray) -> np.ndarray:
         """``v = Phi(p) - Phi(p_wall)`` of the base family: the argument of the :class:`Remap`."""
-        base = self.base
-        return base.phi(p) - base.phi(self.p_wall)
+        return self.base.phi(p) - self._base_wall
 
     @property
     def _delta(self) -> float:
@@ -226,7 +252,7 @@ def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float) -> np.ndarr
     :class:`Remap` ``F``: ``F^-1`` first, then the base monitor's inverse.
     """
     if spec.remap is not None:
-        return _invert(spec.base, spec.remap.inverse(targets) + float(spec.base.phi(spec.p_wall)), a, b)
+        return _invert(spec.base, spec.remap.inverse(targets) + float(spec._base_wall), a, b)
     table, phi_table = _table(spec, a, b)
     x0 = np.interp(targets, phi_table, table)
     tol = 1e-14 * np.maximum(np.abs(targets), 1.0)
