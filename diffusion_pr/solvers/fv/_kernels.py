@@ -29,9 +29,12 @@ lazily by the engine: a single-stage problem never loads numba.
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 
 from .cram import ALPHA, ALPHA0, PFD_RESIDUES, THETA
 
@@ -323,6 +326,186 @@ def _block_size(n, m, want_d):  # pragma: no cover - numba
     return g_size
 
 
+# --------------------------------------------------------------------------- the poles' lanes
+#
+# :func:`_pfd_dominant` eliminates a block of poles row by row, each pole in its own column of ``(n, lanes)``
+# arrays. The poles are independent, but LLVM's loop vectorizer runs such a loop in vector registers only from
+# 20 iterations on (below that its run-time checks that the arrays do not overlap do not pay), and numba keeps
+# LLVM's SLP vectorizer off (miscompilations, numba PR 8852): a block of 2-6 poles ran one pole at a time. The
+# intrinsics below write the row operations of 4 or 2 neighbouring poles as LLVM vector instructions
+# (``<4 x double>``, ``<2 x double>``): the same IEEE operations in the same order as the scalar code, lane by lane
+# (no fast-math flags: no FMA contraction, no reassociation), so every lane gives the scalar code's bits (the
+# pivoting kernel is the oracle of ``tests/diffusion_pr/test_fv_kernels.py``). Arrays: C-contiguous float64 (2-D
+# ``(rows, lanes)``, 1-D ``(lanes,)``); no bounds checks: the callers keep ``j0 + width <= lanes`` and the rows
+# in range.
+
+
+def _lane_codegen(width: int, body: Callable) -> Callable:
+    """An intrinsic's codegen: ``body(ops, args)`` with ``ops`` the vector helpers of ``width`` lanes."""
+    def codegen(context, builder, signature, args):
+        from numba.core import cgutils
+
+        vec = ir.VectorType(ir.DoubleType(), width)
+        i32 = ir.IntType(32)
+
+        class Ops:
+            @staticmethod
+            def ptr(k, inds):
+                ty = signature.args[k]
+                arr = context.make_array(ty)(context, builder, args[k])
+                p = cgutils.get_item_pointer2(context, builder, arr.data, cgutils.unpack_tuple(builder, arr.shape),
+                                              cgutils.unpack_tuple(builder, arr.strides), ty.layout, inds,
+                                              wraparound=False, boundscheck=False)
+                return builder.bitcast(p, vec.as_pointer())
+
+            @staticmethod
+            def load(k, inds):
+                return builder.load(Ops.ptr(k, inds), align=8)
+
+            @staticmethod
+            def store(value, k, inds):
+                builder.store(value, Ops.ptr(k, inds), align=8)
+
+            @staticmethod
+            def splat(s):
+                undef = ir.Constant(vec, ir.Undefined)
+                v = builder.insert_element(undef, s, ir.Constant(i32, 0))
+                return builder.shuffle_vector(v, undef, ir.Constant(ir.VectorType(i32, width), [0] * width))
+
+            @staticmethod
+            def const(x):
+                return ir.Constant(vec, [x] * width)
+
+            @staticmethod
+            def fabs(v):
+                fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(vec, [vec]),
+                                                    f"llvm.fabs.v{width}f64")
+                return builder.call(fn, [v])
+
+            @staticmethod
+            def plus1(i):
+                return builder.add(i, ir.Constant(i.type, 1))
+
+        Ops.b = builder
+        Ops.vec = vec
+        return body(Ops, args)
+    return codegen
+
+
+def _c_arrays(arrays: tuple, ndim: int) -> bool:
+    return all(isinstance(a, types.Array) and a.ndim == ndim and a.layout == "C" and a.dtype == types.float64
+               for a in arrays)
+
+
+def _fwd_body(store_f: bool) -> Callable:
+    """Row ``i`` of the forward elimination (:func:`_pfd_dominant`'s loop body) for lanes ``j0 ...``: the reciprocal
+    pivots into ``rr, ri``, the next pivots into ``pr, pi``, the eliminated right-hand side into row ``i + 1`` of
+    ``br, bi`` (and the multipliers into ``fr, fi`` with ``store_f``); returns the lanes' ``bad`` test, or'ed."""
+    def body(o, args):
+        if store_f:
+            rr, ri, br, bi, fr, fi, pr, pi, thr, thi, i, j0, tl, atl, tu, tdn, yn = range(17)
+        else:
+            rr, ri, br, bi, pr, pi, thr, thi, i, j0, tl, atl, tu, tdn, yn = range(15)
+        b = o.b
+        i_v, j_v = args[i], args[j0]
+        row, nxt = [i_v, j_v], [o.plus1(i_v), j_v]
+        tl_, atl_, tu_, tdn_, yn_ = (o.splat(args[k]) for k in (tl, atl, tu, tdn, yn))
+        x = o.load(pr, [j_v])
+        z = o.load(pi, [j_v])
+        ax, az = o.fabs(x), o.fabs(z)
+        # bad |= (ax + az < atl) | (ax >= 1e150) | (az >= 1e150) | ((ax <= 1e-150) & (az <= 1e-150)), ordered tests
+        bad = b.or_(b.or_(b.or_(b.fcmp_ordered("<", b.fadd(ax, az), atl_), b.fcmp_ordered(">=", ax, o.const(1e150))),
+                          b.fcmp_ordered(">=", az, o.const(1e150))),
+                    b.and_(b.fcmp_ordered("<=", ax, o.const(1e-150)), b.fcmp_ordered("<=", az, o.const(1e-150))))
+        width = o.vec.count
+        any_bad = b.icmp_unsigned("!=", b.bitcast(bad, ir.IntType(width)), ir.Constant(ir.IntType(width), 0))
+        s = b.fdiv(o.const(1.0), b.fadd(b.fmul(x, x), b.fmul(z, z)))
+        r_re = b.fmul(x, s)
+        r_im = b.fmul(b.fsub(o.const(-0.0), z), s)  # numba's -z: fsub(-0.0, z)
+        f_re = b.fmul(tl_, r_re)
+        f_im = b.fmul(tl_, r_im)
+        o.store(r_re, rr, row)
+        o.store(r_im, ri, row)
+        o.store(b.fsub(b.fsub(tdn_, o.load(thr, [j_v])), b.fmul(f_re, tu_)), pr, [j_v])
+        o.store(b.fsub(b.fsub(o.const(0.0), o.load(thi, [j_v])), b.fmul(f_im, tu_)), pi, [j_v])
+        b_re = o.load(br, row)
+        b_im = o.load(bi, row)
+        o.store(b.fsub(yn_, b.fsub(b.fmul(f_re, b_re), b.fmul(f_im, b_im))), br, nxt)
+        o.store(b.fsub(o.const(0.0), b.fadd(b.fmul(f_re, b_im), b.fmul(f_im, b_re))), bi, nxt)
+        if store_f:
+            o.store(f_re, fr, row)
+            o.store(f_im, fi, row)
+        return any_bad
+    return body
+
+
+def _back_body(o, args):
+    """Row ``i`` of :func:`_back_lanes` for lanes ``j0 ...``: ``x_i = (b_i - t u_i x_{i+1}) / d_i``."""
+    rr, ri, br, bi, i, j0, tu = range(7)
+    b = o.b
+    row, nxt = [args[i], args[j0]], [o.plus1(args[i]), args[j0]]
+    tu_ = o.splat(args[tu])
+    a = b.fsub(o.load(br, row), b.fmul(tu_, o.load(br, nxt)))
+    c = b.fsub(o.load(bi, row), b.fmul(tu_, o.load(bi, nxt)))
+    r_re, r_im = o.load(rr, row), o.load(ri, row)
+    o.store(b.fsub(b.fmul(a, r_re), b.fmul(c, r_im)), br, row)
+    o.store(b.fadd(b.fmul(a, r_im), b.fmul(c, r_re)), bi, row)
+    return o.const(0.0)  # (unused)
+
+
+def _q_body(o, args):
+    """Row ``i`` (not the last two) of the derivative's elimination in :func:`_pfd_dominant` for lanes ``j0 ...``."""
+    br, bi, fr, fi, qr, qi, i, j0, wl_i, wd_n, wu_n, t = range(12)
+    b = o.b
+    i0 = args[i]
+    i1 = o.plus1(i0)
+    i2 = o.plus1(i1)
+    j_v = args[j0]
+    wl_, wd_, wu_, t_ = (o.splat(args[k]) for k in (wl_i, wd_n, wu_n, t))
+    raw_re = b.fadd(b.fadd(b.fmul(wl_, o.load(br, [i0, j_v])), b.fmul(wd_, o.load(br, [i1, j_v]))),
+                    b.fmul(wu_, o.load(br, [i2, j_v])))
+    raw_im = b.fadd(b.fadd(b.fmul(wl_, o.load(bi, [i0, j_v])), b.fmul(wd_, o.load(bi, [i1, j_v]))),
+                    b.fmul(wu_, o.load(bi, [i2, j_v])))
+    raw_re = b.fmul(raw_re, t_)
+    raw_im = b.fmul(raw_im, t_)
+    f_re, f_im = o.load(fr, [i0, j_v]), o.load(fi, [i0, j_v])
+    q_re, q_im = o.load(qr, [i0, j_v]), o.load(qi, [i0, j_v])
+    o.store(b.fsub(raw_re, b.fsub(b.fmul(f_re, q_re), b.fmul(f_im, q_im))), qr, [i1, j_v])
+    o.store(b.fsub(raw_im, b.fadd(b.fmul(f_re, q_im), b.fmul(f_im, q_re))), qi, [i1, j_v])
+    return o.const(0.0)
+
+
+def _make_intrinsic(width: int, names: str, n_2d: int, n_1d: int, n_int: int, result: str, body: Callable):
+    """An intrinsic of the arguments ``names`` (``n_2d`` 2-D and ``n_1d`` 1-D C-contiguous float64 arrays, ``n_int``
+    indices, then floats), returning the boolean ``body`` gives (``result`` ``"bool"``) or nothing."""
+    def typer(typingctx, *a):
+        if not (_c_arrays(a[:n_2d], 2) and _c_arrays(a[n_2d:n_2d + n_1d], 1)):
+            return None
+        rest = len(a) - n_2d - n_1d - n_int
+        args = (*a[:n_2d + n_1d], *(types.intp,) * n_int, *(types.float64,) * rest)
+        if result == "bool":
+            return types.boolean(*args), _lane_codegen(width, body)
+
+        def codegen(context, builder, signature, values):
+            _lane_codegen(width, body)(context, builder, signature, values)
+            return context.get_dummy_value()
+        return types.none(*args), codegen
+
+    # numba's intrinsics take named parameters (no *args in their lowering)
+    namespace = {"typer": typer}
+    exec(f"def lanes(typingctx, {names}):\n    return typer(typingctx, {names})\n", namespace)
+    return intrinsic(namespace["lanes"])
+
+
+_FWD = "rr, ri, br, bi, pr, pi, thr, thi, i, j0, tl, atl, tu, tdn, yn"
+_FWD_F = "rr, ri, br, bi, fr, fi, pr, pi, thr, thi, i, j0, tl, atl, tu, tdn, yn"
+_fwd4, _fwd2 = (_make_intrinsic(w, _FWD, 4, 4, 2, "bool", _fwd_body(False)) for w in (4, 2))
+_fwd_f4, _fwd_f2 = (_make_intrinsic(w, _FWD_F, 6, 4, 2, "bool", _fwd_body(True)) for w in (4, 2))
+_back4, _back2 = (_make_intrinsic(w, "rr, ri, br, bi, i, j0, tu", 4, 0, 2, "none", _back_body) for w in (4, 2))
+_q4, _q2 = (_make_intrinsic(w, "br, bi, fr, fi, qr, qi, i, j0, wl_i, wd_n, wu_n, t", 6, 0, 2, "none", _q_body)
+            for w in (4, 2))
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _pfd_dominant(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d):  # pragma: no cover - numba
     """:func:`_pfd_pivoting` for matrices that need no row interchange, in real arithmetic on split parts.
@@ -335,32 +518,38 @@ def _pfd_dominant(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d
     results agree bit for bit.  The tests are gathered without branching; if any
     fails (a row interchange, or a pivot outside ``1e-150 ... 1e150``) the result
     is discarded: returns ``(x, dx, False)``, and :func:`cram_pfd` pivots.
+
+    The block's poles run in vector lanes (the intrinsics above: 4 and 2 at a time); a block of an odd number of
+    poles gets one more lane, a copy of its last pole, which the sums leave out.
     """
     n = diag.size
     m = theta.size
     g_size = _block_size(n, m, want_d)
-    rr = np.empty((n, g_size))  # reciprocal pivots
-    ri = np.empty((n, g_size))
-    br = np.empty((n, g_size))  # right-hand side, then solution
-    bi = np.empty((n, g_size))
+    lanes = g_size + (g_size & 1)
+    rr = np.empty((n, lanes))  # reciprocal pivots
+    ri = np.empty((n, lanes))
+    br = np.empty((n, lanes))  # right-hand side, then solution
+    bi = np.empty((n, lanes))
     nd = n if want_d else 1
-    fr = np.empty((nd, g_size))  # multipliers t l_i / d_i
-    fi = np.empty((nd, g_size))
-    qr = np.empty((nd, g_size))  # t W x, then its solution
-    qi = np.empty((nd, g_size))
-    pr = np.empty(g_size)  # the current pivot d_i
-    pi = np.empty(g_size)
-    thr = np.empty(g_size)
-    thi = np.empty(g_size)
+    fr = np.empty((nd, lanes))  # multipliers t l_i / d_i
+    fi = np.empty((nd, lanes))
+    qr = np.empty((nd, lanes))  # t W x, then its solution
+    qi = np.empty((nd, lanes))
+    pr = np.empty(lanes)  # the current pivot d_i
+    pi = np.empty(lanes)
+    thr = np.empty(lanes)
+    thi = np.empty(lanes)
     out = np.empty(n)
     wv = np.zeros(n)  # 2 Re sum_j (c_j / theta_j) x_j: the result is r0 y + t L wv (:func:`_flux_form`)
     dout = np.zeros(n)
     bad = False
     for g0 in range(0, m, g_size):
         gs = min(g_size, m - g0)
-        for jj in range(gs):
-            thr[jj] = theta[g0 + jj].real
-            thi[jj] = theta[g0 + jj].imag
+        gl = gs + (gs & 1)  # lanes of this block
+        for jj in range(gl):
+            pole = theta[g0 + min(jj, gs - 1)]
+            thr[jj] = pole.real
+            thi[jj] = pole.imag
             pr[jj] = t * diag[0] - thr[jj]
             pi[jj] = 0.0 - thi[jj]
             br[0, jj] = y[0]
@@ -371,29 +560,19 @@ def _pfd_dominant(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d
             tu = t * upper[i]
             tdn = t * diag[i + 1]
             yn = y[i + 1]
-            for jj in range(gs):
-                x = pr[jj]
-                z = pi[jj]
-                ax = abs(x)
-                az = abs(z)
-                bad |= (ax + az < atl) | (ax >= 1e150) | (az >= 1e150) | ((ax <= 1e-150) & (az <= 1e-150))
-                s = 1.0 / (x * x + z * z)
-                r_re = x * s
-                r_im = -z * s
-                f_re = tl * r_re
-                f_im = tl * r_im
-                rr[i, jj] = r_re
-                ri[i, jj] = r_im
-                pr[jj] = (tdn - thr[jj]) - f_re * tu
-                pi[jj] = (0.0 - thi[jj]) - f_im * tu
-                b_re = br[i, jj]
-                b_im = bi[i, jj]
-                br[i + 1, jj] = yn - (f_re * b_re - f_im * b_im)
-                bi[i + 1, jj] = 0.0 - (f_re * b_im + f_im * b_re)
+            j0 = 0
+            while j0 + 4 <= gl:
                 if want_d:
-                    fr[i, jj] = f_re
-                    fi[i, jj] = f_im
-        for jj in range(gs):
+                    bad |= _fwd_f4(rr, ri, br, bi, fr, fi, pr, pi, thr, thi, i, j0, tl, atl, tu, tdn, yn)
+                else:
+                    bad |= _fwd4(rr, ri, br, bi, pr, pi, thr, thi, i, j0, tl, atl, tu, tdn, yn)
+                j0 += 4
+            if j0 < gl:
+                if want_d:
+                    bad |= _fwd_f2(rr, ri, br, bi, fr, fi, pr, pi, thr, thi, i, j0, tl, atl, tu, tdn, yn)
+                else:
+                    bad |= _fwd2(rr, ri, br, bi, pr, pi, thr, thi, i, j0, tl, atl, tu, tdn, yn)
+        for jj in range(gl):
             x = pr[jj]
             z = pi[jj]
             ax = abs(x)
@@ -404,51 +583,54 @@ def _pfd_dominant(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d
             ri[n - 1, jj] = -z * s
         if bad:
             return out, dout, False
-        _back_dominant(rr, ri, br, bi, upper, t, n, gs)
+        _back_lanes(rr, ri, br, bi, upper, t, n, gl)
         _accumulate_split(wv, cw, g0, br, bi, n, gs)
         if not want_d:
             continue
         # q = t W x row by row, eliminated with the stored multipliers
-        for jj in range(gs):
+        for jj in range(gl):
             qr[0, jj] = t * (wd[0] * br[0, jj] + wu[0] * br[1, jj])
             qi[0, jj] = t * (wd[0] * bi[0, jj] + wu[0] * bi[1, jj])
-        for i in range(n - 1):
-            last = i + 2 >= n
-            for jj in range(gs):
-                raw_re = wl[i] * br[i, jj] + wd[i + 1] * br[i + 1, jj]
-                raw_im = wl[i] * bi[i, jj] + wd[i + 1] * bi[i + 1, jj]
-                if not last:
-                    raw_re += wu[i + 1] * br[i + 2, jj]
-                    raw_im += wu[i + 1] * bi[i + 2, jj]
-                raw_re *= t
-                raw_im *= t
-                f_re = fr[i, jj]
-                f_im = fi[i, jj]
-                q_re = qr[i, jj]
-                q_im = qi[i, jj]
-                qr[i + 1, jj] = raw_re - (f_re * q_re - f_im * q_im)
-                qi[i + 1, jj] = raw_im - (f_re * q_im + f_im * q_re)
-        _back_dominant(rr, ri, qr, qi, upper, t, n, gs)
+        for i in range(n - 2):
+            j0 = 0
+            while j0 + 4 <= gl:
+                _q4(br, bi, fr, fi, qr, qi, i, j0, wl[i], wd[i + 1], wu[i + 1], t)
+                j0 += 4
+            if j0 < gl:
+                _q2(br, bi, fr, fi, qr, qi, i, j0, wl[i], wd[i + 1], wu[i + 1], t)
+        i = n - 2  # the last row: no superdiagonal term
+        for jj in range(gl):
+            raw_re = (wl[i] * br[i, jj] + wd[i + 1] * br[i + 1, jj]) * t
+            raw_im = (wl[i] * bi[i, jj] + wd[i + 1] * bi[i + 1, jj]) * t
+            f_re = fr[i, jj]
+            f_im = fi[i, jj]
+            q_re = qr[i, jj]
+            q_im = qi[i, jj]
+            qr[i + 1, jj] = raw_re - (f_re * q_re - f_im * q_im)
+            qi[i + 1, jj] = raw_im - (f_re * q_im + f_im * q_re)
+        _back_lanes(rr, ri, qr, qi, upper, t, n, gl)
         _accumulate_split(dout, c, g0, qr, qi, n, gs)
     _flux_form(lower, upper, t, y, wv, r0, out)
     return out, dout, True
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _back_dominant(rr, ri, br, bi, upper, t, n, g_size):  # pragma: no cover - numba
-    """Back substitution of :func:`_pfd_dominant`: ``x_i = (b_i - t u_i x_{i+1}) / d_i``, split parts."""
-    for jj in range(g_size):
+def _back_lanes(rr, ri, br, bi, upper, t, n, lanes):  # pragma: no cover - numba
+    """Back substitution of :func:`_pfd_dominant`: ``x_i = (b_i - t u_i x_{i+1}) / d_i``, split parts, the
+    poles' lanes 4 and 2 at a time (``lanes`` even)."""
+    for jj in range(lanes):
         a = br[n - 1, jj]
         b = bi[n - 1, jj]
         br[n - 1, jj] = a * rr[n - 1, jj] - b * ri[n - 1, jj]
         bi[n - 1, jj] = a * ri[n - 1, jj] + b * rr[n - 1, jj]
     for i in range(n - 2, -1, -1):
         tu = t * upper[i]
-        for jj in range(g_size):
-            a = br[i, jj] - tu * br[i + 1, jj]
-            b = bi[i, jj] - tu * bi[i + 1, jj]
-            br[i, jj] = a * rr[i, jj] - b * ri[i, jj]
-            bi[i, jj] = a * ri[i, jj] + b * rr[i, jj]
+        j0 = 0
+        while j0 + 4 <= lanes:
+            _back4(rr, ri, br, bi, i, j0, tu)
+            j0 += 4
+        if j0 < lanes:
+            _back2(rr, ri, br, bi, i, j0, tu)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
