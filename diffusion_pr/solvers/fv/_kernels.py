@@ -12,7 +12,8 @@ in one compiled call per grid:
   with the same matrix (the derivative of :func:`cram_apply_d`) costs no division;
 * :func:`cram_pfd` -- ``exp(t L) y`` in partial fractions, all poles of a block
   eliminated together; without row interchanges in real arithmetic where no pole
-  needs one (every closure stage measured so far), with LAPACK's pivoting otherwise;
+  needs one (every closure stage measured so far), the poles in vector lanes (LLVM
+  intrinsics, 4 and 2 at a time), with LAPACK's pivoting otherwise;
 * :func:`cram_apply` -- ``exp(t L) y`` in the incomplete partial factorization
   form of :mod:`.cram` (same coefficients, same order of operations);
 * :func:`balanced_stage` -- the balance substeps of
@@ -280,7 +281,9 @@ def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusi
 #: stay within 80000 pole-row-arrays (1.3 MB, about the L2 cache), else fewer (at least 2).  Measured per cell and
 #: pole with blocks of 4: 8.8-9.2 ns plain up to 5000 cells, 16 ns with the derivative up to 2528 cells (blocks of
 #: 2: 12 and 23 ns); the IPF form 27 and 40 ns.  A block of 6 (CF-12) or 5 (CF-10) poles costs per pole what a
-#: block of 4 does (768 cells: 6 poles 0.74x and 5 poles 0.65x the time of CRAM-16's 8)
+#: block of 4 does (768 cells: 6 poles 0.74x and 5 poles 0.65x the time of CRAM-16's 8).  Those were one pole at a
+#: time; in vector lanes (the intrinsics below, forty-first session) :func:`_pfd_dominant` takes 0.57-0.79x that
+#: time, the same bits (CF-10/12, CRAM-16; 79-2528 cells; with and without the derivative)
 _PFD_BLOCK_WORDS = 80000
 #: the largest block of poles (interleaved eliminations) of :func:`cram_pfd`
 _PFD_MAX_BLOCK = 6
