@@ -453,7 +453,7 @@ def _back_body(o, args):
     r_re, r_im = o.load(rr, row), o.load(ri, row)
     o.store(b.fsub(b.fmul(a, r_re), b.fmul(c, r_im)), br, row)
     o.store(b.fadd(b.fmul(a, r_im), b.fmul(c, r_re)), bi, row)
-    return o.const(0.0)  # (unused)
+    return None  # (an intrinsic without a result)
 
 
 def _q_body(o, args):
@@ -475,7 +475,7 @@ def _q_body(o, args):
     q_re, q_im = o.load(qr, [i0, j_v]), o.load(qi, [i0, j_v])
     o.store(b.fsub(raw_re, b.fsub(b.fmul(f_re, q_re), b.fmul(f_im, q_im))), qr, [i1, j_v])
     o.store(b.fsub(raw_im, b.fadd(b.fmul(f_re, q_im), b.fmul(f_im, q_re))), qi, [i1, j_v])
-    return o.const(0.0)
+    return None  # (an intrinsic without a result)
 
 
 def _make_intrinsic(width: int, names: str, n_2d: int, n_1d: int, n_int: int, result: str, body: Callable):
