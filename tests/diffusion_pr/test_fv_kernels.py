@@ -1383,3 +1383,28 @@ def test_a_level_in_one_lapack_call_is_the_grid_by_grid_solve_bit_for_bit(monkey
     slow = engine.solve_fv(prob, rtol=1e-6, backend="native")
     assert np.array_equal(fast.edges, slow.edges) and np.array_equal(fast.density, slow.density)
     assert fast.zero_weight == slow.zero_weight and fast.error_estimate == slow.error_estimate
+
+
+@pytest.mark.parametrize("order, pole", [(10, 4), (12, 5), (16, 4)])
+@pytest.mark.parametrize("want_d", [False, True])
+def test_pfd_one_pole_that_needs_an_interchange_sends_the_block_to_pivoting(order, pole, want_d):
+    """The poles run in vector lanes, 4 and then 2 at a time (:func:`_pfd_dominant`): the interchange test of every
+    lane counts, the 2-lane remainder's too.  Here only ``pole`` fails it, in the first row (its pivot
+    ``t d_0 - theta`` is ``i Im theta``, 1.19 in the 1-norm, against ``|t l_0| = 2``; every other pole's is at least
+    4), and it sits in the last lanes: CF-10's fifth (with its copy in the odd block's extra lane), CF-12's sixth
+    (the 2-lane remainder), CRAM-16's fifth (the second block of 4).  The kernel without interchanges must decline,
+    and :func:`cram_pfd` answer with the pivoting kernel's bits.  (Dropping the remainder's test passed every other
+    test of this file.)"""
+    theta, res, r_inf, _ = pfd_coefficients(order)
+    assert abs(theta[pole].imag - 1.19) < 0.01
+    diag = np.array([theta[pole].real, -100.0, -100.0])
+    lo, up = np.array([2.0, 0.1]), np.array([0.0, 0.1])
+    wl, wd, wu = np.array([0.3, 0.2]), np.array([-0.3, -0.4, -0.1]), np.array([0.1, 0.1])
+    y = np.array([0.2, 0.5, 0.3])
+    cw, r0 = flux_weights(res, theta, r_inf)
+    others = [j for j in range(theta.size) if j != pole]
+    assert min(abs(diag[0] - theta[j].real) + abs(theta[j].imag) for j in others) >= 4.0  # only `pole` fails
+    assert not _pfd_dominant(lo, diag, up, wl, wd, wu, 1.0, y, res, cw, r0, theta, want_d)[2]
+    out, dout, info = cram_pfd(lo, diag, up, wl, wd, wu, 1.0, y, res, theta, r_inf, want_d)
+    ref, dref, _ = _pfd_pivoting(lo, diag, up, wl, wd, wu, 1.0, y, res, cw, r0, theta, want_d)
+    assert info == 0 and np.array_equal(out, ref) and np.array_equal(dout, dref)
