@@ -111,27 +111,13 @@ class Remap:
         return self._both(v, density=False)[0]
 
     def inverse(self, t: np.ndarray) -> np.ndarray:
-        """``F^-1(t)`` on ``[0, total]``: a tabulated start, then safeguarded Newton to round-off (as
-        :func:`_safeguarded_newton`, with ``F`` and ``D`` from one search); each value depends on its own ``t``
-        only (nested grids agree bit for bit)."""
+        """``F^-1(t)`` on ``[0, total]``: a tabulated start, then safeguarded Newton to round-off (``F`` and ``D`` from
+        one search); each value depends on its own ``t`` only (nested grids agree bit for bit)."""
         t = np.asarray(t, dtype=float)
         f_tab, v_tab = self._start
         k = np.clip(np.searchsorted(f_tab, t, side="right") - 1, 0, f_tab.size - 2)
-        lo, hi = v_tab[k], v_tab[k + 1]
-        x = np.interp(t, f_tab, v_tab)
-        tol = 1e-15 * max(self.total, 1.0)
-        for _ in range(40):
-            f, d = self._both(x)
-            r = f - t
-            done = np.abs(r) <= tol
-            if done.all():
-                break
-            lo = np.where(r < 0, x, lo)
-            hi = np.where(r > 0, x, hi)
-            step = x - r / d
-            bad = (step <= lo) | (step >= hi)
-            x = np.where(done, x, np.where(bad, 0.5 * (lo + hi), step))
-        return x
+        return _safeguarded_newton(self._both, t, np.interp(t, f_tab, v_tab), v_tab[k], v_tab[k + 1],
+                                   1e-15 * max(self.total, 1.0), 40)
 
 
 @dataclass(frozen=True)
@@ -293,22 +279,24 @@ _TABLES: dict = {}
 def _invert_safe(spec: GridSpec, targets: np.ndarray, x: np.ndarray, a: float, b: float,
                  tol: np.ndarray) -> np.ndarray:
     """Safeguarded Newton on ``Phi``: bisection on the bracket ``[a, b]`` where a Newton step would leave it."""
-    return _safeguarded_newton(spec.phi, spec.dphi, targets, x, np.full_like(targets, a), np.full_like(targets, b),
-                               tol, 60)
+    return _safeguarded_newton(lambda p: (spec.phi(p), spec.dphi(p)), targets, x, np.full_like(targets, a),
+                               np.full_like(targets, b), tol, 60)
 
 
-def _safeguarded_newton(f, df, targets: np.ndarray, x: np.ndarray, lo: np.ndarray, hi: np.ndarray, tol,
+def _safeguarded_newton(f_df, targets: np.ndarray, x: np.ndarray, lo: np.ndarray, hi: np.ndarray, tol,
                         iterations: int) -> np.ndarray:
-    """``f^-1(targets)`` for an increasing ``f`` from ``x`` in the brackets ``[lo, hi]``: Newton steps, bisection
-    where a step would leave the bracket; converged points stay, so each value depends on its own target only."""
+    """``f^-1(targets)`` for an increasing ``f`` from ``x`` in the brackets ``[lo, hi]`` (``f_df(x) = (f(x), f'(x))``):
+    Newton steps, bisection where a step would leave the bracket; converged points stay, so each value depends on
+    its own target only."""
     for _ in range(iterations):
-        r = f(x) - targets
+        f, df = f_df(x)
+        r = f - targets
         done = np.abs(r) <= tol
         if np.all(done):
             break
         lo = np.where(r < 0, x, lo)
         hi = np.where(r > 0, x, hi)
-        step = x - r / df(x)
+        step = x - r / df
         bad = (step <= lo) | (step >= hi)
         x = np.where(done, x, np.where(bad, 0.5 * (lo + hi), step))
     return x
