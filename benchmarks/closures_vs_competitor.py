@@ -24,8 +24,6 @@ import os
 import statistics
 import time
 
-import numpy as np
-
 import diffusion_pr as dp
 
 from bench_fokker_planck import OUT, SPECTRUM
@@ -83,5 +81,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    np.seterr(all="ignore")
     main()

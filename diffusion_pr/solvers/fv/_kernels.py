@@ -396,6 +396,7 @@ def _lane_codegen(width: int, body: Callable) -> Callable:
 
 
 def _c_arrays(arrays: tuple, ndim: int) -> bool:
+    """Whether every numba type of ``arrays`` is a C-contiguous float64 array of ``ndim`` dimensions."""
     return all(isinstance(a, types.Array) and a.ndim == ndim and a.layout == "C" and a.dtype == types.float64
                for a in arrays)
 
