@@ -16,6 +16,7 @@ Oracles and tolerances:
 from __future__ import annotations
 
 import math
+import types
 
 import numpy as np
 import pytest
@@ -608,6 +609,75 @@ def test_the_affine_chernoff_bound_against_the_cir_tail(p0, p_1, alpha_p1, beta_
         tail += quad(dens, lo, 1.5 * lo, limit=200)[0]
         lo *= 1.5
     assert 1e-3 * mass <= tail <= mass, tail
+
+
+def _assert_chernoff_rows_agree(pieces, slopes, f_rows, probe):
+    """The moments ``A``, ``B`` and the mask ``ok`` of the Chernoff bound's recursion, compiled (:mod:`._tail_kernel`)
+    and in numpy, bit for bit at every ``theta``; returns the mask."""
+    f_slopes, f_intercepts = engine._affine_envelope(f_rows, probe)
+    theta = np.geomspace(1e-3, 1e3, 241) / 0.3
+    a1, b1, ok1 = engine._chernoff_moments(pieces, slopes, f_slopes, f_intercepts, theta, compiled=True)
+    a2, b2, ok2 = engine._chernoff_moments(pieces, slopes, f_slopes, f_intercepts, theta, compiled=False)
+    assert np.array_equal(ok1, ok2)
+    # the same bits where the moments are finite (elsewhere both only have to be dropped, as ok says)
+    assert np.array_equal(a1[ok2], a2[ok2]) and np.array_equal(b1[ok2], b2[ok2])
+    return ok2
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_compiled_chernoff_recursion_is_the_numpy_forms_bits(seed):
+    """The compiled recursion of the Chernoff bound against its numpy form, bit for bit in every moment (the oracle:
+    the same operations in the same order, so any difference is a changed operation). Random stages (the whole
+    diffusion time 0.01-1, spread over the stages over four decades) of every kind the recursion branches on:
+    diffusivities that grow steeply (``w`` reaches 1 and ``theta`` drop out), barely (``|w| < 1e-3``: the series), or
+    not at all (``f1 = 0``); drifts that grow, barely grow or do not (``g = 0``: ``psi = d``). Breaks that fail it:
+    the series' bound ``1e-3`` as ``1e-4``, ``A``'s two terms added in the other order, ``B`` without its
+    ``1/(1 - w)`` (6-7 of the 10 cases each), ``(g psi) h`` as ``g (psi h)`` (1 of 10). Passed: ``w * w / 3`` as
+    ``w * (w / 3)`` in the series (a term below ``3e-7`` next to 1: its last bit is below the sum's), ``H``'s
+    ``/ w^2`` as ``/ w / w``."""
+    rng = np.random.default_rng(20261128 + seed)
+    k = int(rng.choice([4, 7, 48, 96]))
+    durations = 10.0 ** rng.uniform(-4, 0, k)
+    durations *= 10.0 ** rng.uniform(-2, 0) / durations.sum()
+    pieces = [types.SimpleNamespace(duration=float(d)) for d in durations]
+    probe = np.linspace(0.0, 50.0, 129)[1:]
+    kinds = rng.permutation(np.arange(k) % 3)  # every kind in every draw
+    f1 = np.where(kinds == 0, 10.0 ** rng.uniform(-1, 1, k), np.where(kinds == 1, 10.0 ** rng.uniform(-9, -5, k),
+                                                                        0.0))
+    f0 = 10.0 ** rng.uniform(-4, 0, k)
+    f_rows = f0[:, None] + f1[:, None] * probe[None, :] - 1e-3 * f0[:, None] * np.sqrt(probe)[None, :]
+    g_kind = rng.permutation(np.arange(k) % 3)
+    # the growing drifts' g d summed over the stages 0.5-5 (the CIR drift's of the tail test: 1.9), over two decades
+    gd = np.where(g_kind == 0, 10.0 ** rng.uniform(-1, 1, k), 0.0)
+    gd *= 10.0 ** rng.uniform(-0.3, 0.7) / gd.sum()
+    g = np.where(g_kind == 0, gd / durations, np.where(g_kind == 1, 1e-9, 0.0))  # 1e-9: barely growing
+    slopes = {id(pc): (float(gi), float(ci)) for pc, gi, ci in zip(pieces, g, 10.0 ** rng.uniform(-3, 0, k))}
+    ok = _assert_chernoff_rows_agree(pieces, slopes, f_rows, probe)
+    assert 10 < ok.sum() < ok.size  # some theta kept, some dropped (else the comparison proves less than it says)
+
+
+def test_the_compiled_chernoff_bound_on_a_closure_s_stages(monkeypatch):
+    """The domain probe's Chernoff bound of ``local_g1_shell_balanced`` at ``zeta = 4`` on the Fig. 1 scene (48 stages,
+    the case that made it worth compiling: 5.5-6.8 ms of numpy per call): its moments are the numpy form's, bit for
+    bit, and so is the bound (the numpy form forced by a stage threshold no problem reaches)."""
+    import diffusion_pr as dp
+    from diffusion_pr.spectra import SelfAffineSpectrum
+
+    spectrum = SelfAffineSpectrum(0.3, 2 * math.pi / 1024, 2 * math.pi / 32, rms_slope=0.031)
+    seen = []
+    original = engine._affine_chernoff_bound
+    monkeypatch.setattr(engine, "_affine_chernoff_bound", lambda *a: seen.append(a) or original(*a))
+    dp.pressure_distribution(spectrum, E_star=8 / 3, mean_pressure=0.004, zeta=4.0, closure="local_g1_shell_balanced",
+                             rtol=1e-6)
+    monkeypatch.setattr(engine, "_affine_chernoff_bound", original)
+    assert seen and len(seen[0][0]) == 48
+    for pieces, slopes, f_rows, probe, p0, spread, z in seen:
+        assert _assert_chernoff_rows_agree(pieces, slopes, f_rows, probe).any()
+        compiled = engine._affine_chernoff_bound(pieces, slopes, f_rows, probe, p0, spread, z)
+        with monkeypatch.context() as m:
+            m.setattr(engine, "COMPILED_MIN_PIECES", 10**9)
+            plain = engine._affine_chernoff_bound(pieces, slopes, f_rows, probe, p0, spread, z)
+        assert compiled is not None and compiled == plain
 
 
 def test_probability_through_a_truncated_bottom_is_reported(monkeypatch):
