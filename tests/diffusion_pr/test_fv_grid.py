@@ -172,3 +172,77 @@ def test_three_knot_spline_is_lapacks_solve_bit_for_bit(rng):
         a = np.array([[1.0, 0.0, 0.0], [h[0], 2.0 * (h[0] + h[1]), h[1]], [0.0, 0.0, 1.0]])
         b = np.array([0.0, 6.0 * ((y[2] - y[1]) / h[1] - (y[1] - y[0]) / h[0]), 0.0])
         assert np.array_equal(grid._NaturalSpline(x, y).m, np.linalg.solve(a, b))
+
+
+def _random_remap(spec: GridSpec, rng: np.random.Generator) -> GridSpec:
+    """``spec`` with a random Remap as the engine makes them: 12 knots, a density over a range of up to 16."""
+    for _ in range(100):
+        try:
+            return _remapped(spec, tuple(np.exp(rng.uniform(0.0, np.log(16.0), 12))))
+        except ValueError:  # (a spline that is not safely positive: drawn again)
+            continue
+    raise AssertionError("no positive remap drawn")
+
+
+@pytest.mark.parametrize("spec", SPECS)
+def test_compiled_edges_are_numpys_bit_for_bit(spec, rng):
+    """The grid's edges with the inverse's Newton iterations compiled (:mod:`.._grid_kernel`, what compiled solves use)
+    against the numpy form, bit for bit: on the family as it is, on random remaps of it, for the doubling level's
+    new edges (``known=``), and for the remap's inverse beyond its ends. The oracle is the numpy form itself (the same
+    operations, so any difference is a changed one). Breaks that fail it: the remap's ``b ** 4`` as ``(b b)(b b)``, the
+    monitor's ``log((rel + delta)/delta)`` as ``log(rel/delta + 1)``. Passed: ``dphi``'s ``sqrt(z z + w0^2)`` as
+    ``hypot(z, w0)`` (a last-bit change of the derivative moves a converged Newton step by far less than its last
+    bit), the 8 Newton checks as 9 (no edge here needs exactly 9)."""
+    families = [spec] + ([] if spec.remap is not None else [_random_remap(spec, rng) for _ in range(3)])
+    for family in families:
+        for n in (37, 79, 166):
+            idx = knot_indices(family, n)
+            plain = edges_for(family, idx, 4)
+            fast = edges_for(family, idx, 4, compiled=True)
+            assert np.array_equal(fast, plain)
+            assert np.array_equal(edges_for(family, 2 * idx, 4, known=fast, compiled=True),
+                                  edges_for(family, 2 * idx, 4, known=plain))
+        if family.remap is not None:
+            total = family.remap.total
+            t = np.concatenate((np.linspace(-0.1 * total, 1.1 * total, 501), rng.uniform(0.0, total, 500)))
+            assert np.array_equal(family.remap.inverse(t, compiled=True), family.remap.inverse(t), equal_nan=True)
+
+
+def test_compiled_edges_fall_back_as_numpy_does(monkeypatch):
+    """Where the plain Newton steps do not converge in 8 checks (a start table of two points: linear interpolation
+    far from the edges), the compiled path hands all edges to the safeguarded Newton, as the numpy form does: the
+    same edges, bit for bit, and the fallback taken on both paths (counted). Break that fails it: the compiled
+    kernel's result kept where it reports failure."""
+    spec = SPECS[0]
+    coarse = {}
+
+    def two_point_table(s, a, b):
+        if (s, a, b) not in coarse:
+            table = np.array([a, b])
+            coarse[s, a, b] = (table, s.phi(table))
+        return coarse[s, a, b]
+
+    monkeypatch.setattr(grid, "_table", two_point_table)
+    calls = []
+    original = grid._invert_safe
+    monkeypatch.setattr(grid, "_invert_safe", lambda *a: calls.append(1) or original(*a))
+    idx = knot_indices(spec, 79)
+    plain = edges_for(spec, idx, 4)
+    assert len(calls) == 1
+    fast = edges_for(spec, idx, 4, compiled=True)
+    assert len(calls) == 2
+    assert np.array_equal(fast, plain)
+
+
+def test_compiled_remap_inverse_bisects_as_numpy_does(rng):
+    """The remap's safeguarded Newton from a poor start (a start table of its two ends: Newton steps leave their
+    brackets and bisection takes over) compiled and in numpy: the same values, bit for bit, at 2000 random targets of
+    five random remaps. Break that fails it: the bisection's midpoint ``0.5 (lo + hi)`` as ``lo + (hi - lo)/2``."""
+    for _ in range(5):
+        remap = _random_remap(SPECS[0], rng).remap
+        ends = np.array([0.0, remap._x[-1]])
+        object.__setattr__(remap, "_start", (remap.forward(ends), ends))  # (a private field: the poor start)
+        t = rng.uniform(0.0, remap.total, 2000)
+        plain = remap.inverse(t)
+        assert np.max(np.abs(remap.forward(plain) - t)) <= 1e-15 * max(remap.total, 1.0)  # converged
+        assert np.array_equal(remap.inverse(t, compiled=True), plain)

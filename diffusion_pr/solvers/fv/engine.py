@@ -1823,9 +1823,11 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             failure = f"refinement stopped at max_cells={max_cells} (the next grid needs {depth * n_base} cells)"
             break
         # the coarser grids are every 2nd / 4th (/ 8th) edge of it (a forced grid's remembered: the shells' plain
-        # solves ask for the same one several times)
+        # solves ask for the same one several times); the inverse's iterations compiled where the solve is (the
+        # same bits)
         finest = _forced_edges(prep.spec, idx, depth) if forced is not None else edges_for(
-            prep.spec, idx, depth, known=reuse[2] if reuse is not None else None)
+            prep.spec, idx, depth, known=reuse[2] if reuse is not None else None,
+            compiled=loop is None and _compiled(prep))
         es = [finest[::depth >> k] for k in range(depth.bit_length())]  # coarsest first
         ks = list(range(len(es)))  # each grid's refinement exponent (its cells are n_base << k)
         if plain_only:  # the N and 2N grids alone, or the 4N grid alone (plain_masses)

@@ -110,14 +110,22 @@ class Remap:
         """``F(v)``."""
         return self._both(v, density=False)[0]
 
-    def inverse(self, t: np.ndarray) -> np.ndarray:
+    def inverse(self, t: np.ndarray, compiled: bool = False) -> np.ndarray:
         """``F^-1(t)`` on ``[0, total]``: a tabulated start, then safeguarded Newton to round-off (``F`` and ``D`` from
-        one search); each value depends on its own ``t`` only (nested grids agree bit for bit)."""
+        one search); each value depends on its own ``t`` only (nested grids agree bit for bit).  ``compiled``: the
+        iterations in one compiled pass (:mod:`._grid_kernel`), the same bits."""
         t = np.asarray(t, dtype=float)
         f_tab, v_tab = self._start
         k = np.clip(np.searchsorted(f_tab, t, side="right") - 1, 0, f_tab.size - 2)
-        return _safeguarded_newton(self._both, t, np.interp(t, f_tab, v_tab), v_tab[k], v_tab[k + 1],
-                                   1e-15 * max(self.total, 1.0), 40)
+        x0, lo, hi, tol = np.interp(t, f_tab, v_tab), v_tab[k], v_tab[k + 1], 1e-15 * max(self.total, 1.0)
+        if compiled:
+            from ._grid_kernel import remap_inverse_kernel
+
+            out = np.empty(t.size)
+            remap_inverse_kernel()(np.ascontiguousarray(t.reshape(-1)), x0.reshape(-1), lo.reshape(-1),
+                                   hi.reshape(-1), tol, 40, self._x, float(self._y[-1]), self._pieces, out)
+            return out.reshape(t.shape)
+        return _safeguarded_newton(self._both, t, x0, lo, hi, tol, 40)
 
 
 @dataclass(frozen=True)
@@ -228,20 +236,30 @@ class GridSpec:
         return np.diff(self.phi(self.all_knots))
 
 
-def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float) -> np.ndarray:
+def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float, compiled: bool = False) -> np.ndarray:
     """``Phi^-1(targets)`` on ``[a, b]``: a tabulated start, then Newton (to round-off).
 
     Newton steps from the table's start (``Phi`` is smooth and increasing:
     from the table's interpolation error, 1e-4 relative or less, it converges in
     two to four steps); if a step leaves ``[a, b]`` or 8 steps do not converge,
     the safeguarded bisection-Newton of :func:`_invert_safe` takes over from the start.  With a
-    :class:`Remap` ``F``: ``F^-1`` first, then the base monitor's inverse.
+    :class:`Remap` ``F``: ``F^-1`` first, then the base monitor's inverse.  ``compiled``: the plain Newton steps
+    (and the remap's) in one compiled pass each (:mod:`._grid_kernel`), the same bits.
     """
     if spec.remap is not None:
-        return _invert(spec.base, spec.remap.inverse(targets) + float(spec._base_wall), a, b)
+        return _invert(spec.base, spec.remap.inverse(targets, compiled) + float(spec._base_wall), a, b, compiled)
     table, phi_table = _table(spec, a, b)
     x0 = np.interp(targets, phi_table, table)
     tol = 1e-14 * np.maximum(np.abs(targets), 1.0)
+    if compiled and x0.ndim == 1:
+        from ._grid_kernel import monitor_newton_kernel
+
+        out = np.empty(x0.size)
+        if monitor_newton_kernel()(np.ascontiguousarray(targets, dtype=float), x0, tol, float(a), float(b),
+                                   float(spec.p_wall), float(spec.scale), float(spec.c_wall), float(spec._delta),
+                                   float(spec.c_0), float(spec.p0), float(spec.w0), float(spec.w0**2), out):
+            return out
+        return _invert_safe(spec, targets, x0, a, b, tol)
     x = x0
     for _ in range(8):
         r = spec.phi(x) - targets
@@ -369,7 +387,8 @@ def knot_indices(spec: GridSpec, n_cells: int) -> np.ndarray:
 MIN_GAP = 3
 
 
-def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1, known: Optional[np.ndarray] = None) -> np.ndarray:
+def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1, known: Optional[np.ndarray] = None,
+              compiled: bool = False) -> np.ndarray:
     """Edges of the grid whose knots sit at edge indices ``factor * idx`` (pressure).
 
     The edge with index ``i`` is ``Phi^-1(T(i / (factor n)))`` with ``n = idx[-1]`` and
@@ -382,7 +401,8 @@ def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1, known: Optional[
 
     ``known``: the grid of ``idx // 2`` with the same ``factor`` (the level this one doubles, whose edges are every
     second one of this grid, bit for bit: each edge is the inverse of its own target): taken as they are, only the
-    new edges between them are inverted (half the work).
+    new edges between them are inverted (half the work).  ``compiled``: the inverse's Newton iterations compiled
+    (:mod:`._grid_kernel`; the same bits, for solves that load numba anyway).
 
     Raises
     ------
@@ -419,8 +439,8 @@ def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1, known: Optional[
     if new_only:
         edges = np.empty(n * factor + 1)
         edges[::2] = known
-        edges[1::2] = _invert(spec, targets, k[0], k[-1])
+        edges[1::2] = _invert(spec, targets, k[0], k[-1], compiled)
     else:
-        edges = _invert(spec, targets, k[0], k[-1])
+        edges = _invert(spec, targets, k[0], k[-1], compiled)
     edges[factor * idx] = k  # knots exactly
     return edges
