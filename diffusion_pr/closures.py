@@ -1045,7 +1045,8 @@ def _solve_shells(problem: Any, shells: Shells, closure: str, backend: str, rtol
             and options.get("extrapolation", "fourth") == "fourth":
         scene, plain_rtol, stash = alongside
         ms = _ladder_below(int(shells.q.size))
-        record = engine.plain_alongside([_shell_problem(scene, m)[0] for m in ms], rtol=plain_rtol,
+        # (built by the engine while it waits for the first level's finest grid)
+        record = engine.plain_alongside(lambda: [_shell_problem(scene, m)[0] for m in ms], rtol=plain_rtol,
                                         p_floor=options.get("p_floor"))
     with engine.plain_masses("keep") if keep else contextlib.nullcontext(), \
             record if record is not None else contextlib.nullcontext() as got:

@@ -822,6 +822,46 @@ def test_plain_alongside_gives_plain_batchs_masses_and_the_same_closure(fig1, mo
     assert record.results is None and np.array_equal(again.density, full.density)
 
 
+def test_the_ladder_built_during_the_first_level_gives_the_same_masses(fig1, monkeypatch):
+    """The ladder's plain problems, given to plain_alongside as a callable, are built and classified while the main
+    thread waits for the first level's finest grid (``engine._prime_alongside``), and the level after takes them with
+    its own (remapped) family. Oracle: the same run with that priming switched off, whose problems are built and
+    classified at the second level (plain masses bit for bit, the main answer too). A primed record of another
+    domain is not used: the level classifies the problems itself (break that fails it: the domain check dropped)."""
+    from diffusion_pr import closures
+    from diffusion_pr.api import solve_problem
+    from diffusion_pr.solvers.fv import engine
+
+    floor = {"p_floor": closures.BALANCED_FLOOR * 0.5 * 0.25 * E * (2 * np.pi / 1024)}
+    kw = dict(zeta=0.25, E_star=E, mean_pressure=P0, closure="local_g1_balanced")
+    main = closure_problem(spectrum_shells(fig1, E_star=E, n_shells=48), **kw)
+    build = lambda: [closure_problem(spectrum_shells(fig1, E_star=E, n_shells=m), **kw) for m in (24, 12, 6)]  # noqa
+
+    def run(prime: bool = True, primed=None):
+        with monkeypatch.context() as m:
+            if not prime:
+                m.setattr(engine, "_prime_alongside", lambda record, prep: None)
+            with engine.plain_masses("keep"), engine.plain_alongside(build, rtol=1e-6, **floor) as record:
+                record.primed = primed
+                res = solve_problem(main, backend="native", rtol=1e-6, **floor)
+        return res, record
+
+    primed_res, primed = run()
+    assert primed.primed is not None and primed.primed[0] == (primed_res.diagnostics["grid"][0].p_wall,
+                                                              primed_res.diagnostics["grid"][0].p_max)
+    assert primed_res.diagnostics["grid"][0].remap is not None  # the level after the first is another family
+    plain_res, plain = run(prime=False)
+    assert plain.primed is None
+    foreign_res, foreign = run(primed=((0.0, 1.0), ["not a prepared problem"] * 3))
+    assert np.array_equal(primed_res.density, plain_res.density) and np.array_equal(foreign_res.density,
+                                                                                    plain_res.density)
+    for record in (primed, foreign):
+        assert record.results is not None
+        for a, b in zip(record.results[1], plain.results[1]):
+            for g in (0, 1):
+                assert np.array_equal(a.diagnostics["plain_masses"][g], b.diagnostics["plain_masses"][g])
+
+
 def test_shell_extrapolation_after_a_sixth_that_ended_fourth(monkeypatch):
     """A stress scene where extrapolation="sixth" does not balance on uniform shells and the solve ends with the
     fourth-order scheme (H = 0.5, rms slope 0.3, p0 = 1e-5, zeta = 3e-3): the shell extrapolation's coarser solves

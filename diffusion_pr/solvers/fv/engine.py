@@ -37,7 +37,7 @@ import os
 import threading
 import time
 from dataclasses import dataclass, field, replace
-from typing import Callable, Optional, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
@@ -158,10 +158,18 @@ class Alongside:
     ``diagnostics["grid"]``), None where none did or one of them raised (the caller then solves them itself and meets
     the error there)."""
 
-    problems: tuple
+    problems: Any
     rtol: float
     p_floor: Optional[float] = None
     results: Optional[tuple] = None
+    #: ``((p_wall, p_max), preps)``: the problems classified during the first level (:func:`_prime_alongside`)
+    primed: Optional[tuple] = None
+
+    def problem_list(self) -> tuple:
+        """The problems (built here, once, where they were given as a callable that builds them)."""
+        if callable(self.problems):
+            self.problems = tuple(self.problems())
+        return self.problems
 
 
 #: the plain problems a solve integrates alongside its levels (:func:`plain_alongside`); None: none
@@ -171,14 +179,17 @@ _ALONGSIDE: contextvars.ContextVar = contextvars.ContextVar("plain_alongside", d
 @contextlib.contextmanager
 def plain_alongside(problems: Sequence, *, rtol: float, p_floor: Optional[float] = None):
     """Within the block, a native solve that keeps its plain masses (:func:`plain_masses` ``"keep"``, two threads,
-    fourth order) also integrates ``problems`` on the N and 2N grids of each level after its first, dealt to the
+    fourth order) also integrates ``problems`` (a sequence, or a callable that builds it: then built while this
+    thread waits for the first level's finest grid, :func:`_prime_alongside`) on the N and 2N grids of each level
+    after its first, dealt to the
     two threads together with that level's own three grids (the shells' ladder below the closure's main solve, which
     :func:`plain_batch` would otherwise solve on the last level's grids once it has converged: the main solve's
     finest grid runs alone in the worker while this thread, done with the two coarser ones, waits for it).  The
     masses are the same bit for bit as :func:`plain_batch`'s; where the level is not the last, its plain work is
     discarded (a speculation: the level after the first nearly always meets ``rtol``, its cells being predicted
     from the first).  Yields the :class:`Alongside` record whose ``results`` the solve fills."""
-    record = Alongside(problems=tuple(problems), rtol=float(rtol), p_floor=p_floor)
+    record = Alongside(problems=problems if callable(problems) else tuple(problems), rtol=float(rtol),
+                       p_floor=p_floor)
     token = _ALONGSIDE.set(record)
     try:
         yield record
@@ -1328,13 +1339,15 @@ _POOL = None
 _POOL_PID = -1
 
 
-def _run_grids(tasks: Sequence[Callable], parallel: bool, side: Optional[tuple] = None) -> list:
+def _run_grids(tasks: Sequence[Callable], parallel: bool, side: Optional[tuple] = None,
+               idle: Optional[Callable] = None) -> list:
     """Run the three grids' integrations; with ``parallel`` the last (finest) in a worker thread.
 
     The compiled kernels release the GIL, so the finest grid (4/7 of the cells)
     overlaps the two coarser ones.  An exception of the worker is re-raised here.
     ``side``: ``(this thread's, the worker's)`` further tasks (:func:`_alongside_tasks`), run after each thread's
-    grids; they keep their own exceptions.
+    grids; they keep their own exceptions.  ``idle``: run by this thread once its grids are done while the worker's
+    is not (work the next level would do serially; it keeps its own exceptions).
     """
     if not parallel:
         return [t() for t in tasks]
@@ -1344,6 +1357,8 @@ def _run_grids(tasks: Sequence[Callable], parallel: bool, side: Optional[tuple] 
         out = [t() for t in tasks[:-1]]
         if side is not None:
             _run_each(side[0])
+        if idle is not None and not finest.done():
+            idle()
     finally:
         try:
             last = finest.result()
@@ -1395,6 +1410,21 @@ def _plain_masses_on(pr: Prepared, edges: np.ndarray, n_base: int, refine: int, 
                          _coefficients(pr.pieces, [edges], centre_drift=False, plans=pr.row_plans, work=work)[0])
 
 
+def _prime_alongside(record: Alongside, prep: Prepared) -> None:
+    """``record``'s problems built and classified on ``prep``'s domain while this thread waits for the first level's
+    finest grid (:func:`_run_grids` ``idle``), kept as ``record.primed``: a later level whose family has the same
+    ``p_wall`` and ``p_max`` (a regraded or remapped family moves cells, not the domain) takes them with its own
+    family, the same records :func:`_plain_preps` makes there (a classification on a given family reads only its
+    domain, :func:`_prepared_on`).  Nothing is kept where one of them cannot be classified (the level after
+    meets that error itself)."""
+    spec = prep.spec
+    try:
+        preps = _plain_preps(record.problem_list(), spec, record.rtol, record.p_floor)
+    except (ValueError, RuntimeError, FloatingPointError):
+        return
+    record.primed = ((spec.p_wall, spec.p_max), preps)
+
+
 def _alongside_tasks(record: Alongside, prep: Prepared, es: Sequence[np.ndarray], idx: np.ndarray,
                      backend: str) -> Optional[tuple]:
     """``(this thread's tasks, the worker's tasks, finish)`` for ``record``'s plain problems on a level's N and 2N
@@ -1407,10 +1437,14 @@ def _alongside_tasks(record: Alongside, prep: Prepared, es: Sequence[np.ndarray]
     coefficients and integrator; ``wall_time`` 0, their time is in the level's), or None where one of them raised.
     """
     t_start = time.perf_counter()
-    try:
-        preps = _plain_preps(record.problems, prep.spec, record.rtol, record.p_floor)
-    except (ValueError, RuntimeError, FloatingPointError):
-        return None
+    primed = record.primed
+    if primed is not None and primed[0] == (prep.spec.p_wall, prep.spec.p_max):
+        preps = [replace(pr, spec=prep.spec) for pr in primed[1]]
+    else:
+        try:
+            preps = _plain_preps(record.problem_list(), prep.spec, record.rtol, record.p_floor)
+        except (ValueError, RuntimeError, FloatingPointError):
+            return None
     n_base = int(idx[-1])
     grids = (es[0], es[1])
     integrate = _integrator(native_assemble, record.rtol, cram_order(record.rtol))
@@ -1842,10 +1876,14 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                        and 3 * n_base * len(prep.pieces) < PARALLEL_MIN_WORK))
         last = len(es) - 1
         side = None  # the plain problems to integrate alongside (plain_alongside), not on a first level
-        if (alongside is not None and parallel and history and plain_mode == "keep" and forced is None
+        idle = None  # on the first level: those problems built and classified while this thread waits
+        if (alongside is not None and parallel and plain_mode == "keep" and forced is None
                 and not sixth and len(es) == 3 and loop is None):
-            alongside.results = None
-            side = _alongside_tasks(alongside, prep, es, idx, backend)
+            if history:
+                alongside.results = None
+                side = _alongside_tasks(alongside, prep, es, idx, backend)
+            elif alongside.primed is None:
+                idle = functools.partial(_prime_alongside, alongside, prep)
         if reuse is not None:
             if one_call:
                 new_grid = lambda: _integrate_level(prep, es[-1:], rational_order)[0]  # noqa: E731
@@ -1864,10 +1902,10 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                                        else (tuple(range(last + 1)),),
                                        centre_drift=assemble is not native_assemble, plans=prep.row_plans)
             ys = _run_grids([lambda e=e, rf=1 << k, g=g: integrate(prep, e, n_base, rf, coefs(g))
-                             for g, (k, e) in enumerate(zip(ks, es))], parallel, side)
+                             for g, (k, e) in enumerate(zip(ks, es))], parallel, side, idle)
         else:
             ys = _run_grids([lambda e=e, rf=1 << k: integrate(prep, e, n_base, rf) for k, e in zip(ks, es)], parallel,
-                            side)
+                            side, idle)
         if side is not None:
             done = side[2]()
             alongside.results = None if done is None else (_grid_of(prep, idx), done)
