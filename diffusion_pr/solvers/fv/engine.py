@@ -1346,12 +1346,13 @@ def _run_grids(tasks: Sequence[Callable], parallel: bool, side: Optional[tuple] 
     The compiled kernels release the GIL, so the finest grid (4/7 of the cells)
     overlaps the two coarser ones.  An exception of the worker is re-raised here.
     ``side``: ``(this thread's, the worker's)`` further tasks (:func:`_alongside_tasks`), run after each thread's
-    grids; they keep their own exceptions.  ``idle``: run by this thread once its grids are done while the worker's
-    is not (work the next level would do serially; it keeps its own exceptions).
+    grids; they keep their own exceptions.  ``idle``: a :class:`_OneShot` (work the next level would otherwise do
+    serially), run by whichever thread is done with its grids first while the other is still integrating: by this
+    thread where the worker's grid is not done, else by the worker after its grid, while this thread's kernels run.
     """
     if not parallel:
         return [t() for t in tasks]
-    finest = _worker().submit(tasks[-1])
+    finest = _worker().submit(tasks[-1] if idle is None else functools.partial(_then, tasks[-1], idle))
     more = _worker().submit(_run_each, side[1]) if side is not None and side[1] else None
     try:
         out = [t() for t in tasks[:-1]]
@@ -1366,6 +1367,31 @@ def _run_grids(tasks: Sequence[Callable], parallel: bool, side: Optional[tuple] 
             if more is not None:
                 more.result()
     return out + [last]
+
+
+class _OneShot:
+    """``fn()`` run once, by the first thread that calls; the other calls return at once (without waiting for it).
+    For speculative work only: an exception of ``fn`` is dropped (the work is then done where it is needed, and
+    meets its error there)."""
+
+    __slots__ = ("_fn", "_claim")
+
+    def __init__(self, fn: Callable) -> None:
+        self._fn, self._claim = fn, threading.Lock()
+
+    def __call__(self) -> None:
+        if self._claim.acquire(blocking=False):  # (never released: one run)
+            try:
+                self._fn()
+            except Exception:  # noqa: BLE001 (speculative, see above)
+                pass
+
+
+def _then(task: Callable, after: Callable):
+    """``task()``, then ``after()``; returns the task's result."""
+    out = task()
+    after()
+    return out
 
 
 def _run_each(tasks: Sequence[Callable]) -> None:
@@ -1411,8 +1437,8 @@ def _plain_masses_on(pr: Prepared, edges: np.ndarray, n_base: int, refine: int, 
 
 
 def _prime_alongside(record: Alongside, prep: Prepared) -> None:
-    """``record``'s problems built and classified on ``prep``'s domain while this thread waits for the first level's
-    finest grid (:func:`_run_grids` ``idle``), kept as ``record.primed``: a later level whose family has the same
+    """``record``'s problems built and classified on ``prep``'s domain by whichever thread is free first during the
+    first level (:func:`_run_grids` ``idle``), kept as ``record.primed``: a later level whose family has the same
     ``p_wall`` and ``p_max`` (a regraded or remapped family moves cells, not the domain) takes them with its own
     family, the same records :func:`_plain_preps` makes there (a classification on a given family reads only its
     domain, :func:`_prepared_on`).  Nothing is kept where one of them cannot be classified (the level after
@@ -1882,8 +1908,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             if history:
                 alongside.results = None
                 side = _alongside_tasks(alongside, prep, es, idx, backend)
-            elif alongside.primed is None:
-                idle = functools.partial(_prime_alongside, alongside, prep)
+            elif alongside.primed is None and not prep.depth_adaptive:  # (a depth that may be trimmed: not)
+                idle = _OneShot(functools.partial(_prime_alongside, alongside, prep))
         if reuse is not None:
             if one_call:
                 new_grid = lambda: _integrate_level(prep, es[-1:], rational_order)[0]  # noqa: E731
