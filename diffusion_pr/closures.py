@@ -627,13 +627,19 @@ def closure_problem(shells: Shells, *, zeta: float, E_star: float, mean_pressure
     # the hard wall: g = 1 in every shell; one diffusivity object for all (the engine then integrates the
     # commuting stages as one exponential: Persson's mirror Gaussian in one step)
     hard = LocalResponseDiffusivity(float(shells.q_min), 0.0) if kz == 0.0 else None
-    for q, dv in zip(shells.q, shells.dV0):
-        f = hard if hard is not None else LocalResponseDiffusivity(float(q), kz)
+    # a partition at one wavenumber: one balance object for every shell (its w is the same function of p; the
+    # engine asks a shared model for its breakpoints once)
+    shared = None
+    if closure != "local_g1" and kz > 0.0 and partition_q != "shell":
+        shared = RigidApproachBalance(shells.q_min if partition_q is None else float(partition_q), kz)
+    for q, dv in zip(shells.q.tolist(), shells.dV0.tolist()):
+        f = hard if hard is not None else LocalResponseDiffusivity(q, kz)
         if closure == "local_g1" or kz == 0.0:
-            stages.append(Stage(0.5 * float(dv), f))
+            stages.append(Stage(0.5 * dv, f))
+        elif shared is not None:
+            stages.append(Stage(0.5 * dv, f, LoadExcessDrift(q, shared.q_part, kz), shared))
         else:
-            qp = shells.q_min if partition_q is None else (float(q) if partition_q == "shell" else float(partition_q))
-            stages.append(Stage(0.5 * float(dv), f, LoadExcessDrift(float(q), qp, kz), RigidApproachBalance(qp, kz)))
+            stages.append(Stage(0.5 * dv, f, LoadExcessDrift(q, q, kz), RigidApproachBalance(q, kz)))
     return StagedProblem(float(check_positive("mean_pressure", mean_pressure)), tuple(stages), label=closure,
                          balance_per_stage=True)
 
