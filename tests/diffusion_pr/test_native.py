@@ -656,6 +656,51 @@ def test_the_compiled_chernoff_recursion_is_the_numpy_forms_bits(seed):
     assert 10 < ok.sum() < ok.size  # some theta kept, some dropped (else the comparison proves less than it says)
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_the_compiled_affine_envelope_bound_is_the_numpy_forms_bits(monkeypatch, seed):
+    """The affine envelope of the drift and its moments (``engine._affine_envelope_bound``), compiled
+    (:mod:`..._tail_kernel`, from COMPILED_MIN_PIECES stages on) against the numpy form (forced by a stage
+    threshold no problem reaches), bit for bit in the bound, the shift and the spread: random stages where some
+    have no drift, drifts that grow (``g d`` summed 0.5-5) or fall, a row with a NaN (its slope NaN, as numpy's
+    ``max`` gives it, and no bound), and one draw whose largest ``g d`` is 352 (past the guard at 350 while
+    ``exp(2 g d)`` is still finite: None from both). Also the envelopes themselves against
+    ``engine._affine_envelope``. Breaks that fail it: the slope's difference quotient taken as
+    ``(b - a) * (1/dp)``, the intercepts without their clamp at 0, ``var`` grown by ``grow`` instead of
+    ``grow^2``, the guard at 350 dropped."""
+    from diffusion_pr.solvers.fv import _tail_kernel
+
+    rng = np.random.default_rng(20261129 + seed)
+    k = int(rng.choice([4, 7, 48]))
+    durations = 10.0 ** rng.uniform(-4, 0, k)
+    durations *= 10.0 ** rng.uniform(-2, 0) / durations.sum()
+    drifting = rng.random(k) < 0.8
+    drifting[0] = True
+    pieces = [types.SimpleNamespace(duration=float(d), b=(1 if on else None)) for d, on in zip(durations, drifting)]
+    with_b = [pc for pc in pieces if pc.b is not None]
+    probe = np.sort(rng.uniform(0.0, 10.0, 128))
+    rates = 10.0 ** rng.uniform(-1, 1, len(with_b)) * rng.choice([-1.0, 1.0], len(with_b))
+    gd = np.abs(rates) * np.array([pc.duration for pc in with_b])
+    rates *= 10.0 ** rng.uniform(-0.3, 0.7) / gd.sum() if seed != 5 else 352.0 / gd.max()  # 352: exp(2 g d) finite
+    b_rows = 10.0 ** rng.uniform(-3, 0, (len(with_b), 1)) + rates[:, None] * probe[None, :] \
+        + 0.1 * np.sin(3.0 * probe)[None, :] * rng.random((len(with_b), 1))
+    if seed == 2:
+        b_rows[-1, 17] = np.nan
+    f_rows = 10.0 ** rng.uniform(-4, 0, (k, 1)) * (1.0 + 0.01 * probe[None, :])
+    args = (pieces, with_b, b_rows, f_rows, probe, 0.3, engine._tail_quantile(1e-9), 1e300)
+    compiled = engine._affine_envelope_bound(*args)
+    with monkeypatch.context() as m:
+        m.setattr(engine, "COMPILED_MIN_PIECES", 10**9)
+        plain = engine._affine_envelope_bound(*args)
+    if seed in (2, 5):  # a NaN slope, a growth beyond double precision: no bound from either
+        assert plain is None and compiled is None
+    else:
+        assert plain is not None and compiled == plain  # (bound, shift, spread), the same bits
+    slopes, intercepts = np.empty(len(with_b)), np.empty(len(with_b))
+    _tail_kernel.envelope_kernel()(np.ascontiguousarray(b_rows), probe, True, slopes, intercepts)
+    ref = engine._affine_envelope(np.maximum(b_rows, 0.0), probe)
+    assert np.array_equal(slopes, ref[0], equal_nan=True) and np.array_equal(intercepts, ref[1], equal_nan=True)
+
+
 def test_the_compiled_chernoff_bound_on_a_closure_s_stages(monkeypatch):
     """The domain probe's Chernoff bound of ``local_g1_shell_balanced`` at ``zeta = 4`` on the Fig. 1 scene (48 stages,
     the case that made it worth compiling: 5.5-6.8 ms of numpy per call): its moments are the numpy form's, bit for
