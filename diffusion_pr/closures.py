@@ -1272,7 +1272,7 @@ def _l1(x: np.ndarray) -> float:
 def _aggregated(x: np.ndarray) -> np.ndarray:
     """Masses ``[zero weight, cells]`` of a grid aggregated to the grid half as fine (the inverse of
     :func:`_split_to_finer`)."""
-    return np.r_[x[0], x[1::2] + x[2::2]]
+    return np.concatenate(((x[0],), x[1::2] + x[2::2]))
 
 
 def _split_to_finer(x: np.ndarray) -> np.ndarray:

@@ -1174,7 +1174,7 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
                 "cram_order": order}
     # a balance always runs in the kernel (its substep loop is compiled); a few plain stages stay on LAPACK
     if compiled:
-        common = (balanced, dt, reps, np.r_[edges[0], c], y, prep.p0, mean_tol, max(mean_tol, lin_tol),
+        common = (balanced, dt, reps, np.concatenate(((edges[0],), c)), y, prep.p0, mean_tol, max(mean_tol, lin_tol),
                   bool(partial_fractions), order)
         if rows_in_kernel:
             y, n_cram, n_newton, info, stage, residual = _staged_kernels().run_rows(
@@ -1284,7 +1284,7 @@ def _remapped(spec: GridSpec, edges: np.ndarray, diff: np.ndarray, j: int) -> Op
     base0 = float(spec.phi(spec.p_wall))
     v_edges = spec.phi(edges) - base0
     v_c = 0.5 * (v_edges[:-1] + v_edges[1:])
-    smooth = np.maximum(e, 0.5 * np.maximum(np.r_[e[1:], 0.0], np.r_[0.0, e[:-1]]))
+    smooth = np.maximum(e, 0.5 * np.maximum(np.concatenate((e[1:], (0.0,))), np.concatenate(((0.0,), e[:-1]))))
     log_d = 0.2 * np.log(np.maximum(smooth, 1e-12 * smooth.max()))
     total = float(v_edges[-1])
     knots = np.linspace(0.0, total, REMAP_KNOTS)
