@@ -101,8 +101,9 @@ def test_remapped_cells_follow_its_density():
 def test_remap_rejects_a_density_that_is_not_safely_positive():
     """A spike of 30x between two knots makes the natural spline dip below zero beside it: refused, as are knots
     that do not start at 0 and a non-positive value."""
-    with pytest.raises(ValueError, match="not safely positive"):
-        Remap((0.0, 1.0, 2.0, 3.0, 4.0), (1.0, 1.0, 30.0, 1.0, 1.0))
+    for compiled in (False, True):  # (the check on the compiled evaluation too)
+        with pytest.raises(ValueError, match="not safely positive"):
+            Remap((0.0, 1.0, 2.0, 3.0, 4.0), (1.0, 1.0, 30.0, 1.0, 1.0), compiled=compiled)
     with pytest.raises(ValueError, match="increasing knots from 0"):
         Remap((0.5, 1.0, 2.0), (1.0, 1.0, 1.0))
     with pytest.raises(ValueError, match="positive values"):
@@ -206,6 +207,11 @@ def test_compiled_edges_are_numpys_bit_for_bit(spec, rng):
             total = family.remap.total
             t = np.concatenate((np.linspace(-0.1 * total, 1.1 * total, 501), rng.uniform(0.0, total, 500)))
             assert np.array_equal(family.remap.inverse(t, compiled=True), family.remap.inverse(t), equal_nan=True)
+            # a Remap whose many-point evaluations are compiled: the same start table and density, and equal
+            fast = Remap(family.remap.knots, family.remap.values, compiled=True)
+            assert fast == family.remap and all(np.array_equal(a, b) for a, b in zip(fast._start, family.remap._start))
+            v = np.linspace(-0.1 * family.remap._x[-1], 1.1 * family.remap._x[-1], 2001)
+            assert np.array_equal(fast.density(v), family.remap.density(v))
 
 
 def test_compiled_edges_fall_back_as_numpy_does(monkeypatch):

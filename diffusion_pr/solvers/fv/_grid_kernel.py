@@ -66,6 +66,13 @@ def _remap_both(x, y_last, pieces, v):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def remap_both_many(x, y_last, pieces, v, f_out, d_out):  # pragma: no cover - numba
+    """``F`` and ``D`` of :meth:`.grid.Remap._both` at every ``v``, written into ``f_out`` and ``d_out``."""
+    for j in range(v.size):
+        f_out[j], d_out[j] = _remap_both(x, y_last, pieces, v[j])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def remap_inverse(t, x0, lo0, hi0, tol, iterations, x, y_last, pieces, out):  # pragma: no cover - numba
     """:func:`.grid._safeguarded_newton` on ``F`` (:meth:`.grid.Remap.inverse`): for each target ``t[j]`` from
     ``x0[j]`` in the bracket ``[lo0[j], hi0[j]]``, Newton steps, bisection where a step would leave the bracket,
@@ -133,6 +140,14 @@ def remap_inverse_types() -> tuple:
     return (f1, f1, f1, f1, t.float64, t.int64, f1, t.float64, t.float64[:, ::1], f1)
 
 
+def remap_both_types() -> tuple:
+    """The one argument signature :func:`remap_both_many` is loaded for."""
+    from numba import types as t
+
+    f1 = t.float64[::1]
+    return (f1, t.float64, t.float64[:, ::1], f1, f1, f1)
+
+
 def monitor_newton_types() -> tuple:
     """The one argument signature :func:`monitor_newton` is loaded for."""
     from numba import types as t
@@ -149,3 +164,4 @@ load_without_refresh(globals())
 #: the kernels loaded for their one signature on first use
 remap_inverse_kernel = LoadedBySignature(remap_inverse, remap_inverse_types)
 monitor_newton_kernel = LoadedBySignature(monitor_newton, monitor_newton_types)
+remap_both_kernel = LoadedBySignature(remap_both_many, remap_both_types)

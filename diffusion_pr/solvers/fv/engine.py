@@ -1266,7 +1266,7 @@ def _cell_errors(diff: np.ndarray, j: int) -> np.ndarray:
     return np.concatenate((np.full(j, d[0] / j) if j > 0 else np.empty(0), d[1:]))
 
 
-def _remapped(spec: GridSpec, edges: np.ndarray, diff: np.ndarray, j: int) -> Optional[tuple]:
+def _remapped(spec: GridSpec, edges: np.ndarray, diff: np.ndarray, j: int, compiled: bool = False) -> Optional[tuple]:
     """``(spec, cell factor)``: ``spec`` remapped (:class:`~.grid.Remap`) so that the first level's errors are
     about equidistributed, and the ratio of the cells it needs for that error to those ``spec`` needs.
 
@@ -1276,7 +1276,8 @@ def _remapped(spec: GridSpec, edges: np.ndarray, diff: np.ndarray, j: int) -> Op
     :data:`REMAP_KNOTS` equidistant knots; a sign change of a cell's difference is bridged by half its
     neighbours'), its range capped at :data:`REMAP_MAX_RATIO`, and ``D`` is the natural cubic spline through it.  The
     factor is ``(sum e_i rho_i^4 / sum e_i)^(1/4)``, ``rho_i`` the new width over the old at the same cells.
-    None where the density's spline is not safely positive or the errors are not finite.
+    None where the density's spline is not safely positive or the errors are not finite.  ``compiled``: the
+    :class:`~.grid.Remap`'s many-point evaluations compiled (the same bits).
     """
     e = _cell_errors(diff, j)
     if not np.isfinite(e).all() or e.sum() <= 0.0 or e.size + 1 != edges.size:
@@ -1292,7 +1293,7 @@ def _remapped(spec: GridSpec, edges: np.ndarray, diff: np.ndarray, j: int) -> Op
     log_k = (weights @ log_d) / weights.sum(axis=1)
     log_k = np.maximum(log_k - log_k.max(), -math.log(REMAP_MAX_RATIO))
     try:
-        remap = Remap(tuple(knots), tuple(np.exp(log_k - 0.5 * log_k.min())))
+        remap = Remap(tuple(knots), tuple(np.exp(log_k - 0.5 * log_k.min())), compiled=compiled)
     except ValueError:
         return None
     rho = remap.total / (total * remap.density(v_c))
@@ -1348,7 +1349,7 @@ def _regraded(prep: Prepared, edges: np.ndarray, diff: np.ndarray, j: int, remap
     iw, idp = np.unravel_index(int(np.argmin(cost)), cost.shape)
     best_cost = float(cost[iw, idp])
     if remap:
-        remapped = _remapped(spec, edges, diff, j)
+        remapped = _remapped(spec, edges, diff, j, compiled=_compiled(prep))
         if remapped is not None and remapped[1] < 1.0 - REGRADE_GAIN and remapped[1] < REMAP_PREFERENCE * best_cost:
             return remapped
     if not best_cost < 1.0 - REGRADE_GAIN:

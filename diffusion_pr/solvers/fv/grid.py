@@ -47,6 +47,9 @@ class Remap:
 
     knots: tuple
     values: tuple
+    #: its many-point evaluations (the inverse's start table, :meth:`density`) compiled (:mod:`._grid_kernel`; the
+    #: same bits, for solves that load numba anyway); not part of the map's identity
+    compiled: bool = field(default=False, repr=False, compare=False, hash=False)
     _x: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
     _y: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
     _m: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
@@ -72,7 +75,7 @@ class Remap:
         object.__setattr__(self, "_pieces", np.array([x[:-1], x[1:], h, m[:-1], m[1:], 6 * h, c_l, c_r, cum[:-1],
                                                       h**4, 24 * h, 0.5 * c_l, h * h, 0.5 * c_r]))
         probe = np.linspace(0.0, x[-1], 64 * (x.size - 1) + 1)
-        f_probe, d_probe = self._both(probe)
+        f_probe, d_probe = self._both_compiled(probe) if self.compiled else self._both(probe)
         if np.min(d_probe) < 0.2 * np.min(y):
             raise ValueError("Remap: the density's spline is not safely positive")
         object.__setattr__(self, "_start", (f_probe, probe))
@@ -102,8 +105,19 @@ class Remap:
             d_out = np.where(v > x[-1], self._y[-1], (ml * a**3 + mr * b**3) / h6 + c_l * a + c_r * b)
         return f_out, d_out
 
+    def _both_compiled(self, v: np.ndarray) -> tuple:
+        """:meth:`_both` of a 1-D ``v`` in one compiled pass (:mod:`._grid_kernel`), the same bits."""
+        from ._grid_kernel import remap_both_kernel
+
+        v = np.ascontiguousarray(v, dtype=float)
+        f_out, d_out = np.empty(v.size), np.empty(v.size)
+        remap_both_kernel()(self._x, float(self._y[-1]), self._pieces, v, f_out, d_out)
+        return f_out, d_out
+
     def density(self, v: np.ndarray) -> np.ndarray:
         """``D(v) = F'(v)``."""
+        if self.compiled and np.ndim(v) == 1:
+            return self._both_compiled(v)[1]
         return self._both(v, forward=False)[1]
 
     def forward(self, v: np.ndarray) -> np.ndarray:
