@@ -212,6 +212,7 @@ def test_compiled_edges_are_numpys_bit_for_bit(spec, rng):
             assert fast == family.remap and all(np.array_equal(a, b) for a, b in zip(fast._start, family.remap._start))
             v = np.linspace(-0.1 * family.remap._x[-1], 1.1 * family.remap._x[-1], 2001)
             assert np.array_equal(fast.density(v), family.remap.density(v))
+            assert np.array_equal(fast.forward(v), family.remap.forward(v))
 
 
 def test_compiled_edges_fall_back_as_numpy_does(monkeypatch):

@@ -47,8 +47,8 @@ class Remap:
 
     knots: tuple
     values: tuple
-    #: its many-point evaluations (the inverse's start table, :meth:`density`) compiled (:mod:`._grid_kernel`; the
-    #: same bits, for solves that load numba anyway); not part of the map's identity
+    #: its evaluations at many points (the inverse's start table, :meth:`forward` and :meth:`density` of 1-D arrays)
+    #: compiled (:mod:`._grid_kernel`; the same bits, for solves that load numba anyway); not part of its identity
     compiled: bool = field(default=False, repr=False, compare=False, hash=False)
     _x: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
     _y: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
@@ -122,6 +122,8 @@ class Remap:
 
     def forward(self, v: np.ndarray) -> np.ndarray:
         """``F(v)``."""
+        if self.compiled and np.ndim(v) == 1:
+            return self._both_compiled(v)[0]
         return self._both(v, density=False)[0]
 
     def inverse(self, t: np.ndarray, compiled: bool = False) -> np.ndarray:
