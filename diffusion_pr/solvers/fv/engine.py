@@ -547,7 +547,7 @@ def _affine_envelope_bound(pieces: Sequence, with_b: Sequence, b_rows: np.ndarra
     """
     compiled = len(pieces) >= COMPILED_MIN_PIECES  # (the same bits compiled: :mod:`._tail_kernel`)
     if compiled:
-        from ._tail_kernel import envelope_kernel, moments_kernel
+        from ._tail_kernel import envelope_kernel
 
         rates, intercepts = np.empty(len(with_b)), np.empty(len(with_b))
         envelope_kernel()(np.ascontiguousarray(b_rows, dtype=float), np.ascontiguousarray(probe, dtype=float), True,
@@ -556,44 +556,57 @@ def _affine_envelope_bound(pieces: Sequence, with_b: Sequence, b_rows: np.ndarra
         rates, intercepts = _affine_envelope(np.maximum(b_rows, 0.0), probe)
     if not np.any(rates > 0.0):
         return None
-    slopes = None if compiled else _slopes_of(with_b, rates, intercepts)
-    if compiled:
-        if len(with_b) == len(pieces):  # (every stage has its drift: the rows are the stages')
-            g_k, c_k = rates, intercepts
-        else:
-            g_k, c_k = np.zeros(len(pieces)), np.zeros(len(pieces))
-            at = np.array([pc.b is not None for pc in pieces])
-            g_k[at], c_k[at] = rates, intercepts
-        finite, mean, var = moments_kernel()(np.ascontiguousarray(f_rows.max(axis=1), dtype=float),
-                                             np.array([pc.duration for pc in pieces], dtype=float), g_k, c_k,
-                                             float(p0))
-        if not finite:  # exp(2 g dtau) beyond double precision (a drift that rises steeply near the wall)
-            return None
-    else:
-        mean, var = p0, 0.0
-        for pc, fm in zip(pieces, f_rows.max(axis=1)):
-            g, c = slopes.get(id(pc), (0.0, 0.0))
-            d = pc.duration
-            if g * d > 350.0:  # exp(2 g dtau) beyond double precision (a drift that rises steeply near the wall)
-                return None
-            if g > 0.0:
-                grow = math.exp(g * d)
-                mean = grow * mean + c * math.expm1(g * d) / g
-                var = grow * grow * var + float(fm) * math.expm1(2.0 * g * d) / g
-            else:
-                mean += c * d
-                var += 2.0 * d * float(fm)
+    moments = _affine_moments(pieces, with_b, rates, intercepts, f_rows.max(axis=1), p0, compiled)
+    if moments is None:  # exp(2 g dtau) beyond double precision (a drift that rises steeply near the wall)
+        return None
+    mean, var = moments
     spread = math.sqrt(var)
     bound = mean + z * spread
     if not (math.isfinite(bound) and spread > 0.0):
         return None
     # a diffusivity that grows with p too (the CIR diffusivity p/p_1): with it bounded by F0 + F1 p as well, the
     # dominating diffusion is affine, and its exponential moments bound the tail tighter than F = max f does
-    chernoff = _affine_chernoff_bound(pieces, slopes if slopes is not None else _slopes_of(with_b, rates, intercepts),
-                                      f_rows, probe, p0, spread, z) if bound < bounded else None
+    chernoff = _affine_chernoff_bound(pieces, _slopes_of(with_b, rates, intercepts), f_rows, probe, p0, spread,
+                                      z) if bound < bounded else None
     if chernoff is not None and chernoff < bound:
         bound = chernoff
     return bound, mean - p0, spread
+
+
+def _affine_moments(pieces: Sequence, with_b: Sequence, rates: np.ndarray, intercepts: np.ndarray,
+                    f_max: np.ndarray, p0: float, compiled: bool) -> Optional[tuple]:
+    """``(mean, var)`` of :func:`_affine_envelope_bound`'s affine diffusion after every stage (the drifting stages'
+    envelopes ``rates``, ``intercepts``, in the order of ``with_b``; ``f_max`` each stage's largest diffusivity), or
+    None where a stage's ``g dtau`` exceeds 350.  ``compiled``: one compiled pass (:mod:`._tail_kernel`), the same
+    bits as the loop below."""
+    if compiled:
+        from ._tail_kernel import moments_kernel
+
+        if len(with_b) == len(pieces):  # (every stage has its drift: the rows are the stages')
+            g_k, c_k = rates, intercepts
+        else:
+            g_k, c_k = np.zeros(len(pieces)), np.zeros(len(pieces))
+            at = np.array([pc.b is not None for pc in pieces])
+            g_k[at], c_k[at] = rates, intercepts
+        finite, mean, var = moments_kernel()(np.ascontiguousarray(f_max, dtype=float),
+                                             np.array([pc.duration for pc in pieces], dtype=float), g_k, c_k,
+                                             float(p0))
+        return (mean, var) if finite else None
+    slopes = _slopes_of(with_b, rates, intercepts)
+    mean, var = p0, 0.0
+    for pc, fm in zip(pieces, f_max):
+        g, c = slopes.get(id(pc), (0.0, 0.0))
+        d = pc.duration
+        if g * d > 350.0:
+            return None
+        if g > 0.0:
+            grow = math.exp(g * d)
+            mean = grow * mean + c * math.expm1(g * d) / g
+            var = grow * grow * var + float(fm) * math.expm1(2.0 * g * d) / g
+        else:
+            mean += c * d
+            var += 2.0 * d * float(fm)
+    return mean, var
 
 
 def _slopes_of(with_b: Sequence, rates: np.ndarray, intercepts: np.ndarray) -> dict:
