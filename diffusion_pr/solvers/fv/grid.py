@@ -126,10 +126,11 @@ class Remap:
             return self._both_compiled(v)[0]
         return self._both(v, density=False)[0]
 
-    def inverse(self, t: np.ndarray, compiled: bool = False) -> np.ndarray:
+    def inverse(self, t: np.ndarray, compiled: Optional[bool] = None) -> np.ndarray:
         """``F^-1(t)`` on ``[0, total]``: a tabulated start, then safeguarded Newton to round-off (``F`` and ``D`` from
-        one search); each value depends on its own ``t`` only (nested grids agree bit for bit).  ``compiled``: the
-        iterations in one compiled pass (:mod:`._grid_kernel`), the same bits."""
+        one search); each value depends on its own ``t`` only (nested grids agree bit for bit).  ``compiled`` (default:
+        the map's own :attr:`compiled`): the iterations in one compiled pass (:mod:`._grid_kernel`), the same bits."""
+        compiled = self.compiled if compiled is None else compiled
         t = np.asarray(t, dtype=float)
         f_tab, v_tab = self._start
         k = np.clip(np.searchsorted(f_tab, t, side="right") - 1, 0, f_tab.size - 2)
@@ -263,7 +264,9 @@ def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float, compiled: b
     (and the remap's) in one compiled pass each (:mod:`._grid_kernel`), the same bits.
     """
     if spec.remap is not None:
-        return _invert(spec.base, spec.remap.inverse(targets, compiled) + float(spec._base_wall), a, b, compiled)
+        # (compiled where asked, else as the map was made: either way the same bits)
+        return _invert(spec.base, spec.remap.inverse(targets, compiled or None) + float(spec._base_wall), a, b,
+                       compiled)
     table, phi_table = _table(spec, a, b)
     x0 = np.interp(targets, phi_table, table)
     tol = 1e-14 * np.maximum(np.abs(targets), 1.0)
