@@ -1,0 +1,100 @@
+"""Would the previous level's balance multipliers predict a finer level's? A measurement, not a feature.
+
+``local_g1_balanced`` on the Fig. 1 scene (48 shells), rtol 1e-6, integrated by the tests' Python oracle of the
+compiled kernels (``tests/diffusion_pr/test_fv_kernels.py::_PythonKernels``: the kernels' algorithm in numpy and
+LAPACK), with each balanced stage's first prediction of the multiplier ``A``, its root (Newton to 1e-15 p0 from
+the same state) and the slope ``d<p>/dA`` recorded. A "first level" on ``n1`` coarsest cells and a "second" on
+``n2`` (one grid family, ``n_cells`` fixed). Per second-level grid: the mean's miss over the balance's tolerance
+(``1e-2 rtol p0``) of the kernel's own prediction, of the first level's ``4N``-grid root, and of the first level's
+roots extrapolated in ``h^2``; medians over the stages and the share within the tolerance (a stage within it costs
+one exponential). The forty-second session's output is ``results/balance_predictor_lead_s42.md``.
+
+    python benchmarks/balance_predictor_lead.py
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "diffusion_pr"))
+import test_fv_kernels as T  # noqa: E402  (the oracle of the compiled kernels)
+
+from diffusion_pr.closures import closure_problem, spectrum_shells  # noqa: E402
+from diffusion_pr.solvers.fv import engine  # noqa: E402
+
+from bench_fokker_planck import SPECTRUM  # noqa: E402
+
+_ORACLE_STAGE = T._PythonKernels._balanced
+
+
+class Recording(T._PythonKernels):
+    """The oracle, recording per balanced stage ``(first prediction of A, its root, slope, tolerance)``."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.grids: list = []
+
+    def run(self, *args, **kwargs):
+        self.current = []
+        out = super().run(*args, **kwargs)
+        self.grids.append(self.current)
+        return out
+
+    def _balanced(self, base, wband, cvec, y, dt, m, p0, mean_tol, lin_tol, max_iter):
+        wl, wd, wu = wband
+
+        def at(a):
+            return (base[0] - a * wl, base[1] - a * wd, base[2] - a * wu)
+
+        # the kernel's first prediction, as _balanced makes it (before it updates its history)
+        l0y, lwy = T._matvec(base, y), T._matvec(wband, y)
+        a = float(cvec @ l0y) / float(cvec @ lwy)
+        u = y + (0.5 * dt) * (l0y - a * lwy)
+        den_u = float(cvec @ T._matvec(wband, u))
+        a_mid = float(cvec @ T._matvec(base, u)) / den_u
+        s_pred = self.kappa * (-dt * den_u)
+        corr = (float(cvec @ y) - p0) / s_pred if s_pred < 0.0 else 0.0
+        a_pred = a_mid * self._predicted_ratio() - corr
+        out = _ORACLE_STAGE(self, base, wband, cvec, y, dt, m, p0, mean_tol, lin_tol, max_iter)
+        root, slope = a_pred, -1.0
+        for _ in range(30):
+            trial, dtrial = T._cram_d(at(root), wband, dt, y, self.pfd, self.order)
+            err, slope = float(cvec @ trial) - p0, float(cvec @ dtrial)
+            if abs(err) < 1e-15 * p0:
+                break
+            root -= err / slope
+        self.current.append((out[1], a_pred, root, slope, mean_tol * p0))
+        return out
+
+
+def stages(zeta: float, n_cells: int) -> list:
+    """Per grid (N, 2N, 4N): the recorded stages of the ``n_cells`` solve."""
+    problem = closure_problem(spectrum_shells(SPECTRUM, E_star=8 / 3, n_shells=48), zeta=zeta, E_star=8 / 3,
+                              mean_pressure=0.004, closure="local_g1_balanced")
+    kernels = Recording()
+    engine._staged_kernels = lambda: kernels
+    engine.solve_fv(problem, rtol=1e-6, backend="native", n_cells=n_cells, threads=1, p_floor=8.18e-19)
+    return kernels.grids
+
+
+def main() -> None:
+    for zeta, n1, n2 in ((0.01, 79, 632), (0.25, 79, 166), (1.0, 79, 169)):
+        first, second = stages(zeta, n1), stages(zeta, n2)
+        roots = [np.array([s[2] for s in grid]) for grid in first]
+        extrapolated = (4.0 * roots[2] - roots[1]) / 3.0
+        print(f"zeta {zeta}: L1 {n1} -> L2 {n2} cells")
+        for g, grid in enumerate(second):
+            def miss(a_of):
+                return np.array([abs((a_of(k, s) - s[2]) * s[3]) / s[4] for k, s in enumerate(grid)])
+
+            own, prev, extra = miss(lambda k, s: s[1]), miss(lambda k, s: roots[2][k]), \
+                miss(lambda k, s: extrapolated[k])
+            print(f"  L2 grid {g}: exps {sum(s[0] for s in grid)} for {len(grid)} stages; miss/tol median: "
+                  f"current {np.median(own):.2g} (within tol {np.mean(own <= 1):.0%}), L1 4N's A {np.median(prev):.2g} "
+                  f"({np.mean(prev <= 1):.0%}), L1 extrapolated A* {np.median(extra):.2g} ({np.mean(extra <= 1):.0%})")
+
+
+if __name__ == "__main__":
+    main()
