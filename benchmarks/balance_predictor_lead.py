@@ -1,4 +1,4 @@
-"""Would the previous level's balance multipliers predict a finer level's? A measurement, not a feature.
+"""How well is a balanced stage's multiplier predicted? The parabola against the cubic, and the previous level.
 
 ``local_g1_balanced`` on the Fig. 1 scene (48 shells), rtol 1e-6, integrated by the tests' Python oracle of the
 compiled kernels (``tests/diffusion_pr/test_fv_kernels.py::_PythonKernels``: the kernels' algorithm in numpy and
@@ -7,9 +7,15 @@ the same state) and the slope ``d<p>/dA`` recorded. A "first level" on ``n1`` co
 ``n2`` (one grid family, ``n_cells`` fixed). Per second-level grid: the mean's miss over the balance's tolerance
 (``1e-2 rtol p0``) of the kernel's own prediction, of the first level's ``4N``-grid root, and of the first level's
 roots extrapolated in ``h^2``; medians over the stages and the share within the tolerance (a stage within it costs
-one exponential). The forty-second session's output is ``results/balance_predictor_lead_s42.md``.
+one exponential). The forty-second session's output is ``results/balance_predictor_lead_s42.md`` (with the parabola
+then in the kernel).
 
-    python benchmarks/balance_predictor_lead.py
+``--orders``: on each Fig. 1 closure problem as the solve builds it (its shells and grading, the second level's
+coarsest cells), the kernel's prediction (the cubic through the last four ratios ``A/A_mid`` since the forty-second
+session) against the parabola through the last three (before it), from the same recorded history of exact ratios
+(``results/balance_predictor_order_s42.md``).
+
+    python benchmarks/balance_predictor_lead.py [--orders]
 """
 from __future__ import annotations
 
@@ -62,7 +68,7 @@ class Recording(T._PythonKernels):
         for _ in range(30):
             trial, dtrial = T._cram_d(at(root), wband, dt, y, self.pfd, self.order)
             err, slope = float(cvec @ trial) - p0, float(cvec @ dtrial)
-            if abs(err) < 1e-15 * p0:
+            if abs(err) < 1e-15 * p0 or slope == 0.0 or not np.isfinite(err / slope):
                 break
             root -= err / slope
         self.current.append((out[1], a_pred, root, slope, mean_tol * p0))
@@ -79,7 +85,71 @@ def stages(zeta: float, n_cells: int) -> list:
     return kernels.grids
 
 
+class Orders(Recording):
+    """The recording oracle with the parabola's prediction beside the kernel's, from the exact ratios
+    ``(root + corr)/A_mid`` of the stages before."""
+
+    def run(self, *args, **kwargs):
+        self.exact = []
+        return super().run(*args, **kwargs)
+
+    def _balanced(self, base, wband, cvec, y, dt, m, p0, mean_tol, lin_tol, max_iter):
+        l0y, lwy = T._matvec(base, y), T._matvec(wband, y)
+        a = float(cvec @ l0y) / float(cvec @ lwy)
+        u = y + (0.5 * dt) * (l0y - a * lwy)
+        den_u = float(cvec @ T._matvec(wband, u))
+        a_mid = float(cvec @ T._matvec(base, u)) / den_u
+        s_pred = self.kappa * (-dt * den_u)
+        corr = (float(cvec @ y) - p0) / s_pred if s_pred < 0.0 else 0.0
+        out = super()._balanced(base, wband, cvec, y, dt, m, p0, mean_tol, lin_tol, max_iter)
+        _, a_pred, root, slope, tol = self.current[-1]
+        r = self.exact
+        parabola = None
+        if len(r) >= 3:
+            ratio = 3.0 * r[-1] - 3.0 * r[-2] + r[-3]
+            parabola = a_mid * (ratio if 0.25 < ratio < 4.0 else r[-1]) - corr
+        self.current[-1] += (abs((parabola - root) * slope) / tol if parabola is not None else None,)
+        if a_mid != 0.0:
+            r.append((root + corr) / a_mid)
+        return out
+
+
+def _closure_problem(zeta: float, closure: str) -> tuple:
+    """``(problem, coarsest cells of its last level, p_floor)`` as ``pressure_distribution`` solves it."""
+    import diffusion_pr as dp
+    from diffusion_pr.solvers import native
+
+    got = []
+    solve_fv = native.solve_fv
+    native.solve_fv = lambda problem, **kw: got.append((problem, kw)) or solve_fv(problem, **kw)
+    try:
+        res = dp.pressure_distribution(SPECTRUM, E_star=8 / 3, mean_pressure=0.004, zeta=zeta, closure=closure,
+                                       rtol=1e-6)
+    finally:
+        native.solve_fv = solve_fv
+    return got[0][0], int(res.diagnostics["levels"][0]), got[0][1].get("p_floor")
+
+
+def orders() -> None:
+    for closure in ("local_g1_balanced", "local_g1_shell_balanced"):
+        for zeta in (4.0, 1.0, 0.25, 0.1, 0.01, 0.001):
+            problem, n, p_floor = _closure_problem(zeta, closure)
+            kernels = Orders()
+            engine._staged_kernels = lambda: kernels
+            engine.solve_fv(problem, rtol=1e-6, backend="native", n_cells=n, threads=1, p_floor=p_floor)
+            grid = [s for s in kernels.grids[0] if s[5] is not None]  # (stages with four ratios before them)
+            cubic = np.array([abs((s[1] - s[2]) * s[3]) / s[4] for s in grid])
+            parabola = np.array([s[5] for s in grid])
+            print(f"{closure:24s} zeta {zeta:6g} ({n} cells): miss/tol median parabola {np.median(parabola):8.2g} "
+                  f"(within {np.mean(parabola <= 1):4.0%}), cubic {np.median(cubic):8.2g} "
+                  f"(within {np.mean(cubic <= 1):4.0%}); exponentials {sum(s[0] for s in kernels.grids[0])} for "
+                  f"{len(kernels.grids[0])} stages", flush=True)
+
+
 def main() -> None:
+    if "--orders" in sys.argv[1:]:
+        orders()
+        return
     for zeta, n1, n2 in ((0.01, 79, 632), (0.25, 79, 166), (1.0, 79, 169)):
         first, second = stages(zeta, n1), stages(zeta, n2)
         roots = [np.array([s[2] for s in grid]) for grid in first]

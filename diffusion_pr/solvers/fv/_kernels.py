@@ -847,9 +847,9 @@ def _expm_at(lower, diag, upper, wl, wd, wu, A, lo, di, up, dt, y, pfd, want_d, 
 
 
 #: entries of the predictor state carried from substep to substep (:func:`balanced_stage`): the number of
-#: stored ratios, the last three ratios (newest first) and the ratio of the mean's slope in ``A`` to its
-#: linearization ``-dt <c, Lw u>``
-PREDICTOR_SIZE = 5
+#: stored ratios, the last three ratios (newest first), the ratio of the mean's slope in ``A`` to its
+#: linearization ``-dt <c, Lw u>``, and the fourth-last ratio
+PREDICTOR_SIZE = 6
 #: a substep's ratio ``A / A_midpoint`` outside (1/RATIO_RANGE, RATIO_RANGE) restarts the ratio history
 RATIO_RANGE = 4.0
 #: a predicted ``A`` whose mean misses ``p0`` by more than BAD_PREDICTION ``p0`` is not a start for Newton: the
@@ -860,9 +860,13 @@ BAD_PREDICTION = 0.5
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _predicted_ratio(hist):  # pragma: no cover - numba
-    """The next ratio ``A / A_midpoint``: the last three extrapolated by a parabola (fewer: a line, a constant)."""
+    """The next ratio ``A / A_midpoint``: the last four extrapolated by a cubic (fewer: a parabola, a line, a
+    constant).  The cubic (forty-second session) misses the root 5-60x less than the parabola did on the Fig. 1
+    closures (``benchmarks/balance_predictor_lead.py``, ``results/balance_predictor_order_s42.md``)."""
     k = int(hist[0])
-    if k >= 3:
+    if k >= 4:
+        r = 4.0 * hist[1] - 6.0 * hist[2] + 4.0 * hist[3] - hist[5]
+    elif k == 3:
         r = 3.0 * hist[1] - 3.0 * hist[2] + hist[3]
     elif k == 2:
         r = 2.0 * hist[1] - hist[2]
@@ -880,10 +884,11 @@ def _push_ratio(hist, r):  # pragma: no cover - numba
     if not 1.0 / RATIO_RANGE < r < RATIO_RANGE:
         hist[0] = 0.0
         return
+    hist[5] = hist[3]
     hist[3] = hist[2]
     hist[2] = hist[1]
     hist[1] = r
-    hist[0] = min(hist[0] + 1.0, 3.0)
+    hist[0] = min(hist[0] + 1.0, 4.0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -895,7 +900,7 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
 
     * ``A_mid`` from ``<c, (L0 - A Lw) u> = 0`` at the midpoint state
       ``u = y + dt/2 (L0 - A0 Lw) y`` (``A0`` the same condition at ``y``), times
-      the ratio ``A/A_mid`` of the last three substeps extrapolated by a parabola
+      the ratio ``A/A_mid`` of the last four substeps extrapolated by a cubic
       (it varies smoothly from shell to shell), minus ``(<c, y> - p0)/s``: the
       start's own miss of the mean, removed with the slope ``s = d<c, y_end>/dA``
       predicted as its linearization ``-dt <c, Lw u>`` times their ratio at the last
