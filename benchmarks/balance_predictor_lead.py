@@ -48,6 +48,16 @@ class Recording(T._PythonKernels):
         self.grids.append(self.current)
         return out
 
+    def midpoint_and_correction(self, base, wband, cvec, y, dt, p0) -> tuple:
+        """``(A_mid, corr)`` of a stage's first prediction, as the oracle's ``_balanced`` makes them (before it
+        updates its history): the prediction is ``A_mid r - corr``."""
+        l0y, lwy = T._matvec(base, y), T._matvec(wband, y)
+        a = float(cvec @ l0y) / float(cvec @ lwy)
+        u = y + (0.5 * dt) * (l0y - a * lwy)
+        den_u = float(cvec @ T._matvec(wband, u))
+        s_pred = self.kappa * (-dt * den_u)
+        return float(cvec @ T._matvec(base, u)) / den_u, (float(cvec @ y) - p0) / s_pred if s_pred < 0.0 else 0.0
+
     def _balanced(self, base, wband, cvec, y, dt, m, p0, mean_tol, lin_tol, max_iter):
         wl, wd, wu = wband
 
@@ -55,13 +65,7 @@ class Recording(T._PythonKernels):
             return (base[0] - a * wl, base[1] - a * wd, base[2] - a * wu)
 
         # the kernel's first prediction, as _balanced makes it (before it updates its history)
-        l0y, lwy = T._matvec(base, y), T._matvec(wband, y)
-        a = float(cvec @ l0y) / float(cvec @ lwy)
-        u = y + (0.5 * dt) * (l0y - a * lwy)
-        den_u = float(cvec @ T._matvec(wband, u))
-        a_mid = float(cvec @ T._matvec(base, u)) / den_u
-        s_pred = self.kappa * (-dt * den_u)
-        corr = (float(cvec @ y) - p0) / s_pred if s_pred < 0.0 else 0.0
+        a_mid, corr = self.midpoint_and_correction(base, wband, cvec, y, dt, p0)
         a_pred = a_mid * self._predicted_ratio() - corr
         out = _ORACLE_STAGE(self, base, wband, cvec, y, dt, m, p0, mean_tol, lin_tol, max_iter)
         root, slope = a_pred, -1.0
@@ -94,13 +98,7 @@ class Orders(Recording):
         return super().run(*args, **kwargs)
 
     def _balanced(self, base, wband, cvec, y, dt, m, p0, mean_tol, lin_tol, max_iter):
-        l0y, lwy = T._matvec(base, y), T._matvec(wband, y)
-        a = float(cvec @ l0y) / float(cvec @ lwy)
-        u = y + (0.5 * dt) * (l0y - a * lwy)
-        den_u = float(cvec @ T._matvec(wband, u))
-        a_mid = float(cvec @ T._matvec(base, u)) / den_u
-        s_pred = self.kappa * (-dt * den_u)
-        corr = (float(cvec @ y) - p0) / s_pred if s_pred < 0.0 else 0.0
+        a_mid, corr = self.midpoint_and_correction(base, wband, cvec, y, dt, p0)
         out = super()._balanced(base, wband, cvec, y, dt, m, p0, mean_tol, lin_tol, max_iter)
         _, a_pred, root, slope, tol = self.current[-1]
         r = self.exact
