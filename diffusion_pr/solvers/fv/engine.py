@@ -158,7 +158,7 @@ class Alongside:
     ``diagnostics["grid"]``), None where none did or one of them raised (the caller then solves them itself and meets
     the error there)."""
 
-    problems: Any
+    problems: Any  # a tuple, or a callable that builds it (:meth:`problem_list`)
     rtol: float
     p_floor: Optional[float] = None
     results: Optional[tuple] = None
@@ -177,7 +177,7 @@ _ALONGSIDE: contextvars.ContextVar = contextvars.ContextVar("plain_alongside", d
 
 
 @contextlib.contextmanager
-def plain_alongside(problems: Sequence, *, rtol: float, p_floor: Optional[float] = None):
+def plain_alongside(problems: Sequence | Callable[[], Sequence], *, rtol: float, p_floor: Optional[float] = None):
     """Within the block, a native solve that keeps its plain masses (:func:`plain_masses` ``"keep"``, two threads,
     fourth order) also integrates ``problems`` (a sequence, or a callable that builds it: then built while this
     thread waits for the first level's finest grid, :func:`_prime_alongside`) on the N and 2N grids of each level
