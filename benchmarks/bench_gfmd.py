@@ -354,6 +354,19 @@ def _raw_single_pair(pair):
     return lambda: (fwd.execute(), bwd.execute())
 
 
+def _raw_single_forward(pair):
+    """A function that runs the single-precision forward transform of the ``ccg`` step
+    length (the solver's own plan from the direction's float32 array), plan execution
+    only."""
+    w = pair.single_array(1)
+    w[...] = np.random.default_rng(1).normal(size=w.shape)
+    if pair.name != "fftw":
+        import scipy.fft as sfft
+
+        return lambda: sfft.rfft2(w)
+    return pair._single[1][1].execute
+
+
 def _uptime():
     try:
         with open("/proc/loadavg") as fh:
@@ -404,9 +417,10 @@ def part_breakdown(n, reps=15, threads=None):
     streaming passes: 8 array reads, 4 writes, the memory traffic of its gap,
     direction, step and update; the floor's definition since issue 10, although the
     solver now makes one full pass per iteration and works on the contact set's index
-    list otherwise). Both ``ccg`` (preconditioned, 3 pairs per iteration, two of them in
-    single precision: the preconditioner's and the step length's, which the floor counts
-    at the raw single-precision pair's cost) and ``pk`` (plain, about 1.3) are measured in the same
+    list otherwise). Both ``ccg`` (preconditioned: per iteration one double pair, the
+    exact ``u``, one single-precision pair, the preconditioner's, and one single-precision
+    forward transform, the step length's ``t . G t`` by Parseval; the floor counts each at
+    its own raw cost) and ``pk`` (plain, about 1.3 pairs) are measured in the same
     run."""
     import gfmd_ref as g
     from gfmd_ref import _kernels as kr
@@ -437,6 +451,7 @@ def part_breakdown(n, reps=15, threads=None):
     if pr.name == "fftw":
         ops["FFT pair (plan execution only)"] = _raw_pair(pr)
         ops["FFT pair, single precision (plan execution only)"] = _raw_single_pair(pr)
+        ops["FFT forward alone, single precision (plan execution only)"] = _raw_single_forward(pr)
     w32 = pr.single_array()
     Kn32 = (el.K / (n * n)).astype(np.float32)
     ops["apply_single (single-precision pair, multiplier)"] = lambda: pr.apply_single(Kn32)
@@ -444,6 +459,7 @@ def part_breakdown(n, reps=15, threads=None):
     pr.single_array(1)[...] = t
     ops["apply_single, t32 -> r32 (the step length's r = G t)"] = lambda: pr.apply_single(Gn32, 1, 2)
     ops["contact_dot (contact set, float32 r)"] = lambda: kr.contact_dot(pr.single_array(2), t, idx, nc)
+    ops["forward_dot_single (t32 forward, Parseval t.Gt)"] = lambda: pr.forward_dot_single(Gn32, 1)
     ops["apply_route (pair, multiplier and Parseval dot)"] = lambda: pr.apply_route(el.Gn, t, w)
     ops["apply_route, no dot (the exact u = G p)"] = lambda: pr.apply_route(el.Gn, t, w, dot=False)
     ops["pk_gap (the one full pass: u, h, mask -> masked gap)"] = lambda: kr.pk_gap(
@@ -473,6 +489,8 @@ def part_breakdown(n, reps=15, threads=None):
     raw = times.get("FFT pair (plan execution only)", times["apply_route (pair, multiplier and Parseval dot)"])
     raw32 = times.get("FFT pair, single precision (plan execution only)",
                       times["apply_single (single-precision pair, multiplier)"])
+    fwd32 = times.get("FFT forward alone, single precision (plan execution only)",
+                      times["forward_dot_single (t32 forward, Parseval t.Gt)"])
     vec = times["vector floor (4 passes: 8 reads, 4 writes)"]
     out = dict(n=n, fft=pr.name, threads=pr.threads, load=_uptime(), op_ms=times, methods={})
     print(f"  breakdown n={n} ({pr.name}, {pr.threads} thread(s), load {out['load']}):")
@@ -482,16 +500,17 @@ def part_breakdown(n, reps=15, threads=None):
         per_it = 1e3 * (r.wall_time - r.info["fft_planning_time"]) / r.iterations
         ppi = r.info["fft_pairs"] / r.iterations
         spi = r.info.get("fft_pairs_single", 0) / r.iterations  # of which in single precision
-        floor = (ppi - spi) * raw + spi * raw32 + vec
+        fpi = r.info.get("fft_forward_single", 0) / r.iterations  # single forward transforms alone (step length)
+        floor = (ppi - spi) * raw + spi * raw32 + fpi * fwd32 + vec
         out["methods"][method] = dict(
             iterations=r.iterations, fft_pairs=r.info["fft_pairs"], wall_time=r.wall_time,
-            fft_pairs_single=r.info.get("fft_pairs_single", 0),
+            fft_pairs_single=r.info.get("fft_pairs_single", 0), fft_forward_single=r.info.get("fft_forward_single", 0),
             ms_per_iteration=per_it, fft_pairs_per_iteration=ppi, floor_ms_per_iteration=floor,
             ratio_to_floor=per_it / floor, one_pair_plus_vector_ms=raw + vec,
             ms_per_fft_pair=1e3 * r.wall_time / r.info["fft_pairs"])
         print(f"    {method}: {r.iterations} it, {r.info['fft_pairs']} FFT pairs ({ppi:.2f}/it, {spi:.2f} single), "
               f"{per_it:.2f} ms/it; floor {floor:.2f} ms/it ({ppi - spi:.2f} x {raw:.2f} + {spi:.2f} x {raw32:.2f}"
-              f" + {vec:.2f}); "
+              f" + {fpi:.2f} x {fwd32:.2f} + {vec:.2f}); "
               f"ratio {per_it / floor:.2f}; total {r.wall_time:.2f} s", flush=True)
     return out
 

@@ -88,7 +88,8 @@ class ContactResult:
 
 #: work arrays of the FFT pair the hard-wall solver uses (pressure, displacement, direction, scratch)
 N_WORK_ARRAYS = 4
-#: single-precision work arrays of the ``ccg`` solver (the preconditioned gap, the direction, r = G t)
+#: single-precision work arrays of the ``ccg`` solver (the preconditioned gap, the direction, and r = G t where
+#: the step length is not taken by Parseval, :data:`STEP_PARSEVAL`; made once per pair by ``gfmd_ref.warm_up``)
 N_SINGLE_ARRAYS = 3
 
 
@@ -205,6 +206,10 @@ SINGLE_PRECOND = True
 #: ``ccg``: also ``r = G t`` of the step length in single precision, and then the exact
 #: ``u = G p`` (double) after every step (False: ``r`` in double, ``u`` updated with it)
 SINGLE_STEP = True
+#: ``ccg`` with :data:`SINGLE_STEP`: the direction is shifted to zero sum on the contact set, so the step
+#: length needs only ``t . G t``, taken by Parseval from the single-precision forward transform of ``t`` (half a
+#: pair: no ``r = G t`` in real space)
+STEP_PARSEVAL = True
 #: ``newton``: the inner CG's ``G d`` in single precision (the line search, ``u`` and the
 #: residual in double)
 SINGLE_NEWTON_CG = True
@@ -258,6 +263,15 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     gave 0.83-0.87x the time at 1024^2 and 2048^2, the step length's 0.94-0.98x more
     (docs/gfmd.md "Single-precision search").
 
+    With :data:`STEP_PARSEVAL` (default) the step length needs no ``r = G t`` at all: the
+    direction is shifted to zero sum on the contact set
+    (:func:`~._kernels.pk_direction_centred`; ``beta t`` of the previous set need not sum
+    to zero on the new one), so Polonsky and Keer's mean shift ``rbar sum_c t`` vanishes
+    and the denominator ``sum_c (r - rbar) t`` is ``t . G t``, which Parseval gives from
+    the float32 forward transform of ``t`` alone (:meth:`FFTWPair.forward_dot_single`):
+    per iteration one double pair, one single pair and one single forward transform
+    (docs/gfmd.md "The step length by Parseval").
+
     ``u = G p`` is updated incrementally, ``u <- scale (u - tau G t)``; the part of a
     step that is not along ``t`` (projections onto ``p >= 0``, overlap fixes) is
     folded in by one exact ``u = G p`` every ``lazy``
@@ -282,7 +296,8 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     # direction ``t`` and ``w``, which holds in turn the masked gap, K of it and r = G t
     single = bool(precond and (SINGLE_PRECOND if single is None else single))
     step32 = single and SINGLE_STEP
-    n_single_arrays = (N_SINGLE_ARRAYS if step32 else 1) if single else 0
+    parseval = step32 and STEP_PARSEVAL
+    n_single_arrays = ((2 if parseval else N_SINGLE_ARRAYS) if step32 else 1) if single else 0
     el.fft_planning_time += el.fft.make_work_arrays(N_WORK_ARRAYS, single=n_single_arrays)  # 0 once made
     p, u, t, w = (el.fft.work_array(k) for k in range(N_WORK_ARRAYS))
     t[...] = 0.0
@@ -309,6 +324,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     psum = p0 * n2
     n_fft = 0 if p_start is None else 1  # (the start's u = G p)
     n_single = 0
+    n_forward = 0  # single-precision forward transforms alone (parseval)
     Kn = el.K / (el.n * el.n) if precond else None
     if single:
         Kn32 = Kn.astype(np.float32)
@@ -317,7 +333,8 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     t2 = t  # the direction's single-precision copy (step32), else t itself
     if step32:
         Gn32 = el.Gn.astype(np.float32)
-        t2, r32 = el.fft.single_array(1), el.fft.single_array(2)
+        t2 = el.fft.single_array(1)
+        r32 = None if parseval else el.fft.single_array(2)
         t2[...] = 0.0
     hist = []
     stamps = []
@@ -386,13 +403,20 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
             n_fft += 1
             gz = sgz - zbar * sg  # sum_c g (z - zbar), the preconditioned residual norm
             beta = delta * gz / gold if gold > 0.0 else 0.0
-            st, sgt = kr.pk_direction(z, False, gcon, idx, nc, t, zbar, beta, t2)
+            if parseval:
+                st, sgt = kr.pk_direction_centred(z, gcon, idx, nc, t, zbar, beta, t2)
+            else:
+                st, sgt = kr.pk_direction(z, False, gcon, idx, nc, t, zbar, beta, t2)
             gold = gz
         else:
             beta = delta * gn / gold if gold > 0.0 else 0.0
             st, sgt = kr.pk_direction(w, True, gcon, idx, nc, t, 0.0, beta, t)
             gold = gn
-        if step32:
+        if parseval:
+            srt = el.fft.forward_dot_single(Gn32, 1)  # t.Gt by Parseval; sum_c t = 0, so no mean shift
+            n_forward += 1
+            rbar = 0.0
+        elif step32:
             el.fft.apply_single(Gn32, 1, 2)  # r32 = G t in single precision (tau only)
             n_fft += 1
             n_single += 1
@@ -439,7 +463,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         history=np.asarray(hist),
         stop=("converged" if converged else lost if lost else _stalled_message(stall, res) if stalled
               else "max_iter"),
-        info=dict(h_scale=h_scale, fft_pairs=n_fft, fft_pairs_single=n_single,
+        info=dict(h_scale=h_scale, fft_pairs=n_fft, fft_pairs_single=n_single, fft_forward_single=n_forward,
                   history_stamps=np.asarray(stamps)),
     )
 
