@@ -470,7 +470,7 @@ def part_breakdown(n, reps=15, threads=None):
     # tau = 0: the step and the rescaling leave the state as it is
     idx2 = np.empty_like(idx)
     ops["pk_step (contact set + overlaps, new index list)"] = lambda: kr.pk_step(
-        p, c, t, idx, nc, ol, olg, 0, 0.0, idx2, t)
+        p, c, t, idx, nc, ol, olg, 0, 0.0, idx2, t, t, False)
     ops["pk_rescale (contact set; exact u)"] = lambda: kr.pk_rescale(p, idx, nc, 1.0, u, w, 0.0, True)
     ops["pk_rescale (incremental u: a full pass)"] = lambda: kr.pk_rescale(p, idx, nc, 1.0, u, w, 0.0, False)
     a = [p.copy(), u.copy(), t.copy(), w.copy()]

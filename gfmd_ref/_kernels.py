@@ -298,18 +298,22 @@ def pk_direction_centred(z, gcon, idx, nc, t, shift, beta, t2):
 
 
 @njit(cache=True, error_model="numpy")
-def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new, t2):
+def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new, t2, dv, want_v):
     """Polonsky-Keer step of the pressures: ``p -= tau t`` on the contact set, projected
     on ``p >= 0`` (a projected node leaves the set: ``c`` false, ``p`` and ``t`` zero);
     ``p = -tau g`` at the overlaps ``ol[:n_overlap]`` (they join the set where that is
     positive). One pass over the two sorted lists in index order, which writes the new
     set's indices to ``idx_new`` in increasing order. The load is restored by
     :func:`pk_rescale`. ``t2`` (the single-precision copy of ``t``, or ``t`` itself) is
-    zeroed with ``t``. Returns ``(n_projected, sum p, new nc)``."""
+    zeroed with ``t``. With ``want_v`` the whole change of every node it visits,
+    projections and new contacts included, goes to ``dv`` (``p_new - p_old``, float32;
+    the caller keeps ``dv`` zero elsewhere): the increment whose ``G dv`` updates ``u``
+    (:func:`pk_rescale_increment`). Returns ``(n_projected, sum p, new nc)``."""
     pf = p.ravel()
     cf = c.ravel()
     tf = t.ravel()
     t2f = t2.ravel()
+    vf = dv.ravel()
     nproj = 0
     s = 0.0
     k = 0
@@ -321,12 +325,16 @@ def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new, t2):
             k += 1
             v = pf[i] - tau * tf[i]
             if v <= 0.0:
+                if want_v:
+                    vf[i] = -pf[i]
                 pf[i] = 0.0
                 cf[i] = False
                 tf[i] = 0.0
                 t2f[i] = 0.0
                 nproj += 1
                 continue
+            if want_v:
+                vf[i] = v - pf[i]
         else:
             i = ol[m]
             v = -tau * olg[m]
@@ -334,11 +342,40 @@ def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new, t2):
             if v <= 0.0:
                 continue
             cf[i] = True
+            if want_v:
+                vf[i] = v
         pf[i] = v
         s += v
         idx_new[n] = i
         n += 1
     return nproj, s, n
+
+
+@njit(cache=True, error_model="numpy")
+def pk_rescale_increment(p, idx, nc, scale, u, gv):
+    """``p *= scale`` on the contact set (the load back at ``p0``) and ``u = scale (u + G v)``
+    from ``gv = G v`` (float32: the increment of :func:`pk_step`'s ``v`` transformed in
+    place), which this full pass also zeroes for the next step's ``v``. Returns
+    ``(sum p after the scaling, max |G v|)`` (the size the increment's rounding scales
+    with)."""
+    pf = p.ravel()
+    s = 0.0
+    for k in range(nc):
+        i = idx[k]
+        x = pf[i] * scale
+        pf[i] = x
+        s += x
+    uf = u.ravel()
+    gf = gv.ravel()
+    big = 0.0
+    for i in range(uf.size):
+        x = float(gf[i])
+        uf[i] = scale * (uf[i] + x)
+        gf[i] = 0.0
+        a = abs(x)
+        if a > big:
+            big = a
+    return s, big
 
 
 @njit(cache=True, error_model="numpy")

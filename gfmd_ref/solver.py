@@ -210,6 +210,19 @@ SINGLE_STEP = True
 #: length needs only ``t . G t``, taken by Parseval from the single-precision forward transform of ``t`` (half a
 #: pair: no ``r = G t`` in real space)
 STEP_PARSEVAL = True
+#: ``ccg`` with :data:`STEP_PARSEVAL`: between exact ``u = G p`` (double), ``u`` is updated by ``G dv`` of the step's
+#: whole pressure change ``dv`` (projections and new contacts included) in single precision; its rounding is
+#: relative to the increment, not to ``u``
+INCREMENT_U32 = True
+#: ... the rounding of one single-precision ``G dv`` relative to its largest value (a bound: measured median
+#: 2.1-2.7e-7, at most 4.0e-7, over every increment of tol-1e-10 solves of Fig. 1 surfaces, 256^2-1024^2, seeds 1-2)
+INCREMENT_ROUNDING = 2e-6
+#: ... an exact ``u`` is taken again where the increments' rounding accumulated since the last one (the sum of
+#: INCREMENT_ROUNDING max|G dv|) could exceed this share of the residual (in units of ``h_scale``, as the residual
+#: measures gaps), after ``refresh`` increments, where the residual has not halved for INCREMENT_STALL iterations,
+#: and before convergence is declared
+INCREMENT_SHARE = 1e-4  # measured: 1e-2 adds 4-13 iterations at 512^2-1024^2 (tol 1e-10), 1e-3 and 1e-4 none
+INCREMENT_STALL = 10
 #: ``newton``: the inner CG's ``G d`` in single precision (the line search, ``u`` and the
 #: residual in double)
 SINGLE_NEWTON_CG = True
@@ -272,6 +285,16 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     per iteration one double pair, one single pair and one single forward transform
     (docs/gfmd.md "The step length by Parseval").
 
+    With :data:`INCREMENT_U32` (default) the double pair runs only now and then: the step's
+    whole pressure change ``dv`` (projections and new contacts included, written by
+    :func:`~._kernels.pk_step`) is transformed in single precision and
+    ``u <- scale (u + G dv)`` (:func:`~._kernels.pk_rescale_increment`). Its rounding is
+    relative to the increment, not to ``u`` (2-4e-7 of ``max |G dv|``), so the bound
+    :data:`INCREMENT_ROUNDING` ``sum max |G dv|`` is tracked and an exact ``u`` taken
+    where it could exceed :data:`INCREMENT_SHARE` of the residual, where the residual
+    stalls, and always before convergence is declared: 3-6 exact pairs per solve on the
+    Fig. 1 surfaces, the same iterations (docs/gfmd.md "The displacement by increments").
+
     ``u = G p`` is updated incrementally, ``u <- scale (u - tau G t)``; the part of a
     step that is not along ``t`` (projections onto ``p >= 0``, overlap fixes) is
     folded in by one exact ``u = G p`` every ``lazy``
@@ -297,7 +320,8 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     single = bool(precond and (SINGLE_PRECOND if single is None else single))
     step32 = single and SINGLE_STEP
     parseval = step32 and STEP_PARSEVAL
-    n_single_arrays = ((2 if parseval else N_SINGLE_ARRAYS) if step32 else 1) if single else 0
+    incr = parseval and INCREMENT_U32
+    n_single_arrays = ((3 if incr else 2 if parseval else N_SINGLE_ARRAYS) if step32 else 1) if single else 0
     el.fft_planning_time += el.fft.make_work_arrays(N_WORK_ARRAYS, single=n_single_arrays)  # 0 once made
     p, u, t, w = (el.fft.work_array(k) for k in range(N_WORK_ARRAYS))
     t[...] = 0.0
@@ -331,10 +355,14 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         w32 = el.fft.single_array()
     mdst = w32 if single else w
     t2 = t  # the direction's single-precision copy (step32), else t itself
+    dv32 = t2  # the step's pressure change (incr), else unused
     if step32:
         Gn32 = el.Gn.astype(np.float32)
         t2 = el.fft.single_array(1)
         r32 = None if parseval else el.fft.single_array(2)
+        if incr:  # zero off the nodes a step visits
+            dv32 = el.fft.single_array(2)
+            dv32[...] = 0.0
         t2[...] = 0.0
     hist = []
     stamps = []
@@ -354,6 +382,8 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     lost = None
     res = np.inf
     best, it_best = np.inf, 0
+    u_rounding = 0.0  # the increments' rounding accumulated in u since the last exact u (bound)
+    n_increments = 0
 
     def contact_mean(x):
         return kr.gather_sum(x, idx, nc) / nc if nc > 0 else 0.0
@@ -371,6 +401,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
             pending = False
             since_exact = 0
             sg, gn, n_ol, res = residual()
+            u_rounding = 0.0
         hist.append(res)
         stamps.append((it, time.perf_counter() - tstart))
         bar.update(res, it)
@@ -428,7 +459,11 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
             rbar = contact_mean(w)
         den = srt - rbar * st  # sum_c (r - rbar) t
         tau = sgt / den if den != 0 else 0.0
-        nproj, psum, nc = kr.pk_step(p, c, t, idx, nc, ol, olg, n_ol, tau, idx_next, t2)
+        # the increment's G dv instead of an exact u, unless the rounding u may have gathered is no longer far below
+        # the residual, or the residual stalls, or refresh increments ran
+        use_incr = incr and not (u_rounding > INCREMENT_SHARE * res * h_scale or since_exact + 1 >= refresh
+                                 or it - it_best > INCREMENT_STALL)
+        nproj, psum, nc = kr.pk_step(p, c, t, idx, nc, ol, olg, n_ol, tau, idx_next, t2, dv32, use_incr)
         idx, idx_next = idx_next, idx
         if not psum > 0.0:  # the step removed every contact: no load can be restored (never seen)
             lost = f"a step removed every contact (sum p = {psum:g} after step {it + 1})"
@@ -439,6 +474,15 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         since_exact += 1
         if nproj or n_ol:
             pending = True
+        if use_incr:  # u <- scale (u + G dv), G dv in single precision (in place on dv, which the pass zeroes)
+            el.fft.apply_single(Gn32, 2)
+            n_fft += 1
+            n_single += 1
+            n_increments += 1
+            psum, gv_max = kr.pk_rescale_increment(p, idx, nc, scale, u, dv32)
+            u_rounding = scale * (u_rounding + INCREMENT_ROUNDING * gv_max)
+            pending = False  # u has every change, up to the increments' rounding (since_exact counts them)
+            continue
         big = nproj + n_ol > lazy_max_changes
         exact = step32 or (pending and (it % lazy == 0 or big)) or since_exact >= refresh
         psum = kr.pk_rescale(p, idx, nc, scale, u, w, tau, exact)  # not exact: u <- scale (u - tau r)
@@ -447,6 +491,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
             n_fft += 1
             pending = False
             since_exact = 0
+            u_rounding = 0.0
     bar.close()
     # displacement: z0 such that the gap vanishes on the contact set
     mask = p > 0
@@ -464,6 +509,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         stop=("converged" if converged else lost if lost else _stalled_message(stall, res) if stalled
               else "max_iter"),
         info=dict(h_scale=h_scale, fft_pairs=n_fft, fft_pairs_single=n_single, fft_forward_single=n_forward,
+                  u_increments=n_increments,
                   history_stamps=np.asarray(stamps)),
     )
 

@@ -1,14 +1,17 @@
-"""GFMD hard wall, ``ccg``: the step length by Parseval (``gfmd_ref.solver.STEP_PARSEVAL``) against ``r = G t``.
+"""GFMD hard wall, ``ccg``: one switch of ``gfmd_ref.solver`` on against off, in fresh processes.
 
-Each variant runs in its own fresh process, the two alternating, ``--rounds`` times per surface; a process makes
+``--flag STEP_PARSEVAL`` (the step length by Parseval against ``r = G t``) or ``--flag INCREMENT_U32`` (``u`` updated
+by the single-precision ``G dv`` between exact ``u = G p`` against an exact ``u`` after every step); every other
+switch keeps its default.  Each variant runs in its own fresh process, the two alternating, ``--rounds`` times per surface; a process makes
 its plans, solves once to warm up, then ``--repeats`` times, and reports the median of those warm solves (wall time
 without planning), the iterations and the pressure.  Printed per surface: the iterations, the medians of each
 variant, the ratio of the medians of the rounds, the per-round ratios (each round's two processes ran back to
 back), and the largest pressure difference between the variants' answers (in ``p0``).
 
-    python benchmarks/gfmd_step_parseval.py [--n 1024] [--seeds 1 2 3] [--rounds 3] [--repeats 3] [--tol 1e-8]
+    python benchmarks/gfmd_flag_ab.py [--flag STEP_PARSEVAL] [--n 1024] [--seeds 1 2 3] [--rounds 3] [--repeats 3]
+                                      [--tol 1e-8]
 
-Writes ``results/gfmd_step_parseval_<n>.md``.
+Writes ``results/gfmd_<flag>_<n>.md`` (``gfmd_step_parseval_<n>.md``, ``gfmd_increment_u32_<n>.md``).
 """
 from __future__ import annotations
 
@@ -30,8 +33,8 @@ CHILD = r"""
 import json, sys, numpy as np
 import gfmd_ref as g
 from gfmd_ref import solver
-n, seed, tol, flag, repeats, out = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3]), sys.argv[4] == "1", int(sys.argv[5]), sys.argv[6]
-solver.STEP_PARSEVAL = flag
+n, seed, tol, flag, repeats, out, name = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3]), sys.argv[4] == "1", int(sys.argv[5]), sys.argv[6], sys.argv[7]
+setattr(solver, name, flag)
 h, L = g.fig1_surface(n, seed=seed)
 times = []
 for k in range(repeats + 1):
@@ -40,19 +43,20 @@ for k in range(repeats + 1):
     if k:
         times.append(r.wall_time - r.info["fft_planning_time"])
 np.save(out, r.pressure)
-print(json.dumps(dict(times=times, iterations=r.iterations, pairs=r.info["fft_pairs"],
-                      forward=r.info.get("fft_forward_single", 0))))
+print(json.dumps(dict(times=times, iterations=r.iterations, pairs=r.info["fft_pairs"], singles=r.info["fft_pairs_single"],
+                      forward=r.info.get("fft_forward_single", 0), increments=r.info.get("u_increments", 0))))
 """
 
 
-def child(n, seed, tol, flag, repeats, out):
+def child(n, seed, tol, flag, repeats, out, name):
     res = subprocess.run([sys.executable, "-c", CHILD, str(n), str(seed), str(tol), "1" if flag else "0",
-                          str(repeats), out], capture_output=True, text=True, check=True)
+                          str(repeats), out, name], capture_output=True, text=True, check=True)
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--flag", default="STEP_PARSEVAL", choices=["STEP_PARSEVAL", "INCREMENT_U32"])
     ap.add_argument("--n", type=int, default=1024)
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--rounds", type=int, default=3)
@@ -61,29 +65,34 @@ def main() -> None:
     args = ap.parse_args()
     with open("/proc/loadavg") as fh:
         load = " ".join(fh.read().split()[:3])
-    lines = [f"# `ccg` step length by Parseval against `r = G t` ({args.n}^2, Fig. 1 surface, tol {args.tol:g})", "",
+    what = {"STEP_PARSEVAL": "step length by Parseval against `r = G t`",
+            "INCREMENT_U32": "`u` by single-precision increments against an exact `u` after every step"}[args.flag]
+    lines = [f"# `ccg` {what} ({args.n}^2, Fig. 1 surface, tol {args.tol:g}; `{args.flag}` on / off)", "",
              f"Fresh process per variant, alternating, {args.rounds} rounds, median of {args.repeats} warm solves per "
              f"process; load at the start {load}.", "",
-             "| seed | iterations (Parseval / r = G t) | Parseval [s] | r = G t [s] | ratio of medians | per-round ratios "
-             "| max dp [p0] |", "|---|---|---|---|---|---|---|"]
+             "| seed | iterations (on / off) | double pairs (on / off) | on [s] | off [s] | ratio of medians "
+             "| per-round ratios | max dp [p0] |", "|---|---|---|---|---|---|---|---|"]
     with tempfile.TemporaryDirectory() as tmp:
         for seed in args.seeds:
             a, b = [], []
             for k in range(args.rounds):
                 first = k % 2 == 0  # alternate which variant runs first in a round
                 for flag in ((True, False) if first else (False, True)):
-                    got = child(args.n, seed, args.tol, flag, args.repeats, os.path.join(tmp, f"{int(flag)}.npy"))
+                    got = child(args.n, seed, args.tol, flag, args.repeats, os.path.join(tmp, f"{int(flag)}.npy"),
+                                args.flag)
                     (a if flag else b).append(got)
             ta = [statistics.median(x["times"]) for x in a]
             tb = [statistics.median(x["times"]) for x in b]
             dp = float(np.max(np.abs(np.load(os.path.join(tmp, "1.npy")) - np.load(os.path.join(tmp, "0.npy"))))) / P0
             ratios = ", ".join(f"{x / y:.2f}" for x, y in zip(ta, tb))
-            row = (f"| {seed} | {a[0]['iterations']} / {b[0]['iterations']} | {', '.join(f'{x:.2f}' for x in ta)} | "
+            doubles = [x["pairs"] - x["singles"] for x in (a[0], b[0])]
+            row = (f"| {seed} | {a[0]['iterations']} / {b[0]['iterations']} | {doubles[0]} / {doubles[1]} | "
+                   f"{', '.join(f'{x:.2f}' for x in ta)} | "
                    f"{', '.join(f'{x:.2f}' for x in tb)} | {statistics.median(ta) / statistics.median(tb):.3f} | "
                    f"{ratios} | {dp:.1e} |")
             print(row, flush=True)
             lines.append(row)
-    out = HERE / "results" / f"gfmd_step_parseval_{args.n}.md"
+    out = HERE / "results" / f"gfmd_{args.flag.lower()}_{args.n}.md"
     out.write_text("\n".join(lines) + "\n")
     print(f"wrote {out}")
 
