@@ -419,22 +419,40 @@ def exp_log_mean(u, h, zeta):
     return zeta * (m + math.log(s / n))
 
 
+#: exp(x) rounds to +0 for every x below this (the smallest subnormal is exp(-744.44); half of it, exp(-745.13),
+#: is where round-to-nearest gives 0)
+EXP_ZERO = -746.0
+
+
 @njit(cache=True, error_model="numpy")
-def exp_exponents(u, h, zeta, e):
+def exp_exponents(u, h, zeta, e, keep):
     """``e = x - m`` with the wall's exponents ``x = -(u - h)/zeta`` and their largest
     ``m`` (returned): the first half of :func:`exp_log_mean`, whose exponentials
     ``exp(e)`` numpy then takes in place (vectorized: 0.9 ms against 4.6 ms per 1024^2
-    for a compiled loop of ``math.exp``), see :func:`gfmd_ref.solver._z0_residual`."""
+    for a compiled loop of ``math.exp``), see :func:`gfmd_ref.solver._z0_residual`.
+    Where ``e`` is below :data:`EXP_ZERO` its exponential is ``+0`` (IEEE rounding):
+    there ``e`` is written as that ``0.0`` and ``keep`` is False, so that numpy
+    exponentiates only where ``keep`` (``where=keep``), with the same bits. The C
+    library's ``exp`` takes a slow underflow path for such arguments (``-inf``
+    included): at ``zeta = 0.001``, where most nodes are far from the wall, a 1024^2
+    wall's exponentials took 14-18 ms, and 5 ms with the mask."""
     uf = u.ravel()
     hf = h.ravel()
     ef = e.ravel()
+    kf = keep.ravel()
     m = -np.inf
     for i in range(uf.size):
         x = -(uf[i] - hf[i]) / zeta
         if x > m:
             m = x
     for i in range(uf.size):
-        ef[i] = -(uf[i] - hf[i]) / zeta - m
+        v = -(uf[i] - hf[i]) / zeta - m
+        if v < EXP_ZERO:
+            ef[i] = 0.0
+            kf[i] = False
+        else:
+            ef[i] = v
+            kf[i] = True
     return m
 
 

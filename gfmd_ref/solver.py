@@ -525,13 +525,16 @@ def _log_ratio(p: np.ndarray, p0: float, out: np.ndarray) -> np.ndarray:
 
 
 def _z0_residual(u: np.ndarray, h: np.ndarray, p: np.ndarray, p0: float, zeta: float,
-                 scratch: np.ndarray) -> tuple:
+                 scratch: np.ndarray, keep: np.ndarray | None = None) -> tuple:
     """``(z0, residual)`` of the exponential wall with one (vectorized) exponential per
     node: ``z0 = zeta log(mean(exp(-(u - h)/zeta)))`` (log-sum-exp, as
     :func:`._kernels.exp_log_mean`) and ``max |p0 exp(-(z0 + u - h)/zeta) - p| / p0``
-    (:func:`._kernels.exp_sum_residual`); ``scratch`` holds the exponentials."""
-    m = kr.exp_exponents(u, h, zeta, scratch)
-    np.exp(scratch, out=scratch)
+    (:func:`._kernels.exp_sum_residual`); ``scratch`` holds the exponentials, ``keep``
+    (a boolean array of the same shape, made if None) where they are not ``+0``."""
+    if keep is None:
+        keep = np.empty(u.shape, dtype=np.bool_)
+    m = kr.exp_exponents(u, h, zeta, scratch, keep)
+    np.exp(scratch, out=scratch, where=keep)
     s, res = kr.exp_sum_residual(scratch, p, p0)
     return zeta * (m + math.log(s / h.size)), res
 
@@ -584,6 +587,7 @@ def _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0,
     x = np.empty(el.shape)
     r = np.empty(el.shape)
     scratch = np.empty(el.shape)
+    keep = np.empty(el.shape, dtype=np.bool_)  # where the wall's exponentials are not +0
     lp = np.empty(el.shape)
     hist = list(hist0)
     stamps = []
@@ -596,9 +600,12 @@ def _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0,
     stop = "max_iter"
     bar = _Progress(progress, "gfmd_ref newton", tol)
     stall = _Stall(stall_steps)
+    lp_of_p = False  # lp holds log(p/p0) already (the accepted trial's, from its energy)
     while True:
-        E, E_scale = kr.dual_gradient(u, h, p, _log_ratio(p, p0, lp), zeta, grad)
-        z0, res = _z0_residual(u, h, p, p0, zeta, scratch)
+        if not lp_of_p:
+            _log_ratio(p, p0, lp)
+        E, E_scale = kr.dual_gradient(u, h, p, lp, zeta, grad)
+        z0, res = _z0_residual(u, h, p, p0, zeta, scratch, keep)
         hist.append(res)
         stamps.append((it, time.perf_counter() - tstart))
         bar.update(res, it)
@@ -662,7 +669,7 @@ def _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0,
                 # energy differences at round-off (of the energy's terms, whose magnitude
                 # E_scale can exceed |E| by 1e4 near the solution): judge by the force
                 # residual instead
-                rt = _z0_residual(utry, h, ptry, p0, zeta, scratch)[1]
+                rt = _z0_residual(utry, h, ptry, p0, zeta, scratch, keep)[1]
                 if rt < (1.0 - 1e-4 * alpha) * res:
                     accepted = True
                     break
@@ -673,6 +680,7 @@ def _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0,
             break
         p, d = ptry, p
         u, gd = utry, u
+        lp_of_p = True  # the accepted trial's energy left log(ptry/p0) in lp
         newton += 1
     bar.close()
     disp = u + z0  # z0 of this u: every exit leaves the loop after computing it, u unchanged since

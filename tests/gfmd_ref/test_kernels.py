@@ -35,6 +35,40 @@ def test_z0_residual_is_the_two_kernels_it_fuses(fields, zeta):
     assert res == pytest.approx(want, rel=bound)
 
 
+def test_masked_exponentials_are_numpys_bit_for_bit(rng):
+    """``exp_exponents`` skips the exponentials that round to ``+0`` (exponents below
+    ``EXP_ZERO = -746``; the C library's underflow path is slow) and numpy takes the
+    rest with ``where=``. Oracle: numpy's exponential of every exponent ``x - m`` with no
+    mask, bit for bit, on exponents spread over [-800, 0] so that subnormal results
+    (-745 ... -708), zeros and ordinary values all occur; then ``_z0_residual``'s
+    ``(z0, residual)`` against the same computed unmasked. A NaN exponent stays NaN. A
+    threshold inside the subnormal range (e.g. -700) zeroes values that are not zero and
+    fails."""
+    from gfmd_ref.solver import _z0_residual
+
+    n = 64
+    zeta = 1.0
+    h = np.zeros((n, n))
+    u = rng.uniform(0.0, 800.0, size=(n, n))
+    u.flat[0] = 0.0  # the largest exponent is 0, so e = x spans [-800, 0]
+    e = np.empty((n, n))
+    keep = np.empty((n, n), dtype=np.bool_)
+    m = kr.exp_exponents(u, h, zeta, e, keep)
+    np.exp(e, out=e, where=keep)
+    want = np.exp(-(u - h) / zeta - m)
+    assert m == 0.0
+    assert np.array_equal(e.view(np.int64), want.view(np.int64))
+    assert 0 < np.count_nonzero(~keep) < n * n and np.any((want > 0) & (want < np.finfo(float).tiny))
+    p = 0.004 * np.exp(rng.normal(size=(n, n)))
+    z0, res = _z0_residual(u, h, p, 0.004, zeta, np.empty_like(u))
+    s = float(np.sum(want))  # numpy sums pairwise, the kernel in index order: round-off apart
+    assert z0 == pytest.approx(zeta * (m + np.log(s / u.size)), rel=1e-15)
+    assert res == pytest.approx(np.max(np.abs(0.004 * want * u.size / s - p)) / 0.004, rel=1e-13)
+    u.flat[5] = np.nan
+    kr.exp_exponents(u, h, zeta, e, keep)
+    assert keep.flat[5] and np.isnan(e.flat[5])
+
+
 def test_z0_residual_at_the_solution_is_zero(fields):
     """At ``p = p0 exp(-(z0 + u - h)/zeta)`` (the wall law itself) the residual is round-off."""
     from gfmd_ref.solver import _z0_residual
