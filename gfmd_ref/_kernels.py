@@ -277,24 +277,14 @@ def pk_direction_centred(z, gcon, idx, nc, t, shift, beta, t2):
     Returns ``(sum t, sum g t)`` (``sum t`` = 0 up to round-off)."""
     zf = z.ravel()
     tf = t.ravel()
-    t2f = t2.ravel()
     st = 0.0
     for k in range(nc):
         i = idx[k]
         v = zf[i] - shift + beta * tf[i]
         tf[i] = v
         st += v
-    mean = st / nc if nc > 0 else 0.0
-    st = 0.0
-    sgt = 0.0
-    for k in range(nc):
-        i = idx[k]
-        v = tf[i] - mean
-        tf[i] = v
-        t2f[i] = v
-        st += v
-        sgt += gcon[k] * v
-    return st, sgt
+    # the second pass is pk_direction's on t itself: t - mean (+ 0 t), copied to t2, with the sums
+    return pk_direction(t, False, gcon, idx, nc, t, st / nc if nc > 0 else 0.0, 0.0, t2)
 
 
 @njit(cache=True, error_model="numpy")
@@ -358,13 +348,7 @@ def pk_rescale_increment(p, idx, nc, scale, u, gv):
     place), which this full pass also zeroes for the next step's ``v``. Returns
     ``(sum p after the scaling, max |G v|)`` (the size the increment's rounding scales
     with)."""
-    pf = p.ravel()
-    s = 0.0
-    for k in range(nc):
-        i = idx[k]
-        x = pf[i] * scale
-        pf[i] = x
-        s += x
+    s = pk_rescale(p, idx, nc, scale, u, u, 0.0, True)  # p on the contact set (exact: u is left to this pass)
     uf = u.ravel()
     gf = gv.ravel()
     big = 0.0
