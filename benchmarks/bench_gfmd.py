@@ -354,19 +354,6 @@ def _raw_single_pair(pair):
     return lambda: (fwd.execute(), bwd.execute())
 
 
-def _raw_single_forward(pair):
-    """A function that runs the single-precision forward transform of the ``ccg`` step
-    length (the solver's own plan from the direction's float32 array), plan execution
-    only."""
-    w = pair.single_array(1)
-    w[...] = np.random.default_rng(1).normal(size=w.shape)
-    if pair.name != "fftw":
-        import scipy.fft as sfft
-
-        return lambda: sfft.rfft2(w)
-    return pair._single[1][1].execute
-
-
 def _uptime():
     try:
         with open("/proc/loadavg") as fh:
@@ -417,11 +404,10 @@ def part_breakdown(n, reps=15, threads=None):
     streaming passes: 8 array reads, 4 writes, the memory traffic of its gap,
     direction, step and update; the floor's definition since issue 10, although the
     solver now makes one full pass per iteration and works on the contact set's index
-    list otherwise). Both ``ccg`` (preconditioned: per iteration one double pair, the
-    exact ``u``, one single-precision pair, the preconditioner's, and one single-precision
-    forward transform, the step length's ``t . G t`` by Parseval; the floor counts each at
-    its own raw cost) and ``pk`` (plain, about 1.3 pairs) are measured in the same
-    run."""
+    list otherwise). Both ``ccg`` (preconditioned: per iteration the preconditioner's and
+    the step length's pairs and, between the few exact ``u = G p`` in double, the
+    increment's, all three in single precision; the floor counts each pair at its own raw
+    cost) and ``pk`` (plain, about 1.3 pairs) are measured in the same run."""
     import gfmd_ref as g
     from gfmd_ref import _kernels as kr
     from gfmd_ref.solver import _Elastic
@@ -451,7 +437,6 @@ def part_breakdown(n, reps=15, threads=None):
     if pr.name == "fftw":
         ops["FFT pair (plan execution only)"] = _raw_pair(pr)
         ops["FFT pair, single precision (plan execution only)"] = _raw_single_pair(pr)
-        ops["FFT forward alone, single precision (plan execution only)"] = _raw_single_forward(pr)
     w32 = pr.single_array()
     Kn32 = (el.K / (n * n)).astype(np.float32)
     ops["apply_single (single-precision pair, multiplier)"] = lambda: pr.apply_single(Kn32)
@@ -459,7 +444,6 @@ def part_breakdown(n, reps=15, threads=None):
     pr.single_array(1)[...] = t
     ops["apply_single, t32 -> r32 (the step length's r = G t)"] = lambda: pr.apply_single(Gn32, 1, 2)
     ops["contact_dot (contact set, float32 r)"] = lambda: kr.contact_dot(pr.single_array(2), t, idx, nc)
-    ops["forward_dot_single (t32 forward, Parseval t.Gt)"] = lambda: pr.forward_dot_single(Gn32, 1)
     ops["apply_route (pair, multiplier and Parseval dot)"] = lambda: pr.apply_route(el.Gn, t, w)
     ops["apply_route, no dot (the exact u = G p)"] = lambda: pr.apply_route(el.Gn, t, w, dot=False)
     ops["pk_gap (the one full pass: u, h, mask -> masked gap)"] = lambda: kr.pk_gap(
@@ -489,8 +473,6 @@ def part_breakdown(n, reps=15, threads=None):
     raw = times.get("FFT pair (plan execution only)", times["apply_route (pair, multiplier and Parseval dot)"])
     raw32 = times.get("FFT pair, single precision (plan execution only)",
                       times["apply_single (single-precision pair, multiplier)"])
-    fwd32 = times.get("FFT forward alone, single precision (plan execution only)",
-                      times["forward_dot_single (t32 forward, Parseval t.Gt)"])
     vec = times["vector floor (4 passes: 8 reads, 4 writes)"]
     out = dict(n=n, fft=pr.name, threads=pr.threads, load=_uptime(), op_ms=times, methods={})
     print(f"  breakdown n={n} ({pr.name}, {pr.threads} thread(s), load {out['load']}):")
@@ -500,17 +482,16 @@ def part_breakdown(n, reps=15, threads=None):
         per_it = 1e3 * (r.wall_time - r.info["fft_planning_time"]) / r.iterations
         ppi = r.info["fft_pairs"] / r.iterations
         spi = r.info.get("fft_pairs_single", 0) / r.iterations  # of which in single precision
-        fpi = r.info.get("fft_forward_single", 0) / r.iterations  # single forward transforms alone (step length)
-        floor = (ppi - spi) * raw + spi * raw32 + fpi * fwd32 + vec
+        floor = (ppi - spi) * raw + spi * raw32 + vec
         out["methods"][method] = dict(
             iterations=r.iterations, fft_pairs=r.info["fft_pairs"], wall_time=r.wall_time,
-            fft_pairs_single=r.info.get("fft_pairs_single", 0), fft_forward_single=r.info.get("fft_forward_single", 0),
+            fft_pairs_single=r.info.get("fft_pairs_single", 0), u_increments=r.info.get("u_increments", 0),
             ms_per_iteration=per_it, fft_pairs_per_iteration=ppi, floor_ms_per_iteration=floor,
             ratio_to_floor=per_it / floor, one_pair_plus_vector_ms=raw + vec,
             ms_per_fft_pair=1e3 * r.wall_time / r.info["fft_pairs"])
         print(f"    {method}: {r.iterations} it, {r.info['fft_pairs']} FFT pairs ({ppi:.2f}/it, {spi:.2f} single), "
               f"{per_it:.2f} ms/it; floor {floor:.2f} ms/it ({ppi - spi:.2f} x {raw:.2f} + {spi:.2f} x {raw32:.2f}"
-              f" + {fpi:.2f} x {fwd32:.2f} + {vec:.2f}); "
+              f" + {vec:.2f}); "
               f"ratio {per_it / floor:.2f}; total {r.wall_time:.2f} s", flush=True)
     return out
 
@@ -538,10 +519,9 @@ def part_match(n, repeats, our_tols=(1e-6, 1e-7, 1e-8), tamaas_tol=1e-8, ref_tol
     g.warm_up_fft(n)
     pair = fft_pair((n, n))[0]
     pair_s = _median_time(_raw_pair(pair), 9)
-    pair32_s = _median_time(_raw_single_pair(pair), 9)  # the preconditioner's and the increments' pairs
-    fwd32_s = _median_time(_raw_single_forward(pair), 9)  # the step length's forward transform
+    pair32_s = _median_time(_raw_single_pair(pair), 9)  # the search's and the increments' pairs
     out = dict(n=n, seed=seed, load_before=_uptime(), runs=[], fft_pair_seconds=pair_s,
-               fft_pair_single_seconds=pair32_s, fft_forward_single_seconds=fwd32_s)
+               fft_pair_single_seconds=pair32_s)
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -574,8 +554,7 @@ def part_match(n, repeats, our_tols=(1e-6, 1e-7, 1e-8), tamaas_tol=1e-8, ref_tol
                 p, wall, its = r.pressure, r.wall_time, r.iterations
                 pairs = r.info["fft_pairs"]
                 singles = r.info.get("fft_pairs_single", 0)
-                floor = ((pairs - singles) * pair_s + singles * pair32_s
-                         + r.info.get("fft_forward_single", 0) * fwd32_s)
+                floor = (pairs - singles) * pair_s + singles * pair32_s
             emax, el2 = _field_error(p, ref.pressure)
             row = dict(solver=solver, tol=tol, round=k, time=wall, iterations=its, fft_pairs=pairs,
                        fft_floor=floor,
@@ -608,9 +587,8 @@ def part_match(n, repeats, our_tols=(1e-6, 1e-7, 1e-8), tamaas_tol=1e-8, ref_tol
         out["cross_check_ref_vs_tamaas_max_err_p0"] = tm["max_err_p0"]
     out["load_after"] = _uptime()
     print(f"  n={n} (load before {out['load_before']}, after {out['load_after']}):")
-    print(f"    (one FFT pair: {1e3 * pair_s:.1f} ms, single precision {1e3 * pair32_s:.1f} ms, a single forward "
-          f"transform {1e3 * fwd32_s:.1f} ms; the floor counts each of ours at its own cost; Tamaas' pairs estimated "
-          f"as 2 double per iteration)")
+    print(f"    (one FFT pair: {1e3 * pair_s:.1f} ms, single precision {1e3 * pair32_s:.1f} ms; the floor counts each "
+          f"of ours at its own cost; Tamaas' pairs estimated as 2 double per iteration)")
     print("    | solver | tol | median time [s] | iterations | s / iteration | FFT pairs | FFT floor [s] "
           "| max err [p0] | L2 err [p0] | / Tamaas |")
     for r in sorted(table, key=lambda r: (r["solver"], -r["tol"])):

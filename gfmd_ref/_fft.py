@@ -40,7 +40,7 @@ from typing import Any, Dict, Optional, Tuple
 import numpy as np
 import scipy.fft as sfft
 
-from ._kernels import spectral_dot, spectral_multiply, spectral_scale
+from ._kernels import spectral_multiply, spectral_scale
 
 #: FFT threads used when a caller does not say (see module doc for the measurement).
 DEFAULT_THREADS = 1
@@ -190,13 +190,6 @@ class _Pair:
         double) with ``dot``, else NaN."""
         raise NotImplementedError
 
-    def forward_dot_single(self, mult_n32: np.ndarray, src: int) -> float:  # pragma: no cover - overridden
-        """``src . dst`` of :meth:`apply_single` (``dst = irfft2(mult_n32 rfft2(src)) n^2``)
-        from the forward transform alone, by Parseval (summed in double; ``src`` kept):
-        half the transforms where only the dot product is wanted (a step length's
-        ``t . G t``)."""
-        raise NotImplementedError
-
     def work_array(self, index: int) -> np.ndarray:  # pragma: no cover - overridden
         raise NotImplementedError
 
@@ -283,10 +276,6 @@ class ScipyPair(_Pair):
         self.single_array(src if dst is None else dst)[...] = sfft.irfft2(
             X, s=self.shape, workers=self.threads, overwrite_x=True, norm="forward")
         return out
-
-    def forward_dot_single(self, mult_n32: np.ndarray, src: int) -> float:
-        """See :meth:`_Pair.forward_dot_single`."""
-        return spectral_dot(sfft.rfft2(self.single_array(src), workers=self.threads), mult_n32, self.shape[1])
 
 
 class FFTWPair(_Pair):
@@ -414,12 +403,6 @@ class FFTWPair(_Pair):
         out = _multiply(self._spec32, mult_n32, self.shape[1], dot)
         self._single[src if dst is None else dst][2].execute()
         return out
-
-    def forward_dot_single(self, mult_n32: np.ndarray, src: int) -> float:
-        """See :meth:`_Pair.forward_dot_single`."""
-        self.single_array(src)
-        self._single[src][1].execute()
-        return spectral_dot(self._spec32, mult_n32, self.shape[1])
 
     def _plans_of(self, buf: np.ndarray) -> Tuple[np.ndarray, Any, Any]:
         owner, fwd, bwd = self._plans.get(id(buf), (None, None, None))

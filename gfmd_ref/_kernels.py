@@ -89,47 +89,6 @@ def spectral_multiply(spec, mult, n_last):
 
 
 @njit(cache=True, error_model="numpy")
-def spectral_dot(spec, mult, n_last):
-    """``sum_k w_k mult_k |X_k|^2`` of :func:`spectral_multiply` without the multiply
-    (``spec`` is only read; summed in double): by Parseval ``x . y`` for
-    ``y = irfft2(mult X) n0 n_last``, i.e. ``t . G t`` of a step length from the forward
-    transform of ``t`` alone."""
-    n0, nh = spec.shape
-    last = nh - 1 if n_last % 2 == 0 else nh  # the Nyquist column has weight 1
-    s = 0.0
-    for i in range(n0):
-        x = spec[i, 0]
-        xr = float(x.real)
-        xi = float(x.imag)
-        e = float(mult[i, 0]) * (xr * xr + xi * xi)
-        a0 = 0.0
-        a1 = 0.0
-        j = 1
-        while j + 1 < last:
-            x = spec[i, j]
-            xr = float(x.real)
-            xi = float(x.imag)
-            a0 += float(mult[i, j]) * (xr * xr + xi * xi)
-            x = spec[i, j + 1]
-            xr = float(x.real)
-            xi = float(x.imag)
-            a1 += float(mult[i, j + 1]) * (xr * xr + xi * xi)
-            j += 2
-        if j < last:
-            x = spec[i, j]
-            xr = float(x.real)
-            xi = float(x.imag)
-            a0 += float(mult[i, j]) * (xr * xr + xi * xi)
-        for j in range(last, nh):
-            x = spec[i, j]
-            xr = float(x.real)
-            xi = float(x.imag)
-            e += float(mult[i, j]) * (xr * xr + xi * xi)
-        s += e + 2.0 * (a0 + a1)
-    return s
-
-
-@njit(cache=True, error_model="numpy")
 def spectral_scale(spec, mult):
     """``spec *= mult`` (a real multiplier on a half spectrum) without the dot product of
     :func:`spectral_multiply`, for the transforms whose dot is not used (the exact
@@ -265,26 +224,6 @@ def pk_direction(z, from_gap, gcon, idx, nc, t, shift, beta, t2):
         st += v
         sgt += gcon[k] * v
     return st, sgt
-
-
-@njit(cache=True, error_model="numpy")
-def pk_direction_centred(z, gcon, idx, nc, t, shift, beta, t2):
-    """The preconditioned direction of :func:`pk_direction`, ``t = z - shift + beta t``,
-    then shifted to zero sum on the contact set (``beta t`` of the previous set need
-    not sum to zero on the new one): a step along ``t`` then keeps the load exactly, and
-    the step length's mean shift ``rbar (sum t)`` vanishes, so ``t . G t`` alone (by
-    Parseval from the forward transform of ``t``) gives it. Two passes over the set.
-    Returns ``(sum t, sum g t)`` (``sum t`` = 0 up to round-off)."""
-    zf = z.ravel()
-    tf = t.ravel()
-    st = 0.0
-    for k in range(nc):
-        i = idx[k]
-        v = zf[i] - shift + beta * tf[i]
-        tf[i] = v
-        st += v
-    # the second pass is pk_direction's on t itself: t - mean (+ 0 t), copied to t2, with the sums
-    return pk_direction(t, False, gcon, idx, nc, t, st / nc if nc > 0 else 0.0, 0.0, t2)
 
 
 @njit(cache=True, error_model="numpy")

@@ -88,9 +88,9 @@ class ContactResult:
 
 #: work arrays of the FFT pair the hard-wall solver uses (pressure, displacement, direction, scratch)
 N_WORK_ARRAYS = 4
-#: single-precision work arrays of the ``ccg`` solver (the preconditioned gap, the direction, and r = G t where
-#: the step length is not taken by Parseval, :data:`STEP_PARSEVAL`; made once per pair by ``gfmd_ref.warm_up``)
-N_SINGLE_ARRAYS = 3
+#: single-precision work arrays of the ``ccg`` solver (the preconditioned gap, the direction, r = G t, and the
+#: step's pressure change, :data:`INCREMENT_U32`; made once per pair by ``gfmd_ref.warm_up``)
+N_SINGLE_ARRAYS = 4
 
 
 class _Elastic:
@@ -206,11 +206,7 @@ SINGLE_PRECOND = True
 #: ``ccg``: also ``r = G t`` of the step length in single precision, and then the exact
 #: ``u = G p`` (double) after every step (False: ``r`` in double, ``u`` updated with it)
 SINGLE_STEP = True
-#: ``ccg`` with :data:`SINGLE_STEP`: the direction is shifted to zero sum on the contact set, so the step
-#: length needs only ``t . G t``, taken by Parseval from the single-precision forward transform of ``t`` (half a
-#: pair: no ``r = G t`` in real space)
-STEP_PARSEVAL = True
-#: ``ccg`` with :data:`STEP_PARSEVAL`: between exact ``u = G p`` (double), ``u`` is updated by ``G dv`` of the step's
+#: ``ccg`` with :data:`SINGLE_STEP`: between exact ``u = G p`` (double), ``u`` is updated by ``G dv`` of the step's
 #: whole pressure change ``dv`` (projections and new contacts included) in single precision; its rounding is
 #: relative to the increment, not to ``u``
 INCREMENT_U32 = True
@@ -276,15 +272,6 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     gave 0.83-0.87x the time at 1024^2 and 2048^2, the step length's 0.94-0.98x more
     (docs/gfmd.md "Single-precision search").
 
-    With :data:`STEP_PARSEVAL` (default) the step length needs no ``r = G t`` at all: the
-    direction is shifted to zero sum on the contact set
-    (:func:`~._kernels.pk_direction_centred`; ``beta t`` of the previous set need not sum
-    to zero on the new one), so Polonsky and Keer's mean shift ``rbar sum_c t`` vanishes
-    and the denominator ``sum_c (r - rbar) t`` is ``t . G t``, which Parseval gives from
-    the float32 forward transform of ``t`` alone (:meth:`FFTWPair.forward_dot_single`):
-    per iteration one double pair, one single pair and one single forward transform
-    (docs/gfmd.md "The step length by Parseval").
-
     With :data:`INCREMENT_U32` (default) the double pair runs only now and then: the step's
     whole pressure change ``dv`` (projections and new contacts included, written by
     :func:`~._kernels.pk_step`) is transformed in single precision and
@@ -319,9 +306,10 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     # direction ``t`` and ``w``, which holds in turn the masked gap, K of it and r = G t
     single = bool(precond and (SINGLE_PRECOND if single is None else single))
     step32 = single and SINGLE_STEP
-    parseval = step32 and STEP_PARSEVAL
-    incr = parseval and INCREMENT_U32
-    n_single_arrays = ((3 if incr else 2 if parseval else N_SINGLE_ARRAYS) if step32 else 1) if single else 0
+    incr = step32 and INCREMENT_U32
+    # single-precision arrays: the preconditioned gap (0), the direction (1), r = G t (2) and, with incr, the step's
+    # pressure change (3)
+    n_single_arrays = (N_SINGLE_ARRAYS if incr else 3 if step32 else 1) if single else 0
     el.fft_planning_time += el.fft.make_work_arrays(N_WORK_ARRAYS, single=n_single_arrays)  # 0 once made
     p, u, t, w = (el.fft.work_array(k) for k in range(N_WORK_ARRAYS))
     t[...] = 0.0
@@ -348,7 +336,6 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     psum = p0 * n2
     n_fft = 0 if p_start is None else 1  # (the start's u = G p)
     n_single = 0
-    n_forward = 0  # single-precision forward transforms alone (parseval)
     Kn = el.K / (el.n * el.n) if precond else None
     if single:
         Kn32 = Kn.astype(np.float32)
@@ -359,9 +346,9 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     if step32:
         Gn32 = el.Gn.astype(np.float32)
         t2 = el.fft.single_array(1)
-        r32 = None if parseval else el.fft.single_array(2)
+        r32 = el.fft.single_array(2)
         if incr:  # zero off the nodes a step visits
-            dv32 = el.fft.single_array(2)
+            dv32 = el.fft.single_array(3)
             dv32[...] = 0.0
         t2[...] = 0.0
     hist = []
@@ -434,20 +421,13 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
             n_fft += 1
             gz = sgz - zbar * sg  # sum_c g (z - zbar), the preconditioned residual norm
             beta = delta * gz / gold if gold > 0.0 else 0.0
-            if parseval:
-                st, sgt = kr.pk_direction_centred(z, gcon, idx, nc, t, zbar, beta, t2)
-            else:
-                st, sgt = kr.pk_direction(z, False, gcon, idx, nc, t, zbar, beta, t2)
+            st, sgt = kr.pk_direction(z, False, gcon, idx, nc, t, zbar, beta, t2)
             gold = gz
         else:
             beta = delta * gn / gold if gold > 0.0 else 0.0
             st, sgt = kr.pk_direction(w, True, gcon, idx, nc, t, 0.0, beta, t)
             gold = gn
-        if parseval:
-            srt = el.fft.forward_dot_single(Gn32, 1)  # t.Gt by Parseval; sum_c t = 0, so no mean shift
-            n_forward += 1
-            rbar = 0.0
-        elif step32:
+        if step32:
             el.fft.apply_single(Gn32, 1, 2)  # r32 = G t in single precision (tau only)
             n_fft += 1
             n_single += 1
@@ -475,7 +455,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         if nproj or n_ol:
             pending = True
         if use_incr:  # u <- scale (u + G dv), G dv in single precision (in place on dv, which the pass zeroes)
-            el.fft.apply_single(Gn32, 2)
+            el.fft.apply_single(Gn32, 3)
             n_fft += 1
             n_single += 1
             n_increments += 1
@@ -508,7 +488,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         history=np.asarray(hist),
         stop=("converged" if converged else lost if lost else _stalled_message(stall, res) if stalled
               else "max_iter"),
-        info=dict(h_scale=h_scale, fft_pairs=n_fft, fft_pairs_single=n_single, fft_forward_single=n_forward,
+        info=dict(h_scale=h_scale, fft_pairs=n_fft, fft_pairs_single=n_single,
                   u_increments=n_increments,
                   history_stamps=np.asarray(stamps)),
     )
