@@ -2,12 +2,13 @@
 
 ``--flag INCREMENT_U32`` (``u`` updated by the single-precision ``G dv`` between exact ``u = G p`` against an exact
 ``u`` after every step; the default) or another boolean switch of ``gfmd_ref.solver`` (``SINGLE_STEP``,
-``SINGLE_PRECOND``); every other switch keeps its default.  (``STEP_PARSEVAL``, measured with it in the forty-third
-session, was reverted: ``results/gfmd_step_parseval_1024.md``.)  Each variant runs in its own fresh process, the two alternating, ``--rounds`` times per surface; a process makes
-its plans, solves once to warm up, then ``--repeats`` times, and reports the median of those warm solves (wall time
-without planning), the iterations and the pressure.  Printed per surface: the iterations, the medians of each
-variant, the ratio of the medians of the rounds, the per-round ratios (each round's two processes ran back to
-back), and the largest pressure difference between the variants' answers (in ``p0``).
+``SINGLE_PRECOND``); every other switch keeps its default. (``STEP_PARSEVAL``, measured with it in the forty-third
+session, was reverted: ``results/gfmd_step_parseval_1024.md``.) Each variant runs in its own fresh process, the two
+alternating, ``--rounds`` times per surface; a process makes its plans, solves once to warm up, then ``--repeats``
+times, and reports the median of those warm solves (wall time without planning), the iterations and the pressure.
+Printed per surface: the iterations, the medians of each variant, the ratio of the medians of the rounds, the
+per-round ratios (each round's two processes ran back to back), and the largest pressure difference between the
+variants' answers (in ``p0``).
 
     python benchmarks/gfmd_flag_ab.py [--flag INCREMENT_U32] [--n 1024] [--seeds 1 2 3] [--rounds 3] [--repeats 3]
                                       [--tol 1e-8]
@@ -34,7 +35,8 @@ CHILD = r"""
 import json, sys, numpy as np
 import gfmd_ref as g
 from gfmd_ref import solver
-n, seed, tol, flag, repeats, out, name = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3]), sys.argv[4] == "1", int(sys.argv[5]), sys.argv[6], sys.argv[7]
+n, seed, tol, flag = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3]), sys.argv[4] == "1"
+repeats, out, name = int(sys.argv[5]), sys.argv[6], sys.argv[7]
 setattr(solver, name, flag)
 h, L = g.fig1_surface(n, seed=seed)
 times = []
@@ -44,7 +46,8 @@ for k in range(repeats + 1):
     if k:
         times.append(r.wall_time - r.info["fft_planning_time"])
 np.save(out, r.pressure)
-print(json.dumps(dict(times=times, iterations=r.iterations, pairs=r.info["fft_pairs"], singles=r.info["fft_pairs_single"],
+print(json.dumps(dict(times=times, iterations=r.iterations, pairs=r.info["fft_pairs"],
+                      singles=r.info["fft_pairs_single"],
                       increments=r.info.get("u_increments", 0))))
 """
 

@@ -78,7 +78,8 @@ def main() -> None:
                f"{'/'.join('yes' if r.converged else 'NO' for r in res.values())} | {dp:.1e} |")
         print(row, flush=True)
         lines.append(row)
-    lines += ["", f"Default against an exact `u`: fewer iterations in {fewer} scenes, the same in {same}, more in {more}."]
+    lines += ["", f"Default against an exact `u`: fewer iterations in {fewer} scenes, the same in {same}, "
+                  f"more in {more}."]
     OUT.write_text("\n".join(lines) + "\n")
     print(lines[-1])
     print(f"wrote {OUT}")

@@ -217,7 +217,8 @@ INCREMENT_ROUNDING = 2e-6
 #: INCREMENT_ROUNDING max|G dv|) could exceed this share of the residual (in units of ``h_scale``, as the residual
 #: measures gaps), after ``refresh`` increments, where the residual has not halved for INCREMENT_STALL iterations,
 #: and before convergence is declared
-INCREMENT_SHARE = 1e-4  # measured (with a search since reverted): 1e-2 adds 4-13 iterations at 512^2-1024^2, 1e-3, 1e-4 none
+#: (measured on a search since reverted: 1e-2 added 4-13 iterations at 512^2-1024^2, 1e-3 and 1e-4 none)
+INCREMENT_SHARE = 1e-4
 INCREMENT_STALL = 10
 #: ``newton``: the inner CG's ``G d`` in single precision (the line search, ``u`` and the
 #: residual in double)
