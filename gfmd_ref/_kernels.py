@@ -227,14 +227,14 @@ def pk_direction(z, from_gap, gcon, idx, nc, t, shift, beta, t2):
 
 
 @njit(cache=True, error_model="numpy")
-def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new, t2, dv, want_v):
+def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new, t2, dv, want_dv):
     """Polonsky-Keer step of the pressures: ``p -= tau t`` on the contact set, projected
     on ``p >= 0`` (a projected node leaves the set: ``c`` false, ``p`` and ``t`` zero);
     ``p = -tau g`` at the overlaps ``ol[:n_overlap]`` (they join the set where that is
     positive). One pass over the two sorted lists in index order, which writes the new
     set's indices to ``idx_new`` in increasing order. The load is restored by
     :func:`pk_rescale`. ``t2`` (the single-precision copy of ``t``, or ``t`` itself) is
-    zeroed with ``t``. With ``want_v`` the whole change of every node it visits,
+    zeroed with ``t``. With ``want_dv`` the whole change of every node it visits,
     projections and new contacts included, goes to ``dv`` (``p_new - p_old``, float32;
     the caller keeps ``dv`` zero elsewhere): the increment whose ``G dv`` updates ``u``
     (:func:`pk_rescale_increment`). Returns ``(n_projected, sum p, new nc)``."""
@@ -254,7 +254,7 @@ def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new, t2, dv, want_v):
             k += 1
             v = pf[i] - tau * tf[i]
             if v <= 0.0:
-                if want_v:
+                if want_dv:
                     vf[i] = -pf[i]
                 pf[i] = 0.0
                 cf[i] = False
@@ -262,7 +262,7 @@ def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new, t2, dv, want_v):
                 t2f[i] = 0.0
                 nproj += 1
                 continue
-            if want_v:
+            if want_dv:
                 vf[i] = v - pf[i]
         else:
             i = ol[m]
@@ -271,7 +271,7 @@ def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new, t2, dv, want_v):
             if v <= 0.0:
                 continue
             cf[i] = True
-            if want_v:
+            if want_dv:
                 vf[i] = v
         pf[i] = v
         s += v
@@ -282,10 +282,10 @@ def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new, t2, dv, want_v):
 
 @njit(cache=True, error_model="numpy")
 def pk_rescale_increment(p, idx, nc, scale, u, gv):
-    """``p *= scale`` on the contact set (the load back at ``p0``) and ``u = scale (u + G v)``
-    from ``gv = G v`` (float32: the increment of :func:`pk_step`'s ``v`` transformed in
-    place), which this full pass also zeroes for the next step's ``v``. Returns
-    ``(sum p after the scaling, max |G v|)`` (the size the increment's rounding scales
+    """``p *= scale`` on the contact set (the load back at ``p0``) and ``u = scale (u + G dv)``
+    from ``gv = G dv`` (float32: :func:`pk_step`'s increment ``dv`` transformed in place),
+    which this full pass also zeroes for the next step's ``dv``. Returns
+    ``(sum p after the scaling, max |G dv|)`` (the size the increment's rounding scales
     with)."""
     s = pk_rescale(p, idx, nc, scale, u, u, 0.0, True)  # p on the contact set (exact: u is left to this pass)
     uf = u.ravel()

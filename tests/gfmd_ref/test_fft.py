@@ -190,7 +190,7 @@ def test_single_precision_route_is_the_double_route_to_float32_rounding(rng, mak
 
 
 def test_step_increment_is_the_whole_pressure_change(rng):
-    """``pk_step`` with ``want_v`` writes ``p_new - p_old`` (float32) at every node it
+    """``pk_step`` with ``want_dv`` writes ``p_new - p_old`` (float32) at every node it
     visits: the contact set's nodes, projected ones included (``-p_old``), and the
     overlaps that join the set; elsewhere ``dv`` keeps its zeros, and so ``G dv`` is
     the whole change of ``u`` (oracle: numpy's difference of the pressures before and
@@ -222,7 +222,7 @@ def test_step_increment_is_the_whole_pressure_change(rng):
     visited = np.union1d(idx, ol)
     untouched = np.setdiff1d(np.arange(n * n), visited)
     assert not dv.ravel()[untouched].any()
-    # without want_v the same step leaves dv alone
+    # without want_dv the same step leaves dv alone
     dv2 = np.zeros((n, n), dtype=np.float32)
     pk_step(p_old.copy(), (p_old > 0), t.copy(), idx, 300, ol, olg, 40, tau, idx_new, t2.copy(), dv2, False)
     assert not dv2.any()
