@@ -581,10 +581,8 @@ def _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0,
     stop = "max_iter"
     bar = _Progress(progress, "gfmd_ref newton", tol)
     stall = _Stall(stall_steps)
-    lp_of_p = False  # lp holds log(p/p0) already (the accepted trial's, from its energy)
+    _log_ratio(p, p0, lp)  # then kept by every accepted step: its trial's energy leaves log(ptry/p0) in lp
     while True:
-        if not lp_of_p:
-            _log_ratio(p, p0, lp)
         E, E_scale = kr.dual_gradient(u, h, p, lp, zeta, grad)
         z0, res = _z0_residual(u, h, p, p0, zeta, scratch, keep)
         hist.append(res)
@@ -661,7 +659,7 @@ def _newton_exp(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0,
             break
         p, d = ptry, p
         u, gd = utry, u
-        lp_of_p = True  # the accepted trial's energy left log(ptry/p0) in lp
+        # lp already holds log(p/p0) of the accepted trial (its energy computed it last)
         newton += 1
     bar.close()
     disp = u + z0  # z0 of this u: every exit leaves the loop after computing it, u unchanged since
