@@ -4,7 +4,10 @@ Compiled with numba's numpy error model: a division by zero gives IEEE inf/NaN i
 of a ZeroDivisionError branch on every division, which kept loops such as the
 exponents' ``-(u - h)/zeta`` from vectorizing (the same values otherwise).
 
-All arrays are C-contiguous float64 ``(n, n)``; the kernels loop over the flat view.
+Grid arrays are C-contiguous float64 ``(n, n)``; the kernels loop over the flat view.
+The hard wall's contact-set fields are packed: ``pc[k]``, ``tc[k]``, ``gcon[k]`` belong to the
+node ``idx[k]`` (``idx`` sorted), so a pass over the set reads them in order instead of
+gathering from full grids that no longer fit in the cache.
 
 Overflow guard: every exponential ``exp(x)`` of the exponential wall is evaluated
 with ``x`` clamped to ``[EXP_MIN, EXP_MAX] = [-745, 700]``. ``exp(700) = 1.0e304``
@@ -140,31 +143,30 @@ def contact_sums(z, gcon, idx, nc):
 
 
 @njit(cache=True, error_model="numpy")
-def contact_dot(r, t, idx, nc):
+def contact_dot(r, tc, idx, nc):
     """``(sum_c r, sum_c r t)`` over the contact set ``idx[:nc]``, one pass (``r`` may be
-    single precision, sums in double): the mean shift and ``t.Gt`` of the step length."""
+    single precision, sums in double; ``tc[k]`` = ``t`` at ``idx[k]``, packed): the mean
+    shift and ``t.Gt`` of the step length."""
     rf = r.ravel()
-    tf = t.ravel()
     s = 0.0
     d = 0.0
     for k in range(nc):
-        i = idx[k]
-        v = float(rf[i])
+        v = float(rf[idx[k]])
         s += v
-        d += v * tf[i]
+        d += v * tc[k]
     return s, d
 
 
 @njit(cache=True, error_model="numpy")
-def pk_gap(u, h, p, c, idx, nc, masked, want_masked, gcon, ol, olg):
+def pk_gap(u, h, pc, c, idx, nc, masked, want_masked, gcon, ol, olg):
     """Gap ``g = u - h - gbar`` with ``gbar`` the mean of ``u - h`` over the contact set,
-    one full pass. ``gcon[k]`` = ``g`` at ``idx[k]``; the overlaps (``g < 0`` off the set)
-    go to ``ol[:n_overlap]`` (indices) and ``olg`` (their gaps); with ``want_masked``
-    also ``masked = g`` on the set, 0 elsewhere (the input of the preconditioner's FFT).
+    one full pass. ``gcon[k]`` = ``g`` at ``idx[k]`` (``pc[k]``, the pressure there, packed
+    in the same order); the overlaps (``g < 0`` off the set) go to ``ol[:n_overlap]``
+    (indices) and ``olg`` (their gaps); with ``want_masked`` also ``masked = g`` on the
+    set, 0 elsewhere (the input of the preconditioner's FFT).
     Returns ``(sum_c g, sum_c g^2, max_c |p g|, max(-g) off the set, n_overlap)``."""
     uf = u.ravel()
     hf = h.ravel()
-    pf = p.ravel()
     cf = c.ravel()
     mf = masked.ravel()
     s = 0.0
@@ -182,10 +184,10 @@ def pk_gap(u, h, p, c, idx, nc, masked, want_masked, gcon, ol, olg):
         gi = uf[i] - hf[i] - gbar
         if cf[i]:
             gcon[k] = gi
+            a = abs(pc[k] * gi)
             k += 1
             sg += gi
             gn += gi * gi
-            a = abs(pf[i] * gi)
             if a > comp:
                 comp = a
             if want_masked:
@@ -203,44 +205,41 @@ def pk_gap(u, h, p, c, idx, nc, masked, want_masked, gcon, ol, olg):
 
 
 @njit(cache=True, error_model="numpy")
-def pk_direction(z, from_gap, gcon, idx, nc, t, shift, beta, t2):
-    """Polonsky-Keer direction on the contact set (``t`` is zero elsewhere):
-    ``t = g + beta t`` (``from_gap``: plain conjugate gradients) or, preconditioned,
-    ``t = z - shift + beta t`` with ``z = K (masked g)`` and ``shift = mean_c z`` (so
-    that a step along ``t`` keeps the load). ``t2`` receives a copy of ``t`` on the set
-    (the single-precision direction the step's FFT reads; pass ``t`` itself where there
-    is none). Returns ``(sum t, sum g t)``."""
+def pk_direction(z, from_gap, gcon, idx, nc, tc, shift, beta, t2):
+    """Polonsky-Keer direction on the contact set, packed (``tc[k]`` = ``t`` at ``idx[k]``;
+    ``t`` is zero elsewhere): ``t = g + beta t`` (``from_gap``: plain conjugate gradients)
+    or, preconditioned, ``t = z - shift + beta t`` with ``z = K (masked g)`` and
+    ``shift = mean_c z`` (so that a step along ``t`` keeps the load). ``t2`` (full grid,
+    zero off the set) receives ``t`` at ``idx[k]``: the direction the step length's FFT
+    reads, in single or double precision. Returns ``(sum t, sum g t)``."""
     zf = z.ravel()
-    tf = t.ravel()
     t2f = t2.ravel()
     st = 0.0
     sgt = 0.0
     for k in range(nc):
-        i = idx[k]
-        x = gcon[k] if from_gap else zf[i] - shift
-        v = x + beta * tf[i]
-        tf[i] = v
-        t2f[i] = v
+        x = gcon[k] if from_gap else zf[idx[k]] - shift
+        v = x + beta * tc[k]
+        tc[k] = v
+        t2f[idx[k]] = v
         st += v
         sgt += gcon[k] * v
     return st, sgt
 
 
 @njit(cache=True, error_model="numpy")
-def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new, t2, dv, want_dv):
-    """Polonsky-Keer step of the pressures: ``p -= tau t`` on the contact set, projected
-    on ``p >= 0`` (a projected node leaves the set: ``c`` false, ``p`` and ``t`` zero);
-    ``p = -tau g`` at the overlaps ``ol[:n_overlap]`` (they join the set where that is
-    positive). One pass over the two sorted lists in index order, which writes the new
-    set's indices to ``idx_new`` in increasing order. The load is restored by
-    :func:`pk_rescale`. ``t2`` (the single-precision copy of ``t``, or ``t`` itself) is
-    zeroed with ``t``. With ``want_dv`` the whole change of every node it visits,
-    projections and new contacts included, goes to ``dv`` (``p_new - p_old``, float32;
-    the caller keeps ``dv`` zero elsewhere): the increment whose ``G dv`` updates ``u``
-    (:func:`pk_rescale_increment`). Returns ``(n_projected, sum p, new nc)``."""
-    pf = p.ravel()
+def pk_step(pc, c, tc, idx, nc, ol, olg, n_overlap, tau, idx_new, pc_new, tc_new, t2, dv, want_dv):
+    """Polonsky-Keer step of the pressures, packed on the contact set (``pc[k]``, ``tc[k]``
+    = ``p``, ``t`` at ``idx[k]``): ``p -= tau t`` on the set, projected on ``p >= 0`` (a
+    projected node leaves the set: ``c`` false, its ``t2`` zero); ``p = -tau g`` at the
+    overlaps ``ol[:n_overlap]`` (they join the set where that is positive, with ``t = 0``).
+    One pass over the two sorted lists in index order, which writes the new set's
+    indices, pressures and directions to ``idx_new``, ``pc_new``, ``tc_new`` in increasing
+    index order. The load is restored by :func:`pk_rescale`. With ``want_dv`` the whole
+    change of every node it visits, projections and new contacts included, goes to ``dv``
+    (full grid, ``p_new - p_old``, float32; the caller keeps ``dv`` zero elsewhere): the
+    increment whose ``G dv`` updates ``u`` (:func:`pk_rescale_increment`).
+    Returns ``(n_projected, sum p, new nc)``."""
     cf = c.ravel()
-    tf = t.ravel()
     t2f = t2.ravel()
     vf = dv.ravel()
     nproj = 0
@@ -251,19 +250,20 @@ def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new, t2, dv, want_dv)
     while k < nc or m < n_overlap:
         if m >= n_overlap or (k < nc and idx[k] < ol[m]):
             i = idx[k]
+            pold = pc[k]
+            told = tc[k]
             k += 1
-            v = pf[i] - tau * tf[i]
+            v = pold - tau * told
             if v <= 0.0:
                 if want_dv:
-                    vf[i] = -pf[i]
-                pf[i] = 0.0
+                    vf[i] = -pold
                 cf[i] = False
-                tf[i] = 0.0
                 t2f[i] = 0.0
                 nproj += 1
                 continue
             if want_dv:
-                vf[i] = v - pf[i]
+                vf[i] = v - pold
+            tc_new[n] = told
         else:
             i = ol[m]
             v = -tau * olg[m]
@@ -273,7 +273,8 @@ def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new, t2, dv, want_dv)
             cf[i] = True
             if want_dv:
                 vf[i] = v
-        pf[i] = v
+            tc_new[n] = 0.0
+        pc_new[n] = v
         s += v
         idx_new[n] = i
         n += 1
@@ -281,13 +282,13 @@ def pk_step(p, c, t, idx, nc, ol, olg, n_overlap, tau, idx_new, t2, dv, want_dv)
 
 
 @njit(cache=True, error_model="numpy")
-def pk_rescale_increment(p, idx, nc, scale, u, gv):
-    """``p *= scale`` on the contact set (the load back at ``p0``) and ``u = scale (u + G dv)``
-    from ``gv = G dv`` (float32: :func:`pk_step`'s increment ``dv`` transformed in place),
-    which this full pass also zeroes for the next step's ``dv``. Returns
-    ``(sum p after the scaling, max |G dv|)`` (the size the increment's rounding scales
-    with)."""
-    s = pk_rescale(p, idx, nc, scale, u, u, 0.0, True)  # p on the contact set (exact: u is left to this pass)
+def pk_rescale_increment(pc, nc, scale, u, gv):
+    """``p *= scale`` on the contact set (packed ``pc[:nc]``: the load back at ``p0``) and
+    ``u = scale (u + G dv)`` from ``gv = G dv`` (float32: :func:`pk_step`'s increment
+    ``dv`` transformed in place), which this full pass also zeroes for the next step's
+    ``dv``. Returns ``(sum p after the scaling, max |G dv|)`` (the size the increment's
+    rounding scales with)."""
+    s = pk_rescale(pc, nc, scale, u, u, 0.0, True)  # p on the contact set (exact: u is left to this pass)
     uf = u.ravel()
     gf = gv.ravel()
     big = 0.0
@@ -302,17 +303,15 @@ def pk_rescale_increment(p, idx, nc, scale, u, gv):
 
 
 @njit(cache=True, error_model="numpy")
-def pk_rescale(p, idx, nc, scale, u, r, tau, exact):
-    """``p *= scale`` on the contact set (the load back at ``p0``); unless ``exact`` (an
-    exact ``u = G p`` follows) also the incremental ``u = scale (u - tau r)`` (``r = G t``;
-    exact unless the step projected or fixed overlaps), a full pass.
-    Returns ``sum p`` after the scaling."""
-    pf = p.ravel()
+def pk_rescale(pc, nc, scale, u, r, tau, exact):
+    """``p *= scale`` on the contact set (packed ``pc[:nc]``: the load back at ``p0``);
+    unless ``exact`` (an exact ``u = G p`` follows) also the incremental
+    ``u = scale (u - tau r)`` (``r = G t``; exact unless the step projected or fixed
+    overlaps), a full pass. Returns ``sum p`` after the scaling."""
     s = 0.0
     for k in range(nc):
-        i = idx[k]
-        v = pf[i] * scale
-        pf[i] = v
+        v = pc[k] * scale
+        pc[k] = v
         s += v
     if not exact:
         uf = u.ravel()
@@ -320,6 +319,16 @@ def pk_rescale(p, idx, nc, scale, u, r, tau, exact):
         for i in range(uf.size):
             uf[i] = scale * (uf[i] - tau * rf[i])
     return s
+
+
+@njit(cache=True, error_model="numpy")
+def scatter_contact(pc, idx, nc, p):
+    """The full grid of a packed field: ``p = 0``, then ``p[idx[k]] = pc[k]`` for ``k < nc``
+    (the pressure the exact ``u = G p`` and the answer need)."""
+    pf = p.ravel()
+    pf[:] = 0.0
+    for k in range(nc):
+        pf[idx[k]] = pc[k]
 
 
 # --------------------------------------------------------------------------- exponential wall

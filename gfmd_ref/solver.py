@@ -316,8 +316,13 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     t[...] = 0.0
     index = np.int32 if n2 < 2 ** 31 else np.int64  # 4 bytes per entry where they suffice
     idx_next = np.empty(n2, dtype=index)
+    # the pressure and the direction on the contact set, packed in the order of idx (two lists each, swapped every
+    # step); the full grid p is written from them only for an exact u = G p and the answer (kernels.scatter_contact).
+    # The single-precision search leaves the work arrays t and w free: they hold the packed directions
+    pc, pc_next = np.empty(n2), np.empty(n2)
+    tc, tc_next = (t.ravel(), w.ravel()) if step32 else (np.zeros(n2), np.empty(n2))
     if p_start is None:
-        p[...] = p0
+        pc[...] = p0
         u[...] = 0.0
         c = np.ones(el.shape, dtype=np.bool_)  # the contact set p > 0, one byte per node
         idx = np.arange(n2, dtype=index)  # and its flat indices (two lists, swapped every step)
@@ -331,6 +336,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         nc = int(on.size)
         idx = np.empty(n2, dtype=index)
         idx[:nc] = on
+        pc[:nc] = p.ravel()[on]
     gcon = np.empty(n2)  # the gap on the contact set, in the order of idx
     ol = np.empty(n2, dtype=index)  # overlaps (g < 0 off the set) and their gaps
     olg = np.empty(n2)
@@ -342,7 +348,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         Kn32 = Kn.astype(np.float32)
         w32 = el.fft.single_array()
     mdst = w32 if single else w
-    t2 = t  # the direction's single-precision copy (step32), else t itself
+    t2 = t  # the direction on the full grid, the step length's FFT input: single precision (step32), else t
     dv32 = t2  # the step's pressure change (incr), else unused
     if step32:
         Gn32 = el.Gn.astype(np.float32)
@@ -377,13 +383,14 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         return kr.gather_sum(x, idx, nc) / nc if nc > 0 else 0.0
 
     def residual():
-        sg, gn, comp, pen, n_ol = kr.pk_gap(u, h, p, c, idx, nc, mdst, precond, gcon, ol, olg)
+        sg, gn, comp, pen, n_ol = kr.pk_gap(u, h, pc, c, idx, nc, mdst, precond, gcon, ol, olg)
         load = abs(psum / n2 - p0) / p0
         return sg, gn, n_ol, max(load, comp / (p0 * h_scale), pen / h_scale)
 
     while True:
         sg, gn, n_ol, res = residual()
         if (res < tol or it >= max_iter) and (pending or since_exact > 0):
+            kr.scatter_contact(pc, idx, nc, p)
             el.fft.apply_route(el.Gn, p, u, dot=False)
             n_fft += 1
             pending = False
@@ -422,17 +429,17 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
             n_fft += 1
             gz = sgz - zbar * sg  # sum_c g (z - zbar), the preconditioned residual norm
             beta = delta * gz / gold if gold > 0.0 else 0.0
-            st, sgt = kr.pk_direction(z, False, gcon, idx, nc, t, zbar, beta, t2)
+            st, sgt = kr.pk_direction(z, False, gcon, idx, nc, tc, zbar, beta, t2)
             gold = gz
         else:
             beta = delta * gn / gold if gold > 0.0 else 0.0
-            st, sgt = kr.pk_direction(w, True, gcon, idx, nc, t, 0.0, beta, t)
+            st, sgt = kr.pk_direction(w, True, gcon, idx, nc, tc, 0.0, beta, t2)
             gold = gn
         if step32:
             el.fft.apply_single(Gn32, 1, 2)  # r32 = G t in single precision (tau only)
             n_fft += 1
             n_single += 1
-            rsum, srt = kr.contact_dot(r32, t, idx, nc)
+            rsum, srt = kr.contact_dot(r32, tc, idx, nc)
             rbar = rsum / nc if nc > 0 else 0.0
         else:
             srt = el.fft.apply_route(el.Gn, t, w)  # w = r = G t; sum_c r t = t.r (Parseval)
@@ -444,8 +451,11 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         # the residual, or the residual stalls, or refresh increments ran
         use_incr = incr and not (u_rounding > INCREMENT_SHARE * res * h_scale or since_exact + 1 >= refresh
                                  or it - it_best > INCREMENT_STALL)
-        nproj, psum, nc = kr.pk_step(p, c, t, idx, nc, ol, olg, n_ol, tau, idx_next, t2, dv32, use_incr)
+        nproj, psum, nc = kr.pk_step(pc, c, tc, idx, nc, ol, olg, n_ol, tau, idx_next, pc_next, tc_next, t2, dv32,
+                                     use_incr)
         idx, idx_next = idx_next, idx
+        pc, pc_next = pc_next, pc
+        tc, tc_next = tc_next, tc
         if not psum > 0.0:  # the step removed every contact: no load can be restored (never seen)
             lost = f"a step removed every contact (sum p = {psum:g} after step {it + 1})"
             break
@@ -460,20 +470,22 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
             n_fft += 1
             n_single += 1
             n_increments += 1
-            psum, gv_max = kr.pk_rescale_increment(p, idx, nc, scale, u, dv32)
+            psum, gv_max = kr.pk_rescale_increment(pc, nc, scale, u, dv32)
             u_rounding = scale * (u_rounding + INCREMENT_ROUNDING * gv_max)
             pending = False  # u has every change, up to the increments' rounding (since_exact counts them)
             continue
         big = nproj + n_ol > lazy_max_changes
         exact = step32 or (pending and (it % lazy == 0 or big)) or since_exact >= refresh
-        psum = kr.pk_rescale(p, idx, nc, scale, u, w, tau, exact)  # not exact: u <- scale (u - tau r)
+        psum = kr.pk_rescale(pc, nc, scale, u, w, tau, exact)  # not exact: u <- scale (u - tau r)
         if exact:
+            kr.scatter_contact(pc, idx, nc, p)
             el.fft.apply_route(el.Gn, p, u, dot=False)
             n_fft += 1
             pending = False
             since_exact = 0
             u_rounding = 0.0
     bar.close()
+    kr.scatter_contact(pc, idx, nc, p)
     # displacement: z0 such that the gap vanishes on the contact set
     mask = p > 0
     z0 = float(np.mean((h - u)[mask])) if np.any(mask) else float(np.max(h - u))

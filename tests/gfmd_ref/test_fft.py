@@ -190,14 +190,17 @@ def test_single_precision_route_is_the_double_route_to_float32_rounding(rng, mak
 
 
 def test_step_increment_is_the_whole_pressure_change(rng):
-    """``pk_step`` with ``want_dv`` writes ``p_new - p_old`` (float32) at every node it
-    visits: the contact set's nodes, projected ones included (``-p_old``), and the
-    overlaps that join the set; elsewhere ``dv`` keeps its zeros, and so ``G dv`` is
-    the whole change of ``u`` (oracle: numpy's difference of the pressures before and
-    after, to float32 rounding, 1e-7 relative). Then ``pk_rescale_increment`` gives
+    """``pk_step`` on the packed contact set against numpy's step on the full grid: the new
+    set's indices, pressures (``p - tau t`` where positive, ``-tau g`` at the overlaps that
+    join) and directions (kept, 0 for new contacts) in index order, bit for bit (the same
+    operations); the mask and the full-grid direction ``t2`` zeroed where a node left.
+    With ``want_dv`` it writes ``p_new - p_old`` (float32) at every node it visits: the
+    contact set's nodes, projected ones included (``-p_old``), and the overlaps that
+    join; elsewhere ``dv`` keeps its zeros, and so ``G dv`` is the whole change of ``u``
+    (to float32 rounding, 1e-7 relative). Then ``pk_rescale_increment`` gives
     ``u = scale (u + G dv)`` (1e-15: one rounding of each operation), zeroes ``dv`` and
-    returns ``sum p`` and ``max |G dv|``."""
-    from gfmd_ref._kernels import pk_rescale_increment, pk_step
+    returns ``sum p`` and ``max |G dv|``; ``scatter_contact`` gives the full grid."""
+    from gfmd_ref._kernels import pk_rescale_increment, pk_step, scatter_contact
 
     n = 32
     p = np.zeros((n, n))
@@ -211,31 +214,87 @@ def test_step_increment_is_the_whole_pressure_change(rng):
     ol = np.sort(rng.choice(off, size=40, replace=False)).astype(np.int32)
     olg = rng.normal(size=n * n)  # the overlaps' gaps: about half of them join the set
     tau = 0.2
-    p_old = p.copy()
+    # numpy's step on the full grid
+    p_want = p.copy()
+    p_want.ravel()[idx] -= tau * t.ravel()[idx]
+    p_want.ravel()[ol] = -tau * olg[:40]
+    p_want[p_want < 0.0] = 0.0
+    on = np.flatnonzero(p_want.ravel() > 0.0)
+    t_want = np.where(c & (p_want > 0.0), t, 0.0)
+
+    pc, tc = p.ravel()[idx].copy(), t.ravel()[idx].copy()
+    pc_new, tc_new = np.full(n * n, np.nan), np.full(n * n, np.nan)
     dv = np.zeros((n, n), dtype=np.float32)
     idx_new = np.empty(n * n, dtype=np.int32)
     t2 = t.astype(np.float32)
-    nproj, s, nc = pk_step(p, c, t, idx, 300, ol, olg, 40, tau, idx_new, t2, dv, True)
+    c2 = c.copy()
+    nproj, s, nc = pk_step(pc, c2, tc, idx, 300, ol, olg, 40, tau, idx_new, pc_new, tc_new, t2, dv, True)
     assert nproj > 0 and nc > 300 - nproj  # projections and new contacts both happened
-    want = (p - p_old).ravel()
-    assert np.allclose(dv.ravel(), want, rtol=1e-7, atol=0.0)
+    assert np.array_equal(idx_new[:nc], on)
+    assert np.array_equal(pc_new[:nc], p_want.ravel()[on]) and np.array_equal(tc_new[:nc], t_want.ravel()[on])
+    assert np.array_equal(c2, p_want > 0.0) and np.array_equal(t2, t_want.astype(np.float32))
+    assert s == pytest.approx(np.sum(p_want), rel=1e-13)
+    assert np.allclose(dv.ravel(), (p_want - p).ravel(), rtol=1e-7, atol=0.0)
     visited = np.union1d(idx, ol)
     untouched = np.setdiff1d(np.arange(n * n), visited)
     assert not dv.ravel()[untouched].any()
+    full = np.full((n, n), np.nan)
+    scatter_contact(pc_new, idx_new, nc, full)
+    assert np.array_equal(full, p_want)
     # without want_dv the same step leaves dv alone
     dv2 = np.zeros((n, n), dtype=np.float32)
-    pk_step(p_old.copy(), (p_old > 0), t.copy(), idx, 300, ol, olg, 40, tau, idx_new, t2.copy(), dv2, False)
+    pk_step(pc.copy(), c.copy(), tc.copy(), idx, 300, ol, olg, 40, tau, idx_new, pc_new, tc_new, t2.copy(), dv2,
+            False)
     assert not dv2.any()
     # the update of u from G dv, and the zeroed dv
     u = rng.normal(size=(n, n))
     gv = rng.normal(size=(n, n)).astype(np.float32)
     u_want = 1.1 * (u + gv.astype(float))
     big_want = float(np.max(np.abs(gv)))
-    p_want = p.ravel()[idx_new[:nc]] * 1.1
-    s2, big = pk_rescale_increment(p, idx_new, nc, 1.1, u, gv)
+    pc_want = pc_new[:nc] * 1.1
+    s2, big = pk_rescale_increment(pc_new, nc, 1.1, u, gv)
     assert np.allclose(u, u_want, rtol=1e-15, atol=0.0) and not gv.any()
-    assert big == big_want
-    assert s2 == pytest.approx(np.sum(p_want), rel=1e-13)
+    assert big == big_want and np.array_equal(pc_new[:nc], pc_want)
+    assert s2 == pytest.approx(np.sum(pc_want), rel=1e-13)
+
+
+def test_gap_and_direction_read_the_packed_contact_set(rng):
+    """``pk_gap`` and ``pk_direction`` with the contact set's pressure and direction packed
+    in index order, against numpy on the full grid: the gap ``u - h - mean_c(u - h)`` on
+    the set (packed and masked), the overlaps, ``max_c |p g|`` (the packed pressure must
+    meet its own node) and the direction ``z - shift + beta t`` (packed, and on the full
+    grid where the FFT reads it); sums to round-off of 300 terms (1e-12)."""
+    from gfmd_ref._kernels import pk_direction, pk_gap
+
+    n = 32
+    c = np.zeros((n, n), dtype=np.bool_)
+    idx = np.sort(rng.choice(n * n, size=300, replace=False)).astype(np.int32)
+    c.ravel()[idx] = True
+    u, h = rng.normal(size=(n, n)), rng.normal(size=(n, n))
+    pc = rng.random(n * n) + 0.05
+    gcon, olg = np.empty(n * n), np.empty(n * n)
+    ol = np.empty(n * n, dtype=np.int32)
+    masked = np.full((n, n), np.nan)
+    sg, gn, comp, pen, m = pk_gap(u, h, pc, c, idx, 300, masked, True, gcon, ol, olg)
+    d = (u - h).ravel()
+    g = d - np.sum(d[idx]) / 300
+    assert np.allclose(gcon[:300], g[idx], rtol=0, atol=1e-14)
+    assert np.array_equal(masked.ravel()[idx], gcon[:300]) and not masked.ravel()[~c.ravel()].any()
+    over = np.flatnonzero(~c.ravel() & (g < 0))
+    assert np.array_equal(ol[:m], over) and np.array_equal(olg[:m], g[over] if False else olg[:m])
+    assert np.allclose(olg[:m], g[over], rtol=0, atol=1e-14)
+    assert comp == pytest.approx(np.max(np.abs(pc[:300] * g[idx])), rel=1e-12)
+    assert pen == pytest.approx(-np.min(g[over]), rel=1e-12)
+    assert sg == pytest.approx(np.sum(g[idx]), abs=1e-11) and gn == pytest.approx(np.sum(g[idx] ** 2), rel=1e-12)
+    z = rng.normal(size=(n, n)).astype(np.float32)
+    tc = rng.normal(size=n * n)
+    tc_old = tc[:300].copy()
+    t2 = np.zeros((n, n), dtype=np.float32)
+    st, sgt = pk_direction(z, False, gcon, idx, 300, tc, 0.3, 0.7, t2)
+    want = z.ravel()[idx].astype(float) - 0.3 + 0.7 * tc_old
+    assert np.array_equal(tc[:300], want) and np.array_equal(t2.ravel()[idx], want.astype(np.float32))
+    assert not t2.ravel()[~c.ravel()].any()
+    assert st == pytest.approx(np.sum(want), rel=1e-12) and sgt == pytest.approx(np.sum(gcon[:300] * want), rel=1e-12)
 
 
 def test_contact_sums_are_the_sums_over_the_contact_set(rng):
@@ -254,16 +313,16 @@ def test_contact_sums_are_the_sums_over_the_contact_set(rng):
 
 def test_contact_dot_is_the_sums_over_the_contact_set(rng):
     """``contact_dot`` (sum of r and of r t over the index list, float32 r accumulated in
-    double) against numpy on the same float64 values: round-off of 500 terms, 1e-12."""
+    double, t packed) against numpy on the same float64 values: round-off of 500 terms, 1e-12."""
     from gfmd_ref._kernels import contact_dot
 
     r = rng.normal(size=(32, 32)).astype(np.float32)
-    t = rng.normal(size=(32, 32))
+    tc = rng.normal(size=r.size)  # t on the contact set, packed in the order of idx
     idx = np.sort(rng.choice(r.size, size=500, replace=False)).astype(np.int32)
-    s, d = contact_dot(r, t, idx, 500)
+    s, d = contact_dot(r, tc, idx, 500)
     rr = r.ravel()[idx].astype(float)
     assert s == pytest.approx(np.sum(rr), rel=1e-12, abs=1e-12)
-    assert d == pytest.approx(np.sum(rr * t.ravel()[idx]), rel=1e-12)
+    assert d == pytest.approx(np.sum(rr * tc[:500]), rel=1e-12)
 
 
 @pytest.mark.parametrize("n", [256, 512])

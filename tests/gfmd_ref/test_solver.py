@@ -438,9 +438,9 @@ def test_a_step_that_removes_every_contact_is_reported(fig1_64, monkeypatch):
 
     real_step = kr.pk_step
 
-    def clearing_step(p, c, t, *args):
-        real_step(p, c, t, *args)
-        p[...] = 0.0
+    def clearing_step(pc, c, tc, *args):
+        real_step(pc, c, tc, *args)
+        pc[...] = 0.0
         c[...] = False
         return 0, 0.0, 0
 
