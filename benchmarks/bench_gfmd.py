@@ -430,9 +430,12 @@ def part_breakdown(n, reps=15, threads=None):
     nc = idx.size
     gcon, olg = np.empty(n2), np.empty(n2)
     ol = np.empty(n2, dtype=idx.dtype)
-    kr.pk_gap(u, h, p, c, idx, nc, w, True, gcon, ol, olg)
+    pc = p.ravel()[idx]  # the contact set's pressure and direction, packed as the solver keeps them
+    tc = np.zeros(nc)
+    pc_next, tc_next = np.empty(nc), np.empty(nc)
+    kr.pk_gap(u, h, pc, c, idx, nc, w, True, gcon, ol, olg)
     t[...] = 0.0
-    kr.pk_direction(w, True, gcon, idx, nc, t, 0.0, 0.5, t)
+    kr.pk_direction(w, True, gcon, idx, nc, tc, 0.0, 0.5, t)
     ops = {}
     if pr.name == "fftw":
         ops["FFT pair (plan execution only)"] = _raw_pair(pr)
@@ -443,20 +446,21 @@ def part_breakdown(n, reps=15, threads=None):
     Gn32 = el.Gn.astype(np.float32)
     pr.single_array(1)[...] = t
     ops["apply_single, t32 -> r32 (the step length's r = G t)"] = lambda: pr.apply_single(Gn32, 1, 2)
-    ops["contact_dot (contact set, float32 r)"] = lambda: kr.contact_dot(pr.single_array(2), t, idx, nc)
+    ops["contact_dot (contact set, float32 r)"] = lambda: kr.contact_dot(pr.single_array(2), tc, idx, nc)
     ops["apply_route (pair, multiplier and Parseval dot)"] = lambda: pr.apply_route(el.Gn, t, w)
     ops["apply_route, no dot (the exact u = G p)"] = lambda: pr.apply_route(el.Gn, t, w, dot=False)
     ops["pk_gap (the one full pass: u, h, mask -> masked gap)"] = lambda: kr.pk_gap(
-        u, h, p, c, idx, nc, w32, True, gcon, ol, olg)
+        u, h, pc, c, idx, nc, w32, True, gcon, ol, olg)
     ops["gather_sum (contact set)"] = lambda: kr.gather_sum(w, idx, nc)
     ops["contact_sums (contact set, float32 z)"] = lambda: kr.contact_sums(w32, gcon, idx, nc)
-    ops["pk_direction (contact set)"] = lambda: kr.pk_direction(w32, False, gcon, idx, nc, t, 0.0, 1.0, t)
+    ops["pk_direction (contact set)"] = lambda: kr.pk_direction(w32, False, gcon, idx, nc, tc, 0.0, 1.0, t)
     # tau = 0: the step and the rescaling leave the state as it is
     idx2 = np.empty_like(idx)
     ops["pk_step (contact set + overlaps, new index list)"] = lambda: kr.pk_step(
-        p, c, t, idx, nc, ol, olg, 0, 0.0, idx2, t, t, False)
-    ops["pk_rescale (contact set; exact u)"] = lambda: kr.pk_rescale(p, idx, nc, 1.0, u, w, 0.0, True)
-    ops["pk_rescale (incremental u: a full pass)"] = lambda: kr.pk_rescale(p, idx, nc, 1.0, u, w, 0.0, False)
+        pc, c, tc, idx, nc, ol, olg, 0, 0.0, idx2, pc_next, tc_next, t, t, False)
+    ops["pk_rescale (contact set; exact u)"] = lambda: kr.pk_rescale(pc, nc, 1.0, u, w, 0.0, True)
+    ops["pk_rescale (incremental u: a full pass)"] = lambda: kr.pk_rescale(pc, nc, 1.0, u, w, 0.0, False)
+    ops["scatter_contact (the full p of an exact u)"] = lambda: kr.scatter_contact(pc, idx, nc, w)
     a = [p.copy(), u.copy(), t.copy(), w.copy()]
 
     def traffic():  # 4 streaming passes: 8 reads, 4 writes
