@@ -433,7 +433,7 @@ def part_breakdown(n, reps=15, threads=None):
     pc = p.ravel()[idx]  # the contact set's pressure and direction, packed as the solver keeps them
     tc = np.zeros(nc)
     pc_next, tc_next = np.empty(nc), np.empty(nc)
-    kr.pk_gap(u, h, pc, c, idx, nc, w, True, gcon, ol, olg)
+    kr.pk_gap(u, h, pc, c, idx, nc, w, True, gcon, ol, olg, w, 1.0, 1.0, False)
     t[...] = 0.0
     kr.pk_direction(w, True, gcon, idx, nc, tc, 0.0, 0.5, t)
     ops = {}
@@ -450,7 +450,7 @@ def part_breakdown(n, reps=15, threads=None):
     ops["apply_route (pair, multiplier and Parseval dot)"] = lambda: pr.apply_route(el.Gn, t, w)
     ops["apply_route, no dot (the exact u = G p)"] = lambda: pr.apply_route(el.Gn, t, w, dot=False)
     ops["pk_gap (the one full pass: u, h, mask -> masked gap)"] = lambda: kr.pk_gap(
-        u, h, pc, c, idx, nc, w32, True, gcon, ol, olg)
+        u, h, pc, c, idx, nc, w32, True, gcon, ol, olg, w32, 1.0, 1.0, False)
     ops["gather_sum (contact set)"] = lambda: kr.gather_sum(w, idx, nc)
     ops["contact_sums (contact set, float32 z)"] = lambda: kr.contact_sums(w32, gcon, idx, nc)
     ops["pk_direction (contact set)"] = lambda: kr.pk_direction(w32, False, gcon, idx, nc, tc, 0.0, 1.0, t)
@@ -460,6 +460,10 @@ def part_breakdown(n, reps=15, threads=None):
         pc, c, tc, idx, nc, ol, olg, 0, 0.0, idx2, pc_next, tc_next, t, t, False)
     ops["pk_rescale (contact set; exact u)"] = lambda: kr.pk_rescale(pc, nc, 1.0, u, w, 0.0, True)
     ops["pk_rescale (incremental u: a full pass)"] = lambda: kr.pk_rescale(pc, nc, 1.0, u, w, 0.0, False)
+    gv32 = pr.single_array(3)
+    gv32[...] = 0.0  # folded in with scale 1: u stays as it is
+    ops["pk_gap, increment folded in (u updated, G dv zeroed)"] = lambda: kr.pk_gap(
+        u, h, pc, c, idx, nc, w32, True, gcon, ol, olg, gv32, 1.0, 1.0, True)
     ops["scatter_contact (the full p of an exact u)"] = lambda: kr.scatter_contact(pc, idx, nc, w)
     a = [p.copy(), u.copy(), t.copy(), w.copy()]
 

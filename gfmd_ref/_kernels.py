@@ -158,38 +158,62 @@ def contact_dot(r, tc, idx, nc):
 
 
 @njit(cache=True, error_model="numpy")
-def pk_gap(u, h, pc, c, idx, nc, masked, want_masked, gcon, ol, olg):
+def pk_gap(u, h, pc, c, idx, nc, masked, want_masked, gcon, ol, olg, gv, a, scale, fold):
     """Gap ``g = u - h - gbar`` with ``gbar`` the mean of ``u - h`` over the contact set,
     one full pass. ``gcon[k]`` = ``g`` at ``idx[k]`` (``pc[k]``, the pressure there, packed
     in the same order); the overlaps (``g < 0`` off the set) go to ``ol[:n_overlap]``
     (indices) and ``olg`` (their gaps); with ``want_masked`` also ``masked = g`` on the
     set, 0 elsewhere (the input of the preconditioner's FFT).
-    Returns ``(sum_c g, sum_c g^2, max_c |p g|, max(-g) off the set, n_overlap)``."""
+
+    With ``fold`` the pass first brings ``u`` up to date: ``u = scale (u + a gv)``, the
+    last step's increment (``gv = G dv``, float32, :func:`pk_step`'s ``dv`` transformed in
+    place; ``a = 1``), and zeroes ``gv`` for the next step's ``dv``; the gap is that of
+    the new ``u``, the same bits as a separate pass over ``u`` before it (which this
+    fold saves: one read and write of ``u`` per step).
+    Returns ``(sum_c g, sum_c g^2, max_c |p g|, max(-g) off the set, n_overlap,
+    max |gv|)`` (the last 0 without ``fold``)."""
     uf = u.ravel()
     hf = h.ravel()
     cf = c.ravel()
     mf = masked.ravel()
+    gf = gv.ravel()
     s = 0.0
-    for k in range(nc):
-        i = idx[k]
-        s += uf[i] - hf[i]
+    if fold:
+        for k in range(nc):
+            i = idx[k]
+            s += scale * (uf[i] + a * float(gf[i])) - hf[i]
+    else:
+        for k in range(nc):
+            i = idx[k]
+            s += uf[i] - hf[i]
     gbar = s / nc if nc > 0 else 0.0
     sg = 0.0
     gn = 0.0
     comp = 0.0
     pen = 0.0
+    big = 0.0
     k = 0
     m = 0
     for i in range(uf.size):
-        gi = uf[i] - hf[i] - gbar
+        if fold:
+            x = float(gf[i])
+            ui = scale * (uf[i] + a * x)
+            uf[i] = ui
+            gf[i] = 0.0
+            ax = abs(x)
+            if ax > big:
+                big = ax
+        else:
+            ui = uf[i]
+        gi = ui - hf[i] - gbar
         if cf[i]:
             gcon[k] = gi
-            a = abs(pc[k] * gi)
+            ap = abs(pc[k] * gi)
             k += 1
             sg += gi
             gn += gi * gi
-            if a > comp:
-                comp = a
+            if ap > comp:
+                comp = ap
             if want_masked:
                 mf[i] = gi
         else:
@@ -201,7 +225,7 @@ def pk_gap(u, h, pc, c, idx, nc, masked, want_masked, gcon, ol, olg):
                 m += 1
             if want_masked:
                 mf[i] = 0.0
-    return sg, gn, comp, pen, m
+    return sg, gn, comp, pen, m, big
 
 
 @njit(cache=True, error_model="numpy")
@@ -237,7 +261,7 @@ def pk_step(pc, c, tc, idx, nc, ol, olg, n_overlap, tau, idx_new, pc_new, tc_new
     index order. The load is restored by :func:`pk_rescale`. With ``want_dv`` the whole
     change of every node it visits, projections and new contacts included, goes to ``dv``
     (full grid, ``p_new - p_old``, float32; the caller keeps ``dv`` zero elsewhere): the
-    increment whose ``G dv`` updates ``u`` (:func:`pk_rescale_increment`).
+    increment whose ``G dv`` updates ``u`` (:func:`pk_gap`'s ``fold``).
     Returns ``(n_projected, sum p, new nc)``."""
     cf = c.ravel()
     t2f = t2.ravel()
@@ -279,27 +303,6 @@ def pk_step(pc, c, tc, idx, nc, ol, olg, n_overlap, tau, idx_new, pc_new, tc_new
         idx_new[n] = i
         n += 1
     return nproj, s, n
-
-
-@njit(cache=True, error_model="numpy")
-def pk_rescale_increment(pc, nc, scale, u, gv):
-    """``p *= scale`` on the contact set (packed ``pc[:nc]``: the load back at ``p0``) and
-    ``u = scale (u + G dv)`` from ``gv = G dv`` (float32: :func:`pk_step`'s increment
-    ``dv`` transformed in place), which this full pass also zeroes for the next step's
-    ``dv``. Returns ``(sum p after the scaling, max |G dv|)`` (the size the increment's
-    rounding scales with)."""
-    s = pk_rescale(pc, nc, scale, u, u, 0.0, True)  # p on the contact set (exact: u is left to this pass)
-    uf = u.ravel()
-    gf = gv.ravel()
-    big = 0.0
-    for i in range(uf.size):
-        x = float(gf[i])
-        uf[i] = scale * (uf[i] + x)
-        gf[i] = 0.0
-        a = abs(x)
-        if a > big:
-            big = a
-    return s, big
 
 
 @njit(cache=True, error_model="numpy")

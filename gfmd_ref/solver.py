@@ -276,7 +276,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     With :data:`INCREMENT_U32` (default) the double pair runs only now and then: the step's
     whole pressure change ``dv`` (projections and new contacts included, written by
     :func:`~._kernels.pk_step`) is transformed in single precision and
-    ``u <- scale (u + G dv)`` (:func:`~._kernels.pk_rescale_increment`). Its rounding is
+    ``u <- scale (u + G dv)`` (folded into the next gap pass, :func:`~._kernels.pk_gap`). Its rounding is
     relative to the increment, not to ``u`` (2-4e-7 of ``max |G dv|``), so the bound
     :data:`INCREMENT_ROUNDING` ``sum max |G dv|`` is tracked and an exact ``u`` taken
     where it could exceed :data:`INCREMENT_SHARE` of the residual, where the residual
@@ -382,20 +382,28 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     def contact_mean(x):
         return kr.gather_sum(x, idx, nc) / nc if nc > 0 else 0.0
 
+    # the last step's increment of u (u <- scale (u + G dv), G dv in dv32) waits for the next gap pass, which folds
+    # it in (pk_gap's fold: one full pass instead of two)
+    fold, fold_scale = False, 1.0
+
     def residual():
-        sg, gn, comp, pen, n_ol = kr.pk_gap(u, h, pc, c, idx, nc, mdst, precond, gcon, ol, olg)
+        sg, gn, comp, pen, n_ol, gv_max = kr.pk_gap(u, h, pc, c, idx, nc, mdst, precond, gcon, ol, olg, dv32, 1.0,
+                                                    fold_scale, fold)
         load = abs(psum / n2 - p0) / p0
-        return sg, gn, n_ol, max(load, comp / (p0 * h_scale), pen / h_scale)
+        return sg, gn, n_ol, max(load, comp / (p0 * h_scale), pen / h_scale), gv_max
 
     while True:
-        sg, gn, n_ol, res = residual()
+        sg, gn, n_ol, res, gv_max = residual()
+        if fold:
+            u_rounding = fold_scale * (u_rounding + INCREMENT_ROUNDING * gv_max)
+            fold = False
         if (res < tol or it >= max_iter) and (pending or since_exact > 0):
             kr.scatter_contact(pc, idx, nc, p)
             el.fft.apply_route(el.Gn, p, u, dot=False)
             n_fft += 1
             pending = False
             since_exact = 0
-            sg, gn, n_ol, res = residual()
+            sg, gn, n_ol, res, _ = residual()
             u_rounding = 0.0
         hist.append(res)
         stamps.append((it, time.perf_counter() - tstart))
@@ -465,13 +473,14 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         since_exact += 1
         if nproj or n_ol:
             pending = True
-        if use_incr:  # u <- scale (u + G dv), G dv in single precision (in place on dv, which the pass zeroes)
+        if use_incr:  # u <- scale (u + G dv), G dv in single precision (in place on dv, which the next gap pass
+            # folds into u and zeroes)
             el.fft.apply_single(Gn32, 3)
             n_fft += 1
             n_single += 1
             n_increments += 1
-            psum, gv_max = kr.pk_rescale_increment(pc, nc, scale, u, dv32)
-            u_rounding = scale * (u_rounding + INCREMENT_ROUNDING * gv_max)
+            psum = kr.pk_rescale(pc, nc, scale, u, u, 0.0, True)  # the pressure now, u in the next gap pass
+            fold, fold_scale = True, scale
             pending = False  # u has every change, up to the increments' rounding (since_exact counts them)
             continue
         big = nproj + n_ol > lazy_max_changes

@@ -197,10 +197,9 @@ def test_step_increment_is_the_whole_pressure_change(rng):
     With ``want_dv`` it writes ``p_new - p_old`` (float32) at every node it visits: the
     contact set's nodes, projected ones included (``-p_old``), and the overlaps that
     join; elsewhere ``dv`` keeps its zeros, and so ``G dv`` is the whole change of ``u``
-    (to float32 rounding, 1e-7 relative). Then ``pk_rescale_increment`` gives
-    ``u = scale (u + G dv)`` (1e-15: one rounding of each operation), zeroes ``dv`` and
-    returns ``sum p`` and ``max |G dv|``; ``scatter_contact`` gives the full grid."""
-    from gfmd_ref._kernels import pk_rescale_increment, pk_step, scatter_contact
+    (to float32 rounding, 1e-7 relative). ``scatter_contact`` gives the full grid. The
+    next gap pass folds the increment in: ``u = scale (u + G dv)``, ``G dv`` zeroed."""
+    from gfmd_ref._kernels import pk_gap, pk_step, scatter_contact
 
     n = 32
     p = np.zeros((n, n))
@@ -246,16 +245,21 @@ def test_step_increment_is_the_whole_pressure_change(rng):
     pk_step(pc.copy(), c.copy(), tc.copy(), idx, 300, ol, olg, 40, tau, idx_new, pc_new, tc_new, t2.copy(), dv2,
             False)
     assert not dv2.any()
-    # the update of u from G dv, and the zeroed dv
+    # the increment folded into the next gap pass: u = scale (u + G dv) (numpy's two operations, the same bits), G dv
+    # zeroed, max |G dv| returned, and the gap that of the new u, bit for bit as a pass over the updated u gives it
     u = rng.normal(size=(n, n))
+    h = rng.normal(size=(n, n))
     gv = rng.normal(size=(n, n)).astype(np.float32)
     u_want = 1.1 * (u + gv.astype(float))
     big_want = float(np.max(np.abs(gv)))
-    pc_want = pc_new[:nc] * 1.1
-    s2, big = pk_rescale_increment(pc_new, nc, 1.1, u, gv)
-    assert np.allclose(u, u_want, rtol=1e-15, atol=0.0) and not gv.any()
-    assert big == big_want and np.array_equal(pc_new[:nc], pc_want)
-    assert s2 == pytest.approx(np.sum(pc_want), rel=1e-13)
+    outs = []
+    for uu, fold in ((u, True), (u_want.copy(), False)):
+        bufs = (np.empty((n, n)), np.empty(n * n), np.empty(n * n, dtype=np.int32), np.empty(n * n))
+        r = pk_gap(uu, h, pc_new, c2, idx_new, nc, bufs[0], True, *bufs[1:], gv, 1.0, 1.1, fold)
+        outs.append((r[:5], bufs[0], bufs[1][:nc], bufs[2][:r[4]], bufs[3][:r[4]], r[5]))
+    assert np.array_equal(u, u_want) and not gv.any()
+    assert outs[0][5] == big_want and outs[1][5] == 0.0
+    assert outs[0][0] == outs[1][0] and all(np.array_equal(x, y) for x, y in zip(outs[0][1:5], outs[1][1:5]))
 
 
 def test_gap_and_direction_read_the_packed_contact_set(rng):
@@ -275,13 +279,15 @@ def test_gap_and_direction_read_the_packed_contact_set(rng):
     gcon, olg = np.empty(n * n), np.empty(n * n)
     ol = np.empty(n * n, dtype=np.int32)
     masked = np.full((n, n), np.nan)
-    sg, gn, comp, pen, m = pk_gap(u, h, pc, c, idx, 300, masked, True, gcon, ol, olg)
+    gv = np.ones((n, n), dtype=np.float32)  # not read without fold
+    sg, gn, comp, pen, m, big = pk_gap(u, h, pc, c, idx, 300, masked, True, gcon, ol, olg, gv, 1.0, 1.0, False)
+    assert big == 0.0 and gv.all()
     d = (u - h).ravel()
     g = d - np.sum(d[idx]) / 300
     assert np.allclose(gcon[:300], g[idx], rtol=0, atol=1e-14)
     assert np.array_equal(masked.ravel()[idx], gcon[:300]) and not masked.ravel()[~c.ravel()].any()
     over = np.flatnonzero(~c.ravel() & (g < 0))
-    assert np.array_equal(ol[:m], over) and np.array_equal(olg[:m], g[over] if False else olg[:m])
+    assert np.array_equal(ol[:m], over)
     assert np.allclose(olg[:m], g[over], rtol=0, atol=1e-14)
     assert comp == pytest.approx(np.max(np.abs(pc[:300] * g[idx])), rel=1e-12)
     assert pen == pytest.approx(-np.min(g[over]), rel=1e-12)
