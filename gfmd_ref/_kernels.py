@@ -325,6 +325,14 @@ def pk_rescale(pc, nc, scale, u, r, tau, exact):
 
 
 @njit(cache=True, error_model="numpy")
+def zero_at(x, idx, nc):
+    """``x[idx[k]] = 0`` for ``k < nc`` (the nodes a step wrote its increment to)."""
+    xf = x.ravel()
+    for k in range(nc):
+        xf[idx[k]] = 0.0
+
+
+@njit(cache=True, error_model="numpy")
 def scatter_contact(pc, idx, nc, p):
     """The full grid of a packed field: ``p = 0``, then ``p[idx[k]] = pc[k]`` for ``k < nc``
     (the pressure the exact ``u = G p`` and the answer need)."""

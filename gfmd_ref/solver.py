@@ -220,6 +220,9 @@ INCREMENT_ROUNDING = 2e-6
 #: (measured on a search since reverted: 1e-2 added 4-13 iterations at 512^2-1024^2, 1e-3 and 1e-4 none)
 INCREMENT_SHARE = 1e-4
 INCREMENT_STALL = 10
+#: ... a step that neither projected a node nor added one changed ``p`` by ``-tau t`` alone: its increment is
+#: ``-tau r`` with the step length's ``r = G t`` (single precision, the same rounding), and its FFT pair is saved
+INCREMENT_REUSE_R = True
 #: ``newton``: the inner CG's ``G d`` in single precision (the line search, ``u`` and the
 #: residual in double)
 SINGLE_NEWTON_CG = True
@@ -384,18 +387,20 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
 
     # the last step's increment of u (u <- scale (u + G dv), G dv in dv32) waits for the next gap pass, which folds
     # it in (pk_gap's fold: one full pass instead of two)
-    fold, fold_scale = False, 1.0
+    # (or, after a step that kept the contact set, u <- scale (u - tau r) with r = G t in r32)
+    fold, fold_scale, fold_a, fold_gv = False, 1.0, 1.0, dv32
+    n_reused = 0
 
     def residual():
-        sg, gn, comp, pen, n_ol, gv_max = kr.pk_gap(u, h, pc, c, idx, nc, mdst, precond, gcon, ol, olg, dv32, 1.0,
-                                                    fold_scale, fold)
+        sg, gn, comp, pen, n_ol, gv_max = kr.pk_gap(u, h, pc, c, idx, nc, mdst, precond, gcon, ol, olg, fold_gv,
+                                                    fold_a, fold_scale, fold)
         load = abs(psum / n2 - p0) / p0
         return sg, gn, n_ol, max(load, comp / (p0 * h_scale), pen / h_scale), gv_max
 
     while True:
         sg, gn, n_ol, res, gv_max = residual()
         if fold:
-            u_rounding = fold_scale * (u_rounding + INCREMENT_ROUNDING * gv_max)
+            u_rounding = fold_scale * (u_rounding + INCREMENT_ROUNDING * abs(fold_a) * gv_max)
             fold = False
         if (res < tol or it >= max_iter) and (pending or since_exact > 0):
             kr.scatter_contact(pc, idx, nc, p)
@@ -459,6 +464,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         # the residual, or the residual stalls, or refresh increments ran
         use_incr = incr and not (u_rounding > INCREMENT_SHARE * res * h_scale or since_exact + 1 >= refresh
                                  or it - it_best > INCREMENT_STALL)
+        nc_before = nc
         nproj, psum, nc = kr.pk_step(pc, c, tc, idx, nc, ol, olg, n_ol, tau, idx_next, pc_next, tc_next, t2, dv32,
                                      use_incr)
         idx, idx_next = idx_next, idx
@@ -475,10 +481,16 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
             pending = True
         if use_incr:  # u <- scale (u + G dv), G dv in single precision (in place on dv, which the next gap pass
             # folds into u and zeroes)
-            el.fft.apply_single(Gn32, 3)
-            n_fft += 1
-            n_single += 1
             n_increments += 1
+            if INCREMENT_REUSE_R and nproj == 0 and nc == nc_before:  # the set kept: dv = -tau t, G dv = -tau r
+                kr.zero_at(dv32, idx, nc)
+                fold_gv, fold_a = r32, -tau
+                n_reused += 1
+            else:
+                el.fft.apply_single(Gn32, 3)
+                n_fft += 1
+                n_single += 1
+                fold_gv, fold_a = dv32, 1.0
             psum = kr.pk_rescale(pc, nc, scale, u, u, 0.0, True)  # the pressure now, u in the next gap pass
             fold, fold_scale = True, scale
             pending = False  # u has every change, up to the increments' rounding (since_exact counts them)
@@ -511,7 +523,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         stop=("converged" if converged else lost if lost else _stalled_message(stall, res) if stalled
               else "max_iter"),
         info=dict(h_scale=h_scale, fft_pairs=n_fft, fft_pairs_single=n_single,
-                  u_increments=n_increments,
+                  u_increments=n_increments, u_increments_reusing_r=n_reused,
                   history_stamps=np.asarray(stamps)),
     )
 
