@@ -396,7 +396,7 @@ def part_threads(sizes, rounds=5, reps=8, solve_n=1024, solve_rounds=2):
     return out
 
 
-def part_breakdown(n, reps=15, threads=None):
+def part_breakdown(n, reps=15, threads=None, rounds=0):
     """Where the time of one CCG iteration goes at ``n^2``: each kernel and FFT of the
     iteration timed on the arrays of a converged solve (medians of ``reps``), against
     the floor = (FFT pairs per iteration) x (one raw FFT pair, plan execution only, the
@@ -407,7 +407,13 @@ def part_breakdown(n, reps=15, threads=None):
     list otherwise). Both ``ccg`` (preconditioned: per iteration the preconditioner's and
     the step length's pairs and, between the few exact ``u = G p`` in double, the
     increment's, all three in single precision; the floor counts each pair at its own raw
-    cost) and ``pk`` (plain, about 1.3 pairs) are measured in the same run."""
+    cost) and ``pk`` (plain, about 1.3 pairs) are measured in the same run.
+
+    ``rounds`` > 0 adds paired rounds for ``ccg``: each round times the raw pairs and the vector floor (medians of
+    ``reps``) right before and right after one solve, and takes that round's ratio against the mean of the two. The
+    machine's speed drifts by up to 1.6x within minutes on some days; a ratio from parts measured seconds apart
+    follows it, where one from a table measured minutes away from the solve does not. The median and the range of
+    the rounds' ratios are printed."""
     import gfmd_ref as g
     from gfmd_ref import _kernels as kr
     from gfmd_ref.solver import _Elastic
@@ -501,6 +507,38 @@ def part_breakdown(n, reps=15, threads=None):
               f"{per_it:.2f} ms/it; floor {floor:.2f} ms/it ({ppi - spi:.2f} x {raw:.2f} + {spi:.2f} x {raw32:.2f}"
               f" + {vec:.2f}); "
               f"ratio {per_it / floor:.2f}; total {r.wall_time:.2f} s", flush=True)
+    if rounds:
+        raw_ops = {k: ops[k] for k in ("FFT pair (plan execution only)",
+                                       "FFT pair, single precision (plan execution only)",
+                                       "vector floor (4 passes: 8 reads, 4 writes)") if k in ops}
+
+        def parts():
+            return {k: 1e3 * _median_time(f, reps) for k, f in raw_ops.items()}
+
+        paired = []
+        for _ in range(rounds):
+            before = parts()
+            r = g.solve_contact(h, length=L, E_star=E_STAR, mean_pressure=P0, interaction=g.HardWall(), tol=1e-8,
+                                threads=threads, method="ccg")
+            after = parts()
+            mean = {k: 0.5 * (before[k] + after[k]) for k in before}
+            raw = mean.get("FFT pair (plan execution only)", times["apply_route (pair, multiplier and Parseval dot)"])
+            raw32 = mean.get("FFT pair, single precision (plan execution only)",
+                             times["apply_single (single-precision pair, multiplier)"])
+            vec = mean["vector floor (4 passes: 8 reads, 4 writes)"]
+            per_it = 1e3 * (r.wall_time - r.info["fft_planning_time"]) / r.iterations
+            spi = r.info.get("fft_pairs_single", 0) / r.iterations
+            floor = (r.info["fft_pairs"] / r.iterations - spi) * raw + spi * raw32 + vec
+            paired.append(dict(ms_per_iteration=per_it, floor_ms_per_iteration=floor, ratio_to_floor=per_it / floor,
+                               raw_pair_ms=raw, raw_single_pair_ms=raw32, vector_ms=vec,
+                               raw_single_drift=after.get("FFT pair, single precision (plan execution only)", 0.0)
+                               / before.get("FFT pair, single precision (plan execution only)", 1.0)))
+            print(f"    paired round: ccg {per_it:.2f} ms/it, floor {floor:.2f} (single pair {raw32:.2f} ms, "
+                  f"{paired[-1]['raw_single_drift']:.2f}x after/before); ratio {per_it / floor:.2f}", flush=True)
+        ratios = [x["ratio_to_floor"] for x in paired]
+        out["paired_rounds"] = paired
+        print(f"    ccg, {rounds} paired rounds: ratio median {np.median(ratios):.2f} (range {min(ratios):.2f}-"
+              f"{max(ratios):.2f})", flush=True)
     return out
 
 
@@ -638,6 +676,8 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="small sizes (about a minute)")
     ap.add_argument("--n", type=int, default=None, help="size of the hard/exp runs")
     ap.add_argument("--repeats", type=int, default=None)
+    ap.add_argument("--rounds", type=int, default=0,
+                    help="breakdown: paired rounds (raw pairs timed right before and after each ccg solve)")
     ap.add_argument("--n4096", action="store_true", help="add 4096^2 to the scaling table")
     ap.add_argument("--no-fire", action="store_true", help="skip the FIRE runs")
     ap.add_argument("--sizes", type=int, nargs="+", default=None, help="scaling sizes")
@@ -677,7 +717,7 @@ def main(argv=None):
             with open(os.path.join(RESULTS, "gfmd_match.json"), "w") as fh:
                 json.dump(results, fh, indent=1, default=float)
     if args.part == "breakdown":
-        results["breakdown"] = [part_breakdown(m) for m in (args.sizes or [1024, 2048])]
+        results["breakdown"] = [part_breakdown(m, rounds=args.rounds) for m in (args.sizes or [1024, 2048])]
     if args.part in ("hard", "all"):
         print(f"== hard wall, n={n}")
         results["hard"] = part_hard(n, repeats, fire=0 if args.no_fire else args.fire_cap)
