@@ -306,6 +306,24 @@ def pk_step(pc, c, tc, idx, nc, ol, olg, n_overlap, tau, idx_new, pc_new, tc_new
 
 
 @njit(cache=True, error_model="numpy")
+def apply_increment(u, gv, a, scale):
+    """``u = scale (u + a gv)`` (``gv`` float32: ``G dv``, or the step length's ``r`` with
+    ``a = -tau``) and ``gv`` zeroed, one full pass: :func:`pk_gap`'s ``fold`` as a pass of
+    its own. Returns ``max |gv|``."""
+    uf = u.ravel()
+    gf = gv.ravel()
+    big = 0.0
+    for i in range(uf.size):
+        x = float(gf[i])
+        uf[i] = scale * (uf[i] + a * x)
+        gf[i] = 0.0
+        ax = abs(x)
+        if ax > big:
+            big = ax
+    return big
+
+
+@njit(cache=True, error_model="numpy")
 def pk_rescale(pc, nc, scale, u, r, tau, exact):
     """``p *= scale`` on the contact set (packed ``pc[:nc]``: the load back at ``p0``);
     unless ``exact`` (an exact ``u = G p`` follows) also the incremental

@@ -223,6 +223,8 @@ INCREMENT_STALL = 10
 #: ... a step that neither projected a node nor added one changed ``p`` by ``-tau t`` alone: its increment is
 #: ``-tau r`` with the step length's ``r = G t`` (single precision, the same rounding), and its FFT pair is saved
 INCREMENT_REUSE_R = True
+#: ... the increment applied by the next gap pass (True) or by a full pass of its own
+FOLD_INCREMENT = True
 #: ``newton``: the inner CG's ``G d`` in single precision (the line search, ``u`` and the
 #: residual in double)
 SINGLE_NEWTON_CG = True
@@ -492,7 +494,11 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
                 n_single += 1
                 fold_gv, fold_a = dv32, 1.0
             psum = kr.pk_rescale(pc, nc, scale, u, u, 0.0, True)  # the pressure now, u in the next gap pass
-            fold, fold_scale = True, scale
+            if FOLD_INCREMENT:
+                fold, fold_scale = True, scale
+            else:
+                gv_max = kr.apply_increment(u, fold_gv, fold_a, scale)
+                u_rounding = scale * (u_rounding + INCREMENT_ROUNDING * abs(fold_a) * gv_max)
             pending = False  # u has every change, up to the increments' rounding (since_exact counts them)
             continue
         big = nproj + n_ol > lazy_max_changes
