@@ -304,7 +304,9 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     ``p0``); its contact set is where it is positive.
     Every FFT pair goes between work arrays of the cached FFT pair
     (:meth:`FFTWPair.apply_route`: no copy in or out), one full pass per iteration
-    (the gap) and the rest on the contact set's index list (see :mod:`._kernels`).
+    (the gap, which also applies the last increment of ``u``) and the rest on the contact
+    set's sorted index list, with the pressure and the direction packed in its order (the
+    full grid ``p`` is written only for an exact ``u`` and the answer; see :mod:`._kernels`).
     """
     n2 = h.size
     # work arrays of the cached FFT pair, transformed where they lie (no copies): the
