@@ -1,8 +1,8 @@
-"""GFMD hard wall, ``ccg``: one switch of ``gfmd_ref.solver`` on against off, in fresh processes.
+"""GFMD hard wall, ``ccg``: one switch of ``gfmd_ref.solver`` on against off, in fresh processes or in one.
 
 ``--flag INCREMENT_U32`` (``u`` updated by the single-precision ``G dv`` between exact ``u = G p`` against an exact
 ``u`` after every step; the default) or another boolean switch of ``gfmd_ref.solver`` (``SINGLE_STEP``,
-``SINGLE_PRECOND``); every other switch keeps its default. (``STEP_PARSEVAL``, measured with it in the forty-third
+``SINGLE_PRECOND``, ``INCREMENT_REUSE_R``, ``FOLD_INCREMENT``); every other switch keeps its default. (``STEP_PARSEVAL``, measured with it in the forty-third
 session, was reverted: ``results/gfmd_step_parseval_1024.md``.) Each variant runs in its own fresh process, the two
 alternating, ``--rounds`` times per surface; a process makes its plans, solves once to warm up, then ``--repeats``
 times, and reports the median of those warm solves (wall time without planning), the iterations and the pressure.
@@ -11,9 +11,15 @@ per-round ratios (each round's two processes ran back to back), and the largest 
 variants' answers (in ``p0``).
 
     python benchmarks/gfmd_flag_ab.py [--flag INCREMENT_U32] [--n 1024] [--seeds 1 2 3] [--rounds 3] [--repeats 3]
-                                      [--tol 1e-8]
+                                      [--tol 1e-8] [--in-process]
 
 Writes ``results/gfmd_<flag>_<n>.md`` (e.g. ``gfmd_increment_u32_<n>.md``).
+
+``--in-process``: both variants in this process, the switch flipped between solves, ``rounds x repeats`` pairs per
+surface (on/off, then off/on, ...) after one warm-up solve; printed per surface the median of the pairs' ratios
+on/off with its quartiles and the ratio of the medians. On days when fresh processes of the same code scattered by
+1.8-3.1 s at 1024² (the forty-fourth session), this resolved differences of 5 %. Writes
+``results/gfmd_<flag>_<n>_inproc.md``.
 """
 from __future__ import annotations
 
@@ -58,20 +64,68 @@ def child(n, seed, tol, flag, repeats, out, name):
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
+def in_process(args) -> list:
+    """The in-process rows: the switch flipped between alternating solves."""
+    import gfmd_ref as g
+    from gfmd_ref import solver
+
+    rows = []
+    for seed in args.seeds:
+        h, length = g.fig1_surface(args.n, seed=seed)
+        kw = dict(length=length, E_star=E_STAR, mean_pressure=P0, interaction=g.HardWall(), tol=args.tol,
+                  method="ccg")
+        g.solve_contact(h, **kw)  # plans and compiled kernels
+        times = {True: [], False: []}
+        ratios, last = [], {}
+        try:
+            for k in range(args.rounds * args.repeats):
+                for flag in ((True, False) if k % 2 == 0 else (False, True)):
+                    setattr(solver, args.flag, flag)
+                    last[flag] = g.solve_contact(h, **kw)
+                    times[flag].append(last[flag].wall_time)
+                ratios.append(times[True][-1] / times[False][-1])
+        finally:
+            setattr(solver, args.flag, True)
+        dp = float(np.max(np.abs(last[True].pressure - last[False].pressure))) / P0
+        q25, q50, q75 = np.quantile(ratios, [0.25, 0.5, 0.75])
+        row = (f"| {seed} | {last[True].iterations} / {last[False].iterations} | {len(ratios)} | "
+               f"{statistics.median(times[True]):.3f} | {statistics.median(times[False]):.3f} | "
+               f"{statistics.median(times[True]) / statistics.median(times[False]):.3f} | "
+               f"{q50:.3f} ({q25:.3f}-{q75:.3f}) | {dp:.1e} |")
+        print(row, flush=True)
+        rows.append(row)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--flag", default="INCREMENT_U32", choices=["INCREMENT_U32", "SINGLE_STEP", "SINGLE_PRECOND"])
+    ap.add_argument("--flag", default="INCREMENT_U32", choices=["INCREMENT_U32", "SINGLE_STEP", "SINGLE_PRECOND",
+                                                                "INCREMENT_REUSE_R", "FOLD_INCREMENT"])
     ap.add_argument("--n", type=int, default=1024)
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--tol", type=float, default=1e-8)
+    ap.add_argument("--in-process", action="store_true", help="flip the switch between solves in this process")
     args = ap.parse_args()
     with open("/proc/loadavg") as fh:
         load = " ".join(fh.read().split()[:3])
     what = {"INCREMENT_U32": "`u` by single-precision increments against an exact `u` after every step",
             "SINGLE_STEP": "step length's pair in single precision against double",
-            "SINGLE_PRECOND": "preconditioner's pair in single precision against double"}[args.flag]
+            "SINGLE_PRECOND": "preconditioner's pair in single precision against double",
+            "INCREMENT_REUSE_R": "the increment of a step that kept the contact set from `r = G t` against its own pair",
+            "FOLD_INCREMENT": "the increment applied by the next gap pass against a pass of its own"}[args.flag]
+    if args.in_process:
+        lines = [f"# `ccg` {what} ({args.n}^2, Fig. 1 surface, tol {args.tol:g}; `{args.flag}` on / off, one process)",
+                 "", f"The switch flipped between alternating solves, {args.rounds * args.repeats} pairs per seed after "
+                 f"a warm-up; load at the start {load}.", "",
+                 "| seed | iterations (on / off) | pairs | on median [s] | off median [s] | ratio of medians "
+                 "| median pair ratio (q25-q75) | max dp [p0] |", "|---|---|---|---|---|---|---|---|"]
+        lines += in_process(args)
+        out = HERE / "results" / f"gfmd_{args.flag.lower()}_{args.n}_inproc.md"
+        out.write_text("\n".join(lines) + "\n")
+        print(f"wrote {out}")
+        return
     lines = [f"# `ccg` {what} ({args.n}^2, Fig. 1 surface, tol {args.tol:g}; `{args.flag}` on / off)", "",
              f"Fresh process per variant, alternating, {args.rounds} rounds, median of {args.repeats} warm solves per "
              f"process; load at the start {load}.", "",
