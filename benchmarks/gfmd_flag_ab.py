@@ -2,8 +2,8 @@
 
 ``--flag INCREMENT_U32`` (``u`` updated by the single-precision ``G dv`` between exact ``u = G p`` against an exact
 ``u`` after every step; the default) or another boolean switch of ``gfmd_ref.solver`` (``SINGLE_STEP``,
-``SINGLE_PRECOND``, ``INCREMENT_REUSE_R``, ``FOLD_INCREMENT``); every other switch keeps its default. (``STEP_PARSEVAL``, measured with it in the forty-third
-session, was reverted: ``results/gfmd_step_parseval_1024.md``.) Each variant runs in its own fresh process, the two
+``SINGLE_PRECOND``, ``INCREMENT_REUSE_R``, ``FOLD_INCREMENT``); every other switch keeps its default.
+(``STEP_PARSEVAL``, measured with it in the forty-third session, was reverted: ``results/gfmd_step_parseval_1024.md``.) Each variant runs in its own fresh process, the two
 alternating, ``--rounds`` times per surface; a process makes its plans, solves once to warm up, then ``--repeats``
 times, and reports the median of those warm solves (wall time without planning), the iterations and the pressure.
 Printed per surface: the iterations, the medians of each variant, the ratio of the medians of the rounds, the
@@ -113,10 +113,12 @@ def main() -> None:
     what = {"INCREMENT_U32": "`u` by single-precision increments against an exact `u` after every step",
             "SINGLE_STEP": "step length's pair in single precision against double",
             "SINGLE_PRECOND": "preconditioner's pair in single precision against double",
-            "INCREMENT_REUSE_R": "the increment of a step that kept the contact set from `r = G t` against its own pair",
+            "INCREMENT_REUSE_R": "the increment of a step that kept the contact set from `r = G t` against its own "
+                                 "pair",
             "FOLD_INCREMENT": "the increment applied by the next gap pass against a pass of its own"}[args.flag]
     if args.in_process:
-        lines = [f"# `ccg` {what} ({args.n}^2, Fig. 1 surface, tol {args.tol:g}; `{args.flag}` on / off, one process)",
+        lines = [f"# `ccg` {what} ({args.n}^2, Fig. 1 surface, tol {args.tol:g}; `{args.flag}` on / off, "
+                 "one process)",
                  "", f"The switch flipped between alternating solves, {args.rounds * args.repeats} pairs per seed after "
                  f"a warm-up; load at the start {load}.", "",
                  "| seed | iterations (on / off) | pairs | on median [s] | off median [s] | ratio of medians "
