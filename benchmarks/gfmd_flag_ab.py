@@ -3,12 +3,12 @@
 ``--flag INCREMENT_U32`` (``u`` updated by the single-precision ``G dv`` between exact ``u = G p`` against an exact
 ``u`` after every step; the default) or another boolean switch of ``gfmd_ref.solver`` (``SINGLE_STEP``,
 ``SINGLE_PRECOND``, ``INCREMENT_REUSE_R``, ``FOLD_INCREMENT``); every other switch keeps its default.
-(``STEP_PARSEVAL``, measured with it in the forty-third session, was reverted: ``results/gfmd_step_parseval_1024.md``.) Each variant runs in its own fresh process, the two
-alternating, ``--rounds`` times per surface; a process makes its plans, solves once to warm up, then ``--repeats``
-times, and reports the median of those warm solves (wall time without planning), the iterations and the pressure.
-Printed per surface: the iterations, the medians of each variant, the ratio of the medians of the rounds, the
-per-round ratios (each round's two processes ran back to back), and the largest pressure difference between the
-variants' answers (in ``p0``).
+(``STEP_PARSEVAL``, measured with it in the forty-third session, was reverted:
+``results/gfmd_step_parseval_1024.md``.) Each variant runs in its own fresh process, the two alternating, ``--rounds``
+times per surface; a process makes its plans, solves once to warm up, then ``--repeats`` times, and reports the median
+of those warm solves (wall time without planning), the iterations and the pressure. Printed per surface: the
+iterations, the medians of each variant, the ratio of the medians of the rounds, the per-round ratios (each round's
+two processes ran back to back), and the largest pressure difference between the variants' answers (in ``p0``).
 
     python benchmarks/gfmd_flag_ab.py [--flag INCREMENT_U32] [--n 1024] [--seeds 1 2 3] [--rounds 3] [--repeats 3]
                                       [--tol 1e-8] [--in-process]
@@ -18,7 +18,8 @@ Writes ``results/gfmd_<flag>_<n>.md`` (e.g. ``gfmd_increment_u32_<n>.md``).
 ``--in-process``: both variants in this process, the switch flipped between solves, ``rounds x repeats`` pairs per
 surface (on/off, then off/on, ...) after one warm-up solve; printed per surface the median of the pairs' ratios
 on/off with its quartiles and the ratio of the medians. On days when fresh processes of the same code scattered by
-1.8-3.1 s at 1024² (the forty-fourth session), this resolved differences of 5 %. Writes
+1.8-3.1 s at 1024² (the forty-fourth session), this resolved the packed layout's 5-10 %, not the reused ``r``'s
+3-5 %. Writes
 ``results/gfmd_<flag>_<n>_inproc.md``.
 """
 from __future__ import annotations
@@ -119,8 +120,8 @@ def main() -> None:
     if args.in_process:
         lines = [f"# `ccg` {what} ({args.n}^2, Fig. 1 surface, tol {args.tol:g}; `{args.flag}` on / off, "
                  "one process)",
-                 "", f"The switch flipped between alternating solves, {args.rounds * args.repeats} pairs per seed after "
-                 f"a warm-up; load at the start {load}.", "",
+                 "", f"The switch flipped between alternating solves, {args.rounds * args.repeats} pairs per seed "
+                 f"after a warm-up; load at the start {load}.", "",
                  "| seed | iterations (on / off) | pairs | on median [s] | off median [s] | ratio of medians "
                  "| median pair ratio (q25-q75) | max dp [p0] |", "|---|---|---|---|---|---|---|---|"]
         lines += in_process(args)

@@ -3,13 +3,13 @@
 Three variants of ``gfmd_ref.solver``'s switches: the default (``u`` by single-precision increments ``G dv`` between
 exact ones, ``INCREMENT_U32``, with ``-tau G t`` for a step that kept the contact set, ``INCREMENT_REUSE_R``), the
 increments with an FFT pair for every one of them, and an exact ``u = G p`` after every step (the previous solver).
-Scenes: the Fig. 1 surface (``fig1_surface``) at n = 100, 255 (odd: the scipy FFT path), 256 and 512, seeds 1-2, mean pressures from
-tiny contact areas (1e-5 E*-units, a few nodes in contact) to nearly full contact (0.05; 0.3 is full contact,
-solved without iterating); the paper's Fig. 1 scene sampled coarsely (n = 32, 64, 128 on ``L = 1024``, seeds 1-3,
-the main job's test sizes); and a sinusoid and an egg-box at 128^2.  tol 1e-9.  Printed per scene: the iterations
-of each variant, the default's increments (those that reused ``r``) and exact (double) pairs, whether each
-converged, the contact fraction, and the largest pressure difference between the default's answer and the others'
-(in units of p0).
+Scenes: the Fig. 1 surface (``fig1_surface``) at n = 100, 255 (odd: the scipy FFT path), 256 and 512, seeds 1-2, mean
+pressures from tiny contact areas (1e-5 E*-units, a few nodes in contact) to nearly full contact (0.05; 0.3 is full
+contact, solved without iterating); the paper's Fig. 1 scene sampled coarsely (n = 32, 64, 128 on ``L = 1024``, seeds
+1-3, the main job's test sizes); and a sinusoid and an egg-box at 128^2. tol 1e-9. Printed per scene: the iterations
+of each variant, the default's increments (those that reused ``r``) and exact (double) pairs, whether each converged,
+the contact fraction, and the largest pressure difference between the default's answer and the others' (in units of
+p0).
 
     python benchmarks/gfmd_search_variants.py
 
