@@ -45,6 +45,21 @@ def _plt():
 
 
 @contextlib.contextmanager
+def solver_switches(**switches):
+    """``gfmd_ref.solver``'s module switches (``INCREMENT_U32=False``, ...) set for the block, restored after it."""
+    from gfmd_ref import solver
+
+    old = {k: getattr(solver, k) for k in switches}
+    for k, v in switches.items():
+        setattr(solver, k, v)
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            setattr(solver, k, v)
+
+
+@contextlib.contextmanager
 def _capture_fd(fd=1):
     """Capture C-level output written to a file descriptor (Tamaas logs there)."""
     sys.stdout.flush()

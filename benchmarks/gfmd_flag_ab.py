@@ -68,7 +68,8 @@ def child(n, seed, tol, flag, repeats, out, name):
 def in_process(args) -> list:
     """The in-process rows: the switch flipped between alternating solves."""
     import gfmd_ref as g
-    from gfmd_ref import solver
+
+    from bench_gfmd import solver_switches
 
     rows = []
     for seed in args.seeds:
@@ -78,15 +79,12 @@ def in_process(args) -> list:
         g.solve_contact(h, **kw)  # plans and compiled kernels
         times = {True: [], False: []}
         ratios, last = [], {}
-        try:
-            for k in range(args.rounds * args.repeats):
-                for flag in ((True, False) if k % 2 == 0 else (False, True)):
-                    setattr(solver, args.flag, flag)
+        for k in range(args.rounds * args.repeats):
+            for flag in ((True, False) if k % 2 == 0 else (False, True)):
+                with solver_switches(**{args.flag: flag}):
                     last[flag] = g.solve_contact(h, **kw)
-                    times[flag].append(last[flag].wall_time)
-                ratios.append(times[True][-1] / times[False][-1])
-        finally:
-            setattr(solver, args.flag, True)
+                times[flag].append(last[flag].wall_time)
+            ratios.append(times[True][-1] / times[False][-1])
         dp = float(np.max(np.abs(last[True].pressure - last[False].pressure))) / P0
         q25, q50, q75 = np.quantile(ratios, [0.25, 0.5, 0.75])
         row = (f"| {seed} | {last[True].iterations} / {last[False].iterations} | {len(ratios)} | "

@@ -23,6 +23,8 @@ import numpy as np
 import gfmd_ref as g
 from gfmd_ref import solver as sv
 
+from bench_gfmd import solver_switches
+
 E_STAR, TOL = 8 / 3, 1e-9
 CASES = [("ccg", 1024, 1, 0.004, {}), ("ccg", 256, 2, 0.004, {}), ("ccg", 256, 3, 1e-4, {}),
          ("ccg", 512, 1, 0.004, {}), ("ccg", 256, 1, 0.004, {"INCREMENT_U32": False}),
@@ -33,18 +35,11 @@ CASES = [("ccg", 1024, 1, 0.004, {}), ("ccg", 256, 2, 0.004, {}), ("ccg", 256, 3
 def answers() -> dict:
     out = {}
     for i, (method, n, seed, p0, flags) in enumerate(CASES):
-        old = {k: getattr(sv, k) for k in flags}
-        for k, v in flags.items():
-            setattr(sv, k, v)
         h, length = g.fig1_surface(n, seed=seed)
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                r = g.solve_contact(h, length=length, E_star=E_STAR, mean_pressure=p0, interaction=g.HardWall(),
-                                    tol=TOL, method=method)
-        finally:
-            for k, v in old.items():
-                setattr(sv, k, v)
+        with solver_switches(**flags), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            r = g.solve_contact(h, length=length, E_star=E_STAR, mean_pressure=p0, interaction=g.HardWall(), tol=TOL,
+                                method=method)
         out[f"pressure_{i}"], out[f"displacement_{i}"] = r.pressure, r.displacement
         out[f"counts_{i}"] = np.array([r.iterations, r.info["fft_pairs"], r.info.get("u_increments", 0)])
         print(f"{i:2d} {method} {n}^2 seed {seed} p0 {p0:g} {flags or ''}: {r.iterations} it, "

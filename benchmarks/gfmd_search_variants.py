@@ -25,7 +25,8 @@ import numpy as np
 
 import gfmd_ref as g
 from gfmd_ref import HardWall, solve_contact
-from gfmd_ref import solver as sv
+
+from bench_gfmd import solver_switches
 
 OUT = Path(__file__).resolve().parent / "results" / "gfmd_search_variants.md"
 VARIANTS = {"default": {}, "no reuse": {"INCREMENT_REUSE_R": False}, "exact u": {"INCREMENT_U32": False}}
@@ -33,17 +34,10 @@ TOL = 1e-9
 
 
 def solve(h, length, p0, flags):
-    old = {k: getattr(sv, k) for k in flags}
-    for k, v in flags.items():
-        setattr(sv, k, v)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            return solve_contact(h, length=length, E_star=8 / 3, mean_pressure=p0, interaction=HardWall(), tol=TOL,
-                                 method="ccg")
-    finally:
-        for k, v in old.items():
-            setattr(sv, k, v)
+    with solver_switches(**flags), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return solve_contact(h, length=length, E_star=8 / 3, mean_pressure=p0, interaction=HardWall(), tol=TOL,
+                             method="ccg")
 
 
 def scenes():
