@@ -328,6 +328,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     # The single-precision search leaves the work arrays t and w free: they hold the packed directions
     pc, pc_next = np.empty(n2), np.empty(n2)
     tc, tc_next = (t.ravel(), w.ravel()) if step32 else (np.zeros(n2), np.empty(n2))
+    p_current = p_start is not None  # the full grid p holds the packed pressure
     if p_start is None:
         pc[...] = p0
         u[...] = 0.0
@@ -408,6 +409,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
             fold = False
         if (res < tol or it >= max_iter) and (pending or since_exact > 0):
             kr.scatter_contact(pc, idx, nc, p)
+            p_current = True
             el.fft.apply_route(el.Gn, p, u, dot=False)
             n_fft += 1
             pending = False
@@ -471,6 +473,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         nc_before = nc
         nproj, psum, nc = kr.pk_step(pc, c, tc, idx, nc, ol, olg, n_ol, tau, idx_next, pc_next, tc_next, t2, dv32,
                                      use_incr)
+        p_current = False
         idx, idx_next = idx_next, idx
         pc, pc_next = pc_next, pc
         tc, tc_next = tc_next, tc
@@ -508,13 +511,15 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
         psum = kr.pk_rescale(pc, nc, scale, u, w, tau, exact)  # not exact: u <- scale (u - tau r)
         if exact:
             kr.scatter_contact(pc, idx, nc, p)
+            p_current = True
             el.fft.apply_route(el.Gn, p, u, dot=False)
             n_fft += 1
             pending = False
             since_exact = 0
             u_rounding = 0.0
     bar.close()
-    kr.scatter_contact(pc, idx, nc, p)
+    if not p_current:  # the answer's full grid, unless the last exact u wrote it
+        kr.scatter_contact(pc, idx, nc, p)
     # displacement: z0 such that the gap vanishes on the contact set
     mask = p > 0
     z0 = float(np.mean((h - u)[mask])) if np.any(mask) else float(np.max(h - u))

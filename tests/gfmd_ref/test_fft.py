@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import gfmd_ref
-from gfmd_ref import ExponentialRepulsion, HardWall, fig1_surface, solve_contact
+from gfmd_ref import ConvergenceWarning, ExponentialRepulsion, HardWall, fig1_surface, solve_contact
 from gfmd_ref._fft import FFTWPair, ScipyPair, fft_pair
 
 pyfftw = pytest.importorskip("pyfftw", reason="pyfftw not installed: scipy.fft is used everywhere")
@@ -394,6 +394,29 @@ def test_the_answer_carries_an_exact_displacement(n):
     el = sv._Elastic(n, length, 8 / 3)
     u = np.fft.irfft2(el.G * np.fft.rfft2(r.pressure), s=h.shape)
     assert np.ptp(r.displacement - u) < 1e-13 * np.max(np.abs(u))
+
+
+def test_a_stalled_solve_returns_its_last_pressure(monkeypatch):
+    """The full pressure grid is written from the packed contact set only where it is needed (an exact ``u``, the
+    answer). A solve that stops on a stall takes no exact ``u`` first, so the answer must be written from the packed
+    set there: stopped at iteration 5 by a stall, it must return the very pressure that ``max_iter = 5`` returns (that
+    exit takes an exact ``u``, which leaves ``p`` as it is), bit for bit, and not a grid left from an earlier exact ``u``
+    or from the previous solve in the same work arrays."""
+    import gfmd_ref.solver as sv
+
+    # exact and incremental steps alternate (any rounding counts against a share of 0), so the stall comes after an
+    # increment that followed an exact u: the grid that exact u wrote is one step old
+    monkeypatch.setattr(sv, "INCREMENT_SHARE", 0.0)
+    h, length = fig1_surface(128, seed=1)
+    kw = dict(length=length, E_star=8 / 3, mean_pressure=0.004, interaction=HardWall(), tol=1e-12, method="ccg")
+    with pytest.warns(ConvergenceWarning):
+        capped = solve_contact(h, max_iter=5, **kw)
+    solve_contact(h, **dict(kw, tol=1e-6))  # another answer in the work arrays
+    monkeypatch.setattr(sv._Stall, "__call__", lambda self, res, it: it >= 5)
+    with pytest.warns(ConvergenceWarning, match="stalled"):
+        stalled = solve_contact(h, **kw)
+    assert stalled.iterations == capped.iterations == 5 and 0 < stalled.info["u_increments"] < 5
+    assert np.array_equal(stalled.pressure, capped.pressure)
 
 
 @pytest.mark.parametrize("n, seed, p0", [(256, 3, 0.004), (512, 2, 1e-4)])
