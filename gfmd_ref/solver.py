@@ -311,7 +311,9 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     n2 = h.size
     # work arrays of the cached FFT pair, transformed where they lie (no copies): the
     # pressure ``p``, ``u = G p`` (G p0 = 0: a uniform pressure does not deform), the
-    # direction ``t`` and ``w``, which holds in turn the masked gap, K of it and r = G t
+    # direction ``t`` and ``w``, which holds in turn the masked gap, K of it and r = G t;
+    # in the single-precision search those three live in single arrays, and ``t`` and ``w``
+    # hold the packed directions instead (below)
     single = bool(precond and (SINGLE_PRECOND if single is None else single))
     step32 = single and SINGLE_STEP
     incr = step32 and INCREMENT_U32
