@@ -176,6 +176,14 @@ class _Pair:
     _single: Dict[int, Any]
     _defer_wisdom = False  # plans measured now are saved by make_work_arrays, once
     _wisdom_dirty = False
+    #: seconds spent in the transforms (plan executions; scipy: ``rfft2``/``irfft2`` and the copy out) and in the
+    #: spectral multiplies of :meth:`apply_route` and :meth:`apply_single`, summed over the pair's life (a solver
+    #: reports its own share: ``info["fft_seconds"]``, ``info["multiply_seconds"]``). Timed inside the solve, the
+    #: transforms run on the data as the iteration leaves them (cache-cold where the kernels in between evicted
+    #: them), which a benchmark of repeated raw pairs does not see; four ``perf_counter`` calls per pair
+    #: (about 0.3 us) are the price
+    transform_seconds = 0.0
+    multiply_seconds = 0.0
 
     def single_array(self, index: int = 0) -> np.ndarray:  # pragma: no cover - overridden
         raise NotImplementedError
@@ -192,6 +200,11 @@ class _Pair:
 
     def work_array(self, index: int) -> np.ndarray:  # pragma: no cover - overridden
         raise NotImplementedError
+
+    def _timed(self, t0: float, t1: float, t2: float) -> None:
+        """Count one pair: forward ``t0 .. t1``, multiply ``t1 .. t2``, backward ``t2 ..`` now."""
+        self.transform_seconds += (t1 - t0) + (time.perf_counter() - t2)
+        self.multiply_seconds += t2 - t1
 
     def make_work_arrays(self, count: int, single: int = 0) -> float:
         """Make work arrays ``0 .. count-1`` and the single-precision ones ``0 .. single-1``
@@ -225,16 +238,27 @@ class ScipyPair(_Pair):
         self._single: Dict[int, np.ndarray] = {}
 
     def rfft(self, x: np.ndarray) -> np.ndarray:
-        return sfft.rfft2(x, workers=self.threads)
+        t0 = time.perf_counter()
+        out = sfft.rfft2(x, workers=self.threads)
+        self.transform_seconds += time.perf_counter() - t0
+        return out
 
     def irfft(self, X: np.ndarray) -> np.ndarray:
-        return sfft.irfft2(X, s=self.shape, workers=self.threads)
+        t0 = time.perf_counter()
+        out = sfft.irfft2(X, s=self.shape, workers=self.threads)
+        self.transform_seconds += time.perf_counter() - t0
+        return out
 
     def apply(self, mult: np.ndarray, x: np.ndarray) -> np.ndarray:
         """``irfft2(mult * rfft2(x))``: a Fourier multiplier applied to a real field."""
+        t0 = time.perf_counter()
         X = sfft.rfft2(x, workers=self.threads)
+        t1 = time.perf_counter()
         X *= mult
-        return sfft.irfft2(X, s=self.shape, workers=self.threads, overwrite_x=True)
+        t2 = time.perf_counter()
+        out = sfft.irfft2(X, s=self.shape, workers=self.threads, overwrite_x=True)
+        self._timed(t0, t1, t2)
+        return out
 
     def apply_into(self, mult_n: np.ndarray, x: np.ndarray, out: np.ndarray) -> np.ndarray:
         """``out = irfft2(mult_n * rfft2(x)) * n^2``: as :meth:`apply` with the
@@ -254,10 +278,14 @@ class ScipyPair(_Pair):
         ``dst``; any arrays of the grid's shape, work arrays or not); returns
         ``src . dst`` (by Parseval, see :func:`gfmd_ref._kernels.spectral_multiply`), or
         NaN with ``dot=False`` (then the multiply skips the dot)."""
+        t0 = time.perf_counter()
         X = sfft.rfft2(src, workers=self.threads)
+        t1 = time.perf_counter()
         out = _multiply(X, mult_n, self.shape[1], dot)
+        t2 = time.perf_counter()
         dst[...] = sfft.irfft2(X, s=self.shape, workers=self.threads, overwrite_x=True,
                                norm="forward")
+        self._timed(t0, t1, t2)
         return out
 
     def single_array(self, index: int = 0) -> np.ndarray:
@@ -271,10 +299,14 @@ class ScipyPair(_Pair):
                      dot: bool = False) -> float:
         """See :meth:`_Pair.apply_single`."""
         w = self.single_array(src)
+        t0 = time.perf_counter()
         X = sfft.rfft2(w, workers=self.threads)
+        t1 = time.perf_counter()
         out = _multiply(X, mult_n32, self.shape[1], dot)
+        t2 = time.perf_counter()
         self.single_array(src if dst is None else dst)[...] = sfft.irfft2(
             X, s=self.shape, workers=self.threads, overwrite_x=True, norm="forward")
+        self._timed(t0, t1, t2)
         return out
 
 
@@ -321,29 +353,44 @@ class FFTWPair(_Pair):
                 _save_wisdom()
 
     def rfft(self, x: np.ndarray) -> np.ndarray:
+        t0 = time.perf_counter()
         self._real[...] = x
         self._forward.execute()
-        return self._spec.copy()
+        out = self._spec.copy()
+        self.transform_seconds += time.perf_counter() - t0
+        return out
 
     def irfft(self, X: np.ndarray) -> np.ndarray:
+        t0 = time.perf_counter()
         self._spec[...] = X
         self._backward.execute()
-        return self._real * self._scale
+        out = self._real * self._scale
+        self.transform_seconds += time.perf_counter() - t0
+        return out
 
     def apply(self, mult: np.ndarray, x: np.ndarray) -> np.ndarray:
+        t0 = time.perf_counter()
         self._real[...] = x
         self._forward.execute()
+        t1 = time.perf_counter()
         self._spec *= mult
+        t2 = time.perf_counter()
         self._backward.execute()
-        return self._real * self._scale
+        out = self._real * self._scale
+        self._timed(t0, t1, t2)
+        return out
 
     def apply_into(self, mult_n: np.ndarray, x: np.ndarray, out: np.ndarray) -> np.ndarray:
         """``out = irfft2(mult_n * rfft2(x)) * n^2`` (``mult_n = mult / n^2``), no allocation."""
+        t0 = time.perf_counter()
         self._real[...] = x
         self._forward.execute()
+        t1 = time.perf_counter()
         spectral_scale(self._spec, mult_n)
+        t2 = time.perf_counter()
         self._backward.execute()
         out[...] = self._real
+        self._timed(t0, t1, t2)
         return out
 
     def work_array(self, index: int) -> np.ndarray:
@@ -399,9 +446,13 @@ class FFTWPair(_Pair):
         """See :meth:`_Pair.apply_single`."""
         self.single_array(src)
         self.single_array(src if dst is None else dst)
+        t0 = time.perf_counter()
         self._single[src][1].execute()
+        t1 = time.perf_counter()
         out = _multiply(self._spec32, mult_n32, self.shape[1], dot)
+        t2 = time.perf_counter()
         self._single[src if dst is None else dst][2].execute()
+        self._timed(t0, t1, t2)
         return out
 
     def _plans_of(self, buf: np.ndarray) -> Tuple[np.ndarray, Any, Any]:
@@ -418,9 +469,13 @@ class FFTWPair(_Pair):
         the multiply skips the dot: :func:`gfmd_ref._kernels.spectral_scale`)."""
         fwd = self._plans_of(src)[1]
         bwd = self._plans_of(dst)[2]
+        t0 = time.perf_counter()
         fwd.execute()
+        t1 = time.perf_counter()
         out = _multiply(self._spec, mult_n, self.shape[1], dot)
+        t2 = time.perf_counter()
         bwd.execute()
+        self._timed(t0, t1, t2)
         return out
 
 

@@ -995,6 +995,7 @@ def solve_contact(
                 f"(force-residual floor {floor:.1e} p0); need E_star > {need:.1e}"
             )
     el = _Elastic(n, length, E_star, threads)
+    fft_t0, mult_t0 = el.fft.transform_seconds, el.fft.multiply_seconds  # (the pair may be cached: its totals)
     hs = float(np.std(h))
     h_scale = hs if hs > 0 else length
 
@@ -1081,5 +1082,7 @@ def solve_contact(
         tol=tol,
         contact_threshold=thr,
         info={**out["info"], "stop": out["stop"], "fft": el.fft.name,
-              "fft_threads": el.fft.threads, "fft_planning_time": el.fft_planning_time},
+              "fft_threads": el.fft.threads, "fft_planning_time": el.fft_planning_time,
+              "fft_seconds": el.fft.transform_seconds - fft_t0,
+              "multiply_seconds": el.fft.multiply_seconds - mult_t0},
     )

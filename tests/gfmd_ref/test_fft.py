@@ -622,3 +622,44 @@ def test_make_work_arrays_writes_the_wisdom_file_once(monkeypatch):
     assert len(writes) == 2
     pair.work_array(N_WORK_ARRAYS)  # a plan made on its own is saved at once
     assert len(writes) == 3
+
+
+class _Clock:
+    """A stand-in for ``time`` in :mod:`gfmd_ref._fft`: ``perf_counter`` advances by exactly 1 per call, so every
+    timed interval of a pair is a count of the calls inside it."""
+
+    def __init__(self):
+        self.now = 0.0
+
+    def perf_counter(self):
+        self.now += 1.0
+        return self.now
+
+
+@pytest.mark.parametrize("n", [64, 256])  # scipy's pair below FFTW_MIN_N, FFTW's (where installed) from it
+@pytest.mark.parametrize("method", ["ccg", "pk"])
+def test_a_solve_reports_the_time_of_each_of_its_transforms(monkeypatch, n, method):
+    """``info["fft_seconds"]`` / ``info["multiply_seconds"]`` count every FFT pair of the solve: on a clock that
+    ticks once per reading, a pair's two transforms read 2 ticks and its multiply 1 (4 readings: before the
+    forward, between it and the multiply, between the multiply and the backward, after it). Oracle: the solver's
+    own pair count, plus the full-contact check's pair (``el.apply``, not in ``fft_pairs``). It fails where a
+    route is not timed, where the multiply is counted as a transform, or where a cached pair's earlier totals
+    leak into a solve."""
+    from gfmd_ref import _fft
+
+    h, L = fig1_surface(n, seed=2)
+    kw = dict(length=L, E_star=8 / 3, mean_pressure=0.004, interaction=HardWall(), tol=1e-8, method=method)
+    solve_contact(h, **kw)  # the pair and its work arrays made (and planned) on the real clock
+    monkeypatch.setattr(_fft, "time", _Clock())
+    r = solve_contact(h, **kw)
+    pairs = r.info["fft_pairs"] + 1
+    assert r.info["fft_seconds"] == 2.0 * pairs
+    assert r.info["multiply_seconds"] == 1.0 * pairs
+    assert r.converged
+
+
+def test_transform_time_is_part_of_the_wall_time():
+    """On the real clock the transforms and multiplies are positive and less than the whole solve."""
+    h, L = fig1_surface(128, seed=1)
+    r = solve_contact(h, length=L, E_star=8 / 3, mean_pressure=0.004, interaction=HardWall(), tol=1e-8)
+    assert 0.0 < r.info["multiply_seconds"] < r.info["fft_seconds"] < r.wall_time
