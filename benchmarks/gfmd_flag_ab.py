@@ -19,8 +19,9 @@ Writes ``results/gfmd_<flag>_<n>.md`` (e.g. ``gfmd_increment_u32_<n>.md``).
 surface (on/off, then off/on, ...) after one warm-up solve; printed per surface the median of the pairs' ratios
 on/off with its quartiles and the ratio of the medians. On days when fresh processes of the same code scattered by
 1.8-3.1 s at 1024² (the forty-fourth session), this resolved the packed layout's 5-10 %, not the reused ``r``'s
-3-5 %. Writes
-``results/gfmd_<flag>_<n>_inproc.md``.
+3-5 %. It also gives each solve's time less its transforms and multiplies (the solve's own timers,
+``info["fft_seconds"]``): where a switch changes no FFT pair (``FOLD_INCREMENT``), that ratio is free of the
+transforms' drift. Writes ``results/gfmd_<flag>_<n>_inproc.md``.
 """
 from __future__ import annotations
 
@@ -78,19 +79,25 @@ def in_process(args) -> list:
                   method="ccg")
         g.solve_contact(h, **kw)  # plans and compiled kernels
         times = {True: [], False: []}
-        ratios, last = [], {}
+        rest = {True: [], False: []}  # the solve less its transforms and multiplies (its own timers)
+        ratios, rest_ratios, last = [], [], {}
         for k in range(args.rounds * args.repeats):
             for flag in ((True, False) if k % 2 == 0 else (False, True)):
                 with solver_switches(**{args.flag: flag}):
-                    last[flag] = g.solve_contact(h, **kw)
-                times[flag].append(last[flag].wall_time)
+                    last[flag] = r = g.solve_contact(h, **kw)
+                times[flag].append(r.wall_time)
+                rest[flag].append(r.wall_time - r.info["fft_planning_time"] - r.info["fft_seconds"]
+                                  - r.info["multiply_seconds"])
             ratios.append(times[True][-1] / times[False][-1])
+            rest_ratios.append(rest[True][-1] / rest[False][-1])
         dp = float(np.max(np.abs(last[True].pressure - last[False].pressure))) / P0
         q25, q50, q75 = np.quantile(ratios, [0.25, 0.5, 0.75])
+        r25, r50, r75 = np.quantile(rest_ratios, [0.25, 0.5, 0.75])
         row = (f"| {seed} | {last[True].iterations} / {last[False].iterations} | {len(ratios)} | "
                f"{statistics.median(times[True]):.3f} | {statistics.median(times[False]):.3f} | "
                f"{statistics.median(times[True]) / statistics.median(times[False]):.3f} | "
-               f"{q50:.3f} ({q25:.3f}-{q75:.3f}) | {dp:.1e} |")
+               f"{q50:.3f} ({q25:.3f}-{q75:.3f}) | {statistics.median(rest[True]):.3f} / "
+               f"{statistics.median(rest[False]):.3f} | {r50:.3f} ({r25:.3f}-{r75:.3f}) | {dp:.1e} |")
         print(row, flush=True)
         rows.append(row)
     return rows
@@ -120,8 +127,12 @@ def main() -> None:
                  "one process)",
                  "", f"The switch flipped between alternating solves, {args.rounds * args.repeats} pairs per seed "
                  f"after a warm-up; load at the start {load}.", "",
+                 "The rest: a solve's time less its transforms and multiplies, by its own timers "
+                 "(`info[\"fft_seconds\"]`, `info[\"multiply_seconds\"]`): for a switch that changes no pair, its "
+                 "pair ratio is free of the FFTs' drift.", "",
                  "| seed | iterations (on / off) | pairs | on median [s] | off median [s] | ratio of medians "
-                 "| median pair ratio (q25-q75) | max dp [p0] |", "|---|---|---|---|---|---|---|---|"]
+                 "| median pair ratio (q25-q75) | the rest, on / off median [s] | the rest's median pair ratio "
+                 "(q25-q75) | max dp [p0] |", "|---|---|---|---|---|---|---|---|---|---|"]
         lines += in_process(args)
         out = HERE / "results" / f"gfmd_{args.flag.lower()}_{args.n}_inproc.md"
         out.write_text("\n".join(lines) + "\n")

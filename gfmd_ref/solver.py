@@ -225,6 +225,11 @@ INCREMENT_STALL = 10
 INCREMENT_REUSE_R = True
 #: ... the increment applied by the next gap pass (True) or by a full pass of its own
 FOLD_INCREMENT = True
+#: ... folded only on grids of at most this many nodes: above, the fused gap pass (seven streams over arrays far
+#: beyond the cache) was slower than the two passes it replaces. Measured in one process, the switch flipped between
+#: solves, the solve's time less its transforms (its own timers): 1.21 and 1.23 at 4096^2 (2 pairs, 16.2 s against
+#: 13.3 s of 81 s); 0.98 and 1.02 at 2048^2, 0.89 and 1.02 at 1024^2 (6-8 pairs per seed). The same bits either way
+FOLD_INCREMENT_MAX_NODES = 2048 * 2048
 #: ``newton``: the inner CG's ``G d`` in single precision (the line search, ``u`` and the
 #: residual in double)
 SINGLE_NEWTON_CG = True
@@ -281,7 +286,8 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     With :data:`INCREMENT_U32` (default) the double pair runs only now and then: the step's
     whole pressure change ``dv`` (projections and new contacts included, written by
     :func:`~._kernels.pk_step`) is transformed in single precision and
-    ``u <- scale (u + G dv)`` (folded into the next gap pass, :func:`~._kernels.pk_gap`). Its rounding is
+    ``u <- scale (u + G dv)`` (folded into the next gap pass, :func:`~._kernels.pk_gap`, on grids of at most
+    :data:`FOLD_INCREMENT_MAX_NODES` nodes; a pass of its own above). Its rounding is
     relative to the increment, not to ``u`` (2-4e-7 of ``max |G dv|``), so the bound
     :data:`INCREMENT_ROUNDING` ``sum max |G dv|`` is tracked and an exact ``u`` taken
     where it could exceed :data:`INCREMENT_SHARE` of the residual, where the residual
@@ -396,6 +402,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
     # it in (pk_gap's fold: one full pass instead of two)
     # (or, after a step that kept the contact set, u <- scale (u - tau r) with r = G t in r32)
     fold, fold_scale, fold_a, fold_gv = False, 1.0, 1.0, dv32
+    fold_increments = FOLD_INCREMENT and n2 <= FOLD_INCREMENT_MAX_NODES
     n_reused = 0
 
     def residual():
@@ -501,7 +508,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
                 n_single += 1
                 fold_gv, fold_a = dv32, 1.0
             psum = kr.pk_rescale(pc, nc, scale, u, u, 0.0, True)  # the pressure now, u in the next gap pass
-            if FOLD_INCREMENT:
+            if fold_increments:
                 fold, fold_scale = True, scale
             else:
                 gv_max = kr.apply_increment(u, fold_gv, fold_a, scale)
@@ -539,6 +546,7 @@ def _ccg_hard(h, p0, el, tol, max_iter, progress, h_scale, lazy=8, refresh=50, l
               else "max_iter"),
         info=dict(h_scale=h_scale, fft_pairs=n_fft, fft_pairs_single=n_single,
                   u_increments=n_increments, u_increments_reusing_r=n_reused,
+                  u_increments_folded=bool(incr and fold_increments),
                   history_stamps=np.asarray(stamps)),
     )
 

@@ -422,21 +422,29 @@ def test_a_stalled_solve_returns_its_last_pressure(monkeypatch):
 @pytest.mark.parametrize("n, seed, p0", [(256, 3, 0.004), (512, 2, 1e-4)])
 def test_folding_the_increment_into_the_gap_pass_changes_no_bit(monkeypatch, n, seed, p0):
     """The increment of ``u`` applied by the next gap pass (``FOLD_INCREMENT``, the default) or
-    by a pass of its own (``apply_increment``): the same operations in the same order, so
-    the same answer bit for bit, the same iterations and pairs. Both kinds of increment
-    must have run (``G dv`` and the reused ``r``)."""
+    by a pass of its own (``apply_increment``; the switch off, or a grid above
+    ``FOLD_INCREMENT_MAX_NODES``): the same operations in the same order, so the same answer
+    bit for bit, the same iterations and pairs. Both kinds of increment must have run
+    (``G dv`` and the reused ``r``), and ``info["u_increments_folded"]`` says which path ran."""
     import gfmd_ref.solver as sv
 
     h, length = fig1_surface(n, seed=seed)
     kw = dict(length=length, E_star=8 / 3, mean_pressure=p0, interaction=HardWall(), tol=1e-9, method="ccg")
     folded = solve_contact(h, **kw)
+    # a grid above FOLD_INCREMENT_MAX_NODES takes the pass of its own (as on 4096^2 by default)
+    monkeypatch.setattr(sv, "FOLD_INCREMENT_MAX_NODES", n * n - 1)
+    above = solve_contact(h, **kw)
+    monkeypatch.setattr(sv, "FOLD_INCREMENT_MAX_NODES", n * n)
     monkeypatch.setattr(sv, "FOLD_INCREMENT", False)
     own_pass = solve_contact(h, **kw)
     assert folded.converged and folded.info["u_increments_reusing_r"] > 0
     assert folded.info["u_increments"] > folded.info["u_increments_reusing_r"]
-    assert np.array_equal(folded.pressure, own_pass.pressure)
-    assert np.array_equal(folded.displacement, own_pass.displacement)
-    assert folded.iterations == own_pass.iterations and folded.info["fft_pairs"] == own_pass.info["fft_pairs"]
+    assert folded.info["u_increments_folded"] and not above.info["u_increments_folded"]
+    assert not own_pass.info["u_increments_folded"]
+    for other in (own_pass, above):
+        assert np.array_equal(folded.pressure, other.pressure)
+        assert np.array_equal(folded.displacement, other.displacement)
+        assert folded.iterations == other.iterations and folded.info["fft_pairs"] == other.info["fft_pairs"]
 
 
 @pytest.mark.parametrize("n, seed, p0", [(256, 3, 0.004), (128, 1, 0.004)])
