@@ -46,6 +46,8 @@ from gfmd_ref import solver
 n, seed, tol, flag = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3]), sys.argv[4] == "1"
 repeats, out, name = int(sys.argv[5]), sys.argv[6], sys.argv[7]
 setattr(solver, name, flag)
+if name == "FOLD_INCREMENT":  # the fold on every grid (by default only up to FOLD_INCREMENT_MAX_NODES)
+    solver.FOLD_INCREMENT_MAX_NODES = 1 << 62
 h, L = g.fig1_surface(n, seed=seed)
 times = []
 for k in range(repeats + 1):
@@ -66,6 +68,12 @@ def child(n, seed, tol, flag, repeats, out, name):
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
+def _lifted(flag: str) -> dict:
+    """Limits lifted so that the switch decides on every grid: ``FOLD_INCREMENT`` folds only up to
+    ``FOLD_INCREMENT_MAX_NODES`` by default; its A/B compares the fold with the pass of its own at any size."""
+    return {"FOLD_INCREMENT_MAX_NODES": 1 << 62} if flag == "FOLD_INCREMENT" else {}
+
+
 def in_process(args) -> list:
     """The in-process rows: the switch flipped between alternating solves."""
     import gfmd_ref as g
@@ -83,7 +91,7 @@ def in_process(args) -> list:
         ratios, rest_ratios, last = [], [], {}
         for k in range(args.rounds * args.repeats):
             for flag in ((True, False) if k % 2 == 0 else (False, True)):
-                with solver_switches(**{args.flag: flag}):
+                with solver_switches(**{args.flag: flag}, **_lifted(args.flag)):
                     last[flag] = r = g.solve_contact(h, **kw)
                 times[flag].append(r.wall_time)
                 rest[flag].append(r.wall_time - r.info["fft_planning_time"] - r.info["fft_seconds"]

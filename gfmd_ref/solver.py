@@ -227,8 +227,9 @@ INCREMENT_REUSE_R = True
 FOLD_INCREMENT = True
 #: ... folded only on grids of at most this many nodes: above, the fused gap pass (seven streams over arrays far
 #: beyond the cache) was slower than the two passes it replaces. Measured in one process, the switch flipped between
-#: solves, the solve's time less its transforms (its own timers): 1.21 and 1.23 at 4096^2 (2 pairs, 16.2 s against
-#: 13.3 s of 81 s); 0.98 and 1.02 at 2048^2, 0.89 and 1.02 at 1024^2 (6-8 pairs per seed). The same bits either way
+#: solves, the solve's time less its transforms (its own timers), folded / own pass: 1.21 (seed 1) and 1.11 (seed 2)
+#: at 4096^2 (2 pairs each: 16.2 s against 13.3 s and 14.3 against 12.9 s of 73-81 s; whole solves 1.01 and 1.06);
+#: 0.98 and 1.02 at 2048^2, 0.89 and 1.02 at 1024^2 (6-8 pairs per seed). The same bits either way
 FOLD_INCREMENT_MAX_NODES = 2048 * 2048
 #: ``newton``: the inner CG's ``G d`` in single precision (the line search, ``u`` and the
 #: residual in double)
