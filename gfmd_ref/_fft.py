@@ -176,12 +176,12 @@ class _Pair:
     _single: Dict[int, Any]
     _defer_wisdom = False  # plans measured now are saved by make_work_arrays, once
     _wisdom_dirty = False
-    #: seconds spent in the transforms (plan executions; scipy: ``rfft2``/``irfft2`` and the copy out) and in the
-    #: spectral multiplies of :meth:`apply_route` and :meth:`apply_single`, summed over the pair's life (a solver
-    #: reports its own share: ``info["fft_seconds"]``, ``info["multiply_seconds"]``). Timed inside the solve, the
-    #: transforms run on the data as the iteration leaves them (cache-cold where the kernels in between evicted
-    #: them), which a benchmark of repeated raw pairs does not see; four ``perf_counter`` calls per pair
-    #: (about 0.3 us) are the price
+    #: seconds spent in the transforms (plan executions or scipy's ``rfft2``/``irfft2``, with the copies in and out
+    #: where a method makes them) and in the spectral multiplies between them, summed over the pair's life (a
+    #: solver reports its own share: ``info["fft_seconds"]``, ``info["multiply_seconds"]``). Timed inside a solve,
+    #: the transforms run on the data as the iteration leaves them, which a benchmark of repeated raw pairs does not
+    #: see (measured no slower at 1024^2 and 2048^2: docs/gfmd.md); four ``perf_counter`` calls per pair (about
+    #: 0.3 us) are the price
     transform_seconds = 0.0
     multiply_seconds = 0.0
 
