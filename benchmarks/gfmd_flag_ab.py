@@ -46,8 +46,8 @@ from gfmd_ref import solver
 n, seed, tol, flag = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3]), sys.argv[4] == "1"
 repeats, out, name = int(sys.argv[5]), sys.argv[6], sys.argv[7]
 setattr(solver, name, flag)
-if name == "FOLD_INCREMENT":  # the fold on every grid (by default only up to FOLD_INCREMENT_MAX_NODES)
-    solver.FOLD_INCREMENT_MAX_NODES = 1 << 62
+for k, v in json.loads(sys.argv[8]).items():  # the limits _lifted lifts for this switch
+    setattr(solver, k, v)
 h, L = g.fig1_surface(n, seed=seed)
 times = []
 for k in range(repeats + 1):
@@ -64,7 +64,8 @@ print(json.dumps(dict(times=times, iterations=r.iterations, pairs=r.info["fft_pa
 
 def child(n, seed, tol, flag, repeats, out, name):
     res = subprocess.run([sys.executable, "-c", CHILD, str(n), str(seed), str(tol), "1" if flag else "0",
-                          str(repeats), out, name], capture_output=True, text=True, check=True)
+                          str(repeats), out, name, json.dumps(_lifted(name))], capture_output=True, text=True,
+                         check=True)
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
