@@ -32,6 +32,7 @@ Units: pressures in the unit of ``E_star`` and ``mean_pressure``; lengths
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import time
 from dataclasses import dataclass, replace
@@ -69,6 +70,9 @@ DEFAULT_CONTINUUM_SHELLS = 96
 EXTRAPOLATION_SHELLS = 48
 #: the most shells the extrapolation grows to where its residual misses rtol
 MAX_CONTINUUM_SHELLS = 1536
+#: where the shell ladder doubles, the rung after the new one is integrated ahead on the worker's wait and cancelled
+#: if the new rung's table does not double again (:func:`_shell_corrected`, engine.plain_batch_ahead; the same bits)
+SOLVE_AHEAD = True
 #: the shells grow only while the grids' estimate leaves the extrapolation's residual this share of rtol at least
 SHELL_SHARE = 0.9
 #: where the grids' estimate alone takes SHELL_SHARE of rtol, the first solve is repeated at this fraction of rtol
@@ -1121,6 +1125,22 @@ def _plain_on_grid(res: Any, ms: Sequence[int], scene: tuple, rtol: float, optio
         return engine.plain_batch(problems, rtol=rtol, **sub)
 
 
+def _plain_on_grid_ahead(res: Any, ms: Sequence[int], ms_ahead: Sequence[int], wanted: Any, scene: tuple,
+                         rtol: float, options: dict) -> tuple:
+    """``(results, ahead_results)``: :func:`_plain_on_grid` of the shell counts ``ms`` (``"only"``, batchable
+    options) with the rung ``ms_ahead`` integrated speculatively on the worker's wait
+    (:func:`~diffusion_pr.solvers.fv.engine.plain_batch_ahead`): its results where ``wanted(results)`` said they are
+    needed, else None (the same bits as solving them afterwards)."""
+    from .solvers.fv import engine
+
+    sub = _sub_options(res, options, "only")
+    sub.pop("max_cells", None)  # (plain masses on given grids: no refinement)
+    problems = [_shell_problem(scene, m)[0] for m in ms]
+    with engine.grid_family(res.diagnostics["grid"]), engine.plain_masses("only"):
+        return engine.plain_batch_ahead(problems, lambda: [_shell_problem(scene, m)[0] for m in ms_ahead], wanted,
+                                        rtol=rtol, **sub)
+
+
 def _failed_extrapolation(res: Any, why: str) -> Any:
     """``res`` (the ``n``-shell answer) marked as a failed shell extrapolation, saying why."""
     n = int(res.diagnostics["n_shells"])
@@ -1183,24 +1203,43 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
     plain = {n: list(res.diagnostics["plain_masses"])}
     timing = {"shells": 0.0}
     beside: list = []  # the shell counts the main solve integrated alongside its last level
+    ahead: dict = {}  # the next rung's results, integrated speculatively beside a doubling (SOLVE_AHEAD)
+    ahead_unused: list = []  # the rungs integrated (or begun) ahead and not used
     finest = False  # the correction from the 4N grids too, extrapolated in space
-    split = False  # the correction from the N and 2N grids extrapolated in space (_correction_in_space)
-    split_error = None  # that correction's own error estimate (its second-order one, corr_error, is counted)
+    evaluated: dict = {}  # (top, finest) -> the table's evaluation made while a rung was integrated ahead
 
-    def solve_plain(ms: list, mode: str) -> dict:
+    def masses_of(r: Any, mode: str) -> Optional[list]:
+        ok = not (r.diagnostics.get("plain_failure") or "plain_masses" not in r.diagnostics
+                  or not np.array_equal(r.edges if mode == "only" else r.edges[::2], res.edges))
+        return list(r.diagnostics["plain_masses"]) if ok else None  # (the 4N grid's every second edge is the answer's)
+
+    def solve_plain(ms: list, mode: str, then: Optional[int] = None) -> dict:
         out = {}
-        for m, r in zip(ms, _plain_on_grid(res, ms, scene, rtol, options, plain=mode, alongside=alongside)):
+        if mode == "only":
+            for m in [m for m in ms if m in ahead]:
+                r = ahead.pop(m)
+                timing["shells"] += r.wall_time
+                out[m] = masses_of(r, mode)
+            ms = [m for m in ms if m not in out]
+        if then is not None and ms and mode == "only":
+            got, more = _plain_on_grid_ahead(res, ms, [then], functools.partial(doubles_with, ms), scene, rtol,
+                                             options)
+            if more is None:
+                ahead_unused.append(then)
+            else:
+                ahead.update(zip([then], more))
+        else:
+            got = _plain_on_grid(res, ms, scene, rtol, options, plain=mode, alongside=alongside)
+        for m, r in zip(ms, got):
             timing["shells"] += r.wall_time
             if r.diagnostics.get("solved_alongside"):
                 beside.append(m)
-            ok = not (r.diagnostics.get("plain_failure") or "plain_masses" not in r.diagnostics
-                      or not np.array_equal(r.edges if mode == "only" else r.edges[::2], res.edges))
-            out[m] = r.diagnostics["plain_masses"] if ok else None  # (the 4N grid's every second edge is the answer's)
+            out[m] = masses_of(r, mode)
         return out
 
-    def on_the_grids(ms: list) -> None:
-        for m, got in solve_plain([m for m in ms if m not in plain], "only").items():
-            plain[m] = None if got is None else list(got)
+    def on_the_grids(ms: list, then: Optional[int] = None) -> None:
+        for m, got in solve_plain([m for m in ms if m not in plain], "only", then).items():
+            plain[m] = got
         if finest:
             for m, got in solve_plain([m for m in ms if plain[m] is not None and plain[m][2] is None],
                                       "finest").items():
@@ -1211,43 +1250,79 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
 
     l1, agg = _l1, _aggregated
     thin = scene[6] != "uniform"  # graded shells: the wall's layer is thin (shell_grading)
+
+    def evaluate(top: int, masses: dict, finest: bool) -> dict:
+        """The correction and its errors from the table of ``top`` shells (``masses`` the plain masses by shell
+        count, every rung of ``_ladder_below(top)`` in it)."""
+        eighth = top % 8 == 0 and masses.get(top // 8) is not None
+        used = [top >> k for k in range(4 if eighth else 3)]
+        c = [None, None, None]
+        ev: dict = {"split": False, "split_error": None}  # split: extrapolated in space from the N and 2N grids
+        for g in ((0, 1, 2) if finest else (0, 1)):
+            x, res_g, table_g = _shell_table([masses[m][g] for m in used], thin=thin, start=scene[6] == "ends")
+            c[g] = x - masses[n][g]
+            if g == 1:  # the answer's grid: its residual and orders
+                ev["residual"], ev["table"] = res_g, table_g
+        if finest:
+            ev["corr"] = (4.0 * agg(c[2]) - c[1]) / 3.0
+            ev["corr_error"] = l1(agg(ev["corr"]) - (4.0 * agg(c[1]) - c[0]) / 3.0) / RICHARDSON_DIVISOR
+        else:
+            ev["corr"], ev["split_error"], ev["corr_error"], ev["split"] = _correction_in_space(c[0], c[1],
+                                                                                             masses[n])
+        # counted: on uniform shells the extrapolated correction's own error; where the wall's layer is thin the
+        # second-order size, a margin the thin layer's table needs (docs/closures.md "The correction's own error
+        # counted")
+        ev["counted"] = ev["split_error"] if ev["split"] and not finest and not thin else ev["corr_error"]
+        ev["grids"] = res.error_estimate + ev["counted"]
+        return ev
+
+    def next_step(top: int, ev: dict, finest: bool) -> str:
+        """What the ladder does after the table of ``top`` shells: "done", "finest" (the correction's spatial
+        error misses: the 4N grids), "stop" (no room or no more shells) or "double"."""
+        if ev["grids"] + ev["residual"] <= rtol:
+            return "done"
+        if not finest and plain[n][2] is not None and ev["counted"] > ev["residual"]:
+            return "finest"
+        if 2 * top > MAX_CONTINUUM_SHELLS or ev["grids"] >= SHELL_SHARE * rtol:
+            return "stop"
+        return "double"
+
+    def doubles_with(ms: list, results: list) -> bool:
+        """Whether the ladder doubles again once the rung ``ms = [top]`` has given ``results`` (asked by
+        :func:`_plain_on_grid_ahead` before it finishes the next rung's speculative integrations)."""
+        got = masses_of(results[0], "only")
+        if got is None:
+            return False
+        top = ms[0]
+        ev = evaluated[top, finest] = evaluate(top, {**plain, top: got}, finest)  # (the loop's next evaluation)
+        return next_step(top, ev, finest) == "double"
+
     top = n
     while True:
         wanted = _ladder_below(top)
         on_the_grids(wanted)
         if plain[top] is None or plain[top // 2] is None or plain[top // 4] is None:
             return _failed_extrapolation(res, f"a coarser-shell problem did not solve on the {n}-shell grids")
-        eighth = top % 8 == 0 and plain.get(top // 8) is not None
-        used = [top >> k for k in range(4 if eighth else 3)]
-        c = [None, None, None]
-        for g in ((0, 1, 2) if finest else (0, 1)):
-            x, res_g, table_g = _shell_table([plain[m][g] for m in used], thin=thin, start=scene[6] == "ends")
-            c[g] = x - plain[n][g]
-            if g == 1:  # the answer's grid: its residual and orders
-                residual, table = res_g, table_g
-        if finest:
-            corr = (4.0 * agg(c[2]) - c[1]) / 3.0
-            corr_error = l1(agg(corr) - (4.0 * agg(c[1]) - c[0]) / 3.0) / RICHARDSON_DIVISOR
-        else:
-            corr, split_error, corr_error, split = _correction_in_space(c[0], c[1], plain[n])
-        # counted: on uniform shells the extrapolated correction's own error; where the wall's layer is thin the
-        # second-order size, a margin the thin layer's table needs (docs/closures.md "The correction's own error
-        # counted")
-        counted = split_error if split and not finest and not thin else corr_error
-        grids = res.error_estimate + counted
-        if grids + residual <= rtol:
-            break
-        if not finest and plain[n][2] is not None and counted > residual:
+        ev = evaluated.pop((top, finest), None) or evaluate(top, plain, finest)
+        step = next_step(top, ev, finest)
+        if step == "finest":
             finest = True  # the correction's spatial error is what misses: extrapolate it in space
+            ahead_unused.extend(ahead)  # (integrated for the N and 2N grids only)
+            ahead.clear()
             on_the_grids(list(plain))
             continue
-        if 2 * top > MAX_CONTINUUM_SHELLS or grids >= SHELL_SHARE * rtol:
+        if step != "double":
             break
         top *= 2
-        on_the_grids([top])
+        # the rung after this one, integrated ahead on the worker's wait (where it may be needed: no 4N grids)
+        on_the_grids([top], then=2 * top if SOLVE_AHEAD and 2 * top <= MAX_CONTINUUM_SHELLS and not finest
+                     and _batched(res.backend, options) else None)
         if plain[top] is None:
             top //= 2
             break
+    ahead_unused.extend(ahead)
+    corr, corr_error, split_error, split = ev["corr"], ev["corr_error"], ev["split_error"], ev["split"]
+    counted, grids, residual, table = ev["counted"], ev["grids"], ev["residual"], ev["table"]
     estimate = grids + residual
     # the first moments per cell: the answer's, corrected with the plain cells' (at their centres)
     mom = res.p * (res.density * res.weights) + 0.5 * (res.edges[:-1] + res.edges[1:]) * corr[1:]
@@ -1258,6 +1333,7 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
                                     else None, **table,
                                     "shells_solved": tuple(sorted(m for m in plain if plain[m] is not None)),
                                     "shells_alongside": tuple(sorted(beside)),
+                                    "shells_ahead_unused": tuple(ahead_unused),
                                     "shell_scheme": "correction from plain grids" + (
                                         ", extrapolated in space (4N grids)" if finest else
                                         ", extrapolated in space (N and 2N grids)" if split else "")},

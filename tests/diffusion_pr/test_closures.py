@@ -764,6 +764,182 @@ def test_plain_batch_is_each_problems_own_plain_solve(fig1, threads):
             pytest.raises(ValueError, match="n_cells equal to the family's coarsest"):
         engine.plain_batch(problems, rtol=1e-6, n_cells=n0 + 1)
 
+def test_plain_batch_ahead_gives_both_rungs_bits_and_cancels_the_unwanted_one(fig1, monkeypatch):
+    """engine.plain_batch_ahead integrates a rung's plain problems and, on the worker's wait, the next rung's
+    (speculatively, under a cancel flag).  Oracle: plain_batch of each rung on the same grids, whose masses both must
+    be bit for bit where the next rung is wanted.  Where it is not, the function returns None for it and the worker's
+    kernel stops before its next stage: here ``wanted`` answers only once the worker's speculative kernel has begun,
+    and that kernel must come back cancelled (break that fails it: the kernel's cancel check dropped, or the flag
+    never raised; the speculative integration then runs to its end).  A next rung that cannot be made is None too, the
+    batch's own results unchanged; one thread: plain_batch's results and None."""
+    import threading
+
+    from diffusion_pr.api import solve_problem
+    from diffusion_pr.solvers.fv import _kernels, engine
+
+    kw = dict(zeta=0.25, E_star=E, mean_pressure=P0, closure="local_g1_balanced")
+    floor = {"p_floor": 1e-12}
+    main = closure_problem(spectrum_shells(fig1, E_star=E, n_shells=48), **kw)
+    with engine.plain_masses("keep"):
+        full = solve_problem(main, backend="native", rtol=1e-6, **floor)
+    n0 = full.diagnostics["levels"][0]
+    rung = [closure_problem(spectrum_shells(fig1, E_star=E, n_shells=24), **kw)]
+    ahead = [closure_problem(spectrum_shells(fig1, E_star=E, n_shells=m), **kw) for m in (96, 12)]
+
+    def same(a, b):
+        for x, y in zip(a, b):
+            assert np.array_equal(x.edges, y.edges) and y.diagnostics["plain_failure"] is None
+            for g in (0, 1):
+                assert np.array_equal(x.diagnostics["plain_masses"][g], y.diagnostics["plain_masses"][g])
+
+    seen = []
+    with engine.grid_family(full.diagnostics["grid"]), engine.plain_masses("only"):
+        own = engine.plain_batch(rung, rtol=1e-6, n_cells=n0, **floor)
+        own_ahead = engine.plain_batch(ahead, rtol=1e-6, n_cells=n0, **floor)
+        got, more = engine.plain_batch_ahead(rung, lambda: ahead, lambda r: seen.append(r) is None, rtol=1e-6,
+                                             n_cells=n0, **floor)
+        same(own, got)
+        same(own_ahead, more)
+        assert len(seen) == 1 and len(seen[0]) == 1
+        same(own, seen[0])
+        # not wanted: asked once the worker's speculative kernel has begun, which must then stop (cancelled)
+        started, infos = threading.Event(), []
+        real = engine._Kernels._unless_cancelled
+
+        def watched(self, y, n_cram, n_newton, info, stage, res):
+            if threading.current_thread() is not threading.main_thread():
+                infos.append((info, stage))
+            return real(self, y, n_cram, n_newton, info, stage, res)
+
+        real_masses = engine._plain_masses_on
+
+        def marked(pr, *args, **kwargs):
+            if len(pr.pieces) == 96:
+                started.set()
+            return real_masses(pr, *args, **kwargs)
+
+        def not_wanted(results):
+            assert started.wait(30.0)
+            return False
+
+        monkeypatch.setattr(engine._Kernels, "_unless_cancelled", watched)
+        monkeypatch.setattr(engine, "_plain_masses_on", marked)
+        got, more = engine.plain_batch_ahead(rung, lambda: ahead, not_wanted, rtol=1e-6, n_cells=n0, **floor)
+        monkeypatch.undo()
+        same(own, got)
+        assert more is None
+        assert any(info == _kernels.CANCELLED for info, _ in infos), infos
+        # the engine's worker is free again: a batch after it gives the same bits
+        same(own_ahead, engine.plain_batch(ahead, rtol=1e-6, n_cells=n0, **floor))
+
+        def broken():
+            raise ValueError("deliberate")
+
+        got, more = engine.plain_batch_ahead(rung, broken, lambda r: True, rtol=1e-6, n_cells=n0, **floor)
+        same(own, got)
+        assert more is None
+        got, more = engine.plain_batch_ahead(rung, lambda: ahead, lambda r: True, rtol=1e-6, n_cells=n0, threads=1,
+                                             **floor)
+        same(own, got)
+        assert more is None
+    with engine.plain_masses("finest"), engine.grid_family(full.diagnostics["grid"]), \
+            pytest.raises(ValueError, match="plain_batch_ahead needs"):
+        engine.plain_batch_ahead(rung, lambda: ahead, lambda r: True, rtol=1e-6, n_cells=n0)
+
+
+def test_a_cancel_flag_raised_by_another_thread_stops_the_stage_kernel(fig1):
+    """The compiled stage loop reads its cancel flag (an atomic acquire load) before every stage: raised before the
+    call it returns CANCELLED at stage 0 with the start state; raised by another thread while the kernel runs, the
+    kernel returns CANCELLED before its last stage (break that fails it: the check dropped; a flag read once before
+    the loop fails the second part).  Unraised, the kernel's answer is the engine's own."""
+    import threading
+    import time
+
+    from diffusion_pr.api import solve_problem
+    from diffusion_pr.solvers.fv import _kernels, engine
+
+    problem = closure_problem(spectrum_shells(fig1, E_star=E, n_shells=192), zeta=0.25, E_star=E, mean_pressure=P0,
+                              closure="local_g1_balanced")
+    prep = engine.prepare(problem, rtol=1e-6, p_floor=1e-12)
+    edges = engine.edges_for(prep.spec, engine.knot_indices(prep.spec, 1024), 1)
+    coef = engine._coefficients(prep.pieces, [edges], centre_drift=False, plans=prep.row_plans)[0]
+    calls = []
+    real = engine._staged_kernels().run_rows
+
+    def capture(*args, **kwargs):
+        calls.append((args, kwargs))
+        return real(*args, **kwargs)
+
+    kernels = engine._staged_kernels()
+    try:
+        kernels.run_rows = capture
+        y_full, _ = engine.solve_on_grid(prep, edges, n_base=1024, coef=coef, partial_fractions=True, order=12)
+    finally:
+        del kernels.run_rows
+    (args, kwargs), = calls
+    y0 = args[9]
+    n_stages = coef["f"].shape[0]
+    for when in ("before", "during"):
+        flag = np.zeros(1, dtype=np.int64)
+        engine._CANCEL.flag = flag
+        try:
+            if when == "before":
+                flag[0] = 1
+                t0 = time.perf_counter()
+                with pytest.raises(engine._Cancelled, match="before stage 0"):
+                    kernels.run_rows(*args, **kwargs)
+                continue
+            timer = threading.Timer(0.002, lambda: flag.__setitem__(0, 1))
+            timer.start()
+            t0 = time.perf_counter()
+            with pytest.raises(engine._Cancelled) as stopped:
+                kernels.run_rows(*args, **kwargs)
+            timer.join()
+            stage = int(str(stopped.value).split()[-1])
+            assert 0 <= stage < n_stages
+        finally:
+            engine._CANCEL.flag = engine._NEVER_CANCELLED
+    assert kernels.run_rows(*args, **kwargs)[3] == 0  # the flag of every other integration: never raised
+    assert _kernels.CANCELLED < 0 and _kernels.CANCELLED != -1  # (not a balance's failure, -1)
+    assert np.array_equal(y0, args[9]) and y_full.shape == y0.shape
+
+
+def test_the_rung_integrated_ahead_changes_no_bit_and_is_asked_for_exactly_where_the_ladder_doubles(fig1, monkeypatch):
+    """Where the shell ladder doubles, the rung after the new one is integrated ahead (closures.SOLVE_AHEAD,
+    engine.plain_batch_ahead) and used only where the new rung's table doubles again.  Oracle: the closure with it
+    switched off (answer, zero weight, estimate and shells solved bit for bit) and the ladder itself: on the Fig. 1
+    scene at ``zeta = 0.01`` ``local_g1_shell_balanced`` doubles 48 -> 96 -> 192 (the 192-shell rung wanted, nothing
+    left unused) and ``local_g1_balanced`` 48 -> 96 only (not wanted: 192 reported unused).  Break that fails it:
+    ``wanted`` always True (the balanced closure's answer is the same, but the rung is asked for where the ladder
+    stops)."""
+    from diffusion_pr import closures
+    from diffusion_pr.solvers.fv import engine
+
+    answers = []
+    real = engine.plain_batch_ahead
+
+    def spy(problems, ahead, wanted, **kwargs):
+        def told(results):
+            answers.append(wanted(results))
+            return answers[-1]
+        return real(problems, ahead, told, **kwargs)
+
+    monkeypatch.setattr(engine, "plain_batch_ahead", spy)
+    for closure, asked, unused in (("local_g1_shell_balanced", [True], ()), ("local_g1_balanced", [False], (192,))):
+        answers.clear()
+        on = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.01, closure=closure)
+        assert answers == asked
+        assert on.diagnostics["shells_ahead_unused"] == unused
+        with monkeypatch.context() as m:
+            m.setattr(closures, "SOLVE_AHEAD", False)
+            off = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.01, closure=closure)
+        assert answers == asked and off.diagnostics["shells_ahead_unused"] == ()
+        assert np.array_equal(on.density, off.density) and on.zero_weight == off.zero_weight
+        assert on.error_estimate == off.error_estimate and on.success and off.success
+        assert on.diagnostics["shells_solved"] == off.diagnostics["shells_solved"]
+        assert on.diagnostics["shells_solved"][-1] == (192 if closure == "local_g1_shell_balanced" else 96)
+
+
 def test_plain_alongside_gives_plain_batchs_masses_and_the_same_closure(fig1, monkeypatch):
     """engine.plain_alongside integrates the shell ladder's plain problems beside the main solve's last level (its
     two threads, speculatively: a level that is not the last discards them).  Oracle: plain_batch on the main

@@ -1063,9 +1063,29 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
     return y, n_cram, n_newton, 0, 0.0
 
 
+#: ``info`` of :func:`staged_run` / :func:`staged_run_rows` when their ``cancel`` flag was set before a stage: ``y`` is
+#: the state before that stage (a speculative integration another thread no longer needs; engine.plain_batch_ahead)
+CANCELLED = -2
+
+
+@intrinsic
+def _flag_raised(typingctx, flag):
+    """``flag[0] != 0`` read with an atomic acquire load: another thread may set it while the kernel runs, and the
+    compiler may neither keep an earlier read in a register nor move the read out of the stage loop (a plain load
+    in a loop that stores only to other arrays may be hoisted).  ``flag``: a C-contiguous int64 array, one entry."""
+    if not (isinstance(flag, types.Array) and flag.ndim == 1 and flag.dtype == types.int64):
+        return None
+
+    def codegen(context, builder, signature, args):
+        arr = context.make_array(signature.args[0])(context, builder, args[0])
+        value = builder.load_atomic(arr.data, "acquire", 8)
+        return builder.icmp_signed("!=", value, ir.Constant(value.type, 0))
+    return types.boolean(flag), codegen
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def staged_run(lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, max_iter,
-               pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
+               pfd, alpha, theta, alpha0, c, cancel):  # pragma: no cover - numba
     """All stages of one grid in one call: row ``k`` of the band arrays is stage ``k``'s operator.
 
     Stage ``k`` applies ``reps[k]`` steps of length ``dt[k]``: plain exponentials
@@ -1073,26 +1093,28 @@ def staged_run(lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, 
     with the balance operator in row ``k`` of ``wl, wd, wu``.
 
     Returns ``(y, n_cram, n_newton, info, stage, residual)``; on ``info != 0``
-    ``stage`` is the failing stage and ``y`` the state before it.
+    ``stage`` is the failing stage and ``y`` the state before it.  ``cancel`` (int64, one entry): where another
+    thread sets it to non-zero, the call returns before its next stage with ``info`` :data:`CANCELLED`.
     """
     empty = np.zeros((1, 1))
     # bands given: no drift weight is chosen here (the ``fitted`` argument, ``balanced`` in its place, is not read)
     return _run(lower, diag, upper, wl, wd, wu, empty[0], empty, empty, empty, False, balanced, balanced, dt, reps,
-                cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c)
+                cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c, cancel)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def staged_run_rows(edges, f_rows, b_rows, w_rows, any_b, balanced, fitted, dt, reps, cvec, y, p0, mean_tol,
-                    lin_tol, max_iter, pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
+                    lin_tol, max_iter, pfd, alpha, theta, alpha0, c, cancel):  # pragma: no cover - numba
     """:func:`staged_run` for the native operator, its bands made stage by stage from the coefficient rows.
 
     ``f_rows`` (centres), ``b_rows`` and ``w_rows`` (faces) hold every stage's
     diffusivity, drift and balance; no band array of all stages is formed.
-    ``fitted[k]``: stage ``k``'s drift takes its upwinding weight (:func:`_fill_row`).
+    ``fitted[k]``: stage ``k``'s drift takes its upwinding weight (:func:`_fill_row`); ``cancel`` as in
+    :func:`staged_run`.
     """
     empty = np.zeros((1, 1))
     return _run(empty, empty, empty, empty, empty, empty, edges, f_rows, b_rows, w_rows, any_b, balanced, fitted, dt,
-                reps, cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c)
+                reps, cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c, cancel)
 
 
 def staged_run_rows_types() -> tuple:
@@ -1110,12 +1132,12 @@ def staged_run_rows_types() -> tuple:
     f1, rows, c1 = t.float64[::1], t.float64[:, :], t.complex128[::1]
     b1 = t.boolean[::1]
     return (f1, rows, rows, rows, t.boolean, b1, b1, f1, t.int64[::1], f1, f1, t.float64, t.float64, t.float64, t.int64,
-            t.boolean, c1, c1, t.float64, c1)
+            t.boolean, c1, c1, t.float64, c1, t.int64[::1])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, balanced, fitted, dt, reps, cvec, y,
-         p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
+         p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c, cancel):  # pragma: no cover - numba
     """The stage loop of :func:`staged_run` (bands given) and :func:`staged_run_rows` (bands made per stage)."""
     from_rows = edges.size > 1
     n_stages = f_rows.shape[0] if from_rows else diag.shape[0]
@@ -1135,6 +1157,8 @@ def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, b
     n_newton = 0
     hist = np.zeros(PREDICTOR_SIZE)
     for k in range(n_stages):
+        if _flag_raised(cancel):
+            return y, n_cram, n_newton, CANCELLED, k, 0.0
         if from_rows:
             _fill_row(h, k_int, wall, half_inv_h, f_rows[k], b_rows[k], any_b, True, fitted[k], reached, lo, di, up)
             if balanced[k]:

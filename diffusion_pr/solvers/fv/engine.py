@@ -1592,10 +1592,10 @@ class _Kernels:
         args = (f(edges), f_rows, b_rows, w_rows, bool(any_b), np.ascontiguousarray(balanced, dtype=np.bool_),
                 np.ascontiguousarray(fitted, dtype=np.bool_), f(dt), np.ascontiguousarray(reps, dtype=np.int64),
                 f(cvec), f(y), float(p0), float(mean_tol), float(lin_tol), int(MAX_BALANCE_ITERATIONS), bool(pfd),
-                *self._coefficients(pfd, order))
+                *self._coefficients(pfd, order), _cancel_flag())
         with flush_subnormals(FLUSH_SUBNORMALS):
             y, n_cram, n_newton, info, stage, res = self._staged_run_rows()(*args)
-        return y, int(n_cram), int(n_newton), int(info), int(stage), float(res)
+        return self._unless_cancelled(y, n_cram, n_newton, info, stage, res)
 
     def run(self, lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, pfd, order=16):
         """Every stage on one grid: ``(y, n_cram, n_newton, info, stage, residual)`` (:func:`._kernels.staged_run`);
@@ -1603,10 +1603,32 @@ class _Kernels:
         f = _f64
         args = (f(lower), f(diag), f(upper), f(wl), f(wd), f(wu), np.ascontiguousarray(balanced, dtype=np.bool_),
                 f(dt), np.ascontiguousarray(reps, dtype=np.int64), f(cvec), f(y), float(p0), float(mean_tol),
-                float(lin_tol), int(MAX_BALANCE_ITERATIONS), bool(pfd), *self._coefficients(pfd, order))
+                float(lin_tol), int(MAX_BALANCE_ITERATIONS), bool(pfd), *self._coefficients(pfd, order),
+                _cancel_flag())
         with flush_subnormals(FLUSH_SUBNORMALS):
             y, n_cram, n_newton, info, stage, res = self._k.staged_run(*args)
+        return self._unless_cancelled(y, n_cram, n_newton, info, stage, res)
+
+    def _unless_cancelled(self, y, n_cram, n_newton, info, stage, res) -> tuple:
+        """The kernel's results as Python numbers; :class:`_Cancelled` where this thread's cancel flag stopped it."""
+        if info == self._k.CANCELLED:
+            raise _Cancelled(f"cancelled before stage {int(stage)}")
         return y, int(n_cram), int(n_newton), int(info), int(stage), float(res)
+
+
+class _Cancelled(Exception):
+    """A speculative integration stopped by its batch's cancel flag (:func:`plain_batch_ahead`): no result."""
+
+
+#: per thread, the cancel flag the compiled stage loops read before each stage: a speculative integration of
+#: :func:`plain_batch_ahead` runs under its batch's flag, every other one under :data:`_NEVER_CANCELLED`
+_CANCEL = threading.local()
+#: the flag of every integration that is not speculative: never set (the kernels take a writeable int64 array)
+_NEVER_CANCELLED = np.zeros(1, dtype=np.int64)
+
+
+def _cancel_flag() -> np.ndarray:
+    return getattr(_CANCEL, "flag", _NEVER_CANCELLED)
 
 
 _KERNELS: Optional[_Kernels] = None
@@ -2321,6 +2343,134 @@ def plain_batch(problems: Sequence, *, rtol: float, n_cells: int, p_floor: Optio
     return [replace(_plain_result(pr, es, [ys[i, g] for g in range(len(es))], idx, ks, backend="native", rtol=rtol,
                                   t_start=t_start, t_prep=t_prep), wall_time=share)
             for i, pr in enumerate(preps)]
+
+
+def plain_batch_ahead(problems: Sequence, ahead: Callable[[], Sequence], wanted: Callable[[list], bool], *,
+                      rtol: float, n_cells: int, p_floor: Optional[float] = None,
+                      threads: Optional[int] = None) -> tuple[list, Optional[list]]:
+    """:func:`plain_batch` of ``problems`` and, speculatively, of the problems ``ahead()`` makes.
+
+    The shell ladder doubles its shells one rung at a time, and each rung's ``2N`` grid takes 2-3x its ``N`` grid:
+    with the two grids in the two threads, the worker waits for the ``2N`` grid about half of each rung (8 and 15
+    ms of the 96- and 192-shell rungs at ``zeta = 0.01``).  Here the worker spends that wait on the next rung: once
+    this thread's and its own integrations of ``problems`` are taken, it builds and classifies ``ahead()`` and
+    integrates them, largest first, under a cancel flag (:class:`_Cancelled`).  This thread integrates its share of
+    ``problems``, waits for the rest of them, and asks ``wanted(results)`` (their results, as :func:`plain_batch`
+    gives them) whether the next rung is needed: if so it joins the worker on the ahead problems' remaining
+    integrations; if not it raises the flag, and the worker's kernel returns before its next stage.
+
+    Returns ``(results, ahead_results)``: ``results`` as :func:`plain_batch` gives them, bit for bit;
+    ``ahead_results`` as :func:`plain_batch` would give ``ahead()``'s problems, the same bits, or None where they
+    were not wanted, or where making or integrating them failed in the worker (the caller then solves them as
+    usual, and meets the error there).  One thread (``threads=1``): :func:`plain_batch` of ``problems``, and None.
+    """
+    threads = _threads(threads)
+    if threads < 2:
+        return plain_batch(problems, rtol=rtol, n_cells=n_cells, p_floor=p_floor, threads=1), None
+    t_start = time.perf_counter()
+    forced, mode = _FORCED_GRID.get(), _PLAIN.get()
+    if forced is None or mode != "only" or int(n_cells) != int(forced[1][-1]):
+        raise ValueError(f"plain_batch_ahead needs grid_family, plain_masses('only') and n_cells equal to the "
+                         f"family's coarsest grid; got mode={mode!r}, n_cells={n_cells!r}")
+    spec = forced[0]
+    preps = _plain_preps(problems, spec, rtol, p_floor)
+    idx = np.array(forced[1])
+    n_base = int(idx[-1])
+    finest = _forced_edges(spec, idx, 4)
+    es = [finest[::4], finest[::2]]  # the N and 2N grids
+    integrate = _integrator(native_assemble, rtol, cram_order(rtol))
+    t_prep = time.perf_counter() - t_start
+    queue = _largest_first(preps, es)
+    ys: dict = {}
+    failed: list = []
+    cancel = np.zeros(1, dtype=np.int64)  # raised where the ahead problems are not wanted (or failed)
+    ahead_state: dict = {}  # "preps", "queue", "ys", "t_prep" (made by the worker); "error"
+    own_finished = threading.Event()  # the worker is done with its integrations of the batch's own problems
+    ready = threading.Event()  # the ahead problems are classified and queued, or failed
+
+    def run(i: int, g: int) -> None:
+        if not failed:
+            ys[i, g] = _plain_masses_on(preps[i], es[g], n_base, 1 << g, integrate)
+
+    def run_ahead(i: int, g: int) -> None:
+        if not cancel[0]:
+            ahead_state["ys"][i, g] = _plain_masses_on(ahead_state["preps"][i], es[g], n_base, 1 << g, integrate)
+
+    def drain_own() -> None:
+        try:
+            _drain(queue, run)
+        except BaseException:
+            failed.append(True)  # the other thread stops after its current job
+            raise
+
+    def drain_ahead() -> None:
+        try:
+            _drain(ahead_state["queue"], run_ahead)
+        except _Cancelled:
+            pass
+        except Exception as exc:  # noqa: BLE001 (speculative: the caller solves them itself and meets the error)
+            ahead_state["error"] = exc
+            cancel[0] = 1  # the other thread's share stops too
+
+    def worker() -> None:
+        try:
+            drain_own()
+        finally:
+            own_finished.set()
+        try:
+            t0 = time.perf_counter()
+            made = _plain_preps(ahead(), spec, rtol, p_floor)
+            ahead_state.update(preps=made, queue=_largest_first(made, es), ys={}, t_prep=time.perf_counter() - t0)
+        except Exception as exc:  # noqa: BLE001 (as in drain_ahead)
+            ahead_state["error"] = exc
+        finally:
+            ready.set()
+        if "error" in ahead_state or cancel[0]:
+            return
+        _CANCEL.flag = cancel  # this thread's kernels stop before their next stage once it is raised
+        try:
+            drain_ahead()
+        finally:
+            _CANCEL.flag = _NEVER_CANCELLED
+
+    pending = _worker().submit(worker)
+    try:
+        drain_own()
+    except BaseException:
+        cancel[0] = 1
+        own_finished.wait()
+        raise
+    own_finished.wait()
+    if failed:  # the worker's integration raised: its exception, here
+        cancel[0] = 1
+        pending.result()
+        raise RuntimeError("plain_batch_ahead: an integration of the batch failed")  # (not reached)
+    share = (time.perf_counter() - t_start) / max(len(preps), 1)
+    results = [replace(_plain_result(pr, es, [ys[i, g] for g in range(2)], idx, [0, 1], backend="native", rtol=rtol,
+                                     t_start=t_start, t_prep=t_prep), wall_time=share)
+               for i, pr in enumerate(preps)]
+    try:
+        more = bool(wanted(results))
+    except BaseException:
+        cancel[0] = 1
+        pending.result()
+        raise
+    if not more:
+        cancel[0] = 1
+        pending.result()
+        return results, None
+    t_ahead = time.perf_counter()
+    ready.wait()
+    if "error" not in ahead_state:
+        drain_ahead()
+    pending.result()
+    made, got = ahead_state.get("preps"), ahead_state.get("ys")
+    if "error" in ahead_state or cancel[0] or len(got) < len(made) * len(es):
+        return results, None
+    share = (time.perf_counter() - t_ahead) / max(len(made), 1)
+    return results, [replace(_plain_result(pr, es, [got[i, g] for g in range(2)], idx, [0, 1], backend="native",
+                                           rtol=rtol, t_start=t_ahead, t_prep=ahead_state["t_prep"]), wall_time=share)
+                     for i, pr in enumerate(made)]
 
 
 def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarray, estimate: float, rtol: float,
