@@ -871,7 +871,9 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         is the grids' estimate plus the correction's spatial error plus that
         residual in L1; where it misses ``rtol`` the shells double (up to
         :data:`MAX_CONTINUUM_SHELLS`, each doubling one more solve on the same
-        grids; ``diagnostics["shells_solved"]``).
+        grids; ``diagnostics["shells_solved"]``; with two threads the rung after
+        each new one is integrated ahead and cancelled where it is not needed,
+        :data:`SOLVE_AHEAD`, ``diagnostics["shells_ahead_unused"]``).
         ``diagnostics["shell_error"]`` is the ``n``-shell problem's distance from
         the continuum, ``L1 |Pr(n) - Pr(n/2)|/3``.  On the Fig. 1 scene at
         rtol 1e-6: 6-21 ms at ``zeta >= 0.1``; below, where the wall's layer is
