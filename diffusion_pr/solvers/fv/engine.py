@@ -2309,40 +2309,57 @@ def plain_batch(problems: Sequence, *, rtol: float, n_cells: int, p_floor: Optio
         raise ValueError(f"plain_batch needs grid_family, plain_masses('only' or 'finest') and n_cells equal to "
                          f"the family's coarsest grid; got mode={mode!r}, n_cells={n_cells!r}")
     threads = _threads(threads)
-    preps = _plain_preps(problems, forced[0], rtol, p_floor)
-    idx = np.array(forced[1])
-    n_base = int(idx[-1])
-    finest = _forced_edges(forced[0], idx, 4)
-    ks = [0, 1] if mode == "only" else [2]
-    es = [finest[::4 >> k] for k in ks]
-    integrate = _integrator(native_assemble, rtol, cram_order(rtol))
+    jobs = _PlainJobs(_plain_preps(problems, forced[0], rtol, p_floor), forced, [0, 1] if mode == "only" else [2],
+                      rtol)
     t_prep = time.perf_counter() - t_start
-
-    queue = _largest_first(preps, es)  # taken by this thread and the worker (longest processing time first)
-    ys: dict = {}
-    failed: list = []
-
-    def run(i: int, g: int) -> None:
-        if not failed:
-            ys[i, g] = _plain_masses_on(preps[i], es[g], n_base, 1 << ks[g], integrate)
-
-    def drain() -> None:
-        try:
-            _drain(queue, run)
-        except BaseException:
-            failed.append(True)  # the other thread stops after its current job
-            raise
-
-    pending = _worker().submit(drain) if threads > 1 and len(queue) > 1 else None
+    # taken by this thread and the worker (longest processing time first)
+    pending = _worker().submit(jobs.drain) if threads > 1 and len(jobs.queue) > 1 else None
     try:
-        drain()
+        jobs.drain()
     finally:
         if pending is not None:
             pending.result()
-    share = (time.perf_counter() - t_start) / max(len(preps), 1)
-    return [replace(_plain_result(pr, es, [ys[i, g] for g in range(len(es))], idx, ks, backend="native", rtol=rtol,
-                                  t_start=t_start, t_prep=t_prep), wall_time=share)
-            for i, pr in enumerate(preps)]
+    return jobs.results(rtol, t_start, t_prep)
+
+
+class _PlainJobs:
+    """The (problem, grid) integrations of plain problems on the fixed grids of ``forced`` (``grid_family``'s
+    ``(spec, knot indices)``; ``ks`` the grids' refinement exponents: ``[0, 1]`` the N and 2N grids, ``[2]`` the 4N
+    grid), taken largest first by whichever thread calls :meth:`drain` (:func:`plain_batch`,
+    :func:`plain_batch_ahead`); ``stop``: a cancel flag checked before each job."""
+
+    def __init__(self, preps: Sequence[Prepared], forced: tuple, ks: Sequence[int], rtol: float,
+                 stop: Optional[np.ndarray] = None) -> None:
+        self.preps, self.ks, self.stop = list(preps), list(ks), stop
+        self.idx = np.array(forced[1])
+        self.n_base = int(self.idx[-1])
+        finest = _forced_edges(forced[0], self.idx, 4)
+        self.es = [finest[::4 >> k] for k in self.ks]
+        self.integrate = _integrator(native_assemble, rtol, cram_order(rtol))
+        self.queue = _largest_first(self.preps, self.es)
+        self.ys: dict = {}
+        self.failed: list = []
+
+    def run(self, i: int, g: int) -> None:
+        if not self.failed and (self.stop is None or not self.stop[0]):
+            self.ys[i, g] = _plain_masses_on(self.preps[i], self.es[g], self.n_base, 1 << self.ks[g], self.integrate)
+
+    def drain(self) -> None:
+        try:
+            _drain(self.queue, self.run)
+        except BaseException:
+            self.failed.append(True)  # the other thread stops after its current job
+            raise
+
+    def complete(self) -> bool:
+        return len(self.ys) == len(self.preps) * len(self.es)
+
+    def results(self, rtol: float, t_start: float, t_prep: float) -> list:
+        """Each problem's :func:`_plain_result`, in order, with its share of the wall time since ``t_start``."""
+        share = (time.perf_counter() - t_start) / max(len(self.preps), 1)
+        return [replace(_plain_result(pr, self.es, [self.ys[i, g] for g in range(len(self.es))], self.idx, self.ks,
+                                      backend="native", rtol=rtol, t_start=t_start, t_prep=t_prep), wall_time=share)
+                for i, pr in enumerate(self.preps)]
 
 
 def plain_batch_ahead(problems: Sequence, ahead: Callable[[], Sequence], wanted: Callable[[list], bool], *,
@@ -2372,60 +2389,37 @@ def plain_batch_ahead(problems: Sequence, ahead: Callable[[], Sequence], wanted:
     if forced is None or mode != "only" or int(n_cells) != int(forced[1][-1]):
         raise ValueError(f"plain_batch_ahead needs grid_family, plain_masses('only') and n_cells equal to the "
                          f"family's coarsest grid; got mode={mode!r}, n_cells={n_cells!r}")
-    spec = forced[0]
-    preps = _plain_preps(problems, spec, rtol, p_floor)
-    idx = np.array(forced[1])
-    n_base = int(idx[-1])
-    finest = _forced_edges(spec, idx, 4)
-    es = [finest[::4], finest[::2]]  # the N and 2N grids
-    integrate = _integrator(native_assemble, rtol, cram_order(rtol))
+    own = _PlainJobs(_plain_preps(problems, forced[0], rtol, p_floor), forced, [0, 1], rtol)
     t_prep = time.perf_counter() - t_start
-    queue = _largest_first(preps, es)
-    ys: dict = {}
-    failed: list = []
     cancel = np.zeros(1, dtype=np.int64)  # raised where the ahead problems are not wanted (or failed)
-    ahead_state: dict = {}  # "preps", "queue", "ys", "t_prep" (made by the worker); "error"
+    later: dict = {}  # "jobs" (the ahead problems', made by the worker), "t_prep", "error"
     own_finished = threading.Event()  # the worker is done with its integrations of the batch's own problems
     ready = threading.Event()  # the ahead problems are classified and queued, or failed
 
-    def run(i: int, g: int) -> None:
-        if not failed:
-            ys[i, g] = _plain_masses_on(preps[i], es[g], n_base, 1 << g, integrate)
-
-    def run_ahead(i: int, g: int) -> None:
-        if not cancel[0]:
-            ahead_state["ys"][i, g] = _plain_masses_on(ahead_state["preps"][i], es[g], n_base, 1 << g, integrate)
-
-    def drain_own() -> None:
-        try:
-            _drain(queue, run)
-        except BaseException:
-            failed.append(True)  # the other thread stops after its current job
-            raise
-
     def drain_ahead() -> None:
         try:
-            _drain(ahead_state["queue"], run_ahead)
+            later["jobs"].drain()
         except _Cancelled:
             pass
         except Exception as exc:  # noqa: BLE001 (speculative: the caller solves them itself and meets the error)
-            ahead_state["error"] = exc
+            later["error"] = exc
             cancel[0] = 1  # the other thread's share stops too
 
     def worker() -> None:
         try:
-            drain_own()
+            own.drain()
         finally:
             own_finished.set()
         try:
             t0 = time.perf_counter()
-            made = _plain_preps(ahead(), spec, rtol, p_floor)
-            ahead_state.update(preps=made, queue=_largest_first(made, es), ys={}, t_prep=time.perf_counter() - t0)
+            later["jobs"] = _PlainJobs(_plain_preps(ahead(), forced[0], rtol, p_floor), forced, [0, 1], rtol,
+                                       stop=cancel)
+            later["t_prep"] = time.perf_counter() - t0
         except Exception as exc:  # noqa: BLE001 (as in drain_ahead)
-            ahead_state["error"] = exc
+            later["error"] = exc
         finally:
             ready.set()
-        if "error" in ahead_state or cancel[0]:
+        if "error" in later or cancel[0]:
             return
         _CANCEL.flag = cancel  # this thread's kernels stop before their next stage once it is raised
         try:
@@ -2435,20 +2429,17 @@ def plain_batch_ahead(problems: Sequence, ahead: Callable[[], Sequence], wanted:
 
     pending = _worker().submit(worker)
     try:
-        drain_own()
+        own.drain()
     except BaseException:
         cancel[0] = 1
         own_finished.wait()
         raise
     own_finished.wait()
-    if failed:  # the worker's integration raised: its exception, here
+    if own.failed:  # the worker's integration raised: its exception, here
         cancel[0] = 1
         pending.result()
         raise RuntimeError("plain_batch_ahead: an integration of the batch failed")  # (not reached)
-    share = (time.perf_counter() - t_start) / max(len(preps), 1)
-    results = [replace(_plain_result(pr, es, [ys[i, g] for g in range(2)], idx, [0, 1], backend="native", rtol=rtol,
-                                     t_start=t_start, t_prep=t_prep), wall_time=share)
-               for i, pr in enumerate(preps)]
+    results = own.results(rtol, t_start, t_prep)
     try:
         more = bool(wanted(results))
     except BaseException:
@@ -2461,16 +2452,12 @@ def plain_batch_ahead(problems: Sequence, ahead: Callable[[], Sequence], wanted:
         return results, None
     t_ahead = time.perf_counter()
     ready.wait()
-    if "error" not in ahead_state:
+    if "error" not in later:
         drain_ahead()
     pending.result()
-    made, got = ahead_state.get("preps"), ahead_state.get("ys")
-    if "error" in ahead_state or cancel[0] or len(got) < len(made) * len(es):
+    if "error" in later or cancel[0] or not later["jobs"].complete():
         return results, None
-    share = (time.perf_counter() - t_ahead) / max(len(made), 1)
-    return results, [replace(_plain_result(pr, es, [got[i, g] for g in range(2)], idx, [0, 1], backend="native",
-                                           rtol=rtol, t_start=t_ahead, t_prep=ahead_state["t_prep"]), wall_time=share)
-                     for i, pr in enumerate(made)]
+    return results, later["jobs"].results(rtol, t_ahead, later["t_prep"])
 
 
 def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarray, estimate: float, rtol: float,
