@@ -9,8 +9,13 @@ the machine in one state; this machine's speed drifts by 10-30 % within minutes)
 median, the median of the pairs' ratios on/off and the range of the rounds' medians, and the shell counts solved
 and left unused. Writes ``results/closures_<flag>_ab.md``.
 
+``--stress``: instead, the 320 default-mode scenes of ``stress_balance.py`` (four spectra, eight walls, five loads,
+both balanced closures). Each is solved once with the switch on; for ``SOLVE_AHEAD`` only the scenes whose ladder
+asked for a rung ahead are timed (3 pairs each), and the table splits them by whether the rung was wanted. Writes
+``results/closures_<flag>_stress.md``.
+
     python benchmarks/closures_flag_ab.py [--flag SOLVE_AHEAD] [--rounds 3] [--pairs 11] [--zetas 0.001 0.01]
-                                          [--closures local_g1_balanced local_g1_shell_balanced]
+                                          [--closures local_g1_balanced local_g1_shell_balanced] [--stress]
 """
 from __future__ import annotations
 
@@ -23,6 +28,7 @@ import numpy as np
 
 import diffusion_pr as dp
 from diffusion_pr import closures
+from diffusion_pr.solvers.fv import engine
 
 from bench_fokker_planck import SPECTRUM
 
@@ -66,6 +72,72 @@ def measure(flag: str, closure: str, zeta: float, rounds: int, pairs: int) -> di
     return out
 
 
+def stress(flag: str, pairs: int = 3) -> list:
+    """The stress scenes (``stress_balance.scenes``): per timed scene ``(name, closure, zeta, p0, asked, on, off)``
+    with ``asked`` the answers of the ladder's ``wanted`` (SOLVE_AHEAD; empty for another switch: every scene
+    timed) and the medians [s] of ``pairs`` pairs; a scene either setting fails on is skipped."""
+    from stress_balance import scenes
+
+    asked: list = []
+    real = engine.plain_batch_ahead
+
+    def spy(problems, ahead, wanted, **kwargs):
+        def told(results):
+            asked.append(bool(wanted(results)))
+            return asked[-1]
+        return real(problems, ahead, told, **kwargs)
+
+    engine.plain_batch_ahead = spy
+    rows = []
+    try:
+        for name, spec, closure, zeta, p0 in scenes():
+            def solve():
+                return closures.closure_distribution(spec, E_star=8 / 3, mean_pressure=p0, zeta=zeta, closure=closure)
+            asked.clear()
+            setattr(closures, flag, True)
+            try:
+                solve()
+            except (RuntimeError, ValueError, FloatingPointError):
+                continue
+            if flag == "SOLVE_AHEAD" and not asked:
+                continue
+            got = list(asked)
+            t: dict = {True: [], False: []}
+            for k in range(pairs):
+                for value in ((True, False) if k % 2 == 0 else (False, True)):
+                    setattr(closures, flag, value)
+                    t0 = time.perf_counter()
+                    solve()
+                    t[value].append(time.perf_counter() - t0)
+            rows.append((name, closure, zeta, p0, got, statistics.median(t[True]), statistics.median(t[False])))
+            print(f"{name[:24]:24s} {closure:24s} zeta {zeta:<6g} p0 {p0:<6g} asked {got} "
+                  f"on/off {rows[-1][5] / rows[-1][6]:.3f}", flush=True)
+    finally:
+        engine.plain_batch_ahead = real
+    return rows
+
+
+def _stress_report(flag: str, rows: list) -> None:
+    groups = [("all timed", rows), ("the rung ahead wanted", [r for r in rows if any(r[4])]),
+              ("not wanted (cancelled)", [r for r in rows if r[4] and not any(r[4])])]
+    lines = [f"`closures.{flag}` on against off over the stress scenes of `stress_balance.py` (default mode, rtol "
+             f"1e-6); load average at the start {' '.join(f'{x:.2f}' for x in os.getloadavg())}; each timed scene "
+             "the median of 3 pairs (the order alternating); ratio = summed on / summed off", "",
+             "| scenes | count | on [s] | off [s] | ratio |", "|---|---|---|---|---|"]
+    for label, rs in groups:
+        if rs:
+            on, off = sum(r[5] for r in rs), sum(r[6] for r in rs)
+            lines.append(f"| {label} | {len(rs)} | {on:.2f} | {off:.2f} | {on / off:.3f} |")
+    lines += ["", "| spectrum | closure | zeta | p0 | wanted | on [ms] | off [ms] | on/off |", "|---|---|---|---|---|---|---|---|"]
+    lines += [f"| {r[0]} | `{r[1]}` | {r[2]:g} | {r[3]:g} | {r[4]} | {1e3 * r[5]:.1f} | {1e3 * r[6]:.1f} | "
+              f"{r[5] / r[6]:.3f} |" for r in rows]
+    out = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", f"closures_{flag.lower()}_stress.md")
+    with open(out, "w") as fh:
+        fh.write("\n".join(lines) + "\n")
+    print("\n".join(lines[:8]))
+    print(f"wrote {out}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--flag", default="SOLVE_AHEAD")
@@ -73,10 +145,17 @@ def main() -> None:
     ap.add_argument("--pairs", type=int, default=11)
     ap.add_argument("--zetas", type=float, nargs="+", default=[0.001, 0.01, 0.1, 0.25])
     ap.add_argument("--closures", nargs="+", default=["local_g1_balanced", "local_g1_shell_balanced"])
+    ap.add_argument("--stress", action="store_true", help="the stress scenes of stress_balance.py instead")
     args = ap.parse_args()
     if not isinstance(getattr(closures, args.flag, None), bool):
         raise SystemExit(f"--flag must name a boolean switch of diffusion_pr.closures; got {args.flag!r}")
     default = getattr(closures, args.flag)
+    if args.stress:
+        try:
+            _stress_report(args.flag, stress(args.flag))
+        finally:
+            setattr(closures, args.flag, default)
+        return
     lines = [f"`closures.{args.flag}` on against off (default {default}); load average at the start "
              f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}; {args.rounds} rounds of {args.pairs} call pairs in one "
              "process (the order alternating); the ratio is the median of the pairs' ratios on/off, with the range of "

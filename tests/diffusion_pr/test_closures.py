@@ -909,9 +909,10 @@ def test_the_rung_integrated_ahead_changes_no_bit_and_is_asked_for_exactly_where
     engine.plain_batch_ahead) and used only where the new rung's table doubles again.  Oracle: the closure with it
     switched off (answer, zero weight, estimate and shells solved bit for bit) and the ladder itself: on the Fig. 1
     scene at ``zeta = 0.01`` ``local_g1_shell_balanced`` doubles 48 -> 96 -> 192 (the 192-shell rung wanted, nothing
-    left unused) and ``local_g1_balanced`` 48 -> 96 only (not wanted: 192 reported unused).  Break that fails it:
-    ``wanted`` always True (the balanced closure's answer is the same, but the rung is asked for where the ladder
-    stops)."""
+    left unused) and ``local_g1_balanced`` 48 -> 96 only (not wanted: 192 reported unused); a uniform ladder that
+    doubles asks for nothing (the predictor, ``AHEAD_RESIDUAL_RATIO``).  Breaks that fail it: ``wanted`` always True
+    (the balanced closure's answer is the same, but the rung is asked for where the ladder stops); the predictor
+    dropped (the uniform ladder asks)."""
     from diffusion_pr import closures
     from diffusion_pr.solvers.fv import engine
 
@@ -938,6 +939,17 @@ def test_the_rung_integrated_ahead_changes_no_bit_and_is_asked_for_exactly_where
         assert on.error_estimate == off.error_estimate and on.success and off.success
         assert on.diagnostics["shells_solved"] == off.diagnostics["shells_solved"]
         assert on.diagnostics["shells_solved"][-1] == (192 if closure == "local_g1_shell_balanced" else 96)
+    # a uniform ladder that doubles (48 -> 96) asks for nothing ahead: there the next rung was wanted in 14 of 61
+    # doublings measured (closures.AHEAD_RESIDUAL_RATIO); the answer as with the switch off
+    steep = dp.SelfAffineSpectrum(0.5, 2 * np.pi / 8192, 2 * np.pi / 8, rms_slope=0.3)
+    answers.clear()
+    on = closure_distribution(steep, E_star=E, mean_pressure=1e-4, zeta=30.0, closure="local_g1_balanced")
+    assert answers == [] and on.diagnostics["shell_grading"] == "uniform"
+    assert on.diagnostics["shells_solved"][-1] == 96 and on.diagnostics["shells_ahead_unused"] == ()
+    with monkeypatch.context() as m:
+        m.setattr(closures, "SOLVE_AHEAD", False)
+        off = closure_distribution(steep, E_star=E, mean_pressure=1e-4, zeta=30.0, closure="local_g1_balanced")
+    assert np.array_equal(on.density, off.density) and on.error_estimate == off.error_estimate
 
 
 def test_plain_alongside_gives_plain_batchs_masses_and_the_same_closure(fig1, monkeypatch):
