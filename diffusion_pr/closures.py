@@ -1127,11 +1127,17 @@ def _plain_on_grid(res: Any, ms: Sequence[int], scene: tuple, rtol: float, optio
         return list(alongside.pop(grid)[1])
     if not _batched(res.backend, options):
         return [_coarser_on_grid(res, m, scene, rtol, options, plain=plain) for m in ms]
-    sub = _sub_options(res, options, plain)
-    sub.pop("max_cells", None)  # (plain masses on given grids: no refinement)
     problems = [_shell_problem(scene, m)[0] for m in ms]
     with engine.grid_family(res.diagnostics["grid"]), engine.plain_masses(plain):
-        return engine.plain_batch(problems, rtol=rtol, **sub)
+        return engine.plain_batch(problems, rtol=rtol, **_batch_options(res, options, plain))
+
+
+def _batch_options(res: Any, options: dict, plain: str) -> dict:
+    """The options of a batch of plain solves on ``res``'s grids (:func:`_sub_options` without ``max_cells``: plain
+    masses on given grids, no refinement)."""
+    sub = _sub_options(res, options, plain)
+    sub.pop("max_cells", None)
+    return sub
 
 
 def _plain_on_grid_ahead(res: Any, ms: Sequence[int], ms_ahead: Sequence[int], wanted: Any, scene: tuple,
@@ -1142,12 +1148,10 @@ def _plain_on_grid_ahead(res: Any, ms: Sequence[int], ms_ahead: Sequence[int], w
     needed, else None (the same bits as solving them afterwards)."""
     from .solvers.fv import engine
 
-    sub = _sub_options(res, options, "only")
-    sub.pop("max_cells", None)  # (plain masses on given grids: no refinement)
     problems = [_shell_problem(scene, m)[0] for m in ms]
     with engine.grid_family(res.diagnostics["grid"]), engine.plain_masses("only"):
         return engine.plain_batch_ahead(problems, lambda: [_shell_problem(scene, m)[0] for m in ms_ahead], wanted,
-                                        rtol=rtol, **sub)
+                                        rtol=rtol, **_batch_options(res, options, "only"))
 
 
 def _failed_extrapolation(res: Any, why: str) -> Any:
@@ -1230,7 +1234,7 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
                 timing["shells"] += r.wall_time
                 out[m] = masses_of(r, mode)
             ms = [m for m in ms if m not in out]
-        if then is not None and ms and mode == "only":
+        if then is not None and ms:  # (asked with the "only" mode alone: on_the_grids)
             got, more = _plain_on_grid_ahead(res, ms, [then], functools.partial(doubles_with, ms), scene, rtol,
                                              options)
             if more is None:
