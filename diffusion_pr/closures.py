@@ -79,6 +79,18 @@ SOLVE_AHEAD = True
 #: the 43 that pass (and 25 of the 126 others); with every doubling speculated, 58 of 169, and the 320 stress scenes'
 #: summed time was 1.005x (docs/closures.md "The next rung integrated ahead")
 AHEAD_RESIDUAL_RATIO = 16.0
+#: the ladder's rungs after its first table (where it doubles: 96, 192, ... shells) are solved on the answer's N grid
+#: alone, and the continuum's refinement they bring is added to the first table's correction (:func:`_shell_corrected`:
+#: a third of each rung's integrations; docs/closures.md "The later rungs on the coarse grid")
+COARSE_RUNGS = True
+#: ... their refinement's spatial error counted as this multiple of its size times four times the first table's
+#: correction's relative second-order error (the N grid's, of a difference of the same kind): measured over the
+#: doubling scenes of the Fig. 1 spectrum, the stress run and random seeds (docs/closures.md "The later rungs on the
+#: coarse grid"), the refinement from the N grid differed from the one extrapolated in space by at most ... x that
+REFINEMENT_MARGIN = 3.0
+#: ... where that counted error, predicted from the first table's residual, takes at most this share of the room the
+#: grids' estimate leaves in rtol (else the later rungs get both grids from the start)
+COARSE_ROOM = 0.5
 #: the shells grow only while the grids' estimate leaves the extrapolation's residual this share of rtol at least
 SHELL_SHARE = 0.9
 #: where the grids' estimate alone takes SHELL_SHARE of rtol, the first solve is repeated at this fraction of rtol
@@ -1141,17 +1153,17 @@ def _batch_options(res: Any, options: dict, plain: str) -> dict:
 
 
 def _plain_on_grid_ahead(res: Any, ms: Sequence[int], ms_ahead: Sequence[int], wanted: Any, scene: tuple,
-                         rtol: float, options: dict) -> tuple:
-    """``(results, ahead_results)``: :func:`_plain_on_grid` of the shell counts ``ms`` (``"only"``, batchable
-    options) with the rung ``ms_ahead`` integrated speculatively on the worker's wait
+                         rtol: float, options: dict, mode: str = "only") -> tuple:
+    """``(results, ahead_results)``: :func:`_plain_on_grid` of the shell counts ``ms`` (``mode`` ``"only"`` or
+    ``"coarsest"``, batchable options) with the rung ``ms_ahead`` integrated speculatively on the worker's wait
     (:func:`~diffusion_pr.solvers.fv.engine.plain_batch_ahead`): its results where ``wanted(results)`` said they are
     needed, else None (the same bits as solving them afterwards)."""
     from .solvers.fv import engine
 
     problems = [_shell_problem(scene, m)[0] for m in ms]
-    with engine.grid_family(res.diagnostics["grid"]), engine.plain_masses("only"):
+    with engine.grid_family(res.diagnostics["grid"]), engine.plain_masses(mode):
         return engine.plain_batch_ahead(problems, lambda: [_shell_problem(scene, m)[0] for m in ms_ahead], wanted,
-                                        rtol=rtol, **_batch_options(res, options, "only"))
+                                        rtol=rtol, **_batch_options(res, options, mode))
 
 
 def _failed_extrapolation(res: Any, why: str) -> Any:
@@ -1219,28 +1231,34 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
     ahead: dict = {}  # the next rung's results, integrated speculatively beside a doubling (SOLVE_AHEAD)
     ahead_unused: list = []  # the rungs integrated (or begun) ahead and not used
     finest = False  # the correction from the 4N grids too, extrapolated in space
-    evaluated: dict = {}  # (top, finest) -> the table's evaluation made while a rung was integrated ahead
+    evaluated: dict = {}  # (top, finest, coarse) -> the table's evaluation made while a rung was integrated ahead
+    # the later rungs on the N grid alone (COARSE_RUNGS): their refinement of the first table's continuum is added to
+    # that table's correction; `full` once the 2N grids are wanted after all (the margin misses, or the 4N grids)
+    state = {"coarse": COARSE_RUNGS, "base": n}
 
     def masses_of(r: Any, mode: str) -> Optional[list]:
+        # (the answer's grid is the 2N grid: the N grid is its every second edge, the 4N grid's every second edge it)
+        own = r.edges[::2] if mode == "finest" else r.edges
+        theirs = res.edges[::2] if mode == "coarsest" else res.edges
         ok = not (r.diagnostics.get("plain_failure") or "plain_masses" not in r.diagnostics
-                  or not np.array_equal(r.edges if mode == "only" else r.edges[::2], res.edges))
-        return list(r.diagnostics["plain_masses"]) if ok else None  # (the 4N grid's every second edge is the answer's)
+                  or not np.array_equal(own, theirs))
+        return list(r.diagnostics["plain_masses"]) if ok else None
 
     def solve_plain(ms: list, mode: str, then: Optional[int] = None) -> dict:
         out = {}
-        if mode == "only":
-            for m in [m for m in ms if m in ahead]:
-                r = ahead.pop(m)
+        if mode in ("only", "coarsest"):
+            for m in [m for m in ms if m in ahead and ahead[m][0] == mode]:
+                r = ahead.pop(m)[1]
                 timing["shells"] += r.wall_time
                 out[m] = masses_of(r, mode)
             ms = [m for m in ms if m not in out]
-        if then is not None and ms:  # (asked with the "only" mode alone: on_the_grids)
-            got, more = _plain_on_grid_ahead(res, ms, [then], functools.partial(doubles_with, ms), scene, rtol,
-                                             options)
+        if then is not None and ms:  # (asked with the "only" or "coarsest" mode alone: on_the_grids)
+            got, more = _plain_on_grid_ahead(res, ms, [then], functools.partial(doubles_with, ms, mode), scene, rtol,
+                                             options, mode)
             if more is None:
                 ahead_unused.append(then)
             else:
-                ahead.update(zip([then], more))
+                ahead.update(zip([then], [(mode, r) for r in more]))
         else:
             got = _plain_on_grid(res, ms, scene, rtol, options, plain=mode, alongside=alongside)
         for m, r in zip(ms, got):
@@ -1251,7 +1269,8 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
         return out
 
     def on_the_grids(ms: list, then: Optional[int] = None) -> None:
-        for m, got in solve_plain([m for m in ms if m not in plain], "only", then).items():
+        mode = "coarsest" if state["coarse"] and ms and min(ms) > state["base"] else "only"
+        for m, got in solve_plain([m for m in ms if m not in plain], mode, then).items():
             plain[m] = got
         if finest:
             for m, got in solve_plain([m for m in ms if plain[m] is not None and plain[m][2] is None],
@@ -1261,18 +1280,33 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
                 else:
                     plain[m][2] = got[2]
 
+    def fill_answer_grids() -> None:
+        """The 2N grids of the rungs solved on the N grid alone: every table on both grids again."""
+        state["coarse"] = False
+        for m, got in solve_plain([m for m in plain if plain[m] is not None and plain[m][1] is None],
+                                  "answer").items():
+            if got is None:
+                plain[m] = None
+            else:
+                plain[m][1] = got[1]
+
     l1, agg = _l1, _aggregated
     thin = scene[6] != "uniform"  # graded shells: the wall's layer is thin (shell_grading)
+
+    def table(top: int, masses: dict, g: int) -> tuple:
+        eighth = top % 8 == 0 and masses.get(top // 8) is not None
+        used = [top >> k for k in range(4 if eighth else 3)]
+        return _shell_table([masses[m][g] for m in used], thin=thin, start=scene[6] == "ends")
 
     def evaluate(top: int, masses: dict, finest: bool) -> dict:
         """The correction and its errors from the table of ``top`` shells (``masses`` the plain masses by shell
         count, every rung of ``_ladder_below(top)`` in it)."""
-        eighth = top % 8 == 0 and masses.get(top // 8) is not None
-        used = [top >> k for k in range(4 if eighth else 3)]
+        if state["coarse"] and top > state["base"]:
+            return evaluate_coarse(top, masses)
         c = [None, None, None]
-        ev: dict = {"split": False, "split_error": None}  # split: extrapolated in space from the N and 2N grids
+        ev: dict = {"split": False, "split_error": None, "refinement_error": None}  # split: from the N and 2N grids
         for g in ((0, 1, 2) if finest else (0, 1)):
-            x, res_g, table_g = _shell_table([masses[m][g] for m in used], thin=thin, start=scene[6] == "ends")
+            x, res_g, table_g = table(top, masses, g)
             c[g] = x - masses[n][g]
             if g == 1:  # the answer's grid: its residual and orders
                 ev["residual"], ev["table"] = res_g, table_g
@@ -1287,27 +1321,59 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
         # counted")
         ev["counted"] = ev["split_error"] if ev["split"] and not finest and not thin else ev["corr_error"]
         ev["grids"] = res.error_estimate + ev["counted"]
+        ev["x_coarse"], ev["c_size"] = c[0] + masses[n][0], l1(c[1])  # (the N grid's continuum; the size of c_2N)
         return ev
+
+    def evaluate_coarse(top: int, masses: dict) -> dict:
+        """:func:`evaluate` where the rungs above the first table's (``state["base"]``) are on the N grid alone: the
+        first table's correction (extrapolated in space as there) plus the refinement of the N grid's continuum
+        from the first table's to this one's, split onto the 2N grid; that refinement's spatial error is counted as
+        :data:`REFINEMENT_MARGIN` times its size times the N grid's relative error of the first correction
+        (``4 s / |c_2N|``, ``s`` that correction's second-order estimate on the 2N grid)."""
+        base = state["base"]
+        ev0 = evaluated.get(("base", base)) or evaluate_full_base(base, masses)
+        x_n, residual, table_n = table(top, masses, 0)
+        refinement = x_n - ev0["x_coarse"]
+        relative = 4.0 * ev0["corr_error"] / ev0["c_size"] if ev0["c_size"] > 0.0 else 0.0
+        ev = dict(ev0)
+        ev["corr"] = ev0["corr"] + _split_to_finer(refinement)
+        ev["refinement_error"] = REFINEMENT_MARGIN * relative * l1(refinement)
+        ev["counted"] = ev0["counted"] + ev["refinement_error"]
+        ev["grids"] = res.error_estimate + ev["counted"]
+        ev["residual"], ev["table"] = residual, table_n
+        return ev
+
+    def evaluate_full_base(base: int, masses: dict) -> dict:
+        saved, state["coarse"] = state["coarse"], False
+        try:
+            ev0 = evaluated[("base", base)] = evaluate(base, masses, False)
+        finally:
+            state["coarse"] = saved
+        return ev0
 
     def next_step(top: int, ev: dict, finest: bool) -> str:
         """What the ladder does after the table of ``top`` shells: "done", "finest" (the correction's spatial
-        error misses: the 4N grids), "stop" (no room or no more shells) or "double"."""
+        error misses: the 4N grids), "full" (the later rungs' 2N grids: their refinement's counted error is what
+        misses), "stop" (no room or no more shells) or "double"."""
         if ev["grids"] + ev["residual"] <= rtol:
             return "done"
+        coarse = ev["refinement_error"] is not None
+        if coarse and ev["grids"] - ev["refinement_error"] + ev["residual"] <= rtol:
+            return "full"
         if not finest and plain[n][2] is not None and ev["counted"] > ev["residual"]:
-            return "finest"
+            return "full" if coarse else "finest"
         if 2 * top > MAX_CONTINUUM_SHELLS or ev["grids"] >= SHELL_SHARE * rtol:
-            return "stop"
+            return "full" if coarse else "stop"
         return "double"
 
-    def doubles_with(ms: list, results: list) -> bool:
+    def doubles_with(ms: list, mode: str, results: list) -> bool:
         """Whether the ladder doubles again once the rung ``ms = [top]`` has given ``results`` (asked by
         :func:`_plain_on_grid_ahead` before it finishes the next rung's speculative integrations)."""
-        got = masses_of(results[0], "only")
+        got = masses_of(results[0], mode)
         if got is None:
             return False
         top = ms[0]
-        ev = evaluated[top, finest] = evaluate(top, {**plain, top: got}, finest)  # (the loop's next evaluation)
+        ev = evaluated[top, finest, state["coarse"]] = evaluate(top, {**plain, top: got}, finest)  # (the loop's next)
         return next_step(top, ev, finest) == "double"
 
     top = n
@@ -1316,8 +1382,13 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
         on_the_grids(wanted)
         if plain[top] is None or plain[top // 2] is None or plain[top // 4] is None:
             return _failed_extrapolation(res, f"a coarser-shell problem did not solve on the {n}-shell grids")
-        ev = evaluated.pop((top, finest), None) or evaluate(top, plain, finest)
+        ev = evaluated.pop((top, finest, state["coarse"]), None) or evaluate(top, plain, finest)
         step = next_step(top, ev, finest)
+        if step == "full":  # the later rungs' 2N grids after all: the table of this top on both grids
+            ahead_unused.extend(ahead)
+            ahead.clear()
+            fill_answer_grids()
+            continue
         if step == "finest":
             finest = True  # the correction's spatial error is what misses: extrapolate it in space
             ahead_unused.extend(ahead)  # (integrated for the N and 2N grids only)
@@ -1326,6 +1397,13 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
             continue
         if step != "double":
             break
+        if top == state["base"]:
+            evaluated[("base", top)] = ev  # the first table, on both grids (the later rungs' tables add to it)
+            # the later rungs on the N grid alone where their refinement's counted error, predicted from this
+            # table's residual (the refinement's expected size), leaves room for theirs
+            relative = 4.0 * ev["corr_error"] / ev["c_size"] if ev["c_size"] > 0.0 else 0.0
+            if REFINEMENT_MARGIN * relative * ev["residual"] > COARSE_ROOM * (rtol - ev["grids"]):
+                state["coarse"] = False
         # the rung after the new one, integrated ahead on the worker's wait where it is likely needed (no 4N grids)
         likely = thin and ev["residual"] > AHEAD_RESIDUAL_RATIO * (rtol - ev["grids"])
         top *= 2
@@ -1336,21 +1414,25 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
             break
     ahead_unused.extend(ahead)
     corr, corr_error, split_error, split = ev["corr"], ev["corr_error"], ev["split_error"], ev["split"]
-    counted, grids, residual, table = ev["counted"], ev["grids"], ev["residual"], ev["table"]
+    counted, grids, residual, table_diag = ev["counted"], ev["grids"], ev["residual"], ev["table"]
     estimate = grids + residual
+    coarse_rungs = tuple(sorted(m for m in plain if plain[m] is not None and plain[m][1] is None))
     # the first moments per cell: the answer's, corrected with the plain cells' (at their centres)
     mom = res.p * (res.density * res.weights) + 0.5 * (res.edges[:-1] + res.edges[1:]) * corr[1:]
     return _continuum_result(res, _masses(res) + corr, mom, estimate=estimate, grids=grids, residual=residual,
                              shell_error=l1(plain[n][1] - plain[n // 2][1]) / 3.0, n=top, p0=scene[2], rtol=rtol,
                              extra={"shell_correction_error": corr_error, "shell_correction_counted": counted,
                                     "shell_correction_extrapolated_error": split_error if split and not finest
-                                    else None, **table,
+                                    else None, **table_diag,
                                     "shells_solved": tuple(sorted(m for m in plain if plain[m] is not None)),
                                     "shells_alongside": tuple(sorted(beside)),
                                     "shells_ahead_unused": tuple(ahead_unused),
+                                    "shells_on_the_coarse_grid": coarse_rungs,
+                                    "shell_refinement_error": ev["refinement_error"],
                                     "shell_scheme": "correction from plain grids" + (
                                         ", extrapolated in space (4N grids)" if finest else
-                                        ", extrapolated in space (N and 2N grids)" if split else "")},
+                                        ", extrapolated in space (N and 2N grids)" if split else "") + (
+                                        f", refined by the N grid's rungs {coarse_rungs}" if coarse_rungs else "")},
                              extra_time=timing["shells"])
 
 

@@ -128,19 +128,24 @@ def grid_family(grid: tuple):
 #: the plain (not extrapolated) cell masses a solve reports or is limited to (:func:`plain_masses`); None: neither
 _PLAIN: contextvars.ContextVar = contextvars.ContextVar("plain_masses", default=None)
 
+#: the grids a solve under :func:`plain_masses` integrates, by mode (refinement exponents: 0 the N grid, 1 the 2N
+#: grid, 2 the 4N grid)
+PLAIN_GRIDS = {"only": (0, 1), "finest": (2,), "coarsest": (0,), "answer": (1,)}
+
 
 @contextlib.contextmanager
 def plain_masses(mode: str):
     """Within the block, finite-volume solves report the plain cell masses of their last level's three grids
     (``mode="keep"``: ``diagnostics["plain_masses"] = (N grid, 2N grid, 4N grid)``, each lumped below the floor as
     the answer is) or, under :func:`grid_family` and ``n_cells``, integrate only the N and 2N grids
-    (``mode="only"``) or only the 4N grid (``mode="finest"``) and return those (the others None; no Richardson,
-    no estimate: ``diagnostics["plain_failure"]`` says whether a balance failed).  The closures' extrapolation in
-    the number of shells takes its corrections from them (the difference of two problems on the same grid has
-    correlated spatial errors): from the two coarser grids, and from the 4N grid too where the correction's own
-    spatial error needs its extrapolation."""
-    if mode not in ("keep", "only", "finest"):
-        raise ValueError(f"mode must be 'keep', 'only' or 'finest'; got mode={mode!r}")
+    (``mode="only"``), only the 4N grid (``mode="finest"``), only the N grid (``"coarsest"``) or only the 2N grid
+    (``"answer"``) and return those (the others None; no Richardson, no estimate: ``diagnostics["plain_failure"]``
+    says whether a balance failed; :data:`PLAIN_GRIDS`).  The closures' extrapolation in the number of shells takes
+    its corrections from them (the difference of two problems on the same grid has correlated spatial errors):
+    from the two coarser grids, from the 4N grid too where the correction's own spatial error needs its
+    extrapolation, and the shell ladder's later rungs from the N grid alone."""
+    if mode != "keep" and mode not in PLAIN_GRIDS:
+        raise ValueError(f"mode must be 'keep' or one of {sorted(PLAIN_GRIDS)}; got mode={mode!r}")
     token = _PLAIN.set(mode)
     try:
         yield
@@ -1467,14 +1472,20 @@ def _drain(queue: collections.deque, run: Callable) -> None:
         run(i, g)
 
 
-def _plain_masses_on(pr: Prepared, edges: np.ndarray, n_base: int, refine: int, integrate: Callable) -> tuple:
+def _plain_masses_on(pr: Prepared, edges: np.ndarray, n_base: int, refine: int, integrate: Callable,
+                     coefficients_made: Optional[Callable[[], None]] = None) -> tuple:
     """One plain problem integrated on one grid with its own coefficient rows (a time-dependent problem's segments
-    are made by :func:`solve_on_grid`), in this thread's work arrays: they are dead when the integration returns."""
+    are made by :func:`solve_on_grid`), in this thread's work arrays: they are dead when the integration returns.
+    ``coefficients_made()`` is called once the rows are made, before the integration."""
     if pr.time_dependent:
+        if coefficients_made is not None:
+            coefficients_made()
         return integrate(pr, edges, n_base, refine, None)
     with _work_arrays("plain:") as work:
-        return integrate(pr, edges, n_base, refine,
-                         _coefficients(pr.pieces, [edges], centre_drift=False, plans=pr.row_plans, work=work)[0])
+        coef = _coefficients(pr.pieces, [edges], centre_drift=False, plans=pr.row_plans, work=work)[0]
+        if coefficients_made is not None:
+            coefficients_made()
+        return integrate(pr, edges, n_base, refine, coef)
 
 
 def _prime_alongside(record: Alongside, prep: Prepared) -> None:
@@ -1882,7 +1893,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     forced = _FORCED_GRID.get()
     plain_mode = _PLAIN.get()
     alongside = _ALONGSIDE.get()
-    plain_only = plain_mode in ("only", "finest")
+    plain_only = plain_mode in PLAIN_GRIDS
     if plain_only and (forced is None or n_cells is None or sixth):
         raise ValueError(f"plain_masses({plain_mode!r}) needs grid_family, n_cells and extrapolation='fourth'")
     prep = prepare(problem, rtol=rtol, p_floor=p_floor, lamperti=_lamperti, on_grid=forced[0] if plain_only else None)
@@ -1953,15 +1964,15 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             compiled=loop is None and _compiled(prep))
         es = [finest[::depth >> k] for k in range(depth.bit_length())]  # coarsest first
         ks = list(range(len(es)))  # each grid's refinement exponent (its cells are n_base << k)
-        if plain_only:  # the N and 2N grids alone, or the 4N grid alone (plain_masses)
-            ks = [0, 1] if plain_mode == "only" else [2]
+        if plain_only:  # the N and 2N grids alone, or one grid alone (plain_masses)
+            ks = list(PLAIN_GRIDS[plain_mode])
             es = [es[k] for k in ks]
         if reuse is not None and not (np.array_equal(es[0], reuse[1]) and np.array_equal(es[1], reuse[2])):
             reuse = None  # not nested to the last bit (never seen): integrate all three grids
         # (not for a plain solve's two grids without a balance below PARALLEL_MIN_WORK cell-stages: handing the 2N
         # grid to a thread costs more than it saves)
         parallel = threads > 1 and loop is None and assemble is native_assemble and _compiled(prep) and not (
-            plain_mode == "finest" or (plain_only and not prep.has_balance
+            (plain_only and len(ks) == 1) or (plain_only and not prep.has_balance
                                        and 3 * n_base * len(prep.pieces) < PARALLEL_MIN_WORK))
         last = len(es) - 1
         side = None  # the plain problems to integrate alongside (plain_alongside), not on a first level
@@ -2305,12 +2316,11 @@ def plain_batch(problems: Sequence, *, rtol: float, n_cells: int, p_floor: Optio
     """
     t_start = time.perf_counter()
     forced, mode = _FORCED_GRID.get(), _PLAIN.get()
-    if forced is None or mode not in ("only", "finest") or int(n_cells) != int(forced[1][-1]):
-        raise ValueError(f"plain_batch needs grid_family, plain_masses('only' or 'finest') and n_cells equal to "
-                         f"the family's coarsest grid; got mode={mode!r}, n_cells={n_cells!r}")
+    if forced is None or mode not in PLAIN_GRIDS or int(n_cells) != int(forced[1][-1]):
+        raise ValueError(f"plain_batch needs grid_family, plain_masses({' or '.join(map(repr, PLAIN_GRIDS))}) and "
+                         f"n_cells equal to the family's coarsest grid; got mode={mode!r}, n_cells={n_cells!r}")
     threads = _threads(threads)
-    jobs = _PlainJobs(_plain_preps(problems, forced[0], rtol, p_floor), forced, [0, 1] if mode == "only" else [2],
-                      rtol)
+    jobs = _PlainJobs(_plain_preps(problems, forced[0], rtol, p_floor), forced, PLAIN_GRIDS[mode], rtol)
     t_prep = time.perf_counter() - t_start
     # taken by this thread and the worker (longest processing time first)
     pending = _worker().submit(jobs.drain) if threads > 1 and len(jobs.queue) > 1 else None
@@ -2329,8 +2339,8 @@ class _PlainJobs:
     :func:`plain_batch_ahead`); ``stop``: a cancel flag checked before each job."""
 
     def __init__(self, preps: Sequence[Prepared], forced: tuple, ks: Sequence[int], rtol: float,
-                 stop: Optional[np.ndarray] = None) -> None:
-        self.preps, self.ks, self.stop = list(preps), list(ks), stop
+                 stop: Optional[np.ndarray] = None, coefficients_made: Optional[Callable[[], None]] = None) -> None:
+        self.preps, self.ks, self.stop, self.coefficients_made = list(preps), list(ks), stop, coefficients_made
         self.idx = np.array(forced[1])
         self.n_base = int(self.idx[-1])
         finest = _forced_edges(forced[0], self.idx, 4)
@@ -2342,7 +2352,8 @@ class _PlainJobs:
 
     def run(self, i: int, g: int) -> None:
         if not self.failed and (self.stop is None or not self.stop[0]):
-            self.ys[i, g] = _plain_masses_on(self.preps[i], self.es[g], self.n_base, 1 << self.ks[g], self.integrate)
+            self.ys[i, g] = _plain_masses_on(self.preps[i], self.es[g], self.n_base, 1 << self.ks[g], self.integrate,
+                                             self.coefficients_made)
 
     def drain(self) -> None:
         try:
@@ -2386,10 +2397,15 @@ def plain_batch_ahead(problems: Sequence, ahead: Callable[[], Sequence], wanted:
         return plain_batch(problems, rtol=rtol, n_cells=n_cells, p_floor=p_floor, threads=1), None
     t_start = time.perf_counter()
     forced, mode = _FORCED_GRID.get(), _PLAIN.get()
-    if forced is None or mode != "only" or int(n_cells) != int(forced[1][-1]):
-        raise ValueError(f"plain_batch_ahead needs grid_family, plain_masses('only') and n_cells equal to the "
-                         f"family's coarsest grid; got mode={mode!r}, n_cells={n_cells!r}")
-    own = _PlainJobs(_plain_preps(problems, forced[0], rtol, p_floor), forced, [0, 1], rtol)
+    if forced is None or mode not in ("only", "coarsest") or int(n_cells) != int(forced[1][-1]):
+        raise ValueError(f"plain_batch_ahead needs grid_family, plain_masses('only' or 'coarsest') and n_cells equal "
+                         f"to the family's coarsest grid; got mode={mode!r}, n_cells={n_cells!r}")
+    # one integration of its own (a rung on one grid): this thread takes it, and the worker makes the ahead problems
+    # once its coefficient rows are made (their Python would hold the GIL this thread needs for its rows)
+    rows_made = threading.Event()
+    own = _PlainJobs(_plain_preps(problems, forced[0], rtol, p_floor), forced, PLAIN_GRIDS[mode], rtol,
+                     coefficients_made=rows_made.set)
+    alone = len(own.queue) == 1
     t_prep = time.perf_counter() - t_start
     cancel = np.zeros(1, dtype=np.int64)  # raised where the ahead problems are not wanted (or failed)
     later: dict = {}  # "jobs" (the ahead problems', made by the worker), "t_prep", "error"
@@ -2407,13 +2423,16 @@ def plain_batch_ahead(problems: Sequence, ahead: Callable[[], Sequence], wanted:
 
     def worker() -> None:
         try:
-            own.drain()
+            if not alone:
+                own.drain()
         finally:
             own_finished.set()
+        if alone:
+            rows_made.wait()
         try:
             t0 = time.perf_counter()
-            later["jobs"] = _PlainJobs(_plain_preps(ahead(), forced[0], rtol, p_floor), forced, [0, 1], rtol,
-                                       stop=cancel)
+            later["jobs"] = _PlainJobs(_plain_preps(ahead(), forced[0], rtol, p_floor), forced, PLAIN_GRIDS[mode],
+                                       rtol, stop=cancel)
             later["t_prep"] = time.perf_counter() - t0
         except Exception as exc:  # noqa: BLE001 (as in drain_ahead)
             later["error"] = exc
@@ -2432,8 +2451,11 @@ def plain_batch_ahead(problems: Sequence, ahead: Callable[[], Sequence], wanted:
         own.drain()
     except BaseException:
         cancel[0] = 1
+        rows_made.set()
         own_finished.wait()
         raise
+    finally:
+        rows_made.set()  # (also where the job had no rows to make, or was taken by the worker)
     own_finished.wait()
     if own.failed:  # the worker's integration raised: its exception, here
         cancel[0] = 1
