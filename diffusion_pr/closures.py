@@ -1276,22 +1276,20 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
         for m, got in solve_plain([m for m in ms if m not in plain], mode, then).items():
             plain[m] = got
         if finest:
-            for m, got in solve_plain([m for m in ms if plain[m] is not None and plain[m][2] is None],
-                                      "finest").items():
-                if got is None:
-                    plain[m] = None
-                else:
-                    plain[m][2] = got[2]
+            add_grid(2, "finest", ms)
+
+    def add_grid(g: int, mode: str, ms: list) -> None:
+        """Grid ``g`` (the plain mode ``mode`` integrates it alone) of the shell counts ``ms`` that lack it."""
+        for m, got in solve_plain([m for m in ms if plain[m] is not None and plain[m][g] is None], mode).items():
+            if got is None:
+                plain[m] = None
+            else:
+                plain[m][g] = got[g]
 
     def fill_answer_grids() -> None:
         """The 2N grids of the rungs solved on the N grid alone: every table on both grids again."""
         state["coarse"] = False
-        for m, got in solve_plain([m for m in plain if plain[m] is not None and plain[m][1] is None],
-                                  "answer").items():
-            if got is None:
-                plain[m] = None
-            else:
-                plain[m][1] = got[1]
+        add_grid(1, "answer", list(plain))
 
     l1, agg = _l1, _aggregated
     thin = scene[6] != "uniform"  # graded shells: the wall's layer is thin (shell_grading)

@@ -1006,6 +1006,13 @@ def test_the_later_rungs_on_the_coarse_grid_keep_the_answer_within_its_estimate(
         oracle = closure_distribution(fig1, zeta=zeta, closure=closure, rtol=1e-8, **kw)
         assert l1_on_cells(on, oracle) < on.error_estimate <= 1e-6
         assert l1_on_cells(off, oracle) < off.error_estimate
+    # the prediction overruled at zeta = 0.001: the rungs go to the N grid, the count misses at the end, and their 2N
+    # grids are solved then (the fallback): the answer with the switch off, bit for bit
+    monkeypatch.setattr(closures, "COARSE_ROOM", 1e9)
+    modes.clear()
+    late = closure_distribution(fig1, zeta=0.001, closure="local_g1_shell_balanced", **kw)
+    assert "coarsest" in modes and "answer" in modes and late.diagnostics["shells_on_the_coarse_grid"] == ()
+    assert np.array_equal(late.density, off.density) and late.error_estimate == off.error_estimate
 
 
 def test_plain_alongside_gives_plain_batchs_masses_and_the_same_closure(fig1, monkeypatch):
