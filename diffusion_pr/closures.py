@@ -1332,7 +1332,7 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
         :data:`REFINEMENT_MARGIN` times its size times the N grid's relative error of the first correction
         (``4 s / |c_2N|``, ``s`` that correction's second-order estimate on the 2N grid)."""
         base = state["base"]
-        ev0 = evaluated.get(("base", base)) or evaluate_full_base(base, masses)
+        ev0 = evaluated["base", base]  # (kept by the loop where it doubled from the first table)
         x_n, residual, table_n = table(top, masses, 0)
         refinement = x_n - ev0["x_coarse"]
         relative = 4.0 * ev0["corr_error"] / ev0["c_size"] if ev0["c_size"] > 0.0 else 0.0
@@ -1343,14 +1343,6 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
         ev["grids"] = res.error_estimate + ev["counted"]
         ev["residual"], ev["table"] = residual, table_n
         return ev
-
-    def evaluate_full_base(base: int, masses: dict) -> dict:
-        saved, state["coarse"] = state["coarse"], False
-        try:
-            ev0 = evaluated[("base", base)] = evaluate(base, masses, False)
-        finally:
-            state["coarse"] = saved
-        return ev0
 
     def next_step(top: int, ev: dict, finest: bool) -> str:
         """What the ladder does after the table of ``top`` shells: "done", "finest" (the correction's spatial
@@ -1399,7 +1391,7 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
         if step != "double":
             break
         if top == state["base"]:
-            evaluated[("base", top)] = ev  # the first table, on both grids (the later rungs' tables add to it)
+            evaluated["base", top] = ev  # the first table, on both grids (the later rungs' tables add to it)
             # the later rungs on the N grid alone where their refinement's counted error, predicted from this
             # table's residual (the refinement's expected size), leaves room for theirs
             relative = 4.0 * ev["corr_error"] / ev["c_size"] if ev["c_size"] > 0.0 else 0.0
