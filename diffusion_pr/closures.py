@@ -1236,7 +1236,7 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
     finest = False  # the correction from the 4N grids too, extrapolated in space
     evaluated: dict = {}  # (top, finest, coarse) -> the table's evaluation made while a rung was integrated ahead
     # the later rungs on the N grid alone (COARSE_RUNGS): their refinement of the first table's continuum is added to
-    # that table's correction; `full` once the 2N grids are wanted after all (the margin misses, or the 4N grids)
+    # that table's correction; "coarse" off once the 2N grids are wanted after all (the margin misses, or the 4N grids)
     state = {"coarse": COARSE_RUNGS, "base": n}
 
     def masses_of(r: Any, mode: str) -> Optional[list]:
@@ -1322,7 +1322,10 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
         # counted")
         ev["counted"] = ev["split_error"] if ev["split"] and not finest and not thin else ev["corr_error"]
         ev["grids"] = res.error_estimate + ev["counted"]
-        ev["x_coarse"], ev["c_size"] = c[0] + masses[n][0], l1(c[1])  # (the N grid's continuum; the size of c_2N)
+        # the N grid's continuum, and that grid's relative error of the correction (4 s / |c_2N|: the later rungs'
+        # refinement, a difference of the same kind, is counted with it)
+        size = l1(c[1])
+        ev["x_coarse"], ev["n_relative"] = c[0] + masses[n][0], 4.0 * ev["corr_error"] / size if size > 0.0 else 0.0
         return ev
 
     def evaluate_coarse(top: int, masses: dict) -> dict:
@@ -1335,10 +1338,9 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
         ev0 = evaluated["base", base]  # (kept by the loop where it doubled from the first table)
         x_n, residual, table_n = table(top, masses, 0)
         refinement = x_n - ev0["x_coarse"]
-        relative = 4.0 * ev0["corr_error"] / ev0["c_size"] if ev0["c_size"] > 0.0 else 0.0
         ev = dict(ev0)
         ev["corr"] = ev0["corr"] + _split_to_finer(refinement)
-        ev["refinement_error"] = REFINEMENT_MARGIN * relative * l1(refinement)
+        ev["refinement_error"] = REFINEMENT_MARGIN * ev0["n_relative"] * l1(refinement)
         ev["counted"] = ev0["counted"] + ev["refinement_error"]
         ev["grids"] = res.error_estimate + ev["counted"]
         ev["residual"], ev["table"] = residual, table_n
@@ -1394,8 +1396,7 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
             evaluated["base", top] = ev  # the first table, on both grids (the later rungs' tables add to it)
             # the later rungs on the N grid alone where their refinement's counted error, predicted from this
             # table's residual (the refinement's expected size), leaves room for theirs
-            relative = 4.0 * ev["corr_error"] / ev["c_size"] if ev["c_size"] > 0.0 else 0.0
-            if REFINEMENT_MARGIN * relative * ev["residual"] > COARSE_ROOM * (rtol - ev["grids"]):
+            if REFINEMENT_MARGIN * ev["n_relative"] * ev["residual"] > COARSE_ROOM * (rtol - ev["grids"]):
                 state["coarse"] = False
         # the rung after the new one, integrated ahead on the worker's wait where it is likely needed (no 4N grids)
         likely = thin and ev["residual"] > AHEAD_RESIDUAL_RATIO * (rtol - ev["grids"])

@@ -1972,8 +1972,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         # (not for a plain solve's two grids without a balance below PARALLEL_MIN_WORK cell-stages: handing the 2N
         # grid to a thread costs more than it saves)
         parallel = threads > 1 and loop is None and assemble is native_assemble and _compiled(prep) and not (
-            (plain_only and len(ks) == 1) or (plain_only and not prep.has_balance
-                                       and 3 * n_base * len(prep.pieces) < PARALLEL_MIN_WORK))
+            plain_only and (len(ks) == 1 or (not prep.has_balance
+                                             and 3 * n_base * len(prep.pieces) < PARALLEL_MIN_WORK)))
         last = len(es) - 1
         side = None  # the plain problems to integrate alongside (plain_alongside), not on a first level
         idle = None  # on the first level: those problems built and classified while this thread waits
