@@ -15,7 +15,11 @@ microseconds per call) and prints the medians of
 
 It writes the table to ``results/closure_timeline.md`` (docs/closures.md "Where a call's time goes").
 
-    python benchmarks/closure_timeline.py [--calls 15]
+With ``--events CLOSURE ZETA`` it prints instead the events of the fastest of ``--calls`` warm calls of one cell,
+thread by thread in time order (also the coefficient rows, the grid edges, the regrading, the remap and the results
+records), and writes them to ``results/closure_events_<closure>_<zeta>.md``: where a thread waits for the other.
+
+    python benchmarks/closure_timeline.py [--calls 15] [--events local_g1_balanced 0.1]
 """
 from __future__ import annotations
 
@@ -35,7 +39,7 @@ ZETAS = (0.01, 0.1, 0.25, 1.0, 4.0)
 CLOSURES = ("local_g1", "local_g1_balanced", "local_g1_shell_balanced")
 
 
-def _instrument(events: list) -> None:
+def _instrument(events: list, detailed: bool = False) -> None:
     """Wrap the three engine functions so that each call appends ``(main thread?, start, end, label)``."""
     def wrap(owner, name: str, label: str) -> None:
         original = getattr(owner, name)
@@ -53,6 +57,10 @@ def _instrument(events: list) -> None:
     wrap(engine._Kernels, "run_rows", "kernel")
     wrap(engine, "_run_grids", "grids")
     wrap(engine, "prepare", "prepare")
+    if detailed:
+        for name, label in (("_coefficients", "coefficient rows"), ("edges_for", "edges"), ("_regraded", "regrade"),
+                            ("_remapped", "remap"), ("build_result", "result record")):
+            wrap(engine, name, label)
 
 
 def measure(closure: str, zeta: float, calls: int, events: list) -> list:
@@ -78,12 +86,51 @@ def measure(closure: str, zeta: float, calls: int, events: list) -> list:
     return [1e3 * statistics.median(row[j] for row in per) for j in range(6)]
 
 
+def event_lines(closure: str, zeta: float, calls: int, events: list) -> list:
+    """The events of the fastest of ``calls`` warm calls, in time order: (thread, start, end, length [ms], label)."""
+    def solve():
+        return dp.pressure_distribution(SPECTRUM, E_star=8 / 3, mean_pressure=0.004, zeta=zeta, closure=closure,
+                                        rtol=1e-6)
+
+    for _ in range(3):
+        solve()
+    best = None
+    for _ in range(calls):
+        events.clear()
+        t0 = time.perf_counter()
+        solve()
+        total = time.perf_counter() - t0
+        if best is None or total < best[0]:
+            best = (total, t0, list(events))
+    total, t0, evs = best
+    busy = {m: sum(b - a for mm, a, b, lab in evs if mm == m and lab == "kernel") for m in (True, False)}
+    lines = [f"`{closure}`, `zeta = {zeta:g}`: the fastest of {calls} warm calls, {1e3 * total:.2f} ms; kernels "
+             f"{1e3 * busy[True]:.2f} ms in this thread, {1e3 * busy[False]:.2f} ms in the worker (load average "
+             f"{os.getloadavg()[0]:.2f})", "", "| thread | from [ms] | to [ms] | length [ms] | what |", "|---|---|---|---|---|"]
+    for m, a, b, lab in sorted(evs, key=lambda e: e[1]):
+        lines.append(f"| {'main' if m else 'worker'} | {1e3 * (a - t0):.2f} | {1e3 * (b - t0):.2f} | "
+                     f"{1e3 * (b - a):.2f} | {lab} |")
+    return lines
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--calls", type=int, default=15)
+    ap.add_argument("--events", nargs=2, metavar=("CLOSURE", "ZETA"), default=None,
+                    help="print the events of one cell's fastest call instead of the table")
     args = ap.parse_args()
     events: list = []
-    _instrument(events)
+    _instrument(events, detailed=args.events is not None)
+    if args.events is not None:
+        closure, zeta = args.events[0], float(args.events[1])
+        lines = event_lines(closure, zeta, args.calls, events)
+        print("\n".join(lines))
+        out = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results",
+                           f"closure_events_{closure}_{zeta:g}.md")
+        with open(out, "w") as fh:
+            fh.write("\n".join(lines) + "\n")
+        print(f"wrote {out}")
+        return
     lines = [f"load average at the start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}; medians of {args.calls} "
              "warm calls [ms]", "",
              "| closure | zeta | call | main prepare | outside the grids' integrations | inside them | "

@@ -80,6 +80,25 @@ def child(case: str, zeta: float, mode: str, keep_env: bool = False) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+NUMBA_ALONE = r"""
+import json, time
+import numpy
+t0 = time.perf_counter()
+import numba
+print(json.dumps(dict(numba_import_s=time.perf_counter() - t0)))
+"""
+
+
+def numba_import(keep_env: bool = False) -> float:
+    """Seconds of ``import numba`` alone in a fresh process (numpy imported before): a floor under every first
+    closure solve, whose kernels are numba's."""
+    env = dict(os.environ)
+    if not keep_env:
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
+    out = subprocess.run([sys.executable, "-c", NUMBA_ALONE], capture_output=True, text=True, check=True, env=env)
+    return json.loads(out.stdout.strip().splitlines()[-1])["numba_import_s"]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--rounds", type=int, default=None,
@@ -98,7 +117,9 @@ def main() -> None:
         child(case, zeta, "package", keep)
     t_start = time.time()
     runs = {(c, z, m): [] for c, z in cases for m in MODES}
+    numba_alone = []
     for rnd in range(rounds):
+        numba_alone.append(numba_import(keep))
         for c, z in cases:
             for m in (MODES if rnd % 2 == 0 else MODES[::-1]):
                 runs[(c, z, m)].append(child(c, z, m, keep))
@@ -125,7 +146,9 @@ def main() -> None:
              "too, before the thirty-seventh session). "
              "Target: first solve under 0.3 s. "
              + ("PYTHONDONTWRITEBYTECODE as set by the caller." if keep else
-                "Byte code cached (PYTHONDONTWRITEBYTECODE removed), as in a default installation."), "",
+                "Byte code cached (PYTHONDONTWRITEBYTECODE removed), as in a default installation.")
+             + f" `import numba` alone (numpy imported before), one fresh process per round: median "
+               f"{statistics.median(numba_alone):.3f} s (range {min(numba_alone):.3f}-{max(numba_alone):.3f}).", "",
              "| case | zeta | setup [s] | first solve, package [s] | setup + first, package [s] | "
              + " | ".join(f"{m} [s]" for m in MODES[1:])
              + " | " + " | ".join(f"package/{m}" for m in MODES[1:]) + " | second solve [ms] |",
@@ -140,7 +163,7 @@ def main() -> None:
     print(text)
     OUT.mkdir(exist_ok=True)
     (OUT / "cold_start.md").write_text(text + "\n")
-    (OUT / "cold_start.json").write_text(json.dumps(dict(rounds=rounds, load=load, rows=rows), indent=1))
+    (OUT / "cold_start.json").write_text(json.dumps(dict(rounds=rounds, load=load, rows=rows, numba_import_s=numba_alone), indent=1))
 
 
 if __name__ == "__main__":
