@@ -63,45 +63,41 @@ def _instrument(events: list, detailed: bool = False) -> None:
             wrap(engine, name, label)
 
 
-def measure(closure: str, zeta: float, calls: int, events: list) -> list:
-    """Medians [ms] of (call, main prepare, outside the grids, inside them, kernels here, kernels in the worker)."""
+def warm_calls(closure: str, zeta: float, calls: int, events: list):
+    """After 3 warm-up calls, ``calls`` timed calls of one cell: yields ``(seconds, start, events)`` per call
+    (``events`` cleared before each)."""
     def solve():
         return dp.pressure_distribution(SPECTRUM, E_star=8 / 3, mean_pressure=0.004, zeta=zeta, closure=closure,
                                         rtol=1e-6)
 
     for _ in range(3):
         solve()
-    per = []
     for _ in range(calls):
         events.clear()
         t0 = time.perf_counter()
         solve()
-        total = time.perf_counter() - t0
-        here = [e for e in events if e[0]]
+        yield time.perf_counter() - t0, t0, events
+
+
+def measure(closure: str, zeta: float, calls: int, events: list) -> list:
+    """Medians [ms] of (call, main prepare, outside the grids, inside them, kernels here, kernels in the worker)."""
+    per = []
+    for total, _, evs in warm_calls(closure, zeta, calls, events):
+        here = [e for e in evs if e[0]]
         inside = sum(b - a for _, a, b, lab in here if lab == "grids")
         prep = next(b - a for _, a, b, lab in here if lab == "prepare")  # the main problem's comes first
         k_here = sum(b - a for _, a, b, lab in here if lab == "kernel")
-        k_worker = sum(b - a for m, a, b, lab in events if lab == "kernel" and not m)
+        k_worker = sum(b - a for m, a, b, lab in evs if lab == "kernel" and not m)
         per.append((total, prep, total - inside, inside, k_here, k_worker))
     return [1e3 * statistics.median(row[j] for row in per) for j in range(6)]
 
 
 def event_lines(closure: str, zeta: float, calls: int, events: list) -> list:
     """The events of the fastest of ``calls`` warm calls, in time order: (thread, start, end, length [ms], label)."""
-    def solve():
-        return dp.pressure_distribution(SPECTRUM, E_star=8 / 3, mean_pressure=0.004, zeta=zeta, closure=closure,
-                                        rtol=1e-6)
-
-    for _ in range(3):
-        solve()
     best = None
-    for _ in range(calls):
-        events.clear()
-        t0 = time.perf_counter()
-        solve()
-        total = time.perf_counter() - t0
+    for total, t0, evs in warm_calls(closure, zeta, calls, events):
         if best is None or total < best[0]:
-            best = (total, t0, list(events))
+            best = (total, t0, list(evs))
     total, t0, evs = best
     busy = {m: sum(b - a for mm, a, b, lab in evs if mm == m and lab == "kernel") for m in (True, False)}
     lines = [f"`{closure}`, `zeta = {zeta:g}`: the fastest of {calls} warm calls, {1e3 * total:.2f} ms; kernels "
