@@ -102,7 +102,8 @@ def event_lines(closure: str, zeta: float, calls: int, events: list) -> list:
     busy = {m: sum(b - a for mm, a, b, lab in evs if mm == m and lab == "kernel") for m in (True, False)}
     lines = [f"`{closure}`, `zeta = {zeta:g}`: the fastest of {calls} warm calls, {1e3 * total:.2f} ms; kernels "
              f"{1e3 * busy[True]:.2f} ms in this thread, {1e3 * busy[False]:.2f} ms in the worker (load average "
-             f"{os.getloadavg()[0]:.2f})", "", "| thread | from [ms] | to [ms] | length [ms] | what |", "|---|---|---|---|---|"]
+             f"{os.getloadavg()[0]:.2f})", "", "| thread | from [ms] | to [ms] | length [ms] | what |",
+             "|---|---|---|---|---|"]
     for m, a, b, lab in sorted(evs, key=lambda e: e[1]):
         lines.append(f"| {'main' if m else 'worker'} | {1e3 * (a - t0):.2f} | {1e3 * (b - t0):.2f} | "
                      f"{1e3 * (b - a):.2f} | {lab} |")

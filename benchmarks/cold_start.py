@@ -163,7 +163,8 @@ def main() -> None:
     print(text)
     OUT.mkdir(exist_ok=True)
     (OUT / "cold_start.md").write_text(text + "\n")
-    (OUT / "cold_start.json").write_text(json.dumps(dict(rounds=rounds, load=load, rows=rows, numba_import_s=numba_alone), indent=1))
+    (OUT / "cold_start.json").write_text(json.dumps(dict(rounds=rounds, load=load, rows=rows,
+                                                          numba_import_s=numba_alone), indent=1))
 
 
 if __name__ == "__main__":
