@@ -1035,6 +1035,29 @@ def test_the_later_rungs_on_the_coarse_grid_keep_the_answer_within_its_estimate(
     assert np.array_equal(late.density, off.density) and late.error_estimate == off.error_estimate
 
 
+def test_a_uniform_ladder_keeps_its_later_rungs_on_both_grids(monkeypatch, l1_on_cells):
+    """The later rungs on the N grid alone (closures.COARSE_RUNGS) only where the shells are graded.  On a uniform
+    ladder the refinement's spatial error is not what its count says: the random audit of seed 21 (scene 232,
+    benchmarks/stress_balance.py --truth --random 250 --seed 21) found local_g1_shell_balanced 4.2e-6 from its
+    rtol-1e-8 oracle against an estimate of 8.9e-7 with the coarse rung (96 shells); with the later rungs on both grids
+    the ladder goes on to 192 shells and the answer is 7.6e-8 off against 7.2e-7 (measured).  Oracle: the rtol-1e-8
+    answer; the answer must be within its estimate and rtol, and the same bits as with the switch off.  Break that
+    fails it: the guard on graded shells dropped."""
+    from diffusion_pr import closures
+
+    spec = dp.SelfAffineSpectrum(0.8336925280073781, 2 * np.pi / 512, 2 * np.pi / 4, C0=3952.347752033435)
+    kw = dict(E_star=E, mean_pressure=2.470362841947012e-05, zeta=0.19652159259222554,
+              closure="local_g1_shell_balanced")
+    on = closure_distribution(spec, **kw)
+    oracle = closure_distribution(spec, rtol=1e-8, **kw)
+    assert on.success and l1_on_cells(on, oracle) < on.error_estimate <= 1e-6
+    assert on.diagnostics["shell_grading"] == "uniform" and on.diagnostics["shells_on_the_coarse_grid"] == ()
+    with monkeypatch.context() as m:
+        m.setattr(closures, "COARSE_RUNGS", False)
+        off = closure_distribution(spec, **kw)
+    assert np.array_equal(on.density, off.density) and on.error_estimate == off.error_estimate
+
+
 def test_plain_alongside_gives_plain_batchs_masses_and_the_same_closure(fig1, monkeypatch):
     """engine.plain_alongside integrates the shell ladder's plain problems beside the main solve's last level (its
     two threads, speculatively: a level that is not the last discards them).  Oracle: plain_batch on the main
