@@ -28,16 +28,10 @@ from diffusion_pr.closures import closure_distribution
 
 import stress_balance as sb
 
-CLOSURES = ("local_g1", "local_g1_balanced", "local_g1_shell_balanced")
-
-
-def audit(seed: int, n: int) -> list:
-    """``[(seed, index, name, closure, zeta, p0, top shells, order, rho_P, rho_R, residual, grids, estimate,
-    true)]`` of the uniform ladders among ``n`` random scenes of ``seed``."""
-    rows = []
+def uniform_ladders(seed: int, n: int):
+    """Yields ``(index, name, spectrum, kwargs, answer, oracle)`` for the random scenes of ``seed`` (``n`` of them)
+    whose rtol-1e-6 answer came from a uniform ladder and whose rtol-1e-8 answer (the oracle) succeeded."""
     for i, (name, spec, closure, zeta, p0) in enumerate(sb.random_scenes(n, seed)):
-        if closure not in CLOSURES:
-            continue
         kw = dict(E_star=8 / 3, mean_pressure=p0, zeta=zeta, closure=closure)
         try:
             r = closure_distribution(spec, **kw)
@@ -46,14 +40,22 @@ def audit(seed: int, n: int) -> list:
             ref = closure_distribution(spec, rtol=1e-8, **kw)
         except (RuntimeError, ValueError, FloatingPointError):
             continue
-        if not ref.success:
-            continue
+        if ref.success:
+            yield i, name, spec, kw, r, ref
+
+
+def audit(seed: int, n: int) -> list:
+    """``[(seed, index, name, closure, zeta, p0, top shells, order, rho_P, rho_R, residual, grids, estimate,
+    true)]`` of the uniform ladders among ``n`` random scenes of ``seed``."""
+    rows = []
+    for i, name, _, kw, r, ref in uniform_ladders(seed, n):
         d = r.diagnostics
         residual = d.get("shell_extrapolation_residual", np.nan)
-        rows.append((seed, i, name, closure, zeta, p0, d["n_shells"][0], d.get("shell_extrapolation_order"),
-                     d.get("shell_order_ratio", np.nan), d.get("richardson_order_ratio", np.nan), residual,
-                     r.error_estimate - residual, r.error_estimate, sb._l1_to(r, ref)))
-        print(f"seed {seed} #{i} {closure:24s} zeta {zeta:.3g} shells {rows[-1][6]} order {rows[-1][7]} "
+        rows.append((seed, i, name, kw["closure"], kw["zeta"], kw["mean_pressure"], d["n_shells"][0],
+                     d.get("shell_extrapolation_order"), d.get("shell_order_ratio", np.nan),
+                     d.get("richardson_order_ratio", np.nan), residual, r.error_estimate - residual,
+                     r.error_estimate, sb._l1_to(r, ref)))
+        print(f"seed {seed} #{i} {kw['closure']:24s} zeta {kw['zeta']:.3g} shells {rows[-1][6]} order {rows[-1][7]} "
               f"rho_R {rows[-1][9]:.2f} true/est {rows[-1][13] / r.error_estimate:.2f}", flush=True)
     return rows
 

@@ -25,6 +25,7 @@ from diffusion_pr.closures import closure_distribution
 
 import stress_balance as sb
 from bench_fokker_planck import SPECTRUM
+from shell_table_audit import uniform_ladders
 
 CURRENT = closures._shell_table
 
@@ -85,17 +86,7 @@ def collect(seeds, n):
     """``[(label, spectrum, kwargs, oracle)]`` of the uniform ladders (shipped rule) among the random scenes."""
     out = []
     for seed in seeds:
-        for i, (name, spec, closure, zeta, p0) in enumerate(sb.random_scenes(n, seed)):
-            kw = dict(E_star=8 / 3, mean_pressure=p0, zeta=zeta, closure=closure)
-            try:
-                r = closure_distribution(spec, **kw)
-                if not r.success or r.diagnostics.get("shell_grading") != "uniform":
-                    continue
-                ref = closure_distribution(spec, rtol=1e-8, **kw)
-            except (RuntimeError, ValueError, FloatingPointError):
-                continue
-            if ref.success:
-                out.append((f"{seed}/{i}", spec, kw, ref))
+        out += [(f"{seed}/{i}", spec, kw, ref) for i, _, spec, kw, _, ref in uniform_ladders(seed, n)]
         print(f"seed {seed}: {len(out)} uniform ladders so far", flush=True)
     return out
 
