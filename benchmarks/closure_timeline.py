@@ -110,6 +110,14 @@ def event_lines(closure: str, zeta: float, calls: int, events: list) -> list:
     return lines
 
 
+def _write(name: str, lines: list) -> None:
+    """``lines`` to ``results/<name>``, and say so."""
+    out = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", name)
+    with open(out, "w") as fh:
+        fh.write("\n".join(lines) + "\n")
+    print(f"wrote {out}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--calls", type=int, default=15)
@@ -122,11 +130,7 @@ def main() -> None:
         closure, zeta = args.events[0], float(args.events[1])
         lines = event_lines(closure, zeta, args.calls, events)
         print("\n".join(lines))
-        out = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results",
-                           f"closure_events_{closure}_{zeta:g}.md")
-        with open(out, "w") as fh:
-            fh.write("\n".join(lines) + "\n")
-        print(f"wrote {out}")
+        _write(f"closure_events_{closure}_{zeta:g}.md", lines)
         return
     lines = [f"load average at the start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}; medians of {args.calls} "
              "warm calls [ms]", "",
@@ -137,10 +141,7 @@ def main() -> None:
             m = measure(closure, zeta, args.calls, events)
             lines.append(f"| `{closure}` | {zeta:g} | " + " | ".join(f"{v:.1f}" for v in m) + " |")
             print(lines[-1], flush=True)
-    out = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", "closure_timeline.md")
-    with open(out, "w") as fh:
-        fh.write("\n".join(lines) + "\n")
-    print(f"wrote {out}")
+    _write("closure_timeline.md", lines)
 
 
 if __name__ == "__main__":
