@@ -2451,11 +2451,10 @@ def plain_batch_ahead(problems: Sequence, ahead: Callable[[], Sequence], wanted:
         own.drain()
     except BaseException:
         cancel[0] = 1
-        rows_made.set()
-        own_finished.wait()
+        own_finished.wait()  # (the worker's own share never waits for rows_made)
         raise
     finally:
-        rows_made.set()  # (also where the job had no rows to make, or was taken by the worker)
+        rows_made.set()  # (also where the job had no rows to make, or was taken by the worker, or raised)
     own_finished.wait()
     if own.failed:  # the worker's integration raised: its exception, here
         cancel[0] = 1
