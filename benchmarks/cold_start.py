@@ -1,12 +1,15 @@
-"""Cold start: the first solve in a fresh process, numba's own cache load against the package's.
+"""Cold start: the first solve in a fresh process, the kernels' stored machine code against numba's cache loads.
 
 Each measurement is one fresh Python process (warm on-disk caches, as on every run
 after the first one after installing) that imports ``diffusion_pr`` (lazy), builds
 the Fig. 1 spectrum (this imports numpy and scipy; reported apart), then times its
-first solve and a second, warm one. The two ways of loading the cached numba kernels
-alternate process by process in every round:
+first solve and a second, warm one. The ways of loading the compiled kernels alternate process by process in every
+round:
 
-* ``package``: the default, cached kernels loaded without numba's registry refresh, with their shared bitcode
+* ``stored``: the default since the forty-ninth session, the kernels' machine code linked from the package's store
+  by llvmlite, numba not imported (:mod:`diffusion_pr._machine_code`);
+* ``package``: numba's cache (``DIFFUSION_PR_MACHINE_CODE=0``, as every mode below), loaded without numba's
+  registry refresh, with their shared bitcode
   parsed only when linked, numba's runtime from the package's cache and numba's environments rebuilt without
   their modules' imports (:mod:`diffusion_pr._numba_load`);
 * ``eager``: the package's load with numba's own unserialization (``DIFFUSION_PR_NUMBA_LAZY_LINK=0``: each
@@ -63,13 +66,14 @@ print(json.dumps(dict(import_s=t1 - t0, setup_s=t2 - t1, first_s=t3 - t2, second
                       refreshed="numba.np.linalg" in sys.modules)))
 """
 
-MODES = ("package", "eager", "nrt", "env", "numba")
+MODES = ("stored", "package", "eager", "nrt", "env", "numba")
 CLOSURES = ("local_g1", "local_g1_balanced", "local_g1_shell_balanced")
 ZETAS = (0.001, 0.01, 0.1, 0.25, 1.0, 4.0)
 
 
 def child(case: str, zeta: float, mode: str, keep_env: bool = False) -> dict:
-    env = {**os.environ, "DIFFUSION_PR_NUMBA_REFRESH": "1" if mode == "numba" else "0",
+    env = {**os.environ, "DIFFUSION_PR_MACHINE_CODE": "1" if mode == "stored" else "0",
+           "DIFFUSION_PR_NUMBA_REFRESH": "1" if mode == "numba" else "0",
            "DIFFUSION_PR_NUMBA_LAZY_LINK": "0" if mode == "eager" else "1",
            "DIFFUSION_PR_NUMBA_NRT_CACHE": "0" if mode == "nrt" else "1",
            "DIFFUSION_PR_NUMBA_LAZY_ENV": "0" if mode == "env" else "1"}
@@ -105,29 +109,32 @@ def main() -> None:
                     help="fresh processes per case and mode (default: 5, or 3 with --quick)")
     ap.add_argument("--quick", action="store_true",
                     help="zeta 0.01 and 0.25 only, 3 rounds unless --rounds says (default: off)")
+    ap.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES,
+                    help="the loads to compare, the first one the headline (default: all)")
     ap.add_argument("--keep-env", action="store_true",
                     help="keep PYTHONDONTWRITEBYTECODE if set (default: removed, so that the package's "
                          "modules load from cached byte code as in a default installation)")
     args = ap.parse_args()
     keep = args.keep_env
+    modes = tuple(args.modes)
     rounds = args.rounds if args.rounds is not None else (3 if args.quick else 5)
     zetas = (0.01, 0.25) if args.quick else ZETAS
     cases = [("paper", 0.0)] + [(c, z) for c in CLOSURES for z in zetas]
     for case, zeta in cases[:2]:  # caches warm (a first run after installing compiles here)
-        child(case, zeta, "package", keep)
+        child(case, zeta, "stored", keep)  # (a store missing a kernel gets it here)
     t_start = time.time()
-    runs = {(c, z, m): [] for c, z in cases for m in MODES}
+    runs = {(c, z, m): [] for c, z in cases for m in modes}
     numba_alone = []
     for rnd in range(rounds):
         numba_alone.append(numba_import(keep))
         for c, z in cases:
-            for m in (MODES if rnd % 2 == 0 else MODES[::-1]):
+            for m in (modes if rnd % 2 == 0 else modes[::-1]):
                 runs[(c, z, m)].append(child(c, z, m, keep))
         print(f"round {rnd + 1}/{rounds} done ({time.time() - t_start:.0f} s)", flush=True)
     rows = []
     for c, z in cases:
         row = dict(case=c, zeta=z)
-        for m in MODES:
+        for m in modes:
             rs = runs[(c, z, m)]
             assert all(r["success"] for r in rs), (c, z, m)
             row[m] = {k: statistics.median(r[k] for r in rs) for k in ("setup_s", "first_s", "second_s")}
@@ -137,8 +144,9 @@ def main() -> None:
     load = os.getloadavg()
     lines = [f"# Cold start: first solve in a fresh process (medians of {rounds} processes per cell, "
              f"load {load[0]:.2f})", "",
-             "`package`: cached kernels loaded without numba's registry refresh and with their shared bitcode "
-             "parsed only when linked and numba's runtime loaded from the package's cache (the default); `eager`: "
+             "`stored`: the kernels' machine code from the package's store, numba not imported (the default); "
+             "`package`: numba's cached kernels loaded without numba's registry refresh and with their shared "
+             "bitcode parsed only when linked and numba's runtime loaded from the package's cache; `eager`: "
              "the same with numba's own unserialization (`DIFFUSION_PR_NUMBA_LAZY_LINK=0`); `nrt`: the same with "
              "numba's runtime compiled in the process (`DIFFUSION_PR_NUMBA_NRT_CACHE=0`); `env`: the same with the "
              "environments of numba's functions rebuilt numba's way (`DIFFUSION_PR_NUMBA_LAZY_ENV=0`); `numba`: "
@@ -149,16 +157,17 @@ def main() -> None:
                 "Byte code cached (PYTHONDONTWRITEBYTECODE removed), as in a default installation.")
              + f" `import numba` alone (numpy imported before), one fresh process per round: median "
                f"{statistics.median(numba_alone):.3f} s (range {min(numba_alone):.3f}-{max(numba_alone):.3f}).", "",
-             "| case | zeta | setup [s] | first solve, package [s] | setup + first, package [s] | "
-             + " | ".join(f"{m} [s]" for m in MODES[1:])
-             + " | " + " | ".join(f"package/{m}" for m in MODES[1:]) + " | second solve [ms] |",
-             "|---|---|---|---|---|" + "---|" * (2 * len(MODES) - 1)]
+             f"| case | zeta | setup [s] | first solve, {modes[0]} [s] | setup + first, {modes[0]} [s] | "
+             + " | ".join(f"{m} [s]" for m in modes[1:])
+             + " | " + " | ".join(f"{modes[0]}/{m}" for m in modes[1:]) + " | numba imported | second solve [ms] |",
+             "|---|---|---|---|---|" + "---|" * (2 * len(modes))]
     for row in rows:
-        p, setup = row["package"]["first_s"], row["package"]["setup_s"]
+        head = row[modes[0]]
+        p, setup = head["first_s"], head["setup_s"]
         lines.append(f"| {row['case']} | {row['zeta']:g} | {setup:.3f} | {p:.3f} | {setup + p:.3f} | "
-                     + " | ".join(f"{row[m]['first_s']:.3f}" for m in MODES[1:]) + " | "
-                     + " | ".join(f"{p / row[m]['first_s']:.2f}" for m in MODES[1:])
-                     + f" | {1e3 * row['package']['second_s']:.1f} |")
+                     + " | ".join(f"{row[m]['first_s']:.3f}" for m in modes[1:]) + " | "
+                     + " | ".join(f"{p / row[m]['first_s']:.2f}" for m in modes[1:])
+                     + f" | {'/'.join(str(v) for v in head['numba'])} | {1e3 * head['second_s']:.1f} |")
     text = "\n".join(lines)
     print(text)
     OUT.mkdir(exist_ok=True)

@@ -14,9 +14,7 @@ Units: pressures ``p`` and the wall products ``kz q`` [pressure]; rows dimension
 from __future__ import annotations
 
 import math
-from typing import Optional
 
-import numpy as np
 from numba import njit
 
 
@@ -26,8 +24,8 @@ def _clamped(x):  # pragma: no cover - numba
     return 0.0 if x < 0.0 else x
 
 
-#: the models of :func:`_model_rows`
-DIFFUSIVITY, DRIFT, BALANCE = 0, 1, 2
+#: the models of :func:`_model_rows` (numba-free in :mod:`._closure_rows`, with the rows' Python entry points)
+from ._closure_rows import BALANCE, DIFFUSIVITY, DRIFT, RowPlan, _c1, model_rows  # noqa: E402,F401
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -65,49 +63,6 @@ def model_rows_types() -> tuple:
 
     f1 = t.float64[::1]
     return (f1, f1, f1, t.int64, t.float64[:, ::1])
-
-
-def _c1(a: np.ndarray) -> np.ndarray:
-    return np.ascontiguousarray(a, dtype=float).reshape(-1)
-
-
-def model_rows(kq: np.ndarray, kq_part: np.ndarray, p: np.ndarray, model: int) -> np.ndarray:
-    """The rows of ``model`` for the shells' products ``kq`` (and ``kq_part``) at the pressures ``p`` (a new array;
-    a NaN of ``p`` stays NaN)."""
-    kq, kq_part, p = _c1(kq), _c1(kq_part), _c1(p)
-    out = np.empty((kq.size, p.size))
-    _rows_kernel()(kq, kq_part, p, int(model), out)
-    return out
-
-
-class RowPlan:
-    """The rows of one model for a fixed set of shells, made once per problem and evaluated on many grids.
-
-    ``plan(p, out=None)`` writes the rows at the pressures ``p`` (1-D) into ``out`` (a C-contiguous float array of
-    shape ``(shells, p.size)``; a new one where None or of another layout) in one compiled call that releases the
-    GIL, and returns it, or None where a value is not finite (the caller then takes its checked path, which says
-    where).  The same bits as :func:`model_rows`.
-    """
-
-    __slots__ = ("kq", "kq_part", "model")
-
-    def __init__(self, kq: np.ndarray, kq_part: np.ndarray, model: int) -> None:
-        self.kq, self.kq_part, self.model = _c1(kq), _c1(kq_part), int(model)
-
-    def __len__(self) -> int:
-        return int(self.kq.size)
-
-    def __call__(self, p: np.ndarray, out: Optional[np.ndarray] = None) -> Optional[np.ndarray]:
-        p = _c1(p)
-        shape = (self.kq.size, p.size)
-        target = out if (out is not None and out.shape == shape and out.dtype == np.float64
-                         and out.flags.c_contiguous) else np.empty(shape)
-        if not _rows_kernel()(self.kq, self.kq_part, p, self.model, target):
-            return None
-        if out is not None and target is not out:
-            out[...] = target
-            return out
-        return target
 
 
 # cached loads skip numba's registry refresh (only a compile needs it): diffusion_pr._numba_load

@@ -70,7 +70,6 @@ import contextlib
 import hashlib
 import os
 import pickle
-import struct
 import sys
 import tempfile
 import threading
@@ -82,6 +81,8 @@ from numba.core import environment as _environment
 from numba.core.caching import FunctionCache
 from numba.core.registry import CPUDispatcher
 from numba.core.runtime import rtsys
+
+from ._machine_code import elf_symbols
 
 __all__ = ["load_without_refresh", "ENV_KEEP_REFRESH", "ENV_LAZY_LINK", "ENV_NRT_CACHE", "ENV_LAZY_ENV",
            "LoadOnlyFunctionCache", "LoadedBySignature", "elf_defined_symbols", "initialize_runtime"]
@@ -102,7 +103,6 @@ _INTERNALS = ("_load_overload", "_guard_against_spurious_io_errors")
 _LIBRARY_INTERNALS = ("enable_object_caching", "_set_compiled_object", "_finalize_final_module",
                       "_get_module_for_linking", "_unserialize")
 
-_ELF_SYMTAB, _ELF_UNDEF, _ELF_OBJECT, _ELF_FUNC = 2, 0, 1, 2
 
 
 def elf_defined_symbols(object_code: bytes) -> Optional[set]:
@@ -112,26 +112,7 @@ def elf_defined_symbols(object_code: bytes) -> Optional[set]:
     their binding: for numba's cached libraries this is the set numba builds from the library's bitcode (its
     functions and global variables that are not declarations).
     """
-    data = bytes(object_code)
-    if len(data) < 64 or data[:4] != b"\x7fELF" or data[4] != 2 or data[5] != 1:
-        return None
-    try:
-        (shoff,) = struct.unpack_from("<Q", data, 0x28)
-        shentsize, shnum = struct.unpack_from("<HH", data, 0x3A)
-        sections = [struct.unpack_from("<IIQQQQIIQQ", data, shoff + i * shentsize) for i in range(shnum)]
-        names = set()
-        for _, kind, _, _, offset, size, link, _, _, entsize in sections:
-            if kind != _ELF_SYMTAB or entsize < 24:
-                continue
-            strings = sections[link][4]
-            for j in range(size // entsize):
-                name, info, _, shndx, _, _ = struct.unpack_from("<IBBHQQ", data, offset + j * entsize)
-                if name and shndx != _ELF_UNDEF and (info & 0xF) in (_ELF_OBJECT, _ELF_FUNC):
-                    start = strings + name
-                    names.add(data[start:data.index(b"\0", start)].decode())
-        return names
-    except (struct.error, IndexError, ValueError, UnicodeDecodeError):
-        return None
+    return elf_symbols(object_code)
 
 
 _LAZY_CLASSES: dict = {}
@@ -176,6 +157,7 @@ def _unserialize_lazily(codegen, state):
     library._set_compiled_object(object_code)
     library._finalize_final_module()
     engine._defined_symbols |= names
+    library._diffusion_pr_object = object_code  # for the package's store of machine code (diffusion_pr._machine_code)
     return library
 
 

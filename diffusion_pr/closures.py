@@ -527,7 +527,7 @@ class _ShellModel:
         kz = _common_kz(items)
         if kz is None:
             return None
-        from ._closure_kernels import RowPlan
+        from ._closure_rows import RowPlan
 
         return RowPlan(_products(kz, items, cls._PRODUCTS[0]), _products(kz, items, cls._PRODUCTS[1]), cls._MODEL)
 
@@ -537,7 +537,7 @@ class _ShellModel:
         plan = cls.row_plan(items)
         if plan is None:
             return np.array([it(p) for it in items])
-        from ._closure_kernels import model_rows
+        from ._closure_rows import model_rows
 
         return model_rows(plan.kq, plan.kq_part, p, plan.model)  # (a plan's call says None where one is not finite)
 

@@ -34,7 +34,7 @@ def warm_up() -> float:
     """
     import numpy as np
 
-    from .._closure_kernels import DIFFUSIVITY, model_rows
+    from .._closure_rows import DIFFUSIVITY, model_rows
     from ..problem import Stage, StagedProblem
 
     t0 = time.perf_counter()

@@ -38,6 +38,7 @@ from numba import njit, types
 from numba.extending import intrinsic
 
 from .cram import ALPHA, ALPHA0, PFD_RESIDUES, THETA
+from .cram import CANCELLED as _CANCELLED
 
 __all__ = ["cram_pfd", "gttrf", "gttrs", "cram_apply", "cram_apply_d", "balanced_stage", "staged_run", "staged_run_rows", "staged_run_rows_types", "ALPHA", "THETA", "ALPHA0", "PFD_RESIDUES"]
 
@@ -1063,9 +1064,9 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
     return y, n_cram, n_newton, 0, 0.0
 
 
-#: ``info`` of :func:`staged_run` / :func:`staged_run_rows` when their ``cancel`` flag was set before a stage: ``y`` is
-#: the state before that stage (a speculative integration another thread no longer needs; engine.plain_batch_ahead)
-CANCELLED = -2
+#: ``info`` of :func:`staged_run` / :func:`staged_run_rows` when their ``cancel`` flag was set before a stage
+#: (:data:`.cram.CANCELLED`, where the engine reads it without importing numba)
+CANCELLED = _CANCELLED
 
 
 @intrinsic
@@ -1192,6 +1193,10 @@ def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, b
 
 
 # cached loads skip numba's registry refresh (only a compile needs it): diffusion_pr._numba_load
-from ..._numba_load import load_without_refresh  # noqa: E402
+from ..._numba_load import LoadedBySignature, load_without_refresh  # noqa: E402
 
 load_without_refresh(globals())
+
+#: :func:`staged_run_rows` loaded for :func:`staged_run_rows_types` and closed to other signatures (the engine's
+#: ``_Kernels``, through :mod:`diffusion_pr._machine_code`)
+staged_run_rows_kernel = LoadedBySignature(staged_run_rows, staged_run_rows_types, close=True)

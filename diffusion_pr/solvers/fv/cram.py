@@ -28,7 +28,13 @@ from typing import Sequence
 import numpy as np
 
 __all__ = ["ALPHA", "THETA", "ALPHA0", "PFD_RESIDUES", "ERROR_BOUND", "PFD_ERROR_BOUNDS", "pfd_coefficients",
-           "cf_coefficients", "expm_tridiagonal"]
+           "cf_coefficients", "expm_tridiagonal", "CANCELLED"]
+
+#: ``info`` of the compiled stage loops (:func:`._kernels.staged_run`, :func:`._kernels.staged_run_rows`) when their
+#: ``cancel`` flag was set before a stage: ``y`` is the state before that stage (a speculative integration another
+#: thread no longer needs; engine.plain_batch_ahead). Here, in a module without numba, so that the engine reads it
+#: without importing the kernels.
+CANCELLED = -2
 
 ALPHA = np.array([
     +5.464930576870210e+3 - 3.797983575308356e+4j,

@@ -41,11 +41,13 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
+from ... import _machine_code as machine_code
 from ...models import breakpoints_of, evaluate_vectorized, wall_reached, zero_power_of
 from ...problem import FokkerPlanckProblem, StagedProblem
 from ...result import PressureDistribution
 from ._fpenv import flush_subnormals
-from .cram import PFD_ERROR_BOUNDS, expm_tridiagonal, expm_tridiagonal_many, pfd_coefficients
+from .cram import ALPHA as CRAM_ALPHA
+from .cram import CANCELLED, PFD_ERROR_BOUNDS, expm_tridiagonal, expm_tridiagonal_many, pfd_coefficients
 from .grid import GridSpec, Remap, edges_for, knot_indices
 from .operator import bands as fv_bands
 from .operator import centres
@@ -552,11 +554,10 @@ def _affine_envelope_bound(pieces: Sequence, with_b: Sequence, b_rows: np.ndarra
     """
     compiled = len(pieces) >= COMPILED_MIN_PIECES  # (the same bits compiled: :mod:`._tail_kernel`)
     if compiled:
-        from ._tail_kernel import envelope_kernel
 
         rates, intercepts = np.empty(len(with_b)), np.empty(len(with_b))
-        envelope_kernel()(np.ascontiguousarray(b_rows, dtype=float), np.ascontiguousarray(probe, dtype=float), True,
-                          rates, intercepts)
+        _tail_kernel("envelope_kernel")(np.ascontiguousarray(b_rows, dtype=float),
+                                        np.ascontiguousarray(probe, dtype=float), True, rates, intercepts)
     else:
         rates, intercepts = _affine_envelope(np.maximum(b_rows, 0.0), probe)
     if not np.any(rates > 0.0):
@@ -585,7 +586,6 @@ def _affine_moments(pieces: Sequence, with_b: Sequence, rates: np.ndarray, inter
     None where a stage's ``g dtau`` exceeds 350.  ``compiled``: one compiled pass (:mod:`._tail_kernel`), the same
     bits as the loop below."""
     if compiled:
-        from ._tail_kernel import moments_kernel
 
         if len(with_b) == len(pieces):  # (every stage has its drift: the rows are the stages')
             g_k, c_k = rates, intercepts
@@ -593,9 +593,9 @@ def _affine_moments(pieces: Sequence, with_b: Sequence, rates: np.ndarray, inter
             g_k, c_k = np.zeros(len(pieces)), np.zeros(len(pieces))
             at = np.array([pc.b is not None for pc in pieces])
             g_k[at], c_k[at] = rates, intercepts
-        finite, mean, var = moments_kernel()(np.ascontiguousarray(f_max, dtype=float),
-                                             np.array([pc.duration for pc in pieces], dtype=float), g_k, c_k,
-                                             float(p0))
+        finite, mean, var = _tail_kernel("moments_kernel")(np.ascontiguousarray(f_max, dtype=float),
+                                                           np.array([pc.duration for pc in pieces], dtype=float),
+                                                           g_k, c_k, float(p0))
         return (mean, var) if finite else None
     slopes = _slopes_of(with_b, rates, intercepts)
     mean, var = p0, 0.0
@@ -659,7 +659,6 @@ def _chernoff_moments(pieces: Sequence, slopes: dict, f_slopes: np.ndarray, f_in
     if compiled is None:
         compiled = len(pieces) >= COMPILED_MIN_PIECES
     if compiled:
-        from ._tail_kernel import chernoff_kernel
 
         k = len(pieces)
         g_k, c_k, psi_k, grow_k = np.empty(k), np.empty(k), np.empty(k), np.empty(k)
@@ -670,8 +669,10 @@ def _chernoff_moments(pieces: Sequence, slopes: dict, f_slopes: np.ndarray, f_in
             psi_k[i] = math.expm1(g * d) / g if g > 0.0 else d
             grow_k[i] = math.exp(g * d)
         a, b, ok = np.empty(theta.size), np.empty(theta.size), np.empty(theta.size, dtype=np.bool_)
-        chernoff_kernel()(np.ascontiguousarray(theta, dtype=float), np.ascontiguousarray(f_slopes, dtype=float),
-                          np.ascontiguousarray(f_intercepts, dtype=float), g_k, c_k, psi_k, grow_k, a, b, ok)
+        _tail_kernel("chernoff_kernel")(np.ascontiguousarray(theta, dtype=float),
+                                        np.ascontiguousarray(f_slopes, dtype=float),
+                                        np.ascontiguousarray(f_intercepts, dtype=float), g_k, c_k, psi_k, grow_k, a,
+                                        b, ok)
         return a, b, ok
     b = theta.copy()
     a = np.zeros_like(theta)
@@ -1567,22 +1568,36 @@ def _worker():
     return _POOL
 
 
+def _tail_kernel(name: str):
+    """A compiled kernel of :mod:`._tail_kernel`: its stored machine code, else numba's (:mod:`..._machine_code`)."""
+    return machine_code.kernel("diffusion_pr.solvers.fv._tail_kernel", name)
+
+
 def _f64(a) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=float)
 
 
 class _Kernels:
-    """The compiled staged integration (:mod:`._kernels`), loaded on first use."""
+    """The compiled staged integration (:mod:`._kernels`), loaded on first use.
+
+    The rows' kernel (:func:`._kernels.staged_run_rows`, every closure's) comes from its stored machine code where
+    the store holds it (:mod:`diffusion_pr._machine_code`: numba not imported), else from numba, loaded for its one
+    signature and closed to others (single-grid rows, C-contiguous, and a group's column views take the same
+    specialization, so a fresh process loads its machine code once). The band kernel (:func:`._kernels.staged_run`,
+    the py-pde and FiPy operators) imports :mod:`._kernels` on its first use.
+    """
 
     def __init__(self) -> None:
-        from ..._numba_load import LoadedBySignature
-        from . import _kernels as k
-
-        self._k = k
         self._coef = {}
-        # compiled (loaded) for its one signature and closed to others: single-grid rows (C-contiguous) and a
-        # group's column views take the same specialization, so a fresh process loads its machine code once
-        self._staged_run_rows = LoadedBySignature(k.staged_run_rows, k.staged_run_rows_types, close=True)
+
+    @property
+    def _k(self):
+        from . import _kernels
+
+        return _kernels
+
+    def _staged_run_rows(self):
+        return machine_code.kernel("diffusion_pr.solvers.fv._kernels", "staged_run_rows_kernel")
 
     def _coefficients(self, pfd: bool, order: int) -> tuple:
         """``(alpha, theta, alpha0, c)`` as the kernels take them: the IPF form's CRAM-16 (``pfd`` False), or the
@@ -1590,7 +1605,7 @@ class _Kernels:
         key = 16 if not pfd else int(order)
         if key not in self._coef:
             theta, res, r_inf, _ = pfd_coefficients(16 if not pfd else key)
-            self._coef[key] = (np.ascontiguousarray(self._k.ALPHA), np.ascontiguousarray(theta), float(r_inf),
+            self._coef[key] = (np.ascontiguousarray(CRAM_ALPHA), np.ascontiguousarray(theta), float(r_inf),
                                np.ascontiguousarray(res))
         return self._coef[key]
 
@@ -1622,7 +1637,7 @@ class _Kernels:
 
     def _unless_cancelled(self, y, n_cram, n_newton, info, stage, res) -> tuple:
         """The kernel's results as Python numbers; :class:`_Cancelled` where this thread's cancel flag stopped it."""
-        if info == self._k.CANCELLED:
+        if info == CANCELLED:
             raise _Cancelled(f"cancelled before stage {int(stage)}")
         return y, int(n_cram), int(n_newton), int(info), int(stage), float(res)
 

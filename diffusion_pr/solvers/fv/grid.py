@@ -27,7 +27,14 @@ from typing import Optional
 
 import numpy as np
 
+from ... import _machine_code as machine_code
+
 __all__ = ["GridSpec", "Remap", "edges_for"]
+
+
+def _grid_kernel(name: str):
+    """A compiled kernel of :mod:`._grid_kernel`: its stored machine code, else numba's (:mod:`.._machine_code`)."""
+    return machine_code.kernel("diffusion_pr.solvers.fv._grid_kernel", name)
 
 
 @dataclass(frozen=True)
@@ -107,11 +114,9 @@ class Remap:
 
     def _both_compiled(self, v: np.ndarray) -> tuple:
         """:meth:`_both` of a 1-D ``v`` in one compiled pass (:mod:`._grid_kernel`), the same bits."""
-        from ._grid_kernel import remap_both_kernel
-
         v = np.ascontiguousarray(v, dtype=float)
         f_out, d_out = np.empty(v.size), np.empty(v.size)
-        remap_both_kernel()(self._x, float(self._y[-1]), self._pieces, v, f_out, d_out)
+        _grid_kernel("remap_both_kernel")(self._x, float(self._y[-1]), self._pieces, v, f_out, d_out)
         return f_out, d_out
 
     def density(self, v: np.ndarray) -> np.ndarray:
@@ -136,11 +141,11 @@ class Remap:
         k = np.clip(np.searchsorted(f_tab, t, side="right") - 1, 0, f_tab.size - 2)
         x0, lo, hi, tol = np.interp(t, f_tab, v_tab), v_tab[k], v_tab[k + 1], 1e-15 * max(self.total, 1.0)
         if compiled:
-            from ._grid_kernel import remap_inverse_kernel
 
             out = np.empty(t.size)
-            remap_inverse_kernel()(np.ascontiguousarray(t.reshape(-1)), x0.reshape(-1), lo.reshape(-1),
-                                   hi.reshape(-1), tol, 40, self._x, float(self._y[-1]), self._pieces, out)
+            _grid_kernel("remap_inverse_kernel")(np.ascontiguousarray(t.reshape(-1)), x0.reshape(-1), lo.reshape(-1),
+                                                 hi.reshape(-1), tol, 40, self._x, float(self._y[-1]), self._pieces,
+                                                 out)
             return out.reshape(t.shape)
         return _safeguarded_newton(self._both, t, x0, lo, hi, tol, 40)
 
@@ -271,12 +276,12 @@ def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float, compiled: b
     x0 = np.interp(targets, phi_table, table)
     tol = 1e-14 * np.maximum(np.abs(targets), 1.0)
     if compiled and x0.ndim == 1:
-        from ._grid_kernel import monitor_newton_kernel
 
         out = np.empty(x0.size)
-        if monitor_newton_kernel()(np.ascontiguousarray(targets, dtype=float), x0, tol, float(a), float(b),
-                                   float(spec.p_wall), float(spec.scale), float(spec.c_wall), float(spec._delta),
-                                   float(spec.c_0), float(spec.p0), float(spec.w0), float(spec.w0**2), out):
+        newton = _grid_kernel("monitor_newton_kernel")
+        if newton(np.ascontiguousarray(targets, dtype=float), x0, tol, float(a), float(b), float(spec.p_wall),
+                  float(spec.scale), float(spec.c_wall), float(spec._delta), float(spec.c_0), float(spec.p0),
+                  float(spec.w0), float(spec.w0**2), out):
             return out
         return _invert_safe(spec, targets, x0, a, b, tol)
     x = x0
