@@ -253,3 +253,16 @@ def test_compiled_remap_inverse_bisects_as_numpy_does(rng):
         plain = remap.inverse(t)
         assert np.max(np.abs(remap.forward(plain) - t)) <= 1e-15 * max(remap.total, 1.0)  # converged
         assert np.array_equal(remap.inverse(t, compiled=True), plain)
+
+
+def test_sorted_unique_is_numpys_unique():
+    """The grid table's ``np.unique`` without numpy 2's import of ``numpy.ma`` (oracle: ``np.unique``): the same
+    values and dtype on random finite arrays with repeats, empty and single-element ones."""
+    from diffusion_pr.solvers.fv.grid import _sorted_unique
+
+    rng = np.random.default_rng(7)
+    for _ in range(500):
+        x = np.concatenate((rng.random(rng.integers(0, 40)), rng.choice(rng.random(4), rng.integers(0, 20))))
+        got = _sorted_unique(x)
+        assert got.dtype == np.unique(x).dtype and np.array_equal(got, np.unique(x))
+    assert _sorted_unique(np.array([2.0])).tolist() == [2.0]

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import ctypes.util
 import platform
 import sys
 from typing import Iterator, Optional
@@ -42,7 +41,12 @@ def _libm() -> Optional[ctypes.CDLL]:
         if sys.platform.startswith("linux") and platform.machine().lower() in ("x86_64", "amd64") \
                 and platform.libc_ver()[0] == "glibc":
             try:
-                lib = ctypes.CDLL(ctypes.util.find_library("m") or "libm.so.6")
+                try:  # glibc's soname on x86-64 (ctypes.util.find_library runs ldconfig: 14 ms of a first solve)
+                    lib = ctypes.CDLL("libm.so.6")
+                except OSError:
+                    from ctypes.util import find_library
+
+                    lib = ctypes.CDLL(find_library("m") or "libm.so.6")
                 lib.fegetenv.argtypes = lib.fesetenv.argtypes = [ctypes.c_void_p]
                 lib.fegetenv.restype = lib.fesetenv.restype = ctypes.c_int
                 _LIBM = lib

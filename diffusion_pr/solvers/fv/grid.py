@@ -298,14 +298,24 @@ def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float, compiled: b
     return _invert_safe(spec, targets, x0, a, b, tol)
 
 
+def _sorted_unique(x: np.ndarray) -> np.ndarray:
+    """``np.unique`` of a finite 1-D array (the same values): numpy 2's ``unique`` imports ``numpy.ma`` on its first
+    call, 15-25 ms of a fresh process's first closure solve."""
+    x = np.sort(x)
+    keep = np.empty(x.size, dtype=bool)
+    keep[:1] = True
+    np.not_equal(x[1:], x[:-1], out=keep[1:])
+    return x[keep]
+
+
 def _table(spec: GridSpec, a: float, b: float) -> tuple:
     """Points of ``[a, b]`` (geometric towards ``a``, uniform) and ``Phi`` there: the start of :func:`_invert`."""
     key = (spec, a, b)
     hit = _TABLES.get(key)
     if hit is None:
         lo_t = a - spec.p_wall + spec._delta
-        table = np.unique(np.concatenate((spec.p_wall + np.geomspace(lo_t, b - spec.p_wall + spec._delta, 400)
-                                          - spec._delta, np.linspace(a, b, 400))))
+        table = _sorted_unique(np.concatenate((spec.p_wall + np.geomspace(lo_t, b - spec.p_wall + spec._delta, 400)
+                                               - spec._delta, np.linspace(a, b, 400))))
         table = table[(table >= a) & (table <= b)]
         hit = (table, spec.phi(table))
         if len(_TABLES) >= 64:
