@@ -31,7 +31,6 @@ from __future__ import annotations
 import builtins
 import ctypes
 import glob
-import hashlib
 import importlib
 import importlib.machinery
 import importlib.util
@@ -47,6 +46,11 @@ from pathlib import Path
 from typing import Any, Callable, Optional
 
 import numpy as np
+
+try:  # CPython's own BLAKE2 (hashlib's import loads OpenSSL's bindings: 6-7 ms of a first solve)
+    from _blake2 import blake2b as _digest
+except ImportError:  # pragma: no cover - another Python
+    from hashlib import blake2b as _digest
 
 __all__ = ["kernel", "status", "store_path", "ENV_MACHINE_CODE", "elf_symbols"]
 
@@ -142,7 +146,7 @@ def _key(ll) -> str:
         st = _extension(numba_dir, pattern).stat()
         stats.append((st.st_size, st.st_mtime_ns))
     dist = sorted(os.path.basename(p) for p in glob.glob(str(numba_dir.parent / "numba-*.dist-info")))
-    sources = hashlib.sha256()
+    sources = _digest()
     for rel in KERNEL_SOURCES:
         sources.update((_PACKAGE / rel).read_bytes())
     import llvmlite
@@ -151,7 +155,7 @@ def _key(ll) -> str:
     key = repr((FORMAT, sys.version_info[:3], sys.implementation.cache_tag, dist, stats, llvmlite.__version__,
                 ll.get_process_triple(), ll.get_host_cpu_name(), ll.get_host_cpu_features().flatten(), numba_env,
                 np.__version__, sources.hexdigest()))
-    return hashlib.sha256(key.encode()).hexdigest()[:24]
+    return _digest(key.encode()).hexdigest()[:24]
 
 
 def store_path(ll=None) -> Optional[Path]:

@@ -219,7 +219,19 @@ def _zgtsv():
     return get_lapack_funcs("gtsv", dtype=np.complex128)
 
 
-_GTSV = _zgtsv()
+def _gtsv():
+    """LAPACK's ``zgtsv`` (:func:`_zgtsv`), loaded on first use: the closures' staged solves never call it (their
+    kernels are compiled), and loading ``_flapack`` is 10 ms of a fresh process's first closure solve."""
+    gtsv = globals().get("_GTSV")
+    if gtsv is None:
+        gtsv = globals()["_GTSV"] = _zgtsv()
+    return gtsv
+
+
+def __getattr__(name: str):
+    if name == "_GTSV":  # the module attribute, loaded on first access
+        return _gtsv()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: float, y: np.ndarray,
@@ -258,7 +270,7 @@ def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: 
     tl = (t * lower).astype(np.complex128)
     tu = (t * upper).astype(np.complex128)
     td = (t * diag).astype(np.complex128)
-    gtsv = _GTSV
+    gtsv = _gtsv()
     if order != 16:
         thetas, residues, r_inf, _ = pfd_coefficients(order)
         zero = np.zeros(1, dtype=np.complex128)
@@ -343,7 +355,7 @@ def _shifted_solves(dl_row: np.ndarray, d_row: np.ndarray, du_row: np.ndarray, y
     d = d_row[None, :] - thetas[:, None]
     b = np.empty((m, n), dtype=np.complex128)
     b[:] = y_row
-    _, _, _, x, info = _GTSV(dl.ravel()[:-1], d.ravel(), du.ravel()[:-1], b.ravel(), 1, 1, 1, 1)
+    _, _, _, x, info = _gtsv()(dl.ravel()[:-1], d.ravel(), du.ravel()[:-1], b.ravel(), 1, 1, 1, 1)
     if info != 0:
         pole, row = divmod(int(info) - 1, n)
         grid = int(np.searchsorted(np.cumsum(sizes), row, side="right"))
