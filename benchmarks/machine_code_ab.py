@@ -75,12 +75,12 @@ def main() -> None:
                     runs[s].append(child(closure, zeta, s, args.calls))
             ratios = [a["median"] / b["median"] for a, b in zip(runs["stored"], runs["numba"])]
             same = len({r["digest"] for s in SETTINGS for r in runs[s]}) == 1
-            line = (f"| `{closure}` | {zeta:g} | {1e3 * statistics.median(r['median'] for r in runs['stored']):.2f} | "
-                    f"{1e3 * statistics.median(r['median'] for r in runs['numba']):.2f} | "
-                    f"{statistics.median(ratios):.3f} | {min(ratios):.3f}-{max(ratios):.3f} | "
-                    f"{'/'.join(sorted({str(r['numba']) for r in runs['stored']}))} | {'yes' if same else '**no**'} |")
-            lines.append(line)
-            print(line, flush=True)
+            cells = [f"`{closure}`", f"{zeta:g}",
+                     *(f"{1e3 * statistics.median(r['median'] for r in runs[s]):.2f}" for s in ("stored", "numba")),
+                     f"{statistics.median(ratios):.3f}", f"{min(ratios):.3f}-{max(ratios):.3f}",
+                     "/".join(sorted({str(r["numba"]) for r in runs["stored"]})), "yes" if same else "**no**"]
+            lines.append("| " + " | ".join(cells) + " |")
+            print(lines[-1], flush=True)
     OUT.mkdir(exist_ok=True)
     (OUT / "machine_code_ab.md").write_text("\n".join(lines) + "\n")
 
