@@ -78,8 +78,41 @@ def r_divisor_8(ladder, thin=False, start=False):
     return x, max(residual, d_top / max(min(rho, 8.0) - 1.0, 1.0)), info
 
 
+def _uniform_part(ladder, part):
+    """The shipped uniform table's verdict on one part of the masses: ``(romberg_ok, r_residual, romberg_residual)``."""
+    p_n, p_h, p_q = (x[part] for x in ladder[:3])
+    residual, rho_p, d_top = closures._shell_residual(p_n, p_h, p_q)
+    if len(ladder) < 4:
+        return False, residual, math.nan
+    r_n, r_h = (4.0 * p_n - p_h) / 3.0, (4.0 * p_h - p_q) / 3.0
+    r_q = (4.0 * p_q - ladder[3][part]) / 3.0
+    d_half = float(np.sum(np.abs(r_h - r_q)))
+    rho_r = d_half / d_top if d_top > 0.0 else math.inf
+    if rho_r > closures.ROMBERG_MAX_RATIO:
+        return False, max(residual, d_top), math.nan
+    x_n, x_h = (16.0 * r_n - r_h) / 15.0, (16.0 * r_h - r_q) / 15.0
+    ok = rho_p >= closures.SHELL_ORDER_RATIO and rho_r >= closures.ROMBERG_RATIO
+    rho = rho_r if rho_p >= closures.SECOND_ORDER_CLEAR else min(rho_r, rho_p)
+    return ok, max(residual, d_top / min(15.0, max(rho - 1.0, 1.0))), float(np.sum(np.abs(x_n - x_h))) / 15.0
+
+
+def split_parts(ladder, thin=False, start=False):
+    """As shipped, but the order observed on the zero weight and on the cells apart (as the thin layer's table
+    does): Romberg only where both parts show it, each part's residual by its own ratios, summed."""
+    x, residual, info = CURRENT(ladder, thin=thin, start=start)
+    if thin or len(ladder) < 4:
+        return x, residual, info
+    parts = [_uniform_part(ladder, part) for part in (slice(0, 1), slice(1, None))]
+    if all(ok for ok, _, _ in parts):
+        return x, sum(r6 for _, _, r6 in parts), info
+    p_n, p_h = ladder[:2]
+    info = dict(info, shell_extrapolation_order=4, shell_weights=(4 / 3, -1 / 3, 0.0, 0.0))
+    return (4.0 * p_n - p_h) / 3.0, sum(r4 for _, r4, _ in parts), info
+
+
 RULES = {"current": CURRENT, "romberg_floor": romberg_floor, "romberg_floor_2": _romberg_floor_over(2.0),
-         "romberg_floor_4": _romberg_floor_over(4.0), "romberg_narrow": romberg_narrow, "r_divisor_8": r_divisor_8}
+         "romberg_floor_4": _romberg_floor_over(4.0), "romberg_narrow": romberg_narrow, "r_divisor_8": r_divisor_8,
+         "split_parts": split_parts}
 
 
 def collect(seeds, n):
