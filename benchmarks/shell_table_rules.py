@@ -6,10 +6,12 @@ once at rtol 1e-8 (the oracles, kept in memory). Then each candidate rule replac
 ladders above their estimates, above rtol, above 2x rtol, the largest true/estimate, the summed time of the
 solves (medians of ``--repeats``) and the shells they ended on. The Fig. 1 scenes at ``zeta`` = 0.1, 0.25, 1, 4 (the
 closures' uniform ladders there) are timed with each rule too. A rule is a function of the table's ladder
-``[P(n), P(n/2), P(n/4)(, P(n/8))]`` that returns ``(continuum, residual, diagnostics)``; ``current`` is the shipped
-one. Calibrate on some seeds, validate on others (``--seeds``).
+``[P(n), P(n/2), P(n/4)(, P(n/8))]`` that returns ``(continuum, residual, diagnostics)``; ``shipped`` is the
+package's, ``whole_ladder`` the one before the forty-ninth session (the base the forty-eighth session's candidates
+modify; the results files of that session call it ``current``). Calibrate on some seeds, validate on others
+(``--seeds``).
 
-    python benchmarks/shell_table_rules.py [--random 250] [--seeds 17 18 19] [--rules current romberg_floor]
+    python benchmarks/shell_table_rules.py [--random 250] [--seeds 17 18 19] [--rules whole_ladder shipped]
 """
 from __future__ import annotations
 
@@ -27,7 +29,18 @@ import stress_balance as sb
 from bench_fokker_planck import SPECTRUM
 from shell_table_audit import uniform_ladders
 
-CURRENT = closures._shell_table
+SHIPPED = closures._shell_table
+
+
+def whole_ladder(ladder, thin=False, start=False):
+    """The table before the forty-ninth session: the uniform rules on the whole vector of masses (no parts)."""
+    if thin:
+        return closures._thin_layer_table(ladder, start)
+    return closures._uniform_table(ladder)
+
+
+#: the base the candidate rules of the forty-eighth session modify (the table they were judged against)
+CURRENT = whole_ladder
 
 
 def _r(ladder):
@@ -110,9 +123,28 @@ def split_parts(ladder, thin=False, start=False):
     return (4.0 * p_n - p_h) / 3.0, sum(r4 for _, r4, _ in parts), info
 
 
-RULES = {"current": CURRENT, "romberg_floor": romberg_floor, "romberg_floor_2": _romberg_floor_over(2.0),
+def _part_table(ladder, part):
+    """The uniform rules on one part of the masses alone: ``(continuum, residual, order)``."""
+    x, residual, info = closures._uniform_table([m[part] for m in ladder])
+    return x, residual, info["shell_extrapolation_order"]
+
+
+def split_mixed(ladder, thin=False, start=False):
+    """The uniform rules applied to the zero weight and to the cells apart (each its own order and residual, as
+    the thin layer's table counts them); the continuum of each part from its own branch. Shipped since the
+    forty-ninth session (``closures.UNIFORM_PARTS``): the same continuum and residual as ``shipped``."""
+    x, residual, info = CURRENT(ladder, thin=thin, start=start)
+    if thin or len(ladder) < 4:
+        return x, residual, info
+    (x0, r0, o0), (x1, r1, o1) = (_part_table(ladder, part) for part in (slice(0, 1), slice(1, None)))
+    info = dict(info, shell_extrapolation_order=o1, zero_weight_order=o0,
+                shell_weights=(64 / 45, -20 / 45, 1 / 45, 0.0) if o1 == 6 else (4 / 3, -1 / 3, 0.0, 0.0))
+    return np.concatenate((x0, x1)), r0 + r1, info
+
+
+RULES = {"shipped": SHIPPED, "whole_ladder": whole_ladder, "romberg_floor": romberg_floor, "romberg_floor_2": _romberg_floor_over(2.0),
          "romberg_floor_4": _romberg_floor_over(4.0), "romberg_narrow": romberg_narrow, "r_divisor_8": r_divisor_8,
-         "split_parts": split_parts}
+         "split_parts": split_parts, "split_mixed": split_mixed}
 
 
 def collect(seeds, n):
@@ -162,14 +194,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--random", type=int, default=250)
     ap.add_argument("--seeds", type=int, nargs="+", default=[17, 18, 19, 20, 21, 22])
-    ap.add_argument("--rules", nargs="+", default=list(RULES))
+    ap.add_argument("--rules", nargs="+", default=list(RULES), choices=list(RULES))
     ap.add_argument("--repeats", type=int, default=1)
     args = ap.parse_args()
     scenes = collect(args.seeds, args.random)
     lines = [f"# Uniform shell-table rules on {len(scenes)} uniform ladders (seeds {' '.join(map(str, args.seeds))}, "
              f"{args.random} random scenes each) and the Fig. 1 scenes", "",
              "| rule | above estimate | above rtol | above 2x rtol | largest true/estimate | summed time [s] | "
-             "ladders on more shells than `current` | Fig. 1 shells (zeta 0.1/0.25/1/4 per closure) | "
+             "ladders on more shells than the first rule | Fig. 1 shells (zeta 0.1/0.25/1/4 per closure) | "
              "Fig. 1 summed time [ms] |", "|" + "---|" * 9]
     base = None
     for name in args.rules:
