@@ -1537,16 +1537,20 @@ def _shell_table(ladder: list, thin: bool = False, start: bool = False) -> tuple
     ``start``: the shells are graded at both ends ("ends")."""
     if thin:
         return _thin_layer_table(ladder, start)
-    whole = _uniform_table(ladder)
     if not UNIFORM_PARTS or len(ladder) < 4:
-        return whole
-    (x0, r0, i0), (x1, r1, i1) = (_uniform_table([m[part] for m in ladder]) for part in (slice(0, 1), slice(1, None)))
-    info = dict(whole[2], shell_extrapolation_order=i1["shell_extrapolation_order"], shell_weights=i1["shell_weights"],
+        x, residual, info = _uniform_table(ladder)
+        info.pop("l1", None)
+        return x, residual, info
+    # (the zero weight as numpy scalars: the same arithmetic as on a one-element array, without its overhead)
+    (x0, r0, i0), (x1, r1, i1) = (_uniform_table([m[part] for m in ladder]) for part in (0, slice(1, None)))
+    p_top, p_half, r_top, r_half = (a + b for a, b in zip(i0.pop("l1"), i1.pop("l1")))  # the whole ladder's
+    info = dict(i1, shell_order_ratio=p_half / p_top if p_top > 0.0 else math.inf,
+                richardson_order_ratio=r_half / r_top if r_top > 0.0 else math.inf,
                 zero_weight_extrapolation_order=i0["shell_extrapolation_order"],
-                zero_weight_order_ratios=(i0["shell_order_ratio"], i0.get("richardson_order_ratio", math.nan)))
+                zero_weight_order_ratios=(i0["shell_order_ratio"], i0["richardson_order_ratio"]))
     # the solves' spatial errors weighted by the larger of the two parts' weights (:func:`_shell_combined`)
     info["grid_weights"] = max(i0["shell_weights"], i1["shell_weights"], key=lambda w: sum(abs(c) for c in w))
-    return np.concatenate((x0, x1)), r0 + r1, info
+    return np.concatenate(((x0,), x1)), r0 + r1, info
 
 
 def _uniform_table(ladder: list) -> tuple:
@@ -1561,6 +1565,8 @@ def _uniform_table(ladder: list) -> tuple:
     d_half = float(np.sum(np.abs(r_h - r_q)))
     rho_r = d_half / d_top if d_top > 0.0 else math.inf
     info["richardson_order_ratio"] = rho_r
+    # the L1 differences of the P and of the R, which add over parts (:func:`_shell_table`'s whole-ladder ratios)
+    info["l1"] = (float(np.sum(np.abs(p_n - p_h))), float(np.sum(np.abs(p_h - p_q))), d_top, d_half)
     if rho_r > ROMBERG_MAX_RATIO:
         return r_n, max(residual, d_top), info
     if rho_p >= SHELL_ORDER_RATIO and rho_r >= ROMBERG_RATIO:
