@@ -21,8 +21,9 @@ What the store does not hold falls back to numba, which then stores it:
 * another numba, llvmlite, Python, CPU, ``NUMBA_*`` setting or kernel source (all in the store's key), a store
   that fails to load, or ``DIFFUSION_PR_MACHINE_CODE=0``.
 
-The store lives next to the package's numba cache (``__pycache__/diffusion_pr_kernels-<key>.mc``, or under
-``NUMBA_CACHE_DIR``), written atomically; an unwritable folder only means numba loads the kernels. It is a
+The store lives next to the package's numba cache (``__pycache__/diffusion_pr_kernels-<key>.mc``; under
+``NUMBA_CACHE_DIR`` where that is set; in the user's cache folder where the installation cannot be written to),
+written atomically; a folder that cannot be written either only means numba loads the kernels. It is a
 pickle, trusted as numba trusts its own cache files in the same folder. Linux x86-64 (ELF objects) only;
 elsewhere every kernel goes through numba.
 """
@@ -163,9 +164,20 @@ def store_path(ll=None) -> Optional[Path]:
     if not _enabled()[0]:
         return None
     ll = ll or _llvm()
+    return _store_folder() / f"diffusion_pr_kernels-{_key(ll)}.mc"
+
+
+def _store_folder() -> Path:
+    """``NUMBA_CACHE_DIR/diffusion_pr`` where that is set; else the package's ``__pycache__`` (next to numba's cache
+    of the same kernels) where it can be written; else the user's cache folder (``$XDG_CACHE_HOME`` or ``~/.cache``,
+    ``/diffusion_pr``), as numba itself falls back to a user-wide cache for an installation it cannot write to."""
     base = os.environ.get("NUMBA_CACHE_DIR")
-    folder = Path(base) / "diffusion_pr" if base else _PACKAGE / "__pycache__"
-    return folder / f"diffusion_pr_kernels-{_key(ll)}.mc"
+    if base:
+        return Path(base) / "diffusion_pr"
+    inside = _PACKAGE / "__pycache__"
+    if os.access(inside if inside.is_dir() else _PACKAGE, os.W_OK):
+        return inside
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "diffusion_pr"
 
 
 def _llvm():
