@@ -27,6 +27,9 @@ __all__ = ["solve", "warm_up"]
 def warm_up() -> float:
     """Compile (first run after installing) or load (later runs) the staged kernels; return the seconds spent.
 
+    Loaded from their stored machine code where the store holds them (no numba import), else through numba, which
+    then stores them (:mod:`diffusion_pr._machine_code`).
+
     Solves a small staged problem with a drift and a balance and evaluates the
     shell closures' compiled coefficient rows once, so that every compiled path
     a closure uses is ready.  Single-stage problems (the paper's theory) need no
