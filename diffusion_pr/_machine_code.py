@@ -12,9 +12,10 @@ function objects (``_dynfunc``), loaded from numba's installation as plain exten
 made exactly as numba makes it (``_dynfunc.make_function`` over the wrapper, with the kernel's environment).
 Same object code, same helpers: the same bits (``tests/diffusion_pr/test_machine_code.py``).
 
-What the store does not hold falls back to numba, which then stores it:
+These go through numba, as everything did before:
 
-* a kernel not yet stored (the first process after installing, or after an edit of a kernel's source);
+* a kernel not yet stored (the first process after installing, or after an edit of a kernel's source), which
+  numba then loads or compiles and this module adds to the store;
 * arguments that do not match the kernel's one signature exactly (dtype, dimensions, layout, writeable and
   aligned arrays; Python or numpy floats, integers and booleans where numba's ``typeof`` gives the signature's
   type); numba's dispatcher then decides, as it always did;
