@@ -34,7 +34,6 @@ import builtins
 import ctypes
 import glob
 import importlib
-import importlib.machinery
 import importlib.util
 import os
 import pickle
@@ -48,6 +47,8 @@ from pathlib import Path
 from typing import Any, Callable, Optional
 
 import numpy as np
+
+from ._extensions import extension_file, load_extension
 
 try:  # CPython's own BLAKE2 (hashlib's import loads OpenSSL's bindings: 6-7 ms of a first solve)
     from _blake2 import blake2b as _digest
@@ -128,13 +129,6 @@ def _numba_dir() -> Optional[Path]:
     return Path(spec.origin).resolve().parent
 
 
-def _extension(numba_dir: Path, pattern: str) -> Path:
-    found = sorted(glob.glob(str(numba_dir / pattern)))
-    if not found:
-        raise FileNotFoundError(f"numba's extension {pattern} not found in {numba_dir}")
-    return Path(found[0])
-
-
 _EXTENSIONS = {"nrt": "core/runtime/_nrt_python*.so", "helperlib": "_helperlib*.so", "dynfunc": "_dynfunc*.so"}
 
 
@@ -145,7 +139,7 @@ def _key(ll) -> str:
         raise ImportError("numba is not installed")
     stats = []
     for pattern in _EXTENSIONS.values():
-        st = _extension(numba_dir, pattern).stat()
+        st = extension_file(numba_dir, pattern).stat()
         stats.append((st.st_size, st.st_mtime_ns))
     dist = sorted(os.path.basename(p) for p in glob.glob(str(numba_dir.parent / "numba-*.dist-info")))
     sources = _digest()
@@ -191,15 +185,6 @@ def _llvm():
 
 # --- loading ------------------------------------------------------------------------------------------------------
 
-def _load_extension(name: str, path: Path):
-    """numba's C extension ``path`` as a module of its own (``name`` is its init function's), numba not imported."""
-    loader = importlib.machinery.ExtensionFileLoader(name, str(path))
-    spec = importlib.util.spec_from_file_location(name, str(path), loader=loader)
-    module = importlib.util.module_from_spec(spec)
-    loader.exec_module(module)
-    return module
-
-
 #: numba's C extensions as numba imports them, and the names their init functions have
 _NUMBA_MODULES = {"nrt": ("numba.core.runtime._nrt_python", "_nrt_python"),
                   "helperlib": ("numba._helperlib", "_helperlib"), "dynfunc": ("numba._dynfunc", "_dynfunc")}
@@ -217,7 +202,7 @@ def _numba_extensions() -> dict:
     if all(name in sys.modules for name, _ in _NUMBA_MODULES.values()):
         return {kind: sys.modules[name] for kind, (name, _) in _NUMBA_MODULES.items()}
     numba_dir = _numba_dir()
-    ext = {kind: _load_extension(init, _extension(numba_dir, _EXTENSIONS[kind]))
+    ext = {kind: load_extension(init, extension_file(numba_dir, _EXTENSIONS[kind]))
            for kind, (_, init) in _NUMBA_MODULES.items()}
     ext["nrt"].memsys_use_cpython_allocator()
     if os.environ.get("NUMBA_NRT_STATS", "0") not in ("", "0"):

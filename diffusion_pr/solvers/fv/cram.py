@@ -17,8 +17,6 @@ is at most that times the condition number of ``L``'s eigenvector matrix
 """
 from __future__ import annotations
 
-import glob
-import importlib.machinery
 import importlib.util
 import os
 import sys
@@ -26,6 +24,8 @@ import sys
 from typing import Sequence
 
 import numpy as np
+
+from ..._extensions import extension_file, load_extension
 
 __all__ = ["ALPHA", "THETA", "ALPHA0", "PFD_RESIDUES", "ERROR_BOUND", "PFD_ERROR_BOUNDS", "pfd_coefficients",
            "cf_coefficients", "expm_tridiagonal", "CANCELLED"]
@@ -205,11 +205,8 @@ def _zgtsv():
             flapack = sys.modules.get("scipy.linalg._flapack")
             if flapack is None:
                 spec = importlib.util.find_spec("scipy")
-                path = sorted(glob.glob(os.path.join(spec.submodule_search_locations[0], "linalg", "_flapack*")))[0]
-                loader = importlib.machinery.ExtensionFileLoader("scipy.linalg._flapack", path)
-                flapack = importlib.util.module_from_spec(
-                    importlib.util.spec_from_file_location("scipy.linalg._flapack", path, loader=loader))
-                loader.exec_module(flapack)
+                path = extension_file(os.path.join(spec.submodule_search_locations[0], "linalg"), "_flapack*")
+                flapack = load_extension("scipy.linalg._flapack", path)
                 sys.modules["scipy.linalg._flapack"] = flapack
             return flapack.zgtsv
         except Exception:  # pragma: no cover - an unusual scipy layout: the public route
