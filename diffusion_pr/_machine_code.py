@@ -71,7 +71,7 @@ _LOCK = threading.RLock()
 _KERNELS: dict = {}
 _STATE: dict = {"store": None, "loaded": False, "why": "not used yet", "native": [], "numba": []}
 
-_ELF_SYMTAB, _ELF_UNDEF, _ELF_OBJECT, _ELF_FUNC, _ELF_NOTYPE = 2, 0, 1, 2, 0
+_ELF_SYMTAB, _ELF_UNDEF, _ELF_OBJECT, _ELF_FUNC = 2, 0, 1, 2
 
 
 def elf_symbols(object_code: bytes, undefined: bool = False) -> Optional[set]:
