@@ -55,7 +55,7 @@ try:  # CPython's own BLAKE2 (hashlib's import loads OpenSSL's bindings: 6-7 ms 
 except ImportError:  # pragma: no cover - another Python
     from hashlib import blake2b as _digest
 
-__all__ = ["kernel", "status", "store_path", "ENV_MACHINE_CODE", "elf_symbols"]
+__all__ = ["kernel", "status", "store_path", "store_folder", "write_atomically", "ENV_MACHINE_CODE", "elf_symbols"]
 
 #: environment variable: ``0`` keeps every kernel on numba (no store read or written)
 ENV_MACHINE_CODE = "DIFFUSION_PR_MACHINE_CODE"
@@ -159,10 +159,10 @@ def store_path(ll=None) -> Optional[Path]:
     if not _enabled()[0]:
         return None
     ll = ll or _llvm()
-    return _store_folder() / f"diffusion_pr_kernels-{_key(ll)}.mc"
+    return store_folder() / f"diffusion_pr_kernels-{_key(ll)}.mc"
 
 
-def _store_folder() -> Path:
+def store_folder() -> Path:
     """``NUMBA_CACHE_DIR/diffusion_pr`` where that is set; else the package's ``__pycache__`` (next to numba's cache
     of the same kernels) where it can be written; else the user's cache folder (``$XDG_CACHE_HOME`` or ``~/.cache``,
     ``/diffusion_pr``), as numba itself falls back to a user-wide cache for an installation it cannot write to."""
@@ -173,6 +173,22 @@ def _store_folder() -> Path:
     if os.access(inside if inside.is_dir() else _PACKAGE, os.W_OK):
         return inside
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "diffusion_pr"
+
+
+def write_atomically(path: Path, obj: Any) -> None:
+    """``obj`` pickled to ``path`` through a temporary file in the same folder, so that a process starting at the same
+    time reads the old file or the new one, never half of one; readable by all, as numba's cache files. Raises
+    ``OSError`` where the folder cannot be written (the callers then keep numba's way)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            pickle.dump(obj, fh, protocol=pickle.HIGHEST_PROTOCOL)
+        os.chmod(tmp, 0o644)  # (mkstemp makes 0600)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
 
 
 def _llvm():
@@ -370,17 +386,28 @@ def _open_store() -> Optional[_Store]:
     except Exception as exc:  # noqa: BLE001 - the store is an optimization: numba loads the kernels instead
         _STATE["why"] = f"store unavailable: {type(exc).__name__}: {exc}"
         return None
-    entries, why = {}, f"no store yet at {path}"
-    if path.exists():
-        try:
-            with open(path, "rb") as fh:
-                data = pickle.load(fh)
-            if data.get("format") == FORMAT and data.get("key") == path.stem.rsplit("-", 1)[1]:
-                entries, why = data["entries"], f"{len(data['entries'])} kernels stored in {path}"
-        except Exception as exc:  # noqa: BLE001 - a damaged store: rewritten as kernels load through numba
-            why = f"damaged store at {path} ({type(exc).__name__}: {exc}): rewritten"
+    entries, why = _read_entries(path)
     _STATE["store"], _STATE["why"] = _Store(ll, path, entries), why
     return _STATE["store"]
+
+
+def _key_of(path: Path) -> str:
+    return path.stem.rsplit("-", 1)[1]
+
+
+def _read_entries(path: Path) -> tuple:
+    """``(entries, why)`` of the store at ``path``: none where it is missing, of another format or key, or damaged
+    (then rewritten as kernels load through numba)."""
+    if not path.exists():
+        return {}, f"no store yet at {path}"
+    try:
+        with open(path, "rb") as fh:
+            data = pickle.load(fh)
+        if data.get("format") == FORMAT and data.get("key") == _key_of(path):
+            return data["entries"], f"{len(data['entries'])} kernels stored in {path}"
+        return {}, f"a store of another format or key at {path}: rewritten"
+    except Exception as exc:  # noqa: BLE001 - a damaged store: rewritten as kernels load through numba
+        return {}, f"damaged store at {path} ({type(exc).__name__}: {exc}): rewritten"
 
 
 def _spec_of(numba_type) -> Optional[tuple]:
@@ -456,27 +483,9 @@ def _store_entry(module: str, name: str, dispatcher) -> None:
         entry = _entry(module, name, dispatcher)
         if entry is None:
             return
-        entries = dict(store.entries)
-        if store.path.exists():  # another process may have added kernels meanwhile
-            try:
-                with open(store.path, "rb") as fh:
-                    data = pickle.load(fh)
-                if data.get("format") == FORMAT:
-                    entries.update(data["entries"])
-            except Exception:  # noqa: BLE001 - a damaged store is rewritten
-                pass
-        entries[(module, name)] = entry
-        key = store.path.stem.rsplit("-", 1)[1]
-        store.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=store.path.parent, prefix=store.path.name, suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                pickle.dump({"format": FORMAT, "key": key, "entries": entries}, fh, protocol=pickle.HIGHEST_PROTOCOL)
-            os.chmod(tmp, 0o644)  # as numba's cache files (mkstemp makes 0600)
-            os.replace(tmp, store.path)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+        # with what another process may have added meanwhile
+        entries = {**store.entries, **_read_entries(store.path)[0], (module, name): entry}
+        write_atomically(store.path, {"format": FORMAT, "key": _key_of(store.path), "entries": entries})
         store.entries = {**entries, **store.entries}
     except Exception:  # noqa: BLE001 - an unwritable folder: numba keeps loading this kernel
         pass

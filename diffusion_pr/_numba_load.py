@@ -71,7 +71,6 @@ import hashlib
 import os
 import pickle
 import sys
-import tempfile
 import threading
 from pathlib import Path
 from typing import Callable, Optional
@@ -82,7 +81,7 @@ from numba.core.caching import FunctionCache
 from numba.core.registry import CPUDispatcher
 from numba.core.runtime import rtsys
 
-from ._machine_code import elf_symbols
+from ._machine_code import elf_symbols, store_folder, write_atomically
 
 __all__ = ["load_without_refresh", "ENV_KEEP_REFRESH", "ENV_LAZY_LINK", "ENV_NRT_CACHE", "ENV_LAZY_ENV",
            "LoadOnlyFunctionCache", "LoadedBySignature", "elf_defined_symbols", "initialize_runtime"]
@@ -320,9 +319,7 @@ def _nrt_cache_file(codegen) -> Optional[Path]:
     except Exception:  # pragma: no cover - another numba: no cache
         return None
     digest = hashlib.sha256(key.encode()).hexdigest()[:20]
-    base = os.environ.get("NUMBA_CACHE_DIR")
-    folder = Path(base) / "diffusion_pr" if base else Path(__file__).resolve().parent / "__pycache__"
-    return folder / f"numba_nrt-{digest}.nbo"
+    return store_folder() / f"numba_nrt-{digest}.nbo"
 
 
 def _compile_nrt_functions_cached(ctx):
@@ -352,21 +349,10 @@ def _write_atomically(path: Path, library) -> None:
     """The library's serialized state written to ``path`` through a temporary file in the same folder (so that a
     process starting at the same time reads the old file or the new one, never half of one); nothing where the
     folder is not writable (then the runtime is compiled in every process, as numba does)."""
-    tmp = None
     try:
-        state = library.serialize_using_object_code()
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=path.parent, delete=False, suffix=".tmp") as fh:
-            tmp = fh.name
-            fh.write(pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL))
-        os.replace(tmp, path)
-        tmp = None
+        write_atomically(path, library.serialize_using_object_code())
     except (OSError, RuntimeError, ValueError):
         pass
-    finally:
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
 
 
 def initialize_runtime(target_context) -> None:

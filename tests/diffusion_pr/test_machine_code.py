@@ -185,10 +185,10 @@ def test_the_store_folder(tmp_path, monkeypatch):
     """NUMBA_CACHE_DIR first; else the package's __pycache__ where it can be written; else the user's cache folder
     (an installation the user cannot write to, as numba's own user-wide fallback)."""
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba"))
-    assert mc._store_folder() == tmp_path / "numba" / "diffusion_pr"
+    assert mc.store_folder() == tmp_path / "numba" / "diffusion_pr"
     monkeypatch.delenv("NUMBA_CACHE_DIR")
     monkeypatch.setattr(mc.os, "access", lambda path, mode: True)
-    assert mc._store_folder() == mc._PACKAGE / "__pycache__"
+    assert mc.store_folder() == mc._PACKAGE / "__pycache__"
     monkeypatch.setattr(mc.os, "access", lambda path, mode: False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    assert mc._store_folder() == tmp_path / "cache" / "diffusion_pr"
+    assert mc.store_folder() == tmp_path / "cache" / "diffusion_pr"
