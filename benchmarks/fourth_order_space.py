@@ -1,0 +1,307 @@
+"""What a fourth-order spatial scheme would buy the balanced closures: cells against error (issue 10).
+
+The thirty-sixth session wrote that issue 10's closure row needs "a spatial scheme of higher order" besides a
+higher-order shell rule; the fiftieth session measured the shell rule (``shell_rule_balance.py``: no gain against
+the midpoint rule with Richardson) and the deep layer (``closure_floor_bound.py``: not enough alone). This script
+measures the spatial half in a small numpy solver of its own, so that only the spatial scheme differs:
+
+* **second order**: the engine's finite volumes (``operator.bands``: diffusive flux ``-(g_{i+1} m_{i+1} -
+  g_i m_i)/d`` with ``g = f/h`` at the centres, the central drift of the balanced stages), the mean as
+  ``sum c_i m_i``; Richardson ``R(N, 2N) = (4 X(2N) - X(N))/3`` (fourth order), as the engine does;
+* **fourth order**: the same cell masses, the flux at each face ``J = -(f M')' + a M'`` from the primitive ``M``
+  (known exactly at the edges: cumulative sums of the masses), its derivatives from the five nearest edges
+  (Fornberg's weights: pentadiagonal, one-sided at the ends), ``f'`` of the model by a central difference; the mean
+  as ``p_max M(p_max) - int M dp`` with ``M`` interpolated cubically; Richardson ``(16 X(2N) - X(N))/15``
+  (sixth order).
+
+Both take the closure's 48 uniform midpoint shells (one balance multiplier per shell, mean ``p0`` at its end, found
+by secant), CRAM-16 exponentials by sparse LU per pole, on nested grids (:func:`grid`: logarithmic in the deep
+layer, linear above, ``p0`` an edge) from ``1e-8 p*`` to 0.45, both ends closed (a reflecting bottom: a problem
+of its own, the same for both schemes). The start is the state after the first ``--skip`` shells of the finest grid's
+second-order solve (a delta at ``p0`` split between its two cells), given to every grid as exact cell sums; the
+reference is the second-order Richardson ``R`` of the two finest grids from there (checked against the
+fourth-order one). Errors: L1 of the masses on each grid. Writes ``results/fourth_order_space.md``.
+
+    python benchmarks/fourth_order_space.py [--zetas 0.1 0.25] [--closures local_g1_balanced]
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import splu
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import diffusion_pr.closures as C  # noqa: E402
+from bench_fokker_planck import SPECTRUM  # noqa: E402
+from diffusion_pr.solvers.fv.cram import pfd_coefficients  # noqa: E402
+from diffusion_pr.solvers.fv.operator import centres  # noqa: E402
+from shell_rule_balance import Scene  # noqa: E402
+
+OUT = Path(__file__).resolve().parent / "results" / "fourth_order_space.md"
+E_STAR, P0, SHELLS = 8.0 / 3.0, 0.004, 48
+THETA, RES, R_INF, _ = pfd_coefficients(16)
+
+
+def fornberg(x0: float, xs: np.ndarray, m: int) -> np.ndarray:
+    """Weights of the derivatives 0..m at ``x0`` from values at ``xs`` (Fornberg, Math. Comp. 51, 699 (1988),
+    doi:10.1090/S0025-5718-1988-0935077-0): ``w[k] @ values`` is the k-th derivative."""
+    n = xs.size
+    w = np.zeros((m + 1, n))
+    w[0, 0] = 1.0
+    c1 = 1.0
+    c4 = xs[0] - x0
+    for i in range(1, n):
+        mn = min(i, m)
+        c2 = 1.0
+        c5, c4 = c4, xs[i] - x0
+        for j in range(i):
+            c3 = xs[i] - xs[j]
+            c2 *= c3
+            if j == i - 1:
+                for k in range(mn, 0, -1):
+                    w[k, i] = c1 * (k * w[k - 1, i - 1] - c5 * w[k, i - 1]) / c2
+                w[0, i] = -c1 * c5 * w[0, i - 1] / c2
+            for k in range(mn, 0, -1):
+                w[k, j] = (c4 * w[k, j] - k * w[k - 1, j]) / c3
+            w[0, j] = c4 * w[0, j] / c3
+        c1 = c2
+    return w
+
+
+def grid(scene: Scene, n0: int, level: int) -> np.ndarray:
+    """Edges of the nested family: uniform in ``xi(p) = p / w + lam ln(p / p_bottom)`` (logarithmic in the deep
+    layer below ``lam w``, linear above; ``w = p0 / 4``, ``lam`` giving the two parts about equal shares), ``n0``
+    cells halved ``level`` times, ``p0`` an edge with the same spacing on both sides (a jump of the spacing would
+    add an odd power of ``h`` to the error expansion)."""
+    p_bottom, p_max, w = 1e-8 * scene.kz * scene.q_min, 0.45, 0.25 * P0
+    lam = (p_max / w) / math.log(p_max / p_bottom)
+
+    def xi(p):
+        return p / w + lam * np.log(p / p_bottom)
+
+    lo, hi, x0 = float(xi(p_bottom)), float(xi(p_max)), float(xi(P0))
+    dx = (hi - lo) / n0
+    n_lo = max(2, round((x0 - lo) / dx))
+    k = 2 ** level
+    targets = x0 + dx / k * np.arange(-n_lo * k, (n0 - n_lo) * k + 1)
+    y = np.minimum(np.log(p_bottom) + targets / lam, np.log(np.maximum(w * targets, p_bottom)))  # below the root
+    for _ in range(100):  # Newton on ln p: xi(e^y) is increasing and convex in y, so it climbs to the root
+        step = (xi(np.exp(y)) - targets) / (np.exp(y) / w + lam)
+        y -= step
+        if np.max(np.abs(step)) < 1e-15:
+            break
+    e = np.exp(y)
+    e[n_lo * k] = P0
+    return e
+
+
+class Scheme:
+    """One spatial scheme on one grid: its operators per shell model and its mean functional."""
+
+    def __init__(self, scene: Scene, edges: np.ndarray, order: int) -> None:
+        self.scene, self.edges, self.order = scene, edges, order
+        self.c = centres(edges)
+        n = self.c.size
+        if order == 2:
+            self.mean_weights = self.c.copy()
+        else:
+            # mean = p_max M_n - int M dp, M cubic through the 4 nearest edges on every interval
+            omega = np.zeros(n + 1)
+            for k in range(n):
+                j0 = min(max(k - 1, 0), n - 3)
+                xs = edges[j0:j0 + 4]
+                # exact integral over [e_k, e_k+1] of each Lagrange basis polynomial
+                for j in range(4):
+                    others = np.delete(xs, j)
+                    poly = np.poly(others) / np.prod(xs[j] - others)
+                    integ = np.polyint(poly)
+                    omega[j0 + j] += np.polyval(integ, edges[k + 1]) - np.polyval(integ, edges[k])
+            # M_j = sum_{i<j} m_i: mean = sum_i m_i (p_max - sum_{j>i} omega_j)
+            tail = np.cumsum(omega[::-1])[::-1]  # tail[j] = sum_{j' >= j} omega_j'
+            self.mean_weights = edges[-1] - tail[1:]
+            self.stencils = []
+            for k in range(1, n):  # interior faces
+                j0 = min(max(k - 2, 0), n - 4)
+                self.stencils.append((j0, fornberg(edges[k], edges[j0:j0 + 5], 2)))
+        self.cache: dict = {}
+
+    def operators(self, q: float) -> tuple:
+        """Sparse ``(L_fb, L_w)`` of the shell model at ``q`` on the masses: ``L = L_fb - A L_w``."""
+        if q in self.cache:
+            return self.cache[q]
+        sc = self.scene
+        qp = sc.q_min if sc.closure == "local_g1_balanced" else q
+        f_m = C.LocalResponseDiffusivity(q, sc.kz)
+        b_m = C.LoadExcessDrift(q, qp, sc.kz)
+        w_m = C.RigidApproachBalance(qp, sc.kz)
+        e = self.edges
+        n = self.c.size
+        faces = e[1:-1]
+        if self.order == 2:
+            h = np.diff(e)
+            g = f_m(self.c) / h
+            k_int = 1.0 / np.diff(self.c)
+            ops = []
+            for diffusion, a in ((True, b_m(faces)), (False, w_m(faces))):
+                rows, cols, vals = [], [], []
+                i = np.arange(n - 1)
+                # flux J at face i+1/2 (upwards) as coefficients on m_i and m_{i+1}
+                ji = (k_int * g[:-1] if diffusion else 0.0) + a * 0.5 / h[:-1]
+                jr = (-k_int * g[1:] if diffusion else 0.0) + a * 0.5 / h[1:]
+                for col, coef in ((i, ji), (i + 1, jr)):
+                    rows += [i, i + 1]
+                    cols += [col, col]
+                    vals += [-coef, coef]
+                ops.append(sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                                         shape=(n, n)))
+            self.cache[q] = (ops[0], ops[1])
+            return self.cache[q]
+        # fourth order: J_k = -f M'' - f' M' + a M' at face k from M at the stencil's edges
+        f_f = f_m(faces)
+        dp = 1e-6 * faces
+        fp_f = (f_m(faces + dp) - f_m(faces - dp)) / (2.0 * dp)
+        ops = []
+        for diffusion, a in ((True, b_m(faces)), (False, w_m(faces))):
+            rows, cols, vals = [], [], []
+            for idx, (j0, w) in enumerate(self.stencils):
+                k = idx + 1
+                coef_m = (-f_f[idx] * w[2] - fp_f[idx] * w[1] if diffusion else 0.0) + a[idx] * w[1]  # on M_j0..j0+4
+                # M_j = sum_{i<j} m_i: the flux's coefficient on m_i is the sum of coef_m over j > i
+                on_m = np.cumsum(coef_m[::-1])[::-1]  # on_m[t] = sum_{t' >= t} coef_m[t'] -> M_{j0+t'} includes m_i
+                for t in range(1, 5):  # M_{j0+t} - M_{j0} = m_{j0} .. m_{j0+t-1}: coefficient of m_{j0+t-1}
+                    i = j0 + t - 1
+                    cf = on_m[t]
+                    # J_k leaves cell k-1 and enters cell k
+                    rows += [k - 1, k]
+                    cols += [i, i]
+                    vals += [-cf, cf]
+            ops.append(sp.csc_matrix((np.array(vals), (np.array(rows), np.array(cols))), shape=(n, n)))
+        self.cache[q] = (ops[0], ops[1])
+        return self.cache[q]
+
+    def mean(self, m: np.ndarray) -> float:
+        return float(self.mean_weights @ m)
+
+
+def expm(L, t: float, y: np.ndarray) -> np.ndarray:
+    """CRAM-16 in partial fractions: ``r_inf y + 2 Re sum_j c_j (t L - theta_j)^-1 y``."""
+    tl = (t * L).astype(complex)
+    eye = sp.identity(L.shape[0], dtype=complex, format="csc")
+    out = R_INF * y
+    for theta, c in zip(THETA, RES):
+        out = out + 2.0 * np.real(c * splu((tl - theta * eye).tocsc()).solve(y.astype(complex)))
+    return out
+
+
+def run(scheme: Scheme, shells: list, y: np.ndarray) -> np.ndarray:
+    a_guess = 0.0
+    for dv, q_mid, _, _ in shells:
+        l_fb, l_w = scheme.operators(q_mid)
+        h = 0.5 * dv
+
+        def miss(a):
+            return scheme.mean(expm(l_fb - a * l_w, h, y)) - P0
+
+        a0, a1 = a_guess, a_guess * (1.0 + 1e-3) + 1e-3
+        m0, m1 = miss(a0), miss(a1)
+        for _ in range(30):
+            if m1 == m0 or abs(m1) <= 1e-15 * P0:
+                break
+            a0, a1, m0 = a1, a1 - m1 * (a1 - a0) / (m1 - m0), m1
+            m1 = miss(a1)
+            if abs(a1 - a0) <= 1e-13 * abs(a1):
+                break
+        if not abs(m1) <= 1e-11 * P0:
+            raise RuntimeError(f"balance did not converge: {m1:.3e}")
+        a_guess = a1
+        y = expm(l_fb - a1 * l_w, h, y)
+    return y
+
+
+def aggregate(m_fine: np.ndarray, factor: int) -> np.ndarray:
+    return m_fine.reshape(-1, factor).sum(axis=1)
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--zetas", type=float, nargs="+", default=[0.1, 0.25])
+    ap.add_argument("--closures", nargs="+", default=["local_g1_balanced", "local_g1_shell_balanced"])
+    ap.add_argument("--n0", type=int, default=40, help="cells of the coarsest grid")
+    ap.add_argument("--levels", type=int, default=5, help="grids N0 .. N0 2^(levels-1) compared")
+    ap.add_argument("--skip", type=int, default=4, help="shells before the comparison starts")
+    args = ap.parse_args(argv)
+    lines = ["# A fourth-order spatial scheme for the balanced closures (`python benchmarks/fourth_order_space.py`)",
+             "", f"Fig. 1 scene, {SHELLS} uniform midpoint shells, the comparison from the state after {args.skip} "
+             "shells (exact cell sums of the finest grid's), CRAM-16. L1 error of the masses against the reference "
+             "(second-order Richardson of the two finest grids, 2 and 4 levels above the finest compared); in "
+             "brackets log2 of the fall per doubling. `R2`: (4 X(2N) - X(N))/3 of the second-order scheme (the "
+             "engine's answer, cells 2N); `R4`: (16 X(2N) - X(N))/15 of the fourth-order one.", "",
+             "| closure | zeta | N | 2nd order X(N) | 4th order X(N) | R2(N/2, N) | R4(N/2, N) |",
+             "|---|---|---|---|---|---|---|"]
+    shells_all = None
+    for closure in args.closures:
+        for zeta in args.zetas:
+            t0 = time.perf_counter()
+            scene = Scene(zeta, closure, 8)  # (its own grid unused: the shells and the models)
+            shells_all = scene.shells(SHELLS)
+            top = args.levels + 1  # reference grids: levels top-1 and top
+            e_ref = grid(scene, args.n0, top)
+            n_ref = e_ref.size - 1
+            ref_scheme = Scheme(scene, e_ref, 2)
+            y = np.zeros(n_ref)
+            j = int(np.searchsorted(e_ref, P0))  # e_ref[j] == p0 exactly (grid)
+            y[j - 1] = y[j] = 0.5
+            start = run(ref_scheme, shells_all[:args.skip], y)
+            rest = shells_all[args.skip:]
+            fine = run(ref_scheme, rest, start)
+            half = run(Scheme(scene, grid(scene, args.n0, top - 1), 2), rest, aggregate(start, 2))
+            ref = (4 * fine.reshape(-1, 2).sum(axis=1) - half) / 3  # on the level top-1 grid
+            prev: dict = {}
+            x = {}
+            for level in range(args.levels):
+                factor = 2 ** (top - 1 - level)
+                e = grid(scene, args.n0, level)
+                y0 = aggregate(start, 2 ** (top - level))
+                r_here = aggregate(ref, factor)
+                cells = []
+                for order in (2, 4):
+                    try:
+                        x[order, level] = run(Scheme(scene, e, order), rest, y0)
+                    except RuntimeError:  # the fourth-order operator on too few cells (not an M-matrix)
+                        cells.append("balance failed")
+                        prev.pop(order, None)
+                        continue
+                    err = float(np.sum(np.abs(x[order, level] - r_here)))
+                    tag = f" ({math.log2(prev[order] / err):.1f})" if order in prev else ""
+                    prev[order] = err
+                    cells.append(f"{err:.2e}{tag}")
+                for order, div in ((2, 3.0), (4, 15.0)):
+                    if level >= 1 and (order, level - 1) in x and (order, level) in x:
+                        coarse = x[order, level - 1]
+                        fine_agg = x[order, level].reshape(-1, 2).sum(axis=1)
+                        rr = ((div + 1) * fine_agg - coarse) / div
+                        err = float(np.sum(np.abs(rr - aggregate(ref, factor * 2))))
+                        tag = f" ({math.log2(prev[order, 'R'] / err):.1f})" if (order, "R") in prev else ""
+                        prev[order, "R"] = err
+                        cells.append(f"{err:.2e}{tag}")
+                    else:
+                        cells.append("")
+                lines.append(f"| `{closure}` | {zeta:g} | {e.size - 1} | " + " | ".join(cells) + " |")
+                print(lines[-1], flush=True)
+            check4 = ((16 * x[4, args.levels - 1].reshape(-1, 2).sum(axis=1) - x[4, args.levels - 2]) / 15)
+            move = float(np.sum(np.abs(check4 - aggregate(ref, 2 ** (top - args.levels + 1)))))  # (both finest ran)
+            lines.append(f"| | | reference: {n_ref} cells; R4 of the two finest compared grids differs from it by "
+                         f"{move:.1e} | | | | ({time.perf_counter() - t0:.0f} s) |")
+            print(lines[-1], flush=True)
+    OUT.write_text("\n".join(lines) + "\n")
+    print(f"wrote {OUT}")
+
+
+if __name__ == "__main__":
+    main()
