@@ -115,13 +115,15 @@ class Scheme:
             omega = np.zeros(n + 1)
             for k in range(n):
                 j0 = min(max(k - 1, 0), n - 3)
-                xs = edges[j0:j0 + 4]
-                # exact integral over [e_k, e_k+1] of each Lagrange basis polynomial
+                h = edges[k + 1] - edges[k]
+                ts = (edges[j0:j0 + 4] - edges[k]) / h  # local coordinate: the interval is [0, 1]
+                # exact integral over the interval of each Lagrange basis polynomial (in the local coordinate: in
+                # absolute p the monomial coefficients cancel catastrophically on fine grids)
                 for j in range(4):
-                    others = np.delete(xs, j)
-                    poly = np.poly(others) / np.prod(xs[j] - others)
+                    others = np.delete(ts, j)
+                    poly = np.poly(others) / np.prod(ts[j] - others)
                     integ = np.polyint(poly)
-                    omega[j0 + j] += np.polyval(integ, edges[k + 1]) - np.polyval(integ, edges[k])
+                    omega[j0 + j] += h * (np.polyval(integ, 1.0) - np.polyval(integ, 0.0))
             # M_j = sum_{i<j} m_i: mean = sum_i m_i (p_max - sum_{j>i} omega_j)
             tail = np.cumsum(omega[::-1])[::-1]  # tail[j] = sum_{j' >= j} omega_j'
             self.mean_weights = edges[-1] - tail[1:]
