@@ -28,8 +28,7 @@ from diffusion_pr.closures import BALANCED_FLOOR, closure_distribution
 from diffusion_pr.solvers.fv import engine
 
 from bench_fokker_planck import OUT, SPECTRUM
-from closures_vs_competitor import COMPETITOR_MS, TARGET_MS
-from fp_competitor import adaptive, cases
+from closures_vs_competitor import COMPETITOR_MS, TARGET_MS, competitor_reference, paired_ratio
 
 CLOSURES = ("local_g1_balanced", "local_g1_shell_balanced")
 #: the floor in units of p* = zeta q_min E*/2: the closures' own (BALANCED_FLOOR) first
@@ -63,12 +62,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--zetas", type=float, nargs="+", default=[0.1, 0.01, 0.001])
     args = ap.parse_args()
-    problem, opts, _ = cases()["fig1-z0.25"]
-    f, p0, V = problem.diffusivity, problem.mean_pressure, problem.variance
-
-    def reference():
-        return adaptive(1e-6, f, p0, V, **opts)
-
+    reference = competitor_reference()
     line = TARGET_MS / COMPETITOR_MS
     keys = [(c, z, fl) for c in CLOSURES for z in args.zetas for fl in FLOORS]
     ratios: dict = {k: [] for k in keys}
@@ -88,18 +82,8 @@ def main() -> None:
                 grids = kernel_grids(solve)
                 info[closure, zeta, floor] = (r.success, r.diagnostics["n_cells"], grids, float(r.cdf(P0 / 20)),
                                               r.error_estimate)
-            reference()
-            solve()
-            pairs = []
-            for _ in range(args.repeats):
-                t0 = time.perf_counter()
-                solve()
-                t1 = time.perf_counter()
-                reference()
-                t2 = time.perf_counter()
-                times[closure, zeta, floor].append(t1 - t0)
-                pairs.append((t1 - t0) / (t2 - t1))
-            ratios[closure, zeta, floor].append(statistics.median(pairs))
+            ratios[closure, zeta, floor].append(paired_ratio(solve, reference, args.repeats,
+                                                             times[closure, zeta, floor], []))
             print(f"round {rnd + 1}: {closure:24s} zeta {zeta:6g} floor {floor:6g} p*: ratio "
                   f"{ratios[closure, zeta, floor][-1]:5.2f}", flush=True)
     lines = [f"Load average at the start {load:.2f}; {args.rounds} rounds of {args.repeats} interleaved warm call "

@@ -37,18 +37,39 @@ CLOSURES = ("local_g1", "local_g1_balanced", "local_g1_shell_balanced")
 TARGET_MS, COMPETITOR_MS = 10.0, 1.2
 
 
+def competitor_reference():
+    """The competitor's solve of the Fig. 1 scene at ``zeta = 0.25`` (rtol 1e-6, its own estimate): the call every
+    closure call is paired with."""
+    problem, opts, _ = cases()["fig1-z0.25"]
+    f, p0, V = problem.diffusivity, problem.mean_pressure, problem.variance
+    return lambda: adaptive(1e-6, f, p0, V, **opts)
+
+
+def paired_ratio(solve, reference, repeats: int, solve_times: list, reference_times: list) -> float:
+    """The median over ``repeats`` warm call pairs (``solve``, then ``reference``) of their time ratio, after one
+    warm-up call of each; the calls' times [s] are appended to the two lists."""
+    reference()
+    solve()
+    pairs = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        solve()
+        t1 = time.perf_counter()
+        reference()
+        t2 = time.perf_counter()
+        solve_times.append(t1 - t0)
+        reference_times.append(t2 - t1)
+        pairs.append((t1 - t0) / (t2 - t1))
+    return statistics.median(pairs)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeats", type=int, default=15, help="interleaved warm call pairs per round (default: 15)")
     ap.add_argument("--rounds", type=int, default=3, help="sweeps over all closures, one after the other (default: 3)")
     ap.add_argument("--zetas", type=float, nargs="+", default=[4.0, 1.0, 0.25, 0.1, 0.01])
     args = ap.parse_args()
-    problem, opts, _ = cases()["fig1-z0.25"]
-    f, p0, V = problem.diffusivity, problem.mean_pressure, problem.variance
-
-    def reference():
-        return adaptive(1e-6, f, p0, V, **opts)
-
+    reference = competitor_reference()
     line = TARGET_MS / COMPETITOR_MS
     keys = [(closure, zeta) for closure in CLOSURES for zeta in args.zetas]
     times: dict = {k: ([], []) for k in keys}
@@ -62,20 +83,8 @@ def main() -> None:
                                                 closure=closure, rtol=1e-6)
 
             success[closure, zeta] = bool(solve().success)
-            reference()
-            solve()
             t_c, t_r = times[closure, zeta]
-            pairs = []
-            for _ in range(args.repeats):
-                t0 = time.perf_counter()
-                solve()
-                t1 = time.perf_counter()
-                reference()
-                t2 = time.perf_counter()
-                t_c.append(t1 - t0)
-                t_r.append(t2 - t1)
-                pairs.append((t1 - t0) / (t2 - t1))
-            ratios[closure, zeta].append(statistics.median(pairs))
+            ratios[closure, zeta].append(paired_ratio(solve, reference, args.repeats, t_c, t_r))
             print(f"round {rnd + 1}: {closure:24s} zeta {zeta:6g}: ratio {ratios[closure, zeta][-1]:5.2f} "
                   f"(line {line:.1f})", flush=True)
     rows = []

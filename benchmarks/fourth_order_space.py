@@ -8,11 +8,15 @@ measures the spatial half in a small numpy solver of its own, so that only the s
 * **second order**: the engine's finite volumes (``operator.bands``: diffusive flux ``-(g_{i+1} m_{i+1} -
   g_i m_i)/d`` with ``g = f/h`` at the centres, the central drift of the balanced stages), the mean as
   ``sum c_i m_i``; Richardson ``R(N, 2N) = (4 X(2N) - X(N))/3`` (fourth order), as the engine does;
-* **fourth order**: the same cell masses, the flux at each face ``J = -(f M')' + a M'`` from the primitive ``M``
-  (known exactly at the edges: cumulative sums of the masses), its derivatives from the five nearest edges
-  (Fornberg's weights: pentadiagonal, one-sided at the ends), ``f'`` of the model by a central difference; the mean
-  as ``p_max M(p_max) - int M dp`` with ``M`` interpolated cubically; Richardson ``(16 X(2N) - X(N))/15``
-  (sixth order).
+* **fourth order, explicit**: the same cell masses, the flux at each face ``J = -(f M')' + a M'`` from the
+  primitive ``M`` (known exactly at the edges: cumulative sums of the masses), its derivatives from the five
+  nearest edges (Fornberg's weights: pentadiagonal, one-sided at the ends), ``f'`` of the model by a central
+  difference; the mean as ``p_max M(p_max) - int M dp`` with ``M`` interpolated cubically; Richardson
+  ``(16 X(2N) - X(N))/15`` (sixth order);
+* **fourth order, compact** (:class:`Compact`): the equation of ``M`` itself, ``M_tau = f M_pp + (f_p - a) M_p``,
+  by the high-order compact scheme for convection-diffusion, ``P dM/dtau = Q M`` with ``P`` and ``Q`` both
+  tridiagonal, so that CRAM's shifted solves ``(t Q - theta P)`` stay tridiagonal as the engine's are; the same
+  mean and Richardson as the explicit one.
 
 Both take the closure's 48 uniform midpoint shells (one balance multiplier per shell, mean ``p0`` at its end, found
 by secant), CRAM-16 exponentials by sparse LU per pole, on nested grids (:func:`grid`: logarithmic in the deep
@@ -41,7 +45,7 @@ import diffusion_pr.closures as C  # noqa: E402
 from bench_fokker_planck import SPECTRUM  # noqa: E402
 from diffusion_pr.solvers.fv.cram import pfd_coefficients  # noqa: E402
 from diffusion_pr.solvers.fv.operator import centres  # noqa: E402
-from shell_rule_balance import Scene  # noqa: E402
+from shell_rule_balance import Scene, multiplier  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "results" / "fourth_order_space.md"
 E_STAR, P0, SHELLS = 8.0 / 3.0, 0.004, 48
@@ -79,26 +83,33 @@ def grid(scene: Scene, n0: int, level: int) -> np.ndarray:
     layer below ``lam w``, linear above; ``w = p0 / 4``, ``lam`` giving the two parts about equal shares), ``n0``
     cells halved ``level`` times, ``p0`` an edge with the same spacing on both sides (a jump of the spacing would
     add an odd power of ``h`` to the error expansion)."""
-    p_bottom, p_max, w = 1e-8 * scene.kz * scene.q_min, 0.45, 0.25 * P0
-    lam = (p_max / w) / math.log(p_max / p_bottom)
-
-    def xi(p):
-        return p / w + lam * np.log(p / p_bottom)
-
-    lo, hi, x0 = float(xi(p_bottom)), float(xi(p_max)), float(xi(P0))
+    p_bottom, w, lam, xi = mapping(scene)
+    lo, hi, x0 = float(xi(p_bottom)), float(xi(0.45)), float(xi(P0))
     dx = (hi - lo) / n0
     n_lo = max(2, round((x0 - lo) / dx))
     k = 2 ** level
-    targets = x0 + dx / k * np.arange(-n_lo * k, (n0 - n_lo) * k + 1)
+    e = p_of_xi(scene, x0 + dx / k * np.arange(-n_lo * k, (n0 - n_lo) * k + 1))
+    e[n_lo * k] = P0
+    return e
+
+
+def mapping(scene: Scene) -> tuple:
+    """``(p_bottom, w, lam, xi)`` of :func:`grid`'s coordinate ``xi(p) = p / w + lam ln(p / p_bottom)``."""
+    p_bottom, p_max, w = 1e-8 * scene.kz * scene.q_min, 0.45, 0.25 * P0
+    lam = (p_max / w) / math.log(p_max / p_bottom)
+    return p_bottom, w, lam, lambda p: p / w + lam * np.log(p / p_bottom)
+
+
+def p_of_xi(scene: Scene, targets: np.ndarray) -> np.ndarray:
+    """The pressures at the coordinates ``targets`` (Newton on ``ln p``)."""
+    p_bottom, w, lam, xi = mapping(scene)
     y = np.minimum(np.log(p_bottom) + targets / lam, np.log(np.maximum(w * targets, p_bottom)))  # below the root
-    for _ in range(100):  # Newton on ln p: xi(e^y) is increasing and convex in y, so it climbs to the root
+    for _ in range(100):  # xi(e^y) is increasing and convex in y, so Newton climbs to the root
         step = (xi(np.exp(y)) - targets) / (np.exp(y) / w + lam)
         y -= step
         if np.max(np.abs(step)) < 1e-15:
             break
-    e = np.exp(y)
-    e[n_lo * k] = P0
-    return e
+    return np.exp(y)
 
 
 class Scheme:
@@ -127,6 +138,8 @@ class Scheme:
             # M_j = sum_{i<j} m_i: mean = sum_i m_i (p_max - sum_{j>i} omega_j)
             tail = np.cumsum(omega[::-1])[::-1]  # tail[j] = sum_{j' >= j} omega_j'
             self.mean_weights = edges[-1] - tail[1:]
+            self.m_weights = -omega  # the same on M_0 .. M_n: mean = p_max M_n - sum_j omega_j M_j
+            self.m_weights[-1] += edges[-1]
             self.stencils = []
             for k in range(1, n):  # interior faces
                 j0 = min(max(k - 2, 0), n - 4)
@@ -191,6 +204,103 @@ class Scheme:
         return float(self.mean_weights @ m)
 
 
+class Compact:
+    """A fourth-order compact scheme on the primitive ``M`` at the edges (tridiagonal on both sides).
+
+    ``M(p, tau)``, the probability below ``p``, obeys ``M_tau = f M_pp + (f_p - a) M_p`` (``a = b - A w``), with
+    ``M`` fixed at both closed ends. In the grid's coordinate ``xi`` (uniform spacing ``h``) that is
+    ``M_tau = A M'' + B M'`` with ``A = f / p_xi^2`` and ``B = (f_p - a) / p_xi - f p_xixi / p_xi^3``. The scheme is
+    the high-order compact one for time-dependent convection-diffusion (Spotz and Carey, Numer. Methods Partial
+    Differ. Equ. 17, 657 (2001), doi:10.1002/num.1032): the central differences' ``h^2`` terms (``A u_4 + 2 B u_3``,
+    ``u_k`` the k-th derivative), written through the equation itself, give ``P M_tau = Q M`` with
+
+        P = 1 + h^2/12 (d2 + beta d1),   Q = (A + h^2 kappa/12) d2 + (B + h^2 gamma/12) d1,
+        beta = (B - 2 A_1)/A,  gamma = B_2 + beta B_1,  kappa = 2 B_1 + A_2 + beta (A_1 + B),
+
+    (``A_k``, ``B_k`` the coefficients' k-th derivatives in ``xi``, central differences with a step of 1e-3 in ``xi``
+    of the coefficients in closed form), both tridiagonal, so that every shifted solve of the exponential ``(t Q - theta P)`` stays
+    tridiagonal.
+    """
+
+    def __init__(self, scene: Scene, edges: np.ndarray) -> None:
+        self.scene, self.edges = scene, edges
+        self.x = mapping(scene)[3](edges)
+        self.h = float(np.mean(np.diff(self.x[1:-1])))
+        self.mean_weights = Scheme(scene, edges, 4).m_weights  # on M (the fourth-order scheme's quadrature)
+        self.cache: dict = {}
+
+    def _at(self, x: np.ndarray, q: float) -> tuple:
+        """``(A, B_fb, B_w)`` at the coordinates ``x``: ``B = B_fb + A_bal B_w``."""
+        sc = self.scene
+        p_bottom, w, lam, _ = mapping(sc)
+        p = p_of_xi(sc, x)
+        p_xi = 1.0 / (1.0 / w + lam / p)
+        p_xixi = p_xi ** 3 * lam / p ** 2
+        qp = sc.q_min if sc.closure == "local_g1_balanced" else q
+        # f = g^2, g = p / (p + kz q): its derivative in closed form (a difference quotient's round-off, 1e-10 of
+        # B, is amplified 1e6x by B's second difference below and spoiled the h^2 terms: second order only)
+        kq = sc.kz * q
+        g = p / (p + kq)
+        f, f_p = g * g, 2.0 * g * kq / (p + kq) ** 2
+        b, w_bal = C.LoadExcessDrift(q, qp, sc.kz)(p), C.RigidApproachBalance(qp, sc.kz)(p)
+        return f / p_xi ** 2, (f_p - b) / p_xi - f * p_xixi / p_xi ** 3, w_bal / p_xi
+
+    def parts(self, q: float) -> list:
+        """``[(A, A_1, A_2), (B_fb, ...), (B_w, ...)]`` at the interior edges."""
+        if q not in self.cache:
+            x = self.x[1:-1]
+            s = 1e-3
+            vals = [self._at(x + d, q) for d in (-s, 0.0, s)]
+            self.cache[q] = [(vals[1][j], (vals[2][j] - vals[0][j]) / (2 * s),
+                              (vals[2][j] - 2 * vals[1][j] + vals[0][j]) / s ** 2) for j in range(3)]
+        return self.cache[q]
+
+    def pencil(self, q: float, a_bal: float) -> tuple:
+        """Sparse ``(P, Q)`` on ``M_0 .. M_n`` (the end rows: ``M_tau = 0``)."""
+        (A, A1, A2), (Bf, Bf1, Bf2), (Bw, Bw1, Bw2) = self.parts(q)
+        B, B1, B2 = Bf + a_bal * Bw, Bf1 + a_bal * Bw1, Bf2 + a_bal * Bw2
+        h = self.h
+        beta = (B - 2 * A1) / A
+        gamma = B2 + beta * B1
+        kappa = 2 * B1 + A2 + beta * (A1 + B)
+        n = self.edges.size
+        pl, pd, pu = np.zeros(n - 1), np.ones(n), np.zeros(n - 1)
+        ql, qd, qu = np.zeros(n - 1), np.zeros(n), np.zeros(n - 1)
+        pl[:-1] = 1 / 12 - beta * h / 24  # row k = 1 .. n-2 (the interior), column k-1
+        pd[1:-1] = 5 / 6
+        pu[1:] = 1 / 12 + beta * h / 24  # row k, column k+1
+        d2 = (A + h * h * kappa / 12) / h ** 2
+        d1 = (B + h * h * gamma / 12) / (2 * h)
+        ql[:-1] = d2 - d1
+        qd[1:-1] = -2 * d2
+        qu[1:] = d2 + d1
+        return (sp.diags([pl, pd, pu], [-1, 0, 1], format="csc"), sp.diags([ql, qd, qu], [-1, 0, 1], format="csc"))
+
+    def mean(self, M: np.ndarray) -> float:
+        return float(self.mean_weights @ M)
+
+
+def expm_pencil(P, Q, t: float, y: np.ndarray) -> np.ndarray:
+    """``exp(t P^-1 Q) y`` by CRAM-16: ``r_inf y + 2 Re sum_j c_j (t Q - theta_j P)^-1 P y``."""
+    py = (P @ y).astype(complex)
+    out = R_INF * y
+    for theta, c in zip(THETA, RES):
+        out = out + 2.0 * np.real(c * splu((t * Q - theta * P).astype(complex).tocsc()).solve(py))
+    return out
+
+
+def run_compact(scheme: Compact, shells: list, masses: np.ndarray) -> np.ndarray:
+    """The cell masses after ``shells`` by the compact scheme, from ``masses``."""
+    M = np.concatenate(([0.0], np.cumsum(masses)))
+    a_guess = 0.0
+    for dv, q_mid, _, _ in shells:
+        h = 0.5 * dv
+
+        a_guess = multiplier(lambda a: scheme.mean(expm_pencil(*scheme.pencil(q_mid, a), h, M)) - P0, a_guess)
+        M = expm_pencil(*scheme.pencil(q_mid, a_guess), h, M)
+    return np.diff(M)
+
+
 def expm(L, t: float, y: np.ndarray) -> np.ndarray:
     """CRAM-16 in partial fractions: ``r_inf y + 2 Re sum_j c_j (t L - theta_j)^-1 y``."""
     tl = (t * L).astype(complex)
@@ -207,22 +317,8 @@ def run(scheme: Scheme, shells: list, y: np.ndarray) -> np.ndarray:
         l_fb, l_w = scheme.operators(q_mid)
         h = 0.5 * dv
 
-        def miss(a):
-            return scheme.mean(expm(l_fb - a * l_w, h, y)) - P0
-
-        a0, a1 = a_guess, a_guess * (1.0 + 1e-3) + 1e-3
-        m0, m1 = miss(a0), miss(a1)
-        for _ in range(30):
-            if m1 == m0 or abs(m1) <= 1e-15 * P0:
-                break
-            a0, a1, m0 = a1, a1 - m1 * (a1 - a0) / (m1 - m0), m1
-            m1 = miss(a1)
-            if abs(a1 - a0) <= 1e-13 * abs(a1):
-                break
-        if not abs(m1) <= 1e-11 * P0:
-            raise RuntimeError(f"balance did not converge: {m1:.3e}")
-        a_guess = a1
-        y = expm(l_fb - a1 * l_w, h, y)
+        a_guess = multiplier(lambda a: scheme.mean(expm(l_fb - a * l_w, h, y)) - P0, a_guess)
+        y = expm(l_fb - a_guess * l_w, h, y)
     return y
 
 
@@ -243,9 +339,11 @@ def main(argv=None) -> None:
              "shells (exact cell sums of the finest grid's), CRAM-16. L1 error of the masses against the reference "
              "(second-order Richardson of the two finest grids, 2 and 4 levels above the finest compared); in "
              "brackets log2 of the fall per doubling. `R2`: (4 X(2N) - X(N))/3 of the second-order scheme (the "
-             "engine's answer, cells 2N); `R4`: (16 X(2N) - X(N))/15 of the fourth-order one.", "",
-             "| closure | zeta | N | 2nd order X(N) | 4th order X(N) | R2(N/2, N) | R4(N/2, N) |",
-             "|---|---|---|---|---|---|---|"]
+             "engine's answer, cells 2N); `R4`: (16 X(2N) - X(N))/15 of a fourth-order one (explicit: five bands; "
+             "compact: P dM/dtau = Q M, both tridiagonal).", "",
+             "| closure | zeta | N | 2nd order X(N) | 4th order X(N) | compact X(N) | R2(N/2, N) | R4(N/2, N) | "
+             "compact R4(N/2, N) |",
+             "|---|---|---|---|---|---|---|---|---|"]
     shells_all = None
     for closure in args.closures:
         for zeta in args.zetas:
@@ -272,9 +370,10 @@ def main(argv=None) -> None:
                 y0 = aggregate(start, 2 ** (top - level))
                 r_here = aggregate(ref, factor)
                 cells = []
-                for order in (2, 4):
+                for order in (2, 4, "compact"):
                     try:
-                        x[order, level] = run(Scheme(scene, e, order), rest, y0)
+                        x[order, level] = (run_compact(Compact(scene, e), rest, y0) if order == "compact" else
+                                           run(Scheme(scene, e, order), rest, y0))
                     except RuntimeError:  # the fourth-order operator on too few cells (not an M-matrix)
                         cells.append("balance failed")
                         prev.pop(order, None)
@@ -283,7 +382,7 @@ def main(argv=None) -> None:
                     tag = f" ({math.log2(prev[order] / err):.1f})" if order in prev else ""
                     prev[order] = err
                     cells.append(f"{err:.2e}{tag}")
-                for order, div in ((2, 3.0), (4, 15.0)):
+                for order, div in ((2, 3.0), (4, 15.0), ("compact", 15.0)):
                     if level >= 1 and (order, level - 1) in x and (order, level) in x:
                         coarse = x[order, level - 1]
                         fine_agg = x[order, level].reshape(-1, 2).sum(axis=1)
@@ -296,10 +395,13 @@ def main(argv=None) -> None:
                         cells.append("")
                 lines.append(f"| `{closure}` | {zeta:g} | {e.size - 1} | " + " | ".join(cells) + " |")
                 print(lines[-1], flush=True)
+            smallest = [float(np.min(x["compact", lv])) for lv in range(args.levels) if ("compact", lv) in x]
             check4 = ((16 * x[4, args.levels - 1].reshape(-1, 2).sum(axis=1) - x[4, args.levels - 2]) / 15)
             move = float(np.sum(np.abs(check4 - aggregate(ref, 2 ** (top - args.levels + 1)))))  # (both finest ran)
             lines.append(f"| | | reference: {n_ref} cells; R4 of the two finest compared grids differs from it by "
-                         f"{move:.1e} | | | | ({time.perf_counter() - t0:.0f} s) |")
+                         f"{move:.1e}; the compact scheme's smallest mass per grid (coarsest first): "
+                         f"{', '.join(f'{v:.1e}' for v in smallest)} | | | | | | "
+                         f"({time.perf_counter() - t0:.0f} s) |")
             print(lines[-1], flush=True)
     OUT.write_text("\n".join(lines) + "\n")
     print(f"wrote {OUT}")

@@ -119,11 +119,10 @@ def expm(op, t: float, y: np.ndarray) -> np.ndarray:
     return expm_tridiagonal(lower, diag, upper, t, y, ORDER, flux_form=True)
 
 
-def balanced(scene: Scene, step, y: np.ndarray, guess: float) -> tuple:
-    """``(y after step(A), A)`` with ``A`` such that the mean is ``p0`` (secant; the mean is affine-smooth in A)."""
-    def miss(a: float) -> float:
-        return scene.mean(step(a, y)) - P0
-
+def multiplier(miss, guess: float) -> float:
+    """The balance multiplier ``A`` with ``miss(A) = <p> - p0`` at 0 (secant from ``guess``; the mean is smooth in
+    ``A``). Raises RuntimeError where it does not get within 1e-11 ``p0`` (the mean's round-off over many
+    exponentials is about 1e-13 of it)."""
     a0, a1 = guess, guess * (1.0 + 1e-3) + 1e-3
     m0, m1 = miss(a0), miss(a1)
     for _ in range(40):
@@ -133,9 +132,15 @@ def balanced(scene: Scene, step, y: np.ndarray, guess: float) -> tuple:
         m1 = miss(a1)
         if abs(a1 - a0) <= 1e-13 * abs(a1):
             break
-    if not abs(m1) <= 1e-11 * P0:  # round-off of the mean over many exponentials: ~1e-13 relative
+    if not abs(m1) <= 1e-11 * P0:
         raise RuntimeError(f"balance did not converge: miss {m1:.3e} of p0 = {P0}")
-    return step(a1, y), a1
+    return a1
+
+
+def balanced(scene: Scene, step, y: np.ndarray, guess: float) -> tuple:
+    """``(y after step(A), A)`` with ``A`` such that the mean is ``p0`` (:func:`multiplier`)."""
+    a = multiplier(lambda a: scene.mean(step(a, y)) - P0, guess)
+    return step(a, y), a
 
 
 def combine(ops, weights) -> tuple:
