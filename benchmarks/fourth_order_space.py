@@ -117,6 +117,23 @@ def p_of_xi(scene: Scene, targets: np.ndarray) -> np.ndarray:
     return np.exp(y)
 
 
+def primitive_quadrature(edges: np.ndarray) -> np.ndarray:
+    """Weights ``omega`` of ``int M dp ~ sum_j omega_j M_j`` over the edges, ``M`` cubic through the 4 nearest edges
+    on every interval (fourth order), each interval's Lagrange integrals taken in its local coordinate (in
+    absolute ``p`` the monomials cancel catastrophically on fine grids)."""
+    n = edges.size - 1
+    omega = np.zeros(n + 1)
+    for k in range(n):
+        j0 = min(max(k - 1, 0), n - 3)
+        h = edges[k + 1] - edges[k]
+        ts = (edges[j0:j0 + 4] - edges[k]) / h  # the interval is [0, 1]
+        for j in range(4):
+            others = np.delete(ts, j)
+            integ = np.polyint(np.poly(others) / np.prod(ts[j] - others))
+            omega[j0 + j] += h * (np.polyval(integ, 1.0) - np.polyval(integ, 0.0))
+    return omega
+
+
 class Scheme:
     """One spatial scheme on one grid: its operators per shell model and its mean functional."""
 
@@ -127,24 +144,10 @@ class Scheme:
         if order == 2:
             self.mean_weights = self.c.copy()
         else:
-            # mean = p_max M_n - int M dp, M cubic through the 4 nearest edges on every interval
-            omega = np.zeros(n + 1)
-            for k in range(n):
-                j0 = min(max(k - 1, 0), n - 3)
-                h = edges[k + 1] - edges[k]
-                ts = (edges[j0:j0 + 4] - edges[k]) / h  # local coordinate: the interval is [0, 1]
-                # exact integral over the interval of each Lagrange basis polynomial (in the local coordinate: in
-                # absolute p the monomial coefficients cancel catastrophically on fine grids)
-                for j in range(4):
-                    others = np.delete(ts, j)
-                    poly = np.poly(others) / np.prod(ts[j] - others)
-                    integ = np.polyint(poly)
-                    omega[j0 + j] += h * (np.polyval(integ, 1.0) - np.polyval(integ, 0.0))
+            omega = primitive_quadrature(edges)
             # M_j = sum_{i<j} m_i: mean = sum_i m_i (p_max - sum_{j>i} omega_j)
             tail = np.cumsum(omega[::-1])[::-1]  # tail[j] = sum_{j' >= j} omega_j'
             self.mean_weights = edges[-1] - tail[1:]
-            self.m_weights = -omega  # the same on M_0 .. M_n: mean = p_max M_n - sum_j omega_j M_j
-            self.m_weights[-1] += edges[-1]
             self.stencils = []
             for k in range(1, n):  # interior faces
                 j0 = min(max(k - 2, 0), n - 4)
@@ -231,7 +234,9 @@ class Compact:
         self.scene, self.edges = scene, edges
         self.x = mapping(scene)[3](edges)
         self.h = float(np.mean(np.diff(self.x[1:-1])))
-        self.mean_weights = Scheme(scene, edges, 4).m_weights  # on M (the fourth-order scheme's quadrature)
+        # on M: mean = p_max M_n - int M dp (the explicit scheme's quadrature)
+        self.mean_weights = -primitive_quadrature(edges)
+        self.mean_weights[-1] += edges[-1]
         self.cache: dict = {}
 
     def _at(self, x: np.ndarray, q: float) -> tuple:
@@ -263,50 +268,48 @@ class Compact:
     def pencil(self, q: float, a_bal: float) -> tuple:
         """Sparse ``(P, Q)`` on ``M_0 .. M_n`` (the end rows: ``M_tau = 0``)."""
         (A, A1, A2), (Bf, Bf1, Bf2), (Bw, Bw1, Bw2) = self.parts(q)
-        B, B1, B2 = Bf + a_bal * Bw, Bf1 + a_bal * Bw1, Bf2 + a_bal * Bw2
-        h = self.h
-        beta = (B - 2 * A1) / A
-        gamma = B2 + beta * B1
-        kappa = 2 * B1 + A2 + beta * (A1 + B)
-        n = self.edges.size
-        pl, pd, pu = np.zeros(n - 1), np.ones(n), np.zeros(n - 1)
-        ql, qd, qu = np.zeros(n - 1), np.zeros(n), np.zeros(n - 1)
-        pl[:-1] = 1 / 12 - beta * h / 24  # row k = 1 .. n-2 (the interior), column k-1
-        pd[1:-1] = 5 / 6
-        pu[1:] = 1 / 12 + beta * h / 24  # row k, column k+1
-        d2 = (A + h * h * kappa / 12) / h ** 2
-        d1 = (B + h * h * gamma / 12) / (2 * h)
-        ql[:-1] = d2 - d1
-        qd[1:-1] = -2 * d2
-        qu[1:] = d2 + d1
-        return (sp.diags([pl, pd, pu], [-1, 0, 1], format="csc"), sp.diags([ql, qd, qu], [-1, 0, 1], format="csc"))
+        return hoc_pencil(self.h, (A, A1, A2), (Bf + a_bal * Bw, Bf1 + a_bal * Bw1, Bf2 + a_bal * Bw2))
 
     def mean(self, M: np.ndarray) -> float:
         return float(self.mean_weights @ M)
 
 
+def hoc_pencil(h: float, a: tuple, b: tuple) -> tuple:
+    """Sparse ``(P, Q)`` of the compact scheme for ``u_tau = A u'' + B u'`` on a uniform grid of spacing ``h``
+    (:class:`Compact`): ``a = (A, A', A'')`` and ``b = (B, B', B'')`` at the interior nodes; the two end rows are
+    ``u_tau = 0`` (``P`` row 1, ``Q`` row 0)."""
+    (A, A1, A2), (B, B1, B2) = a, b
+    beta = (B - 2 * A1) / A
+    gamma = B2 + beta * B1
+    kappa = 2 * B1 + A2 + beta * (A1 + B)
+    n = A.size + 2
+    pl, pd, pu = np.zeros(n - 1), np.ones(n), np.zeros(n - 1)
+    ql, qd, qu = np.zeros(n - 1), np.zeros(n), np.zeros(n - 1)
+    pl[:-1] = 1 / 12 - beta * h / 24  # row k = 1 .. n-2 (the interior), column k-1
+    pd[1:-1] = 5 / 6
+    pu[1:] = 1 / 12 + beta * h / 24  # row k, column k+1
+    d2 = (A + h * h * kappa / 12) / h ** 2
+    d1 = (B + h * h * gamma / 12) / (2 * h)
+    ql[:-1] = d2 - d1
+    qd[1:-1] = -2 * d2
+    qu[1:] = d2 + d1
+    return sp.diags([pl, pd, pu], [-1, 0, 1], format="csc"), sp.diags([ql, qd, qu], [-1, 0, 1], format="csc")
+
+
 def compact_order_check() -> list:
-    """The compact pencil's error on a test with known derivatives: ``A = 1 + sin(x)/2``, ``B = 3 cos(2x)``,
+    """:func:`hoc_pencil`'s error on a test with known derivatives: ``A = 1 + sin(x)/2``, ``B = 3 cos(2x)``,
     ``u = sin(3x)`` on ``[0, 2]``, ``max |P^-1 Q u - (A u'' + B u')|`` on 20, 40, 80, 160 intervals (the end rows
     given their exact values): falls 16x per doubling where the derivation is right."""
     out = []
     for n in (20, 40, 80, 160):
         x = np.linspace(0.0, 2.0, n + 1)
-        h, xi = x[1] - x[0], x[1:-1]
-        a, a1, a2 = 1 + 0.5 * np.sin(xi), 0.5 * np.cos(xi), -0.5 * np.sin(xi)
-        b, b1, b2 = 3 * np.cos(2 * xi), -6 * np.sin(2 * xi), -12 * np.cos(2 * xi)
-        beta = (b - 2 * a1) / a
-        gamma, kappa = b2 + beta * b1, 2 * b1 + a2 + beta * (a1 + b)
-        pl, pd, pu = np.zeros(n), np.ones(n + 1), np.zeros(n)
-        ql, qd, qu = np.zeros(n), np.zeros(n + 1), np.zeros(n)
-        pl[:-1], pd[1:-1], pu[1:] = 1 / 12 - beta * h / 24, 5 / 6, 1 / 12 + beta * h / 24
-        d2, d1 = (a + h * h * kappa / 12) / h ** 2, (b + h * h * gamma / 12) / (2 * h)
-        ql[:-1], qd[1:-1], qu[1:] = d2 - d1, -2 * d2, d2 + d1
+        xi = x[1:-1]
+        P, Q = hoc_pencil(x[1] - x[0], (1 + 0.5 * np.sin(xi), 0.5 * np.cos(xi), -0.5 * np.sin(xi)),
+                          (3 * np.cos(2 * xi), -6 * np.sin(2 * xi), -12 * np.cos(2 * xi)))
         exact = (1 + 0.5 * np.sin(x)) * (-9 * np.sin(3 * x)) + 3 * np.cos(2 * x) * 3 * np.cos(3 * x)
-        rhs = sp.diags([ql, qd, qu], [-1, 0, 1]) @ np.sin(3 * x)
+        rhs = Q @ np.sin(3 * x)
         rhs[0], rhs[-1] = exact[0], exact[-1]
-        g = splu(sp.diags([pl, pd, pu], [-1, 0, 1], format="csc")).solve(rhs)
-        out.append((n, float(np.max(np.abs(g - exact)))))
+        out.append((n, float(np.max(np.abs(splu(P).solve(rhs) - exact)))))
     return out
 
 
