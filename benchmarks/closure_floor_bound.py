@@ -103,9 +103,10 @@ def main() -> None:
         lines.append(f"| `{closure}` | {zeta:g} | {floor:g} | {statistics.median(rr):.2f} | {min(rr):.2f}-"
                      f"{max(rr):.2f} | {1e3 * statistics.median(times[key]):.1f} | {n_cells} | "
                      f"{'/'.join(map(str, sorted(main_grids)))} | {cdf:.6f} | {est:.1e} | {ok} |")
-    lines += ["", "The compiled stage kernel's calls in one warm call (both threads; cells x stages: ms), from the first "
-              "round's extra call: the main solve's levels (three grids each), then the shell ladder's plain solves "
-              "and rungs.", "", "| closure | zeta | floor [p*] | kernel calls | their sum [ms] |", "|---|---|---|---|---|"]
+    lines += ["", "The compiled stage kernel's calls in one warm call (both threads; cells x stages: ms), from the "
+              "first round's extra call: the main solve's levels (three grids each), then the shell ladder's plain "
+              "solves and rungs.", "", "| closure | zeta | floor [p*] | kernel calls | their sum [ms] |",
+              "|---|---|---|---|---|"]
     for key in keys:
         closure, zeta, floor = key
         grids = info[key][2]

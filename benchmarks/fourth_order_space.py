@@ -10,9 +10,9 @@ measures the spatial half in a small numpy solver of its own, so that only the s
   ``sum c_i m_i``; Richardson ``R(N, 2N) = (4 X(2N) - X(N))/3`` (fourth order), as the engine does;
 * **fourth order, explicit**: the same cell masses, the flux at each face ``J = -(f M')' + a M'`` from the
   primitive ``M`` (known exactly at the edges: cumulative sums of the masses), its derivatives from the five
-  nearest edges (Fornberg's weights: pentadiagonal, one-sided at the ends), ``f'`` of the model by a central
-  difference; the mean as ``p_max M(p_max) - int M dp`` with ``M`` interpolated cubically; Richardson
-  ``(16 X(2N) - X(N))/15`` (sixth order);
+  nearest edges (Fornberg's weights: pentadiagonal, one-sided at the ends), ``f'`` in closed form; the mean as
+  ``p_max M(p_max) - int M dp`` with ``M`` interpolated cubically; Richardson ``(16 X(2N) - X(N))/15`` (sixth
+  order);
 * **fourth order, compact** (:class:`Compact`): the equation of ``M`` itself, ``M_tau = f M_pp + (f_p - a) M_p``,
   by the high-order compact scheme for convection-diffusion, ``P dM/dtau = Q M`` with ``P`` and ``Q`` both
   tridiagonal, so that CRAM's shifted solves ``(t Q - theta P)`` stay tridiagonal as the engine's are; the same
@@ -117,6 +117,14 @@ def p_of_xi(scene: Scene, targets: np.ndarray) -> np.ndarray:
     return np.exp(y)
 
 
+def diffusivity_and_slope(p: np.ndarray, kq: float) -> tuple:
+    """``(f, df/dp)`` of the shell's diffusivity ``f = g^2``, ``g = p / (p + kz q)`` (``kq = kz q`` [pressure]), in
+    closed form: a difference quotient's round-off (1e-10 of ``f'``) is amplified 1e6x where the compact scheme
+    differences its coefficients twice (it then converged at second order only)."""
+    g = p / (p + kq)
+    return g * g, 2.0 * g * kq / (p + kq) ** 2
+
+
 def primitive_quadrature(edges: np.ndarray) -> np.ndarray:
     """Weights ``omega`` of ``int M dp ~ sum_j omega_j M_j`` over the edges, ``M`` cubic through the 4 nearest edges
     on every interval (fourth order), each interval's Lagrange integrals taken in its local coordinate (in
@@ -186,9 +194,7 @@ class Scheme:
             self.cache[q] = (ops[0], ops[1])
             return self.cache[q]
         # fourth order: J_k = -f M'' - f' M' + a M' at face k from M at the stencil's edges
-        f_f = f_m(faces)
-        dp = 1e-6 * faces
-        fp_f = (f_m(faces + dp) - f_m(faces - dp)) / (2.0 * dp)
+        f_f, fp_f = diffusivity_and_slope(faces, sc.kz * q)
         ops = []
         for diffusion, a in ((True, b_m(faces)), (False, w_m(faces))):
             rows, cols, vals = [], [], []
@@ -219,15 +225,16 @@ class Compact:
     ``M`` fixed at both closed ends. In the grid's coordinate ``xi`` (uniform spacing ``h``) that is
     ``M_tau = A M'' + B M'`` with ``A = f / p_xi^2`` and ``B = (f_p - a) / p_xi - f p_xixi / p_xi^3``. The scheme is
     the high-order compact one for time-dependent convection-diffusion (Spotz and Carey, Numer. Methods Partial
-    Differ. Equ. 17, 657 (2001); the derivation below; :func:`compact_order_check` confirms its order on a test with known derivatives): the central differences' ``h^2`` terms (``A u_4 + 2 B u_3``,
-    ``u_k`` the k-th derivative), written through the equation itself, give ``P M_tau = Q M`` with
+    Differ. Equ. 17, 657 (2001); the derivation below; :func:`compact_order_check` confirms its order on a test with
+    known derivatives): the central differences' ``h^2`` terms (``A u_4 + 2 B u_3``, ``u_k`` the k-th derivative),
+    written through the equation itself, give ``P M_tau = Q M`` with
 
         P = 1 + h^2/12 (d2 + beta d1),   Q = (A + h^2 kappa/12) d2 + (B + h^2 gamma/12) d1,
         beta = (B - 2 A_1)/A,  gamma = B_2 + beta B_1,  kappa = 2 B_1 + A_2 + beta (A_1 + B),
 
     (``A_k``, ``B_k`` the coefficients' k-th derivatives in ``xi``, central differences with a step of 1e-3 in ``xi``
-    of the coefficients in closed form), both tridiagonal, so that every shifted solve of the exponential ``(t Q - theta P)`` stays
-    tridiagonal.
+    of the coefficients in closed form), both tridiagonal, so that every shifted solve of the exponential,
+    ``(t Q - theta P)``, stays tridiagonal.
     """
 
     def __init__(self, scene: Scene, edges: np.ndarray) -> None:
@@ -247,11 +254,7 @@ class Compact:
         p_xi = 1.0 / (1.0 / w + lam / p)
         p_xixi = p_xi ** 3 * lam / p ** 2
         qp = sc.q_min if sc.closure == "local_g1_balanced" else q
-        # f = g^2, g = p / (p + kz q): its derivative in closed form (a difference quotient's round-off, 1e-10 of
-        # B, is amplified 1e6x by B's second difference below and spoiled the h^2 terms: second order only)
-        kq = sc.kz * q
-        g = p / (p + kq)
-        f, f_p = g * g, 2.0 * g * kq / (p + kq) ** 2
+        f, f_p = diffusivity_and_slope(p, sc.kz * q)
         b, w_bal = C.LoadExcessDrift(q, qp, sc.kz)(p), C.RigidApproachBalance(qp, sc.kz)(p)
         return f / p_xi ** 2, (f_p - b) / p_xi - f * p_xixi / p_xi ** 3, w_bal / p_xi
 
@@ -271,7 +274,10 @@ class Compact:
         return hoc_pencil(self.h, (A, A1, A2), (Bf + a_bal * Bw, Bf1 + a_bal * Bw1, Bf2 + a_bal * Bw2))
 
     def mean(self, M: np.ndarray) -> float:
-        return float(self.mean_weights @ M)
+        # the weights sum to p_bottom (the quadrature is exact for constants), so this is p_max M_n - p_bottom M_0 -
+        # int M dp; M_0 = z taken out first, since most of M is z where the zero weight is large (0.92 at
+        # zeta = 0.001), which the sum would otherwise cancel at round-off
+        return float(self.mean_weights @ (M - M[0]))
 
 
 def hoc_pencil(h: float, a: tuple, b: tuple) -> tuple:
@@ -322,16 +328,16 @@ def expm_pencil(P, Q, t: float, y: np.ndarray) -> np.ndarray:
     return out
 
 
-def run_compact(scheme: Compact, shells: list, masses: np.ndarray) -> np.ndarray:
-    """The cell masses after ``shells`` by the compact scheme, from ``masses``."""
-    M = np.concatenate(([0.0], np.cumsum(masses)))
+def run_compact(scheme: Compact, shells: list, y: np.ndarray) -> np.ndarray:
+    """``[z, m]`` after ``shells`` by the compact scheme, from ``[z, m]`` (``M_0 = z`` moves only where the bottom
+    absorbs, :class:`CompactAbsorbing`)."""
+    M = np.concatenate(([y[0]], y[0] + np.cumsum(y[1:])))
     a_guess = 0.0
     for dv, q_mid, _, _ in shells:
         h = 0.5 * dv
-
         a_guess = multiplier(lambda a: scheme.mean(expm_pencil(*scheme.pencil(q_mid, a), h, M)) - P0, a_guess)
         M = expm_pencil(*scheme.pencil(q_mid, a_guess), h, M)
-    return np.diff(M)
+    return np.concatenate(([M[0]], np.diff(M)))
 
 
 def expm(L, t: float, y: np.ndarray) -> np.ndarray:
@@ -391,16 +397,9 @@ class CompactAbsorbing(Compact):
 
     def __init__(self, scene: Scene, edges: np.ndarray) -> None:
         super().__init__(scene, edges)
-        self.mean_weights = self.mean_weights.copy()
-        self.mean_weights[0] -= edges[0]  # int p dM = p_max M_n - p_bottom M_0 - int M dp
         k = np.arange(1.0, 4.0)
         rows = np.array([k ** 2 / 2, k ** 3 / 6, k ** 4 / 24])  # M_k - M_0 = h^2 (rows . (M2, h M3, h^2 M4))
         self.one_sided = np.linalg.solve(rows, np.array([1.0, 0.0, 0.0]))  # M2 ~ sum_k c_k (M_k - M_0) / h^2
-
-    def mean(self, M: np.ndarray) -> float:
-        # the weights sum to 0 (the quadrature is exact for constants): take out M_0 = z, most of M where the zero
-        # weight is large (0.92 at zeta = 0.001), which the sum would otherwise cancel at round-off
-        return float(self.mean_weights @ (M - M[0]))
 
     def pencil(self, q: float, a_bal: float) -> tuple:
         P, Q = super().pencil(q, a_bal)
@@ -411,17 +410,6 @@ class CompactAbsorbing(Compact):
         for j in range(3):
             Q[0, j + 1] = c[j]
         return P, Q.tocsc()
-
-
-def run_compact_absorbing(scheme: CompactAbsorbing, shells: list, y: np.ndarray) -> np.ndarray:
-    """``[z, m]`` after ``shells`` by the compact scheme with the absorbing bottom, from ``[z, m]``."""
-    M = np.concatenate(([y[0]], y[0] + np.cumsum(y[1:])))
-    a_guess = 0.0
-    for dv, q_mid, _, _ in shells:
-        h = 0.5 * dv
-        a_guess = multiplier(lambda a: scheme.mean(expm_pencil(*scheme.pencil(q_mid, a), h, M)) - P0, a_guess)
-        M = expm_pencil(*scheme.pencil(q_mid, a_guess), h, M)
-    return np.concatenate(([M[0]], np.diff(M)))
 
 
 def aggregate_zm(y: np.ndarray, factor: int) -> np.ndarray:
@@ -454,7 +442,7 @@ def absorbing(zeta: float, closure: str, n0: int, levels: int, skip: int, floor:
         for kind in ("2", "compact"):
             try:
                 x[kind, level] = (run(SchemeAbsorbing(scene, e), rest, y0) if kind == "2" else
-                                  run_compact_absorbing(CompactAbsorbing(scene, e), rest, y0))
+                                  run_compact(CompactAbsorbing(scene, e), rest, y0))
             except RuntimeError:
                 cells.append("balance failed")
                 prev.pop(kind, None)
@@ -476,7 +464,8 @@ def absorbing(zeta: float, closure: str, n0: int, levels: int, skip: int, floor:
 
 def main_absorbing(args) -> None:
     """``--absorbing``: the second-order and compact schemes with the absorbing bottom at ``--floor p*``."""
-    lines = ["# The compact scheme with an absorbing bottom (`python benchmarks/fourth_order_space.py --absorbing`)", "",
+    lines = ["# The compact scheme with an absorbing bottom "
+             "(`python benchmarks/fourth_order_space.py --absorbing`)", "",
              f"As the main table, but the bottom at {args.floor:g} p* absorbs (the engine's wall: Pr = 0 there; "
              "the second-order scheme's outflow f_0 u_0/(c_0 - p_bottom), the compact scheme's M_tau = f M_pp with "
              "M_p = 0 from a third-order one-sided difference), the zero weight z counted at p = 0 and in the L1 "
@@ -551,7 +540,8 @@ def main(argv=None) -> None:
                 cells = []
                 for order in (2, 4, "compact"):
                     try:
-                        x[order, level] = (run_compact(Compact(scene, e), rest, y0) if order == "compact" else
+                        x[order, level] = (run_compact(Compact(scene, e), rest, np.concatenate(([0.0], y0)))[1:]
+                                           if order == "compact" else
                                            run(Scheme(scene, e, order), rest, y0))
                     except RuntimeError:  # the fourth-order operator on too few cells (not an M-matrix)
                         cells.append("balance failed")

@@ -19,7 +19,7 @@ rule differs between the columns:
 * ``cf4 shared``: one multiplier per shell for both exponentials (balanced at the shell's end), constant across it;
 * ``cf4 slope``: one unknown per shell ``A_s`` and ``A(tau_i) = A_s + A' (tau_i - tau_mid)`` at the Gauss points,
   ``A'`` from the multipliers of the shells before (the derivative of the parabola through the last three
-  ``(tau_mid, A_s)``; the line through two for the second shell, 0 for the first): no extra unknown, no extra
+  ``(tau_mid, A_s)``; the line through two for the third shell, 0 for the first two): no extra unknown, no extra
   exponential.
 
 Every column is a consistent rule for the same continuum (the balance ``d<p>/dtau = 0`` at every instant), so the
@@ -254,7 +254,8 @@ def main(argv=None) -> None:
                 work = (f"{n} / {n + n // 2} / {n + n // 2 + n // 4} / {2 * n} / {3 * n}")
                 lines.append(f"| `{closure}` | {zeta:g} | {n} | " + " | ".join(cells + extra) + f" | {work} |")
                 print(lines[-1], flush=True)
-            lines.append(f"| | | reference moves {ref_move:.1e} |" + " |" * (len(RULES) + 3) + f" ({time.perf_counter() - t0:.0f} s) |")
+            lines.append(f"| | | reference moves {ref_move:.1e} |" + " |" * (len(RULES) + 3)
+                         + f" ({time.perf_counter() - t0:.0f} s) |")
             print(lines[-1], flush=True)
     Path(args.out).write_text("\n".join(lines) + "\n")
     print(f"wrote {args.out}")
