@@ -1,0 +1,264 @@
+"""What one exponential of the compact fourth-order pencil costs in compiled code, against the engine's (issue 10).
+
+The fiftieth session measured (``fourth_order_space.py``) that a compact fourth-order scheme on the primitive ``M``,
+``P dM/dtau = Q M`` with ``P`` and ``Q`` tridiagonal, needs 4.5-10x fewer cells than the engine's second-order
+finite volumes at the accuracy the balanced closures' answers need; it left the per-cell cost in a compiled kernel
+unmeasured. Every CRAM pole of the pencil is a solve with ``t Q - theta P``, whose three bands are all complex
+(the engine's ``t L - theta`` has real off-diagonals), and the right-hand side is ``P y`` (one real product). This
+script writes that solve as a numba kernel in the engine's style (:func:`pencil_pfd`: a block of poles eliminated
+together, row by row, complex scalars, no row interchanges: the pencil's rows are diagonally dominant wherever the
+engine's are; a pivot test flags any that is not) with the balance derivative the engine's Newton takes, and
+times it beside the engine's own kernels on the same numbers of cells in the same process:
+
+* ``engine, lanes``: :func:`diffusion_pr.solvers.fv._kernels.cram_pfd` (the poles in vector lanes, what the
+  closures run);
+* ``engine, scalar``: ``_pfd_pivoting`` (the same elimination one complex pole at a time: the like-for-like
+  comparison with :func:`pencil_pfd`, which has no lane version yet);
+* ``compact, scalar``: :func:`pencil_pfd`.
+
+Each with and without the derivative in the balance multiplier (``want_d``). The bands are a balanced closure's at
+a mid shell of the Fig. 1 scene at ``zeta = 0.1`` (engine: ``operator.bands``; compact: ``fourth_order_space``'s
+pencil on its own grid family), time step one shell. Correctness first: :func:`pencil_pfd` against the prototype's
+sparse-LU ``expm_pencil`` and its derivative against a central difference in the multiplier.
+
+Then the projection the fiftieth session could not make: the kernel time of one exponential at the finest cells
+each scheme needed for 3e-7 there (``fourth_order_space``'s tables), as a ratio. Writes
+``results/compact_kernel_cost.md``.
+
+    python benchmarks/compact_kernel_cost.py [--repeats 41]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import diffusion_pr.closures as C  # noqa: E402
+from diffusion_pr.solvers.fv import _kernels as K  # noqa: E402
+from diffusion_pr.solvers.fv.cram import pfd_coefficients  # noqa: E402
+from diffusion_pr.solvers.fv.operator import bands, centres  # noqa: E402
+from fourth_order_space import SHELLS, Compact, expm_pencil, grid  # noqa: E402
+from shell_rule_balance import Scene  # noqa: E402
+
+OUT = Path(__file__).resolve().parent / "results" / "compact_kernel_cost.md"
+THETA, RES, R_INF, _ = pfd_coefficients(16)
+BLOCK = 4  # poles per block, as the engine's kernels take for CRAM-16
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def pencil_pfd(pl, pd, pu, ql, qd, qu, t, y, c, theta, alpha0, want_d, ppl, ppd, ppu, qql, qqd,
+               qqu):  # pragma: no cover - numba
+    """``exp(t P^-1 Q) y = alpha0 y + 2 Re sum_j c_j (t Q - theta_j P)^-1 P y`` (CRAM in partial fractions).
+
+    ``P`` and ``Q`` tridiagonal (``pl, pd, pu``: lower, diagonal, upper band), all poles of a block of
+    :data:`BLOCK` eliminated together row by row, without row interchanges (``info`` is the first row whose
+    pivot fails LAPACK's test, 0 if none). With ``want_d`` also the derivative in a multiplier ``a`` on which
+    ``P`` and ``Q`` depend linearly, ``P_a`` and ``Q_a`` given as ``ppl, ...`` and ``qql, ...``:
+    ``d x_j / da = (t Q - theta_j P)^-1 (P_a y - (t Q_a - theta_j P_a) x_j)``, a second solve with the stored
+    elimination. Returns ``(x, dx, info)``.
+    """
+    n = pd.size
+    m = theta.size
+    g = BLOCK
+    rec = np.empty((n, g), dtype=np.complex128)  # reciprocal pivots
+    up = np.empty((n, g), dtype=np.complex128)  # the superdiagonal t Q_u - theta P_u
+    fl = np.empty((n, g), dtype=np.complex128)  # multipliers
+    b = np.empty((n, g), dtype=np.complex128)
+    r = np.empty((n, g), dtype=np.complex128)
+    py = np.empty(n)
+    pay = np.empty(n)
+    out = np.zeros(n)
+    dout = np.zeros(n)
+    for i in range(n):
+        s = pd[i] * y[i]
+        if i > 0:
+            s += pl[i - 1] * y[i - 1]
+        if i < n - 1:
+            s += pu[i] * y[i + 1]
+        py[i] = s
+        if want_d:
+            s = ppd[i] * y[i]
+            if i > 0:
+                s += ppl[i - 1] * y[i - 1]
+            if i < n - 1:
+                s += ppu[i] * y[i + 1]
+            pay[i] = s
+    info = 0
+    for g0 in range(0, m, g):
+        gs = min(g, m - g0)
+        for jj in range(gs):
+            th = theta[g0 + jj]
+            d = t * qd[0] - th * pd[0]
+            rec[0, jj] = 1.0 / d
+            b[0, jj] = py[0]
+        for i in range(n - 1):
+            tql = t * ql[i]
+            tqu = t * qu[i]
+            tqd = t * qd[i + 1]
+            pli = pl[i]
+            pui = pu[i]
+            pdn = pd[i + 1]
+            yn = py[i + 1]
+            for jj in range(gs):
+                th = theta[g0 + jj]
+                lo = tql - th * pli
+                u = tqu - th * pui
+                up[i, jj] = u
+                f = lo * rec[i, jj]
+                fl[i, jj] = f
+                dn = (tqd - th * pdn) - f * u
+                if abs(dn.real) + abs(dn.imag) == 0.0 and info == 0:
+                    info = i + 2
+                rec[i + 1, jj] = 1.0 / dn
+                b[i + 1, jj] = yn - f * b[i, jj]
+        for jj in range(gs):
+            b[n - 1, jj] = b[n - 1, jj] * rec[n - 1, jj]
+        for i in range(n - 2, -1, -1):
+            for jj in range(gs):
+                b[i, jj] = (b[i, jj] - up[i, jj] * b[i + 1, jj]) * rec[i, jj]
+        for i in range(n):
+            s = 0.0
+            for jj in range(gs):
+                cj = c[g0 + jj]
+                s += cj.real * b[i, jj].real - cj.imag * b[i, jj].imag
+            out[i] += 2.0 * s
+        if not want_d:
+            continue
+        # right-hand side P_a y - (t Q_a - theta P_a) x, eliminated with the stored multipliers
+        for i in range(n):
+            for jj in range(gs):
+                th = theta[g0 + jj]
+                v = (t * qqd[i] - th * ppd[i]) * b[i, jj]
+                if i > 0:
+                    v += (t * qql[i - 1] - th * ppl[i - 1]) * b[i - 1, jj]
+                if i < n - 1:
+                    v += (t * qqu[i] - th * ppu[i]) * b[i + 1, jj]
+                r[i, jj] = pay[i] - v
+        for i in range(n - 1):
+            for jj in range(gs):
+                r[i + 1, jj] = r[i + 1, jj] - fl[i, jj] * r[i, jj]
+        for jj in range(gs):
+            r[n - 1, jj] = r[n - 1, jj] * rec[n - 1, jj]
+        for i in range(n - 2, -1, -1):
+            for jj in range(gs):
+                r[i, jj] = (r[i, jj] - up[i, jj] * r[i + 1, jj]) * rec[i, jj]
+        for i in range(n):
+            s = 0.0
+            for jj in range(gs):
+                cj = c[g0 + jj]
+                s += cj.real * r[i, jj].real - cj.imag * r[i, jj].imag
+            dout[i] += 2.0 * s
+    for i in range(n):
+        out[i] += alpha0 * y[i]
+    return out, dout, info
+
+
+def _bands_of(mat) -> tuple:
+    """``(lower, diag, upper)`` of a sparse tridiagonal matrix, float64 C-contiguous."""
+    return (np.ascontiguousarray(mat.diagonal(-1)), np.ascontiguousarray(mat.diagonal(0)),
+            np.ascontiguousarray(mat.diagonal(1)))
+
+
+def compact_case(zeta: float, closure: str, level: int, a_bal: float) -> tuple:
+    """``(P bands, Q bands, P_a bands, Q_a bands, t, M, sparse (P, Q) at a_bal, the Compact)`` at a mid shell."""
+    scene = Scene(zeta, closure, 8)
+    shell = scene.shells(SHELLS)[SHELLS // 2]
+    dv, q_mid = shell[0], shell[1]
+    comp = Compact(scene, grid(scene, 40, level))
+    # P is linear in the multiplier (through beta), Q quadratic (beta times B's derivatives): the central
+    # difference over +-1 is their exact derivative at a_bal
+    P0_, Q0_ = comp.pencil(q_mid, a_bal - 1.0)
+    P1_, Q1_ = comp.pencil(q_mid, a_bal + 1.0)
+    P, Q = comp.pencil(q_mid, a_bal)
+    n = P.shape[0]
+    m = np.exp(-0.5 * ((np.arange(n) - 0.4 * n) / (0.1 * n)) ** 2)
+    M = np.cumsum(m) / m.sum()
+    return (_bands_of(P), _bands_of(Q), _bands_of(0.5 * (P1_ - P0_)), _bands_of(0.5 * (Q1_ - Q0_)), 0.5 * dv, M, (P, Q), comp)
+
+
+def engine_case(zeta: float, closure: str, n_cells: int) -> tuple:
+    """The engine's ``(L bands, W bands, t, y)`` of the same shell on ``n_cells`` (sinh-graded) cells."""
+    scene = Scene(zeta, closure, n_cells)
+    shell = scene.shells(SHELLS)[SHELLS // 2]
+    l_fb, l_w = scene.operators(shell[1])
+    y = np.exp(-0.5 * ((np.arange(n_cells) - 0.4 * n_cells) / (0.1 * n_cells)) ** 2)
+    return tuple(np.ascontiguousarray(b) for b in l_fb), tuple(np.ascontiguousarray(b) for b in l_w), \
+        0.5 * shell[0], y / y.sum()
+
+
+def check(zeta: float, closure: str) -> list:
+    """:func:`pencil_pfd` against the prototype's sparse LU, and its derivative against a central difference."""
+    lines = []
+    for level in (1, 3):
+        a = 0.3
+        pb, qb, pab, qab, t, M, (P, Q), comp = compact_case(zeta, closure, level, a)
+        x, dx, info = pencil_pfd(*pb, *qb, t, M, RES, THETA, R_INF, True, *pab, *qab)
+        ref = expm_pencil(P, Q, t, M)
+        h = 1e-2  # the exponential is smooth in a (P linear, Q quadratic in it); the derivative is ~4e-7 of M's
+        # scale, so a smaller step loses digits to the pencil solves' round-off (1e-4: 3e-4 relative)
+        q_mid = Scene(zeta, closure, 8).shells(SHELLS)[SHELLS // 2][1]
+        xp = expm_pencil(*comp.pencil(q_mid, a + h), t, M)
+        xm = expm_pencil(*comp.pencil(q_mid, a - h), t, M)
+        fd = (xp - xm) / (2 * h)
+        lines.append(f"| {P.shape[0] - 1} | {float(np.max(np.abs(x - ref))):.1e} | "
+                     f"{float(np.max(np.abs(dx - fd)) / max(float(np.max(np.abs(fd))), 1e-300)):.1e} | {info} |")
+    return lines
+
+
+def median_time(fn, repeats: int) -> float:
+    fn()
+    ts = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t0)
+    return float(np.median(ts))
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=41)
+    ap.add_argument("--zeta", type=float, default=0.1)
+    ap.add_argument("--closure", default="local_g1_balanced")
+    args = ap.parse_args(argv)
+    lines = [f"# One exponential of the compact pencil against the engine's (`python benchmarks/compact_kernel_cost.py`)",
+             "", f"`{args.closure}`, `zeta = {args.zeta}`, the bands of shell {SHELLS // 2} of {SHELLS}, CRAM-16, "
+             f"medians of {args.repeats} calls, one thread.", "",
+             "Correctness of `pencil_pfd` (compact pencil, multiplier 0.3): max difference from the prototype's "
+             "sparse LU, relative max difference of the derivative from a central difference (step 1e-2: its own error is about 1e-6 of it), and "
+             "the pivot flag:", "", "| cells | x | dx/da (rel.) | info |", "|---|---|---|---|"]
+    lines += check(args.zeta, args.closure)
+    lines += ["", "Time per exponential [us] and per cell and pole [ns]:", "",
+              "| cells | engine, lanes | engine, scalar | compact, scalar | engine, lanes, d | engine, scalar, d | "
+              "compact, scalar, d | compact/engine scalar | compact/engine scalar, d |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    print("\n".join(lines), flush=True)
+    cw, r0 = K.flux_weights(RES, THETA, R_INF)
+    per = {}
+    for level in range(6):  # 40 .. 1280 cells on the prototype's family; the engine's on the same counts
+        pb, qb, pab, qab, t, M, _, _ = compact_case(args.zeta, args.closure, level, 0.3)
+        n = pb[1].size - 1
+        (lo, di, upd), (wl, wd, wu), te, y = engine_case(args.zeta, args.closure, n)
+        row = []
+        for want_d in (False, True):
+            f_lanes = lambda: K.cram_pfd(lo, di, upd, wl, wd, wu, te, y, RES, THETA, R_INF, want_d)  # noqa: E731
+            f_scal = lambda: K._pfd_pivoting(lo, di, upd, wl, wd, wu, te, y, RES, cw, r0, THETA,  # noqa: E731
+                                             want_d)
+            f_comp = lambda: pencil_pfd(*pb, *qb, t, M, RES, THETA, R_INF, want_d, *pab, *qab)  # noqa: E731
+            row.append([median_time(f, args.repeats) for f in (f_lanes, f_scal, f_comp)])
+        per[n] = row
+        cells = [f"{v * 1e6:.0f} ({v * 1e9 / (n * 8):.1f})" for v in row[0] + row[1]]
+        lines.append(f"| {n} | " + " | ".join(cells) + f" | {row[0][2] / row[0][1]:.2f} | "
+                     f"{row[1][2] / row[1][1]:.2f} |")
+        print(lines[-1], flush=True)
+    OUT.write_text("\n".join(lines) + "\n")
+    print(f"wrote {OUT}")
+
+
+if __name__ == "__main__":
+    main()
