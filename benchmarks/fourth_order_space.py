@@ -26,12 +26,18 @@ second-order solve (a delta at ``p0`` split between its two cells), given to eve
 reference is the second-order Richardson ``R`` of the two finest grids from there (checked against the
 fourth-order one). Errors: L1 of the masses on each grid. Writes ``results/fourth_order_space.md``.
 
+With ``--skip 0`` the comparison starts from the delta at ``p0`` itself (the engine's start: every grid's two
+cells at ``p0`` half each); the compact scheme's start is then :func:`corrected_delta` (``--start corrected``, the
+default) or the sampled step (``--start sampled``: fourth order lost, the fifty-first session's finding). Results
+files get ``_delta`` (``_delta_sampled``) in their names.
+
 With ``--absorbing`` the bottom, at ``--floor`` ``p*`` (default ``1e-16``, the closures' own floor), absorbs as
 the engine's wall does, for ``zeta <= 0.01``, where most of the probability crosses the deep layer to it; writes
 ``results/fourth_order_space_absorbing.md``.
 
     python benchmarks/fourth_order_space.py [--zetas 0.1 0.25] [--closures local_g1_balanced]
     python benchmarks/fourth_order_space.py --absorbing --zetas 0.1 0.01
+    python benchmarks/fourth_order_space.py --skip 0 [--start sampled] [--absorbing]
 """
 from __future__ import annotations
 
@@ -328,10 +334,32 @@ def expm_pencil(P, Q, t: float, y: np.ndarray) -> np.ndarray:
     return out
 
 
-def run_compact(scheme: Compact, shells: list, y: np.ndarray) -> np.ndarray:
+def corrected_delta(edges: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """The compact scheme's start for ``delta(p - p0)`` (``p0`` an edge, the same spacing in ``xi`` on both sides):
+    the sampled step ``M = H(p - p0)`` (``M(p0) = 1/2``: the split delta) with ``M`` at the edges next to ``p0``
+    moved outwards by 1/24, ``(1 - h^2/12 delta^2) H``, which is ``P^-1 H`` to the order that matters.
+
+    Sampled alone, the step gives the compact scheme an error of order ``h^2`` that no later smoothing removes
+    (measured: both fourth-order schemes fall to second order from the delta start, and ``R4`` with them). The
+    scheme's nodal values stand for ``P^-1`` of the function's samples; a delta start corrected so converges at
+    fourth order again (the Kreiss-Thomee-Widlund condition that initial data be smoothed to the scheme's order,
+    Comm. Pure Appl. Math. 23, 241 (1970), doi:10.1002/cpa.3160230207); ``P^-1 H`` itself does as well."""
+    j = int(np.searchsorted(edges, P0))
+    if edges[j] != P0:
+        raise ValueError("corrected_delta: p0 is not an edge")
+    M = M.copy()
+    M[j - 1] -= 1.0 / 24.0
+    M[j + 1] += 1.0 / 24.0
+    return M
+
+
+def run_compact(scheme: Compact, shells: list, y: np.ndarray, delta_start: bool = False) -> np.ndarray:
     """``[z, m]`` after ``shells`` by the compact scheme, from ``[z, m]`` (``M_0 = z`` moves only where the bottom
-    absorbs, :class:`CompactAbsorbing`)."""
+    absorbs, :class:`CompactAbsorbing`); ``delta_start``: ``y`` is the split delta at ``p0``, corrected by
+    :func:`corrected_delta`."""
     M = np.concatenate(([y[0]], y[0] + np.cumsum(y[1:])))
+    if delta_start:
+        M = corrected_delta(scheme.edges, M)
     a_guess = 0.0
     for dv, q_mid, _, _ in shells:
         h = 0.5 * dv
@@ -416,7 +444,8 @@ def aggregate_zm(y: np.ndarray, factor: int) -> np.ndarray:
     return np.concatenate((y[:1], aggregate(y[1:], factor)))
 
 
-def absorbing(zeta: float, closure: str, n0: int, levels: int, skip: int, floor: float) -> list:
+def absorbing(zeta: float, closure: str, n0: int, levels: int, skip: int, floor: float,
+              delta_start: bool = False) -> list:
     """Rows of the second-order and compact schemes with the absorbing bottom at ``floor p*``."""
     scene = Scene(zeta, closure, 8)
     scene.floor_factor = floor
@@ -442,7 +471,7 @@ def absorbing(zeta: float, closure: str, n0: int, levels: int, skip: int, floor:
         for kind in ("2", "compact"):
             try:
                 x[kind, level] = (run(SchemeAbsorbing(scene, e), rest, y0) if kind == "2" else
-                                  run_compact(CompactAbsorbing(scene, e), rest, y0))
+                                  run_compact(CompactAbsorbing(scene, e), rest, y0, delta_start))
             except RuntimeError:
                 cells.append("balance failed")
                 prev.pop(kind, None)
@@ -470,18 +499,37 @@ def main_absorbing(args) -> None:
              "the second-order scheme's outflow f_0 u_0/(c_0 - p_bottom), the compact scheme's M_tau = f M_pp with "
              "M_p = 0 from a third-order one-sided difference), the zero weight z counted at p = 0 and in the L1 "
              "errors; the explicit fourth-order scheme left out. The reference: the second-order Richardson of the "
-             "two finest grids.", "",
+             "two finest grids." + _start_text(args), "",
              "| closure | zeta | N | 2nd order X(N) | compact X(N) | R2(N/2, N) | compact R4(N/2, N) |",
              "|---|---|---|---|---|---|---|"]
     for closure in args.closures:
         for zeta in args.zetas:
             t0 = time.perf_counter()
-            lines += absorbing(zeta, closure, args.n0, args.levels, args.skip, args.floor)
+            lines += absorbing(zeta, closure, args.n0, args.levels, args.skip, args.floor, _delta_start(args))
             lines[-1] = lines[-1][:-2] + f" ({time.perf_counter() - t0:.0f} s) |"
-    out = OUT.with_name("fourth_order_space_absorbing" + ("" if args.zetas == [0.1, 0.01] else
-                                                          "_" + "_".join(f"{z:g}" for z in args.zetas)) + ".md")
+    out = _out(OUT.with_name("fourth_order_space_absorbing.md"), args, [0.1, 0.01])
     out.write_text("\n".join(lines) + "\n")
     print(f"wrote {out}")
+
+
+def _delta_start(args) -> bool:
+    return args.skip == 0 and args.start == "corrected"
+
+
+def _start_text(args) -> str:
+    if args.skip != 0:
+        return ""
+    return (" From the delta at p0 (the split delta of every grid's two cells at p0); the compact scheme's start " +
+            ("corrected (`corrected_delta`)." if args.start == "corrected" else "the sampled step (uncorrected)."))
+
+
+def _out(base: Path, args, default_zetas: list) -> Path:
+    """The results file: ``base``, with the zetas where they are not the default, and ``_delta`` (or
+    ``_delta_sampled``) where the comparison starts from the delta."""
+    tail = "" if args.zetas == default_zetas else "_" + "_".join(f"{z:g}" for z in args.zetas)
+    if args.skip == 0:
+        tail += "_delta" + ("" if args.start == "corrected" else "_sampled")
+    return base.with_name(base.stem + tail + ".md")
 
 
 def main(argv=None) -> None:
@@ -491,6 +539,8 @@ def main(argv=None) -> None:
     ap.add_argument("--n0", type=int, default=40, help="cells of the coarsest grid")
     ap.add_argument("--levels", type=int, default=5, help="grids N0 .. N0 2^(levels-1) compared")
     ap.add_argument("--skip", type=int, default=4, help="shells before the comparison starts")
+    ap.add_argument("--start", choices=("corrected", "sampled"), default="corrected",
+                    help="with --skip 0: the compact scheme's delta start (corrected_delta, or the sampled step)")
     ap.add_argument("--absorbing", action="store_true", help="the bottom absorbs (main_absorbing)")
     ap.add_argument("--floor", type=float, default=1e-16, help="with --absorbing: the bottom in units of p*")
     args = ap.parse_args(argv)
@@ -503,7 +553,7 @@ def main(argv=None) -> None:
              "(second-order Richardson of the two finest grids, 2 and 4 levels above the finest compared); in "
              "brackets log2 of the fall per doubling. `R2`: (4 X(2N) - X(N))/3 of the second-order scheme (the "
              "engine's answer, cells 2N); `R4`: (16 X(2N) - X(N))/15 of a fourth-order one (explicit: five bands; "
-             "compact: P dM/dtau = Q M, both tridiagonal).", "",
+             "compact: P dM/dtau = Q M, both tridiagonal)." + _start_text(args), "",
              "| closure | zeta | N | 2nd order X(N) | 4th order X(N) | compact X(N) | R2(N/2, N) | R4(N/2, N) | "
              "compact R4(N/2, N) |",
              "|---|---|---|---|---|---|---|---|---|"]
@@ -540,7 +590,8 @@ def main(argv=None) -> None:
                 cells = []
                 for order in (2, 4, "compact"):
                     try:
-                        x[order, level] = (run_compact(Compact(scene, e), rest, np.concatenate(([0.0], y0)))[1:]
+                        x[order, level] = (run_compact(Compact(scene, e), rest, np.concatenate(([0.0], y0)),
+                                                       _delta_start(args))[1:]
                                            if order == "compact" else
                                            run(Scheme(scene, e, order), rest, y0))
                     except RuntimeError:  # the fourth-order operator on too few cells (not an M-matrix)
@@ -572,8 +623,9 @@ def main(argv=None) -> None:
                          f"{', '.join(f'{v:.1e}' for v in smallest)} | | | | | | "
                          f"({time.perf_counter() - t0:.0f} s) |")
             print(lines[-1], flush=True)
-    OUT.write_text("\n".join(lines) + "\n")
-    print(f"wrote {OUT}")
+    out = _out(OUT, args, [0.1, 0.25])
+    out.write_text("\n".join(lines) + "\n")
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":
