@@ -5,10 +5,10 @@ The fiftieth session measured (``fourth_order_space.py``) that a compact fourth-
 finite volumes at the accuracy the balanced closures' answers need; it left the per-cell cost in a compiled kernel
 unmeasured. Every CRAM pole of the pencil is a solve with ``t Q - theta P``, whose three bands are all complex
 (the engine's ``t L - theta`` has real off-diagonals), and the right-hand side is ``P y`` (one real product). This
-script writes that solve as a numba kernel in the engine's style (:func:`pencil_pfd`: a block of poles eliminated
-together, row by row, complex scalars, no row interchanges: the pencil's rows are diagonally dominant wherever the
-engine's are; a pivot test flags any that is not) with the balance derivative the engine's Newton takes, and
-times it beside the engine's own kernels on the same numbers of cells in the same process:
+script times that solve, :func:`diffusion_pr.solvers.fv._compact_kernels.pencil_pfd` (the engine's style: a block
+of poles eliminated together, row by row, complex scalars, no row interchanges: the pencil's rows are diagonally
+dominant wherever the engine's are; a vanished pivot is flagged), with the balance derivative the engine's Newton
+takes, beside the engine's own kernels on the same numbers of cells in the same process:
 
 * ``engine, lanes``: :func:`diffusion_pr.solvers.fv._kernels.cram_pfd` (the poles in vector lanes, what the
   closures run);
@@ -35,127 +35,16 @@ import time
 from pathlib import Path
 
 import numpy as np
-from numba import njit
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import diffusion_pr.closures as C  # noqa: E402
 from diffusion_pr.solvers.fv import _kernels as K  # noqa: E402
+from diffusion_pr.solvers.fv._compact_kernels import pencil_pfd  # noqa: E402
 from diffusion_pr.solvers.fv.cram import pfd_coefficients  # noqa: E402
-from diffusion_pr.solvers.fv.operator import bands, centres  # noqa: E402
 from fourth_order_space import SHELLS, Compact, expm_pencil, grid  # noqa: E402
 from shell_rule_balance import Scene  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "results" / "compact_kernel_cost.md"
 THETA, RES, R_INF, _ = pfd_coefficients(16)
-BLOCK = 4  # poles per block, as the engine's kernels take for CRAM-16
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def pencil_pfd(pl, pd, pu, ql, qd, qu, t, y, c, theta, alpha0, want_d, ppl, ppd, ppu, qql, qqd,
-               qqu):  # pragma: no cover - numba
-    """``exp(t P^-1 Q) y = alpha0 y + 2 Re sum_j c_j (t Q - theta_j P)^-1 P y`` (CRAM in partial fractions).
-
-    ``P`` and ``Q`` tridiagonal (``pl, pd, pu``: lower, diagonal, upper band), all poles of a block of
-    :data:`BLOCK` eliminated together row by row, without row interchanges (``info`` is the first row whose
-    pivot fails LAPACK's test, 0 if none). With ``want_d`` also the derivative in a multiplier ``a`` on which
-    ``P`` and ``Q`` depend linearly, ``P_a`` and ``Q_a`` given as ``ppl, ...`` and ``qql, ...``:
-    ``d x_j / da = (t Q - theta_j P)^-1 (P_a y - (t Q_a - theta_j P_a) x_j)``, a second solve with the stored
-    elimination. Returns ``(x, dx, info)``.
-    """
-    n = pd.size
-    m = theta.size
-    g = BLOCK
-    rec = np.empty((n, g), dtype=np.complex128)  # reciprocal pivots
-    up = np.empty((n, g), dtype=np.complex128)  # the superdiagonal t Q_u - theta P_u
-    fl = np.empty((n, g), dtype=np.complex128)  # multipliers
-    b = np.empty((n, g), dtype=np.complex128)
-    r = np.empty((n, g), dtype=np.complex128)
-    py = np.empty(n)
-    pay = np.empty(n)
-    out = np.zeros(n)
-    dout = np.zeros(n)
-    for i in range(n):
-        s = pd[i] * y[i]
-        if i > 0:
-            s += pl[i - 1] * y[i - 1]
-        if i < n - 1:
-            s += pu[i] * y[i + 1]
-        py[i] = s
-        if want_d:
-            s = ppd[i] * y[i]
-            if i > 0:
-                s += ppl[i - 1] * y[i - 1]
-            if i < n - 1:
-                s += ppu[i] * y[i + 1]
-            pay[i] = s
-    info = 0
-    for g0 in range(0, m, g):
-        gs = min(g, m - g0)
-        for jj in range(gs):
-            th = theta[g0 + jj]
-            d = t * qd[0] - th * pd[0]
-            rec[0, jj] = 1.0 / d
-            b[0, jj] = py[0]
-        for i in range(n - 1):
-            tql = t * ql[i]
-            tqu = t * qu[i]
-            tqd = t * qd[i + 1]
-            pli = pl[i]
-            pui = pu[i]
-            pdn = pd[i + 1]
-            yn = py[i + 1]
-            for jj in range(gs):
-                th = theta[g0 + jj]
-                lo = tql - th * pli
-                u = tqu - th * pui
-                up[i, jj] = u
-                f = lo * rec[i, jj]
-                fl[i, jj] = f
-                dn = (tqd - th * pdn) - f * u
-                if abs(dn.real) + abs(dn.imag) == 0.0 and info == 0:
-                    info = i + 2
-                rec[i + 1, jj] = 1.0 / dn
-                b[i + 1, jj] = yn - f * b[i, jj]
-        for jj in range(gs):
-            b[n - 1, jj] = b[n - 1, jj] * rec[n - 1, jj]
-        for i in range(n - 2, -1, -1):
-            for jj in range(gs):
-                b[i, jj] = (b[i, jj] - up[i, jj] * b[i + 1, jj]) * rec[i, jj]
-        for i in range(n):
-            s = 0.0
-            for jj in range(gs):
-                cj = c[g0 + jj]
-                s += cj.real * b[i, jj].real - cj.imag * b[i, jj].imag
-            out[i] += 2.0 * s
-        if not want_d:
-            continue
-        # right-hand side P_a y - (t Q_a - theta P_a) x, eliminated with the stored multipliers
-        for i in range(n):
-            for jj in range(gs):
-                th = theta[g0 + jj]
-                v = (t * qqd[i] - th * ppd[i]) * b[i, jj]
-                if i > 0:
-                    v += (t * qql[i - 1] - th * ppl[i - 1]) * b[i - 1, jj]
-                if i < n - 1:
-                    v += (t * qqu[i] - th * ppu[i]) * b[i + 1, jj]
-                r[i, jj] = pay[i] - v
-        for i in range(n - 1):
-            for jj in range(gs):
-                r[i + 1, jj] = r[i + 1, jj] - fl[i, jj] * r[i, jj]
-        for jj in range(gs):
-            r[n - 1, jj] = r[n - 1, jj] * rec[n - 1, jj]
-        for i in range(n - 2, -1, -1):
-            for jj in range(gs):
-                r[i, jj] = (r[i, jj] - up[i, jj] * r[i + 1, jj]) * rec[i, jj]
-        for i in range(n):
-            s = 0.0
-            for jj in range(gs):
-                cj = c[g0 + jj]
-                s += cj.real * r[i, jj].real - cj.imag * r[i, jj].imag
-            dout[i] += 2.0 * s
-    for i in range(n):
-        out[i] += alpha0 * y[i]
-    return out, dout, info
 
 
 def _bands_of(mat) -> tuple:
@@ -233,6 +122,8 @@ def main(argv=None) -> None:
              "sparse LU, relative max difference of the derivative from a central difference (step 1e-2: its own error is about 1e-6 of it), and "
              "the pivot flag:", "", "| cells | x | dx/da (rel.) | info |", "|---|---|---|---|"]
     lines += check(args.zeta, args.closure)
+    lines += ["", "(The kernel's derivative terms in `P_a`, about 6e-7 of `P` here, are checked on a pencil where they "
+              "matter in `tests/diffusion_pr/test_fv_compact.py`.)"]
     lines += ["", "Time per exponential [us] and per cell and pole [ns]:", "",
               "| cells | engine, lanes | engine, scalar | compact, scalar | engine, lanes, d | engine, scalar, d | "
               "compact, scalar, d | compact/engine scalar | compact/engine scalar, d |",

@@ -54,6 +54,7 @@ from scipy.sparse.linalg import splu
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import diffusion_pr.closures as C  # noqa: E402
 from bench_fokker_planck import SPECTRUM  # noqa: E402
+from diffusion_pr.solvers.fv.compact import hoc_bands  # noqa: E402
 from diffusion_pr.solvers.fv.cram import pfd_coefficients  # noqa: E402
 from diffusion_pr.solvers.fv.operator import centres  # noqa: E402
 from shell_rule_balance import Scene, multiplier  # noqa: E402
@@ -288,23 +289,9 @@ class Compact:
 
 def hoc_pencil(h: float, a: tuple, b: tuple) -> tuple:
     """Sparse ``(P, Q)`` of the compact scheme for ``u_tau = A u'' + B u'`` on a uniform grid of spacing ``h``
-    (:class:`Compact`): ``a = (A, A', A'')`` and ``b = (B, B', B'')`` at the interior nodes; the two end rows are
-    ``u_tau = 0`` (``P`` row 1, ``Q`` row 0)."""
-    (A, A1, A2), (B, B1, B2) = a, b
-    beta = (B - 2 * A1) / A
-    gamma = B2 + beta * B1
-    kappa = 2 * B1 + A2 + beta * (A1 + B)
-    n = A.size + 2
-    pl, pd, pu = np.zeros(n - 1), np.ones(n), np.zeros(n - 1)
-    ql, qd, qu = np.zeros(n - 1), np.zeros(n), np.zeros(n - 1)
-    pl[:-1] = 1 / 12 - beta * h / 24  # row k = 1 .. n-2 (the interior), column k-1
-    pd[1:-1] = 5 / 6
-    pu[1:] = 1 / 12 + beta * h / 24  # row k, column k+1
-    d2 = (A + h * h * kappa / 12) / h ** 2
-    d1 = (B + h * h * gamma / 12) / (2 * h)
-    ql[:-1] = d2 - d1
-    qd[1:-1] = -2 * d2
-    qu[1:] = d2 + d1
+    (:class:`Compact`; the bands are the package's :func:`diffusion_pr.solvers.fv.compact.hoc_bands`): ``a = (A,
+    A', A'')`` and ``b = (B, B', B'')`` at the interior nodes; the two end rows are ``u_tau = 0``."""
+    (pl, pd, pu), (ql, qd, qu) = hoc_bands(h, a, b)
     return sp.diags([pl, pd, pu], [-1, 0, 1], format="csc"), sp.diags([ql, qd, qu], [-1, 0, 1], format="csc")
 
 

@@ -1,0 +1,160 @@
+"""The compact fourth-order scheme on the primitive ``M`` (issue 10's route for the balanced closures).
+
+Not yet used by :func:`~diffusion_pr.solvers.fv.engine.solve_fv`: these are the engine-independent parts of the
+plan in docs/closures.md ("A fourth-order shell rule under the shell-wise balance", steps 2-5), each tested
+against an oracle of its own (``tests/diffusion_pr/test_fv_compact.py``):
+
+* :func:`hoc_bands`: the high-order compact (HOC) discretization of ``u_tau = A u'' + B u'`` on a uniform grid
+  in a coordinate ``xi`` (Spotz and Carey, Numer. Methods Partial Differ. Equ. 17, 657 (2001),
+  doi:10.1002/num.1032), ``P du/dtau = Q u`` with ``P`` and ``Q`` both tridiagonal, fourth order;
+* :func:`expm_pencil`: ``exp(t P^-1 Q) y`` by CRAM in partial fractions, every shifted solve
+  ``(t Q - theta P) x = P y`` tridiagonal (:func:`._compact_kernels.pencil_pfd`), with the derivative in a
+  multiplier on which the pencil depends (the balance's Newton);
+* :func:`corrected_delta_start`: the start for ``delta(p - p0)``. The sampled step ``H(p - p0)`` costs the compact
+  scheme its order: from it both the scheme and its Richardson ``(16 X(2N) - X(N))/15`` converge at second order
+  (``benchmarks/fourth_order_space.py --skip 0 --start sampled``); corrected as here, at fourth.
+
+For the probability below ``p``, ``M(p, tau)``, of ``Pr_tau = (f Pr)_pp - (a Pr)_p``:
+``M_tau = f M_pp + (f_p - a) M_p``, and on a grid uniform in ``xi`` (``p = p(xi)``)
+``A = f / p_xi^2`` and ``B = (f_p - a) / p_xi - f p_xixi / p_xi^3``. Pressures and ``xi`` in any consistent
+units; ``tau`` in the inverse units of ``A / h^2``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .cram import pfd_coefficients
+
+__all__ = ["hoc_bands", "expm_pencil", "corrected_delta_start"]
+
+
+def hoc_bands(h: float, a: tuple, b: tuple) -> tuple:
+    """The bands of ``P`` and ``Q`` of the HOC scheme for ``u_tau = A u'' + B u'``.
+
+    Parameters
+    ----------
+    h : float
+        The grid spacing in ``xi`` (> 0).
+    a, b : tuple of three arrays
+        ``(A, A', A'')`` and ``(B, B', B'')`` at the interior nodes (``n - 2`` values each; derivatives in ``xi``).
+        ``A > 0``.
+
+    Returns
+    -------
+    ((pl, pd, pu), (ql, qd, qu))
+        Lower, diagonal and upper bands of ``P`` and ``Q`` on all ``n`` nodes; the two end rows are
+        ``u_tau = 0`` (``P`` row 1, ``Q`` row 0: ``u`` held at both ends).
+
+    Notes
+    -----
+    The central differences' ``h^2`` terms, ``h^2/12 (A u'''' + 2 B u''')``, written through the equation itself
+    (``u'''`` and ``u''''`` from derivatives of ``A u'' + B u' = u_tau``) give
+
+    ``P = 1 + h^2/12 (delta^2 + beta delta_1)``, ``Q = (A + h^2 kappa/12) delta^2 + (B + h^2 gamma/12) delta_1``,
+
+    ``beta = (B - 2 A')/A``, ``gamma = B'' + beta B'``, ``kappa = 2 B' + A'' + beta (A' + B)``, with
+    ``delta^2`` and ``delta_1`` the central second and first differences.
+    """
+    if not h > 0.0:
+        raise ValueError(f"h must be > 0; got h={h!r}")
+    (A, A1, A2), (B, B1, B2) = (tuple(np.asarray(v, dtype=float) for v in a),
+                                tuple(np.asarray(v, dtype=float) for v in b))
+    if not np.all(A > 0.0):
+        raise ValueError(f"A must be > 0 at every interior node; got min A = {float(np.min(A))!r}")
+    beta = (B - 2.0 * A1) / A
+    gamma = B2 + beta * B1
+    kappa = 2.0 * B1 + A2 + beta * (A1 + B)
+    n = A.size + 2
+    pl, pd, pu = np.zeros(n - 1), np.ones(n), np.zeros(n - 1)
+    ql, qd, qu = np.zeros(n - 1), np.zeros(n), np.zeros(n - 1)
+    pl[:-1] = 1.0 / 12.0 - beta * h / 24.0  # rows 1 .. n-2, column k-1
+    pd[1:-1] = 5.0 / 6.0
+    pu[1:] = 1.0 / 12.0 + beta * h / 24.0  # rows 1 .. n-2, column k+1
+    d2 = (A + h * h * kappa / 12.0) / h ** 2
+    d1 = (B + h * h * gamma / 12.0) / (2.0 * h)
+    ql[:-1] = d2 - d1
+    qd[1:-1] = -2.0 * d2
+    qu[1:] = d2 + d1
+    return (pl, pd, pu), (ql, qd, qu)
+
+
+def corrected_delta_start(n_nodes: int, j: int) -> np.ndarray:
+    """``M`` at the start for ``delta(p - p0)``, ``p0`` at node ``j`` with the same spacing in ``xi`` on both
+    sides: the sampled step (``M(p0) = 1/2``) with the two neighbours of ``p0`` moved outwards by 1/24.
+
+    That is ``(1 - h^2/12 delta^2) H`` at the nodes, ``P^-1 H`` to the order that matters: the scheme's nodal
+    values stand for ``P^-1`` of the function's samples, and initial data smoothed to the scheme's order keep it
+    (Kreiss, Thomee and Widlund, Comm. Pure Appl. Math. 23, 241 (1970), doi:10.1002/cpa.3160230207). Measured
+    (``benchmarks/fourth_order_space.py --skip 0``): the balanced closures' compact ``R4`` at 2e-8 to 6e-8 on 320
+    cells from this start, 3e-4 from the sampled step.
+
+    Parameters
+    ----------
+    n_nodes : int
+        Nodes of the grid (>= 5).
+    j : int
+        The node at ``p0`` (``2 <= j <= n_nodes - 3``: both neighbours interior).
+    """
+    if not (isinstance(n_nodes, (int, np.integer)) and n_nodes >= 5):
+        raise ValueError(f"n_nodes must be an integer >= 5; got n_nodes={n_nodes!r}")
+    if not (isinstance(j, (int, np.integer)) and 2 <= j <= n_nodes - 3):
+        raise ValueError(f"j must be an integer in [2, {n_nodes - 3}]; got j={j!r}")
+    M = np.zeros(n_nodes)
+    M[j] = 0.5
+    M[j + 1:] = 1.0
+    M[j - 1] -= 1.0 / 24.0
+    M[j + 1] += 1.0 / 24.0
+    return M
+
+
+def expm_pencil(p_bands: tuple, q_bands: tuple, t: float, y: np.ndarray, *, order: int = 16,
+                derivative: tuple | None = None) -> tuple:
+    """``exp(t P^-1 Q) y`` (and its derivative in a multiplier) by CRAM in partial fractions.
+
+    Parameters
+    ----------
+    p_bands, q_bands : tuple of three float arrays
+        ``(lower, diag, upper)`` of ``P`` and ``Q`` (:func:`hoc_bands`). ``P^-1 Q`` must have its spectrum on or
+        near the negative real axis, where CRAM holds (a diffusion operator: the HOC pencil of a problem with
+        ``A > 0`` on a resolved grid).
+    t : float
+        The time step (>= 0).
+    y : array (n,)
+        The state.
+    order : int
+        10, 12 or 16 (:func:`.cram.pfd_coefficients`).
+    derivative : tuple, optional
+        ``(P_a bands, Q_a bands)``: also return the derivative of the result in the multiplier ``a``.
+
+    Returns
+    -------
+    (x, dx)
+        ``dx`` is None without ``derivative``.
+
+    Raises
+    ------
+    ValueError
+        On bad input; RuntimeError where a pivot vanished (no row interchanges: the pencil's matrices are
+        diagonally dominant on resolved grids).
+    """
+    from ._compact_kernels import pencil_pfd
+
+    theta, res, r_inf, _ = pfd_coefficients(order)
+    pb = tuple(np.ascontiguousarray(v, dtype=float) for v in p_bands)
+    qb = tuple(np.ascontiguousarray(v, dtype=float) for v in q_bands)
+    y = np.ascontiguousarray(y, dtype=float)
+    n = y.size
+    for name, bands in (("p_bands", pb), ("q_bands", qb)):
+        if [v.size for v in bands] != [n - 1, n, n - 1]:
+            raise ValueError(f"{name} must be (lower, diag, upper) of sizes ({n - 1}, {n}, {n - 1}) for y of size "
+                             f"{n}; got sizes {[v.size for v in bands]}")
+    if not (np.isfinite(t) and t >= 0.0):
+        raise ValueError(f"t must be finite and >= 0; got t={t!r}")
+    if derivative is None:
+        da, dq = pb, qb
+    else:
+        da, dq = (tuple(np.ascontiguousarray(v, dtype=float) for v in part) for part in derivative)
+    x, dx, info = pencil_pfd(*pb, *qb, float(t), y, res, theta, float(r_inf), derivative is not None, *da, *dq)
+    if info:
+        raise RuntimeError(f"expm_pencil: the pivot of row {info} vanished (t={t!r})")
+    return x, (dx if derivative is not None else None)
