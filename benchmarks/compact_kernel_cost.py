@@ -45,6 +45,7 @@ from shell_rule_balance import Scene  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "results" / "compact_kernel_cost.md"
 THETA, RES, R_INF, _ = pfd_coefficients(16)
+ROW0 = np.zeros(2)  # no bordered first row
 
 
 def _bands_of(mat) -> tuple:
@@ -86,7 +87,7 @@ def check(zeta: float, closure: str) -> list:
     for level in (1, 3):
         a = 0.3
         pb, qb, pab, qab, t, M, (P, Q), comp = compact_case(zeta, closure, level, a)
-        x, dx, info = pencil_pfd(*pb, *qb, t, M, RES, THETA, R_INF, True, *pab, *qab)
+        x, dx, info = pencil_pfd(*pb, *qb, ROW0, t, M, RES, THETA, R_INF, True, *pab, *qab, ROW0)
         ref = expm_pencil(P, Q, t, M)
         h = 1e-2  # the exponential is smooth in a (P linear, Q quadratic in it); the derivative is ~4e-7 of M's
         # scale, so a smaller step loses digits to the pencil solves' round-off (1e-4: 3e-4 relative)
@@ -140,7 +141,7 @@ def main(argv=None) -> None:
             f_lanes = lambda: K.cram_pfd(lo, di, upd, wl, wd, wu, te, y, RES, THETA, R_INF, want_d)  # noqa: E731
             f_scal = lambda: K._pfd_pivoting(lo, di, upd, wl, wd, wu, te, y, RES, cw, r0, THETA,  # noqa: E731
                                              want_d)
-            f_comp = lambda: pencil_pfd(*pb, *qb, t, M, RES, THETA, R_INF, want_d, *pab, *qab)  # noqa: E731
+            f_comp = lambda: pencil_pfd(*pb, *qb, ROW0, t, M, RES, THETA, R_INF, want_d, *pab, *qab, ROW0)  # noqa: E731
             row.append([median_time(f, args.repeats) for f in (f_lanes, f_scal, f_comp)])
         per[n] = row
         cells = [f"{v * 1e6:.0f} ({v * 1e9 / (n * 8):.1f})" for v in row[0] + row[1]]

@@ -25,7 +25,7 @@ import numpy as np
 
 from .cram import pfd_coefficients
 
-__all__ = ["hoc_bands", "expm_pencil", "corrected_delta_start"]
+__all__ = ["hoc_bands", "expm_pencil", "corrected_delta_start", "absorbing_bottom"]
 
 
 def hoc_bands(h: float, a: tuple, b: tuple) -> tuple:
@@ -107,8 +107,37 @@ def corrected_delta_start(n_nodes: int, j: int) -> np.ndarray:
     return M
 
 
+def absorbing_bottom(h: float, a_bottom: float) -> tuple:
+    """``Q``'s first row for an absorbing bottom at node 0 (``Pr = 0`` there: ``M_xi = 0``, and ``M_tau = A M''``).
+
+    ``M''`` from ``M_0 .. M_3`` given ``M' = 0``, to third order: ``M_k - M_0 = h^2 (k^2/2 M'' + h k^3/6 M''' +
+    h^2 k^4/24 M'''')`` for ``k = 1, 2, 3``, solved for ``M''``. ``P``'s first row stays ``(1, 0)``.
+
+    Parameters
+    ----------
+    h : float
+        The grid spacing in ``xi`` (> 0).
+    a_bottom : float
+        ``A`` at node 0 (>= 0).
+
+    Returns
+    -------
+    (q00, q01, q_row0)
+        ``Q``'s diagonal and upper entries of row 0, and its entries in columns 2 and 3 (:func:`expm_pencil`'s
+        ``q_row0``).
+    """
+    if not h > 0.0:
+        raise ValueError(f"h must be > 0; got h={h!r}")
+    if not a_bottom >= 0.0:
+        raise ValueError(f"a_bottom must be >= 0; got a_bottom={a_bottom!r}")
+    k = np.arange(1.0, 4.0)
+    weights = np.linalg.solve(np.array([k ** 2 / 2, k ** 3 / 6, k ** 4 / 24]), np.array([1.0, 0.0, 0.0]))
+    row = weights * a_bottom / h ** 2
+    return -float(row.sum()), float(row[0]), row[1:].copy()
+
+
 def expm_pencil(p_bands: tuple, q_bands: tuple, t: float, y: np.ndarray, *, order: int = 16,
-                derivative: tuple | None = None) -> tuple:
+                q_row0: np.ndarray | None = None, derivative: tuple | None = None) -> tuple:
     """``exp(t P^-1 Q) y`` (and its derivative in a multiplier) by CRAM in partial fractions.
 
     Parameters
@@ -123,8 +152,11 @@ def expm_pencil(p_bands: tuple, q_bands: tuple, t: float, y: np.ndarray, *, orde
         The state.
     order : int
         10, 12 or 16 (:func:`.cram.pfd_coefficients`).
+    q_row0 : array (2,), optional
+        ``Q``'s first row beyond the band, columns 2 and 3 (:func:`absorbing_bottom`; ``y`` of size >= 4).
     derivative : tuple, optional
-        ``(P_a bands, Q_a bands)``: also return the derivative of the result in the multiplier ``a``.
+        ``(P_a bands, Q_a bands)`` or ``(P_a bands, Q_a bands, Q_a's q_row0)``: also return the derivative of the
+        result in the multiplier ``a``.
 
     Returns
     -------
@@ -150,11 +182,17 @@ def expm_pencil(p_bands: tuple, q_bands: tuple, t: float, y: np.ndarray, *, orde
                              f"{n}; got sizes {[v.size for v in bands]}")
     if not (np.isfinite(t) and t >= 0.0):
         raise ValueError(f"t must be finite and >= 0; got t={t!r}")
+    row0 = np.zeros(2) if q_row0 is None else np.ascontiguousarray(q_row0, dtype=float)
+    if row0.shape != (2,) or (q_row0 is not None and n < 4):
+        raise ValueError(f"q_row0 must have 2 entries (columns 2 and 3) and y at least 4; got shape {row0.shape} "
+                         f"and y of size {n}")
     if derivative is None:
-        da, dq = pb, qb
+        da, dq, drow0 = pb, qb, row0
     else:
-        da, dq = (tuple(np.ascontiguousarray(v, dtype=float) for v in part) for part in derivative)
-    x, dx, info = pencil_pfd(*pb, *qb, float(t), y, res, theta, float(r_inf), derivative is not None, *da, *dq)
+        da, dq = (tuple(np.ascontiguousarray(v, dtype=float) for v in part) for part in derivative[:2])
+        drow0 = np.ascontiguousarray(derivative[2], dtype=float) if len(derivative) > 2 else np.zeros(2)
+    x, dx, info = pencil_pfd(*pb, *qb, row0, float(t), y, res, theta, float(r_inf), derivative is not None, *da,
+                             *dq, drow0)
     if info:
         raise RuntimeError(f"expm_pencil: the pivot of row {info} vanished (t={t!r})")
     return x, (dx if derivative is not None else None)
