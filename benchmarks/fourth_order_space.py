@@ -27,9 +27,9 @@ reference is the second-order Richardson ``R`` of the two finest grids from ther
 fourth-order one). Errors: L1 of the masses on each grid. Writes ``results/fourth_order_space.md``.
 
 With ``--skip 0`` the comparison starts from the delta at ``p0`` itself (the engine's start: every grid's two
-cells at ``p0`` half each); the compact scheme's start is then :func:`corrected_delta` (``--start corrected``, the
-default) or the sampled step (``--start sampled``: fourth order lost, the fifty-first session's finding). Results
-files get ``_delta`` (``_delta_sampled``) in their names.
+cells at ``p0`` half each); the compact scheme's start is then ``corrected_delta_start`` (``--start-shift 1/24``, the
+default) or the sampled step (``--start-shift 0``: fourth order lost, the fifty-first session's finding; 1/16
+and 1/12 lose it too). Results files get ``_delta`` (``_delta_sampled``, ``_delta_shift<value>``) in their names.
 
 With ``--absorbing`` the bottom, at ``--floor`` ``p*`` (default ``1e-16``, the closures' own floor), absorbs as
 the engine's wall does, for ``zeta <= 0.01``, where most of the probability crosses the deep layer to it; writes
@@ -37,7 +37,7 @@ the engine's wall does, for ``zeta <= 0.01``, where most of the probability cros
 
     python benchmarks/fourth_order_space.py [--zetas 0.1 0.25] [--closures local_g1_balanced]
     python benchmarks/fourth_order_space.py --absorbing --zetas 0.1 0.01
-    python benchmarks/fourth_order_space.py --skip 0 [--start sampled] [--absorbing]
+    python benchmarks/fourth_order_space.py --skip 0 [--start-shift 0] [--absorbing]
 """
 from __future__ import annotations
 
@@ -54,7 +54,7 @@ from scipy.sparse.linalg import splu
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import diffusion_pr.closures as C  # noqa: E402
 from bench_fokker_planck import SPECTRUM  # noqa: E402
-from diffusion_pr.solvers.fv.compact import hoc_bands  # noqa: E402
+from diffusion_pr.solvers.fv.compact import corrected_delta_start, hoc_bands  # noqa: E402
 from diffusion_pr.solvers.fv.cram import pfd_coefficients  # noqa: E402
 from diffusion_pr.solvers.fv.operator import centres  # noqa: E402
 from shell_rule_balance import Scene, multiplier  # noqa: E402
@@ -321,32 +321,16 @@ def expm_pencil(P, Q, t: float, y: np.ndarray) -> np.ndarray:
     return out
 
 
-def corrected_delta(edges: np.ndarray, M: np.ndarray) -> np.ndarray:
-    """The compact scheme's start for ``delta(p - p0)`` (``p0`` an edge, the same spacing in ``xi`` on both sides):
-    the sampled step ``M = H(p - p0)`` (``M(p0) = 1/2``: the split delta) with ``M`` at the edges next to ``p0``
-    moved outwards by 1/24, ``(1 - h^2/12 delta^2) H``, which is ``P^-1 H`` to the order that matters.
-
-    Sampled alone, the step gives the compact scheme an error of order ``h^2`` that no later smoothing removes
-    (measured: both fourth-order schemes fall to second order from the delta start, and ``R4`` with them). The
-    scheme's nodal values stand for ``P^-1`` of the function's samples; a delta start corrected so converges at
-    fourth order again (the Kreiss-Thomee-Widlund condition that initial data be smoothed to the scheme's order,
-    Comm. Pure Appl. Math. 23, 241 (1970), doi:10.1002/cpa.3160230207); ``P^-1 H`` itself does as well."""
-    j = int(np.searchsorted(edges, P0))
-    if edges[j] != P0:
-        raise ValueError("corrected_delta: p0 is not an edge")
-    M = M.copy()
-    M[j - 1] -= 1.0 / 24.0
-    M[j + 1] += 1.0 / 24.0
-    return M
-
-
-def run_compact(scheme: Compact, shells: list, y: np.ndarray, delta_start: bool = False) -> np.ndarray:
+def run_compact(scheme: Compact, shells: list, y: np.ndarray, start_shift: float | None = None) -> np.ndarray:
     """``[z, m]`` after ``shells`` by the compact scheme, from ``[z, m]`` (``M_0 = z`` moves only where the bottom
-    absorbs, :class:`CompactAbsorbing`); ``delta_start``: ``y`` is the split delta at ``p0``, corrected by
-    :func:`corrected_delta`."""
+    absorbs, :class:`CompactAbsorbing`); with ``start_shift``, ``y`` is the split delta at ``p0`` and ``M`` starts
+    as the package's ``corrected_delta_start`` with that shift (1/24: fourth order kept; 0: the sampled step)."""
     M = np.concatenate(([y[0]], y[0] + np.cumsum(y[1:])))
-    if delta_start:
-        M = corrected_delta(scheme.edges, M)
+    if start_shift is not None:
+        j = int(np.searchsorted(scheme.edges, P0))
+        if scheme.edges[j] != P0 or not np.array_equal(M, corrected_delta_start(M.size, j, 0.0)):
+            raise ValueError("run_compact: start_shift needs the split delta at p0, p0 an edge")
+        M = corrected_delta_start(M.size, j, start_shift)
     a_guess = 0.0
     for dv, q_mid, _, _ in shells:
         h = 0.5 * dv
@@ -432,7 +416,7 @@ def aggregate_zm(y: np.ndarray, factor: int) -> np.ndarray:
 
 
 def absorbing(zeta: float, closure: str, n0: int, levels: int, skip: int, floor: float,
-              delta_start: bool = False) -> list:
+              start_shift: float | None = None) -> list:
     """Rows of the second-order and compact schemes with the absorbing bottom at ``floor p*``."""
     scene = Scene(zeta, closure, 8)
     scene.floor_factor = floor
@@ -458,7 +442,7 @@ def absorbing(zeta: float, closure: str, n0: int, levels: int, skip: int, floor:
         for kind in ("2", "compact"):
             try:
                 x[kind, level] = (run(SchemeAbsorbing(scene, e), rest, y0) if kind == "2" else
-                                  run_compact(CompactAbsorbing(scene, e), rest, y0, delta_start))
+                                  run_compact(CompactAbsorbing(scene, e), rest, y0, start_shift))
             except RuntimeError:
                 cells.append("balance failed")
                 prev.pop(kind, None)
@@ -492,22 +476,23 @@ def main_absorbing(args) -> None:
     for closure in args.closures:
         for zeta in args.zetas:
             t0 = time.perf_counter()
-            lines += absorbing(zeta, closure, args.n0, args.levels, args.skip, args.floor, _delta_start(args))
+            lines += absorbing(zeta, closure, args.n0, args.levels, args.skip, args.floor, _start_shift(args))
             lines[-1] = lines[-1][:-2] + f" ({time.perf_counter() - t0:.0f} s) |"
     out = _out(OUT.with_name("fourth_order_space_absorbing.md"), args, [0.1, 0.01])
     out.write_text("\n".join(lines) + "\n")
     print(f"wrote {out}")
 
 
-def _delta_start(args) -> bool:
-    return args.skip == 0 and args.start == "corrected"
+def _start_shift(args) -> float | None:
+    return args.start_shift if args.skip == 0 else None
 
 
 def _start_text(args) -> str:
     if args.skip != 0:
         return ""
-    return (" From the delta at p0 (the split delta of every grid's two cells at p0); the compact scheme's start " +
-            ("corrected (`corrected_delta`)." if args.start == "corrected" else "the sampled step (uncorrected)."))
+    return (" From the delta at p0 (the split delta of every grid's two cells at p0); the compact scheme's start "
+            f"`corrected_delta_start` with the shift {args.start_shift:.6g}" +
+            (" (1/24: corrected)." if args.start_shift == 1 / 24 else " (not 1/24: uncorrected)."))
 
 
 def _out(base: Path, args, default_zetas: list) -> Path:
@@ -515,7 +500,8 @@ def _out(base: Path, args, default_zetas: list) -> Path:
     ``_delta_sampled``) where the comparison starts from the delta."""
     tail = "" if args.zetas == default_zetas else "_" + "_".join(f"{z:g}" for z in args.zetas)
     if args.skip == 0:
-        tail += "_delta" + ("" if args.start == "corrected" else "_sampled")
+        tail += "_delta" + ("" if args.start_shift == 1 / 24 else "_sampled" if args.start_shift == 0 else
+                            f"_shift{args.start_shift:.4g}")
     return base.with_name(base.stem + tail + ".md")
 
 
@@ -526,8 +512,8 @@ def main(argv=None) -> None:
     ap.add_argument("--n0", type=int, default=40, help="cells of the coarsest grid")
     ap.add_argument("--levels", type=int, default=5, help="grids N0 .. N0 2^(levels-1) compared")
     ap.add_argument("--skip", type=int, default=4, help="shells before the comparison starts")
-    ap.add_argument("--start", choices=("corrected", "sampled"), default="corrected",
-                    help="with --skip 0: the compact scheme's delta start (corrected_delta, or the sampled step)")
+    ap.add_argument("--start-shift", type=float, default=1 / 24,
+                    help="with --skip 0: the compact start's shift of M next to p0 (1/24 corrected, 0 sampled)")
     ap.add_argument("--absorbing", action="store_true", help="the bottom absorbs (main_absorbing)")
     ap.add_argument("--floor", type=float, default=1e-16, help="with --absorbing: the bottom in units of p*")
     args = ap.parse_args(argv)
@@ -578,7 +564,7 @@ def main(argv=None) -> None:
                 for order in (2, 4, "compact"):
                     try:
                         x[order, level] = (run_compact(Compact(scene, e), rest, np.concatenate(([0.0], y0)),
-                                                       _delta_start(args))[1:]
+                                                       _start_shift(args))[1:]
                                            if order == "compact" else
                                            run(Scheme(scene, e, order), rest, y0))
                     except RuntimeError:  # the fourth-order operator on too few cells (not an M-matrix)

@@ -10,6 +10,10 @@ against an oracle of its own (``tests/diffusion_pr/test_fv_compact.py``):
 * :func:`expm_pencil`: ``exp(t P^-1 Q) y`` by CRAM in partial fractions, every shifted solve
   ``(t Q - theta P) x = P y`` tridiagonal (:func:`._compact_kernels.pencil_pfd`), with the derivative in a
   multiplier on which the pencil depends (the balance's Newton);
+* :func:`index_coordinate` and :func:`with_derivatives`: the pencil's coefficients from a grid's nodes alone
+  (the node index as the coordinate), so that any smooth grid family serves, the remapped ones included;
+* :func:`absorbing_bottom`: the engine's absorbing wall as a one-sided first row (the kernel eliminates it in
+  O(n));
 * :func:`corrected_delta_start`: the start for ``delta(p - p0)``. The sampled step ``H(p - p0)`` costs the compact
   scheme its order: from it both the scheme and its Richardson ``(16 X(2N) - X(N))/15`` converge at second order
   (``benchmarks/fourth_order_space.py --skip 0 --start sampled``); corrected as here, at fourth.
@@ -21,11 +25,14 @@ units; ``tau`` in the inverse units of ``A / h^2``.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .cram import pfd_coefficients
 
-__all__ = ["hoc_bands", "expm_pencil", "corrected_delta_start", "absorbing_bottom"]
+__all__ = ["hoc_bands", "expm_pencil", "corrected_delta_start", "absorbing_bottom", "index_coordinate",
+           "with_derivatives"]
 
 
 def hoc_bands(h: float, a: tuple, b: tuple) -> tuple:
@@ -78,7 +85,54 @@ def hoc_bands(h: float, a: tuple, b: tuple) -> tuple:
     return (pl, pd, pu), (ql, qd, qu)
 
 
-def corrected_delta_start(n_nodes: int, j: int) -> np.ndarray:
+def _stencil_weights(offsets: np.ndarray, order: int) -> np.ndarray:
+    """Weights ``w`` with ``sum_k w_k v(x + offsets_k) = v^(order)(x)`` for polynomials of degree < len(offsets)."""
+    vander = np.array([offsets.astype(float) ** i for i in range(offsets.size)])
+    rhs = np.zeros(offsets.size)
+    rhs[order] = math.factorial(order)
+    return np.linalg.solve(vander, rhs)
+
+
+def index_coordinate(p_nodes: np.ndarray) -> tuple:
+    """``(p_xi, p_xixi)`` at every node of a grid given by its nodes, with the node index as the coordinate
+    (``h = 1``): five-point differences, centred inside, one-sided at the two nodes next to each end; exact for
+    quartics, so fourth order on a grid that is a smooth map of a uniform one.
+
+    With these the compact scheme needs nothing but the nodes: ``A = f / p_xi^2`` and
+    ``B = (f_p - a) / p_xi - f p_xixi / p_xi^3`` at the nodes, and their derivatives by :func:`with_derivatives`.
+
+    Parameters
+    ----------
+    p_nodes : array (n >= 5,)
+        Increasing node positions (pressure units).
+    """
+    p = np.asarray(p_nodes, dtype=float)
+    if p.ndim != 1 or p.size < 5 or not np.all(np.diff(p) > 0.0):
+        raise ValueError(f"p_nodes must be increasing with at least 5 nodes; got shape {p.shape}")
+    n = p.size
+    d1, d2 = np.empty(n), np.empty(n)
+    inner = np.array([-2, -1, 0, 1, 2])
+    w1, w2 = _stencil_weights(inner, 1), _stencil_weights(inner, 2)
+    windows = np.lib.stride_tricks.sliding_window_view(p, 5)
+    d1[2:-2], d2[2:-2] = windows @ w1, windows @ w2
+    for i in (0, 1, n - 2, n - 1):
+        lo = min(max(i - 2, 0), n - 5)
+        offsets = np.arange(lo, lo + 5) - i
+        d1[i] = _stencil_weights(offsets, 1) @ p[lo:lo + 5]
+        d2[i] = _stencil_weights(offsets, 2) @ p[lo:lo + 5]
+    return d1, d2
+
+
+def with_derivatives(values: np.ndarray) -> tuple:
+    """``(v, v', v'')`` at the interior nodes from a coefficient's values at all nodes, in the node index (``h =
+    1``), by central differences: second order, which is all :func:`hoc_bands` needs of ``A'``, ``A''``, ``B'``
+    and ``B''`` (``h^2`` multiplies them; measured on the heat kernel: the scheme keeps ratios 15.6-16.0 per
+    halving, ``tests/diffusion_pr/test_fv_compact.py``)."""
+    v = np.asarray(values, dtype=float)
+    return v[1:-1].copy(), 0.5 * (v[2:] - v[:-2]), v[2:] - 2.0 * v[1:-1] + v[:-2]
+
+
+def corrected_delta_start(n_nodes: int, j: int, shift: float = 1.0 / 24.0) -> np.ndarray:
     """``M`` at the start for ``delta(p - p0)``, ``p0`` at node ``j`` with the same spacing in ``xi`` on both
     sides: the sampled step (``M(p0) = 1/2``) with the two neighbours of ``p0`` moved outwards by 1/24.
 
@@ -94,6 +148,9 @@ def corrected_delta_start(n_nodes: int, j: int) -> np.ndarray:
         Nodes of the grid (>= 5).
     j : int
         The node at ``p0`` (``2 <= j <= n_nodes - 3``: both neighbours interior).
+    shift : float
+        The neighbours' shift: 1/24 keeps fourth order; other values are for measuring that (0, the sampled step,
+        1/16 and 1/12 give second order).
     """
     if not (isinstance(n_nodes, (int, np.integer)) and n_nodes >= 5):
         raise ValueError(f"n_nodes must be an integer >= 5; got n_nodes={n_nodes!r}")
@@ -102,8 +159,8 @@ def corrected_delta_start(n_nodes: int, j: int) -> np.ndarray:
     M = np.zeros(n_nodes)
     M[j] = 0.5
     M[j + 1:] = 1.0
-    M[j - 1] -= 1.0 / 24.0
-    M[j + 1] += 1.0 / 24.0
+    M[j - 1] -= shift
+    M[j + 1] += shift
     return M
 
 
