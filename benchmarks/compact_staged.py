@@ -13,7 +13,7 @@ three nested grids of the finest it needs for 3e-7 (that script's tables): the w
 First the kernel is checked against the prototype's numpy solver (``run_compact``) on the same grid: the two
 balance searches stop at different points within their tolerances, so they agree to about the balance tolerance.
 
-    python benchmarks/compact_staged.py [--zetas 0.1 0.01] [--repeats 7]
+    python benchmarks/compact_staged.py [--zetas 0.1 0.01] [--repeats 7] [--balance newton|secant|predicted]
 """
 from __future__ import annotations
 
@@ -61,13 +61,17 @@ def _pencil_rows(h, a, a1, a2, bf, bf1, bf2, bw, bw1, bw2, a_bal, a_bottom, pl, 
         qd[k] = 0.0
         ppd[k] = 0.0
         qqd[k] = 0.0
+    h2_12 = h * h / 12.0
+    inv_h2 = 1.0 / (h * h)
+    inv_2h = 0.5 / h
     for i in range(m):
         k = i + 1
         b = bf[i] + a_bal * bw[i]
         b1 = bf1[i] + a_bal * bw1[i]
         b2 = bf2[i] + a_bal * bw2[i]
-        beta = (b - 2.0 * a1[i]) / a[i]
-        beta_a = bw[i] / a[i]
+        ia = 1.0 / a[i]
+        beta = (b - 2.0 * a1[i]) * ia
+        beta_a = bw[i] * ia
         gamma = b2 + beta * b1
         gamma_a = bw2[i] + beta_a * b1 + beta * bw1[i]
         kappa = 2.0 * b1 + a2[i] + beta * (a1[i] + b)
@@ -77,10 +81,10 @@ def _pencil_rows(h, a, a1, a2, bf, bf1, bf2, bw, bw1, bw2, a_bal, a_bottom, pl, 
         pu[k] = 1.0 / 12.0 + beta * h / 24.0
         ppl[k - 1] = -beta_a * h / 24.0
         ppu[k] = beta_a * h / 24.0
-        d2 = (a[i] + h * h * kappa / 12.0) / (h * h)
-        d1 = (b + h * h * gamma / 12.0) / (2.0 * h)
+        d2 = (a[i] + h2_12 * kappa) * inv_h2
+        d1 = (b + h2_12 * gamma) * inv_2h
         d2a = kappa_a / 12.0
-        d1a = (bw[i] + h * h * gamma_a / 12.0) / (2.0 * h)
+        d1a = (bw[i] + h2_12 * gamma_a) * inv_2h
         ql[k - 1] = d2 - d1
         qd[k] = -2.0 * d2
         qu[k] = d2 + d1
@@ -187,6 +191,149 @@ def compact_staged_run(h, a, a1, a2, bf, bf1, bf2, bw, bw1, bw2, bottom, dt, M, 
     return M, n_exp, n_newton, 0, -1
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def _thomas(pl, pd, pu, rhs, x, cp):  # pragma: no cover - numba
+    """``P x = rhs`` for the tridiagonal ``P`` (diagonally dominant; no pivoting)."""
+    n = rhs.size
+    x[0] = rhs[0] / pd[0]
+    cp[0] = pu[0] / pd[0]
+    for i in range(1, n):
+        den = pd[i] - pl[i - 1] * cp[i - 1]
+        cp[i] = pu[i] / den if i < n - 1 else 0.0
+        x[i] = (rhs[i] - pl[i - 1] * x[i - 1]) / den
+    for i in range(n - 2, -1, -1):
+        x[i] -= cp[i] * x[i + 1]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _band_mul(lower, diag, upper, row0, y, out):  # pragma: no cover - numba
+    n = y.size
+    for i in range(n):
+        v = diag[i] * y[i]
+        if i > 0:
+            v += lower[i - 1] * y[i - 1]
+        if i < n - 1:
+            v += upper[i] * y[i + 1]
+        out[i] = v
+    out[0] += row0[0] * y[2] + row0[1] * y[3]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _rate_parts(bands, row0, drow0, y, ww, x0, x1, t1, t2, cp):  # pragma: no cover - numba
+    """The mean's rate ``ww . P(A)^-1 Q(A) y`` linearized at ``A = 0`` from the bands built there once (``bands``:
+    ``P, Q, P_a, Q_a``): ``x0 = P^-1 Q y`` and ``x1 = P^-1 (Q_a y - P_a x0)``; returns ``(ww . x0, ww . x1)``."""
+    _band_mul(bands[3], bands[4], bands[5], row0, y, t1)
+    _thomas(bands[0], bands[1], bands[2], t1, x0, cp)
+    _band_mul(bands[9], bands[10], bands[11], drow0, y, t1)
+    _band_mul(bands[6], bands[7], bands[8], drow0, x0, t2)  # (P_a has no entries beyond the band: drow0 is 0)
+    for i in range(y.size):
+        t1[i] -= t2[i]
+    _thomas(bands[0], bands[1], bands[2], t1, x1, cp)
+    r0 = 0.0
+    r1 = 0.0
+    for i in range(y.size):
+        r0 += ww[i] * x0[i]
+        r1 += ww[i] * x1[i]
+    return r0, r1
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def compact_staged_predicted(h, a, a1, a2, bf, bf1, bf2, bw, bw1, bw2, bottom, dt, M, ww, p0, mean_tol, lin_tol,
+                             max_iter, c, theta, alpha0):  # pragma: no cover - numba
+    """:func:`compact_staged_run` with the engine's predictor (``_kernels.balanced_stage``) carried over: ``A_mid``
+    from the mean's rate at the midpoint state (``ww . P^-1 Q(A) u = 0``, linear in ``A`` to ~1e-6), times the
+    ratio ``A / A_mid`` of the last four stages extrapolated by a cubic, less the start's own miss over the carried
+    slope; one plain exponential, a secant step with the carried slope where the miss is below ``lin_tol``, Newton
+    with the derivative (and the first-order update) only where those fail."""
+    n = M.size
+    bands = np.zeros((12, n))  # P, Q, P_a, Q_a (lower and upper bands in the first n - 1 entries)
+    row0 = np.zeros(2)
+    drow0 = np.zeros(2)
+    qy = np.empty(n)
+    xr = np.empty(n)
+    x1 = np.empty(n)
+    t2 = np.empty(n)
+    cp = np.empty(n)
+    u = np.empty(n)
+    pl, pd, pu = np.empty(n - 1), np.empty(n), np.empty(n - 1)
+    ql, qd, qu = np.empty(n - 1), np.empty(n), np.empty(n - 1)
+    ppl, ppd, ppu = np.empty(n - 1), np.empty(n), np.empty(n - 1)
+    qql, qqd, qqu = np.empty(n - 1), np.empty(n), np.empty(n - 1)
+    hist = np.zeros(K.PREDICTOR_SIZE)
+    a_lin = 0.0
+    n_exp = 0
+    n_newton = 0
+    for k in range(dt.size):
+        args = (h, a[k], a1[k], a2[k], bf[k], bf1[k], bf2[k], bw[k], bw1[k], bw2[k])
+        # the rate linearized at the last stage's multiplier (Q is quadratic in A, and A is large: about 1e5 here)
+        _pencil_rows(*args, a_lin, bottom[k], bands[0], bands[1], bands[2], bands[3], bands[4], bands[5], bands[6],
+                     bands[7], bands[8], bands[9], bands[10], bands[11], row0)
+        r0, r1 = _rate_parts(bands, row0, drow0, M, ww, xr, x1, qy, t2, cp)
+        A0 = a_lin - r0 / r1 if r1 != 0.0 else a_lin
+        for i in range(n):
+            u[i] = M[i] + 0.5 * dt[k] * (xr[i] + (A0 - a_lin) * x1[i])
+        r0u, r1u = _rate_parts(bands, row0, drow0, u, ww, xr, x1, qy, t2, cp)
+        a_mid = a_lin - r0u / r1u if r1u != 0.0 else A0
+        s_lin = dt[k] * r1u
+        s_pred = hist[4] * s_lin
+        mean_y = -p0
+        for i in range(n):
+            mean_y += ww[i] * M[i]
+        corr = mean_y / s_pred if s_pred < 0.0 else 0.0
+        A = a_mid * K._predicted_ratio(hist) - corr
+        have_d = not s_pred < 0.0
+        slope = s_pred
+        x = M
+        dx = M
+        err = 0.0
+        a_prev = A
+        done = False
+        for it in range(max_iter):
+            _pencil_rows(*args, A, bottom[k], pl, pd, pu, ql, qd, qu, ppl, ppd, ppu, qql, qqd, qqu, row0)
+            x_new, dx_new, info = pencil_pfd(pl, pd, pu, ql, qd, qu, row0, dt[k], M, c, theta, alpha0, have_d, ppl,
+                                             ppd, ppu, qql, qqd, qqu, drow0)
+            n_exp += 1
+            if info != 0:
+                return M, n_exp, n_newton, info, k
+            err_new = -p0
+            for i in range(n):
+                err_new += ww[i] * x_new[i]
+            if have_d:
+                slope = 0.0
+                for i in range(n):
+                    slope += ww[i] * dx_new[i]
+            elif it >= 1 and A != a_prev and (err_new - err) / (A - a_prev) < 0.0:
+                slope = (err_new - err) / (A - a_prev)
+            x, dx, err = x_new, dx_new, err_new
+            if abs(err) <= mean_tol * p0:
+                done = True
+                break
+            if not slope < 0.0:
+                return M, n_exp, n_newton, -1, k
+            n_newton += 1
+            step = -err / slope
+            if have_d and abs(err) <= lin_tol * p0:  # the last step to first order on the state
+                for i in range(n):
+                    x[i] += step * dx[i]
+                A += step
+                err = 0.0
+                done = True
+                break
+            a_prev = A
+            A += step
+            # a secant step with the carried slope first (plain); after it, the derivative
+            have_d = it >= 1 or abs(err) > lin_tol * p0 or not s_pred < 0.0
+        if not done:
+            return M, n_exp, n_newton, -1, k
+        M = x
+        a_lin = A
+        if slope < 0.0 and s_lin < 0.0:
+            hist[4] = slope / s_lin
+        if a_mid != 0.0:
+            K._push_ratio(hist, (A - err / slope + corr) / a_mid if slope < 0.0 else A / a_mid)
+    return M, n_exp, n_newton, 0, -1
+
+
 def compact_inputs(scene: Scene, e: np.ndarray, shells: list, secant: bool = False) -> tuple:
     """The arguments of :func:`compact_staged_run` on the edges ``e`` (the prototype's coefficients)."""
     comp = CompactAbsorbing(scene, e)
@@ -240,19 +387,29 @@ def median_time(fn, repeats: int) -> float:
     return float(np.median(ts))
 
 
+def _runner(args):
+    return compact_staged_predicted if args.balance == "predicted" else compact_staged_run
+
+
+def _args(args, inputs: tuple) -> tuple:
+    return inputs[:-1] if args.balance == "predicted" else inputs
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--zetas", type=float, nargs="+", default=[0.1, 0.01])
     ap.add_argument("--closures", nargs="+", default=["local_g1_balanced", "local_g1_shell_balanced"])
     ap.add_argument("--repeats", type=int, default=7)
-    ap.add_argument("--secant", action="store_true",
-                    help="the compact balance by plain exponentials and secant steps first (slower: see the docs)")
+    ap.add_argument("--balance", choices=("newton", "secant", "predicted"), default="newton",
+                    help="the compact balance: Newton on the derivative (default), plain exponentials and secant "
+                    "steps first, or the engine's predictor carried over (compact_staged_predicted)")
     args = ap.parse_args(argv)
     lines = ["# The compact stage loop compiled, against the engine's staged kernel (`python benchmarks/compact_staged.py`)",
              "", f"`fourth_order_space.py --absorbing --skip 0`'s problem (48 shells, bottom at 1e-16 p*), rtol "
              f"{RTOL:g}'s balance tolerances (mean {MEAN_TOL:g} p0, first-order update below {LIN_TOL:g} p0), "
              f"CRAM-16, one thread, medians of {args.repeats} calls per grid; the compact balance "
-             + ("by plain exponentials and secant steps first" if args.secant else "by Newton on the exact derivative")
+             + {"secant": "by plain exponentials and secant steps first", "newton": "by Newton on the exact derivative",
+                "predicted": "by the engine's predictor carried over (`compact_staged_predicted`)"}[args.balance]
              + ". Check: the compiled compact run against "
              "the prototype's numpy one on the same grid (L1 of the masses).", ""]
     print("\n".join(lines), flush=True)
@@ -262,8 +419,8 @@ def main(argv=None) -> None:
             scene.floor_factor = 1e-16
             shells = scene.shells(SHELLS)
             e = grid(scene, 40, 2)
-            inp = compact_inputs(scene, e, shells, args.secant)
-            Mk, n_exp, n_newton, info, stage = compact_staged_run(*inp)
+            inp = compact_inputs(scene, e, shells, args.balance == "secant")
+            Mk, n_exp, n_newton, info, stage = _runner(args)(*_args(args, inp))
             y0 = np.concatenate(([0.0], np.diff(corrected_delta_start(e.size, int(np.searchsorted(e, P0)), 0.0))))
             ref = run_compact(CompactAbsorbing(scene, e), shells, y0, 1 / 24)
             mine = np.concatenate(([Mk[0]], np.diff(Mk)))
@@ -281,16 +438,17 @@ def main(argv=None) -> None:
             shells = scene.shells(SHELLS)
             for level in range(1, 7):
                 e = grid(scene, 40, level)
-                ci = compact_inputs(scene, e, shells, args.secant)
+                ci = compact_inputs(scene, e, shells, args.balance == "secant")
                 ei = engine_inputs(scene, e, shells)
-                rc = compact_staged_run(*ci)
+                run, ca = _runner(args), _args(args, ci)
+                rc = run(*ca)
                 re_ = K.staged_run(*ei)
-                tc = median_time(lambda: compact_staged_run(*ci), args.repeats)
+                tc = median_time(lambda: run(*ca), args.repeats)
                 te = median_time(lambda: K.staged_run(*ei), args.repeats)
                 lines.append(f"| `{closure}` | {zeta:g} | {e.size - 1} | {te * 1e3:.2f} | {re_[1]} "
                              f"(info {re_[3]}) | {tc * 1e3:.2f} | {rc[1]} (info {rc[3]}) | {tc / te:.2f} |")
                 print(lines[-1], flush=True)
-    out = OUT.with_name(OUT.stem + ("_secant" if args.secant else "") + ".md")
+    out = OUT.with_name(OUT.stem + ("" if args.balance == "newton" else "_" + args.balance) + ".md")
     out.write_text("\n".join(lines) + "\n")
     print(f"wrote {out}")
 
