@@ -2,18 +2,21 @@
 
 ``compact_kernel_cost.py`` timed one exponential. A closure call integrates every shell with its balance on
 three nested grids per level, and the engine's kernel (:func:`diffusion_pr.solvers.fv._kernels.staged_run`) does
-that with a predictor that usually needs a single plain exponential per stage. This script writes the compact
-scheme's stage loop as one compiled call (:func:`compact_staged_run`: the pencil's rows made per Newton iterate
+that with a predictor that usually needs a single plain exponential per stage. This script times the compact
+scheme's stage loop as one compiled call (the package's ``_compact_kernels.staged_run``: the pencil's rows made per Newton iterate
 from the coefficient rows, the absorbing bottom as the bordered first row, the balance by Newton on the exact
 derivative of ``pencil_pfd`` from a predicted multiplier, the engine's first-order state update once the miss is
-below ``lin_tol``) and times it against ``staged_run`` on the prototype's problem (``fourth_order_space.py
+below ``lin_tol``) against the engine's ``staged_run`` on the prototype's problem (``fourth_order_space.py
 --absorbing --skip 0``: the Fig. 1 scene, 48 uniform midpoint shells, the bottom at ``1e-16 p*``), each on the
 three nested grids of the finest it needs for 3e-7 (that script's tables): the work of one level.
 
 First the kernel is checked against the prototype's numpy solver (``run_compact``) on the same grid: the two
 balance searches stop at different points within their tolerances, so they agree to about the balance tolerance.
 
-    python benchmarks/compact_staged.py [--zetas 0.1 0.01] [--repeats 7] [--balance newton|secant|predicted]
+    python benchmarks/compact_staged.py [--zetas 0.1 0.01] [--repeats 7] [--balance newton|predicted]
+
+(A third balance, plain exponentials and secant steps first, was measured at commit 7c759d0,
+``results/compact_staged_secant.md``: about three exponentials per stage, 3.7-4.3x the engine; removed since.)
 """
 from __future__ import annotations
 
@@ -28,7 +31,7 @@ from numba import njit
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from diffusion_pr.solvers.fv import _kernels as K  # noqa: E402
-from diffusion_pr.solvers.fv._compact_kernels import pencil_pfd  # noqa: E402
+from diffusion_pr.solvers.fv._compact_kernels import pencil_pfd, pencil_rows, staged_run  # noqa: E402
 from diffusion_pr.solvers.fv.compact import absorbing_bottom, corrected_delta_start  # noqa: E402
 from diffusion_pr.solvers.fv.cram import pfd_coefficients  # noqa: E402
 from fourth_order_space import P0, SHELLS, CompactAbsorbing, SchemeAbsorbing, grid, run_compact  # noqa: E402
@@ -38,157 +41,6 @@ OUT = Path(__file__).resolve().parent / "results" / "compact_staged.md"
 THETA, RES, R_INF, _ = pfd_coefficients(16)
 RTOL = 1e-6
 MEAN_TOL, LIN_TOL = 1e-2 * RTOL, math.sqrt(1e-2 * RTOL)  # the engine's at rtol 1e-6 (MEAN_TOL_FRACTION, ...)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _pencil_rows(h, a, a1, a2, bf, bf1, bf2, bw, bw1, bw2, a_bal, a_bottom, pl, pd, pu, ql, qd, qu, ppl, ppd, ppu,
-                 qql, qqd, qqu, row0):  # pragma: no cover - numba
-    """The bands of ``P`` and ``Q`` (``hoc_bands``) at the multiplier ``a_bal`` (``B = B_f + a_bal B_w``) and their
-    derivatives in it, the absorbing bottom in row 0 (``row0``: its columns 2 and 3), ``M`` held at the top."""
-    m = a.size
-    n = m + 2
-    for k in range(n - 1):
-        pl[k] = 0.0
-        pu[k] = 0.0
-        ql[k] = 0.0
-        qu[k] = 0.0
-        ppl[k] = 0.0
-        ppu[k] = 0.0
-        qql[k] = 0.0
-        qqu[k] = 0.0
-    for k in range(n):
-        pd[k] = 1.0
-        qd[k] = 0.0
-        ppd[k] = 0.0
-        qqd[k] = 0.0
-    h2_12 = h * h / 12.0
-    inv_h2 = 1.0 / (h * h)
-    inv_2h = 0.5 / h
-    for i in range(m):
-        k = i + 1
-        b = bf[i] + a_bal * bw[i]
-        b1 = bf1[i] + a_bal * bw1[i]
-        b2 = bf2[i] + a_bal * bw2[i]
-        ia = 1.0 / a[i]
-        beta = (b - 2.0 * a1[i]) * ia
-        beta_a = bw[i] * ia
-        gamma = b2 + beta * b1
-        gamma_a = bw2[i] + beta_a * b1 + beta * bw1[i]
-        kappa = 2.0 * b1 + a2[i] + beta * (a1[i] + b)
-        kappa_a = 2.0 * bw1[i] + beta_a * (a1[i] + b) + beta * bw[i]
-        pl[k - 1] = 1.0 / 12.0 - beta * h / 24.0
-        pd[k] = 5.0 / 6.0
-        pu[k] = 1.0 / 12.0 + beta * h / 24.0
-        ppl[k - 1] = -beta_a * h / 24.0
-        ppu[k] = beta_a * h / 24.0
-        d2 = (a[i] + h2_12 * kappa) * inv_h2
-        d1 = (b + h2_12 * gamma) * inv_2h
-        d2a = kappa_a / 12.0
-        d1a = (bw[i] + h2_12 * gamma_a) * inv_2h
-        ql[k - 1] = d2 - d1
-        qd[k] = -2.0 * d2
-        qu[k] = d2 + d1
-        qql[k - 1] = d2a - d1a
-        qqd[k] = -2.0 * d2a
-        qqu[k] = d2a + d1a
-    qd[0] = a_bottom[0]
-    qu[0] = a_bottom[1]
-    row0[0] = a_bottom[2]
-    row0[1] = a_bottom[3]
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def compact_staged_run(h, a, a1, a2, bf, bf1, bf2, bw, bw1, bw2, bottom, dt, M, ww, p0, mean_tol, lin_tol, max_iter,
-                       c, theta, alpha0, secant):  # pragma: no cover - numba
-    """Every balanced stage of one grid: rows ``k`` of the coefficient arrays are stage ``k``'s (interior nodes),
-    ``bottom[k]`` its absorbing row's ``(q00, q01, q02, q03)``; ``ww . M`` the mean. Per stage the multiplier is
-    predicted (quadratic through the last three), then Newton on the exact derivative; once the miss is below
-    ``lin_tol p0`` the state takes the step to first order (``M + dA dM/dA``) without another exponential, as the
-    engine does. With ``secant``, plain exponentials first (no derivative): the predicted multiplier, then secant
-    steps from the slope carried over from the last stage, Newton only where those fail to get within ``lin_tol``
-    in two tries. Returns ``(M, n_exp, n_newton, info, stage)``."""
-    n = M.size
-    pl, pd, pu = np.empty(n - 1), np.empty(n), np.empty(n - 1)
-    ql, qd, qu = np.empty(n - 1), np.empty(n), np.empty(n - 1)
-    ppl, ppd, ppu = np.empty(n - 1), np.empty(n), np.empty(n - 1)
-    qql, qqd, qqu = np.empty(n - 1), np.empty(n), np.empty(n - 1)
-    row0 = np.zeros(2)
-    drow0 = np.zeros(2)
-    hist = np.zeros(3)
-    carried = 0.0  # the mean's slope in the multiplier at the last stage
-    n_exp = 0
-    n_newton = 0
-    for k in range(dt.size):
-        if k >= 3:
-            A = 3.0 * hist[0] - 3.0 * hist[1] + hist[2]
-        elif k >= 1:
-            A = hist[0]
-        else:
-            A = 0.0
-        done = False
-        if secant and k >= 1 and carried != 0.0:
-            a_prev = 0.0
-            m_prev = 0.0
-            slope_s = carried
-            for it in range(3):
-                _pencil_rows(h, a[k], a1[k], a2[k], bf[k], bf1[k], bf2[k], bw[k], bw1[k], bw2[k], A, bottom[k], pl,
-                             pd, pu, ql, qd, qu, ppl, ppd, ppu, qql, qqd, qqu, row0)
-                x, dx, info = pencil_pfd(pl, pd, pu, ql, qd, qu, row0, dt[k], M, c, theta, alpha0, False, ppl, ppd,
-                                         ppu, qql, qqd, qqu, drow0)
-                n_exp += 1
-                if info != 0:
-                    return M, n_exp, n_newton, info, k
-                miss = -p0
-                for i in range(n):
-                    miss += ww[i] * x[i]
-                if it >= 1 and miss != m_prev:
-                    slope_s = (miss - m_prev) / (A - a_prev)
-                if abs(miss) <= mean_tol * p0:
-                    M = x
-                    done = True
-                    carried = slope_s
-                    break
-                a_prev = A
-                m_prev = miss
-                A = A - miss / slope_s
-                n_newton += 1
-        for it in range(max_iter if not done else 0):
-            _pencil_rows(h, a[k], a1[k], a2[k], bf[k], bf1[k], bf2[k], bw[k], bw1[k], bw2[k], A, bottom[k], pl, pd,
-                         pu, ql, qd, qu, ppl, ppd, ppu, qql, qqd, qqu, row0)
-            x, dx, info = pencil_pfd(pl, pd, pu, ql, qd, qu, row0, dt[k], M, c, theta, alpha0, True, ppl, ppd, ppu,
-                                     qql, qqd, qqu, drow0)
-            n_exp += 1
-            if info != 0:
-                return M, n_exp, n_newton, info, k
-            miss = 0.0
-            slope = 0.0
-            for i in range(n):
-                miss += ww[i] * x[i]
-                slope += ww[i] * dx[i]
-            miss -= p0
-            carried = slope
-            if abs(miss) <= mean_tol * p0:
-                M = x
-                done = True
-                break
-            if slope == 0.0:
-                return M, n_exp, n_newton, -1, k
-            step = -miss / slope
-            n_newton += 1
-            if abs(miss) <= lin_tol * p0:
-                for i in range(n):
-                    x[i] += step * dx[i]
-                M = x
-                A += step
-                done = True
-                break
-            A += step
-        if not done:
-            return M, n_exp, n_newton, -1, k
-        hist[2] = hist[1]
-        hist[1] = hist[0]
-        hist[0] = A
-    return M, n_exp, n_newton, 0, -1
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -240,7 +92,7 @@ def _rate_parts(bands, row0, drow0, y, ww, x0, x1, t1, t2, cp):  # pragma: no co
 @njit(cache=True, nogil=True, error_model="numpy")
 def compact_staged_predicted(h, a, a1, a2, bf, bf1, bf2, bw, bw1, bw2, bottom, dt, M, ww, p0, mean_tol, lin_tol,
                              max_iter, c, theta, alpha0):  # pragma: no cover - numba
-    """:func:`compact_staged_run` with the engine's predictor (``_kernels.balanced_stage``) carried over: ``A_mid``
+    """The package's ``staged_run`` with the engine's predictor (``_kernels.balanced_stage``) carried over: ``A_mid``
     from the mean's rate at the midpoint state (``ww . P^-1 Q(A) u = 0``, linear in ``A`` to ~1e-6), times the
     ratio ``A / A_mid`` of the last four stages extrapolated by a cubic, less the start's own miss over the carried
     slope; one plain exponential, a secant step with the carried slope where the miss is below ``lin_tol``, Newton
@@ -266,7 +118,7 @@ def compact_staged_predicted(h, a, a1, a2, bf, bf1, bf2, bw, bw1, bw2, bottom, d
     for k in range(dt.size):
         args = (h, a[k], a1[k], a2[k], bf[k], bf1[k], bf2[k], bw[k], bw1[k], bw2[k])
         # the rate linearized at the last stage's multiplier (Q is quadratic in A, and A is large: about 1e5 here)
-        _pencil_rows(*args, a_lin, bottom[k], bands[0], bands[1], bands[2], bands[3], bands[4], bands[5], bands[6],
+        pencil_rows(*args, a_lin, bottom[k], bands[0], bands[1], bands[2], bands[3], bands[4], bands[5], bands[6],
                      bands[7], bands[8], bands[9], bands[10], bands[11], row0)
         r0, r1 = _rate_parts(bands, row0, drow0, M, ww, xr, x1, qy, t2, cp)
         A0 = a_lin - r0 / r1 if r1 != 0.0 else a_lin
@@ -289,7 +141,7 @@ def compact_staged_predicted(h, a, a1, a2, bf, bf1, bf2, bw, bw1, bw2, bottom, d
         a_prev = A
         done = False
         for it in range(max_iter):
-            _pencil_rows(*args, A, bottom[k], pl, pd, pu, ql, qd, qu, ppl, ppd, ppu, qql, qqd, qqu, row0)
+            pencil_rows(*args, A, bottom[k], pl, pd, pu, ql, qd, qu, ppl, ppd, ppu, qql, qqd, qqu, row0)
             x_new, dx_new, info = pencil_pfd(pl, pd, pu, ql, qd, qu, row0, dt[k], M, c, theta, alpha0, have_d, ppl,
                                              ppd, ppu, qql, qqd, qqu, drow0)
             n_exp += 1
@@ -334,8 +186,8 @@ def compact_staged_predicted(h, a, a1, a2, bf, bf1, bf2, bw, bw1, bw2, bottom, d
     return M, n_exp, n_newton, 0, -1
 
 
-def compact_inputs(scene: Scene, e: np.ndarray, shells: list, secant: bool = False) -> tuple:
-    """The arguments of :func:`compact_staged_run` on the edges ``e`` (the prototype's coefficients)."""
+def compact_inputs(scene: Scene, e: np.ndarray, shells: list) -> tuple:
+    """The arguments of the package's ``staged_run`` on the edges ``e`` (the prototype's coefficients)."""
     comp = CompactAbsorbing(scene, e)
     rows = [comp.parts(q) for _, q, _, _ in shells]
     stack = [np.ascontiguousarray(np.array([r[j][i] for r in rows])) for j in range(3) for i in range(3)]
@@ -349,8 +201,8 @@ def compact_inputs(scene: Scene, e: np.ndarray, shells: list, secant: bool = Fal
     j = int(np.searchsorted(e, P0))
     M0 = corrected_delta_start(e.size, j)
     dt = np.array([0.5 * dv for dv, _, _, _ in shells])
-    return (comp.h, *stack, np.ascontiguousarray(np.array(bottom)), dt, M0, ww, P0, MEAN_TOL, LIN_TOL, 30, RES,
-            THETA, R_INF, secant)
+    return (comp.h, *stack, np.ascontiguousarray(np.array(bottom)), dt, np.ones(dt.size, dtype=np.bool_), M0, ww,
+            P0, MEAN_TOL, LIN_TOL, 30, RES, THETA, R_INF)
 
 
 def engine_inputs(scene: Scene, e: np.ndarray, shells: list) -> tuple:
@@ -388,11 +240,14 @@ def median_time(fn, repeats: int) -> float:
 
 
 def _runner(args):
-    return compact_staged_predicted if args.balance == "predicted" else compact_staged_run
+    """``(M, n_exp, n_newton, info, stage)`` of the chosen balance on :func:`compact_inputs`' arguments."""
+    if args.balance == "predicted":
+        return lambda *inp: compact_staged_predicted(*inp[:12], *inp[13:])  # (no stage flags: all balanced)
+    return lambda *inp: (lambda r: (r[0], *r[2:]))(staged_run(*inp))
 
 
 def _args(args, inputs: tuple) -> tuple:
-    return inputs[:-1] if args.balance == "predicted" else inputs
+    return inputs
 
 
 def main(argv=None) -> None:
@@ -400,15 +255,15 @@ def main(argv=None) -> None:
     ap.add_argument("--zetas", type=float, nargs="+", default=[0.1, 0.01])
     ap.add_argument("--closures", nargs="+", default=["local_g1_balanced", "local_g1_shell_balanced"])
     ap.add_argument("--repeats", type=int, default=7)
-    ap.add_argument("--balance", choices=("newton", "secant", "predicted"), default="newton",
-                    help="the compact balance: Newton on the derivative (default), plain exponentials and secant "
-                    "steps first, or the engine's predictor carried over (compact_staged_predicted)")
+    ap.add_argument("--balance", choices=("newton", "predicted"), default="newton",
+                    help="the compact balance: Newton on the derivative (the package's staged_run, default), or the "
+                    "engine's predictor carried over (compact_staged_predicted)")
     args = ap.parse_args(argv)
     lines = ["# The compact stage loop compiled, against the engine's staged kernel (`python benchmarks/compact_staged.py`)",
              "", f"`fourth_order_space.py --absorbing --skip 0`'s problem (48 shells, bottom at 1e-16 p*), rtol "
              f"{RTOL:g}'s balance tolerances (mean {MEAN_TOL:g} p0, first-order update below {LIN_TOL:g} p0), "
              f"CRAM-16, one thread, medians of {args.repeats} calls per grid; the compact balance "
-             + {"secant": "by plain exponentials and secant steps first", "newton": "by Newton on the exact derivative",
+             + {"newton": "by Newton on the exact derivative (the package's `staged_run`)",
                 "predicted": "by the engine's predictor carried over (`compact_staged_predicted`)"}[args.balance]
              + ". Check: the compiled compact run against "
              "the prototype's numpy one on the same grid (L1 of the masses).", ""]
@@ -419,7 +274,7 @@ def main(argv=None) -> None:
             scene.floor_factor = 1e-16
             shells = scene.shells(SHELLS)
             e = grid(scene, 40, 2)
-            inp = compact_inputs(scene, e, shells, args.balance == "secant")
+            inp = compact_inputs(scene, e, shells)
             Mk, n_exp, n_newton, info, stage = _runner(args)(*_args(args, inp))
             y0 = np.concatenate(([0.0], np.diff(corrected_delta_start(e.size, int(np.searchsorted(e, P0)), 0.0))))
             ref = run_compact(CompactAbsorbing(scene, e), shells, y0, 1 / 24)
@@ -438,7 +293,7 @@ def main(argv=None) -> None:
             shells = scene.shells(SHELLS)
             for level in range(1, 7):
                 e = grid(scene, 40, level)
-                ci = compact_inputs(scene, e, shells, args.balance == "secant")
+                ci = compact_inputs(scene, e, shells)
                 ei = engine_inputs(scene, e, shells)
                 run, ca = _runner(args), _args(args, ci)
                 rc = run(*ca)

@@ -14,6 +14,8 @@ against an oracle of its own (``tests/diffusion_pr/test_fv_compact.py``):
   (the node index as the coordinate), so that any smooth grid family serves, the remapped ones included;
 * :func:`absorbing_bottom`: the engine's absorbing wall as a one-sided first row (the kernel eliminates it in
   O(n));
+* :func:`mean_weights`, :func:`stage_rows` and :func:`run_stages`: every stage of one grid, the balance included,
+  in one compiled call (:func:`._compact_kernels.staged_run`);
 * :func:`corrected_delta_start`: the start for ``delta(p - p0)``. The sampled step ``H(p - p0)`` costs the compact
   scheme its order: from it both the scheme and its Richardson ``(16 X(2N) - X(N))/15`` converge at second order
   (``benchmarks/fourth_order_space.py --skip 0 --start sampled``); corrected as here, at fourth.
@@ -32,7 +34,7 @@ import numpy as np
 from .cram import pfd_coefficients
 
 __all__ = ["hoc_bands", "expm_pencil", "corrected_delta_start", "absorbing_bottom", "index_coordinate",
-           "with_derivatives"]
+           "with_derivatives", "mean_weights", "stage_rows", "run_stages"]
 
 
 def hoc_bands(h: float, a: tuple, b: tuple) -> tuple:
@@ -124,12 +126,13 @@ def index_coordinate(p_nodes: np.ndarray) -> tuple:
 
 
 def with_derivatives(values: np.ndarray) -> tuple:
-    """``(v, v', v'')`` at the interior nodes from a coefficient's values at all nodes, in the node index (``h =
-    1``), by central differences: second order, which is all :func:`hoc_bands` needs of ``A'``, ``A''``, ``B'``
+    """``(v, v', v'')`` at the interior nodes from a coefficient's values at all nodes (the last axis: one row per
+    stage may be given), in the node index (``h = 1``), by central differences: second order, which is all :func:`hoc_bands` needs of ``A'``, ``A''``, ``B'``
     and ``B''`` (``h^2`` multiplies them; measured on the heat kernel: the scheme keeps ratios 15.6-16.0 per
     halving, ``tests/diffusion_pr/test_fv_compact.py``)."""
     v = np.asarray(values, dtype=float)
-    return v[1:-1].copy(), 0.5 * (v[2:] - v[:-2]), v[2:] - 2.0 * v[1:-1] + v[:-2]
+    return (np.ascontiguousarray(v[..., 1:-1]), 0.5 * (v[..., 2:] - v[..., :-2]),
+            v[..., 2:] - 2.0 * v[..., 1:-1] + v[..., :-2])
 
 
 def corrected_delta_start(n_nodes: int, j: int, shift: float = 1.0 / 24.0) -> np.ndarray:
@@ -253,3 +256,137 @@ def expm_pencil(p_bands: tuple, q_bands: tuple, t: float, y: np.ndarray, *, orde
     if info:
         raise RuntimeError(f"expm_pencil: the pivot of row {info} vanished (t={t!r})")
     return x, (dx if derivative is not None else None)
+
+
+def mean_weights(p_nodes: np.ndarray) -> np.ndarray:
+    """Weights ``ww`` with ``ww . M`` the mean pressure of the distribution whose probability below ``p`` is ``M``
+    at the nodes, the weight ``M_0`` below the first node counted at ``p = 0`` (the zero weight; where ``M_0 = 0``,
+    it does not matter).
+
+    ``<p> = p_n M_n - p_0 M_0 - int_{p_0}^{p_n} M dp``, the integral with ``M`` cubic through the four nearest nodes
+    on every interval (fourth order), each interval's Lagrange integrals in its own coordinate (in absolute ``p``
+    the monomials cancel catastrophically on fine grids: a false error floor of 1e-5 was measured so).
+
+    Parameters
+    ----------
+    p_nodes : array (n >= 4,)
+        Increasing node positions (pressure units); the weights carry those units.
+    """
+    p = np.asarray(p_nodes, dtype=float)
+    if p.ndim != 1 or p.size < 4 or not np.all(np.diff(p) > 0.0):
+        raise ValueError(f"p_nodes must be increasing with at least 4 nodes; got shape {p.shape}")
+    n = p.size - 1
+    k = np.arange(n)
+    j0 = np.clip(k - 1, 0, n - 3)
+    idx = j0[:, None] + np.arange(4)
+    width = p[k + 1] - p[k]
+    ts = (p[idx] - p[k][:, None]) / width[:, None]  # the interval is [0, 1] in its own coordinate
+    # sum_j w_j t_j^m = int_0^1 t^m dt = 1/(m + 1), m = 0..3: the Lagrange basis' integrals
+    vander = ts[:, None, :] ** np.arange(4)[None, :, None]
+    w = np.linalg.solve(vander, np.broadcast_to(1.0 / np.arange(1.0, 5.0), (n, 4))[..., None])[..., 0]
+    omega = np.zeros(n + 1)
+    np.add.at(omega, idx, w * width[:, None])
+    ww = -omega
+    ww[-1] += p[-1]
+    ww[0] -= p[0]
+    return ww
+
+
+def stage_rows(p_nodes: np.ndarray, f: np.ndarray, f_p: np.ndarray, b: np.ndarray, w: np.ndarray) -> tuple:
+    """The pencil's coefficient rows of every stage from values at the nodes, the node index as the coordinate.
+
+    For ``Pr_tau = (f Pr)_pp - (a Pr)_p`` with ``a = b - A w`` (``A`` a stage's balance multiplier):
+    ``A_coef = f / p_xi^2``, ``B = B_f + A B_w`` with ``B_f = (f_p - b) / p_xi - f p_xixi / p_xi^3`` and
+    ``B_w = w / p_xi`` (:func:`index_coordinate`, :func:`with_derivatives`).
+
+    Parameters
+    ----------
+    p_nodes : array (n,)
+        The nodes (pressure).
+    f, f_p, b, w : arrays (stages, n)
+        The diffusivity [pressure^2 per unit tau], its derivative in ``p`` [pressure per unit tau], the drift
+        [pressure per unit tau] and the balance drift [pressure per unit tau per unit ``A``] at the nodes, one row per
+        stage.
+
+    Returns
+    -------
+    (a, a1, a2, bf, bf1, bf2, bw, bw1, bw2, a_bottom)
+        Rows (stages, n - 2) at the interior nodes, and ``A_coef`` at node 0 per stage (the absorbing bottom's
+        :func:`absorbing_bottom`).
+    """
+    p_xi, p_xixi = index_coordinate(p_nodes)
+    f, f_p, b, w = (np.atleast_2d(np.asarray(v, dtype=float)) for v in (f, f_p, b, w))
+    shapes = {v.shape for v in (f, f_p, b, w)}
+    if len(shapes) != 1 or f.shape[1] != p_xi.size:
+        raise ValueError(f"f, f_p, b and w must be (stages, {p_xi.size}) arrays alike; got shapes "
+                         f"{[v.shape for v in (f, f_p, b, w)]}")
+    if not np.all(f[:, 1:-1] > 0.0):
+        raise ValueError("f must be > 0 at every interior node")
+    a_coef = f / p_xi ** 2
+    b_f = (f_p - b) / p_xi - f * p_xixi / p_xi ** 3
+    b_w = w / p_xi
+
+    return (*with_derivatives(a_coef), *with_derivatives(b_f), *with_derivatives(b_w),
+            np.ascontiguousarray(a_coef[:, 0]))
+
+
+def run_stages(rows: tuple, durations: np.ndarray, M: np.ndarray, *, mean_weights_: np.ndarray, p0: float,
+               balanced: np.ndarray | bool = True, absorbing: bool = True, mean_tol: float = 1e-10,
+               lin_tol: float = 1e-5, max_iter: int = 30, order: int = 16) -> tuple:
+    """Every stage of one grid by the compact scheme (:func:`._compact_kernels.staged_run`), index coordinate.
+
+    Parameters
+    ----------
+    rows : tuple
+        :func:`stage_rows`' output.
+    durations : array (stages,)
+        Each stage's duration in ``tau`` (>= 0).
+    M : array (n,)
+        The start (e.g. :func:`corrected_delta_start`).
+    mean_weights_ : array (n,)
+        :func:`mean_weights` of the nodes.
+    p0 : float
+        The mean a balanced stage ends at (pressure, > 0).
+    balanced : bool or array of bool
+        Which stages carry the balance.
+    absorbing : bool
+        The bottom absorbs (:func:`absorbing_bottom`); else ``M_0`` is held (a closed bottom).
+    mean_tol, lin_tol : float
+        The balance's tolerance on the miss of the mean and the miss below which the last Newton step is taken to
+        first order, both relative to ``p0``.
+
+    Returns
+    -------
+    (M, multipliers, info)
+        ``info``: the exponentials and Newton steps taken.
+
+    Raises
+    ------
+    RuntimeError
+        Where a stage fails (a vanished pivot, or the balance not converging): the stage and the reason.
+    """
+    from ._compact_kernels import staged_run
+
+    theta, res, r_inf, _ = pfd_coefficients(order)
+    a, a1, a2, bf, bf1, bf2, bw, bw1, bw2, a_bottom = rows
+    dt = np.ascontiguousarray(durations, dtype=float)
+    if dt.ndim != 1 or dt.size != a.shape[0] or not np.all(np.isfinite(dt) & (dt >= 0.0)):
+        raise ValueError(f"durations must be {a.shape[0]} finite values >= 0; got {durations!r}")
+    if not (np.isfinite(p0) and p0 > 0.0):
+        raise ValueError(f"p0 must be finite and > 0; got p0={p0!r}")
+    flags = np.broadcast_to(np.asarray(balanced, dtype=np.bool_), dt.shape).copy()
+    h = 1.0
+    bottom = np.zeros((dt.size, 4))
+    if absorbing:
+        for k, a0 in enumerate(a_bottom):
+            q00, q01, row0 = absorbing_bottom(h, float(a0))
+            bottom[k] = (q00, q01, row0[0], row0[1])
+    y = np.ascontiguousarray(M, dtype=float)
+    out, multipliers, n_exp, n_newton, info, stage = staged_run(
+        h, *(np.ascontiguousarray(v) for v in (a, a1, a2, bf, bf1, bf2, bw, bw1, bw2)), bottom, dt, flags, y,
+        np.ascontiguousarray(mean_weights_, dtype=float), float(p0), float(mean_tol), float(lin_tol), int(max_iter),
+        res, theta, float(r_inf))
+    if info != 0:
+        why = "a pivot vanished" if info > 0 else "the balance did not converge"
+        raise RuntimeError(f"run_stages: stage {stage} failed ({why}; info {info})")
+    return out, multipliers, {"exponentials": int(n_exp), "newton_steps": int(n_newton)}
