@@ -9,7 +9,7 @@ cells, CRAM-16): 1.2-1.3x its time per exponential, with and without the balance
 :func:`staged_run` is every stage of one grid in one call, the balance included, its rows made per Newton iterate
 by :func:`pencil_rows`; at equal cells it costs 1.8-2.4x the engine's own staged kernel on the balanced closures
 (``benchmarks/compact_staged.py``: the derivative taken with every exponential, the pencil's complex bands, no
-vector lanes yet).
+vector lanes).
 
 Module-level ``numba.njit(cache=True)``, no fastmath, numba's numpy error model (as :mod:`._kernels`).
 Imported lazily (:func:`.compact.expm_pencil`).

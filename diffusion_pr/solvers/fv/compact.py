@@ -1,8 +1,11 @@
-"""The compact fourth-order scheme on the primitive ``M`` (issue 10's route for the balanced closures).
+"""The compact fourth-order scheme on the primitive ``M``: a fourth-order alternative to the engine's operator.
 
-Not yet used by :func:`~diffusion_pr.solvers.fv.engine.solve_fv`: these are the engine-independent parts of the
-plan in docs/closures.md ("A fourth-order shell rule under the shell-wise balance", steps 2-5), each tested
-against an oracle of its own (``tests/diffusion_pr/test_fv_compact.py``):
+Not used by :func:`~diffusion_pr.solvers.fv.engine.solve_fv`. Built and measured for issue 10 as a route to faster
+balanced closures, and found not to be one: on the engine's own grids it needs only 1.1-1.6x fewer cells than the
+engine's second-order scheme with Richardson, at about 2x the cost per cell (docs/closures.md, "The compact scheme
+from the delta, and in compiled code"; ``benchmarks/compact_closure.py``). It stays as a tested fourth-order
+solver of staged Fokker-Planck problems on ``M``, each part checked against an oracle of its own
+(``tests/diffusion_pr/test_fv_compact.py``):
 
 * :func:`hoc_bands`: the high-order compact (HOC) discretization of ``u_tau = A u'' + B u'`` on a uniform grid
   in a coordinate ``xi`` (Spotz and Carey, Numer. Methods Partial Differ. Equ. 17, 657 (2001),
