@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_variance import median_time  # noqa: E402
 import diffusion_pr as dp  # noqa: E402
 from bench_fokker_planck import SPECTRUM  # noqa: E402
 from diffusion_pr.closures import (LoadExcessDrift, LocalResponseDiffusivity, RigidApproachBalance,  # noqa: E402
@@ -108,16 +109,6 @@ def compact_solve(problem, monitor, p_bottom: float, p_max: float, n_below: int)
     estimate = float(np.max(np.abs(r_fine[::2] - r_coarse)))
     return {"p": p2, "M": r_fine, "p_coarse": p1, "estimate": estimate, "seconds": time.perf_counter() - t0,
             "cells": (p1.size - 1, p2.size - 1, p4.size - 1), "info": [r[2] for r in runs]}
-
-
-def median_time(fn, repeats: int) -> float:
-    fn()
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return float(np.median(ts))
 
 
 def main(argv=None) -> None:

@@ -31,12 +31,12 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_variance import median_time  # noqa: E402
 from diffusion_pr.solvers.fv import _kernels as K  # noqa: E402
 from diffusion_pr.solvers.fv._compact_kernels import pencil_pfd  # noqa: E402
 from diffusion_pr.solvers.fv.cram import pfd_coefficients  # noqa: E402
@@ -98,16 +98,6 @@ def check(zeta: float, closure: str) -> list:
         lines.append(f"| {P.shape[0] - 1} | {float(np.max(np.abs(x - ref))):.1e} | "
                      f"{float(np.max(np.abs(dx - fd)) / max(float(np.max(np.abs(fd))), 1e-300)):.1e} | {info} |")
     return lines
-
-
-def median_time(fn, repeats: int) -> float:
-    fn()
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return float(np.median(ts))
 
 
 def main(argv=None) -> None:

@@ -23,15 +23,15 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 from numba import njit
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_variance import median_time  # noqa: E402
 from diffusion_pr.solvers.fv import _kernels as K  # noqa: E402
-from diffusion_pr.solvers.fv._compact_kernels import pencil_pfd, pencil_rows, staged_run  # noqa: E402
+from diffusion_pr.solvers.fv._compact_kernels import _band_product, pencil_pfd, pencil_rows, staged_run  # noqa: E402
 from diffusion_pr.solvers.fv.compact import absorbing_bottom, corrected_delta_start  # noqa: E402
 from diffusion_pr.solvers.fv.cram import pfd_coefficients  # noqa: E402
 from fourth_order_space import P0, SHELLS, CompactAbsorbing, SchemeAbsorbing, grid, run_compact  # noqa: E402
@@ -59,14 +59,8 @@ def _thomas(pl, pd, pu, rhs, x, cp):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _band_mul(lower, diag, upper, row0, y, out):  # pragma: no cover - numba
-    n = y.size
-    for i in range(n):
-        v = diag[i] * y[i]
-        if i > 0:
-            v += lower[i - 1] * y[i - 1]
-        if i < n - 1:
-            v += upper[i] * y[i + 1]
-        out[i] = v
+    """``out = T y`` for the tridiagonal ``T`` with row 0's entries in columns 2 and 3 (``row0``)."""
+    _band_product(lower, diag, upper, y, out)
     out[0] += row0[0] * y[2] + row0[1] * y[3]
 
 
@@ -227,16 +221,6 @@ def engine_inputs(scene: Scene, e: np.ndarray, shells: list) -> tuple:
             np.ascontiguousarray(sch.mean_weights), y, P0, MEAN_TOL, LIN_TOL, 30, True,
             np.ascontiguousarray(K.ALPHA), np.ascontiguousarray(theta), float(r_inf), np.ascontiguousarray(res),
             np.zeros(1, dtype=np.int64))
-
-
-def median_time(fn, repeats: int) -> float:
-    fn()
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return float(np.median(ts))
 
 
 def _runner(args):

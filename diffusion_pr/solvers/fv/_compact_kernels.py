@@ -19,6 +19,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ._kernels import _accumulate  # out += 2 Re sum_j c_j x_j over a block of poles
+
 __all__ = ["pencil_pfd", "pencil_rows", "staged_run", "POLE_BLOCK"]
 
 #: poles per block, as the engine's kernels take for CRAM-16 (two blocks of 4)
@@ -36,17 +38,6 @@ def _band_product(lower, diag, upper, y, out):  # pragma: no cover - numba
         if i < n - 1:
             s += upper[i] * y[i + 1]
         out[i] = s
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _accumulate(out, c, g0, x, n, gs):  # pragma: no cover - numba
-    """``out += 2 Re sum_j c_j x_j`` over the block of poles from ``g0``."""
-    for i in range(n):
-        s = 0.0
-        for jj in range(gs):
-            cj = c[g0 + jj]
-            s += cj.real * x[i, jj].real - cj.imag * x[i, jj].imag
-        out[i] += 2.0 * s
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
