@@ -1234,6 +1234,8 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
     solves' price, nothing integrated twice).  Where the sum still misses ``rtol`` the ``2 top``-shell problem is
     solved on the same grids (per doubling, the grids the correction uses).  The cost: the ``n/2``, ``n/4`` and
     ``n/8``-shell problems on the two coarser grids, 0.38x ``res`` (0.88x with the ``4N`` grids)."""
+    from .solvers.fv.grid import same_grid
+
     from .solvers.fv.engine import RICHARDSON_DIVISOR
 
     n = int(res.diagnostics["n_shells"])
@@ -1255,7 +1257,7 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
         own = r.edges[::2] if mode == "finest" else r.edges
         theirs = res.edges[::2] if mode == "coarsest" else res.edges
         ok = not (r.diagnostics.get("plain_failure") or "plain_masses" not in r.diagnostics
-                  or not np.array_equal(own, theirs))
+                  or not same_grid(own, theirs))
         return list(r.diagnostics["plain_masses"]) if ok else None
 
     def solve_plain(ms: list, mode: str, then: Optional[int] = None) -> dict:
@@ -1684,6 +1686,8 @@ def _shell_combined(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
     are not assumed to cancel).  Where the sum misses ``rtol``, the ``2n``-shell problem is solved on the same
     grids and the table is made again from the top (one solve per doubling, up to :data:`MAX_CONTINUUM_SHELLS`).
     Used where the plain grids' correction misses (:func:`_shell_extrapolated`) or no plain masses were kept."""
+    from .solvers.fv.grid import same_grid
+
     n = int(res.diagnostics["n_shells"])
     solved = {n: res}
 
@@ -1691,7 +1695,7 @@ def _shell_combined(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
         return _coarser_on_grid(res, m, scene, rtol, options, plain=None)
 
     def usable(r: Any) -> bool:
-        return bool(r.success and r.edges is not None and np.array_equal(r.edges, res.edges))
+        return bool(r.success and r.edges is not None and same_grid(r.edges, res.edges))
 
     while True:
         for m in (n // 2, n // 4) + ((n // 8,) if n % 8 == 0 and n // 8 >= MIN_ROMBERG_SHELLS else ()):

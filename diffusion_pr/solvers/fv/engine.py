@@ -48,7 +48,7 @@ from ...result import PressureDistribution
 from ._fpenv import flush_subnormals
 from .cram import ALPHA as CRAM_ALPHA
 from .cram import CANCELLED, PFD_ERROR_BOUNDS, expm_tridiagonal, expm_tridiagonal_many, pfd_coefficients
-from .grid import GridSpec, Remap, edges_for, knot_indices
+from .grid import GridSpec, Remap, edges_for, knot_indices, same_grid
 from .operator import bands as fv_bands
 from .operator import centres
 
@@ -1982,8 +1982,8 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         if plain_only:  # the N and 2N grids alone, or one grid alone (plain_masses)
             ks = list(PLAIN_GRIDS[plain_mode])
             es = [es[k] for k in ks]
-        if reuse is not None and not (np.array_equal(es[0], reuse[1]) and np.array_equal(es[1], reuse[2])):
-            reuse = None  # not nested to the last bit (never seen): integrate all three grids
+        if reuse is not None and not (same_grid(es[0], reuse[1]) and same_grid(es[1], reuse[2])):
+            reuse = None  # not the same grids (never seen): integrate all three grids
         # (not for a plain solve's two grids without a balance below PARALLEL_MIN_WORK cell-stages: handing the 2N
         # grid to a thread costs more than it saves)
         parallel = threads > 1 and loop is None and assemble is native_assemble and _compiled(prep) and not (
