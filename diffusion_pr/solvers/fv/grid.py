@@ -55,7 +55,7 @@ class Remap:
     knots: tuple
     values: tuple
     #: its evaluations at many points (the inverse's start table, :meth:`forward` and :meth:`density` of 1-D arrays)
-    #: compiled (:mod:`._grid_kernel`; the same bits, for solves that load numba anyway); not part of its identity
+    #: compiled (:mod:`._grid_kernel`; the same bits where the processor allows, else within ulps: :data:`SAME_GRID_RTOL`); not part of its identity
     compiled: bool = field(default=False, repr=False, compare=False, hash=False)
     _x: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
     _y: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
@@ -113,7 +113,7 @@ class Remap:
         return f_out, d_out
 
     def _both_compiled(self, v: np.ndarray) -> tuple:
-        """:meth:`_both` of a 1-D ``v`` in one compiled pass (:mod:`._grid_kernel`), the same bits."""
+        """:meth:`_both` of a 1-D ``v`` in one compiled pass (:mod:`._grid_kernel`), the same bits up to :data:`SAME_GRID_RTOL`."""
         v = np.ascontiguousarray(v, dtype=float)
         f_out, d_out = np.empty(v.size), np.empty(v.size)
         _grid_kernel("remap_both_kernel")(self._x, float(self._y[-1]), self._pieces, v, f_out, d_out)
@@ -134,7 +134,7 @@ class Remap:
     def inverse(self, t: np.ndarray, compiled: Optional[bool] = None) -> np.ndarray:
         """``F^-1(t)`` on ``[0, total]``: a tabulated start, then safeguarded Newton to round-off (``F`` and ``D`` from
         one search); each value depends on its own ``t`` only (nested grids agree bit for bit).  ``compiled`` (default:
-        the map's own :attr:`compiled`): the iterations in one compiled pass (:mod:`._grid_kernel`), the same bits."""
+        the map's own :attr:`compiled`): the iterations in one compiled pass (:mod:`._grid_kernel`), the same bits up to :data:`SAME_GRID_RTOL`."""
         compiled = self.compiled if compiled is None else compiled
         t = np.asarray(t, dtype=float)
         f_tab, v_tab = self._start
@@ -282,7 +282,7 @@ def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float, compiled: b
     two to four steps); if a step leaves ``[a, b]`` or 8 steps do not converge,
     the safeguarded bisection-Newton of :func:`_invert_safe` takes over from the start.  With a
     :class:`Remap` ``F``: ``F^-1`` first, then the base monitor's inverse.  ``compiled``: the plain Newton steps
-    (and the remap's) in one compiled pass each (:mod:`._grid_kernel`), the same bits.
+    (and the remap's) in one compiled pass each (:mod:`._grid_kernel`), the same bits up to :data:`SAME_GRID_RTOL`.
     """
     if spec.remap is not None:
         # (compiled where asked, else as the map was made: either way the same bits)
@@ -452,7 +452,7 @@ def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1, known: Optional[
     ``known``: the grid of ``idx // 2`` with the same ``factor`` (the level this one doubles, whose edges are every
     second one of this grid, bit for bit: each edge is the inverse of its own target): taken as they are, only the
     new edges between them are inverted (half the work).  ``compiled``: the inverse's Newton iterations compiled
-    (:mod:`._grid_kernel`; the same bits, for solves that load numba anyway).
+    (:mod:`._grid_kernel`; the same bits up to :data:`SAME_GRID_RTOL`, for solves that load numba anyway).
 
     Raises
     ------
