@@ -130,9 +130,9 @@ def index_coordinate(p_nodes: np.ndarray) -> tuple:
 
 def with_derivatives(values: np.ndarray) -> tuple:
     """``(v, v', v'')`` at the interior nodes from a coefficient's values at all nodes (the last axis: one row per
-    stage may be given), in the node index (``h = 1``), by central differences: second order, which is all :func:`hoc_bands` needs of ``A'``, ``A''``, ``B'``
-    and ``B''`` (``h^2`` multiplies them; measured on the heat kernel: the scheme keeps ratios 15.6-16.0 per
-    halving, ``tests/diffusion_pr/test_fv_compact.py``)."""
+    stage may be given), in the node index (``h = 1``), by central differences: second order, which is all
+    :func:`hoc_bands` needs of ``A'``, ``A''``, ``B'`` and ``B''`` (``h^2`` multiplies them; measured on the heat
+    kernel: the scheme keeps ratios 15.6-16.0 per halving, ``tests/diffusion_pr/test_fv_compact.py``)."""
     v = np.asarray(values, dtype=float)
     return (np.ascontiguousarray(v[..., 1:-1]), 0.5 * (v[..., 2:] - v[..., :-2]),
             v[..., 2:] - 2.0 * v[..., 1:-1] + v[..., :-2])

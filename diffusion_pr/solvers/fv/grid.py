@@ -55,7 +55,8 @@ class Remap:
     knots: tuple
     values: tuple
     #: its evaluations at many points (the inverse's start table, :meth:`forward` and :meth:`density` of 1-D arrays)
-    #: compiled (:mod:`._grid_kernel`; the same bits where the processor allows, else within ulps: :data:`SAME_GRID_RTOL`); not part of its identity
+    #: compiled (:mod:`._grid_kernel`; the same bits where the processor allows, else within ulps:
+    #: :data:`SAME_GRID_RTOL`); not part of its identity
     compiled: bool = field(default=False, repr=False, compare=False, hash=False)
     _x: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
     _y: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
@@ -113,7 +114,8 @@ class Remap:
         return f_out, d_out
 
     def _both_compiled(self, v: np.ndarray) -> tuple:
-        """:meth:`_both` of a 1-D ``v`` in one compiled pass (:mod:`._grid_kernel`), the same bits up to :data:`SAME_GRID_RTOL`."""
+        """:meth:`_both` of a 1-D ``v`` in one compiled pass (:mod:`._grid_kernel`), the same bits up to
+        :data:`SAME_GRID_RTOL`."""
         v = np.ascontiguousarray(v, dtype=float)
         f_out, d_out = np.empty(v.size), np.empty(v.size)
         _grid_kernel("remap_both_kernel")(self._x, float(self._y[-1]), self._pieces, v, f_out, d_out)
@@ -134,7 +136,8 @@ class Remap:
     def inverse(self, t: np.ndarray, compiled: Optional[bool] = None) -> np.ndarray:
         """``F^-1(t)`` on ``[0, total]``: a tabulated start, then safeguarded Newton to round-off (``F`` and ``D`` from
         one search); each value depends on its own ``t`` only (nested grids agree bit for bit).  ``compiled`` (default:
-        the map's own :attr:`compiled`): the iterations in one compiled pass (:mod:`._grid_kernel`), the same bits up to :data:`SAME_GRID_RTOL`."""
+        the map's own :attr:`compiled`): the iterations in one compiled pass (:mod:`._grid_kernel`), the same bits up
+        to :data:`SAME_GRID_RTOL`."""
         compiled = self.compiled if compiled is None else compiled
         t = np.asarray(t, dtype=float)
         f_tab, v_tab = self._start
