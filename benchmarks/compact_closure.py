@@ -124,10 +124,11 @@ def main(argv=None) -> None:
              f"Fig. 1 scene, {SHELLS} shells (`spectrum_shells`, no shell extrapolation), the closures' own floor "
              "(`BALANCED_FLOOR` q_min zeta E*/2) and the engine's domain (its bottom ln 1e7 below the floor, its "
              "p_max). Reference: the engine at rtol 1e-9. Errors at the nodes above the floor of each answer's own "
-             "grid: `L1`, the sum of |cell mass - reference's| (zero weight included); `K`, the largest CDF "
+             "grid (the answer's: the 2N grid of each, the engine's lumped below the floor): `L1`, the sum of "
+             "|cell mass - reference's| (zero weight included); `K`, the largest CDF "
              "difference. Estimates: the compact one max |R4(2N,4N) - R4(N,2N)| of the CDF; the engine's its L1 "
              f"estimate. Times: medians of {args.repeats} warm calls in the same process.", "",
-             "| closure | zeta | solver | family | cells (finest) | L1 | K | estimate | time [ms] |",
+             "| closure | zeta | solver | family | cells: the last level's three grids | L1 | K | estimate | time [ms] |",
              "|---|---|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)
     for closure in args.closures:
@@ -148,7 +149,9 @@ def main(argv=None) -> None:
             t_eng = median_time(lambda: dp.solve_problem(problem, backend="native", rtol=1e-6, p_floor=p_floor),
                                 args.repeats)
             l1, k = errors(eng.edges, eng.cdf(eng.edges))
-            lines.append(f"| `{closure}` | {zeta:g} | engine, rtol 1e-6 | its own | {eng.diagnostics['n_cells']} | "
+            lines.append(f"| `{closure}` | {zeta:g} | engine, rtol 1e-6 | its own | "
+                         f"{'/'.join(map(str, eng.diagnostics['levels']))} (answer {eng.diagnostics['n_cells']} above "
+                         "the floor) | "
                          f"{l1:.1e} | {k:.1e} | {eng.error_estimate:.1e} (L1) | {t_eng * 1e3:.1f} |")
             print(lines[-1], flush=True)
             for family, monitor in (("engine's", lambda p: spec.phi(p)),
@@ -164,7 +167,7 @@ def main(argv=None) -> None:
                     t_c = median_time(lambda: compact_solve(problem, monitor, p_bottom, p_max, n0), args.repeats)
                     l1, k = errors(res["p"], res["M"])
                     lines.append(f"| `{closure}` | {zeta:g} | compact, {n0} below p0 | {family} | "
-                                 f"{res['cells'][2]} | {l1:.1e} | {k:.1e} | {res['estimate']:.1e} | "
+                                 f"{'/'.join(map(str, res['cells']))} | {l1:.1e} | {k:.1e} | {res['estimate']:.1e} | "
                                  f"{t_c * 1e3:.1f} |")
                     print(lines[-1], flush=True)
             lines.append(f"| | | (reference: {ref.diagnostics['n_cells']} cells, zero weight {ref.zero_weight:.4f}, "

@@ -1,10 +1,10 @@
 """The compact fourth-order scheme on the primitive ``M``: a fourth-order alternative to the engine's operator.
 
 Not used by :func:`~diffusion_pr.solvers.fv.engine.solve_fv`. Built and measured for issue 10 as a route to faster
-balanced closures, and found not to be one: on the engine's own grids it needs only 1.1-1.6x fewer cells than the
-engine's second-order scheme with Richardson, at about 2x the cost per cell (docs/closures.md, "The compact scheme
-from the delta, and in compiled code"; ``benchmarks/compact_closure.py``). It stays as a tested fourth-order
-solver of staged Fokker-Planck problems on ``M``, each part checked against an oracle of its own
+balanced closures: on the engine's own grids it needs 2.3-4.2x fewer cells than the engine's second-order scheme
+with Richardson, at about 2x the cost per cell in its compiled loop, so a partial route at best (docs/closures.md,
+"The compact scheme from the delta, and in compiled code"; ``benchmarks/compact_closure.py``). A tested
+fourth-order solver of staged Fokker-Planck problems on ``M``, each part checked against an oracle of its own
 (``tests/diffusion_pr/test_fv_compact.py``):
 
 * :func:`hoc_bands`: the high-order compact (HOC) discretization of ``u_tau = A u'' + B u'`` on a uniform grid
