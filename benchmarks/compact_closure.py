@@ -101,7 +101,7 @@ def compact_solve(problem, monitor, p_bottom: float, p_max: float, n_below: int)
     for k in (1, 2, 4):
         p = nodes(monitor, p_bottom, p_max, P0, n_below, k)
         M, _, info = run_stages(rows_of(problem, p), durations, corrected_delta_start(p.size, n_below * k),
-                                mean_weights_=mean_weights(p), p0=P0, mean_tol=MEAN_TOL, lin_tol=LIN_TOL)
+                                weights=mean_weights(p), p0=P0, mean_tol=MEAN_TOL, lin_tol=LIN_TOL)
         runs.append((p, M, info))
     (p1, m1, _), (p2, m2, _), (p4, m4, _) = runs
     r_coarse = (16.0 * m2[::2] - m1) / 15.0

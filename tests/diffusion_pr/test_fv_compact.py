@@ -138,9 +138,9 @@ def test_corrected_delta_start_values():
     (lambda: stage_rows(np.arange(1.0, 7.0), np.zeros((1, 6)), np.zeros((1, 6)), np.zeros((1, 6)), np.zeros((1, 6))),
      "f must be > 0"),
     (lambda: run_stages(stage_rows(np.arange(1.0, 8.0), *(np.ones((2, 7)),) * 4), np.array([0.1, -0.1]),
-                        np.linspace(0, 1, 7), mean_weights_=np.ones(7), p0=1.0), "durations must be"),
+                        np.linspace(0, 1, 7), weights=np.ones(7), p0=1.0), "durations must be"),
     (lambda: run_stages(stage_rows(np.arange(1.0, 8.0), *(np.ones((2, 7)),) * 4), np.array([0.1, 0.1]),
-                        np.linspace(0, 1, 7), mean_weights_=np.ones(7), p0=0.0), "p0 must be"),
+                        np.linspace(0, 1, 7), weights=np.ones(7), p0=0.0), "p0 must be"),
 ])
 def test_bad_input_raises_with_the_parameter(call, match):
     with pytest.raises(ValueError, match=match):
@@ -255,7 +255,7 @@ def _ou_error(n: int) -> tuple:
     ones = np.ones((stages, n + 1))
     rows = stage_rows(p, D * ones, 0.0 * ones, -k * p * ones, -ones)
     M, A, _ = run_stages(rows, np.full(stages, T / stages), corrected_delta_start(n + 1, n // 2),
-                         mean_weights_=mean_weights(p), p0=p0, absorbing=False, mean_tol=1e-13)
+                         weights=mean_weights(p), p0=p0, absorbing=False, mean_tol=1e-13)
     s = math.sqrt(D / k * (1 - math.exp(-2 * k * T)))
     return float(np.max(np.abs(M - ndtr((p - p0) / s)))), float(np.max(np.abs(A / (k * p0) - 1.0)))
 
@@ -279,5 +279,5 @@ def test_run_stages_reports_a_failed_balance():
     ones = np.ones((3, n + 1))
     rows = stage_rows(p, ones, 0.0 * ones, -2.0 * p * ones, 0.0 * ones)
     with pytest.raises(RuntimeError, match="stage 0 failed .the balance did not converge"):
-        run_stages(rows, np.full(3, 0.05), corrected_delta_start(n + 1, n // 2), mean_weights_=mean_weights(p),
+        run_stages(rows, np.full(3, 0.05), corrected_delta_start(n + 1, n // 2), weights=mean_weights(p),
                    p0=1.2, absorbing=False)

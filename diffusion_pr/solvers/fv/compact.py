@@ -21,7 +21,7 @@ fourth-order solver of staged Fokker-Planck problems on ``M``, each part checked
   in one compiled call (:func:`._compact_kernels.staged_run`);
 * :func:`corrected_delta_start`: the start for ``delta(p - p0)``. The sampled step ``H(p - p0)`` costs the compact
   scheme its order: from it both the scheme and its Richardson ``(16 X(2N) - X(N))/15`` converge at second order
-  (``benchmarks/fourth_order_space.py --skip 0 --start sampled``); corrected as here, at fourth.
+  (``benchmarks/fourth_order_space.py --skip 0 --start-shift 0``); corrected as here, at fourth.
 
 For the probability below ``p``, ``M(p, tau)``, of ``Pr_tau = (f Pr)_pp - (a Pr)_p``:
 ``M_tau = f M_pp + (f_p - a) M_p``, and on a grid uniform in ``xi`` (``p = p(xi)``)
@@ -333,7 +333,7 @@ def stage_rows(p_nodes: np.ndarray, f: np.ndarray, f_p: np.ndarray, b: np.ndarra
             np.ascontiguousarray(a_coef[:, 0]))
 
 
-def run_stages(rows: tuple, durations: np.ndarray, M: np.ndarray, *, mean_weights_: np.ndarray, p0: float,
+def run_stages(rows: tuple, durations: np.ndarray, M: np.ndarray, *, weights: np.ndarray, p0: float,
                balanced: np.ndarray | bool = True, absorbing: bool = True, mean_tol: float = 1e-10,
                lin_tol: float = 1e-5, max_iter: int = 30, order: int = 16) -> tuple:
     """Every stage of one grid by the compact scheme (:func:`._compact_kernels.staged_run`), index coordinate.
@@ -346,7 +346,7 @@ def run_stages(rows: tuple, durations: np.ndarray, M: np.ndarray, *, mean_weight
         Each stage's duration in ``tau`` (>= 0).
     M : array (n,)
         The start (e.g. :func:`corrected_delta_start`).
-    mean_weights_ : array (n,)
+    weights : array (n,)
         :func:`mean_weights` of the nodes.
     p0 : float
         The mean a balanced stage ends at (pressure, > 0).
@@ -387,7 +387,7 @@ def run_stages(rows: tuple, durations: np.ndarray, M: np.ndarray, *, mean_weight
     y = np.ascontiguousarray(M, dtype=float)
     out, multipliers, n_exp, n_newton, info, stage = staged_run(
         h, *(np.ascontiguousarray(v) for v in (a, a1, a2, bf, bf1, bf2, bw, bw1, bw2)), bottom, dt, flags, y,
-        np.ascontiguousarray(mean_weights_, dtype=float), float(p0), float(mean_tol), float(lin_tol), int(max_iter),
+        np.ascontiguousarray(weights, dtype=float), float(p0), float(mean_tol), float(lin_tol), int(max_iter),
         res, theta, float(r_inf))
     if info != 0:
         why = "a pivot vanished" if info > 0 else "the balance did not converge"
