@@ -1234,9 +1234,8 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
     solves' price, nothing integrated twice).  Where the sum still misses ``rtol`` the ``2 top``-shell problem is
     solved on the same grids (per doubling, the grids the correction uses).  The cost: the ``n/2``, ``n/4`` and
     ``n/8``-shell problems on the two coarser grids, 0.38x ``res`` (0.88x with the ``4N`` grids)."""
-    from .solvers.fv.grid import same_grid
-
     from .solvers.fv.engine import RICHARDSON_DIVISOR
+    from .solvers.fv.grid import same_grid
 
     n = int(res.diagnostics["n_shells"])
     plain = {n: list(res.diagnostics["plain_masses"])}
