@@ -1,6 +1,8 @@
 """Shared pytest fixtures."""
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -29,12 +31,14 @@ def pytest_report_header(config) -> str:
             + ("agree bit for bit" if numpy_is_libm() else "agree to ulps only (numpy's SIMD functions, or FMA)"))
 
 
+@functools.lru_cache(maxsize=None)
 def numpy_is_libm() -> bool:
     """Whether the compiled kernels and their numpy forms can agree bit for bit on this processor: numpy's ``log``,
     ``exp`` and ``arcsinh`` give the C library's bits (the compiled kernels' functions), and a compiled polynomial
     (the grid remap's spline density) numpy's. On processors with AVX-512 numpy runs its own SIMD code for those
     functions, which differs by an ulp or two in a few values of every thousand, and the compiled spline differed in
-    the last bit at 5 of 2001 points on such a machine (``diffusion_pr.solvers.fv.grid.SAME_GRID_RTOL``)."""
+    the last bit at 5 of 2001 points on such a machine (``diffusion_pr.solvers.fv.grid.SAME_GRID_RTOL``). Probed once
+    per session (the report's header and every comparison share it)."""
     import math
 
     from diffusion_pr.solvers.fv.grid import Remap
@@ -49,18 +53,12 @@ def numpy_is_libm() -> bool:
     return bool(np.array_equal(fast.density(v), plain.density(v)) and np.array_equal(fast.forward(v), plain.forward(v)))
 
 
-_NUMPY_IS_LIBM = None
-
-
 def _same_bits(a, b) -> bool:
     """``a`` and ``b`` the same bits where the compiled and the numpy paths can agree bit for bit on this processor
     (:func:`numpy_is_libm`: as they are written to), else within ulps (relative 1e-12, absolute 1e-15 for values
     near 0): the property a path's answer must keep on any processor."""
-    global _NUMPY_IS_LIBM
-    if _NUMPY_IS_LIBM is None:
-        _NUMPY_IS_LIBM = numpy_is_libm()
     a, b = np.asarray(a), np.asarray(b)
-    if _NUMPY_IS_LIBM:
+    if numpy_is_libm():
         return bool(np.array_equal(a, b))
     return a.shape == b.shape and bool(np.allclose(a, b, rtol=1e-12, atol=1e-15))
 

@@ -30,6 +30,7 @@ units; ``tau`` in the inverse units of ``A / h^2``.
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -193,10 +194,18 @@ def absorbing_bottom(h: float, a_bottom: float) -> tuple:
         raise ValueError(f"h must be > 0; got h={h!r}")
     if not a_bottom >= 0.0:
         raise ValueError(f"a_bottom must be >= 0; got a_bottom={a_bottom!r}")
+    row = _one_sided_weights() * a_bottom / h ** 2
+    return -float(row.sum()), float(row[0]), row[1:].copy()
+
+
+@functools.lru_cache(maxsize=1)
+def _one_sided_weights() -> np.ndarray:
+    """The weights of ``M'' h^2 ~ sum_k c_k (M_k - M_0)``, ``k = 1, 2, 3``, given ``M' = 0`` (:func:`absorbing_bottom`;
+    solved once, read-only)."""
     k = np.arange(1.0, 4.0)
     weights = np.linalg.solve(np.array([k ** 2 / 2, k ** 3 / 6, k ** 4 / 24]), np.array([1.0, 0.0, 0.0]))
-    row = weights * a_bottom / h ** 2
-    return -float(row.sum()), float(row[0]), row[1:].copy()
+    weights.setflags(write=False)
+    return weights
 
 
 def expm_pencil(p_bands: tuple, q_bands: tuple, t: float, y: np.ndarray, *, order: int = 16,
