@@ -201,10 +201,11 @@ def test_cram_pfd_with_cf_poles_matches_the_dense_exponential(rng, order, n):
 
 
 @pytest.mark.parametrize("order", [10, 12])
-@pytest.mark.parametrize("n", [1500, 3001, 6000])
+@pytest.mark.parametrize("n", [1500, 3001, 6000, 9000])
 def test_cram_pfd_uneven_pole_blocks_match_lapack(rng, order, n):
-    """Where the poles do not fill equal blocks (CF-10 with the derivative on 3001 cells: blocks of 3 and 2; CF-12 on
-    6000: 2+2+2) the kernel's answer and derivative are LAPACK's pole-by-pole solves (gttrf/gttrs) to round-off."""
+    """Where the block of poles is split (``_block_size``), also into blocks that the poles do not fill evenly (with
+    the derivative: CF-10 on 6000 cells 3+2 and on 9000 2+2+1, CF-12 on 6000 3+3 and on 9000 2+2+2; whole blocks
+    below), the kernel's answer and derivative are LAPACK's pole-by-pole solves (gttrf/gttrs) to round-off."""
     lo, up = rng.uniform(0.1, 2.0, n - 1) * 100, rng.uniform(0.1, 2.0, n - 1) * 100
     diag = -(np.r_[lo, 0.0] + np.r_[0.0, up])
     wl, wu = rng.uniform(0.0, 1.0, n - 1), -rng.uniform(0.0, 1.0, n - 1)
@@ -230,11 +231,12 @@ def _generator_with_drift(rng, n, scale):
 
 
 @pytest.mark.parametrize("order", [10, 12, 16])
-@pytest.mark.parametrize("n", [3, 57, 1500, 3001])
+@pytest.mark.parametrize("n", [3, 57, 1500, 3001, 6000, 9000])
 def test_pfd_without_interchanges_is_the_pivoting_kernel_bit_for_bit(rng, order, n):
     """On a generator (columns sum to 0: LAPACK's pivot test keeps every pivot row) the split-part kernel without
     interchanges is taken, and its answer and derivative are the pivoting kernel's to the last bit: the same
-    operations in the same order (blocks of 6, 5, 4 and the smaller blocks of large grids included)."""
+    operations in the same order (blocks of 6, 5, 4 and the split blocks of 6000 and 9000 cells with the derivative
+    included)."""
     band, wband, y = _generator_with_drift(rng, n, 100.0)
     theta, res, r_inf, _ = pfd_coefficients(order)
     for want_d in (False, True):

@@ -278,14 +278,21 @@ def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusi
 
 
 #: poles per block of :func:`cram_pfd` (their eliminations interleave): all of them up to 6 poles, else 4 (CRAM-16:
-#: two blocks of 4), while the block's arrays (4 per row, 7 with the derivative; 16 bytes per row, array and pole)
-#: stay within 80000 pole-row-arrays (1.3 MB, about the L2 cache), else fewer (at least 2).  Measured per cell and
-#: pole with blocks of 4: 8.8-9.2 ns plain up to 5000 cells, 16 ns with the derivative up to 2528 cells (blocks of
+#: two blocks of 4), while the block's arrays (4 per row, 7 with the derivative; 16 bytes per row, array and lane; a
+#: block of an odd number of poles takes one lane more) stay within this many lane-row-arrays (4 MB), else fewer (at
+#: least 2).  Measured (fifty-second session, AMD EPYC, 1 MB L2 per core, 32 MB L3; ``benchmarks/pfd_block_words.py``,
+#: ``results/pfd_block_words*.md``), ns per cell and pole: whole blocks in 4-6 lanes 4.2-5.6 plain and 7.7-9.5 with
+#: the derivative wherever their arrays stay within 243000 lane-row-arrays (CF-12 with the derivative up to 5056
+#: cells), 19-30 from 283000 on; blocks of 2 poles 10 plain and 17 with the derivative at any size.  The earlier limit,
+#: 80000 arrays counted by poles (about the L2 of an older machine, measured one pole at a time before the lanes),
+#: split CF-12's block with the derivative from 1905 cells on: 12.5 ns instead of 7.8 at 2528 cells, the finest grid
+#: of the balanced closures at ``zeta = 0.01``.  Earlier measurements, one pole at a time (before the forty-first
+#: session): blocks of 4, 8.8-9.2 ns plain up to 5000 cells, 16 ns with the derivative up to 2528 cells (blocks of
 #: 2: 12 and 23 ns); the IPF form 27 and 40 ns.  A block of 6 (CF-12) or 5 (CF-10) poles costs per pole what a
-#: block of 4 does (768 cells: 6 poles 0.74x and 5 poles 0.65x the time of CRAM-16's 8).  Those were one pole at a
-#: time; in vector lanes (the intrinsics below, forty-first session) :func:`_pfd_dominant` takes 0.57-0.79x that
-#: time, the same bits (CF-10/12, CRAM-16; 79-2528 cells; with and without the derivative)
-_PFD_BLOCK_WORDS = 80000
+#: block of 4 does (768 cells: 6 poles 0.74x and 5 poles 0.65x the time of CRAM-16's 8).  In vector lanes (the
+#: intrinsics below, forty-first session) :func:`_pfd_dominant` takes 0.57-0.79x that time, the same bits (CF-10/12,
+#: CRAM-16; 79-2528 cells; with and without the derivative)
+_PFD_BLOCK_WORDS = 250000
 #: the largest block of poles (interleaved eliminations) of :func:`cram_pfd`
 _PFD_MAX_BLOCK = 6
 
@@ -325,7 +332,7 @@ def flux_weights(c, theta, alpha0):  # pragma: no cover - numba
 def _block_size(n, m, want_d):  # pragma: no cover - numba
     """Poles per block of :func:`_pfd_pivoting` and :func:`_pfd_dominant` (see :data:`_PFD_BLOCK_WORDS`)."""
     g_size = m if m <= _PFD_MAX_BLOCK else 4
-    while g_size > 2 and n * (7 if want_d else 4) * g_size > _PFD_BLOCK_WORDS:
+    while g_size > 2 and n * (7 if want_d else 4) * (g_size + (g_size & 1)) > _PFD_BLOCK_WORDS:
         g_size = (g_size + 1) // 2
     return g_size
 

@@ -1,0 +1,138 @@
+"""How far the last lever of issue 10's closure row can reach: fewer grid integrations per call (a bound).
+
+A balanced closure's call integrates a first level (three grids), the last level (three grids ``N, 2N, 4N``) and
+the shell ladder's plain rungs beside the last level. The fifty-first session left this lever unmeasured. This
+script times, on the Fig. 1 scene (``SelfAffineSpectrum(0.3, 2 pi/1024, 2 pi/32, rms_slope=0.031)``, ``E* = 8/3``,
+``p0 = 0.004``, rtol 1e-6), for each balanced closure and wall:
+
+* **call**: the closure as a user calls it (``pressure_distribution``, two threads);
+* **one level**: the call's own main problem (its first solve's shells and grading, ``_shell_problem``) on the call's
+  own last-level grids (``grid_family`` and ``n_cells``): the three grids ``N, 2N, 4N`` of one level, two threads,
+  no first level, no shell rungs, no extrapolation in the shells. Not an answer to the continuum closure (its shell
+  error is 1e-4-1e-3): the least any call on these grids could cost while keeping Richardson's estimate;
+* **finest grid**: that problem's ``4N`` grid alone (``plain_masses("finest")``), one thread, and the compiled stage
+  kernel's share of it (``engine._Kernels.run_rows`` wrapped): the least any call
+  whose answer is extrapolated from that grid could cost, on any number of threads.
+
+Each is a median of ``--repeats`` warm calls, the competitor (``fp_competitor.py`` on the Fig. 1 scene at
+``zeta = 0.25``, rtol 1e-6) timed alternately in the same process; the ratios are to its median, against the line
+8.3 (the issue's 10 ms over its competitor's 1.2 ms). Writes ``results/closure_grid_bound.md``.
+
+    python benchmarks/closure_grid_bound.py [--zetas 0.25 0.1 0.01 0.001] [--repeats 9]
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import diffusion_pr as dp  # noqa: E402
+from bench_fokker_planck import SPECTRUM  # noqa: E402
+from closures_vs_competitor import COMPETITOR_MS, TARGET_MS, competitor_reference  # noqa: E402
+from diffusion_pr.closures import EXTRAPOLATION_SHELLS, _shell_problem  # noqa: E402
+from diffusion_pr.solvers.fv import engine  # noqa: E402
+from diffusion_pr.solvers.fv.engine import grid_family, plain_masses  # noqa: E402
+
+OUT = Path(__file__).resolve().parent / "results" / "closure_grid_bound.md"
+E_STAR, P0, RTOL = 8.0 / 3.0, 0.004, 1e-6
+CLOSURES = ("local_g1_balanced", "local_g1_shell_balanced")
+
+
+def kernel_clock() -> list:
+    """Wrap the compiled stage kernel (``engine._Kernels.run_rows``) so that each call adds its wall time [s] to the
+    returned one-element list (a few microseconds per call)."""
+    spent = [0.0]
+    original = engine._Kernels.run_rows
+
+    def timed(*args, **kwargs):
+        t0 = time.perf_counter()
+        try:
+            return original(*args, **kwargs)
+        finally:
+            spent[0] += time.perf_counter() - t0
+    engine._Kernels.run_rows = timed
+    return spent
+
+
+def alternating(fns: dict, repeats: int) -> dict:
+    """Median wall time [s] of each callable in ``fns``, called in turn ``repeats`` times after one warm-up each."""
+    for fn in fns.values():
+        fn()
+    times: dict = {k: [] for k in fns}
+    for _ in range(repeats):
+        for k, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            times[k].append(time.perf_counter() - t0)
+    return {k: statistics.median(v) for k, v in times.items()}
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--zetas", type=float, nargs="+", default=[0.25, 0.1, 0.01, 0.001])
+    ap.add_argument("--repeats", type=int, default=9)
+    args = ap.parse_args(argv)
+    line = TARGET_MS / COMPETITOR_MS
+    reference = competitor_reference()
+    spent = kernel_clock()
+    lines = ["# Fewer grid integrations per call: a bound (`python benchmarks/closure_grid_bound.py`)", "",
+             f"Fig. 1 scene, rtol {RTOL:g}. Medians of {args.repeats} warm calls, each kind timed alternately with the "
+             f"competitor in the same process; in brackets the ratio to the competitor's median (the line: "
+             f"{line:.1f}). 'One level': the call's main problem on the call's last-level grids N/2N/4N, two threads, "
+             "no first level and no shell rungs (not an answer to the continuum closure). 'Finest grid': its 4N grid "
+             "alone, one thread, and the compiled stage kernel's share of that (the grid's integration without its problem, "
+             "domain, edges and coefficient rows).", "",
+             "| closure | zeta | main shells | last level's grids | call [ms] | one level [ms] | finest grid [ms] | "
+             "its kernel alone [ms] | competitor [ms] |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    print("\n".join(lines), flush=True)
+    for closure in CLOSURES:
+        for zeta in args.zetas:
+            def call(zeta=zeta, closure=closure):
+                return dp.pressure_distribution(SPECTRUM, E_star=E_STAR, mean_pressure=P0, zeta=zeta, closure=closure,
+                                                rtol=RTOL)
+            res = call()
+            d = res.diagnostics
+            scene = (SPECTRUM, E_STAR, P0, zeta, closure, None, d["shell_grading"])
+            if "shells_first_tried" in d or "grids_tightened" in d:
+                raise RuntimeError(f"{closure}, zeta {zeta}: the call restarted its first solve; not a bound's case")
+            main_shells = EXTRAPOLATION_SHELLS  # the first solve's shells
+            problem = _shell_problem(scene, main_shells)[0]
+            p_floor = float(d["p_floor"])
+            grid, levels = d["grid"], list(d["levels"])
+
+            def one_level(problem=problem, p_floor=p_floor, grid=grid, n=levels[0]):
+                with grid_family(grid):
+                    return dp.solve_problem(problem, backend="native", rtol=RTOL, p_floor=p_floor, n_cells=n)
+
+            def finest(problem=problem, p_floor=p_floor, grid=grid, n=levels[0]):
+                with grid_family(grid), plain_masses("finest"):
+                    return dp.solve_problem(problem, backend="native", rtol=RTOL, p_floor=p_floor, n_cells=n,
+                                            threads=1)
+
+            lvl = one_level()
+            if list(lvl.diagnostics["levels"]) != levels:
+                raise RuntimeError(f"one level on {lvl.diagnostics['levels']}, the call's last level {levels}")
+            t = alternating({"call": call, "level": one_level, "finest": finest, "ref": reference}, args.repeats)
+            kernel = []
+            for _ in range(args.repeats):
+                spent[0] = 0.0
+                finest()
+                kernel.append(spent[0])
+            t["kernel"] = statistics.median(kernel)
+            ms = {k: 1e3 * v for k, v in t.items()}
+            r = {k: v / ms["ref"] for k, v in ms.items()}
+            lines.append(f"| `{closure}` | {zeta:g} | {main_shells} | {'/'.join(map(str, levels))} | "
+                         f"{ms['call']:.2f} ({r['call']:.1f}) | {ms['level']:.2f} ({r['level']:.1f}) | "
+                         f"{ms['finest']:.2f} ({r['finest']:.1f}) | {ms['kernel']:.2f} ({r['kernel']:.1f}) | {ms['ref']:.2f} |")
+            print(lines[-1], flush=True)
+    OUT.parent.mkdir(exist_ok=True)
+    OUT.write_text("\n".join(lines) + "\n")
+    print(f"wrote {OUT}")
+
+
+if __name__ == "__main__":
+    main()
