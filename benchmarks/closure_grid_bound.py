@@ -6,6 +6,11 @@ script times, on the Fig. 1 scene (``SelfAffineSpectrum(0.3, 2 pi/1024, 2 pi/32,
 ``p0 = 0.004``, rtol 1e-6), for each balanced closure and wall:
 
 * **call**: the closure as a user calls it (``pressure_distribution``, two threads);
+* **hinted**: the call given the hints a sweep passes from its result (``n_start`` its ``cells_needed``,
+  ``wall_grading`` and ``wall_depth`` those it recommends): the first level's cells and grading known, not its remap;
+* **on its own grid**: the same call inside ``grid_family`` of its own result, with ``n_cells`` its last level's
+  coarsest grid: what a perfect prediction of the last level's grid family would cost (no first level; its shell
+  rungs then run after the main solve, not alongside its last level, which needs the engine's own family);
 * **one level**: the call's own main problem (its first solve's shells and grading, ``_shell_problem``) on the call's
   own last-level grids (``grid_family`` and ``n_cells``): the three grids ``N, 2N, 4N`` of one level, two threads,
   no first level, no shell rungs, no extrapolation in the shells. Not an answer to the continuum closure (its shell
@@ -81,13 +86,15 @@ def main(argv=None) -> None:
     lines = ["# Fewer grid integrations per call: a bound (`python benchmarks/closure_grid_bound.py`)", "",
              f"Fig. 1 scene, rtol {RTOL:g}. Medians of {args.repeats} warm calls, each kind timed alternately with the "
              f"competitor in the same process; in brackets the ratio to the competitor's median (the line: "
-             f"{line:.1f}). 'One level': the call's main problem on the call's last-level grids N/2N/4N, two threads, "
+             f"{line:.1f}). 'Hinted': the call given a sweep's hints from its own result (n_start, wall_grading, "
+             "wall_depth: no remap). 'On its own grid': the call given its own last level's grid family (grid_family, n_cells; "
+             "no first level). 'One level': the call's main problem on the call's last-level grids N/2N/4N, two threads, "
              "no first level and no shell rungs (not an answer to the continuum closure). 'Finest grid': its 4N grid "
              "alone, one thread, and the compiled stage kernel's share of that (the grid's integration without its problem, "
              "domain, edges and coefficient rows).", "",
-             "| closure | zeta | main shells | last level's grids | call [ms] | one level [ms] | finest grid [ms] | "
+             "| closure | zeta | main shells | last level's grids | call [ms] | hinted [ms], its last level | on its own grid [ms] | one level [ms] | finest grid [ms] | "
              "its kernel alone [ms] | competitor [ms] |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)
     for closure in CLOSURES:
         for zeta in args.zetas:
@@ -104,6 +111,24 @@ def main(argv=None) -> None:
             p_floor = float(d["p_floor"])
             grid, levels = d["grid"], list(d["levels"])
 
+            hints = dict(n_start=int(d["cells_needed"]), wall_grading=float(d["wall_grading_needed"]),
+                         wall_depth=float(d["wall_depth_needed"]))
+
+            def hinted(zeta=zeta, closure=closure, hints=hints):
+                return dp.pressure_distribution(SPECTRUM, E_star=E_STAR, mean_pressure=P0, zeta=zeta, closure=closure,
+                                                rtol=RTOL, **hints)
+
+            hinted_levels = "/".join(map(str, hinted().diagnostics["levels"]))
+
+            def known(zeta=zeta, closure=closure, grid=grid, n=levels[0]):
+                with grid_family(grid):
+                    return dp.pressure_distribution(SPECTRUM, E_star=E_STAR, mean_pressure=P0, zeta=zeta,
+                                                    closure=closure, rtol=RTOL, n_cells=n)
+
+            on_grid = known()
+            if not on_grid.success or list(on_grid.diagnostics["levels"]) != levels:
+                raise RuntimeError(f"{closure}, zeta {zeta}: the call on its own grid did not repeat it")
+
             def one_level(problem=problem, p_floor=p_floor, grid=grid, n=levels[0]):
                 with grid_family(grid):
                     return dp.solve_problem(problem, backend="native", rtol=RTOL, p_floor=p_floor, n_cells=n)
@@ -116,7 +141,7 @@ def main(argv=None) -> None:
             lvl = one_level()
             if list(lvl.diagnostics["levels"]) != levels:
                 raise RuntimeError(f"one level on {lvl.diagnostics['levels']}, the call's last level {levels}")
-            t = alternating({"call": call, "level": one_level, "finest": finest, "ref": reference}, args.repeats)
+            t = alternating({"call": call, "hinted": hinted, "known": known, "level": one_level, "finest": finest, "ref": reference}, args.repeats)
             kernel = []
             for _ in range(args.repeats):
                 spent[0] = 0.0
@@ -126,7 +151,8 @@ def main(argv=None) -> None:
             ms = {k: 1e3 * v for k, v in t.items()}
             r = {k: v / ms["ref"] for k, v in ms.items()}
             lines.append(f"| `{closure}` | {zeta:g} | {main_shells} | {'/'.join(map(str, levels))} | "
-                         f"{ms['call']:.2f} ({r['call']:.1f}) | {ms['level']:.2f} ({r['level']:.1f}) | "
+                         f"{ms['call']:.2f} ({r['call']:.1f}) | {ms['hinted']:.2f} ({r['hinted']:.1f}), {hinted_levels} | "
+                         f"{ms['known']:.2f} ({r['known']:.1f}) | {ms['level']:.2f} ({r['level']:.1f}) | "
                          f"{ms['finest']:.2f} ({r['finest']:.1f}) | {ms['kernel']:.2f} ({r['kernel']:.1f}) | {ms['ref']:.2f} |")
             print(lines[-1], flush=True)
     OUT.parent.mkdir(exist_ok=True)
