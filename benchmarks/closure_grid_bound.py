@@ -37,6 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import diffusion_pr as dp  # noqa: E402
 from bench_fokker_planck import SPECTRUM  # noqa: E402
 from closures_vs_competitor import COMPETITOR_MS, TARGET_MS, competitor_reference  # noqa: E402
+from fp_competitor import interleaved  # noqa: E402
 from diffusion_pr.closures import EXTRAPOLATION_SHELLS, _shell_problem  # noqa: E402
 from diffusion_pr.solvers.fv import engine  # noqa: E402
 from diffusion_pr.solvers.fv.engine import grid_family, plain_masses  # noqa: E402
@@ -62,19 +63,6 @@ def kernel_clock() -> list:
     return spent
 
 
-def alternating(fns: dict, repeats: int) -> dict:
-    """Median wall time [s] of each callable in ``fns``, called in turn ``repeats`` times after one warm-up each."""
-    for fn in fns.values():
-        fn()
-    times: dict = {k: [] for k in fns}
-    for _ in range(repeats):
-        for k, fn in fns.items():
-            t0 = time.perf_counter()
-            fn()
-            times[k].append(time.perf_counter() - t0)
-    return {k: statistics.median(v) for k, v in times.items()}
-
-
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--zetas", type=float, nargs="+", default=[0.25, 0.1, 0.01, 0.001])
@@ -84,16 +72,16 @@ def main(argv=None) -> None:
     reference = competitor_reference()
     spent = kernel_clock()
     lines = ["# Fewer grid integrations per call: a bound (`python benchmarks/closure_grid_bound.py`)", "",
-             f"Fig. 1 scene, rtol {RTOL:g}. Medians of {args.repeats} warm calls, each kind timed alternately with the "
-             f"competitor in the same process; in brackets the ratio to the competitor's median (the line: "
+             f"Fig. 1 scene, rtol {RTOL:g}. Medians of {args.repeats} warm calls, each kind timed alternately with "
+             "the competitor in the same process; in brackets the ratio to the competitor's median (the line: "
              f"{line:.1f}). 'Hinted': the call given a sweep's hints from its own result (n_start, wall_grading, "
-             "wall_depth: no remap). 'On its own grid': the call given its own last level's grid family (grid_family, n_cells; "
-             "no first level). 'One level': the call's main problem on the call's last-level grids N/2N/4N, two threads, "
-             "no first level and no shell rungs (not an answer to the continuum closure). 'Finest grid': its 4N grid "
-             "alone, one thread, and the compiled stage kernel's share of that (the grid's integration without its problem, "
-             "domain, edges and coefficient rows).", "",
-             "| closure | zeta | main shells | last level's grids | call [ms] | hinted [ms], its last level | on its own grid [ms] | one level [ms] | finest grid [ms] | "
-             "its kernel alone [ms] | competitor [ms] |",
+             "wall_depth: no remap). 'On its own grid': the call given its own last level's grid family "
+             "(grid_family, n_cells; no first level). 'One level': the call's main problem on the call's last-level "
+             "grids N/2N/4N, two threads, no first level and no shell rungs (not an answer to the continuum "
+             "closure). 'Finest grid': its 4N grid alone, one thread, and the compiled stage kernel's share of that "
+             "(the grid's integration without its problem, domain, edges and coefficient rows).", "",
+             "| closure | zeta | main shells | last level's grids | call [ms] | hinted [ms], its last level | "
+             "on its own grid [ms] | one level [ms] | finest grid [ms] | its kernel alone [ms] | competitor [ms] |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)
     for closure in CLOSURES:
@@ -141,7 +129,8 @@ def main(argv=None) -> None:
             lvl = one_level()
             if list(lvl.diagnostics["levels"]) != levels:
                 raise RuntimeError(f"one level on {lvl.diagnostics['levels']}, the call's last level {levels}")
-            t = alternating({"call": call, "hinted": hinted, "known": known, "level": one_level, "finest": finest, "ref": reference}, args.repeats)
+            t = interleaved({"call": call, "hinted": hinted, "known": known, "level": one_level, "finest": finest,
+                             "ref": reference}, args.repeats)
             kernel = []
             for _ in range(args.repeats):
                 spent[0] = 0.0
@@ -150,10 +139,10 @@ def main(argv=None) -> None:
             t["kernel"] = statistics.median(kernel)
             ms = {k: 1e3 * v for k, v in t.items()}
             r = {k: v / ms["ref"] for k, v in ms.items()}
+            cells = [f"{ms[k]:.2f} ({r[k]:.1f})" for k in ("call", "hinted", "known", "level", "finest", "kernel")]
+            cells[1] += f", {hinted_levels}"
             lines.append(f"| `{closure}` | {zeta:g} | {main_shells} | {'/'.join(map(str, levels))} | "
-                         f"{ms['call']:.2f} ({r['call']:.1f}) | {ms['hinted']:.2f} ({r['hinted']:.1f}), {hinted_levels} | "
-                         f"{ms['known']:.2f} ({r['known']:.1f}) | {ms['level']:.2f} ({r['level']:.1f}) | "
-                         f"{ms['finest']:.2f} ({r['finest']:.1f}) | {ms['kernel']:.2f} ({r['kernel']:.1f}) | {ms['ref']:.2f} |")
+                         + " | ".join(cells) + f" | {ms['ref']:.2f} |")
             print(lines[-1], flush=True)
     OUT.parent.mkdir(exist_ok=True)
     OUT.write_text("\n".join(lines) + "\n")

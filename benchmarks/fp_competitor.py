@@ -221,7 +221,7 @@ def cases():
     return out
 
 
-def _interleaved(runs: dict, repeats: int) -> dict:
+def interleaved(runs: dict, repeats: int) -> dict:
     """Medians of ``repeats`` warm calls of each run, interleaved so that all see the machine in the same state."""
     for run in runs.values():
         run()
@@ -253,7 +253,7 @@ def main() -> None:
                 "adaptive": lambda: adaptive(1e-6, f, p0, V, **opts)}
         if pick is not None:
             runs["oracle"] = lambda: competitor(pick[0], f, p0, V, **opts)
-        t = _interleaved(runs, args.repeats)
+        t = interleaved(runs, args.repeats)
         t_o = t.get("oracle", float("nan"))
         n_o, e_o = pick if pick is not None else (0, float("nan"))
         rows.append((name, e_nat, r_nat.error_estimate, int(r_nat.p.size), t["native"], err_a, est_a,
