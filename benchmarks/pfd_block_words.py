@@ -1,13 +1,13 @@
 """The partial-fraction kernel's block of poles against the grid's size: where splitting the block pays.
 
 :func:`diffusion_pr.solvers.fv._kernels.cram_pfd` eliminates a block of poles together, row by row, in vector
-lanes; while the block's arrays exceed ``_PFD_BLOCK_WORDS`` pole-row-arrays it is halved (``_block_size``). The
+lanes; while the block's arrays exceed ``_PFD_BLOCK_WORDS`` lane-row-arrays it is halved (``_block_size``). The
 constant is compiled into the kernels, so each value is measured in a fresh process on a copy of the package with
 that value (its own numba cache, the machine-code store off). Per value, order (CF-10, CF-12, CRAM-16) and cells:
 the median time of one application [ns per cell and pole], plain and with the balance derivative (``want_d``), on
 a diffusion matrix with balance bands. Writes ``results/pfd_block_words.md``.
 
-    python benchmarks/pfd_block_words.py [--words 80000 300000 100000000] [--cells 1264 2528 5056 10112]
+    python benchmarks/pfd_block_words.py [--words 80000 250000 100000000] [--cells 1264 2528 5056 10112 20224]
 """
 from __future__ import annotations
 
@@ -74,7 +74,7 @@ def measure(words: int, cells: list) -> dict:
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--words", type=int, nargs="+", default=[80000, 300000, 100_000_000])
+    ap.add_argument("--words", type=int, nargs="+", default=[80000, 250000, 100_000_000])
     ap.add_argument("--cells", type=int, nargs="+", default=[1264, 2528, 5056, 10112, 20224])
     args = ap.parse_args(argv)
     tables = [measure(w, args.cells) for w in args.words]
