@@ -16,8 +16,8 @@ script times, on the Fig. 1 scene (``SelfAffineSpectrum(0.3, 2 pi/1024, 2 pi/32,
   no first level, no shell rungs, no extrapolation in the shells. Not an answer to the continuum closure (its shell
   error is 1e-4-1e-3): the least any call on these grids could cost while keeping Richardson's estimate;
 * **finest grid**: that problem's ``4N`` grid alone (``plain_masses("finest")``), one thread, and the compiled stage
-  kernel's share of it (``engine._Kernels.run_rows`` wrapped): the least any call
-  whose answer is extrapolated from that grid could cost, on any number of threads.
+  kernel's share of it (``closure_timeline.py``'s wrappers of the engine, a few microseconds per call, on every
+  kind timed): the least any call whose answer is extrapolated from that grid could cost, on any number of threads.
 
 Each is a median of ``--repeats`` warm calls, the competitor (``fp_competitor.py`` on the Fig. 1 scene at
 ``zeta = 0.25``, rtol 1e-6) timed alternately in the same process; the ratios are to its median, against the line
@@ -28,18 +28,18 @@ Each is a median of ``--repeats`` warm calls, the competitor (``fp_competitor.py
 from __future__ import annotations
 
 import argparse
+import functools
 import statistics
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import diffusion_pr as dp  # noqa: E402
 from bench_fokker_planck import SPECTRUM  # noqa: E402
+from closure_timeline import _instrument  # noqa: E402
 from closures_vs_competitor import COMPETITOR_MS, TARGET_MS, competitor_reference  # noqa: E402
 from fp_competitor import interleaved  # noqa: E402
 from diffusion_pr.closures import EXTRAPOLATION_SHELLS, _shell_problem  # noqa: E402
-from diffusion_pr.solvers.fv import engine  # noqa: E402
 from diffusion_pr.solvers.fv.engine import grid_family, plain_masses  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "results" / "closure_grid_bound.md"
@@ -47,20 +47,10 @@ E_STAR, P0, RTOL = 8.0 / 3.0, 0.004, 1e-6
 CLOSURES = ("local_g1_balanced", "local_g1_shell_balanced")
 
 
-def kernel_clock() -> list:
-    """Wrap the compiled stage kernel (``engine._Kernels.run_rows``) so that each call adds its wall time [s] to the
-    returned one-element list (a few microseconds per call)."""
-    spent = [0.0]
-    original = engine._Kernels.run_rows
-
-    def timed(*args, **kwargs):
-        t0 = time.perf_counter()
-        try:
-            return original(*args, **kwargs)
-        finally:
-            spent[0] += time.perf_counter() - t0
-    engine._Kernels.run_rows = timed
-    return spent
+def closure_call(zeta: float, closure: str, **options):
+    """The closure on the Fig. 1 scene at ``zeta``, rtol :data:`RTOL`, with the backend's ``options``."""
+    return dp.pressure_distribution(SPECTRUM, E_star=E_STAR, mean_pressure=P0, zeta=zeta, closure=closure, rtol=RTOL,
+                                    **options)
 
 
 def main(argv=None) -> None:
@@ -70,7 +60,8 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     line = TARGET_MS / COMPETITOR_MS
     reference = competitor_reference()
-    spent = kernel_clock()
+    events: list = []  # (main thread?, start, end, label) of the engine's kernels, grids and prepare
+    _instrument(events)
     lines = ["# Fewer grid integrations per call: a bound (`python benchmarks/closure_grid_bound.py`)", "",
              f"Fig. 1 scene, rtol {RTOL:g}. Medians of {args.repeats} warm calls, each kind timed alternately with "
              "the competitor in the same process; in brackets the ratio to the competitor's median (the line: "
@@ -86,9 +77,7 @@ def main(argv=None) -> None:
     print("\n".join(lines), flush=True)
     for closure in CLOSURES:
         for zeta in args.zetas:
-            def call(zeta=zeta, closure=closure):
-                return dp.pressure_distribution(SPECTRUM, E_star=E_STAR, mean_pressure=P0, zeta=zeta, closure=closure,
-                                                rtol=RTOL)
+            call = functools.partial(closure_call, zeta, closure)
             res = call()
             d = res.diagnostics
             scene = (SPECTRUM, E_STAR, P0, zeta, closure, None, d["shell_grading"])
@@ -102,16 +91,13 @@ def main(argv=None) -> None:
             hints = dict(n_start=int(d["cells_needed"]), wall_grading=float(d["wall_grading_needed"]),
                          wall_depth=float(d["wall_depth_needed"]))
 
-            def hinted(zeta=zeta, closure=closure, hints=hints):
-                return dp.pressure_distribution(SPECTRUM, E_star=E_STAR, mean_pressure=P0, zeta=zeta, closure=closure,
-                                                rtol=RTOL, **hints)
+            hinted = functools.partial(closure_call, zeta, closure, **hints)
 
             hinted_levels = "/".join(map(str, hinted().diagnostics["levels"]))
 
             def known(zeta=zeta, closure=closure, grid=grid, n=levels[0]):
                 with grid_family(grid):
-                    return dp.pressure_distribution(SPECTRUM, E_star=E_STAR, mean_pressure=P0, zeta=zeta,
-                                                    closure=closure, rtol=RTOL, n_cells=n)
+                    return closure_call(zeta, closure, n_cells=n)
 
             on_grid = known()
             if not on_grid.success or list(on_grid.diagnostics["levels"]) != levels:
@@ -133,9 +119,9 @@ def main(argv=None) -> None:
                              "ref": reference}, args.repeats)
             kernel = []
             for _ in range(args.repeats):
-                spent[0] = 0.0
+                events.clear()
                 finest()
-                kernel.append(spent[0])
+                kernel.append(sum(end - start for _, start, end, label in events if label == "kernel"))
             t["kernel"] = statistics.median(kernel)
             ms = {k: 1e3 * v for k, v in t.items()}
             r = {k: v / ms["ref"] for k, v in ms.items()}
