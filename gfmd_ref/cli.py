@@ -22,7 +22,7 @@ from .histogram import pressure_histogram
 from .interactions import ExponentialRepulsion, HardWall
 from ._validation import check_int, check_writable_dir
 from .scene import FIG1, fig1_surface, zeta_on_grid
-from .solver import ConvergenceWarning, solve_contact
+from .solvers import ConvergenceWarning, solve_contact
 
 __all__ = ["main", "run_default_scene", "add_run_arguments", "run_from_args"]
 
@@ -271,7 +271,7 @@ def main(argv=None) -> int:
     if args.command == "ensemble":
         return ensemble_from_args(args, argv)
     if args.command == "ensemble-summary":
-        from .ensemble_store import load_ensemble
+        from .ensemble import load_ensemble
 
         try:
             print(load_ensemble(args.store).summary())
@@ -291,8 +291,8 @@ def main(argv=None) -> int:
             return 2
         return 0 if run.success else 1
     if args.command == "ensemble-bundle":
-        from .ensemble import parse_seeds
-        from .ensemble_data import write_bundle
+        from .ensemble.data import write_bundle
+        from .ensemble.run import parse_seeds
 
         command = "gfmd-ref " + " ".join(sys.argv[1:] if argv is None else argv)
         try:

@@ -202,7 +202,7 @@ def _mean_spectrum(group):
 
 
 def _ensemble_compare(name, zeta, closure, *, paper_pc=False, n_cells=800):
-    from gfmd_ref.ensemble_data import bundled_ensemble
+    from gfmd_ref import bundled_ensemble
 
     from diffusion_pr.closures import closure_distribution
     from diffusion_pr.fig1 import paper_cutoff_pressure

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from gfmd_ref import ExponentialRepulsion, HardWall, fig1_surface, load_ensemble, run_ensemble, solve_contact
-from gfmd_ref.ensemble import build_cases, case_surface
-from gfmd_ref.ensemble_store import STORE_LEVELS, case_key, reduce_pressure_field, store_keys
+from gfmd_ref.ensemble.run import build_cases, case_surface
+from gfmd_ref.ensemble.store import STORE_LEVELS, case_key, reduce_pressure_field, store_keys
 
 ROOT = Path(__file__).resolve().parents[2]
 N = 128
@@ -26,7 +26,7 @@ WALLS = "hard,0.25"
 
 @pytest.fixture(scope="module")
 def cluster():
-    from gfmd_ref.ensemble import _local_cluster
+    from gfmd_ref.ensemble.run import _local_cluster
 
     client, cl, _ = _local_cluster(2, 1)
     yield client
@@ -249,7 +249,7 @@ def test_cli_starts_and_closes_its_own_local_cluster(tmp_path, capsys):
 def test_bundle_is_the_store_subsampled(tmp_path):
     """write_bundle keeps every other store level (i/1024) as float32 and the
     float64 scalars and spectra exactly; a bundle refuses duplicate cases."""
-    from gfmd_ref.ensemble_data import BUNDLE_LEVELS, _load_bundle, write_bundle
+    from gfmd_ref.ensemble.data import BUNDLE_LEVELS, _load_bundle, write_bundle
 
     run_ensemble(tmp_path / "s", n=64, seeds="1-2", walls="hard,0.5", serial=True, progress=False, verbose=False)
     path, size = write_bundle(tmp_path / "s", tmp_path / "b.npz", name="test", command="pytest")

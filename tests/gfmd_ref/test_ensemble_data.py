@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from gfmd_ref import bundled_ensemble
-from gfmd_ref.ensemble_data import BUNDLE_LEVELS
-from gfmd_ref.ensemble_stats import noise_floor
+from gfmd_ref.ensemble.data import BUNDLE_LEVELS
+from gfmd_ref.ensemble.stats import noise_floor
 
 FIG1_WALLS = [None, 0.001, 0.01, 0.1, 0.25, 0.5, 1.0, 2.0, 4.0]
 MIN_SEEDS = 32

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gfmd_ref.ensemble_stats import (
+from gfmd_ref.ensemble.stats import (
     bootstrap_cdf_band,
     bootstrap_density_band,
     cdf_grid,
@@ -14,7 +14,7 @@ from gfmd_ref.ensemble_stats import (
     noise_floor,
     pooled_cdf,
 )
-from gfmd_ref.ensemble_store import Ensemble, EnsembleRecord, case_key, reduce_pressure_field
+from gfmd_ref.ensemble.store import Ensemble, EnsembleRecord, case_key, reduce_pressure_field
 
 P0 = 0.004
 M = 4096  # values per synthetic seed

@@ -1,18 +1,18 @@
-"""Real-space Numba kernels (module level, ``cache=True``, no fastmath).
+"""Real-space Numba kernels of the contact solvers (module level, ``cache=True``, no fastmath).
 
-Compiled with numba's numpy error model: a division by zero gives IEEE inf/NaN instead
-of a ZeroDivisionError branch on every division, which kept loops such as the
-exponents' ``-(u - h)/zeta`` from vectorizing (the same values otherwise).
+Compiled with numba's numpy error model: a division by zero gives IEEE inf/NaN instead of
+a ZeroDivisionError branch on every division (which kept loops such as the exponents'
+``-(u - h)/zeta`` from vectorizing).
 
-Grid arrays are C-contiguous float64 ``(n, n)``; the kernels loop over the flat view.
-The hard wall's contact-set fields are packed: ``pc[k]``, ``tc[k]``, ``gcon[k]`` belong to the
-node ``idx[k]`` (``idx`` sorted), so a pass over the set reads them in order instead of
+Grid arrays are C-contiguous ``(n, n)``; the kernels loop over the flat view. The hard
+wall's contact-set fields are packed: ``pc[k]``, ``tc[k]``, ``gcon[k]`` belong to the node
+``idx[k]`` (``idx`` sorted), so a pass over the set reads them in order instead of
 gathering from full grids that no longer fit in the cache.
 
-Overflow guard: every exponential ``exp(x)`` of the exponential wall is evaluated
-with ``x`` clamped to ``[EXP_MIN, EXP_MAX] = [-745, 700]``. ``exp(700) = 1.0e304``
-stays finite (and so do sums of up to ~1e4 such values); ``exp(-745)`` underflows to
-the smallest subnormal / zero, which is the physically right answer (no contact).
+Overflow guard: every exponential ``exp(x)`` of the exponential wall is evaluated with
+``x`` clamped to ``[EXP_MIN, EXP_MAX] = [-745, 700]``. ``exp(700) = 1.0e304`` stays finite
+(and so do sums of up to ~1e4 such values); ``exp(-745)`` underflows to the smallest
+subnormal / zero, which is the physically right answer (no contact).
 """
 from __future__ import annotations
 
@@ -34,98 +34,12 @@ def _clamp_exp(x):
     return math.exp(x)
 
 
-@njit(cache=True, error_model="numpy")
-def spectral_multiply(spec, mult, n_last):
-    """``spec *= mult`` for the half spectrum of a real ``(n0, n_last)`` field ``x`` and
-    a real multiplier; returns ``sum_k w_k mult_k |X_k|^2`` (``w_k`` = 1 on the columns
-    that are their own mirror, 2 elsewhere), which by Parseval is ``sum_i x_i y_i`` for
-    ``y = irfft2(mult X) n0 n_last`` (the field the backward transform makes), the dot
-    product a conjugate-gradient step needs, computed here for free.
-    numpy's mixed-type in-place multiply casts through a buffer (0.8-1.6 ms against
-    0.4-0.6 ms here at 1024^2); two accumulators per row halve the add-latency chain.
-    The product is written out in real arithmetic, ``(Re x m, Im x m)`` (numpy's values
-    bit for bit): numba's complex-by-real product widens ``m`` to a complex number and
-    took 0.53 ms against 0.38 ms at 1024^2 (hot cache)."""
-    n0, nh = spec.shape
-    last = nh - 1 if n_last % 2 == 0 else nh  # the Nyquist column has weight 1
-    s = 0.0
-    for i in range(n0):
-        x = spec[i, 0]
-        m = mult[i, 0]
-        xr = x.real
-        xi = x.imag
-        e = m * (xr * xr + xi * xi)
-        spec[i, 0] = complex(xr * m, xi * m)
-        a0 = 0.0
-        a1 = 0.0
-        j = 1
-        while j + 1 < last:
-            x = spec[i, j]
-            m = mult[i, j]
-            xr = x.real
-            xi = x.imag
-            a0 += m * (xr * xr + xi * xi)
-            spec[i, j] = complex(xr * m, xi * m)
-            x = spec[i, j + 1]
-            m = mult[i, j + 1]
-            xr = x.real
-            xi = x.imag
-            a1 += m * (xr * xr + xi * xi)
-            spec[i, j + 1] = complex(xr * m, xi * m)
-            j += 2
-        if j < last:
-            x = spec[i, j]
-            m = mult[i, j]
-            xr = x.real
-            xi = x.imag
-            a0 += m * (xr * xr + xi * xi)
-            spec[i, j] = complex(xr * m, xi * m)
-        for j in range(last, nh):
-            x = spec[i, j]
-            m = mult[i, j]
-            xr = x.real
-            xi = x.imag
-            e += m * (xr * xr + xi * xi)
-            spec[i, j] = complex(xr * m, xi * m)
-        s += e + 2.0 * (a0 + a1)
-    return s
-
-
-@njit(cache=True, error_model="numpy")
-def spectral_scale(spec, mult):
-    """``spec *= mult`` (a real multiplier on a half spectrum) without the dot product of
-    :func:`spectral_multiply`, for the transforms whose dot is not used (the exact
-    ``u = G p``, the single-precision preconditioner): a loop the compiler vectorizes,
-    0.09-0.16 ms against 0.38 ms with the dot at 1024^2 (hot cache); numpy's values bit
-    for bit."""
-    sf = spec.ravel()
-    mf = mult.ravel()
-    for k in range(sf.size):
-        x = sf[k]
-        m = mf[k]
-        sf[k] = complex(x.real * m, x.imag * m)
-
-
 # --------------------------------------------------------------------------- hard wall, CCG
 #
-# Memory traffic bounds these kernels (about 10-25 GB/s on the development machine, a
-# full pass over one 1024^2 array costs 0.3-0.9 ms), so an iteration makes one full pass
-# (the gap, :func:`pk_gap`) and otherwise touches only the contact set through its index
-# list ``idx[:nc]`` (10 % of the nodes on the Fig. 1 surface): the pressures ``p`` and
-# the direction ``t`` are zero off the set and are FFT'd where they lie (preserved-input
-# plans), the overlaps are collected by the gap pass, and the two dot products that
-# Parseval gives (``g.Kg`` and ``t.Gt``) are taken in the spectral multiply. The
-# contact set is also kept as a one-byte mask ``c`` (``c = p > 0``).
-
-
-@njit(cache=True, error_model="numpy")
-def gather_sum(x, idx, nc):
-    """``sum_k x[idx[k]]``, ``k < nc``: the sum of ``x`` over the contact set."""
-    xf = x.ravel()
-    s = 0.0
-    for k in range(nc):
-        s += xf[idx[k]]
-    return s
+# Memory traffic bounds these kernels, so an iteration makes one full pass (the gap,
+# :func:`pk_gap`) and otherwise touches only the contact set through its index list
+# ``idx[:nc]`` (10 % of the nodes on the Fig. 1 surface). The contact set is also kept as
+# a one-byte mask ``c`` (``c = p > 0``).
 
 
 @njit(cache=True, error_model="numpy")
@@ -164,15 +78,13 @@ def pk_gap(u, h, pc, c, idx, nc, masked, want_masked, gcon, ol, olg, gv, a, scal
     order), from a pass over the set; then one full pass writes, with ``want_masked``,
     ``masked = g`` on the set and 0 elsewhere (the input of the preconditioner's FFT) and
     collects the overlaps (``g < 0`` off the set) in ``ol[:n_overlap]`` (indices) and
-    ``olg`` (their gaps). The full pass does no compaction of the set's values (measured
-    0.7-0.9x the single pass that did, 1024², the same bits).
+    ``olg`` (their gaps).
 
     With ``fold`` both passes first bring ``u`` up to date: ``u = scale (u + a gv)``, the
     last step's increment (``gv = G dv``, float32, :func:`pk_step`'s ``dv`` transformed in
     place, ``a = 1``; or the step length's ``r`` with ``a = -tau``), and the full pass
     zeroes ``gv`` for the next step's ``dv``; the gap is that of the new ``u``, the same
-    bits as a separate pass over ``u`` before it (:func:`apply_increment`, which this fold
-    saves: one read and write of ``u`` per step).
+    bits as a separate pass over ``u`` before it.
     Returns ``(sum_c g, sum_c g^2, max_c |p g|, max(-g) off the set, n_overlap,
     max |gv|)`` (the last 0 without ``fold``)."""
     uf = u.ravel()
@@ -310,39 +222,14 @@ def pk_step(pc, c, tc, idx, nc, ol, olg, n_overlap, tau, idx_new, pc_new, tc_new
 
 
 @njit(cache=True, error_model="numpy")
-def apply_increment(u, gv, a, scale):
-    """``u = scale (u + a gv)`` (``gv`` float32: ``G dv``, or the step length's ``r`` with
-    ``a = -tau``) and ``gv`` zeroed, one full pass: :func:`pk_gap`'s ``fold`` as a pass of
-    its own. Returns ``max |gv|``."""
-    uf = u.ravel()
-    gf = gv.ravel()
-    big = 0.0
-    for i in range(uf.size):
-        x = float(gf[i])
-        uf[i] = scale * (uf[i] + a * x)
-        gf[i] = 0.0
-        ax = abs(x)
-        if ax > big:
-            big = ax
-    return big
-
-
-@njit(cache=True, error_model="numpy")
-def pk_rescale(pc, nc, scale, u, r, tau, exact):
-    """``p *= scale`` on the contact set (packed ``pc[:nc]``: the load back at ``p0``);
-    unless ``exact`` (an exact ``u = G p`` follows) also the incremental
-    ``u = scale (u - tau r)`` (``r = G t``; exact unless the step projected or fixed
-    overlaps), a full pass. Returns ``sum p`` after the scaling."""
+def pk_rescale(pc, nc, scale):
+    """``p *= scale`` on the contact set (packed ``pc[:nc]``: the load back at ``p0``).
+    Returns ``sum p`` after the scaling."""
     s = 0.0
     for k in range(nc):
         v = pc[k] * scale
         pc[k] = v
         s += v
-    if not exact:
-        uf = u.ravel()
-        rf = r.ravel()
-        for i in range(uf.size):
-            uf[i] = scale * (uf[i] - tau * rf[i])
     return s
 
 
@@ -393,14 +280,13 @@ EXP_ZERO = -746.0
 def exp_exponents(u, h, zeta, e, keep):
     """``e = x - m`` with the wall's exponents ``x = -(u - h)/zeta`` and their largest
     ``m`` (returned): the first half of :func:`exp_log_mean`, whose exponentials
-    ``exp(e)`` numpy then takes in place (vectorized: 0.9 ms against 4.6 ms per 1024^2
-    for a compiled loop of ``math.exp``), see :func:`gfmd_ref.solver._z0_residual`.
+    ``exp(e)`` numpy then takes in place (vectorized), see
+    :func:`gfmd_ref.solvers.newton.z0_residual`.
     Where ``e`` is below :data:`EXP_ZERO` its exponential is ``+0`` (IEEE rounding):
     there ``e`` is written as that ``0.0`` and ``keep`` is False, so that numpy
     exponentiates only where ``keep`` (``where=keep``), with the same bits. The C
-    library's ``exp`` takes a slow underflow path for such arguments (``-inf``
-    included): at ``zeta = 0.001``, where most nodes are far from the wall, a 1024^2
-    wall's exponentials took 14-18 ms, and 5 ms with the mask."""
+    library's ``exp`` takes a slow underflow path for such arguments (``-inf`` included),
+    which dominates at small ``zeta`` where most nodes are far from the wall."""
     uf = u.ravel()
     hf = h.ravel()
     ef = e.ravel()

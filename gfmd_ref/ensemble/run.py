@@ -2,14 +2,15 @@
 
 Each case is one :func:`~gfmd_ref.solve_contact` on a self-affine surface
 (default: the paper's Fig. 1 surface, :func:`~gfmd_ref.fig1_surface`), reduced by
-:func:`~gfmd_ref.ensemble_store.reduce_pressure_field` and written as one record
-of an :mod:`~gfmd_ref.ensemble_store` directory by the worker that solved it.
+:func:`~gfmd_ref.ensemble.store.reduce_pressure_field` and written as one record
+of an :mod:`~gfmd_ref.ensemble.store` directory by the worker that solved it.
 
 Scheduling: :func:`run_ensemble` uses ``dask.distributed``: an existing cluster
 (``client=`` or ``scheduler="tcp://..."``), else a local cluster of worker
 processes (default: one single-threaded worker per core with one FFT thread
-each, chosen by measurement, see ``docs/ensembles.md``), or no cluster at all
-(``serial=True``: the same case function in this process). Cases are submitted
+each, see ``docs/ensembles.md``), or no cluster at all (``serial=True``: the same
+case function in this process). Dask is an optional dependency: ``pip install
+"diffusion-pr[ensemble]"`` (a serial run does without it). Cases are submitted
 seeds outer, walls inner, so the mix of cheap and costly walls is the same all
 along the run and the progress bar's mean rate gives an honest ETA.
 
@@ -32,7 +33,7 @@ from typing import Optional
 
 import numpy as np
 
-from .ensemble_store import (
+from .store import (
     Ensemble,
     _parse_wall,
     case_key,
@@ -113,7 +114,7 @@ FIG1_MEAN_PRESSURE = 0.004
 
 def case_surface(params: dict) -> np.ndarray:
     """Heights of a case (deterministic in its parameters)."""
-    from .surface import self_affine_surface
+    from ..surface import self_affine_surface
 
     s = params["surface"]
     n, length = int(params["n"]), float(params["length"])
@@ -284,11 +285,13 @@ def build_cases(*, n=1024, seeds=(1,), walls=("hard",), mean_pressures=None, sur
 # ----------------------------------------------------------------------------- one case
 
 
-def solve_case(params: dict, store: str, provenance: Optional[dict] = None) -> dict:
-    """Solve, reduce and store one case (runs on a worker). Returns a small summary."""
-    from .interactions import ExponentialRepulsion, HardWall
-    from .solver import ConvergenceWarning, solve_contact
+def solve_case(params: dict, store: str, provenance: Optional[dict] = None, threads: int = 1) -> dict:
+    """Solve, reduce and store one case with ``threads`` FFT threads (runs on a worker).
+    Returns a small summary."""
     import warnings
+
+    from ..interactions import ExponentialRepulsion, HardWall
+    from ..solvers import ConvergenceWarning, solve_contact
 
     h = case_surface(params)
     inter = HardWall() if params["zeta"] is None else ExponentialRepulsion(params["zeta"])
@@ -297,15 +300,13 @@ def solve_case(params: dict, store: str, provenance: Optional[dict] = None) -> d
         warnings.simplefilter("ignore", ConvergenceWarning)  # recorded in the record instead
         res = solve_contact(h, length=params["length"], E_star=params["E_star"],
                             mean_pressure=params["mean_pressure"], interaction=inter, tol=params["tol"],
-                            method=params["method"], max_iter=params.get("max_iter"))
+                            method=params["method"], max_iter=params.get("max_iter"), threads=threads)
     wall = time.perf_counter() - t0
     red = reduce_pressure_field(res.pressure, mean_pressure=params["mean_pressure"], zeta=params["zeta"])
-    from ._fft import fft_threads
-
     prov = dict(provenance or {})
     prov.update(source="live", converged=bool(res.converged), residual=float(res.residual),
                 iterations=int(res.iterations), wall_time=wall, method=res.method, message=res.message,
-                fft=res.info.get("fft"), fft_threads=fft_threads(), fft_planning_time=res.info.get("fft_planning_time"),
+                fft=res.info.get("fft"), fft_threads=threads,
                 host=host(), pid=os.getpid(), created=now_iso())
     prov.setdefault("code", code_version())
     path = write_record(store, params, prov, red, shell_spectrum(h, params["length"]))
@@ -344,17 +345,24 @@ class EnsembleRun:
         return load_ensemble(self.store)
 
 
-#: measured default (docs/ensembles.md): one worker process per core, one thread and one FFT thread each.
+#: default (docs/ensembles.md): one worker process per core, one thread and one FFT thread each.
 DEFAULT_THREADS_PER_WORKER = 1
 
 
-def _local_cluster(workers: Optional[int], threads: Optional[int]):
+def _require_dask():
+    try:
+        import dask.distributed  # noqa: F401
+    except ImportError as exc:
+        raise ImportError('run_ensemble on a cluster needs Dask: pip install "diffusion-pr[ensemble]" '
+                          "(or pass serial=True)") from exc
+
+
+def _local_cluster(workers: Optional[int], threads: int):
     from dask.distributed import Client, LocalCluster
 
     ncpu = os.cpu_count() or 1
-    threads = DEFAULT_THREADS_PER_WORKER if threads is None else int(threads)
     workers = max(1, ncpu // threads) if workers is None else int(workers)
-    # Only the FFT threads are pinned. Dask's nanny sets OMP/MKL/OPENBLAS_NUM_THREADS=1 before it
+    # Dask's nanny sets OMP/MKL/OPENBLAS_NUM_THREADS=1 before it
     # spawns a worker; BLAS threading changes the round-off of np.vdot in the Newton solver
     # (measured: 5e-16 relative in the quantiles), so the workers are spawned with this process's
     # BLAS setting and a case gives bit-identical records on a worker and in this process.
@@ -363,7 +371,6 @@ def _local_cluster(workers: Optional[int], threads: Optional[int]):
     pre = dict(dask.config.get("distributed.nanny.pre-spawn-environ", default={}) or {})
     for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         pre[k] = os.environ.get(k, str(ncpu))
-    pre["GFMD_REF_FFT_THREADS"] = str(threads)
     with dask.config.set({"distributed.nanny.pre-spawn-environ": pre}):
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                                silence_logs=40)
@@ -433,6 +440,9 @@ def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), mean_pressures=
                                            or not isinstance(threads_per_worker, numbers.Integral)
                                            or threads_per_worker < 1):
         raise ValueError(f"threads_per_worker must be an integer >= 1; got {threads_per_worker!r}")
+    threads = DEFAULT_THREADS_PER_WORKER if threads_per_worker is None else int(threads_per_worker)
+    if not serial:
+        _require_dask()
     store = Path(store)
     if store.exists() and not store.is_dir():
         raise ValueError(f"store must be a directory; {str(store)!r} is a file")
@@ -477,7 +487,7 @@ def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), mean_pressures=
         elif serial:
             for c in todo:
                 try:
-                    _done(solve_case(c, str(store), prov))
+                    _done(solve_case(c, str(store), prov, threads))
                 except Exception as exc:  # reported, not stored; a rerun retries
                     failed[case_label(c)] = f"{type(exc).__name__}: {exc}"
                     if bar is not None:
@@ -491,13 +501,13 @@ def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), mean_pressures=
                     own = (client, None)
                     sched = f"scheduler {scheduler}"
                 else:
-                    client, cluster, sched = _local_cluster(workers, threads_per_worker)
+                    client, cluster, sched = _local_cluster(workers, threads)
                     own = (client, cluster)
             else:
                 sched = f"client {getattr(client, 'scheduler', None) and client.scheduler.address}"
             futs = {}
             for c in todo:
-                f = client.submit(solve_case, c, str(store.resolve()), prov, key=f"gfmd-case-{case_key(c)}",
+                f = client.submit(solve_case, c, str(store.resolve()), prov, threads, key=f"gfmd-case-{case_key(c)}",
                                   pure=False)
                 futs[f] = c
             try:
@@ -541,9 +551,8 @@ def ingest_fields(field_dir, store, *, surface: Optional[EnsembleSurface] = None
     Each ``*.npz`` of ``field_dir`` holds ``pressure`` (the full field) and ``meta``
     (JSON with ``n``, ``seed``, ``zeta``, ``length``, ``tol``, ``E_star``,
     ``mean_pressure``, ``converged``, ``residual``, ``iterations``, ``wall_time``,
-    ``code``), as written by ``/work/cache/gen_raw.py``-style jobs that call
-    ``solve_contact(fig1_surface(n, seed), ...)``. The record gets the key of the
-    live case with the same parameters (``method`` as requested, default "auto"),
+    ``code``), as written by jobs that call ``solve_contact(fig1_surface(n, seed), ...)``.
+    The record gets the key of the live case with the same parameters (``method`` as requested, default "auto"),
     so a later :func:`run_ensemble` of those cases skips them; its provenance says
     ``source="ingested"``, the field file and ``field_command``. The surface is
     regenerated from the seed (for the spectrum) and checked against the field's

@@ -1,7 +1,7 @@
 """Reductions of an ensemble with error bars.
 
 All functions take the converged records of one pool (an
-:class:`~gfmd_ref.ensemble_store.EnsembleGroup` or a list of records). The pooled
+:class:`~gfmd_ref.ensemble.store.EnsembleGroup` or a list of records). The pooled
 distribution gives every seed the same area: ``F(p) = mean_s F_s(p)``, each
 ``F_s`` interpolated linearly between its stored quantiles. Distances between
 such CDFs are piecewise linear between the union of the knots, so evaluating
@@ -174,7 +174,7 @@ def finite_size_table(ensemble, wall, *, n_ref: int = 1024, mean_pressure=None, 
     noise of those two pools (the quadrature sum of their split-half noise
     estimates; 0 when a pool has fewer than 2 seeds).
     """
-    from .ensemble_store import _parse_wall
+    from .store import _parse_wall
 
     z_ref = _parse_wall(wall)
     recs = []

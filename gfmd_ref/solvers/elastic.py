@@ -1,0 +1,41 @@
+"""The elastic half-space on the ``rfft2`` grid of one periodic cell."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..fft import FFTPair
+
+
+class Elastic:
+    """Green's function of an elastic half-space on an ``(n, n)`` grid of side ``length``.
+
+    Each Fourier mode ``q != 0`` of the surface displacement is a spring of stiffness
+    ``K = q E*/2`` per unit area [pressure/length]; ``G = 2/(q E*)`` is its inverse
+    (``G = 0`` at ``q = 0``), ``Gn = G/n^2`` the multiplier of
+    :meth:`~gfmd_ref.fft.FFTPair.apply_route`. ``w`` weighs the half spectrum in sums over
+    the full one, ``g_diag`` is the real-space diagonal of ``G`` [length/pressure].
+    """
+
+    def __init__(self, n: int, length: float, E_star: float, threads: int | None = None):
+        self.n = n
+        self.shape = (n, n)
+        self.length = length
+        self.E_star = E_star
+        kx = 2.0 * np.pi * np.fft.fftfreq(n, d=length / n)
+        ky = 2.0 * np.pi * np.fft.rfftfreq(n, d=length / n)
+        q = np.sqrt(kx[:, None] ** 2 + ky[None, :] ** 2)
+        self.q = q
+        self.K = 0.5 * E_star * q
+        self.G = np.where(q > 0, 2.0 / (E_star * np.where(q > 0, q, 1.0)), 0.0)
+        self.Gn = self.G / (n * n)
+        self.q1 = 2.0 * np.pi / length
+        w = np.full(q.shape, 2.0)
+        w[:, 0] = 1.0
+        if n % 2 == 0:
+            w[:, -1] = 1.0
+        self.w = w
+        self.g_diag = float(np.sum(w * self.G)) / (n * n)
+        self.fft = FFTPair(self.shape, threads)
+        self.rfft = self.fft.rfft
+        self.irfft = self.fft.irfft
+        self.apply = self.fft.apply
