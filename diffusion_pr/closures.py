@@ -755,76 +755,6 @@ def lognormal_gap_distribution(spectrum: Spectrum, *, E_star: float, mean_pressu
 #: floor of the balanced closure's non-contact region, relative to zeta q_min E*/2 (docs/closures.md)
 BALANCED_FLOOR = 1e-16
 
-#: default resolution of the reference solver (cells, BDF2 steps); the error estimate
-#: comes from a second run at half of both
-REFERENCE_RESOLUTION = (1600, 1600)
-
-
-def _solve_reference(shells: Shells, *, zeta: float, E_star: float, p0: float, closure: str,
-                     partition_q: Optional[float], n_cells: int, n_steps: int) -> Any:
-    """The closure solved by the independent reference solver (``diffusion_pr._closure_reference``)."""
-    from ._closure_reference import solve_reference
-    from .result import PressureDistribution
-
-    balanced = closure in _BALANCED
-    if closure == "local_g1_shell_balanced":
-        partition_q = "shell"
-    t0 = time.perf_counter()
-    runs = []
-    # The wall floor (first edge) sits a factor `floor` below zeta q_min E*/2.  local_g1: ln p drifts
-    # down at rate 1/p*^2 there, mass never returns, 1e-2 is deep enough.  Balanced: its drift
-    # cancels that Ito drift, ln p random-walks over a wide range and mass comes back, so the floor
-    # goes 32 e-folds deeper (1e-16) with the cells scaled to keep the cell size (docs/closures.md).
-    floor = BALANCED_FLOOR if balanced else 1e-2
-    scale_cells = 1.0
-    kz = 0.5 * zeta * E_star
-    if balanced and kz > 0:
-        pm = p0 + 10.0 * math.sqrt(shells.V0)
-        s_shallow = min(p0 / 20.0, 1e-2 * kz * shells.q_min)
-        s_deep = min(p0 / 20.0, floor * kz * shells.q_min)
-        scale_cells = math.asinh(pm / s_deep) / math.asinh(pm / s_shallow)
-    n_fine = 4 * int(math.ceil(n_cells * scale_cells / 4.0))
-    for n, m in ((n_fine // 2, n_steps // 2), (n_fine, n_steps)):
-        runs.append(solve_reference(shells.q, shells.dV0, zeta=zeta, E_star=E_star, mean_pressure=p0,
-                                    balanced=balanced, q_part=partition_q if partition_q else shells.q_min,
-                                    n_cells=n, n_steps=m, floor_factor=floor))
-    coarse, fine = runs
-    if fine["density"].size != 2 * coarse["density"].size:  # keep the grids nested
-        raise RuntimeError("reference solver: non-nested grids")
-    m_f = fine["density"] * np.diff(fine["edges"])
-    m_c = coarse["density"] * np.diff(coarse["edges"])
-    # nested grids (x uniform, halved): merge fine pairs; BDF2 and the grid are second order
-    # the wall floor (first edge) moves with the grid: count the zero weight in the first coarse cell
-    m_fc = m_f.reshape(-1, 2).sum(axis=1)
-    m_fc[0] += fine["zero_weight"]
-    m_c = m_c.copy()
-    m_c[0] += coarse["zero_weight"]
-    diff = float(np.sum(np.abs(m_fc - m_c)))
-    err = diff / 3.0
-    edges = fine["edges"]
-    wall = time.perf_counter() - t0
-    floor = float(edges[1])
-    res_mean = fine["mean_residual"]
-    density = fine["density"]
-    n_neg = int(np.count_nonzero(density < 0))
-    ok = n_neg == 0 and (not balanced or res_mean < 1e-10)
-    msg = (f"reference solver: {n_fine} cells, {n_steps} BDF2 steps; estimated L1 error {err:.2e} "
-           f"(against {n_fine // 2} cells/{n_steps // 2} steps)")
-    if n_neg:
-        msg += f"; {n_neg} negative cell densities (min {density.min():.3g})"
-    if balanced and not res_mean < 1e-10:
-        msg += f"; the multiplier A did not hold the mean (relative residual {res_mean:.3g}): NOT converged"
-    diag = {"closure": closure, "n_cells": int(edges.size - 1), "n_steps": n_steps, "n_shells": int(shells.q.size),
-            "partition_q": partition_q if partition_q else shells.q_min, "wall_floor": floor if kz > 0 else 0.0,
-            "balance_multiplier": fine["A"], "secant_iterations": fine["secant_iterations"],
-            "mean_residual": res_mean, "shells_exact": shells.exact}
-    if kz > 0:
-        diag["zero_weight_meaning"] = (f"mass below the wall floor {floor:.3g} (exponentially close to p = 0: "
-                                       "g(q; p)^2 ~ p^2 never lets it reach 0)")
-    return PressureDistribution(0.5 * (edges[1:] + edges[:-1]), density, np.diff(edges), fine["zero_weight"], p0,
-                                shells.V0, "closure_reference", ok, msg, err, wall, diag, edges)
-
-
 def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: float, zeta: float = 0.0,
                          closure: str = "local_g1_balanced", backend: str = "auto", rtol: float = 1e-6,
                          n_shells: Optional[int] = None, cutoff: Any = None, p_c: Optional[float] = None,
@@ -855,11 +785,9 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         Shell-by-shell closures: the closure is a
         :class:`~diffusion_pr.problem.StagedProblem` (:func:`closure_problem`) solved
         by :func:`diffusion_pr.api.solve_problem` (``"auto"``, ``"native"``,
-        ``"pypde"``, ``"fipy"``), or ``"reference"``: the independent reference
-        solver of :mod:`diffusion_pr._closure_reference` (the oracle the tests check
-        the engine against; options ``n_cells``, ``n_steps``).
+        ``"pypde"``, ``"fipy"``).
     rtol : float
-        Target L1 error (second order; the reference solver reports its estimate).
+        Target L1 error.
     n_shells : int, optional
         Continuum spectra: number of shells (default :data:`DEFAULT_CONTINUUM_SHELLS`).
     cutoff, p_c, tail, p_t
@@ -900,7 +828,7 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         does not contain the distance from the continuum; a
         :class:`~diffusion_pr.spectra.DiscreteSpectrum`'s shells are exact).
     **options
-        ``n_cells``, ``n_steps`` for the reference solver; backend options otherwise.
+        The backend's options.
 
     Returns
     -------
@@ -934,9 +862,9 @@ def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: f
         raise ValueError(f"shell_extrapolation must be None, True or False; got "
                          f"shell_extrapolation={shell_extrapolation!r}")
     if shell_extrapolation is None:  # the default: the continuum closure where the shells are a quadrature
-        shell_extrapolation = bool(closure not in ("second_order", "lognormal_gap") and backend != "reference"
+        shell_extrapolation = bool(closure not in ("second_order", "lognormal_gap")
                                    and not isinstance(spectrum, DiscreteSpectrum) and n_shells is None)
-    if shell_extrapolation is not False and (closure in ("second_order", "lognormal_gap") or backend == "reference"):
+    if shell_extrapolation is not False and closure in ("second_order", "lognormal_gap"):
         raise ValueError("shell_extrapolation applies to the shell closures ('local_g1', 'local_g1_balanced', "
                          "'local_g1_shell_balanced') on the finite-volume backends; got "
                          f"closure={closure!r}, backend={backend!r}")
@@ -967,15 +895,6 @@ def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: f
         else ("uniform", None, None)
     shells = _cached_shells(spectrum, E, EXTRAPOLATION_SHELLS if shell_extrapolation and n_shells is None
                             else n_shells, grading)
-    if backend == "reference":
-        n_cells, n_steps = options.pop("n_cells", REFERENCE_RESOLUTION[0]), options.pop("n_steps", REFERENCE_RESOLUTION[1])
-        if options:
-            raise ValueError(f"unknown options for the reference solver: {sorted(options)}")
-        for name, v in (("n_cells", n_cells), ("n_steps", n_steps)):
-            if not isinstance(v, (int, np.integer)) or v < 16 or v % 2:
-                raise ValueError(f"{name} must be an even integer >= 16; got {name}={v!r}")
-        return _solve_reference(shells, zeta=z, E_star=E, p0=p0, closure=closure, partition_q=partition_q,
-                                n_cells=int(n_cells), n_steps=int(n_steps)), None
     problem = closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure, partition_q=partition_q)
     if closure in _BALANCED and z > 0:
         # part of the closure's definition, not an accuracy knob: its drift cancels the Ito drift of
