@@ -758,7 +758,7 @@ BALANCED_FLOOR = 1e-16
 def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: float, zeta: float = 0.0,
                          closure: str = "local_g1_balanced", backend: str = "auto", rtol: float = 1e-6,
                          n_shells: Optional[int] = None, cutoff: Any = None, p_c: Optional[float] = None,
-                         tail: Any = None, p_t: Optional[float] = None, partition_q: Optional[float] = None,
+                         tail: Any = None, p_t: Optional[float] = None,
                          shell_extrapolation: Optional[bool] = None, **options: Any) -> Any:
     r"""Pressure distribution of a rough contact with a named closure (docs/closures.md).
 
@@ -794,9 +794,6 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         Second order only (the paper's cutoff near ``p = 0`` and the tail factor).
         The other closures have no cutoff (``g(q; p)^2 ~ p^2`` is theirs) and no
         tail factor; passing one raises ``ValueError``.
-    partition_q : float, optional
-        ``"local_g1_balanced"`` only: wavenumber of the partition factor
-        (default ``q_min``; docs/closures.md explains why it must be ``q_min``).
     shell_extrapolation : bool, optional
         Shell closures on a continuum spectrum.  The shell sum is the
         exponential midpoint rule in ``tau``, second order in the shell width:
@@ -837,14 +834,14 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
     """
     return _closure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta, closure=closure,
                                  backend=backend, rtol=rtol, n_shells=n_shells, cutoff=cutoff, p_c=p_c, tail=tail,
-                                 p_t=p_t, partition_q=partition_q, shell_extrapolation=shell_extrapolation,
+                                 p_t=p_t, shell_extrapolation=shell_extrapolation,
                                  **options)[0]
 
 
 def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: float, zeta: float = 0.0,
                           closure: str = "local_g1_balanced", backend: str = "auto", rtol: float = 1e-6,
                           n_shells: Optional[int] = None, cutoff: Any = None, p_c: Optional[float] = None,
-                          tail: Any = None, p_t: Optional[float] = None, partition_q: Optional[float] = None,
+                          tail: Any = None, p_t: Optional[float] = None,
                           shell_extrapolation: Optional[bool] = None, warm_start: Any = None,
                           **options: Any) -> tuple:
     """``(result, solution)``: :func:`closure_distribution`'s result and the finite-volume solution of its (last)
@@ -871,8 +868,8 @@ def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: f
     if closure == "second_order":
         from .api import pressure_distribution
 
-        if partition_q is not None or n_shells is not None:
-            raise ValueError("partition_q and n_shells apply to the shell-by-shell closures, not to 'second_order'")
+        if n_shells is not None:
+            raise ValueError("n_shells applies to the shell-by-shell closures, not to 'second_order'")
         return pressure_distribution(spectrum, E_star=E, mean_pressure=p0, zeta=z,
                                      cutoff="sharp" if cutoff is None else cutoff, p_c=p_c, tail=tail, p_t=p_t,
                                      backend=backend, rtol=rtol, **options), None
@@ -881,21 +878,15 @@ def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: f
             raise ValueError(f"{name} applies to closure='second_order' only; closure={closure!r} has no fitted "
                              f"cutoff or tail (got {name}={value!r})")
     if closure == "lognormal_gap":
-        if partition_q is not None or n_shells is not None:
-            raise ValueError("partition_q and n_shells do not apply to closure='lognormal_gap' (closed form)")
+        if n_shells is not None:
+            raise ValueError("n_shells does not apply to closure='lognormal_gap' (closed form)")
         return lognormal_gap_distribution(spectrum, E_star=E, mean_pressure=p0, zeta=z), None
-    if partition_q is not None and closure != "local_g1_balanced":
-        raise ValueError("partition_q applies to closure='local_g1_balanced' only "
-                         "('local_g1_shell_balanced' is the partition at each shell's q_k)")
-    if partition_q is not None and partition_q != "shell":
-        check_positive("partition_q", partition_q)
-    at_shells = "local_g1_shell_balanced" if partition_q == "shell" else closure  # the partition at each q_k
-    grading, kappa, lam = shell_grading(spectrum, E_star=E, zeta=z, mean_pressure=p0, closure=at_shells) \
+    grading, kappa, lam = shell_grading(spectrum, E_star=E, zeta=z, mean_pressure=p0, closure=closure) \
         if shell_extrapolation \
         else ("uniform", None, None)
     shells = _cached_shells(spectrum, E, EXTRAPOLATION_SHELLS if shell_extrapolation and n_shells is None
                             else n_shells, grading)
-    problem = closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure, partition_q=partition_q)
+    problem = closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure)
     if closure in _BALANCED and z > 0:
         # part of the closure's definition, not an accuracy knob: its drift cancels the Ito drift of
         # ln p below p* = zeta q_min E*/2, so mass returns from deep below p*; resolve down to
@@ -908,7 +899,7 @@ def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: f
         if shells.q.size % 4:
             raise ValueError(f"shell_extrapolation needs n_shells divisible by 4 (n, n/2, n/4 shells); got "
                              f"n_shells={shells.q.size}")
-    scene = (spectrum, E, p0, z, closure, partition_q, grading)
+    scene = (spectrum, E, p0, z, closure, grading)
     sol = _solve_shells(problem, shells, closure, backend, rtol, options, keep=shell_extrapolation,
                         warm_start=warm_start)
     if not shell_extrapolation:
@@ -962,12 +953,11 @@ def _shell_residual(m_n: np.ndarray, m_h: np.ndarray, m_q: np.ndarray) -> tuple:
 
 
 def _shell_problem(scene: tuple, m: int) -> tuple:
-    """``(problem, shells)``: the closure of ``scene = (spectrum, E, p0, z, closure, partition_q, grading)`` on
+    """``(problem, shells)``: the closure of ``scene = (spectrum, E, p0, z, closure, grading)`` on
     ``m`` shells of its continuum spectrum."""
-    spectrum, E, p0, z, closure, partition_q, grading = scene
+    spectrum, E, p0, z, closure, grading = scene
     shells = _cached_shells(spectrum, E, m, grading)
-    return closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure,
-                           partition_q=partition_q), shells
+    return closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure), shells
 
 
 def _ladder_below(top: int) -> list:
@@ -990,7 +980,7 @@ def _solve_shells(problem: Any, shells: Shells, closure: str, backend: str, rtol
 
 
 def _coarser_on_grid(sol: Any, m: int, scene: tuple, rtol: float, options: dict, *, plain: Optional[str]) -> Any:
-    """The ``m``-shell problem of ``scene = (spectrum, E, p0, z, closure, partition_q, grading)`` solved on the
+    """The ``m``-shell problem of ``scene = (spectrum, E, p0, z, closure, grading)`` solved on the
     grids of ``sol`` (the ``n``-shell solution), in full (``plain=None``) or for the plain masses of some of its
     grids alone (``plain`` a mode of :data:`~diffusion_pr.solvers.fv.engine.PLAIN_GRIDS`); a balance with no root
     there is a failed solution that says so."""
@@ -1073,7 +1063,7 @@ def _shell_corrected(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
     timing = {"shells": 0.0}
     finest = False  # the correction from the 4N grids too, extrapolated in space
     evaluated: dict = {}  # ("base", n) -> the first table's evaluation (the later rungs' tables add to it)
-    thin = scene[6] != "uniform"  # graded shells: the wall's layer is thin (shell_grading)
+    thin = scene[5] != "uniform"  # graded shells: the wall's layer is thin (shell_grading)
     # the later rungs on the N grid alone (graded shells only): their refinement of the first table's continuum is
     # added to that table's correction; "coarse" off once the 2N grids are wanted after all (the margin misses, or
     # the 4N grids)
@@ -1119,7 +1109,7 @@ def _shell_corrected(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
     def table(top: int, masses: dict, g: int) -> tuple:
         eighth = top % 8 == 0 and masses.get(top // 8) is not None
         used = [top >> k for k in range(4 if eighth else 3)]
-        return _shell_table([masses[m][g] for m in used], thin=thin, start=scene[6] == "ends")
+        return _shell_table([masses[m][g] for m in used], thin=thin, start=scene[5] == "ends")
 
     def evaluate(top: int, masses: dict, finest: bool) -> dict:
         """The correction and its errors from the table of ``top`` shells (``masses`` the plain masses by shell
@@ -1498,7 +1488,7 @@ def _shell_combined(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
             return _failed_extrapolation(res, why or "a solve's grids differ from the first one's")
         used = three + ([solved[n // 8]] if n % 8 == 0 and n // 8 in solved and usable(solved[n // 8]) else [])
         masses = [_masses(r) for r in used]
-        x, residual, table = _shell_table(masses, thin=scene[6] != "uniform", start=scene[6] == "ends")
+        x, residual, table = _shell_table(masses, thin=scene[5] != "uniform", start=scene[5] == "ends")
         weights = table["shell_weights"][:len(used)]
         grids = sum(abs(c) * r.error_estimate for c, r in zip(table.get("grid_weights", weights), used))
         if grids + residual <= rtol or 2 * n > MAX_CONTINUUM_SHELLS or grids >= SHELL_SHARE * rtol:

@@ -270,8 +270,6 @@ def test_compiled_rows_are_the_numpy_formulas_bit_for_bit(fig1):
     ({"closure": "local_g1", "cutoff": "muser", "p_c": 0.003}, "cutoff applies to closure='second_order'"),
     ({"closure": "local_g1_balanced", "tail": "linear", "p_t": 0.01}, "tail applies"),
     ({"closure": "lognormal_gap", "n_shells": 10}, "do not apply"),
-    ({"closure": "local_g1", "partition_q": 0.1}, "partition_q applies"),
-    ({"closure": "local_g1_shell_balanced", "partition_q": 0.1}, "partition_q applies"),
     ({"closure": "local_g1", "n_shells": 1}, "n_shells must be an integer >= 2"),
     ({"closure": "local_g1", "zeta": -1.0}, "zeta"),
     ({"closure": "local_g1", "zeta": np.array([0.1, 0.2])}, "zeta must be a scalar"),

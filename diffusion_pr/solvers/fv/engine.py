@@ -84,9 +84,6 @@ C_EXIT_WALL = 1.0
 #: below it.  The first-order wall error left is about ``1e-4 delta / s`` (measured at delta = 1e-4 s: the
 #: refinement's errors stop falling near 1e-8), so ``rtol s`` keeps it 1e4 below rtol
 EXIT_WALL_DEPTH = 1.0
-#: after the first level, a problem whose depth below the floor is fixed (a drift or a balance) may move its cells
-#: between the logarithmic grading towards the wall and the rest (:func:`_regraded`); off only in the tests' oracles
-REGRADE = True
 #: candidate factors on ``c_wall`` (the weight of the logarithmic grading); down to 0.04 since the eighth session
 #: (balanced closures, Fig. 1: zeta = 4 on 95 cells instead of 138 at 0.2x, zeta = 2 on 122 instead of 168; a sweep's
 #: second regrading had found 0.024 = 0.04 x 0.6 there; nothing changed at zeta <= 1)
@@ -97,7 +94,6 @@ REGRADE_DEPTHS = (0.2, 0.35, 0.5, 0.65, 0.8)
 #: after the first level, the monitor may also be remapped by the first level's errors (:func:`_remapped`, a
 #: :class:`~.grid.Remap`): knots of its density's spline, the largest ratio of its densities, and the share of the
 #: cells it must save beyond the logarithmic grading's best candidate to be taken
-REMAP = True
 REMAP_KNOTS = 12
 REMAP_MAX_RATIO = 16.0
 REMAP_PREFERENCE = 0.9
@@ -154,10 +150,6 @@ class FVSolution:
     cells_needed: Optional[int] = None
     next_start: Optional[WarmStart] = None
 
-#: staged problems (at least COMPILED_MIN_PIECES stages) bound the upper tail in the Lamperti coordinate
-#: ``int dp / sqrt(2 sum dtau_k f_k)`` instead of ``p0 + z sqrt(2 sum dtau_k max f_k)`` (see :func:`prepare`); off
-#: only in the tests' oracles
-LAMPERTI = True
 #: the largest weight of the logarithmic grading towards the wall (the ``wall_grading`` option's range, and the
 #: regrading's candidates)
 WALL_GRADING_MAX = 10.0
@@ -284,7 +276,7 @@ class Prepared:
     #: the depth below the floor is an accuracy knob (ln(10/rtol) e-folds: no drift, no balance), which the first
     #: level may shorten to what its probability below the floor needs (:func:`_trimmed_depth`)
     depth_adaptive: bool = False
-    #: the upper end was shortened by the Lamperti bound (:data:`LAMPERTI`); a solve whose top cell then holds
+    #: the upper end was shortened by the Lamperti bound (:func:`prepare`); a solve whose top cell then holds
     #: more than rtol is repeated on the conservative domain (:func:`solve_fv`)
     lamperti_bounded: bool = False
     #: the drift takes its upwinding weight (``operator.fitted_weight``) on plain stages: the user's drift of a
@@ -698,10 +690,10 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
         vectorized finite callable.
 
     ``lamperti=False``: the upper end from the spread alone, never the shorter
-    Lamperti bound (the fallback of :func:`solve_fv` where that bound was too short).
+    Lamperti bound (the fallback of :func:`solve_fv_full` where that bound was too short).
     ``on_grid``: the grid family is given (another problem's, :class:`GridFamily`): no domain probe, no
     grading; the wall, the floor and the lumping are classified for it (the plain-mass solves of
-    :func:`plain_masses`, 0.3-1 ms each saved).
+    ``plain=`` of :func:`solve_fv_full`, 0.3-1 ms each saved).
     """
     p0, pieces, time_dependent, segment_fn = _pieces_of(problem)
     tau_end = float(sum(pc.duration for pc in pieces))
@@ -779,7 +771,7 @@ def _prepare_probed(problem, rtol: float, p_floor: Optional[float], lamperti: bo
         _rows(with_w, probe, "the balance", plan=_plan(plans, "w"), out=work("w", (len(with_w), probe.size)))
     p_max = new
     lamperti_bounded = False
-    if LAMPERTI and lamperti and not growing and not time_dependent and len(pieces) >= COMPILED_MIN_PIECES:
+    if lamperti and not growing and not time_dependent and len(pieces) >= COMPILED_MIN_PIECES:
         # the upper tail in the Lamperti coordinate Y = int dp / sqrt(2 F), F = sum dtau_k f_k: Y - Y(p0) is
         # a unit-variance diffusion whose Ito drift -F'/(2 sqrt(2F)) points down where F grows, so z units of
         # Y bound the tail like z spreads do for constant f (checked after the solve: the top cell's mass)
@@ -1711,7 +1703,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
         best_plain = (_lump(y1, j1), _lump(y2, j2), _lump(y3, 2 * j2)) if plain == "keep" else None
         trimmed = _trimmed_depth(prep, float(out_y[0]) + est, rtol) if len(history) == 1 else None
         if (est <= SAFETY * rtol and mean_miss <= SAFETY * rtol * prep.p0) or fixed:
-            if REGRADE and warm_start is not None and _regradable(prep):
+            if warm_start is not None and _regradable(prep):
                 # the grading this level's errors favour, for the next problem of a sweep (not used here; only
                 # where a start was given, as a sweep gives it: it costs 0.3 ms)
                 suggested = _regraded(prep, e1, diff, j1)
@@ -1742,9 +1734,9 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
             continue
         # the remap only under the native operator: py-pde's index-space operator on a remapped grid moved its answer
         # by 2.1e-6 from native's while claiming 4.1e-7 (H 0.8, slope 0.031, zeta 1e-5, p0 1e-4, shell partition)
-        remap = REMAP and assemble is native_assemble and loop is None
+        remap = assemble is native_assemble and loop is None
         regraded = _regraded(prep, e1, diff, j1, remap=remap) if (
-            REGRADE and regrade and len(history) == 1 and _regradable(prep)) else None
+            regrade and len(history) == 1 and _regradable(prep)) else None
         if regraded is not None:  # the same domain, its cells moved to where the first level's error was
             spec_new, factor = regraded
             moved = True
@@ -1800,6 +1792,8 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
                                  "newton_steps": cnt.get("newton_steps", 0),
                                  "domain": "Lamperti-bounded" if prep.lamperti_bounded else "from the spread",
                                  "wall_grading": float(prep.spec.c_wall), "wall_depth": _depth_fraction(prep.spec),
+                                 # (the family of the result's grid: its cdf interpolates in the family's coordinate)
+                                 "grid": (best_grid.spec, best_grid.knots),
                                  **({"floor_ghosts": best_ghosts} if best_ghosts is not None else {}),
                                  "wall_depth_needed": depth_needed,
                                  **(extra or {})},
@@ -1866,7 +1860,7 @@ def _plain_solution(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple
     last = ks[-1]
     result = build_result(prep, backend=backend, edges=es[-1][j1 << last:], y=plain[last], estimate=float("inf"),
                           rtol=rtol, timings=timings, failure="plain masses only (no extrapolation, no estimate)",
-                          extra={"levels": [int(idx[-1]) << k for k in ks]})
+                          extra={"levels": [int(idx[-1]) << k for k in ks], "grid": (prep.spec, tuple(idx.tolist()))})
     return FVSolution(result=result, grid=GridFamily(prep.spec, tuple(idx.tolist())), plain=tuple(plain),
                       plain_failure=broken[0] if broken else None)
 
