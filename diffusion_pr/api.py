@@ -97,7 +97,7 @@ def _solve(problem: Any, backend: str, rtol: float, options: dict) -> PressureDi
 def _solve_full(problem: Any, backend: str, rtol: float, options: dict, **engine: Any) -> Any:
     """:func:`_solve` with the finite-volume engine's :class:`~diffusion_pr.solvers.fv.engine.FVSolution`
     (``engine``: its ``grid``, ``plain`` and ``warm_start`` arguments); a backend that is not a finite-volume one
-    (closed form) gives a solution that holds its result alone, and takes none of them."""
+    (closed form) gives a solution that holds its result alone, and takes no grid."""
     import importlib
 
     from .solvers import get_backend
@@ -113,8 +113,8 @@ def _solve_full(problem: Any, backend: str, rtol: float, options: dict, **engine
                          f"{sorted(_accepted_options(chosen))}")
     full = getattr(importlib.import_module(solver.__module__), "solve_full", None)
     engine = {k: v for k, v in engine.items() if v is not None}
-    if full is None:
-        if engine:
+    if full is None:  # (a warm start is a hint: a closed form needs none)
+        if set(engine) - {"warm_start"}:
             raise ValueError(f"backend {chosen!r} is not a finite-volume backend: it takes no {sorted(engine)}")
         sol = FVSolution(result=solver(problem, rtol=rtol, **options))
     else:
