@@ -879,7 +879,7 @@ def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: f
                              f"cutoff or tail (got {name}={value!r})")
     if closure == "lognormal_gap":
         if n_shells is not None:
-            raise ValueError("n_shells does not apply to closure='lognormal_gap' (closed form)")
+            raise ValueError("shell options (n_shells) do not apply to closure='lognormal_gap' (closed form)")
         return lognormal_gap_distribution(spectrum, E_star=E, mean_pressure=p0, zeta=z), None
     grading, kappa, lam = shell_grading(spectrum, E_star=E, zeta=z, mean_pressure=p0, closure=closure) \
         if shell_extrapolation \
