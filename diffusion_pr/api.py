@@ -19,6 +19,7 @@ keyword option is an error naming the options the backend accepts.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import replace
 from typing import Any, Callable, Optional
@@ -81,12 +82,19 @@ def choose_backend(problem: Any, options: Optional[dict] = None) -> str:
 
 def _accepted_options(name: str) -> set:
     """Keyword options of backend ``name``'s ``solve`` (besides ``rtol``)."""
-    import inspect
-
     from .solvers import get_backend
 
-    params = inspect.signature(get_backend(name)).parameters
-    return {k for k, v in params.items() if v.kind == v.KEYWORD_ONLY and k != "rtol"}
+    return set(_keyword_options(get_backend(name)))
+
+
+@functools.lru_cache(maxsize=None)
+def _keyword_options(solve: Callable) -> frozenset:
+    """Keyword options of a backend's ``solve`` function (besides ``rtol``), read once per function (a signature
+    costs about 1 ms, and the closures solve up to ten problems per call)."""
+    import inspect
+
+    params = inspect.signature(solve).parameters
+    return frozenset(k for k, v in params.items() if v.kind == v.KEYWORD_ONLY and k != "rtol")
 
 
 def _solve(problem: Any, backend: str, rtol: float, options: dict) -> PressureDistribution:
@@ -98,7 +106,7 @@ def _solve_full(problem: Any, backend: str, rtol: float, options: dict, **engine
     """:func:`_solve` with the finite-volume engine's :class:`~diffusion_pr.solvers.fv.engine.FVSolution`
     (``engine``: its ``grid``, ``plain`` and ``warm_start`` arguments); a backend that is not a finite-volume one
     (closed form) gives a solution that holds its result alone, and takes no grid."""
-    import importlib
+    import sys
 
     from .solvers import get_backend
     from .solvers.fv.engine import FVSolution
@@ -107,11 +115,11 @@ def _solve_full(problem: Any, backend: str, rtol: float, options: dict, **engine
     rtol = _check_rtol(rtol)
     chosen = choose_backend(problem, options) if backend == "auto" else backend
     solver = get_backend(chosen)
-    unknown = set(options) - _accepted_options(chosen)
+    unknown = set(options) - _keyword_options(solver)
     if unknown:
         raise ValueError(f"unknown option(s) {sorted(unknown)} for backend {chosen!r}; it accepts "
-                         f"{sorted(_accepted_options(chosen))}")
-    full = getattr(importlib.import_module(solver.__module__), "solve_full", None)
+                         f"{sorted(_keyword_options(solver))}")
+    full = getattr(sys.modules[solver.__module__], "solve_full", None)
     engine = {k: v for k, v in engine.items() if v is not None}
     if full is None:  # (a warm start is a hint: a closed form needs none)
         if set(engine) - {"warm_start"}:

@@ -104,13 +104,15 @@ PLAIN_GRIDS = {"only": (0, 1), "finest": (2,), "coarsest": (0,), "answer": (1,)}
 
 @dataclass(frozen=True)
 class GridFamily:
-    """The nested grids of a solve's last level: the family ``spec`` and the knot indices ``knots`` of the coarsest
-    grid (``knots[-1]`` its cells).  Passed as ``grid=`` to :func:`solve_fv_full`, another problem is solved on the
-    same grids, edge for edge (the closures' extrapolation in the number of shells combines two problems cell by
-    cell)."""
+    """The nested grids of a solve's last level: the family ``spec``, the knot indices ``knots`` of the coarsest
+    grid (``knots[-1]`` its cells) and the ``edges`` of the finest (``4 knots[-1]`` cells; the coarser grids are
+    every second and fourth of them).  Passed as ``grid=`` to :func:`solve_fv_full`, another problem is solved on
+    the same grids, edge for edge (the closures' extrapolation in the number of shells combines two problems cell
+    by cell)."""
 
     spec: GridSpec
     knots: tuple
+    edges: np.ndarray = field(compare=False, repr=False)
 
     @property
     def n_cells(self) -> int:
@@ -1598,7 +1600,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
             break
         # the coarser grids are every 2nd / 4th edge of it; the inverse's iterations compiled where the solve is
         # (the same bits)
-        finest = edges_for(prep.spec, idx, 4) if grid is not None else edges_for(
+        finest = grid.edges.copy() if grid is not None else edges_for(
             prep.spec, idx, 4, known=reuse[2] if reuse is not None else None,
             compiled=loop is None and _compiled(prep))
         es = [finest[::4 >> k] for k in range(3)]  # coarsest first
@@ -1620,7 +1622,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
         grids_integrated += 1 if reuse is not None else len(es)
         reuse = None
         if plain_only:
-            return _plain_solution(prep, es, ys, idx, ks, backend=backend, rtol=rtol, t_start=t_start,
+            return _plain_solution(prep, es, ys, idx, ks, finest, backend=backend, rtol=rtol, t_start=t_start,
                                    t_prep=t_prep)
         (y1, c1), (y2, c2), (y3, cnt) = ys
         e1, e2, e3 = es
@@ -1698,7 +1700,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
         need = NEED_MARGIN * max((est / (SAFETY * rtol)) ** (1.0 / order),
                                  (mean_miss / (SAFETY * rtol * prep.p0)) ** (1.0 / order))
         best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(3)], mean_full, need)
-        best_grid = GridFamily(prep.spec, tuple(idx.tolist()))
+        best_grid = GridFamily(prep.spec, tuple(idx.tolist()), finest)
         best_ghosts = _floor_ghosts(e2, r23, j2)
         best_plain = (_lump(y1, j1), _lump(y2, j2), _lump(y3, 2 * j2)) if plain == "keep" else None
         trimmed = _trimmed_depth(prep, float(out_y[0]) + est, rtol) if len(history) == 1 else None
@@ -1841,9 +1843,10 @@ def _cells_below_floor(prep: Prepared, edges: np.ndarray) -> int:
 
 
 def _plain_solution(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple], idx: np.ndarray,
-                    ks: Sequence[int], *, backend: str, rtol: float, t_start: float, t_prep: float) -> FVSolution:
+                    ks: Sequence[int], finest: np.ndarray, *, backend: str, rtol: float, t_start: float,
+                    t_prep: float) -> FVSolution:
     """The solution of a plain solve (``plain`` "only", "finest", "coarsest" or "answer"): the grids' own masses
-    (``ks`` their refinement exponents), lumped below the floor as an answer is, in the N, 2N and 4N grid's places
+    (``ks`` their refinement exponents; ``finest`` the level's 4N grid), lumped below the floor as an answer is, in the N, 2N and 4N grid's places
     of ``plain`` (None where not integrated); the result is the finest integrated grid's (not extrapolated, no
     estimate: ``success`` is False by construction); ``plain_failure`` is a balance's failure, an unstable grid's
     (:func:`_unstable_grid`) or None."""
@@ -1861,7 +1864,7 @@ def _plain_solution(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple
     result = build_result(prep, backend=backend, edges=es[-1][j1 << last:], y=plain[last], estimate=float("inf"),
                           rtol=rtol, timings=timings, failure="plain masses only (no extrapolation, no estimate)",
                           extra={"levels": [int(idx[-1]) << k for k in ks], "grid": (prep.spec, tuple(idx.tolist()))})
-    return FVSolution(result=result, grid=GridFamily(prep.spec, tuple(idx.tolist())), plain=tuple(plain),
+    return FVSolution(result=result, grid=GridFamily(prep.spec, tuple(idx.tolist()), finest), plain=tuple(plain),
                       plain_failure=broken[0] if broken else None)
 
 
