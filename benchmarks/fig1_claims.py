@@ -33,10 +33,25 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+
+def _closure(spectrum, *, backend="auto", **kw):
+    """:func:`diffusion_pr.closures.closure_distribution`, or the closures' reference solver (the tests' oracle,
+    ``tests/oracles/closure_reference.py``) for ``backend="reference"``."""
+    if backend == "reference":
+        sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+        from oracles.closure_reference import reference_distribution
+
+        return reference_distribution(spectrum, **kw)
+    from diffusion_pr.closures import closure_distribution
+
+    return closure_distribution(spectrum, backend=backend, **kw)
+
 
 RAW = Path("/work/cache/raw_fig1_n1024")
 CACHE = Path("/tmp/closures_summaries")
@@ -195,7 +210,6 @@ def theory_moments(th) -> tuple[float, float]:
 
 # ----------------------------------------------------------------------------- main
 def solve(closure, spectrum, zeta, *, fast=False):
-    from diffusion_pr.closures import closure_distribution
     from diffusion_pr.fig1 import paper_cutoff_pressure
 
     z = 0.0 if zeta is None else zeta
@@ -206,12 +220,12 @@ def solve(closure, spectrum, zeta, *, fast=False):
         opts = {"backend": "reference", **({"n_cells": 800, "n_steps": 800} if fast else {})}
     if closure == "second_order":
         if zeta is None:
-            return closure_distribution(spectrum, E_star=E_STAR, mean_pressure=P0, zeta=0.0, closure=closure)
-        return closure_distribution(spectrum, E_star=E_STAR, mean_pressure=P0, zeta=z, closure=closure,
+            return _closure(spectrum, E_star=E_STAR, mean_pressure=P0, zeta=0.0, closure=closure)
+        return _closure(spectrum, E_star=E_STAR, mean_pressure=P0, zeta=z, closure=closure,
                                     cutoff="muser", p_c=paper_cutoff_pressure(zeta), rtol=1e-5)
     if closure == "lognormal_gap" and zeta is None:
         return None
-    return closure_distribution(spectrum, E_star=E_STAR, mean_pressure=P0, zeta=z, closure=closure, **opts)
+    return _closure(spectrum, E_star=E_STAR, mean_pressure=P0, zeta=z, closure=closure, **opts)
 
 
 def record_spectrum(rec):
@@ -229,7 +243,6 @@ def bundle_report(name: str, closures, per_seed: bool = True) -> dict:
     sharp (Persson) cutoff elsewhere: off the paper's scene there is no fitted p_c."""
     from gfmd_ref.ensemble_data import bundled_ensemble
 
-    from diffusion_pr.closures import closure_distribution
     from diffusion_pr.comparison import compare_ensemble
 
     ens = bundled_ensemble(name)
@@ -254,14 +267,14 @@ def bundle_report(name: str, closures, per_seed: bool = True) -> dict:
                         if name.startswith("fig1") and z > 0 else {"cutoff": "sharp"})
             else:
                 opts = {"backend": "reference"} if cl.startswith("local") else {}
-            th = closure_distribution(mean_spec, E_star=E, mean_pressure=p0, zeta=z, closure=cl, **opts)
+            th = _closure(mean_spec, E_star=E, mean_pressure=p0, zeta=z, closure=cl, **opts)
             top = max(float(np.asarray(r.quantiles)[-1]) for r in recs)
             c = compare_ensemble(th, g, edges=np.arange(0.0, top + p0 / 20.0, p0 / 20.0))
             base = c
             per = []
             if per_seed:
                 for r, sp in zip(recs, spectra):
-                    ths = closure_distribution(sp, E_star=E, mean_pressure=p0, zeta=z, closure=cl,
+                    ths = _closure(sp, E_star=E, mean_pressure=p0, zeta=z, closure=cl,
                                                **(opts if cl in ("second_order", "lognormal_gap") else
                                                   {"backend": "reference", "n_cells": 800, "n_steps": 800}))
                     per.append(k_theory(ths, [{"quantiles": np.asarray(r.quantiles, float),
@@ -286,7 +299,6 @@ def scatter_origin(seeds, zeta: float = 4.0) -> None:
     import gfmd_ref
     from scipy.special import ndtr
 
-    from diffusion_pr.closures import closure_distribution
 
     print(f"\n## Non-Gaussianity of one seed's gap field (zeta = {zeta:g}): K to its Gaussian\n")
     print("| seed | all modes | without q < 2.5 q_min | q < 4.5 q_min | q < 8.5 q_min | log-normal theory vs GFMD (own spectrum) |")
@@ -309,7 +321,7 @@ def scatter_origin(seeds, zeta: float = 4.0) -> None:
         summ = seed_summary(zeta, seed)
         kt = "-"
         if summ is not None:
-            th = closure_distribution(seed_spectrum(seed), E_star=E_STAR, mean_pressure=P0, zeta=zeta,
+            th = _closure(seed_spectrum(seed), E_star=E_STAR, mean_pressure=P0, zeta=zeta,
                                       closure="lognormal_gap")
             kt = f"{k_theory(th, [summ], P0 / 20):.4f}"
         print(f"| {seed} | " + " | ".join(f"{v:.4f}" for v in row) + f" | {kt} |")

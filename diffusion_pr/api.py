@@ -19,6 +19,7 @@ keyword option is an error naming the options the backend accepts.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import replace
 from typing import Any, Callable, Optional
@@ -81,26 +82,53 @@ def choose_backend(problem: Any, options: Optional[dict] = None) -> str:
 
 def _accepted_options(name: str) -> set:
     """Keyword options of backend ``name``'s ``solve`` (besides ``rtol``)."""
-    import inspect
-
     from .solvers import get_backend
 
-    params = inspect.signature(get_backend(name)).parameters
-    return {k for k, v in params.items() if v.kind == v.KEYWORD_ONLY and k != "rtol"}
+    return set(_keyword_options(get_backend(name)))
+
+
+@functools.lru_cache(maxsize=None)
+def _keyword_options(solve: Callable) -> frozenset:
+    """Keyword options of a backend's ``solve`` function (besides ``rtol``), read once per function (a signature
+    costs about 1 ms, and the closures solve up to ten problems per call)."""
+    import inspect
+
+    params = inspect.signature(solve).parameters
+    return frozenset(k for k, v in params.items() if v.kind == v.KEYWORD_ONLY and k != "rtol")
 
 
 def _solve(problem: Any, backend: str, rtol: float, options: dict) -> PressureDistribution:
     """Solve with inputs already validated (``backend`` checked, ``rtol`` a float in range)."""
-    from .solvers import get_backend
+    return _solve_full(problem, backend, rtol, options).result
 
+
+def _solve_full(problem: Any, backend: str, rtol: float, options: dict, **engine: Any) -> Any:
+    """:func:`_solve` with the finite-volume engine's :class:`~diffusion_pr.solvers.fv.engine.FVSolution`
+    (``engine``: its ``grid``, ``plain`` and ``warm_start`` arguments); a backend that is not a finite-volume one
+    (closed form) gives a solution that holds its result alone, and takes no grid."""
+    import sys
+
+    from .solvers import get_backend
+    from .solvers.fv.engine import FVSolution
+
+    backend = _check_backend(backend)
+    rtol = _check_rtol(rtol)
     chosen = choose_backend(problem, options) if backend == "auto" else backend
     solver = get_backend(chosen)
-    unknown = set(options) - _accepted_options(chosen)
+    unknown = set(options) - _keyword_options(solver)
     if unknown:
         raise ValueError(f"unknown option(s) {sorted(unknown)} for backend {chosen!r}; it accepts "
-                         f"{sorted(_accepted_options(chosen))}")
-    result = solver(problem, rtol=rtol, **options)
-    return replace(result, diagnostics={**result.diagnostics, "backend_requested": backend})
+                         f"{sorted(_keyword_options(solver))}")
+    full = getattr(sys.modules[solver.__module__], "solve_full", None)
+    engine = {k: v for k, v in engine.items() if v is not None}
+    if full is None:  # (a warm start is a hint: a closed form needs none)
+        if set(engine) - {"warm_start"}:
+            raise ValueError(f"backend {chosen!r} is not a finite-volume backend: it takes no {sorted(engine)}")
+        sol = FVSolution(result=solver(problem, rtol=rtol, **options))
+    else:
+        sol = full(problem, rtol=rtol, **options, **engine)
+    return replace(sol, result=replace(sol.result, diagnostics={**sol.result.diagnostics,
+                                                                "backend_requested": backend}))
 
 
 def solve_problem(problem: Any, *, backend: str = "auto", rtol: float = 1e-6,
@@ -288,15 +316,29 @@ def pressure_distribution(
         Bad numbers (NaN, out of range) naming the parameter, NaN spectra,
         ``p_c <= 0``, unknown cutoff/tail/backend names.
     """
+    return _pressure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta, cutoff=cutoff,
+                                  p_c=p_c, tail=tail, p_t=p_t, drift=drift, backend=backend, rtol=rtol,
+                                  closure=closure, **options)[0]
+
+
+def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float, zeta: float = 0.0,
+                           cutoff: Any = "sharp", p_c: Optional[float] = None, tail: Any = None,
+                           p_t: Optional[float] = None, drift: Optional[Callable] = None, backend: str = "auto",
+                           rtol: float = 1e-6, closure: str = "second_order", warm_start: Any = None,
+                           **options: Any) -> tuple:
+    """``(result, solution)``: :func:`pressure_distribution`'s result and the finite-volume solution it came from
+    (:class:`~diffusion_pr.solvers.fv.engine.FVSolution`, None where there is none), started from ``warm_start``
+    (a sweep's :class:`~diffusion_pr.solvers.fv.engine.WarmStart`)."""
     if closure != "second_order":
-        from .closures import check_closure, closure_distribution
+        from .closures import _closure_distribution, check_closure
 
         check_closure(closure)
         if drift is not None:
             raise ValueError(f"drift applies to closure='second_order' only; got closure={closure!r}")
-        return closure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta, closure=closure,
-                                    cutoff=None if cutoff == "sharp" else cutoff, p_c=p_c, tail=tail, p_t=p_t,
-                                    backend=backend, rtol=rtol, **options)
+        return _closure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
+                                     closure=closure, cutoff=None if cutoff == "sharp" else cutoff, p_c=p_c,
+                                     tail=tail, p_t=p_t, backend=backend, rtol=rtol, warm_start=warm_start,
+                                     **options)
     from .cumulants import stress_variance, variance_vs_magnification
 
     E = check_positive("E_star", E_star)
@@ -333,8 +375,8 @@ def pressure_distribution(
             mean_pressure=float(p0), eta=eta, variance_of_eta=v_eta, pressure_factor=factor,
             drift_of_eta=drift, label="pressure_distribution", **_exact_schedule(spectrum, E, float(p0), float(z)))
         extra.update({"eta": eta, "variance_of_eta": v_eta})
-    result = _solve(problem, backend, rtol, options)
-    return replace(result, diagnostics={**result.diagnostics, **extra})
+    sol = _solve_full(problem, backend, rtol, options, warm_start=warm_start)
+    return replace(sol.result, diagnostics={**sol.result.diagnostics, **extra}), sol
 
 
 def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", progress: bool = False,
@@ -343,8 +385,8 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
 
     Neighbouring walls need about the same grid, so each native finite-volume
     solve starts where the previous one's estimate says the grid suffices
-    (``n_start``: its ``diagnostics["cells_needed"]``, at most its first grid;
-    and its ``wall_grading`` and ``wall_depth``) and usually needs one refinement level instead of
+    (the cells it predicts for ``rtol``, at most its first grid, and the
+    grading towards the wall its errors favour) and usually needs one refinement level instead of
     two: a 100-zeta sweep of the Fig. 1 scene at rtol 1e-6 takes about 0.16 s
     instead of 0.23 s (docs/backends.md).
     Every answer meets ``rtol`` on its own; it may differ from a single call's
@@ -364,7 +406,7 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
     **kwargs
         Everything else :func:`pressure_distribution` takes (``E_star``,
         ``mean_pressure``, ``cutoff``, ``p_c``, ``closure``, ``rtol``, backend
-        options) except ``zeta``, ``n_start``, ``wall_grading`` and ``wall_depth``.
+        options) except ``zeta``.
 
     Returns
     -------
@@ -374,10 +416,8 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
     z = np.asarray(zetas, dtype=float)
     if z.ndim != 1 or z.size == 0:
         raise ValueError(f"zetas must be a non-empty one-dimensional sequence of wall ranges; got zetas={zetas!r}")
-    for name in ("zeta", "n_start", "wall_grading", "wall_depth"):
-        if name in kwargs:
-            raise ValueError(f"{name} is set by the sweep (each entry of zetas; the previous solve's cells); "
-                             f"remove {name}={kwargs[name]!r}")
+    if "zeta" in kwargs:
+        raise ValueError(f"zeta is set by the sweep (each entry of zetas); remove zeta={kwargs['zeta']!r}")
     items = z
     if progress:
         from tqdm.auto import tqdm
@@ -385,15 +425,14 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
         items = tqdm(z, desc="zeta sweep", unit="wall")
     from .solvers.fv.engine import MAX_CELLS
 
-    # the engine's bound on a first level's cells (n_start): its finest grid within max_cells
-    cap = int(kwargs.get("max_cells", MAX_CELLS)) // (8 if kwargs.get("extrapolation") == "sixth" else 4)
+    # the engine's bound on a first level's cells: its finest grid within max_cells
+    cap = int(kwargs.get("max_cells", MAX_CELLS)) // 4
     out = []
-    start: dict = {}
-    needed = None
+    start = needed = None
     for zeta in items:
-        result = pressure_distribution(spectrum, zeta=float(zeta), backend=backend, **{**kwargs, **start})
+        result, sol = _pressure_distribution(spectrum, zeta=float(zeta), backend=backend, warm_start=start, **kwargs)
         out.append(result)
-        start, needed = _sweep_start(result, needed, cap)
+        start, needed = _sweep_start(result, sol, needed, cap)
     return out
 
 
@@ -401,31 +440,19 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
 SWEEP_TREND_MAX = 1.5
 
 
-def _sweep_start(result: PressureDistribution, previous_needed: Optional[int], cap: int) -> tuple:
-    """``(options, cells_needed)`` for the next solve of a sweep after ``result``.
+def _sweep_start(result: PressureDistribution, sol: Any, previous_needed: Optional[int], cap: int) -> tuple:
+    """``(warm start, cells_needed)`` for the next solve of a sweep after ``result`` (its finite-volume solution
+    ``sol``).
 
-    ``n_start``: the cells this (native, converged) result's estimate predicts for its rtol
-    (``diagnostics["cells_needed"]``), at most its own first grid (starting at the previous cells over-resolves
-    where the need falls: a balanced closure's zeta sweep ratcheted up to 1060 cells where 140-630 suffice), times
-    the growth of the need since ``previous_needed`` where it grows (at most SWEEP_TREND_MAX: a start just short
-    of the need costs a second level of twice the cells), at most ``cap``.  ``wall_grading``: the grading its last
-    level's errors favour, and ``wall_depth`` where it ends (``cells_needed`` is for that grading, without a remapped
-    monitor: ``diagnostics["remap_factor"]``).  No options after a result of another backend
-    or a failed one."""
-    d = result.diagnostics
-    levels = d.get("levels")
-    if result.backend != "native" or not levels or not result.success:
-        return {}, None
-    needed = int(d.get("cells_needed", levels[0]))
-    # a regrading can only lower it; a remapped monitor's cells are the family's without it times its factor
-    start = min(levels[0] / float(d.get("remap_factor", 1.0)), needed)
+    The solution's ``next_start`` (the cells its estimate predicts for its rtol, at most its own first grid, and the
+    grading its last level's errors favour), its cells times the growth of the need since ``previous_needed``
+    where it grows (at most SWEEP_TREND_MAX: a start just short of the need costs a second level of twice the
+    cells), at most ``cap``.  None after a result of another backend or a failed one."""
+    if sol is None or result.backend != "native" or not result.success or sol.next_start is None:
+        return None, None
+    needed = sol.cells_needed
+    start = sol.next_start
     if previous_needed:  # where the need grows from entry to entry, start ahead of it
-        start *= min(max(needed / previous_needed, 1.0), SWEEP_TREND_MAX)
-    options = {"n_start": int(min(math.ceil(start), cap))}
-    grading = d.get("wall_grading_needed", d.get("wall_grading", 0.0))
-    if grading > 0.0:
-        options["wall_grading"] = float(grading)
-        depth = d.get("wall_depth_needed", d.get("wall_depth", 0.0))
-        if depth > 0.0:
-            options["wall_depth"] = float(depth)
-    return options, needed
+        grown = start.n_start * min(max(needed / previous_needed, 1.0), SWEEP_TREND_MAX)
+        start = replace(start, n_start=int(min(math.ceil(grown), cap)))
+    return start, needed

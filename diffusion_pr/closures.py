@@ -31,12 +31,10 @@ Units: pressures in the unit of ``E_star`` and ``mean_pressure``; lengths
 """
 from __future__ import annotations
 
-import contextlib
-import functools
 import math
 import time
 from dataclasses import dataclass, replace
-from typing import Any, Optional, Sequence
+from typing import Any, Optional
 
 import numpy as np
 
@@ -70,21 +68,11 @@ DEFAULT_CONTINUUM_SHELLS = 96
 EXTRAPOLATION_SHELLS = 48
 #: the most shells the extrapolation grows to where its residual misses rtol
 MAX_CONTINUUM_SHELLS = 1536
-#: where the shell ladder doubles, the rung after the new one is integrated ahead on the worker's wait and cancelled
-#: if the new rung's table does not double again (:func:`_shell_corrected`, engine.plain_batch_ahead; the same bits)
-SOLVE_AHEAD = True
-#: ... only where the wall's layer is thin (graded shells) and the residual is above this many times the room rtol
-#: leaves it: a rung then has to cut it more than the 16x of a fourth order to stop the ladder.  Measured over 169
-#: doublings (the 320 stress scenes, 150 random ones of seed 1, the Fig. 1 scenes): the next rung was wanted in 33 of
-#: the 43 that pass (and 25 of the 126 others); with every doubling speculated, 58 of 169, and the 320 stress scenes'
-#: summed time was 1.005x (docs/closures.md "The next rung integrated ahead")
-AHEAD_RESIDUAL_RATIO = 16.0
 #: the ladder's rungs after its first table (where it doubles: 96, 192, ... shells) are solved on the answer's N grid
 #: alone, and the continuum's refinement they bring is added to the first table's correction (:func:`_shell_corrected`:
 #: a third of each rung's integrations; docs/closures.md "The later rungs on the coarse grid").  Only on graded shells
 #: (a thin wall layer): on a uniform ladder the refinement's spatial error went far past its count (random seed 21,
 #: scene 232: 4.2e-6 from the oracle against an estimate of 8.9e-7; with both grids 7.6e-8 on 192 shells)
-COARSE_RUNGS = True
 #: ... their refinement's spatial error counted as this multiple of its size times four times the first table's
 #: correction's relative second-order error (the N grid's, of a difference of the same kind).  On the Fig. 1 scenes
 #: that doubled, the answer moved from the one with both grids by 0.4-2.8x that proxy (margin 1).  It is not a bound
@@ -131,7 +119,6 @@ THIN_LAYER_RATIO = 2.0 ** 2.5
 #: (forty-ninth session: on the 649 uniform ladders of random seeds 17-22, above the estimate 11 -> 5, above rtol
 #: 4 -> 1, the largest true/estimate 5.92 -> 2.22, 8 ladders on more shells, the Fig. 1 scenes' shells unchanged;
 #: docs/closures.md "The zero weight's own order on uniform shells")
-UNIFORM_PARTS = True
 #: the plain grids' correction extrapolated in space from the N and 2N grids (:func:`_correction_in_space`): its
 #: own error (counted on uniform shells; where the wall's layer is thin the second-order one is) is the
 #: second-order estimate times this multiple
@@ -768,80 +755,10 @@ def lognormal_gap_distribution(spectrum: Spectrum, *, E_star: float, mean_pressu
 #: floor of the balanced closure's non-contact region, relative to zeta q_min E*/2 (docs/closures.md)
 BALANCED_FLOOR = 1e-16
 
-#: default resolution of the reference solver (cells, BDF2 steps); the error estimate
-#: comes from a second run at half of both
-REFERENCE_RESOLUTION = (1600, 1600)
-
-
-def _solve_reference(shells: Shells, *, zeta: float, E_star: float, p0: float, closure: str,
-                     partition_q: Optional[float], n_cells: int, n_steps: int) -> Any:
-    """The closure solved by the independent reference solver (``diffusion_pr._closure_reference``)."""
-    from ._closure_reference import solve_reference
-    from .result import PressureDistribution
-
-    balanced = closure in _BALANCED
-    if closure == "local_g1_shell_balanced":
-        partition_q = "shell"
-    t0 = time.perf_counter()
-    runs = []
-    # The wall floor (first edge) sits a factor `floor` below zeta q_min E*/2.  local_g1: ln p drifts
-    # down at rate 1/p*^2 there, mass never returns, 1e-2 is deep enough.  Balanced: its drift
-    # cancels that Ito drift, ln p random-walks over a wide range and mass comes back, so the floor
-    # goes 32 e-folds deeper (1e-16) with the cells scaled to keep the cell size (docs/closures.md).
-    floor = BALANCED_FLOOR if balanced else 1e-2
-    scale_cells = 1.0
-    kz = 0.5 * zeta * E_star
-    if balanced and kz > 0:
-        pm = p0 + 10.0 * math.sqrt(shells.V0)
-        s_shallow = min(p0 / 20.0, 1e-2 * kz * shells.q_min)
-        s_deep = min(p0 / 20.0, floor * kz * shells.q_min)
-        scale_cells = math.asinh(pm / s_deep) / math.asinh(pm / s_shallow)
-    n_fine = 4 * int(math.ceil(n_cells * scale_cells / 4.0))
-    for n, m in ((n_fine // 2, n_steps // 2), (n_fine, n_steps)):
-        runs.append(solve_reference(shells.q, shells.dV0, zeta=zeta, E_star=E_star, mean_pressure=p0,
-                                    balanced=balanced, q_part=partition_q if partition_q else shells.q_min,
-                                    n_cells=n, n_steps=m, floor_factor=floor))
-    coarse, fine = runs
-    if fine["density"].size != 2 * coarse["density"].size:  # keep the grids nested
-        raise RuntimeError("reference solver: non-nested grids")
-    m_f = fine["density"] * np.diff(fine["edges"])
-    m_c = coarse["density"] * np.diff(coarse["edges"])
-    # nested grids (x uniform, halved): merge fine pairs; BDF2 and the grid are second order
-    # the wall floor (first edge) moves with the grid: count the zero weight in the first coarse cell
-    m_fc = m_f.reshape(-1, 2).sum(axis=1)
-    m_fc[0] += fine["zero_weight"]
-    m_c = m_c.copy()
-    m_c[0] += coarse["zero_weight"]
-    diff = float(np.sum(np.abs(m_fc - m_c)))
-    err = diff / 3.0
-    edges = fine["edges"]
-    wall = time.perf_counter() - t0
-    floor = float(edges[1])
-    res_mean = fine["mean_residual"]
-    density = fine["density"]
-    n_neg = int(np.count_nonzero(density < 0))
-    ok = n_neg == 0 and (not balanced or res_mean < 1e-10)
-    msg = (f"reference solver: {n_fine} cells, {n_steps} BDF2 steps; estimated L1 error {err:.2e} "
-           f"(against {n_fine // 2} cells/{n_steps // 2} steps)")
-    if n_neg:
-        msg += f"; {n_neg} negative cell densities (min {density.min():.3g})"
-    if balanced and not res_mean < 1e-10:
-        msg += f"; the multiplier A did not hold the mean (relative residual {res_mean:.3g}): NOT converged"
-    diag = {"closure": closure, "n_cells": int(edges.size - 1), "n_steps": n_steps, "n_shells": int(shells.q.size),
-            "partition_q": partition_q if partition_q else shells.q_min, "wall_floor": floor if kz > 0 else 0.0,
-            "balance_multiplier": fine["A"], "secant_iterations": fine["secant_iterations"],
-            "mean_residual": res_mean, "shells_exact": shells.exact}
-    if kz > 0:
-        diag["zero_weight_meaning"] = (f"mass below the wall floor {floor:.3g} (exponentially close to p = 0: "
-                                       "g(q; p)^2 ~ p^2 never lets it reach 0)")
-    return PressureDistribution(0.5 * (edges[1:] + edges[:-1]), density, np.diff(edges), fine["zero_weight"], p0,
-                                shells.V0, "closure_reference", ok, msg, err, wall, diag, edges)
-
-
 def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: float, zeta: float = 0.0,
                          closure: str = "local_g1_balanced", backend: str = "auto", rtol: float = 1e-6,
                          n_shells: Optional[int] = None, cutoff: Any = None, p_c: Optional[float] = None,
-                         tail: Any = None, p_t: Optional[float] = None, partition_q: Optional[float] = None,
+                         tail: Any = None, p_t: Optional[float] = None,
                          shell_extrapolation: Optional[bool] = None, **options: Any) -> Any:
     r"""Pressure distribution of a rough contact with a named closure (docs/closures.md).
 
@@ -868,20 +785,15 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         Shell-by-shell closures: the closure is a
         :class:`~diffusion_pr.problem.StagedProblem` (:func:`closure_problem`) solved
         by :func:`diffusion_pr.api.solve_problem` (``"auto"``, ``"native"``,
-        ``"pypde"``, ``"fipy"``), or ``"reference"``: the independent reference
-        solver of :mod:`diffusion_pr._closure_reference` (the oracle the tests check
-        the engine against; options ``n_cells``, ``n_steps``).
+        ``"pypde"``, ``"fipy"``).
     rtol : float
-        Target L1 error (second order; the reference solver reports its estimate).
+        Target L1 error.
     n_shells : int, optional
         Continuum spectra: number of shells (default :data:`DEFAULT_CONTINUUM_SHELLS`).
     cutoff, p_c, tail, p_t
         Second order only (the paper's cutoff near ``p = 0`` and the tail factor).
         The other closures have no cutoff (``g(q; p)^2 ~ p^2`` is theirs) and no
         tail factor; passing one raises ``ValueError``.
-    partition_q : float, optional
-        ``"local_g1_balanced"`` only: wavenumber of the partition factor
-        (default ``q_min``; docs/closures.md explains why it must be ``q_min``).
     shell_extrapolation : bool, optional
         Shell closures on a continuum spectrum.  The shell sum is the
         exponential midpoint rule in ``tau``, second order in the shell width:
@@ -901,10 +813,7 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         is the grids' estimate plus the correction's spatial error plus that
         residual in L1; where it misses ``rtol`` the shells double (up to
         :data:`MAX_CONTINUUM_SHELLS`, each doubling one more solve on the same
-        grids; ``diagnostics["shells_solved"]``; with two threads, where the
-        wall's layer is thin and a doubling is unlikely to be the last, the
-        rung after the new one is integrated ahead and cancelled where it is
-        not needed: :data:`SOLVE_AHEAD`, ``diagnostics["shells_ahead_unused"]``).
+        grids; ``diagnostics["shells_solved"]``).
         ``diagnostics["shell_error"]`` is the ``n``-shell problem's distance from
         the continuum, ``L1 |Pr(n) - Pr(n/2)|/3``.  On the Fig. 1 scene at
         rtol 1e-6: 6-21 ms at ``zeta >= 0.1``; below, where the wall's layer is
@@ -916,13 +825,28 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         does not contain the distance from the continuum; a
         :class:`~diffusion_pr.spectra.DiscreteSpectrum`'s shells are exact).
     **options
-        ``n_cells``, ``n_steps`` for the reference solver; backend options otherwise.
+        The backend's options.
 
     Returns
     -------
     PressureDistribution
         ``diagnostics["closure"]`` names the closure.
     """
+    return _closure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta, closure=closure,
+                                 backend=backend, rtol=rtol, n_shells=n_shells, cutoff=cutoff, p_c=p_c, tail=tail,
+                                 p_t=p_t, shell_extrapolation=shell_extrapolation,
+                                 **options)[0]
+
+
+def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: float, zeta: float = 0.0,
+                          closure: str = "local_g1_balanced", backend: str = "auto", rtol: float = 1e-6,
+                          n_shells: Optional[int] = None, cutoff: Any = None, p_c: Optional[float] = None,
+                          tail: Any = None, p_t: Optional[float] = None,
+                          shell_extrapolation: Optional[bool] = None, warm_start: Any = None,
+                          **options: Any) -> tuple:
+    """``(result, solution)``: :func:`closure_distribution`'s result and the finite-volume solution of its (last)
+    ``n``-shell solve (None where there is none), which started from ``warm_start`` (a sweep's, a
+    :class:`~diffusion_pr.solvers.fv.engine.WarmStart`)."""
     closure = check_closure(closure)
     for name, value in (("E_star", E_star), ("mean_pressure", mean_pressure), ("zeta", zeta)):
         if np.ndim(value) != 0:
@@ -935,49 +859,34 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         raise ValueError(f"shell_extrapolation must be None, True or False; got "
                          f"shell_extrapolation={shell_extrapolation!r}")
     if shell_extrapolation is None:  # the default: the continuum closure where the shells are a quadrature
-        shell_extrapolation = bool(closure not in ("second_order", "lognormal_gap") and backend != "reference"
+        shell_extrapolation = bool(closure not in ("second_order", "lognormal_gap")
                                    and not isinstance(spectrum, DiscreteSpectrum) and n_shells is None)
-    if shell_extrapolation is not False and (closure in ("second_order", "lognormal_gap") or backend == "reference"):
+    if shell_extrapolation is not False and closure in ("second_order", "lognormal_gap"):
         raise ValueError("shell_extrapolation applies to the shell closures ('local_g1', 'local_g1_balanced', "
                          "'local_g1_shell_balanced') on the finite-volume backends; got "
                          f"closure={closure!r}, backend={backend!r}")
     if closure == "second_order":
         from .api import pressure_distribution
 
-        if partition_q is not None or n_shells is not None:
-            raise ValueError("partition_q and n_shells apply to the shell-by-shell closures, not to 'second_order'")
+        if n_shells is not None:
+            raise ValueError("n_shells applies to the shell-by-shell closures, not to 'second_order'")
         return pressure_distribution(spectrum, E_star=E, mean_pressure=p0, zeta=z,
                                      cutoff="sharp" if cutoff is None else cutoff, p_c=p_c, tail=tail, p_t=p_t,
-                                     backend=backend, rtol=rtol, **options)
+                                     backend=backend, rtol=rtol, **options), None
     for name, value in (("cutoff", cutoff), ("p_c", p_c), ("tail", tail), ("p_t", p_t)):
         if value is not None and not (name == "cutoff" and value == "sharp" and z == 0.0):
             raise ValueError(f"{name} applies to closure='second_order' only; closure={closure!r} has no fitted "
                              f"cutoff or tail (got {name}={value!r})")
     if closure == "lognormal_gap":
-        if partition_q is not None or n_shells is not None:
-            raise ValueError("partition_q and n_shells do not apply to closure='lognormal_gap' (closed form)")
-        return lognormal_gap_distribution(spectrum, E_star=E, mean_pressure=p0, zeta=z)
-    if partition_q is not None and closure != "local_g1_balanced":
-        raise ValueError("partition_q applies to closure='local_g1_balanced' only "
-                         "('local_g1_shell_balanced' is the partition at each shell's q_k)")
-    if partition_q is not None and partition_q != "shell":
-        check_positive("partition_q", partition_q)
-    at_shells = "local_g1_shell_balanced" if partition_q == "shell" else closure  # the partition at each q_k
-    grading, kappa, lam = shell_grading(spectrum, E_star=E, zeta=z, mean_pressure=p0, closure=at_shells) \
+        if n_shells is not None:
+            raise ValueError("shell options (n_shells) do not apply to closure='lognormal_gap' (closed form)")
+        return lognormal_gap_distribution(spectrum, E_star=E, mean_pressure=p0, zeta=z), None
+    grading, kappa, lam = shell_grading(spectrum, E_star=E, zeta=z, mean_pressure=p0, closure=closure) \
         if shell_extrapolation \
         else ("uniform", None, None)
     shells = _cached_shells(spectrum, E, EXTRAPOLATION_SHELLS if shell_extrapolation and n_shells is None
                             else n_shells, grading)
-    if backend == "reference":
-        n_cells, n_steps = options.pop("n_cells", REFERENCE_RESOLUTION[0]), options.pop("n_steps", REFERENCE_RESOLUTION[1])
-        if options:
-            raise ValueError(f"unknown options for the reference solver: {sorted(options)}")
-        for name, v in (("n_cells", n_cells), ("n_steps", n_steps)):
-            if not isinstance(v, (int, np.integer)) or v < 16 or v % 2:
-                raise ValueError(f"{name} must be an even integer >= 16; got {name}={v!r}")
-        return _solve_reference(shells, zeta=z, E_star=E, p0=p0, closure=closure, partition_q=partition_q,
-                                n_cells=int(n_cells), n_steps=int(n_steps))
-    problem = closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure, partition_q=partition_q)
+    problem = closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure)
     if closure in _BALANCED and z > 0:
         # part of the closure's definition, not an accuracy knob: its drift cancels the Ito drift of
         # ln p below p* = zeta q_min E*/2, so mass returns from deep below p*; resolve down to
@@ -990,20 +899,17 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
         if shells.q.size % 4:
             raise ValueError(f"shell_extrapolation needs n_shells divisible by 4 (n, n/2, n/4 shells); got "
                              f"n_shells={shells.q.size}")
-    scene = (spectrum, E, p0, z, closure, partition_q, grading)
-    # the shells' ladder's plain solves, integrated alongside the main solve's last level where they can be
-    # (engine.plain_alongside): what they gave, by the grid they were solved on
-    alongside: dict = {}
-    res = _solve_shells(problem, shells, closure, backend, rtol, options, keep=shell_extrapolation,
-                        alongside=(scene, rtol, alongside) if shell_extrapolation else None)
+    scene = (spectrum, E, p0, z, closure, grading)
+    sol = _solve_shells(problem, shells, closure, backend, rtol, options, keep=shell_extrapolation,
+                        warm_start=warm_start)
     if not shell_extrapolation:
-        return res
+        return sol.result, sol
     first = int(shells.q.size)
     tightened = False  # the first solve was repeated on tighter grids (once at most)
     spent = 0.0  # the discarded attempts' time (a retry on tighter grids, a restart from twice the shells)
     while True:
-        out = _shell_extrapolated(res, scene, rtol, options, alongside)
-        n = int(res.diagnostics["n_shells"])
+        out = _shell_extrapolated(sol, scene, rtol, options)
+        n = int(sol.result.diagnostics["n_shells"])
         if (not out.success and not tightened and out.diagnostics.get("shell_extrapolation")
                 and out.diagnostics.get("grid_estimate", 0.0) >= SHELL_SHARE * rtol):
             # the grids' share left no room for the shells' residual (the full-solve fallback weighs each solve's
@@ -1011,23 +917,21 @@ def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: fl
             # partition, grids 9.3e-7 + shells 4.4e-6): once more on the finer grids of a tighter first solve
             tightened = True
             spent += out.wall_time
-            res = _solve_shells(problem, shells, closure, backend, GRID_RETRY_FRACTION * rtol, options, keep=True,
-                                alongside=(scene, rtol, alongside))
-            res.diagnostics["grids_tightened"] = f"the grids' estimate {out.diagnostics['grid_estimate']:.2e} " \
-                                                 f"left no room for the shells' residual at rtol {rtol:.1e}"
+            sol = _solve_shells(problem, shells, closure, backend, GRID_RETRY_FRACTION * rtol, options, keep=True,
+                                warm_start=warm_start,
+                                note={"grids_tightened": f"the grids' estimate {out.diagnostics['grid_estimate']:.2e} "
+                                                         f"left no room for the shells' residual at rtol {rtol:.1e}"})
             continue
         if "shell_extrapolation_failed" not in out.diagnostics or 2 * n > MAX_CONTINUUM_SHELLS:
-            out.diagnostics["shell_grading"] = grading
-            out.diagnostics["wall_layer_ratio"] = kappa
-            out.diagnostics["start_layer_ratio"] = lam
-            return out if spent == 0.0 else replace(out, wall_time=out.wall_time + spent)
+            out = replace(out, diagnostics={**out.diagnostics, "shell_grading": grading, "wall_layer_ratio": kappa,
+                                            "start_layer_ratio": lam})
+            return (out if spent == 0.0 else replace(out, wall_time=out.wall_time + spent)), sol
         # a coarser-shell problem did not solve on these grids (wide shells on a steep spectrum at a small load):
         # all three with twice the shells, on the grids of the finer first solve
         spent += out.wall_time
         problem, shells = _shell_problem(scene, 2 * n)
-        res = _solve_shells(problem, shells, closure, backend, rtol, options, keep=True,
-                            alongside=(scene, rtol, alongside))
-        res.diagnostics["shells_first_tried"] = first
+        sol = _solve_shells(problem, shells, closure, backend, rtol, options, keep=True, warm_start=warm_start,
+                            note={"shells_first_tried": first})
 
 
 def _shell_residual(m_n: np.ndarray, m_h: np.ndarray, m_q: np.ndarray) -> tuple:
@@ -1049,12 +953,11 @@ def _shell_residual(m_n: np.ndarray, m_h: np.ndarray, m_q: np.ndarray) -> tuple:
 
 
 def _shell_problem(scene: tuple, m: int) -> tuple:
-    """``(problem, shells)``: the closure of ``scene = (spectrum, E, p0, z, closure, partition_q, grading)`` on
+    """``(problem, shells)``: the closure of ``scene = (spectrum, E, p0, z, closure, grading)`` on
     ``m`` shells of its continuum spectrum."""
-    spectrum, E, p0, z, closure, partition_q, grading = scene
+    spectrum, E, p0, z, closure, grading = scene
     shells = _cached_shells(spectrum, E, m, grading)
-    return closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure,
-                           partition_q=partition_q), shells
+    return closure_problem(shells, zeta=z, E_star=E, mean_pressure=p0, closure=closure), shells
 
 
 def _ladder_below(top: int) -> list:
@@ -1063,160 +966,77 @@ def _ladder_below(top: int) -> list:
     return [top // 2, top // 4] + ([top // 8] if top % 8 == 0 and top // 8 >= MIN_ROMBERG_SHELLS else [])
 
 
-def _batched(backend: str, options: dict) -> bool:
-    """Whether the plain solves on a result's grids go through :func:`~diffusion_pr.solvers.fv.engine.plain_batch`
-    (native, or ``"auto"``, which solves the shells' problems natively; and no option :func:`_sub_options` keeps
-    beyond those it takes)."""
-    kept = set(options) - {"n_start", "n_cells", "wall_grading", "wall_depth", "extrapolation"}
-    return backend in ("native", "auto") and kept <= {"p_floor", "threads", "max_cells"}
-
-
 def _solve_shells(problem: Any, shells: Shells, closure: str, backend: str, rtol: float, options: dict, *,
-                  keep: bool, alongside: Optional[tuple] = None) -> Any:
-    """``solve_problem`` with the closure and the shell count in the diagnostics; with ``keep`` the last level's
-    plain masses are kept there too (the shell extrapolation's corrections are taken from them).
+                  keep: bool, warm_start: Any = None, note: Optional[dict] = None) -> Any:
+    """The closure's :class:`~diffusion_pr.solvers.fv.engine.FVSolution` with the closure and the shell count in
+    the result's diagnostics (and ``note``); with ``keep`` the last level's plain masses too (the shell
+    extrapolation's corrections are taken from them)."""
+    from .api import _solve_full
 
-    ``alongside = (scene, plain_rtol, stash)``: the ladder's first plain problems (:func:`_ladder_below` the shells
-    solved here) are integrated alongside the solve's levels after the first
-    (:func:`~diffusion_pr.solvers.fv.engine.plain_alongside`, native and batchable options only) and, where the
-    last level ran them, put in ``stash[grid] = (shell counts, results)`` for :func:`_plain_on_grid`."""
-    from .api import solve_problem
-    from .solvers.fv import engine
-
-    record = None
-    if keep and alongside is not None and _batched(backend, options) \
-            and options.get("extrapolation", "fourth") == "fourth":
-        scene, plain_rtol, stash = alongside
-        ms = _ladder_below(int(shells.q.size))
-        # (built by the engine while it waits for the first level's finest grid)
-        record = engine.plain_alongside(lambda: [_shell_problem(scene, m)[0] for m in ms], rtol=plain_rtol,
-                                        p_floor=options.get("p_floor"))
-    with engine.plain_masses("keep") if keep else contextlib.nullcontext(), \
-            record if record is not None else contextlib.nullcontext() as got:
-        res = solve_problem(problem, backend=backend, rtol=rtol, **options)
-    if record is not None and got.results is not None and res.diagnostics.get("grid") == got.results[0]:
-        stash[got.results[0]] = (tuple(ms), got.results[1])
-    res.diagnostics["closure"] = closure
-    res.diagnostics["n_shells"] = int(shells.q.size)
-    return res
+    sol = _solve_full(problem, backend, rtol, options, plain="keep" if keep else None, warm_start=warm_start)
+    res = sol.result
+    return replace(sol, result=replace(res, diagnostics={**res.diagnostics, "closure": closure,
+                                                         "n_shells": int(shells.q.size), **(note or {})}))
 
 
-def _coarser_on_grid(res: Any, m: int, scene: tuple, rtol: float, options: dict, *,
-                     plain: Optional[str]) -> Any:
-    """The ``m``-shell problem of ``scene = (spectrum, E, p0, z, closure, partition_q, grading)`` solved on
-    ``res``'s grids (:func:`~diffusion_pr.solvers.fv.engine.grid_family`, ``n_cells`` its coarsest), in full
-    (``plain=None``) or for the plain masses of the N and 2N grids (``"only"``) or of the 4N grid (``"finest"``) alone
-    (:func:`~diffusion_pr.solvers.fv.engine.plain_masses`); a balance with no root there is a failed result that
-    says so."""
-    from .api import solve_problem
-    from .solvers.fv import engine
+def _coarser_on_grid(sol: Any, m: int, scene: tuple, rtol: float, options: dict, *, plain: Optional[str]) -> Any:
+    """The ``m``-shell problem of ``scene = (spectrum, E, p0, z, closure, grading)`` solved on the
+    grids of ``sol`` (the ``n``-shell solution), in full (``plain=None``) or for the plain masses of some of its
+    grids alone (``plain`` a mode of :data:`~diffusion_pr.solvers.fv.engine.PLAIN_GRIDS`); a balance with no root
+    there is a failed solution that says so."""
+    from .api import _solve_full
+    from .solvers.fv.engine import FVSolution
 
-    sub = _sub_options(res, options, plain)
+    res = sol.result
+    sub = {k: v for k, v in options.items() if k != "n_cells"}  # (the grid fixes the cells)
     problem, _ = _shell_problem(scene, m)
-    with engine.grid_family(res.diagnostics["grid"]), \
-            (engine.plain_masses(plain) if plain is not None else contextlib.nullcontext()):
-        try:
-            return solve_problem(problem, backend=res.backend, rtol=rtol, **sub)
-        except RuntimeError as exc:
-            return replace(res, success=False, message=f"{type(exc).__name__}: {exc}", wall_time=0.0,
-                           diagnostics={"n_stages": len(problem.stages), "plain_failure": str(exc)})
-
-
-def _sub_options(res: Any, options: dict, plain: Optional[str]) -> dict:
-    """The options of a solve on ``res``'s grids: a sweep's start and grading are the first solve's; the plain
-    masses come from a fourth-order level, and a full solve follows the scheme the first one ended with (a sixth
-    that did not balance ended fourth, and says why after the word)."""
-    sub = {k: v for k, v in options.items() if k not in ("n_start", "n_cells", "wall_grading", "wall_depth")}
-    sub["n_cells"] = int(res.diagnostics["levels"][0])
-    if "extrapolation" in sub:
-        if plain is not None:
-            del sub["extrapolation"]
-        else:
-            sub["extrapolation"] = str(res.diagnostics["extrapolation"]).split()[0]
-    return sub
-
-
-def _plain_on_grid(res: Any, ms: Sequence[int], scene: tuple, rtol: float, options: dict, *, plain: str,
-                   alongside: Optional[dict] = None) -> list:
-    """:func:`_coarser_on_grid` with ``plain`` (``"only"`` or ``"finest"``) for each of the shell counts ``ms``,
-    in their order; on the native backend in one batch (:func:`~diffusion_pr.solvers.fv.engine.plain_batch`: the
-    same masses, all their grids dealt to the two threads together), or taken from ``alongside`` where the main
-    solve integrated these problems beside its last level (:func:`_solve_shells`: the same masses bit for bit)."""
-    from .solvers.fv import engine
-
-    if not ms:
-        return []
-    grid = res.diagnostics.get("grid")
-    if plain == "only" and alongside and grid in alongside and alongside[grid][0] == tuple(ms):
-        return list(alongside.pop(grid)[1])
-    if not _batched(res.backend, options):
-        return [_coarser_on_grid(res, m, scene, rtol, options, plain=plain) for m in ms]
-    problems = [_shell_problem(scene, m)[0] for m in ms]
-    with engine.grid_family(res.diagnostics["grid"]), engine.plain_masses(plain):
-        return engine.plain_batch(problems, rtol=rtol, **_batch_options(res, options, plain))
-
-
-def _batch_options(res: Any, options: dict, plain: str) -> dict:
-    """The options of a batch of plain solves on ``res``'s grids (:func:`_sub_options` without ``max_cells``: plain
-    masses on given grids, no refinement)."""
-    sub = _sub_options(res, options, plain)
-    sub.pop("max_cells", None)
-    return sub
-
-
-def _plain_on_grid_ahead(res: Any, ms: Sequence[int], ms_ahead: Sequence[int], wanted: Any, scene: tuple,
-                         rtol: float, options: dict, mode: str = "only") -> tuple:
-    """``(results, ahead_results)``: :func:`_plain_on_grid` of the shell counts ``ms`` (``mode`` ``"only"`` or
-    ``"coarsest"``, batchable options) with the rung ``ms_ahead`` integrated speculatively on the worker's wait
-    (:func:`~diffusion_pr.solvers.fv.engine.plain_batch_ahead`): its results where ``wanted(results)`` said they are
-    needed, else None (the same bits as solving them afterwards)."""
-    from .solvers.fv import engine
-
-    problems = [_shell_problem(scene, m)[0] for m in ms]
-    with engine.grid_family(res.diagnostics["grid"]), engine.plain_masses(mode):
-        return engine.plain_batch_ahead(problems, lambda: [_shell_problem(scene, m)[0] for m in ms_ahead], wanted,
-                                        rtol=rtol, **_batch_options(res, options, mode))
+    try:
+        return _solve_full(problem, res.backend, rtol, sub, grid=sol.grid, plain=plain)
+    except RuntimeError as exc:
+        why = f"{type(exc).__name__}: {exc}"
+        return FVSolution(result=replace(res, success=False, message=why, wall_time=0.0,
+                                         diagnostics={"n_stages": len(problem.stages)}),
+                          plain_failure=str(exc))
 
 
 def _failed_extrapolation(res: Any, why: str) -> Any:
     """``res`` (the ``n``-shell answer) marked as a failed shell extrapolation, saying why."""
     n = int(res.diagnostics["n_shells"])
-    diag = {k: v for k, v in res.diagnostics.items() if k != "plain_masses"}
-    diag.update({"shell_error": None, "shell_extrapolation": False, "shell_extrapolation_failed": why})
+    diag = {**res.diagnostics, "shell_error": None, "shell_extrapolation": False, "shell_extrapolation_failed": why}
     return replace(res, success=False, diagnostics=diag,
                    message=f"shell extrapolation failed: {why}; the {n}-shell answer is returned")
 
 
-def _shell_extrapolated(res: Any, scene: tuple, rtol: float, options: dict, alongside: Optional[dict] = None
-                        ) -> Any:
-    """The continuum closure from ``res`` (:func:`_shell_corrected` where its plain masses were kept, else
-    :func:`_shell_combined`)."""
+def _shell_extrapolated(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
+    """The continuum closure from the ``n``-shell solution ``sol`` (:func:`_shell_corrected` where its plain masses
+    were kept, else :func:`_shell_combined`)."""
     z = scene[3]
-    if z == 0.0 or not res.success or res.edges is None or "grid" not in res.diagnostics:
+    res = sol.result
+    if z == 0.0 or not res.success or res.edges is None or sol.grid is None:
         diag = {**res.diagnostics, "shell_error": 0.0 if z == 0.0 else None, "shell_extrapolation": False}
         return replace(res, diagnostics=diag)
-    if "plain_masses" in res.diagnostics:
-        out = _shell_corrected(res, scene, rtol, options, alongside)
+    if sol.plain is not None:
+        out = _shell_corrected(sol, scene, rtol, options)
         if out.success:
             return out
         # the plain grids' correction misses rtol (on steep spectra at small loads its spatial error dominates):
         # the n/2 and n/4-shell problems are solved in full instead
-        combined = _shell_combined(res, scene, rtol, options)
+        combined = _shell_combined(sol, scene, rtol, options)
         tried = out.diagnostics["timings"].get("shells", 0.0)
         timings = dict(combined.diagnostics["timings"])
         timings["shells"] = timings.get("shells", 0.0) + tried
         return replace(combined, wall_time=combined.wall_time + tried,
                        diagnostics={**combined.diagnostics, "timings": timings,
                                     "shell_correction_missed": out.message})
-    return _shell_combined(res, scene, rtol, options)
+    return _shell_combined(sol, scene, rtol, options)
 
 
-def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongside: Optional[dict] = None) -> Any:
-    """The continuum closure as ``res`` plus a correction from plain grids.
+def _shell_corrected(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
+    """The continuum closure as ``res = sol.result`` plus a correction from plain grids.
 
     ``res`` (``n`` shells) is extrapolated in space; the difference between it and the continuum is a
     difference between problems on the same grid, whose spatial errors are correlated: it is taken from the
-    plain masses ``P`` of the last level's grids alone (:func:`~diffusion_pr.solvers.fv.engine.plain_masses`),
+    plain masses ``P`` of the last level's grids alone (``plain=`` of :func:`~diffusion_pr.solvers.fv.engine.solve_fv_full`),
     solved for ``n/2``, ``n/4`` and ``n/8`` shells on ``res``'s grids.  With ``top`` the most shells solved, the
     shells' table (:func:`_shell_table`) gives the continuum ``X`` on each grid (Richardson ``R(top/2, top)``, or
     Romberg's sixth order where the observed order allows it) and its residual; the correction is
@@ -1237,55 +1057,36 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
     from .solvers.fv.engine import RICHARDSON_DIVISOR
     from .solvers.fv.grid import same_grid
 
+    res = sol.result
     n = int(res.diagnostics["n_shells"])
-    plain = {n: list(res.diagnostics["plain_masses"])}
+    plain = {n: list(sol.plain)}
     timing = {"shells": 0.0}
-    beside: list = []  # the shell counts the main solve integrated alongside its last level
-    ahead: dict = {}  # the next rung's results, integrated speculatively beside a doubling (SOLVE_AHEAD)
-    ahead_unused: list = []  # the rungs integrated (or begun) ahead and not used
     finest = False  # the correction from the 4N grids too, extrapolated in space
-    evaluated: dict = {}  # (top, finest, coarse) -> the table's evaluation made while a rung was integrated ahead
-    thin = scene[6] != "uniform"  # graded shells: the wall's layer is thin (shell_grading)
-    # the later rungs on the N grid alone (COARSE_RUNGS, graded shells only): their refinement of the first table's
-    # continuum is added to that table's correction; "coarse" off once the 2N grids are wanted after all (the margin
-    # misses, or the 4N grids)
-    state = {"coarse": COARSE_RUNGS and thin, "base": n}
+    evaluated: dict = {}  # ("base", n) -> the first table's evaluation (the later rungs' tables add to it)
+    thin = scene[5] != "uniform"  # graded shells: the wall's layer is thin (shell_grading)
+    # the later rungs on the N grid alone (graded shells only): their refinement of the first table's continuum is
+    # added to that table's correction; "coarse" off once the 2N grids are wanted after all (the margin misses, or
+    # the 4N grids)
+    state = {"coarse": thin, "base": n}
 
-    def masses_of(r: Any, mode: str) -> Optional[list]:
+    def masses_of(s: Any, mode: str) -> Optional[list]:
         # (the answer's grid is the 2N grid: the N grid is its every second edge, the 4N grid's every second edge it)
-        own = r.edges[::2] if mode == "finest" else r.edges
+        own = s.result.edges[::2] if mode == "finest" else s.result.edges
         theirs = res.edges[::2] if mode == "coarsest" else res.edges
-        ok = not (r.diagnostics.get("plain_failure") or "plain_masses" not in r.diagnostics
-                  or not same_grid(own, theirs))
-        return list(r.diagnostics["plain_masses"]) if ok else None
+        ok = not (s.plain_failure or s.plain is None or not same_grid(own, theirs))
+        return list(s.plain) if ok else None
 
-    def solve_plain(ms: list, mode: str, then: Optional[int] = None) -> dict:
+    def solve_plain(ms: list, mode: str) -> dict:
         out = {}
-        if mode in ("only", "coarsest"):
-            for m in [m for m in ms if m in ahead and ahead[m][0] == mode]:
-                r = ahead.pop(m)[1]
-                timing["shells"] += r.wall_time
-                out[m] = masses_of(r, mode)
-            ms = [m for m in ms if m not in out]
-        if then is not None and ms:  # (asked with the "only" or "coarsest" mode alone: on_the_grids)
-            got, more = _plain_on_grid_ahead(res, ms, [then], functools.partial(doubles_with, ms, mode), scene, rtol,
-                                             options, mode)
-            if more is None:
-                ahead_unused.append(then)
-            else:
-                ahead.update(zip([then], [(mode, r) for r in more]))
-        else:
-            got = _plain_on_grid(res, ms, scene, rtol, options, plain=mode, alongside=alongside)
-        for m, r in zip(ms, got):
-            timing["shells"] += r.wall_time
-            if r.diagnostics.get("solved_alongside"):
-                beside.append(m)
-            out[m] = masses_of(r, mode)
+        for m in ms:
+            s = _coarser_on_grid(sol, m, scene, rtol, options, plain=mode)
+            timing["shells"] += s.result.wall_time
+            out[m] = masses_of(s, mode)
         return out
 
-    def on_the_grids(ms: list, then: Optional[int] = None) -> None:
+    def on_the_grids(ms: list) -> None:
         mode = "coarsest" if state["coarse"] and ms and min(ms) > state["base"] else "only"
-        for m, got in solve_plain([m for m in ms if m not in plain], mode, then).items():
+        for m, got in solve_plain([m for m in ms if m not in plain], mode).items():
             plain[m] = got
         if finest:
             add_grid(2, "finest", ms)
@@ -1308,7 +1109,7 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
     def table(top: int, masses: dict, g: int) -> tuple:
         eighth = top % 8 == 0 and masses.get(top // 8) is not None
         used = [top >> k for k in range(4 if eighth else 3)]
-        return _shell_table([masses[m][g] for m in used], thin=thin, start=scene[6] == "ends")
+        return _shell_table([masses[m][g] for m in used], thin=thin, start=scene[5] == "ends")
 
     def evaluate(top: int, masses: dict, finest: bool) -> dict:
         """The correction and its errors from the table of ``top`` shells (``masses`` the plain masses by shell
@@ -1372,33 +1173,19 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
             return "full" if coarse else "stop"
         return "double"
 
-    def doubles_with(ms: list, mode: str, results: list) -> bool:
-        """Whether the ladder doubles again once the rung ``ms = [top]`` has given ``results`` (asked by
-        :func:`_plain_on_grid_ahead` before it finishes the next rung's speculative integrations)."""
-        got = masses_of(results[0], mode)
-        if got is None:
-            return False
-        top = ms[0]
-        ev = evaluated[top, finest, state["coarse"]] = evaluate(top, {**plain, top: got}, finest)  # (the loop's next)
-        return next_step(top, ev, finest) == "double"
-
     top = n
     while True:
         wanted = _ladder_below(top)
         on_the_grids(wanted)
         if plain[top] is None or plain[top // 2] is None or plain[top // 4] is None:
             return _failed_extrapolation(res, f"a coarser-shell problem did not solve on the {n}-shell grids")
-        ev = evaluated.pop((top, finest, state["coarse"]), None) or evaluate(top, plain, finest)
+        ev = evaluate(top, plain, finest)
         step = next_step(top, ev, finest)
         if step == "full":  # the later rungs' 2N grids after all: the table of this top on both grids
-            ahead_unused.extend(ahead)
-            ahead.clear()
             fill_answer_grids()
             continue
         if step == "finest":
             finest = True  # the correction's spatial error is what misses: extrapolate it in space
-            ahead_unused.extend(ahead)  # (integrated for the N and 2N grids only)
-            ahead.clear()
             on_the_grids(list(plain))
             continue
         if step != "double":
@@ -1409,15 +1196,11 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
             # table's residual (the refinement's expected size), leaves room for theirs
             if REFINEMENT_MARGIN * ev["n_relative"] * ev["residual"] > COARSE_ROOM * (rtol - ev["grids"]):
                 state["coarse"] = False
-        # the rung after the new one, integrated ahead on the worker's wait where it is likely needed (no 4N grids)
-        likely = thin and ev["residual"] > AHEAD_RESIDUAL_RATIO * (rtol - ev["grids"])
         top *= 2
-        on_the_grids([top], then=2 * top if SOLVE_AHEAD and likely and 2 * top <= MAX_CONTINUUM_SHELLS and not finest
-                     and _batched(res.backend, options) else None)
+        on_the_grids([top])
         if plain[top] is None:
             top //= 2
             break
-    ahead_unused.extend(ahead)
     corr, corr_error, split_error, split = ev["corr"], ev["corr_error"], ev["split_error"], ev["split"]
     counted, grids, residual, table_diag = ev["counted"], ev["grids"], ev["residual"], ev["table"]
     estimate = grids + residual
@@ -1430,8 +1213,6 @@ def _shell_corrected(res: Any, scene: tuple, rtol: float, options: dict, alongsi
                                     "shell_correction_extrapolated_error": split_error if split and not finest
                                     else None, **table_diag,
                                     "shells_solved": tuple(sorted(m for m in plain if plain[m] is not None)),
-                                    "shells_alongside": tuple(sorted(beside)),
-                                    "shells_ahead_unused": tuple(ahead_unused),
                                     "shells_on_the_coarse_grid": coarse_rungs,
                                     "shell_refinement_error": ev["refinement_error"],
                                     "shell_scheme": "correction from plain grids" + (
@@ -1526,7 +1307,7 @@ def _shell_table(ladder: list, thin: bool = False, start: bool = False) -> tuple
     :func:`_shell_residual`.  ``diagnostics["shell_weights"]``: the continuum as weights of ``P(n) ... P(n/8)``
     (for the first moments and the spatial errors of full solves, :func:`_shell_combined`).
 
-    With ``P(n/8)`` and :data:`UNIFORM_PARTS`, these rules decide on the zero weight (the probability below the
+    With ``P(n/8)``, these rules decide on the zero weight (the probability below the
     floor) and on the cells apart (:func:`_uniform_table` on each): each part takes its own branch, continuum and
     residual, and the residuals add. The zero weight converges on its own (its ``R`` ratios 1.3-52 where the cells'
     were 6-22 on the seven worst-estimated of 649 random uniform ladders), and in the L1 sums the cells' larger
@@ -1538,7 +1319,7 @@ def _shell_table(ladder: list, thin: bool = False, start: bool = False) -> tuple
     ``start``: the shells are graded at both ends ("ends")."""
     if thin:
         return _thin_layer_table(ladder, start)
-    if not UNIFORM_PARTS or len(ladder) < 4:
+    if len(ladder) < 4:
         x, residual, info = _uniform_table(ladder)
         info.pop("l1", None)
         return x, residual, info
@@ -1668,17 +1449,16 @@ def _continuum_result(res: Any, masses: np.ndarray, mom: np.ndarray, *, estimate
             "mass_error": mass - 1.0, "mean_error": mean - p0, "negative_mass": negative,
             "min_density": float(density.min()),
             "timings": {**res.diagnostics["timings"], "shells": extra_time}, **extra}
-    diag.pop("plain_masses", None)
     diag.pop("floor_ghosts", None)  # the n-shell solve's masses below the floor, not these: the spline ends there
     return replace(res, p=bary, density=density, zero_weight=float(masses[0]), success=success, message=message,
                    error_estimate=float(estimate), wall_time=res.wall_time + extra_time, diagnostics=diag)
 
 
-def _shell_combined(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
+def _shell_combined(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
     """The continuum closure from the ``n``-shell result ``res`` and full solves of fewer shells on its grids.
 
     The ``n/2``-, ``n/4``- and (where ``n/8 >= MIN_ROMBERG_SHELLS`` shells solve there) ``n/8``-shell problems
-    are solved on ``res``'s grids (:func:`~diffusion_pr.solvers.fv.engine.grid_family`, ``n_cells`` its coarsest),
+    are solved on ``res``'s grids (``grid=`` of :func:`~diffusion_pr.solvers.fv.engine.solve_fv_full`),
     so the cell masses combine cell by cell as :func:`_shell_table` says (Richardson, or Romberg where the
     observed order allows it), its residual added to the grids' estimate: the solves' own estimates with the
     table's weights in absolute value (``(4 e(n) + e(n/2))/3`` for Richardson; the spatial errors of the solves
@@ -1687,11 +1467,12 @@ def _shell_combined(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
     Used where the plain grids' correction misses (:func:`_shell_extrapolated`) or no plain masses were kept."""
     from .solvers.fv.grid import same_grid
 
+    res = sol.result
     n = int(res.diagnostics["n_shells"])
     solved = {n: res}
 
     def on_the_grid(m: int) -> Any:
-        return _coarser_on_grid(res, m, scene, rtol, options, plain=None)
+        return _coarser_on_grid(sol, m, scene, rtol, options, plain=None).result
 
     def usable(r: Any) -> bool:
         return bool(r.success and r.edges is not None and same_grid(r.edges, res.edges))
@@ -1707,7 +1488,7 @@ def _shell_combined(res: Any, scene: tuple, rtol: float, options: dict) -> Any:
             return _failed_extrapolation(res, why or "a solve's grids differ from the first one's")
         used = three + ([solved[n // 8]] if n % 8 == 0 and n // 8 in solved and usable(solved[n // 8]) else [])
         masses = [_masses(r) for r in used]
-        x, residual, table = _shell_table(masses, thin=scene[6] != "uniform", start=scene[6] == "ends")
+        x, residual, table = _shell_table(masses, thin=scene[5] != "uniform", start=scene[5] == "ends")
         weights = table["shell_weights"][:len(used)]
         grids = sum(abs(c) * r.error_estimate for c, r in zip(table.get("grid_weights", weights), used))
         if grids + residual <= rtol or 2 * n > MAX_CONTINUUM_SHELLS or grids >= SHELL_SHARE * rtol:

@@ -56,19 +56,16 @@ def theory_curves(case: Any, *, cutoff: str, backend: str, rtol: float) -> dict[
     theory with the paper's ``p_c`` for exponential walls).  Add another
     theory curve for the same case as a further entry.  The second entry,
     :data:`BEST_CLOSURE`, is the best parameter-free closure
-    (:func:`diffusion_pr.closures.closure_distribution`, no fitted number; with
-    ``backend="auto"`` solved by the reference solver at 800 cells, error about
-    5e-4 above ``p0/20``, which is quicker than the engine's staged solve).
+    (:func:`diffusion_pr.pressure_distribution` with ``closure=BEST_CLOSURE``, no
+    fitted number), solved by the finite-volume engine on the same spectrum.
     """
-    from .closures import closure_distribution
+    from .api import pressure_distribution
     from .reference_data import paper_theory
 
     curves = {PAPER: paper_theory(case, cutoff=cutoff, backend=backend, rtol=rtol)}
-    solver = ({"backend": "reference", "n_cells": 800, "n_steps": 800} if backend == "auto"
-              else {"backend": backend, "rtol": rtol})
-    curves[BEST_CLOSURE] = closure_distribution(case.spectrum, E_star=case.E_star, mean_pressure=case.mean_pressure,
-                                                zeta=0.0 if case.zeta is None else case.zeta, closure=BEST_CLOSURE,
-                                                **solver)
+    curves[BEST_CLOSURE] = pressure_distribution(case.spectrum, E_star=case.E_star, mean_pressure=case.mean_pressure,
+                                                 zeta=0.0 if case.zeta is None else case.zeta, closure=BEST_CLOSURE,
+                                                 backend=backend, rtol=rtol)
     return curves
 
 

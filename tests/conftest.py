@@ -2,9 +2,14 @@
 from __future__ import annotations
 
 import functools
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
+
+# the test oracles (tests/oracles, e.g. the closures' reference solver) import as ``oracles.*``
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 def pytest_report_header(config) -> str:

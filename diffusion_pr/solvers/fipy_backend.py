@@ -44,7 +44,7 @@ import numpy as np
 
 from ..result import PressureDistribution
 from . import timed_import
-from .fv.engine import MAX_CELLS, Prepared, solve_fv
+from .fv.engine import MAX_CELLS, FVSolution, Prepared, solve_fv_full
 from .fv.operator import centres, state_bands, wall_drift_rate
 
 __all__ = ["solve", "warm_up", "assemble"]
@@ -179,10 +179,18 @@ def solve(problem, *, rtol: float = 1e-6, method: str = "cram", n_cells: Optiona
     ValueError
         Unknown ``method``.
     """
+    return solve_full(problem, rtol=rtol, method=method, n_cells=n_cells, max_cells=max_cells,
+                      p_floor=p_floor).result
+
+
+def solve_full(problem, *, rtol: float = 1e-6, method: str = "cram", n_cells: Optional[int] = None,
+               max_cells: int = MAX_CELLS, p_floor: Optional[float] = None, **engine) -> FVSolution:
+    """:func:`solve` with the engine's :class:`~.fv.engine.FVSolution` (``engine``: ``grid``, ``plain``,
+    ``warm_start`` of :func:`~.fv.engine.solve_fv_full`)."""
     _, import_time = timed_import("fipy", "fipy", "FiPy")
     if method not in ("cram", "loop"):
         raise ValueError(f"method must be 'cram' or 'loop'; got method={method!r}")
-    result = solve_fv(problem, rtol=rtol, backend="fipy", assemble=assemble, n_cells=n_cells, max_cells=max_cells,
-                      p_floor=p_floor, time_integration="cram16" if method == "cram" else "fipy-cn-loop",
-                      loop=_loop if method == "loop" else None, extra={"import_time": import_time})
-    return result
+    return solve_fv_full(problem, rtol=rtol, backend="fipy", assemble=assemble, n_cells=n_cells,
+                         max_cells=max_cells, p_floor=p_floor,
+                         time_integration="cram16" if method == "cram" else "fipy-cn-loop",
+                         loop=_loop if method == "loop" else None, extra={"import_time": import_time}, **engine)

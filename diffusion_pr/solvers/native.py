@@ -19,9 +19,9 @@ import time
 from typing import Optional
 
 from ..result import PressureDistribution
-from .fv.engine import MAX_CELLS, native_assemble, solve_fv
+from .fv.engine import MAX_CELLS, FVSolution, native_assemble, solve_fv, solve_fv_full
 
-__all__ = ["solve", "warm_up"]
+__all__ = ["solve", "solve_full", "warm_up"]
 
 
 def warm_up() -> float:
@@ -53,9 +53,7 @@ def warm_up() -> float:
 
 
 def solve(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cells: int = MAX_CELLS,
-          p_floor: Optional[float] = None, threads: Optional[int] = None,
-          n_start: Optional[int] = None, extrapolation: str = "fourth",
-          wall_grading: Optional[float] = None, wall_depth: Optional[float] = None) -> PressureDistribution:
+          p_floor: Optional[float] = None) -> PressureDistribution:
     """Solve a :class:`~diffusion_pr.problem.FokkerPlanckProblem` or :class:`~diffusion_pr.problem.StagedProblem`.
 
     Parameters
@@ -71,34 +69,13 @@ def solve(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cel
         Cap on the cells of the finest grid.
     p_floor : float, optional
         Floor (pressure) where the wall is not reached (default ``1e-6 p0``).
-    n_start : int, optional
-        Cells of the first level's coarsest grid; the refinement continues
-        from there until the estimate meets ``rtol``.  In a sweep over
-        neighbouring problems pass the previous result's
-        ``diagnostics["cells_needed"]`` (the cells its estimate predicts for
-        ``rtol``): the first level then usually suffices.
-    wall_grading : float, optional
-        Start value of the logarithmic grading towards the wall, in (0, 10],
-        where the depth below the floor is fixed (drift or balance: the
-        closures); in a sweep the previous result's
-        ``diagnostics["wall_grading"]``.  Default: the engine's ``C_WALL``.
-    wall_depth : float, optional
-        Where that grading ends, as the fraction in [0, 1) of the way from
-        the floor to ``p0`` in ``ln p`` (0, the default: it reaches the
-        floor); under the same condition, in a sweep the previous result's
-        ``diagnostics["wall_depth_needed"]``.
-    threads : int, optional
-        1 or 2 (default 2 where the machine has two cores): a staged problem's
-        finest grid is integrated in a second thread, alongside the two coarser
-        ones; the answer is the same bit for bit.
-    extrapolation : {"fourth", "sixth"}
-        ``"sixth"``: a second Richardson extrapolation on four nested grids,
-        about half the cells at rtol 1e-6 with the answer on a 4x coarser grid
-        (see :func:`~diffusion_pr.solvers.fv.engine.solve_fv`); where its
-        grids do not resolve a balance, the default scheme answers and
-        ``diagnostics["extrapolation"]`` says so.
     """
-    return solve_fv(problem, rtol=rtol, backend="native", assemble=native_assemble, n_cells=n_cells,
-                    max_cells=max_cells, p_floor=p_floor, time_integration="cram16", threads=threads,
-                    n_start=n_start, extrapolation=extrapolation, wall_grading=wall_grading,
-                    wall_depth=wall_depth)
+    return solve_full(problem, rtol=rtol, n_cells=n_cells, max_cells=max_cells, p_floor=p_floor).result
+
+
+def solve_full(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cells: int = MAX_CELLS,
+               p_floor: Optional[float] = None, **engine) -> FVSolution:
+    """:func:`solve` with the engine's :class:`~.fv.engine.FVSolution` (``engine``: ``grid``, ``plain``,
+    ``warm_start`` of :func:`~.fv.engine.solve_fv_full`)."""
+    return solve_fv_full(problem, rtol=rtol, backend="native", assemble=native_assemble, n_cells=n_cells,
+                         max_cells=max_cells, p_floor=p_floor, time_integration="cram16", **engine)

@@ -37,7 +37,7 @@ import numpy as np
 
 from ..result import PressureDistribution
 from . import timed_import
-from .fv.engine import MAX_CELLS, Prepared, solve_fv
+from .fv.engine import MAX_CELLS, FVSolution, Prepared, solve_fv_full
 from .fv.operator import centres, probe_bands, state_bands, wall_drift, wall_drift_rate
 
 __all__ = ["solve", "warm_up", "assemble"]
@@ -170,12 +170,21 @@ def solve(problem, *, rtol: float = 1e-6, method: str = "cram", n_cells: Optiona
     ValueError
         Unknown ``method``.
     """
+    return solve_full(problem, rtol=rtol, method=method, n_cells=n_cells, max_cells=max_cells,
+                      p_floor=p_floor).result
+
+
+def solve_full(problem, *, rtol: float = 1e-6, method: str = "cram", n_cells: Optional[int] = None,
+               max_cells: int = MAX_CELLS, p_floor: Optional[float] = None, **engine) -> FVSolution:
+    """:func:`solve` with the engine's :class:`~.fv.engine.FVSolution` (``engine``: ``grid``, ``plain``,
+    ``warm_start`` of :func:`~.fv.engine.solve_fv_full`)."""
     _, import_time = timed_import("pde", "pypde", "py-pde")
     if method not in ("cram", "loop"):
         raise ValueError(f"method must be 'cram' or 'loop'; got method={method!r}")
     loop = None
     if method == "loop":
         loop = (lambda prep, e, nb, rf: _loop(prep, e, nb, rf, tol=max(1e-3 * rtol, 1e-12)))
-    return solve_fv(problem, rtol=rtol, backend="pypde", assemble=assemble, n_cells=n_cells, max_cells=max_cells,
-                    p_floor=p_floor, time_integration="cram16" if method == "cram" else "pypde-scipy-loop",
-                    loop=loop, extra={"import_time": import_time})
+    return solve_fv_full(problem, rtol=rtol, backend="pypde", assemble=assemble, n_cells=n_cells,
+                         max_cells=max_cells, p_floor=p_floor,
+                         time_integration="cram16" if method == "cram" else "pypde-scipy-loop", loop=loop,
+                         extra={"import_time": import_time}, **engine)

@@ -204,6 +204,8 @@ def _mean_spectrum(group):
 def _ensemble_compare(name, zeta, closure, *, paper_pc=False, n_cells=800):
     from gfmd_ref import bundled_ensemble
 
+    from oracles.closure_reference import reference_distribution
+
     from diffusion_pr.closures import closure_distribution
     from diffusion_pr.fig1 import paper_cutoff_pressure
 
@@ -213,11 +215,12 @@ def _ensemble_compare(name, zeta, closure, *, paper_pc=False, n_cells=800):
     kw = {}
     if closure.startswith("local"):
         # reference solver: K error ~5e-4 (800 cells) / 1e-3 (400), far below the targets' margins
-        kw = {"backend": "reference", "n_cells": n_cells, "n_steps": n_cells}
+        kw = {"n_cells": n_cells, "n_steps": n_cells}
     elif closure == "second_order" and paper_pc and zeta is not None:
         kw = {"cutoff": "muser", "p_c": paper_cutoff_pressure(zeta), "rtol": 1e-5}
-    th = closure_distribution(_mean_spectrum(group), E_star=E, mean_pressure=p0, zeta=0.0 if zeta is None else zeta,
-                              closure=closure, **kw)
+    solve = reference_distribution if closure.startswith("local") else closure_distribution
+    th = solve(_mean_spectrum(group), E_star=E, mean_pressure=p0, zeta=0.0 if zeta is None else zeta,
+               closure=closure, **kw)
     return compare_ensemble(th, group, n_boot=200, n_split=50)
 
 

@@ -168,29 +168,6 @@ def test_native_cdf_between_the_edges_near_a_floor_and_a_kink(p0, cutoff, p_c, p
     assert answer.cdf(0.999 * answer.edges[0]) == answer.zero_weight  # nothing of the spline below the floor
 
 
-@pytest.mark.parametrize("p0, cutoff, p_c, p_t", [(0.486, "smoothstep", 0.00366, 0.129),
-                                                 (0.00757, "smoothstep", 0.00537, 0.326),
-                                                 (0.2, "smoothstep", 0.002, 0.2)])
-def test_sixth_mode_cdf_runs_on_through_the_floor(p0, cutoff, p_c, p_t):
-    """``extrapolation="sixth"`` keeps the cells below the floor of its sixth-order masses too (``floor_ghosts``),
-    and its interpolation estimate measures the spline it reports, run on through the floor.  Before, the spline
-    ended at the floor and the estimate paid for that end with cells: 196, 1058 and 136 cells at rtol 1e-6 (cdf
-    2.2e-7, 9.9e-8, 1.5e-7 from the rtol-1e-8 oracle), now 150, 618 and 114 (8.0e-8, 2.3e-7, 9.1e-8), estimates
-    9.2e-8, 3.1e-7 and 1.0e-7.  Oracle: the rtol-1e-8 fourth-order answer's exact cumulative masses at its edges.
-    Assert the distance within rtol and within 1.5x the answer's own estimate (the estimate must describe the cdf
-    it reports)."""
-    import diffusion_pr as dp
-
-    f = dp.PressureFactor(dp.make_cutoff(cutoff, p_c), dp.make_tail("max_linear", p_t))
-    answer = dp.propagate(p0, 1.0, diffusivity=f, rtol=1e-6, extrapolation="sixth")
-    oracle = dp.propagate(p0, 1.0, diffusivity=f, rtol=1e-8)
-    assert answer.success and oracle.success and "floor_ghosts" in answer.diagnostics
-    ghost_edges = answer.diagnostics["floor_ghosts"][0]
-    assert len(ghost_edges) == 3 and ghost_edges[-1] < answer.edges[0]
-    dist = np.max(np.abs(answer.cdf(oracle.edges) - oracle.cdf(oracle.edges)))
-    assert dist <= 1e-6 and dist <= 1.5 * answer.error_estimate
-
-
 def test_the_cdf_breaks_its_spline_only_where_the_density_may_kink():
     """``diagnostics["knots"]`` (where the cdf's spline is broken) holds the coefficients' breakpoints; the start
     ``p0`` and the floor only where one is one of them (the start's delta has diffused into a smooth density, and
@@ -203,4 +180,7 @@ def test_the_cdf_breaks_its_spline_only_where_the_density_may_kink():
     on_breakpoint = dp.propagate(0.05, 1.0, diffusivity=f, rtol=1e-6)
     assert smooth.diagnostics["knots"] == pytest.approx((0.05,))
     assert on_breakpoint.diagnostics["knots"] == pytest.approx((0.05,))
-    assert 0.05 in on_breakpoint.diagnostics["grid"][0].knots and 0.06 in smooth.diagnostics["grid"][0].knots
+    from diffusion_pr.api import FokkerPlanckProblem, _solve_full
+
+    grids = [_solve_full(FokkerPlanckProblem(p0, 1.0, f), "native", 1e-6, {}).grid for p0 in (0.05, 0.06)]
+    assert 0.05 in grids[0].spec.knots and 0.06 in grids[1].spec.knots

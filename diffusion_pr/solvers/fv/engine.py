@@ -28,16 +28,13 @@ Every finite-volume backend (``native``, ``pypde``, ``fipy``) goes through
 """
 from __future__ import annotations
 
-import collections
 import contextlib
-import contextvars
 import functools
 import math
-import os
 import threading
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Optional, Sequence
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 
@@ -47,12 +44,13 @@ from ...problem import FokkerPlanckProblem, StagedProblem
 from ...result import PressureDistribution
 from ._fpenv import flush_subnormals
 from .cram import ALPHA as CRAM_ALPHA
-from .cram import CANCELLED, PFD_ERROR_BOUNDS, expm_tridiagonal, expm_tridiagonal_many, pfd_coefficients
+from .cram import CANCELLED, PFD_ERROR_BOUNDS, expm_tridiagonal, pfd_coefficients
 from .grid import GridSpec, Remap, edges_for, knot_indices, same_grid
 from .operator import bands as fv_bands
 from .operator import centres
 
-__all__ = ["FLOOR", "MAX_CELLS", "Prepared", "prepare", "solve_fv", "build_result", "DIAGNOSTIC_KEYS"]
+__all__ = ["FLOOR", "MAX_CELLS", "Prepared", "prepare", "solve_fv", "solve_fv_full", "FVSolution", "GridFamily",
+           "WarmStart", "build_result", "DIAGNOSTIC_KEYS"]
 
 #: the domain ends where a diffusion of the problem's largest spread leaves it with probability at most
 #: TAIL_FRACTION * rtol (Gaussian bound, :func:`_tail_quantile`): z = 6.1 spreads at rtol 1e-6
@@ -86,15 +84,6 @@ C_EXIT_WALL = 1.0
 #: below it.  The first-order wall error left is about ``1e-4 delta / s`` (measured at delta = 1e-4 s: the
 #: refinement's errors stop falling near 1e-8), so ``rtol s`` keeps it 1e4 below rtol
 EXIT_WALL_DEPTH = 1.0
-#: divisor of the sixth-order estimate |R2(N,2N,4N) - R2(M,N,2N)| (63 asymptotically; with 31 the estimate was
-#: up to 3.8x below the true error on the closures, with 15 at most 1.7x, benchmarks/results/closure_sixth.md)
-SIXTH_DIVISOR = 15.0
-#: the sixth-order estimate counts only where the fourth-order differences fall at least this much per halving
-#: (16 asymptotically); measured on coarse levels it was 3x optimistic (benchmarks/results/richardson_order.md)
-SIXTH_ASYMPTOTIC_RATIO = 8.0
-#: after the first level, a problem whose depth below the floor is fixed (a drift or a balance) may move its cells
-#: between the logarithmic grading towards the wall and the rest (:func:`_regraded`)
-REGRADE = True
 #: candidate factors on ``c_wall`` (the weight of the logarithmic grading); down to 0.04 since the eighth session
 #: (balanced closures, Fig. 1: zeta = 4 on 95 cells instead of 138 at 0.2x, zeta = 2 on 122 instead of 168; a sweep's
 #: second regrading had found 0.024 = 0.04 x 0.6 there; nothing changed at zeta <= 1)
@@ -105,122 +94,69 @@ REGRADE_DEPTHS = (0.2, 0.35, 0.5, 0.65, 0.8)
 #: after the first level, the monitor may also be remapped by the first level's errors (:func:`_remapped`, a
 #: :class:`~.grid.Remap`): knots of its density's spline, the largest ratio of its densities, and the share of the
 #: cells it must save beyond the logarithmic grading's best candidate to be taken
-REMAP = True
 REMAP_KNOTS = 12
 REMAP_MAX_RATIO = 16.0
 REMAP_PREFERENCE = 0.9
-#: the grid family a solve must use (:func:`grid_family`); None: its own
-_FORCED_GRID: contextvars.ContextVar = contextvars.ContextVar("forced_grid", default=None)
-
-
-@contextlib.contextmanager
-def grid_family(grid: tuple):
-    """Within the block, every finite-volume solve (any backend) uses the grids ``grid`` (a previous result's
-    ``diagnostics["grid"]``: its family and the knot indices of its last level) instead of its own; with ``n_cells``
-    its coarsest (``diagnostics["levels"][0]``), its grids are that result's, edge for edge.  Used where two problems
-    on the same pressure range are combined cell by cell (the closures' Richardson extrapolation in the number of
-    shells, :func:`diffusion_pr.closures.closure_distribution`)."""
-    token = _FORCED_GRID.set(grid)
-    try:
-        yield
-    finally:
-        _FORCED_GRID.reset(token)
-
-
-#: the plain (not extrapolated) cell masses a solve reports or is limited to (:func:`plain_masses`); None: neither
-_PLAIN: contextvars.ContextVar = contextvars.ContextVar("plain_masses", default=None)
-
-#: the grids a solve under :func:`plain_masses` integrates, by mode (refinement exponents: 0 the N grid, 1 the 2N
-#: grid, 2 the 4N grid)
+#: the grids a solve with ``plain=`` integrates alone, by mode (refinement exponents: 0 the N grid, 1 the 2N grid,
+#: 2 the 4N grid); ``plain="keep"`` integrates the three grids as usual and returns their plain masses too
 PLAIN_GRIDS = {"only": (0, 1), "finest": (2,), "coarsest": (0,), "answer": (1,)}
 
 
-@contextlib.contextmanager
-def plain_masses(mode: str):
-    """Within the block, finite-volume solves report the plain cell masses of their last level's three grids
-    (``mode="keep"``: ``diagnostics["plain_masses"] = (N grid, 2N grid, 4N grid)``, each lumped below the floor as
-    the answer is) or, under :func:`grid_family` and ``n_cells``, integrate only the N and 2N grids
-    (``mode="only"``), only the 4N grid (``mode="finest"``), only the N grid (``"coarsest"``) or only the 2N grid
-    (``"answer"``) and return those (the others None; no Richardson, no estimate: ``diagnostics["plain_failure"]``
-    says whether a balance failed; :data:`PLAIN_GRIDS`).  The closures' extrapolation in the number of shells takes
-    its corrections from them (the difference of two problems on the same grid has correlated spatial errors):
-    from the two coarser grids, from the 4N grid too where the correction's own spatial error needs its
-    extrapolation, and the shell ladder's later rungs from the N grid alone."""
-    if mode != "keep" and mode not in PLAIN_GRIDS:
-        raise ValueError(f"mode must be 'keep' or one of {sorted(PLAIN_GRIDS)}; got mode={mode!r}")
-    token = _PLAIN.set(mode)
-    try:
-        yield
-    finally:
-        _PLAIN.reset(token)
+@dataclass(frozen=True)
+class GridFamily:
+    """The nested grids of a solve's last level: the family ``spec``, the knot indices ``knots`` of the coarsest
+    grid (``knots[-1]`` its cells) and the ``edges`` of the finest (``4 knots[-1]`` cells; the coarser grids are
+    every second and fourth of them).  Passed as ``grid=`` to :func:`solve_fv_full`, another problem is solved on
+    the same grids, edge for edge (the closures' extrapolation in the number of shells combines two problems cell
+    by cell)."""
+
+    spec: GridSpec
+    knots: tuple
+    edges: np.ndarray = field(compare=False, repr=False)
+
+    @property
+    def n_cells(self) -> int:
+        """Cells of the coarsest grid."""
+        return int(self.knots[-1])
 
 
-@dataclass
-class Alongside:
-    """Plain problems to integrate alongside a solve's last level (:func:`plain_alongside`).
+@dataclass(frozen=True)
+class WarmStart:
+    """Where a solve of a neighbouring problem starts (a sweep over the wall range).
 
-    ``problems`` are solved as :func:`plain_batch` would solve them (``plain_masses("only")``: the N and 2N grids, at
-    ``rtol`` with ``p_floor``) on the grids of every level after the first, in the same two threads as that level's
-    own grids; ``results`` holds ``(grid, [results])`` of the last level that ran them (``grid`` as
-    ``diagnostics["grid"]``), None where none did or one of them raised (the caller then solves them itself and meets
-    the error there)."""
+    ``n_start``: cells of the first level's coarsest grid (refined from there as usual).  ``wall_grading``: the
+    weight of the logarithmic grading towards the wall (``c_wall``, in (0, :data:`WALL_GRADING_MAX`]; None:
+    :data:`C_WALL`) and ``wall_depth`` where it ends, as the fraction in [0, 1) of the way from the floor to ``p0``
+    in ``ln p`` (0: it reaches the floor); both only where the grading may change (:func:`_regradable`)."""
 
-    problems: Any  # a tuple, or a callable that builds it (:meth:`problem_list`)
-    rtol: float
-    p_floor: Optional[float] = None
-    results: Optional[tuple] = None
-    #: ``((p_wall, p_max), preps)``: the problems classified during the first level (:func:`_prime_alongside`)
-    primed: Optional[tuple] = None
-
-    def problem_list(self) -> tuple:
-        """The problems (built here, once, where they were given as a callable that builds them)."""
-        if callable(self.problems):
-            self.problems = tuple(self.problems())
-        return self.problems
+    n_start: int
+    wall_grading: Optional[float] = None
+    wall_depth: float = 0.0
 
 
-#: the plain problems a solve integrates alongside its levels (:func:`plain_alongside`); None: none
-_ALONGSIDE: contextvars.ContextVar = contextvars.ContextVar("plain_alongside", default=None)
+@dataclass(frozen=True)
+class FVSolution:
+    """What :func:`solve_fv_full` returns: the ``result`` and what a caller needs to solve related problems.
 
+    ``grid``: the grids of the last level (:class:`GridFamily`).  ``plain``: with ``plain=`` the plain (not
+    extrapolated) cell masses ``[z, m...]`` of the level's N, 2N and 4N grids, each lumped below the floor as the
+    answer is (None where a grid was not integrated), and ``plain_failure`` why they are no result (a balance
+    without a root, an unstable grid) or None.  ``cells_needed``: the coarsest cells the last level's estimate
+    predicts for ``rtol``; ``next_start``: the :class:`WarmStart` for a neighbouring problem (None where the solve
+    failed or integrated plain grids only)."""
 
-@contextlib.contextmanager
-def plain_alongside(problems: Sequence | Callable[[], Sequence], *, rtol: float, p_floor: Optional[float] = None):
-    """Within the block, a native solve that keeps its plain masses (:func:`plain_masses` ``"keep"``, two threads,
-    fourth order) also integrates ``problems`` (a sequence, or a callable that builds it: then built while this
-    thread waits for the first level's finest grid, :func:`_prime_alongside`) on the N and 2N grids of each level
-    after its first, dealt to the
-    two threads together with that level's own three grids (the shells' ladder below the closure's main solve, which
-    :func:`plain_batch` would otherwise solve on the last level's grids once it has converged: the main solve's
-    finest grid runs alone in the worker while this thread, done with the two coarser ones, waits for it).  The
-    masses are the same bit for bit as :func:`plain_batch`'s; where the level is not the last, its plain work is
-    discarded (a speculation: the level after the first nearly always meets ``rtol``, its cells being predicted
-    from the first).  Yields the :class:`Alongside` record whose ``results`` the solve fills."""
-    record = Alongside(problems=problems if callable(problems) else tuple(problems), rtol=float(rtol),
-                       p_floor=p_floor)
-    token = _ALONGSIDE.set(record)
-    try:
-        yield record
-    finally:
-        _ALONGSIDE.reset(token)
-
+    result: PressureDistribution
+    grid: Optional[GridFamily] = None
+    plain: Optional[tuple] = None
+    plain_failure: Optional[str] = None
+    cells_needed: Optional[int] = None
+    next_start: Optional[WarmStart] = None
 
 #: the largest weight of the logarithmic grading towards the wall (the ``wall_grading`` option's range, and the
 #: regrading's candidates)
 WALL_GRADING_MAX = 10.0
 #: regrade only where the predicted cells fall by at least this fraction
 REGRADE_GAIN = 0.15
-#: the cubic spline of the cdf between the output edges errs like h^4 (the refinement's prediction where that error
-#: drives it, extrapolation="sixth")
-INTERPOLATION_ORDER = 4
-#: the spline's error at the cells' midpoints times this is the estimate of its largest error in the cells (measured
-#: largest over midpoint 1.07-1.12 on the Fig. 1 closures, 53-212 cells)
-INTERPOLATION_MARGIN = 1.25
-#: extrapolation="sixth": cells of the first level's coarsest grid at rtol 1e-4 (times (1e-4/rtol)^(1/6))
-START_CELLS_SIXTH = 25
-#: a plain-mass solve's two grids run in one thread below this many cell-stages (3 N x stages) where no balance
-#: is solved (measured, Fig. 1 scene: local_g1, 176 cells, 6/24/96 shells: one thread 0.37/0.82/2.61 ms, two
-#: 0.54/0.84/3.14; a balanced closure's Newton steps make two threads faster from 6 shells on, 1.25 against 1.38 ms)
-PARALLEL_MIN_WORK = 60000
 #: refinement stops when the estimate is below SAFETY * rtol (margin for the estimate's own error)
 SAFETY = 0.5
 #: cells of the first level's coarsest grid at rtol 1e-4 (times (1e-4/rtol)^(1/4), at least 16)
@@ -289,13 +225,6 @@ C_WALL = 0.6
 #: a problem with at least this many pieces (stages, time segments) or a balance is integrated by the
 #: compiled kernels of :mod:`._kernels` (numba); fewer pieces go through LAPACK (no numba import)
 COMPILED_MIN_PIECES = 4
-#: threads for the three nested grids of a compiled (staged) solve: the finest grid (4/7 of the work) runs in a
-#: second thread while this one does the two coarser grids; the kernels release the GIL (numba ``nogil``).  The
-#: answer does not depend on it (each grid's integration is the same sequence of operations either way)
-DEFAULT_THREADS = min(2, os.cpu_count() or 1)
-#: staged problems (at least COMPILED_MIN_PIECES stages) bound the upper tail in the Lamperti coordinate
-#: ``int dp / sqrt(2 sum dtau_k f_k)`` instead of ``p0 + z sqrt(2 sum dtau_k max f_k)`` (see :func:`prepare`)
-LAMPERTI = True
 #: where a balance holds the mean, the Lamperti bound is taken where the tail's share of the mean (its mass times
 #: p_max / p0), not its mass, is the tail tolerance: this many fixed-point steps from the mass-based bound (0: the
 #: mass-based bound, as before the nineteenth session)
@@ -349,7 +278,7 @@ class Prepared:
     #: the depth below the floor is an accuracy knob (ln(10/rtol) e-folds: no drift, no balance), which the first
     #: level may shorten to what its probability below the floor needs (:func:`_trimmed_depth`)
     depth_adaptive: bool = False
-    #: the upper end was shortened by the Lamperti bound (:data:`LAMPERTI`); a solve whose top cell then holds
+    #: the upper end was shortened by the Lamperti bound (:func:`prepare`); a solve whose top cell then holds
     #: more than rtol is repeated on the conservative domain (:func:`solve_fv`)
     lamperti_bounded: bool = False
     #: the drift takes its upwinding weight (``operator.fitted_weight``) on plain stages: the user's drift of a
@@ -763,10 +692,10 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
         vectorized finite callable.
 
     ``lamperti=False``: the upper end from the spread alone, never the shorter
-    Lamperti bound (the fallback of :func:`solve_fv` where that bound was too short).
-    ``on_grid``: the grid family is given (another problem's, :func:`grid_family`): no domain probe, no
+    Lamperti bound (the fallback of :func:`solve_fv_full` where that bound was too short).
+    ``on_grid``: the grid family is given (another problem's, :class:`GridFamily`): no domain probe, no
     grading; the wall, the floor and the lumping are classified for it (the plain-mass solves of
-    :func:`plain_masses`, 0.3-1 ms each saved).
+    ``plain=`` of :func:`solve_fv_full`, 0.3-1 ms each saved).
     """
     p0, pieces, time_dependent, segment_fn = _pieces_of(problem)
     tau_end = float(sum(pc.duration for pc in pieces))
@@ -844,7 +773,7 @@ def _prepare_probed(problem, rtol: float, p_floor: Optional[float], lamperti: bo
         _rows(with_w, probe, "the balance", plan=_plan(plans, "w"), out=work("w", (len(with_w), probe.size)))
     p_max = new
     lamperti_bounded = False
-    if LAMPERTI and lamperti and not growing and not time_dependent and len(pieces) >= COMPILED_MIN_PIECES:
+    if lamperti and not growing and not time_dependent and len(pieces) >= COMPILED_MIN_PIECES:
         # the upper tail in the Lamperti coordinate Y = int dp / sqrt(2 F), F = sum dtau_k f_k: Y - Y(p0) is
         # a unit-variance diffusion whose Ito drift -F'/(2 sqrt(2F)) points down where F grows, so z units of
         # Y bound the tail like z spreads do for constant f (checked after the solve: the top cell's mass)
@@ -1128,32 +1057,6 @@ def _start(prep: Prepared, edges: np.ndarray, c: np.ndarray) -> np.ndarray:
     return y
 
 
-def _one_call_level(prep: Prepared, order: int) -> bool:
-    """Whether a level's grids integrate in one LAPACK call per stage (:func:`_integrate_level`): LAPACK's stages
-    (not the compiled kernels), constant coefficients, no drift (its splits differ per grid) and no balance, and
-    partial fractions (CF-10/12)."""
-    return (not prep.time_dependent and not prep.has_balance and not _compiled(prep) and order != 16
-            and all(pc.b is None for pc in prep.pieces))
-
-
-def _integrate_level(prep: Prepared, es: Sequence[np.ndarray], order: int) -> list:
-    """``[(y, counters)]`` of every grid of a level, as :func:`solve_on_grid` gives them (bit for bit), each stage's
-    exponential for all grids in one LAPACK call (:func:`~.cram.expm_tridiagonal_many`; where
-    :func:`_one_call_level`).  The stages' ``f`` evaluated once on all grids' centres, as :func:`_coefficients`
-    evaluates it (plain stages have no drift or balance rows to make)."""
-    cs = [centres(e) for e in es]
-    ends = np.cumsum([c.size for c in cs]).tolist()
-    f_rows = prep.row_plans["f"]
-    f_all = _rows(f_rows.funcs, np.concatenate(cs), "the diffusivity", plan=f_rows.plan)
-    np.maximum(f_all, 0.0, out=f_all)
-    ys = [_start(prep, e, c) for e, c in zip(es, cs)]
-    bands = [fv_bands(e, f_all[:, a:b], None, fitted=False, c=c) for e, c, a, b in zip(es, cs, [0, *ends[:-1]], ends)]
-    for k, pc in enumerate(prep.pieces):
-        ys = expm_tridiagonal_many([(lo[k], di[k], up[k]) for lo, di, up in bands], float(pc.duration), ys, order)
-    return [(y, {"cram_applications": len(prep.pieces), "substeps": 0, "newton_steps": 0, "cram_order": order})
-            for y in ys]
-
-
 def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = native_assemble,
                   n_base: int = 64, refine: int = 1, mean_tol: float = 1e-13,
                   lin_tol: float = 0.0, coef: Optional[dict] = None,
@@ -1382,192 +1285,6 @@ def _compiled(prep: Prepared) -> bool:
     return prep.has_balance or prep.time_dependent or len(prep.pieces) >= COMPILED_MIN_PIECES
 
 
-_POOL = None
-_POOL_PID = -1
-
-
-def _run_grids(tasks: Sequence[Callable], parallel: bool, side: Optional[tuple] = None,
-               idle: Optional[Callable] = None) -> list:
-    """Run the three grids' integrations; with ``parallel`` the last (finest) in a worker thread.
-
-    The compiled kernels release the GIL, so the finest grid (4/7 of the cells)
-    overlaps the two coarser ones.  An exception of the worker is re-raised here.
-    ``side``: ``(this thread's, the worker's)`` further tasks (:func:`_alongside_tasks`), run after each thread's
-    grids; they keep their own exceptions.  ``idle``: a :class:`_OneShot` (work the next level would otherwise do
-    serially), run by whichever thread is done with its grids first while the other is still integrating: by this
-    thread where the worker's grid is not done, else by the worker after its grid, while this thread's kernels run.
-    """
-    if not parallel:
-        return [t() for t in tasks]
-    finest = _worker().submit(tasks[-1] if idle is None else functools.partial(_then, tasks[-1], idle))
-    more = _worker().submit(_run_each, side[1]) if side is not None and side[1] else None
-    try:
-        out = [t() for t in tasks[:-1]]
-        if side is not None:
-            _run_each(side[0])
-        if idle is not None and not finest.done():
-            idle()
-    finally:
-        try:
-            last = finest.result()
-        finally:
-            if more is not None:
-                more.result()
-    return out + [last]
-
-
-class _OneShot:
-    """``fn()`` run once, by the first thread that calls; the other calls return at once (without waiting for it).
-    For speculative work only: an exception of ``fn`` is dropped (the work is then done where it is needed, and
-    meets its error there)."""
-
-    __slots__ = ("_fn", "_claim")
-
-    def __init__(self, fn: Callable) -> None:
-        self._fn, self._claim = fn, threading.Lock()
-
-    def __call__(self) -> None:
-        if self._claim.acquire(blocking=False):  # (never released: one run)
-            try:
-                self._fn()
-            except Exception:  # noqa: BLE001 (speculative, see above)
-                pass
-
-
-def _then(task: Callable, after: Callable):
-    """``task()``, then ``after()``; returns the task's result."""
-    out = task()
-    after()
-    return out
-
-
-def _run_each(tasks: Sequence[Callable]) -> None:
-    for t in tasks:
-        t()
-
-
-def _plain_preps(problems: Sequence, spec: GridSpec, rtol: float, p_floor: Optional[float]) -> list:
-    """Each plain problem classified on the grid family ``spec`` (:func:`plain_batch`, :func:`_alongside_tasks`)."""
-    return [replace(prepare(pb, rtol=rtol, p_floor=p_floor, on_grid=spec), spec=spec) for pb in problems]
-
-
-def _largest_first(preps: Sequence[Prepared], grids: Sequence[np.ndarray]) -> collections.deque:
-    """Every ``(problem, grid)`` index pair, largest first (stages x cells), as a queue the two threads take their
-    next integration from (:func:`_drain`): longest processing time first, each thread taking the next job when it
-    is free, so neither waits for the other by more than about one job.  (A deal fixed in advance by the same
-    stages x cells left one thread 1.5 ms longer at ``zeta = 0.1``: the wide shells' balance costs 2-3 exponentials
-    per stage against the main solve's 1.5, and this thread also evaluates the coefficients.)"""
-    jobs = sorted(((len(pr.pieces) * (grids[g].size - 1), i, g) for i, pr in enumerate(preps)
-                   for g in range(len(grids))), key=lambda j: -j[0])
-    return collections.deque((i, g) for _, i, g in jobs)
-
-
-def _drain(queue: collections.deque, run: Callable) -> None:
-    """``run(i, g)`` for the jobs taken from ``queue`` until it is empty (``popleft`` is atomic: each job is taken
-    by one thread only)."""
-    while True:
-        try:
-            i, g = queue.popleft()
-        except IndexError:
-            return
-        run(i, g)
-
-
-def _plain_masses_on(pr: Prepared, edges: np.ndarray, n_base: int, refine: int, integrate: Callable,
-                     coefficients_made: Optional[Callable[[], None]] = None) -> tuple:
-    """One plain problem integrated on one grid with its own coefficient rows (a time-dependent problem's segments
-    are made by :func:`solve_on_grid`), in this thread's work arrays: they are dead when the integration returns.
-    ``coefficients_made()`` is called once the rows are made, before the integration."""
-    if pr.time_dependent:
-        if coefficients_made is not None:
-            coefficients_made()
-        return integrate(pr, edges, n_base, refine, None)
-    with _work_arrays("plain:") as work:
-        coef = _coefficients(pr.pieces, [edges], centre_drift=False, plans=pr.row_plans, work=work)[0]
-        if coefficients_made is not None:
-            coefficients_made()
-        return integrate(pr, edges, n_base, refine, coef)
-
-
-def _prime_alongside(record: Alongside, prep: Prepared) -> None:
-    """``record``'s problems built and classified on ``prep``'s domain by whichever thread is free first during the
-    first level (:func:`_run_grids` ``idle``), kept as ``record.primed``: a later level whose family has the same
-    ``p_wall`` and ``p_max`` (a regraded or remapped family moves cells, not the domain) takes them with its own
-    family, the same records :func:`_plain_preps` makes there (a classification on a given family reads only its
-    domain, :func:`_prepared_on`).  Nothing is kept where one of them cannot be classified (the level after
-    meets that error itself)."""
-    spec = prep.spec
-    try:
-        preps = _plain_preps(record.problem_list(), spec, record.rtol, record.p_floor)
-    except (ValueError, RuntimeError, FloatingPointError):
-        return
-    record.primed = ((spec.p_wall, spec.p_max), preps)
-
-
-def _alongside_tasks(record: Alongside, prep: Prepared, es: Sequence[np.ndarray], idx: np.ndarray,
-                     backend: str) -> Optional[tuple]:
-    """``(this thread's tasks, the worker's tasks, finish)`` for ``record``'s plain problems on a level's N and 2N
-    grids ``es[:2]``, or None where one of them cannot be classified on this level's family (:func:`plain_batch`
-    will meet that error itself).
-
-    Each thread, once its own grids are integrated, takes the (problem, grid) integrations from one queue, largest
-    first (:func:`_largest_first`, :func:`_drain`).
-    ``finish()`` returns :func:`plain_batch`'s results (the same masses bit for bit: the same preparation, grids,
-    coefficients and integrator; ``wall_time`` 0, their time is in the level's), or None where one of them raised.
-    """
-    t_start = time.perf_counter()
-    primed = record.primed
-    if primed is not None and primed[0] == (prep.spec.p_wall, prep.spec.p_max):
-        preps = [replace(pr, spec=prep.spec) for pr in primed[1]]
-    else:
-        try:
-            preps = _plain_preps(record.problem_list(), prep.spec, record.rtol, record.p_floor)
-        except (ValueError, RuntimeError, FloatingPointError):
-            return None
-    n_base = int(idx[-1])
-    grids = (es[0], es[1])
-    integrate = _integrator(native_assemble, record.rtol, cram_order(record.rtol))
-    t_prep = time.perf_counter() - t_start
-    ys: dict = {}
-    errors: list = []
-
-    def run(i: int, g: int) -> None:
-        if errors:
-            return
-        try:
-            ys[i, g] = _plain_masses_on(preps[i], grids[g], n_base, 1 << g, integrate)
-        except Exception as exc:  # noqa: BLE001 (a speculation: the plain solve repeats it and raises there)
-            errors.append(exc)
-
-    queue = _largest_first(preps, grids)
-    drain = lambda: _drain(queue, run)  # noqa: E731 (one for each thread, the same queue)
-
-    def finish() -> Optional[list]:
-        if errors:
-            return None
-        out = [replace(_plain_result(pr, grids, [ys[i, 0], ys[i, 1]], idx, (0, 1), backend=backend,
-                                     rtol=record.rtol, t_start=t_start, t_prep=t_prep), wall_time=0.0)
-               for i, pr in enumerate(preps)]
-        for r in out:
-            r.diagnostics["solved_alongside"] = True
-        return out
-
-    return [drain], [drain], finish
-
-
-def _worker():
-    """The engine's one worker thread (a forked child makes its own), with the kernels loaded in this thread
-    first (numba's first load is not for two threads at once)."""
-    global _POOL, _POOL_PID
-    if _POOL is None or _POOL_PID != os.getpid():  # a forked child has the pool object but not its thread
-        from concurrent.futures import ThreadPoolExecutor
-
-        _POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="diffusion_pr-grid")
-        _POOL_PID = os.getpid()
-    _staged_kernels()
-    return _POOL
-
-
 def _tail_kernel(name: str):
     """A compiled kernel of :mod:`._tail_kernel`: its stored machine code, else numba's (:mod:`..._machine_code`)."""
     return machine_code.kernel("diffusion_pr.solvers.fv._tail_kernel", name)
@@ -1643,18 +1360,16 @@ class _Kernels:
 
 
 class _Cancelled(Exception):
-    """A speculative integration stopped by its batch's cancel flag (:func:`plain_batch_ahead`): no result."""
+    """An integration stopped by a raised cancel flag (never raised: :func:`_cancel_flag` is never set)."""
 
 
-#: per thread, the cancel flag the compiled stage loops read before each stage: a speculative integration of
-#: :func:`plain_batch_ahead` runs under its batch's flag, every other one under :data:`_NEVER_CANCELLED`
-_CANCEL = threading.local()
-#: the flag of every integration that is not speculative: never set (the kernels take a writeable int64 array)
+#: the cancel flag the compiled stage loops read before each stage: never set (the kernels take a writeable int64
+#: array)
 _NEVER_CANCELLED = np.zeros(1, dtype=np.int64)
 
 
 def _cancel_flag() -> np.ndarray:
-    return getattr(_CANCEL, "flag", _NEVER_CANCELLED)
+    return _NEVER_CANCELLED
 
 
 _KERNELS: Optional[_Kernels] = None
@@ -1704,108 +1419,47 @@ def _extrapolate(fine: np.ndarray, coarse: np.ndarray, ratio: float) -> np.ndarr
     return (ratio * fine - coarse) / (ratio - 1.0)
 
 
-def _cdf_interpolation_error(edges: np.ndarray, y: np.ndarray, fine_edges: np.ndarray, fine_y: np.ndarray,
-                             knots: Sequence[float], coordinate=None, ghosts: Optional[tuple] = None) -> float:
-    """The largest distance, at the cells' midpoints, between the cdf the result reports (a cubic spline of the
-    cumulative masses ``y = [z, m...]`` at ``edges`` in ``coordinate``, :func:`~diffusion_pr.result.edge_cdf`,
-    run on through the floor with the result's ``ghosts``, :func:`_floor_ghosts`) and the cumulative of
-    ``fine_y`` on ``fine_edges`` (every cell split in two, lumped alike).  Includes the fine masses' own error at
-    the midpoints (an over-estimate by that much)."""
-    from ...result import edge_cdf
-
-    cum = y[0] + np.concatenate(([0.0], np.cumsum(y[1:])))
-    mids = fine_edges[1:-1:2]
-    if ghosts is not None:  # (the points stay above the floor: the cdf below it is the zero weight)
-        edges, cum = np.r_[ghosts[0], edges], np.r_[y[0] + np.asarray(ghosts[1]), cum]
-    cum_fine = fine_y[0] + np.concatenate(([0.0], np.cumsum(fine_y[1:])))
-    return float(np.max(np.abs(edge_cdf(edges, cum, knots, mids, coordinate) - cum_fine[1:-1:2]))) if mids.size \
-        else 0.0
-
-
 def _pairs(x: np.ndarray) -> np.ndarray:
     """Sum per-cell quantities without a zero-weight entry (moments) over each coarse cell's two halves."""
     return x[0::2] + x[1::2]
 
 
-def _sixth(es: Sequence[np.ndarray], ys: Sequence[np.ndarray], r12: np.ndarray, r23: np.ndarray,
-           r_mom: np.ndarray, fine: np.ndarray, prep: Prepared, est4: float) -> tuple:
-    """The second extrapolation of ``extrapolation="sixth"`` on four nested grids ``es`` (coarsest first) with
-    the cell masses ``ys``, the first extrapolations ``r12 = R(N, 2N)`` (``N`` grid), ``r23 = R(2N, 4N)`` (``2N``
-    grid), ``r_mom`` (``R`` of the first moments, ``2N`` grid), ``fine`` (the ``4N`` masses on the ``2N`` grid)
-    and the fourth-order estimate ``est4``.  Returns ``(edges, masses, moments, finest masses, mean, estimate,
-    order, floor ghosts)`` on the ``N`` grid, lumped below the floor as the engine reports them; ``order`` is 6, or
-    4 where the fourth-order differences do not yet fall like ``h^4`` (then ``est4`` is the estimate); the ghosts
-    are :func:`_floor_ghosts` of the extrapolated masses."""
-    e0, e1, e2 = es[0], es[1], es[2]
-    y0, y1, y2 = ys[0], ys[1], ys[2]
-    r01 = _extrapolate(_aggregate(y1), y0, 4.0)
-    hi = _extrapolate(_aggregate(r23), r12, 16.0)  # R2(N, 2N, 4N) on the N grid
-    lo = _extrapolate(_aggregate(r12), r01, 16.0)  # R2(M, N, 2N) on the M grid
-    mom2 = centres(e2) * y2[1:]
-    r12_mom = _extrapolate(_pairs(mom2), centres(e1) * y1[1:], 4.0)
-    hi_mom = _extrapolate(_pairs(r_mom), r12_mom, 16.0)
-    mean_full = float(np.sum(hi_mom) + e1[0] * hi[0])
-    j0 = int(np.searchsorted(e0, prep.lump_below)) if prep.lump_below > 0 else 0
-    j1 = 2 * j0
-    est6 = float(np.sum(np.abs(_lump(_aggregate(hi), j0) - _lump(lo, j0)))) / SIXTH_DIVISOR
-    # pre-asymptotic guard: the fourth-order differences on the M grid must fall like h^4 (ratio 16)
-    d_lo = float(np.sum(np.abs(_lump(_aggregate(r12), j0) - _lump(r01, j0))))
-    d_hi = float(np.sum(np.abs(_lump(_aggregate(_aggregate(r23)), j0) - _lump(_aggregate(r12), j0))))
-    asymptotic = d_lo >= SIXTH_ASYMPTOTIC_RATIO * d_hi
-    return (e1[j1:], _lump(hi, j1), hi_mom[j1:], _lump(_aggregate(fine), j1), mean_full,
-            est6 if asymptotic else est4, 6 if asymptotic else 4, _floor_ghosts(e1, hi, j1))
-
-
-def _clip(x, lo, hi):
-    """``np.clip`` of one Python number, the same value (NaN stays NaN) without numpy's ufunc machinery (12 us a
-    call against 0.6 us; five per level of a solve)."""
-    return min(max(x, lo), hi)
-
-
-def _threads(threads: Optional[int]) -> int:
-    """The ``threads`` option checked: 1 or 2, :data:`DEFAULT_THREADS` where None."""
-    threads = DEFAULT_THREADS if threads is None else threads
-    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads not in (1, 2):
-        raise ValueError(f"threads must be 1 or 2; got threads={threads!r}")
-    return int(threads)
-
-
-def _integrator(assemble: Assemble, rtol: float, order: int) -> Callable:
+def _integrator(assemble: Assemble, rtol: float) -> Callable:
     """``integrate(prep, edges, n_base, refine, coef=None) -> (y, counters)``: :func:`solve_on_grid` with the
-    tolerances of ``rtol`` (the balance's mean, its last linear step, the partial fractions) and the rational
-    approximation of ``order``."""
+    tolerances of ``rtol`` (the balance's mean, its last linear step, the partial fractions)."""
     return lambda pr, e, nb, rf, cf=None: solve_on_grid(pr, e, assemble=assemble, n_base=nb, refine=rf, coef=cf,
                                                         mean_tol=max(1e-13, MEAN_TOL_FRACTION * rtol),
                                                         lin_tol=math.sqrt(LINEAR_FRACTION * rtol),
-                                                        partial_fractions=rtol >= PFD_MIN_RTOL, order=order)
+                                                        partial_fractions=rtol >= PFD_MIN_RTOL)
 
 
 def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_assemble, n_cells: Optional[int] = None,
              max_cells: int = MAX_CELLS, p_floor: Optional[float] = None,
              time_integration: str = "cram16", loop: Optional[Callable] = None,
-             extra: Optional[dict] = None, threads: Optional[int] = None,
-             n_start: Optional[int] = None, extrapolation: str = "fourth", wall_grading: Optional[float] = None,
-             wall_depth: Optional[float] = None,
-             _lamperti: bool = True, _cram_order: Optional[int] = None,
-             _regrade: bool = True) -> PressureDistribution:
+             extra: Optional[dict] = None) -> PressureDistribution:
+    """Solve ``problem`` to ``rtol`` on nested grids: the result of :func:`solve_fv_full`."""
+    return solve_fv_full(problem, rtol=rtol, backend=backend, assemble=assemble, n_cells=n_cells,
+                         max_cells=max_cells, p_floor=p_floor, time_integration=time_integration, loop=loop,
+                         extra=extra).result
+
+
+def solve_fv_full(problem, *, rtol: float, backend: str, assemble: Assemble = native_assemble,
+                  n_cells: Optional[int] = None, max_cells: int = MAX_CELLS, p_floor: Optional[float] = None,
+                  time_integration: str = "cram16", loop: Optional[Callable] = None, extra: Optional[dict] = None,
+                  grid: Optional[GridFamily] = None, plain: Optional[str] = None,
+                  warm_start: Optional[WarmStart] = None) -> FVSolution:
     """Solve ``problem`` to ``rtol`` on nested grids (the engine's entry point).
 
-    The upper end of a staged problem's domain comes from the Lamperti bound
-    (:data:`LAMPERTI`), which sees the diffusivity and the drift but not a
-    balance's drift (its multiplier is found during the solve), and it bounds the
-    tail's probability, not its share of the mean.  Where the solve then leaves
-    more than ``rtol`` in the top cell, or (native operator, which conserves the
-    mean to round-off) misses the mean by more than ``rtol p0 / 2``, or fails to
-    refine for another reason than the balance, it is repeated once on the
-    conservative domain (the spread alone), and ``diagnostics["domain"]`` says so.
-    A ``"sixth"`` solve whose balance fails (its grids are 2x coarser than the
-    fourth-order scheme's) is repeated with ``"fourth"``, and
-    ``diagnostics["extrapolation"]`` says so.  The compiled stages integrate with
-    the lowest-order rational approximation that ``rtol`` allows (:func:`cram_order`;
-    CF-12 at rtol 1e-6); a solve that fails with CF-10 or CF-12 (a balance or the
-    refinement: a stage whose spectrum leaves the real axis, e.g. a strong balance
-    drift on a first shell far wider than ``p0``) is repeated first with CRAM-16, and
-    ``diagnostics["cram"]`` says so.
+    The upper end of a staged problem's domain comes from the Lamperti bound,
+    which sees the diffusivity and the drift but not a balance's drift (its
+    multiplier is found during the solve), and it bounds the tail's probability,
+    not its share of the mean.  Where the solve then leaves more than ``rtol`` in
+    the top cell, or (native operator, which conserves the mean to round-off)
+    misses the mean by more than ``rtol p0 / 2``, or fails to refine for another
+    reason than the balance, it is repeated once on the conservative domain (the
+    spread alone), and ``diagnostics["domain"]`` says so.  Where the grid family
+    that the first level's errors favoured (:func:`_regraded`) diverges, the solve
+    is repeated on the first level's family, and ``diagnostics["regrade"]`` says so.
 
     Parameters
     ----------
@@ -1825,41 +1479,27 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     p_floor : float, optional
         Floor (pressure) where the wall is not reached; default ``FLOOR * p0``.
     time_integration : str
-        Label of the integrator stored in the diagnostics; ``"cram16"`` is reported as ``"cf10"`` or
-        ``"cf12"`` where the compiled stages used that order (:func:`cram_order`; ``diagnostics["cram_order"]``).
+        Label of the integrator stored in the diagnostics.
     loop : callable, optional
         ``loop(prep, edges, n_base, refine) -> (y, counters)`` replacing the CRAM
         integration (a library's own time loop).
     extra : dict, optional
         Backend-specific diagnostics added to the common ones.
-    n_start : int, optional
-        Cells of the first level's coarsest grid, refined from there as usual
-        (a sweep passes the previous solve's ``levels[0]``: a neighbouring
-        problem needs about as many).  Default: from ``rtol``.
-    threads : int, optional
-        1 or 2: with 2 the finest grid of a compiled (staged, native) solve runs
-        in a second thread (default :data:`DEFAULT_THREADS`; the answer is the
-        same bit for bit).
-    wall_grading : float, optional
-        Start value of the logarithmic grading towards the wall (``c_wall``, in (0, 10]) where the depth below
-        the floor is fixed (a drift or a balance: the closures), which the first level may regrade (a sweep
-        passes the previous result's ``diagnostics["wall_grading"]``).  Default: :data:`C_WALL`.
-    wall_depth : float, optional
-        Start value of the grading's inner scale under the same condition, as the fraction in [0, 1) of the way
-        from the floor to ``p0`` in ``ln p`` where the logarithmic grading ends (``GridSpec.wall_depth``; 0: it
-        reaches the floor); a sweep passes the previous result's ``diagnostics["wall_depth_needed"]``.
-        Default: 0.
-    extrapolation : {"fourth", "sixth"}
-        ``"fourth"``: three nested grids ``N, 2N, 4N``, Richardson on each pair, the
-        answer ``R(2N, 4N)`` on the ``2N`` grid.  ``"sixth"`` (native operator,
-        problems whose coefficients are constant within each stage): four grids
-        ``M, N = 2M, 2N, 4N`` and a second extrapolation ``(16 R(2N,4N) - R(N,2N))/15``,
-        the answer on the ``N`` grid (4x fewer output cells than ``"fourth"`` at
-        the same finest grid); about half the cells for the same error at rtol
-        1e-6 (docs/closures.md).  Its estimate ``|R2 - R2(M, N, 2N)|/15`` is used only
-        where the fourth-order differences fall by at least
-        :data:`SIXTH_ASYMPTOTIC_RATIO` per halving; else the fourth-order
-        estimate is reported (and the grids grow as for ``"fourth"``).
+    grid : GridFamily, optional
+        Solve on these grids (a previous solution's ``grid``: its family, domain, grading and depth), edge for
+        edge, without refinement (its coarsest grid's cells are ``n_cells``).
+    plain : {"keep", "only", "finest", "coarsest", "answer"}, optional
+        ``"keep"``: also return the plain cell masses of the last level's three grids (``FVSolution.plain``).
+        The others (with ``grid``) integrate only the N and 2N grids (``"only"``), only the 4N grid
+        (``"finest"``), only the N grid (``"coarsest"``) or only the 2N grid (``"answer"``) and return those
+        (:data:`PLAIN_GRIDS`): no Richardson, no estimate; the result is the finest integrated grid's, failed by
+        construction, and ``FVSolution.plain_failure`` says whether a balance failed or a grid was unstable.
+    warm_start : WarmStart, optional
+        Where the refinement starts (a neighbouring problem's ``next_start``).
+
+    Returns
+    -------
+    FVSolution
     """
     t_start = time.perf_counter()
     if n_cells is not None:
@@ -1867,80 +1507,69 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             raise ValueError(f"n_cells must be an integer >= 8; got n_cells={n_cells!r}")
     if isinstance(max_cells, bool) or not isinstance(max_cells, (int, np.integer)) or max_cells < 32:
         raise ValueError(f"max_cells must be an integer >= 32; got max_cells={max_cells!r}")
-    if extrapolation not in ("fourth", "sixth"):
-        raise ValueError(f"extrapolation must be 'fourth' or 'sixth'; got extrapolation={extrapolation!r}")
-    depth = 8 if extrapolation == "sixth" else 4  # the finest grid's cells per coarsest cell
-    if n_start is not None:
-        if n_cells is not None:
-            raise ValueError("n_start and n_cells exclude each other (n_cells fixes the grids)")
-        if (isinstance(n_start, bool) or not isinstance(n_start, (int, np.integer))
-                or not 8 <= n_start <= max_cells // depth):
-            raise ValueError(f"n_start must be an integer in [8, max_cells/{depth} = {max_cells // depth}]; "
-                             f"got n_start={n_start!r}")
-    threads = _threads(threads)
-    sixth = extrapolation == "sixth"
+    if plain is not None and plain != "keep" and plain not in PLAIN_GRIDS:
+        raise ValueError(f"plain must be None, 'keep' or one of {sorted(PLAIN_GRIDS)}; got plain={plain!r}")
+    if plain in PLAIN_GRIDS and grid is None:
+        raise ValueError(f"plain={plain!r} needs grid= (the grids whose plain masses to integrate)")
+    if grid is not None and n_cells is not None and int(n_cells) != grid.n_cells:
+        raise ValueError(f"n_cells={n_cells!r} differs from the given grid's coarsest grid ({grid.n_cells} cells)")
+    if warm_start is not None and (n_cells is not None or grid is not None):
+        raise ValueError("warm_start and n_cells or grid exclude each other (n_cells and grid fix the grids)")
+    options = dict(rtol=rtol, backend=backend, assemble=assemble, n_cells=n_cells, max_cells=int(max_cells),
+                   p_floor=p_floor, time_integration=time_integration, loop=loop, extra=extra, grid=grid,
+                   plain=plain, warm_start=warm_start, t_start=t_start)
+    retried: dict = {}  # diagnostics key -> why the solve was repeated
+    lamperti = regrade = True
+    while True:
+        out = _solve_levels(problem, lamperti=lamperti, regrade=regrade, **options)
+        if isinstance(out, FVSolution):
+            break
+        key, why = out
+        retried.setdefault(key, why)
+        if key == "domain":
+            lamperti = False  # the conservative domain (a second "domain" retry cannot arise there)
+        else:
+            regrade = False  # the first level's grid family
+    if retried:
+        d = out.result.diagnostics
+        timings = {**d["timings"], "total": time.perf_counter() - t_start}
+        out = replace(out, result=replace(out.result, diagnostics={**d, **retried, "timings": timings}))
+    return out
 
-    def again(why_key: str, why: str, **changes) -> PressureDistribution:
-        """The same solve with ``changes``; ``diagnostics[why_key] = why`` says why it was repeated."""
-        options = dict(rtol=rtol, backend=backend, assemble=assemble, n_cells=n_cells, max_cells=max_cells,
-                       p_floor=p_floor, time_integration=time_integration, loop=loop, extra=extra, threads=threads,
-                       n_start=n_start, extrapolation=extrapolation, wall_grading=wall_grading, wall_depth=wall_depth,
-                       _lamperti=_lamperti,
-                       _cram_order=_cram_order, _regrade=_regrade)
-        out = solve_fv(problem, **{**options, **changes})
-        out.diagnostics[why_key] = why
-        out.diagnostics["timings"]["total"] = time.perf_counter() - t_start
-        return out
 
-    rational_order = cram_order(rtol) if _cram_order is None else int(_cram_order)
-
-    def cram16_instead(failure: str) -> PressureDistribution:
-        # CF-10/12 are near-best on the negative real axis only: CRAM-16 is accurate in a wider region around it
-        # (H = 0.8, slope 0.1, zeta = 1e-3, p0 = 1e-5: the first shell's balance failed with CF-12 on 316 cells)
-        return again("cram", f"CRAM-16 (CF-{rational_order} failed: {failure})", _cram_order=16)
-
-    def fourth_instead(failure: str) -> PressureDistribution:
-        # the sixth's grids are 2x coarser than the fourth's at the same finest grid; where its coarsest grid does
-        # not resolve a balance (a first shell far wider than p0), the fourth-order scheme answers
-        return again("extrapolation", f"fourth (the sixth's grids did not balance: {failure})",
-                     extrapolation="fourth")
-
-    forced = _FORCED_GRID.get()
-    plain_mode = _PLAIN.get()
-    alongside = _ALONGSIDE.get()
-    plain_only = plain_mode in PLAIN_GRIDS
-    if plain_only and (forced is None or n_cells is None or sixth):
-        raise ValueError(f"plain_masses({plain_mode!r}) needs grid_family, n_cells and extrapolation='fourth'")
-    prep = prepare(problem, rtol=rtol, p_floor=p_floor, lamperti=_lamperti, on_grid=forced[0] if plain_only else None)
-    if forced is not None:  # another problem's grids (grid_family); its domain, grading and depth as they were
-        prep = replace(prep, spec=forced[0])
-    if wall_grading is not None:
-        if isinstance(wall_grading, bool) or not isinstance(wall_grading, (int, float, np.floating)) \
-                or not 0.0 < float(wall_grading) <= WALL_GRADING_MAX:
-            raise ValueError(f"wall_grading must be a number in (0, {WALL_GRADING_MAX:g}]; got "
-                             f"wall_grading={wall_grading!r}")
-        if _regradable(prep):
-            prep = replace(prep, spec=replace(prep.spec, c_wall=float(wall_grading)))
-    if wall_depth is not None:
-        if isinstance(wall_depth, bool) or not isinstance(wall_depth, (int, float, np.floating)) \
-                or not 0.0 <= float(wall_depth) < 1.0:
-            raise ValueError(f"wall_depth must be a fraction in [0, 1); got wall_depth={wall_depth!r}")
-        if _regradable(prep):
-            prep = replace(prep, spec=replace(prep.spec, wall_depth=_wall_depth(prep.spec, float(wall_depth))))
+def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_cells: Optional[int],
+                  max_cells: int, p_floor: Optional[float], time_integration: str, loop: Optional[Callable],
+                  extra: Optional[dict], grid: Optional[GridFamily], plain: Optional[str],
+                  warm_start: Optional[WarmStart], lamperti: bool, regrade: bool, t_start: float):
+    """One attempt of :func:`solve_fv_full` on the Lamperti-bounded domain (``lamperti``) or the conservative one,
+    regrading after the first level or not (``regrade``): an :class:`FVSolution`, or ``(diagnostics key, why)``
+    where the solve is to be repeated with ``lamperti`` (key ``"domain"``) or ``regrade`` (key ``"regrade"``)
+    off."""
+    plain_only = plain in PLAIN_GRIDS
+    fixed = n_cells is not None or grid is not None  # the three nested grids only, no refinement
+    prep = prepare(problem, rtol=rtol, p_floor=p_floor, lamperti=lamperti, on_grid=grid.spec if plain_only else None)
+    if grid is not None:  # another problem's grids; its domain, grading and depth as they were
+        prep = replace(prep, spec=grid.spec)
+    if warm_start is not None and _regradable(prep):
+        if warm_start.wall_grading is not None:
+            prep = replace(prep, spec=replace(prep.spec, c_wall=float(warm_start.wall_grading)))
+        prep = replace(prep, spec=replace(prep.spec, wall_depth=_wall_depth(prep.spec, float(warm_start.wall_depth))))
     # the native operator on coefficients constant within each stage: a grid's integration does not depend on
-    # the level it belongs to (levels can reuse grids) and its only error is spatial (a second extrapolation)
+    # the level it belongs to (levels can reuse grids)
     stage_constant = (loop is None and assemble is native_assemble and not prep.time_dependent
                       and (prep.balance_per_stage or not prep.has_balance))
-    if sixth and not stage_constant:
-        raise ValueError("extrapolation='sixth' needs the native operator and coefficients constant within each "
-                         "stage (no time-dependent coefficients, no balance substeps); use 'fourth'")
     t_prep = time.perf_counter() - t_start
-    integrate = loop if loop is not None else _integrator(assemble, rtol, rational_order)
-    n = int(n_cells) if n_cells is not None else (
-        int(n_start) if n_start is not None else
-        int(_clip(START_CELLS_SIXTH * (1e-4 / rtol) ** (1 / 6), 16, 4096)) if sixth else
-        int(_clip((START_CELLS_STAGED if _compiled(prep) and not prep.has_balance else START_CELLS)
-                    * (1e-4 / rtol) ** 0.25, 16, 4096)))
+    integrate = loop if loop is not None else _integrator(assemble, rtol)
+    cap = max_cells // 4  # the most cells of a coarsest grid (its finest grid has 4x as many)
+    if grid is not None:
+        n = grid.n_cells
+    elif n_cells is not None:
+        n = int(n_cells)
+    elif warm_start is not None:
+        n = min(max(int(warm_start.n_start), 8), cap)
+    else:
+        n = int(min(max((START_CELLS_STAGED if _compiled(prep) and not prep.has_balance else START_CELLS)
+                        * (1e-4 / rtol) ** 0.25, 16), 4096))
     history = []
 
     failure = None
@@ -1951,99 +1580,61 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     # Native operator only: py-pde's index-space operator on a doubled coarse level failed the engine's mean
     # check where a fresh level passes (p0 = 1, V = 4, Muser cutoff at 0.75: mean off by 3e-3 at 102 cells,
     # estimate 4.6e-4), so the peers keep fresh levels
-    reusable = stage_constant and not sixth
-    # LAPACK's plain stages: each stage's exponential for all grids of a level in one call (the same bits)
-    one_call = (loop is None and assemble is native_assemble and rtol >= PFD_MIN_RTOL
-                and _one_call_level(prep, rational_order))
+    reusable = stage_constant
     reuse = None
     remap_factor = 1.0  # the cell factor of a remapped monitor (:func:`_remapped`)
     grading_next = None  # (c_wall, depth fraction, cell factor) the converged level's errors favour (:func:`_regraded`)
     moved = False  # the first level's grid family was regraded or remapped for the next levels
     grids_integrated = 0
+    centre_drift = assemble is not native_assemble
     while True:
         if reuse is not None:
             idx = 2 * reuse[0]
-        elif forced is not None and not history and n == int(forced[1][-1]):
-            idx = np.array(forced[1])  # the knots where the other result's last level had them
+        elif grid is not None and not history and n == grid.n_cells:
+            idx = np.array(grid.knots)  # the knots where the other solve's last level had them
         else:
             idx = knot_indices(prep.spec, n)
         n_base = int(idx[-1])
-        if depth * n_base > max_cells and history:
-            failure = f"refinement stopped at max_cells={max_cells} (the next grid needs {depth * n_base} cells)"
+        if 4 * n_base > max_cells and history:
+            failure = f"refinement stopped at max_cells={max_cells} (the next grid needs {4 * n_base} cells)"
             break
-        # the coarser grids are every 2nd / 4th (/ 8th) edge of it (a forced grid's remembered: the shells' plain
-        # solves ask for the same one several times); the inverse's iterations compiled where the solve is (the
-        # same bits)
-        finest = _forced_edges(prep.spec, idx, depth) if forced is not None else edges_for(
-            prep.spec, idx, depth, known=reuse[2] if reuse is not None else None,
+        # the coarser grids are every 2nd / 4th edge of it; the inverse's iterations compiled where the solve is
+        # (the same bits)
+        finest = grid.edges.copy() if grid is not None else edges_for(
+            prep.spec, idx, 4, known=reuse[2] if reuse is not None else None,
             compiled=loop is None and _compiled(prep))
-        es = [finest[::depth >> k] for k in range(depth.bit_length())]  # coarsest first
-        ks = list(range(len(es)))  # each grid's refinement exponent (its cells are n_base << k)
-        if plain_only:  # the N and 2N grids alone, or one grid alone (plain_masses)
-            ks = list(PLAIN_GRIDS[plain_mode])
+        es = [finest[::4 >> k] for k in range(3)]  # coarsest first
+        ks = [0, 1, 2]  # each grid's refinement exponent (its cells are n_base << k)
+        if plain_only:  # the N and 2N grids alone, or one grid alone
+            ks = list(PLAIN_GRIDS[plain])
             es = [es[k] for k in ks]
         if reuse is not None and not (same_grid(es[0], reuse[1]) and same_grid(es[1], reuse[2])):
             reuse = None  # not the same grids (never seen): integrate all three grids
-        # (not for a plain solve's two grids without a balance below PARALLEL_MIN_WORK cell-stages: handing the 2N
-        # grid to a thread costs more than it saves)
-        parallel = threads > 1 and loop is None and assemble is native_assemble and _compiled(prep) and not (
-            plain_only and (len(ks) == 1 or (not prep.has_balance
-                                             and 3 * n_base * len(prep.pieces) < PARALLEL_MIN_WORK)))
-        last = len(es) - 1
-        side = None  # the plain problems to integrate alongside (plain_alongside), not on a first level
-        idle = None  # on the first level: those problems built and classified while this thread waits
-        if (alongside is not None and parallel and plain_mode == "keep" and forced is None
-                and not sixth and len(es) == 3 and loop is None):
-            if history:
-                alongside.results = None
-                side = _alongside_tasks(alongside, prep, es, idx, backend)
-            elif alongside.primed is None and not prep.depth_adaptive:  # (a depth that may be trimmed: not)
-                idle = _OneShot(functools.partial(_prime_alongside, alongside, prep))
         if reuse is not None:
-            if one_call:
-                new_grid = lambda: _integrate_level(prep, es[-1:], rational_order)[0]  # noqa: E731
-            else:
-                coef3 = _coefficients(prep.pieces, [es[-1]], centre_drift=assemble is not native_assemble,
-                                      plans=prep.row_plans)[0]
-                new_grid = lambda: integrate(prep, es[-1], n_base, 4, coef3)  # noqa: E731
-            # (the new grid in the worker where plain problems run alongside in this thread)
-            ys = [reuse[3], reuse[4], *(_run_grids([new_grid], True, side) if side is not None else [new_grid()])]
-        elif one_call:
-            ys = _integrate_level(prep, es, rational_order)
-        elif loop is None and not prep.time_dependent:
-            # each coefficient evaluated once for the grids of one thread (the worker's finest grid apart, so
-            # that it is evaluated and integrated while this thread evaluates and integrates the coarser ones)
-            coefs = _coefficients_lazy(prep.pieces, es, ((last,), tuple(range(last))) if parallel
-                                       else (tuple(range(last + 1)),),
-                                       centre_drift=assemble is not native_assemble, plans=prep.row_plans)
-            ys = _run_grids([lambda e=e, rf=1 << k, g=g: integrate(prep, e, n_base, rf, coefs(g))
-                             for g, (k, e) in enumerate(zip(ks, es))], parallel, side, idle)
+            coef3 = _coefficients(prep.pieces, [es[-1]], centre_drift=centre_drift, plans=prep.row_plans)[0]
+            ys = [reuse[3], reuse[4], integrate(prep, es[-1], n_base, 4, coef3)]
+        elif loop is None and not prep.time_dependent:  # each coefficient evaluated once for all the grids
+            coefs = _coefficients_lazy(prep.pieces, es, (tuple(range(len(es))),), centre_drift=centre_drift,
+                                       plans=prep.row_plans)
+            ys = [integrate(prep, e, n_base, 1 << k, coefs(g)) for g, (k, e) in enumerate(zip(ks, es))]
         else:
-            ys = _run_grids([lambda e=e, rf=1 << k: integrate(prep, e, n_base, rf) for k, e in zip(ks, es)], parallel,
-                            side, idle)
-        if side is not None:
-            done = side[2]()
-            alongside.results = None if done is None else (_grid_of(prep, idx), done)
+            ys = [integrate(prep, e, n_base, 1 << k) for k, e in zip(ks, es)]
         grids_integrated += 1 if reuse is not None else len(es)
         reuse = None
         if plain_only:
-            return _plain_result(prep, es, ys, idx, ks, backend=backend, rtol=rtol, t_start=t_start,
-                                 t_prep=t_prep)
-        (y1, c1), (y2, c2), (y3, cnt) = ys[-3:]
-        e1, e2, e3 = es[-3:]
+            return _plain_solution(prep, es, ys, idx, ks, finest, backend=backend, rtol=rtol, t_start=t_start,
+                                   t_prep=t_prep)
+        (y1, c1), (y2, c2), (y3, cnt) = ys
+        e1, e2, e3 = es
         broken = [cc["balance_failure"] for _, cc in ys if "balance_failure" in cc]
         if broken:
             failure = broken[0]
             balance_broke = True
-            if rational_order < 16:
-                return cram16_instead(failure)
-            if sixth:
-                return fourth_instead(failure)
-            if n_cells is None and balance_retries < BALANCE_RETRIES and 2 * depth * n_base <= max_cells:
+            if not fixed and balance_retries < BALANCE_RETRIES and 8 * n_base <= max_cells:
                 # the level's grids do not resolve a balance (a first shell far wider than p0): the same level
                 # with twice the cells (py-pde, H = 0.8, slope 0.1, zeta = p0 = 1e-5: stage 5 failed on its first
-                # level's 158 cells, native solved it on 126; native with CRAM-16, H = 0.8, slope 0.031,
-                # zeta = 1e-3, p0 = 1e-5: stage 0 failed on the second level's 327 cells)
+                # level's 158 cells, native solved it on 126; native, H = 0.8, slope 0.031, zeta = 1e-3,
+                # p0 = 1e-5: stage 0 failed on the second level's 327 cells)
                 balance_retries += 1
                 failure, balance_broke = None, False
                 n = 2 * n_base
@@ -2056,7 +1647,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             # a first level too coarse for its drift is refined (random drift problem #196 of seed 6: 112 cells
             # unstable, 448 converged); a level that refinement made unstable is no result (#122 of seed 7: stable
             # on 1440-2880 cells, unstable on 5760 and beyond), and finer grids only cost more
-            if not history and n_cells is None and depth * n_base * MAX_GROWTH <= max_cells:
+            if not history and not fixed and 4 * n_base * MAX_GROWTH <= max_cells:
                 n = int(math.ceil(n_base * MAX_GROWTH))
                 continue
             failure = unstable
@@ -2079,10 +1670,6 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         est = float(np.abs(diff).sum()) / (EXIT_RICHARDSON_DIVISOR if exit_wall else RICHARDSON_DIVISOR)
         out_edges, out_y, out_mom, fine_l = e2[j2:], _lump(r23, j2), r_mom[j2:], _lump(fine, j2)
         order = 2 if exit_wall else 4
-        ghosts6 = None
-        if sixth:
-            out_edges, out_y, out_mom, fine_l, mean_full, est, order, ghosts6 = _sixth(
-                es, [y for y, _ in ys], r12, r23, r_mom, fine, prep, est)
         # where extrapolation overshoots below 0 (far tails, 1e-17-level), keep the finest grid's own
         # value (>= 0 up to CRAM round-off, which is then cut to 0); the change is added to the estimate
         neg = out_y < 0.0
@@ -2101,36 +1688,24 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             # the native operator conserves the mean to round-off on any grid: a miss is the domain's top cut (the
             # tail beyond the Lamperti bound carries mean, not only mass: local_g1, zeta = 0.3, p0 = 1e-4 missed
             # by 4.4e-6 p0 with 1e-10 in the top cell, and refined to 65536 cells in vain)
-            return again("domain", f"conservative: on the Lamperti-bounded domain (p_max = {out_edges[-1]:.4g}) the "
-                                   f"mean missed p0 by {mean_miss / prep.p0:.2e} p0", _lamperti=False)
+            return "domain", (f"conservative: on the Lamperti-bounded domain (p_max = {out_edges[-1]:.4g}) the mean "
+                              f"missed p0 by {mean_miss / prep.p0:.2e} p0")
         est = max(est, mean_miss / float(out_edges[-1]))
         # the time integration's own error (not removed by Richardson): its uniform bound per application
         est += CRAM_AMPLIFICATION * max(cc.get("cram_applications", 0) * PFD_ERROR_BOUNDS[cc.get("cram_order", 16)]
                                         for _, cc in ys)
-        interp = 0.0
-        if sixth:
-            # the cdf between the output (N) grid's edges is a cubic spline of its values there, whose error the
-            # masses' estimate does not see (Fig. 1, local_g1, zeta = 0.25: 8.9e-5 just below p0, estimate 3.2e-7):
-            # the spline at the N cells' midpoints against the 2N grid's R(2N, 4N) there
-            j_out = es[1].size - out_edges.size
-            interp = INTERPOLATION_MARGIN * _cdf_interpolation_error(out_edges, out_y, es[2][2 * j_out:],
-                                                                     _lump(r23, 2 * j_out), density_knots(prep),
-                                                                     (prep.spec.phi, None), ghosts6)
-            est += interp
         history.append((n_base, est))
-        # the estimate falls like N^-4 (N^-6 with a sixth-order estimate): the cells that meet rtol, as a factor on
-        # this level's (the next level's growth where it misses; a sweep's next start where it meets rtol)
-        need = NEED_MARGIN * max(((est - interp) / (SAFETY * rtol)) ** (1.0 / order),
-                                 (interp / (SAFETY * rtol)) ** (1.0 / INTERPOLATION_ORDER),
+        # the estimate falls like N^-4: the cells that meet rtol, as a factor on this level's (the next level's
+        # growth where it misses; a sweep's next start where it meets rtol)
+        need = NEED_MARGIN * max((est / (SAFETY * rtol)) ** (1.0 / order),
                                  (mean_miss / (SAFETY * rtol * prep.p0)) ** (1.0 / order))
-        best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(len(es))], mean_full, interp, need)
-        best_grid = _grid_of(prep, idx)
-        best_ghosts = ghosts6 if sixth else _floor_ghosts(e2, r23, j2)
-        best_plain = (_lump(y1, j1), _lump(y2, j2), _lump(y3, 2 * j2)) if plain_mode == "keep" and not sixth \
-            else None
+        best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(3)], mean_full, need)
+        best_grid = GridFamily(prep.spec, tuple(idx.tolist()), finest)
+        best_ghosts = _floor_ghosts(e2, r23, j2)
+        best_plain = (_lump(y1, j1), _lump(y2, j2), _lump(y3, 2 * j2)) if plain == "keep" else None
         trimmed = _trimmed_depth(prep, float(out_y[0]) + est, rtol) if len(history) == 1 else None
-        if (est <= SAFETY * rtol and mean_miss <= SAFETY * rtol * prep.p0) or n_cells is not None:
-            if REGRADE and n_start is not None and _regradable(prep):
+        if (est <= SAFETY * rtol and mean_miss <= SAFETY * rtol * prep.p0) or fixed:
+            if warm_start is not None and _regradable(prep):
                 # the grading this level's errors favour, for the next problem of a sweep (not used here; only
                 # where a start was given, as a sweep gives it: it costs 0.3 ms)
                 suggested = _regraded(prep, e1, diff, j1)
@@ -2148,43 +1723,40 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
                        f"accuracy (e.g. a drift far stronger than the diffusion in the cells below the floor); "
                        f"a looser rtol may be met")
             break
-        grow = float(_clip(need, MIN_GROWTH, MAX_GROWTH))  # x MIN_GROWTH ... x MAX_GROWTH per level
-        if depth * n_base >= max_cells or depth * n_base * need > 8 * max_cells:
+        grow = float(min(max(need, MIN_GROWTH), MAX_GROWTH))  # x MIN_GROWTH ... x MAX_GROWTH per level
+        if 4 * n_base >= max_cells or 4 * n_base * need > 8 * max_cells:
             failure = (f"error estimate {est:.2e} misses rtol={rtol:.1e}: it would need about "
-                       f"{int(depth * n_base * need)} cells, max_cells={max_cells}")
+                       f"{int(4 * n_base * need)} cells, max_cells={max_cells}")
             break
         if trimmed is not None:  # a shallower domain below the floor for the next levels (a new grid family)
             # the cells per unit of Phi predicted for the old domain (growth capped at MAX_GROWTH, as below)
             ratio = float(np.sum(trimmed.spec.segment_weights()) / np.sum(prep.spec.segment_weights()))
             prep = trimmed
-            n = int(_clip(math.ceil(n_base * min(need, MAX_GROWTH) * ratio), 16, max_cells // depth))
+            n = int(min(max(math.ceil(n_base * min(need, MAX_GROWTH) * ratio), 16), cap))
             continue
         # the remap only under the native operator: py-pde's index-space operator on a remapped grid moved its answer
         # by 2.1e-6 from native's while claiming 4.1e-7 (H 0.8, slope 0.031, zeta 1e-5, p0 1e-4, shell partition)
-        remap = REMAP and assemble is native_assemble and loop is None
+        remap = assemble is native_assemble and loop is None
         regraded = _regraded(prep, e1, diff, j1, remap=remap) if (
-            REGRADE and _regrade and len(history) == 1 and _regradable(prep)) else None
+            regrade and len(history) == 1 and _regradable(prep)) else None
         if regraded is not None:  # the same domain, its cells moved to where the first level's error was
             spec_new, factor = regraded
             moved = True
             if spec_new.remap is not None:
                 remap_factor = factor
             prep = replace(prep, spec=spec_new)
-            n = int(_clip(math.ceil(n_base * min(need * factor, MAX_GROWTH)), 16, max_cells // depth))
+            n = int(min(max(math.ceil(n_base * min(need * factor, MAX_GROWTH)), 16), cap))
             continue
         if reusable and grow <= 2.0 and 8 * n_base <= max_cells:  # cheaper to double: one new grid (8 n_base cells) instead of three
             reuse = (idx, e2, e3, (y2, c2), (y3, cnt))
-        n = min(int(math.ceil(n_base * grow)), max_cells // depth)
+        n = min(int(math.ceil(n_base * grow)), cap)
     if failure is not None and moved and failure.startswith("refinement diverges"):
         # the grid family the first level's errors favoured failed (H 0.744, rms slope 0.080, zeta 1.6e-4,
         # p0 2.3e-3, shell partition: regraded from 79 to 67 cells, the estimates then grew 1.4e-6 -> 2.4e-6 ->
         # 3.9e-5, "refinement diverges"; on the first level's family it converges on 158 cells): once more without
         # (a divergence only: other failures, e.g. an unstable grid, are reported as they are)
-        return again("regrade", f"the first level's grid family (the regraded one failed: {failure})",
-                     _regrade=False)
-    if failure is not None and rational_order < 16:
-        return cram16_instead(failure)
-    edges, y, moments, est, cnt, cells, mean_full, interp, need_last = best
+        return "regrade", f"the first level's grid family (the regraded one failed: {failure})"
+    edges, y, moments, est, cnt, cells, mean_full, need_last = best
     # the coarsest grid this problem needs for rtol, predicted from the last level as the refinement predicts it
     # (a sweep starts the next problem there: its previous cells over-resolve where the need falls)
     grading_needed, depth_needed = float(prep.spec.c_wall), _depth_fraction(prep.spec)
@@ -2192,7 +1764,7 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
         grading_needed, depth_needed, factor = grading_next
         need_last *= factor
     need_last /= remap_factor  # a sweep starts on the family without the remap (its grading passes on)
-    cells_needed = int(_clip(math.ceil(cells[0] * need_last), 16, max(16, max_cells // depth)))
+    cells_needed = int(min(max(math.ceil(cells[0] * need_last), 16), max(16, cap)))
     # a balance fixes the mean: the tail cut at p_max takes its share of the mean with it, and the balance moves the
     # whole distribution to make up for it (H = 0.8, rms slope 0.1, zeta = 3, p0 = 1e-5, local_g1_balanced: 5.3e-7
     # in the top cell at p_max = 5087 p0, 6.2e-6 beyond it carrying 4.3 % of the mean, and the cdf 3.4e-3 off
@@ -2200,40 +1772,44 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     top_weight = max(1.0, float(edges[-1]) / prep.p0) if prep.has_balance else 1.0
     if prep.lamperti_bounded and failure is None and abs(float(y[-1])) * top_weight > rtol:
         # the Lamperti bound was too short (a balance's drift, which it does not see, carried the tail further)
-        return again("domain", f"conservative: on the Lamperti-bounded domain (p_max = {edges[-1]:.4g}) the top "
-                               f"cell held {abs(float(y[-1])):.2e}" + (f" (x p_max/p0 = {top_weight:.3g} in the mean)"
-                               if top_weight > 1.0 else "") + " > rtol", _lamperti=False)
+        return "domain", (f"conservative: on the Lamperti-bounded domain (p_max = {edges[-1]:.4g}) the top cell held "
+                          f"{abs(float(y[-1])):.2e}" + (f" (x p_max/p0 = {top_weight:.3g} in the mean)"
+                                                         if top_weight > 1.0 else "") + " > rtol")
     if prep.lamperti_bounded and failure is not None and not balance_broke:
         # the peers' operators do not conserve the mean to round-off (no early sign, above): a refinement that
         # failed on the shorter domain is tried once on the conservative one (py-pde, local_g1, zeta = 0.3,
         # p0 = 1e-4: the mean's miss was chased to 65536 cells)
-        return again("domain", f"conservative: on the Lamperti-bounded domain (p_max = {edges[-1]:.4g}) the solve "
-                               f"failed: {failure}", _lamperti=False)
+        return "domain", (f"conservative: on the Lamperti-bounded domain (p_max = {edges[-1]:.4g}) the solve "
+                          f"failed: {failure}")
     timings = {"setup": t_prep, "solve": time.perf_counter() - t_start - t_prep,
                "total": time.perf_counter() - t_start}
-    return build_result(prep, backend=backend, edges=edges, y=y, moments=moments, estimate=est, rtol=rtol,
-                        timings=timings, mean_full=mean_full,
-                        extra={"levels": cells, "history": history,
-                               "time_integration": (f"cf{cnt['cram_order']}" if time_integration == "cram16"
-                                                    and cnt.get("cram_order", 16) != 16 else time_integration),
-                               "cram_applications": cnt["cram_applications"], "substeps": cnt["substeps"],
-                               "cram_order": cnt.get("cram_order", 16),
-                               **({"cdf_interpolation_error": interp} if sixth else {}),
-                               "grids_integrated": grids_integrated, "extrapolation": extrapolation,
-                               "cells_needed": cells_needed, "remap_factor": remap_factor,
-                               "wall_grading_needed": grading_needed,
-                               "newton_steps": cnt.get("newton_steps", 0),
-                               "domain": "Lamperti-bounded" if prep.lamperti_bounded else "from the spread",
-                               "wall_grading": float(prep.spec.c_wall), "wall_depth": _depth_fraction(prep.spec),
-                               "grid": best_grid,
-                               **({"floor_ghosts": best_ghosts} if best_ghosts is not None else {}),
-                               **({"plain_masses": best_plain} if best_plain is not None else {}),
-                               "wall_depth_needed": depth_needed,
-                               **(extra or {})},
-                        failure=failure)
-
-
-_EDGES_CACHE: dict = {}
+    result = build_result(prep, backend=backend, edges=edges, y=y, moments=moments, estimate=est, rtol=rtol,
+                          timings=timings, mean_full=mean_full,
+                          extra={"levels": cells, "history": history, "time_integration": time_integration,
+                                 "cram_applications": cnt["cram_applications"], "substeps": cnt["substeps"],
+                                 "cram_order": cnt.get("cram_order", 16),
+                                 "grids_integrated": grids_integrated,
+                                 "cells_needed": cells_needed, "remap_factor": remap_factor,
+                                 "wall_grading_needed": grading_needed,
+                                 "newton_steps": cnt.get("newton_steps", 0),
+                                 "domain": "Lamperti-bounded" if prep.lamperti_bounded else "from the spread",
+                                 "wall_grading": float(prep.spec.c_wall), "wall_depth": _depth_fraction(prep.spec),
+                                 # (the family of the result's grid: its cdf interpolates in the family's coordinate)
+                                 "grid": (best_grid.spec, best_grid.knots),
+                                 **({"floor_ghosts": best_ghosts} if best_ghosts is not None else {}),
+                                 "wall_depth_needed": depth_needed,
+                                 **(extra or {})},
+                          failure=failure)
+    # where a sweep's next problem starts: at most this problem's first grid (starting at its own cells
+    # over-resolves where the need falls), on the family without a remap (its cells are the remap's over its
+    # factor), with the grading its last level's errors favour
+    next_start = None
+    if result.success:
+        start = int(min(math.ceil(min(cells[0] / remap_factor, cells_needed)), cap))
+        next_start = WarmStart(n_start=start, wall_grading=grading_needed if grading_needed > 0.0 else None,
+                               wall_depth=depth_needed if grading_needed > 0.0 and depth_needed > 0.0 else 0.0)
+    return FVSolution(result=result, grid=best_grid, plain=best_plain, cells_needed=cells_needed,
+                      next_start=next_start)
 
 
 #: a grid whose states sum in absolute value to more than this is not a probability distribution any more: the
@@ -2261,40 +1837,19 @@ def _unstable_grid(es: Sequence[np.ndarray], ys: Sequence[tuple]) -> Optional[st
     return None
 
 
-def _forced_edges(spec: GridSpec, idx: np.ndarray, depth: int) -> np.ndarray:
-    """:func:`edges_for` of a forced grid (:func:`grid_family`), remembered for the last few.
-
-    A copy is returned: writable, as every other grid (a read-only array is another type to numba, and its
-    kernels' first use in a process cost a 47 ms cache load, or a compilation)."""
-    key = (spec, tuple(int(i) for i in idx), int(depth))
-    hit = _EDGES_CACHE.get(key)
-    if hit is None:
-        hit = edges_for(spec, idx, depth)
-        if len(_EDGES_CACHE) >= 8:
-            _EDGES_CACHE.pop(next(iter(_EDGES_CACHE)))
-        _EDGES_CACHE[key] = hit
-    return hit.copy()
-
-
 def _cells_below_floor(prep: Prepared, edges: np.ndarray) -> int:
     """How many cells of the grid ``edges`` lie below the floor (lumped into the zero weight of an answer)."""
     return int(edges.searchsorted(prep.lump_below)) if prep.lump_below > 0 else 0
 
 
-def _grid_of(prep: Prepared, idx: np.ndarray) -> tuple:
-    """``diagnostics["grid"]``: the family and the knot indices of a level (what :func:`grid_family` takes)."""
-    return prep.spec, tuple(idx.tolist())
-
-
-def _plain_result(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple], idx: np.ndarray,
-                  ks: Sequence[int], *, backend: str, rtol: float, t_start: float, t_prep: float
-                  ) -> PressureDistribution:
-    """The result of a solve under ``plain_masses("only")`` or ``("finest")``: the grids' own masses (``ks`` their
-    refinement exponents: N and 2N, or 4N), lumped below the floor as an answer is, in
-    ``diagnostics["plain_masses"]`` (the N, 2N and 4N grid's places, None where not integrated); the density is the
-    finest integrated grid's (not extrapolated, no estimate: ``success`` is False by construction,
-    ``diagnostics["plain_failure"]`` is a balance's failure, an unstable grid's (:func:`_unstable_grid`) or
-    None)."""
+def _plain_solution(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple], idx: np.ndarray,
+                    ks: Sequence[int], finest: np.ndarray, *, backend: str, rtol: float, t_start: float,
+                    t_prep: float) -> FVSolution:
+    """The solution of a plain solve (``plain`` "only", "finest", "coarsest" or "answer"): the grids' own masses
+    (``ks`` their refinement exponents; ``finest`` the level's 4N grid), lumped below the floor as an answer is, in the N, 2N and 4N grid's places
+    of ``plain`` (None where not integrated); the result is the finest integrated grid's (not extrapolated, no
+    estimate: ``success`` is False by construction); ``plain_failure`` is a balance's failure, an unstable grid's
+    (:func:`_unstable_grid`) or None."""
     j1 = _cells_below_floor(prep, es[0][::1 << ks[0]])  # the N grid's (every 2^k-th edge) cells below the floor
     broken = [cc["balance_failure"] for _, cc in ys if "balance_failure" in cc]
     unstable = _unstable_grid(es, ys)
@@ -2306,194 +1861,11 @@ def _plain_result(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple],
     for k, (y, _) in zip(ks, ys):
         plain[k] = _lump(y, j1 << k)
     last = ks[-1]
-    return build_result(prep, backend=backend, edges=es[-1][j1 << last:], y=plain[last], estimate=float("inf"),
-                        rtol=rtol, timings=timings, failure="plain masses only (no extrapolation, no estimate)",
-                        extra={"levels": [int(idx[-1]) << k for k in ks], "plain_masses": tuple(plain),
-                               "plain_failure": broken[0] if broken else None,
-                               "grid": _grid_of(prep, idx)})
-
-
-def plain_batch(problems: Sequence, *, rtol: float, n_cells: int, p_floor: Optional[float] = None,
-                threads: Optional[int] = None) -> list:
-    """The plain masses of several problems on one grid family, as :func:`solve_fv` gives each of them under
-    :func:`grid_family` and :func:`plain_masses` (``"only"`` or ``"finest"``) with ``n_cells`` its coarsest, the
-    same bit for bit, but with all their grids spread over two threads together.
-
-    One problem at a time, its two grids split 1:2 between the threads (the ``N`` grid here, the ``2N`` grid in
-    the worker) and the ``4N`` grid alone ran in one: this thread waited a third of the kernels' time for the
-    worker, and each problem paid the solver's set-up in turn.  Here every problem is classified first, then
-    the (problem, grid) integrations are dealt to the two threads largest first (cells x stages), each
-    evaluating its own coefficients.  Native operator (the shell closures' plain solves; a problem the compiled
-    stages do not take is integrated by LAPACK as in :func:`solve_fv`).
-
-    Returns the results in the order of ``problems`` (:func:`_plain_result`'s, each with its share of the
-    batch's wall time).
-    """
-    t_start = time.perf_counter()
-    forced, mode = _FORCED_GRID.get(), _PLAIN.get()
-    if forced is None or mode not in PLAIN_GRIDS or int(n_cells) != int(forced[1][-1]):
-        raise ValueError(f"plain_batch needs grid_family, plain_masses({' or '.join(map(repr, PLAIN_GRIDS))}) and "
-                         f"n_cells equal to the family's coarsest grid; got mode={mode!r}, n_cells={n_cells!r}")
-    threads = _threads(threads)
-    jobs = _PlainJobs(_plain_preps(problems, forced[0], rtol, p_floor), forced, PLAIN_GRIDS[mode], rtol)
-    t_prep = time.perf_counter() - t_start
-    # taken by this thread and the worker (longest processing time first)
-    pending = _worker().submit(jobs.drain) if threads > 1 and len(jobs.queue) > 1 else None
-    try:
-        jobs.drain()
-    finally:
-        if pending is not None:
-            pending.result()
-    return jobs.results(rtol, t_start, t_prep)
-
-
-class _PlainJobs:
-    """The (problem, grid) integrations of plain problems on the fixed grids of ``forced`` (``grid_family``'s
-    ``(spec, knot indices)``; ``ks`` the grids' refinement exponents: ``[0, 1]`` the N and 2N grids, ``[2]`` the 4N
-    grid), taken largest first by whichever thread calls :meth:`drain` (:func:`plain_batch`,
-    :func:`plain_batch_ahead`); ``stop``: a cancel flag checked before each job."""
-
-    def __init__(self, preps: Sequence[Prepared], forced: tuple, ks: Sequence[int], rtol: float,
-                 stop: Optional[np.ndarray] = None, coefficients_made: Optional[Callable[[], None]] = None) -> None:
-        self.preps, self.ks, self.stop, self.coefficients_made = list(preps), list(ks), stop, coefficients_made
-        self.idx = np.array(forced[1])
-        self.n_base = int(self.idx[-1])
-        finest = _forced_edges(forced[0], self.idx, 4)
-        self.es = [finest[::4 >> k] for k in self.ks]
-        self.integrate = _integrator(native_assemble, rtol, cram_order(rtol))
-        self.queue = _largest_first(self.preps, self.es)
-        self.ys: dict = {}
-        self.failed: list = []
-
-    def run(self, i: int, g: int) -> None:
-        if not self.failed and (self.stop is None or not self.stop[0]):
-            self.ys[i, g] = _plain_masses_on(self.preps[i], self.es[g], self.n_base, 1 << self.ks[g], self.integrate,
-                                             self.coefficients_made)
-
-    def drain(self) -> None:
-        try:
-            _drain(self.queue, self.run)
-        except BaseException:
-            self.failed.append(True)  # the other thread stops after its current job
-            raise
-
-    def complete(self) -> bool:
-        return len(self.ys) == len(self.preps) * len(self.es)
-
-    def results(self, rtol: float, t_start: float, t_prep: float) -> list:
-        """Each problem's :func:`_plain_result`, in order, with its share of the wall time since ``t_start``."""
-        share = (time.perf_counter() - t_start) / max(len(self.preps), 1)
-        return [replace(_plain_result(pr, self.es, [self.ys[i, g] for g in range(len(self.es))], self.idx, self.ks,
-                                      backend="native", rtol=rtol, t_start=t_start, t_prep=t_prep), wall_time=share)
-                for i, pr in enumerate(self.preps)]
-
-
-def plain_batch_ahead(problems: Sequence, ahead: Callable[[], Sequence], wanted: Callable[[list], bool], *,
-                      rtol: float, n_cells: int, p_floor: Optional[float] = None,
-                      threads: Optional[int] = None) -> tuple[list, Optional[list]]:
-    """:func:`plain_batch` of ``problems`` and, speculatively, of the problems ``ahead()`` makes.
-
-    The shell ladder doubles its shells one rung at a time, and each rung's ``2N`` grid takes 2-3x its ``N`` grid:
-    with the two grids in the two threads, the worker waits for the ``2N`` grid about half of each rung (8 and 15
-    ms of the 96- and 192-shell rungs at ``zeta = 0.01``).  Here the worker spends that wait on the next rung: once
-    this thread's and its own integrations of ``problems`` are taken, it builds and classifies ``ahead()`` and
-    integrates them, largest first, under a cancel flag (:class:`_Cancelled`).  This thread integrates its share of
-    ``problems``, waits for the rest of them, and asks ``wanted(results)`` (their results, as :func:`plain_batch`
-    gives them) whether the next rung is needed: if so it joins the worker on the ahead problems' remaining
-    integrations; if not it raises the flag, and the worker's kernel returns before its next stage.
-
-    Returns ``(results, ahead_results)``: ``results`` as :func:`plain_batch` gives them, bit for bit;
-    ``ahead_results`` as :func:`plain_batch` would give ``ahead()``'s problems, the same bits, or None where they
-    were not wanted, or where making or integrating them failed in the worker (the caller then solves them as
-    usual, and meets the error there).  One thread (``threads=1``): :func:`plain_batch` of ``problems``, and None.
-    """
-    threads = _threads(threads)
-    if threads < 2:
-        return plain_batch(problems, rtol=rtol, n_cells=n_cells, p_floor=p_floor, threads=1), None
-    t_start = time.perf_counter()
-    forced, mode = _FORCED_GRID.get(), _PLAIN.get()
-    if forced is None or mode not in ("only", "coarsest") or int(n_cells) != int(forced[1][-1]):
-        raise ValueError(f"plain_batch_ahead needs grid_family, plain_masses('only' or 'coarsest') and n_cells equal "
-                         f"to the family's coarsest grid; got mode={mode!r}, n_cells={n_cells!r}")
-    # one integration of its own (a rung on one grid): this thread takes it, and the worker makes the ahead problems
-    # once its coefficient rows are made (their Python would hold the GIL this thread needs for its rows)
-    rows_made = threading.Event()
-    own = _PlainJobs(_plain_preps(problems, forced[0], rtol, p_floor), forced, PLAIN_GRIDS[mode], rtol,
-                     coefficients_made=rows_made.set)
-    alone = len(own.queue) == 1
-    t_prep = time.perf_counter() - t_start
-    cancel = np.zeros(1, dtype=np.int64)  # raised where the ahead problems are not wanted (or failed)
-    later: dict = {}  # "jobs" (the ahead problems', made by the worker), "t_prep", "error"
-    own_finished = threading.Event()  # the worker is done with its integrations of the batch's own problems
-    ready = threading.Event()  # the ahead problems are classified and queued, or failed
-
-    def drain_ahead() -> None:
-        try:
-            later["jobs"].drain()
-        except _Cancelled:
-            pass
-        except Exception as exc:  # noqa: BLE001 (speculative: the caller solves them itself and meets the error)
-            later["error"] = exc
-            cancel[0] = 1  # the other thread's share stops too
-
-    def worker() -> None:
-        try:
-            if not alone:
-                own.drain()
-        finally:
-            own_finished.set()
-        if alone:
-            rows_made.wait()
-        try:
-            t0 = time.perf_counter()
-            later["jobs"] = _PlainJobs(_plain_preps(ahead(), forced[0], rtol, p_floor), forced, PLAIN_GRIDS[mode],
-                                       rtol, stop=cancel)
-            later["t_prep"] = time.perf_counter() - t0
-        except Exception as exc:  # noqa: BLE001 (as in drain_ahead)
-            later["error"] = exc
-        finally:
-            ready.set()
-        if "error" in later or cancel[0]:
-            return
-        _CANCEL.flag = cancel  # this thread's kernels stop before their next stage once it is raised
-        try:
-            drain_ahead()
-        finally:
-            _CANCEL.flag = _NEVER_CANCELLED
-
-    pending = _worker().submit(worker)
-    try:
-        own.drain()
-    except BaseException:
-        cancel[0] = 1
-        own_finished.wait()  # (the worker's own share never waits for rows_made)
-        raise
-    finally:
-        rows_made.set()  # (also where the job had no rows to make, or was taken by the worker, or raised)
-    own_finished.wait()
-    if own.failed:  # the worker's integration raised: its exception, here
-        cancel[0] = 1
-        pending.result()
-        raise RuntimeError("plain_batch_ahead: an integration of the batch failed")  # (not reached)
-    results = own.results(rtol, t_start, t_prep)
-    try:
-        more = bool(wanted(results))
-    except BaseException:
-        cancel[0] = 1
-        pending.result()
-        raise
-    if not more:
-        cancel[0] = 1
-        pending.result()
-        return results, None
-    t_ahead = time.perf_counter()
-    ready.wait()
-    if "error" not in later:
-        drain_ahead()
-    pending.result()
-    if "error" in later or cancel[0] or not later["jobs"].complete():
-        return results, None
-    return results, later["jobs"].results(rtol, t_ahead, later["t_prep"])
+    result = build_result(prep, backend=backend, edges=es[-1][j1 << last:], y=plain[last], estimate=float("inf"),
+                          rtol=rtol, timings=timings, failure="plain masses only (no extrapolation, no estimate)",
+                          extra={"levels": [int(idx[-1]) << k for k in ks], "grid": (prep.spec, tuple(idx.tolist()))})
+    return FVSolution(result=result, grid=GridFamily(prep.spec, tuple(idx.tolist()), finest), plain=tuple(plain),
+                      plain_failure=broken[0] if broken else None)
 
 
 def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarray, estimate: float, rtol: float,

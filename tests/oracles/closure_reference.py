@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 import time
+from typing import Any, Optional
 
 import numpy as np
 from numba import njit
@@ -325,3 +326,99 @@ def solve_reference(q_shells: np.ndarray, dV0: np.ndarray, *, zeta: float, E_sta
                            bool(balanced), True, p0, int(n_steps), part_shell)
     return {"edges": edges, "density": Pf, "zero_weight": float(zero), "A": float(A),
             "secant_iterations": int(it), "mean_residual": float(res), "wall_time": time.perf_counter() - t0}
+
+
+#: default resolution of the reference solver (cells, BDF2 steps); the error estimate
+#: comes from a second run at half of both
+REFERENCE_RESOLUTION = (1600, 1600)
+
+
+def _solve_reference(shells: Any, *, zeta: float, E_star: float, p0: float, closure: str,
+                     partition_q: Optional[float], n_cells: int, n_steps: int) -> Any:
+    """The closure on ``shells`` solved by :func:`solve_reference` at two resolutions (the finer reported, their
+    difference over 3 its error estimate)."""
+    from diffusion_pr.result import PressureDistribution
+
+    balanced = closure in ("local_g1_balanced", "local_g1_shell_balanced")
+    if closure == "local_g1_shell_balanced":
+        partition_q = "shell"
+    t0 = time.perf_counter()
+    runs = []
+    # The wall floor (first edge) sits a factor `floor` below zeta q_min E*/2.  local_g1: ln p drifts
+    # down at rate 1/p*^2 there, mass never returns, 1e-2 is deep enough.  Balanced: its drift
+    # cancels that Ito drift, ln p random-walks over a wide range and mass comes back, so the floor
+    # goes 32 e-folds deeper (1e-16) with the cells scaled to keep the cell size (docs/closures.md).
+    floor = _balanced_floor() if balanced else 1e-2
+    scale_cells = 1.0
+    kz = 0.5 * zeta * E_star
+    if balanced and kz > 0:
+        pm = p0 + 10.0 * math.sqrt(shells.V0)
+        s_shallow = min(p0 / 20.0, 1e-2 * kz * shells.q_min)
+        s_deep = min(p0 / 20.0, floor * kz * shells.q_min)
+        scale_cells = math.asinh(pm / s_deep) / math.asinh(pm / s_shallow)
+    n_fine = 4 * int(math.ceil(n_cells * scale_cells / 4.0))
+    for n, m in ((n_fine // 2, n_steps // 2), (n_fine, n_steps)):
+        runs.append(solve_reference(shells.q, shells.dV0, zeta=zeta, E_star=E_star, mean_pressure=p0,
+                                    balanced=balanced, q_part=partition_q if partition_q else shells.q_min,
+                                    n_cells=n, n_steps=m, floor_factor=floor))
+    coarse, fine = runs
+    if fine["density"].size != 2 * coarse["density"].size:  # keep the grids nested
+        raise RuntimeError("reference solver: non-nested grids")
+    m_f = fine["density"] * np.diff(fine["edges"])
+    m_c = coarse["density"] * np.diff(coarse["edges"])
+    # nested grids (x uniform, halved): merge fine pairs; BDF2 and the grid are second order
+    # the wall floor (first edge) moves with the grid: count the zero weight in the first coarse cell
+    m_fc = m_f.reshape(-1, 2).sum(axis=1)
+    m_fc[0] += fine["zero_weight"]
+    m_c = m_c.copy()
+    m_c[0] += coarse["zero_weight"]
+    diff = float(np.sum(np.abs(m_fc - m_c)))
+    err = diff / 3.0
+    edges = fine["edges"]
+    wall = time.perf_counter() - t0
+    floor = float(edges[1])
+    res_mean = fine["mean_residual"]
+    density = fine["density"]
+    n_neg = int(np.count_nonzero(density < 0))
+    ok = n_neg == 0 and (not balanced or res_mean < 1e-10)
+    msg = (f"reference solver: {n_fine} cells, {n_steps} BDF2 steps; estimated L1 error {err:.2e} "
+           f"(against {n_fine // 2} cells/{n_steps // 2} steps)")
+    if n_neg:
+        msg += f"; {n_neg} negative cell densities (min {density.min():.3g})"
+    if balanced and not res_mean < 1e-10:
+        msg += f"; the multiplier A did not hold the mean (relative residual {res_mean:.3g}): NOT converged"
+    diag = {"closure": closure, "n_cells": int(edges.size - 1), "n_steps": n_steps, "n_shells": int(shells.q.size),
+            "partition_q": partition_q if partition_q else shells.q_min, "wall_floor": floor if kz > 0 else 0.0,
+            "balance_multiplier": fine["A"], "secant_iterations": fine["secant_iterations"],
+            "mean_residual": res_mean, "shells_exact": shells.exact}
+    if kz > 0:
+        diag["zero_weight_meaning"] = (f"mass below the wall floor {floor:.3g} (exponentially close to p = 0: "
+                                       "g(q; p)^2 ~ p^2 never lets it reach 0)")
+    return PressureDistribution(0.5 * (edges[1:] + edges[:-1]), density, np.diff(edges), fine["zero_weight"], p0,
+                                shells.V0, "closure_reference", ok, msg, err, wall, diag, edges)
+
+def reference_distribution(spectrum: Any, *, E_star: float, mean_pressure: float, zeta: float = 0.0,
+                           closure: str = "local_g1_balanced", n_shells: Optional[int] = None,
+                           partition_q: Any = None, n_cells: int = REFERENCE_RESOLUTION[0],
+                           n_steps: int = REFERENCE_RESOLUTION[1]) -> Any:
+    """A shell closure (``local_g1``, ``local_g1_balanced``, ``local_g1_shell_balanced``) of ``spectrum`` on
+    ``n_shells`` uniform shells (:func:`diffusion_pr.closures.spectrum_shells`' default where None), solved by this
+    module's reference solver at ``n_cells`` cells and ``n_steps`` BDF2 steps (each even, >= 16): the oracle the
+    tests check the engine's closures against."""
+    from diffusion_pr.closures import _BALANCED, _cached_shells, check_closure
+
+    closure = check_closure(closure)
+    if closure not in ("local_g1", *_BALANCED):
+        raise ValueError(f"the reference solver solves the shell closures; got closure={closure!r}")
+    for name, v in (("n_cells", n_cells), ("n_steps", n_steps)):
+        if not isinstance(v, (int, np.integer)) or v < 16 or v % 2:
+            raise ValueError(f"{name} must be an even integer >= 16; got {name}={v!r}")
+    shells = _cached_shells(spectrum, float(E_star), n_shells, "uniform")
+    return _solve_reference(shells, zeta=float(zeta), E_star=float(E_star), p0=float(mean_pressure), closure=closure,
+                            partition_q=partition_q, n_cells=int(n_cells), n_steps=int(n_steps))
+
+
+def _balanced_floor() -> float:
+    from diffusion_pr.closures import BALANCED_FLOOR
+
+    return BALANCED_FLOOR
