@@ -121,7 +121,7 @@ def run(quick: bool = False) -> str:
     note = " ".join(matched) if matched else ("Tamaas is not installed (`pip install tamaas`): its column is "
                                               "skipped; the table gives gfmd_ref's times and field errors alone.")
     return section("GFMD hard wall against Tamaas (Fig. 1 surface, seed 1)", body,
-                   f"Field errors against gfmd_ref at tol 1e-10; medians of {repeats} interleaved runs.", note)
+                   f"Field errors against gfmd_ref at tol 1e-10; medians over {repeats} interleaved round(s).", note)
 
 
 if __name__ == "__main__":
