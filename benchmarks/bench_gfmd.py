@@ -5,8 +5,8 @@ tol 1e-10.  Then, interleaved over the repeats, ``solve_contact`` (hard wall, CC
 Tamaas' ``PolonskyKeerRey`` at tol 1e-8; each run's pressure field is compared with the reference (max and rms
 difference in units of ``p0``).  The matched comparison: the fastest of our tolerances whose max error is at most
 Tamaas', over Tamaas' median time.  Tamaas is optional: without it its column is skipped with a note.  Each size
-starts with a loose solve (tol 1e-2) that compiles the kernels and plans the FFTs; Tamaas runs on one thread
-(``OMP_NUM_THREADS=1`` unless set).
+starts with a loose solve (tol 1e-2) that compiles the kernels and plans the FFTs; Tamaas' threads follow
+``OMP_NUM_THREADS``.
 
     python benchmarks/bench_gfmd.py [--quick]
 """
@@ -99,7 +99,6 @@ def measure(n: int, repeats: int) -> list:
 
 
 def run(quick: bool = False) -> str:
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
     sizes, repeats = ((512, 1024), 1) if quick else ((1024, 2048), 3)
     out, matched = [], []
     for n in sizes:

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
 import statistics
 import subprocess
@@ -97,7 +96,7 @@ def run_group(tree: Path, group: str, repeats: int) -> dict:
     """``label -> dict(seconds, success[, error])`` of one group in one fresh process on ``tree``."""
     from cold_start import child_env, first_result
 
-    env = child_env(tree, OMP_NUM_THREADS=os.environ.get("OMP_NUM_THREADS", "1"))
+    env = child_env(tree)
     if group == "first":
         try:
             r = first_result(tree)
@@ -112,11 +111,11 @@ def run_group(tree: Path, group: str, repeats: int) -> dict:
             t0 = time.perf_counter()
             proc = subprocess.run([sys.executable, "-m", "diffusion_pr.cli", "fig1", "--out", out],
                                   capture_output=True, text=True, env=env, cwd=tempfile.gettempdir())
-            seconds = time.perf_counter() - t0
+            wall = time.perf_counter() - t0
         finally:
             shutil.rmtree(out, ignore_errors=True)
         return {"`diffusion-pr fig1` (n = 512), whole process": dict(
-            seconds=seconds if proc.returncode == 0 else None, success=proc.returncode == 0,
+            seconds=wall if proc.returncode == 0 else None, success=proc.returncode == 0,
             **({} if proc.returncode == 0 else {"error": proc.stderr.strip()[-120:]}))}
     proc = subprocess.run([sys.executable, "-c", CHILD, group, str(repeats)], capture_output=True, text=True,
                           env=env, cwd=tempfile.gettempdir())
