@@ -1,50 +1,35 @@
-"""The independent competitor of issue 10, built here, and the native backend measured against it in the same run.
+"""An independent best-effort Fokker-Planck solver, and the native backend's time over its time.
 
-Issue 10 item 3 asks for the native backend "within 3x the independent competitor" on the mirror Gaussian,
-Feller's solution and the Fig. 1 scenes, at an achieved L1 error <= 1e-6.  The issue quotes that competitor's
-times (0.7 ms mirror, 1.2 ms Fig. 1 at ``zeta = 0.25``) from the day it was filed; absolute times on this shared
-2-core machine move by 2-3x from day to day (the thirty-ninth session measured the same code 2.2-3.1x slower than
-the thirty-eighth), so the ratio is only meaningful when both run in the same process on the same day.  This script
-is that competitor, written from the issue's description and nothing of the package's solvers:
+The competitor is written from a plain description of the problem and nothing of the package's solvers:
 
 * graded finite volumes in the cell masses, flux ``J = -d(f Pr)/dp`` between cell centres (the Ito form, so a
   jump of ``f`` at a grid edge, as Muser's cutoff has at ``p_c``, needs nothing special); the start split between
   the two cells at ``p0``; an absorbing wall at ``p = 0`` (``Pr = 0`` there) or, where ``f ~ p^2`` keeps the mass
   away from 0, a closed bottom at ``p_bottom``; a closed top at ``p0 + top sqrt(V)``;
 * cells uniform in ``s(p) = p / w + lambda ln(p / p_bottom)`` (logarithmic near the bottom, uniform above
-  ``lambda w``) or, with a wall at 0, in ``p^(1/k)``, per segment between the knots (``p0``, ``p_c``, the native
-  non-contact floor), so that all are edges;
-* the final state as ``exp(tau_end L) m0`` by CRAM of order 16 in partial fractions (Pusa's coefficients, the
-  published constants: 8 complex tridiagonal solves by the Thomas algorithm in one numba kernel);
+  ``lambda w``) or, with a wall at 0, in ``p^(1/k)``, per segment between the knots (``p0``, ``p_c``, the
+  native answer's first edge), so that all are edges;
+* the final state as ``exp(tau_end L) m0`` by CRAM of order 16 in partial fractions (Pusa's published
+  coefficients: 8 complex tridiagonal solves by the Thomas algorithm in one numba kernel);
 * Richardson on nested grids (each cell halved in ``s``): ``(4 m_2N - m_N)/3`` per coarse cell and for the zero
   weight.
 
 Two variants answer rtol 1e-6: :func:`adaptive`, with its own estimate and refinement as the package answers, and
-:func:`competitor` on the smallest rung of a ladder of cell counts whose true error (the oracle, which the package
-never sees) is at most the native answer's, with no estimate (the best case for a solver of this kind).  The grid
-knobs (``w``, ``p_bottom``, ``k``, ``top``) were tuned per problem by hand, as the issue's competitor was.
+:func:`competitor` on the smallest rung of a ladder of cell counts whose true error (known only to the
+benchmark) is at most the native answer's, with no estimate (the best case for a solver of this kind).  The grid
+knobs (``w``, ``p_bottom``, ``k``, ``top``) were tuned per problem by hand.
 
-The table: per problem, the native backend at rtol 1e-6 (achieved L1 error, estimate, cells, warm time) and both
-variants (error, cells, warm time, the native time over theirs), medians of interleaved repeats.  Writes
-``results/fp_competitor.md``.
+The table: per problem (mirror Gaussian, Feller, the Fig. 1 second-order scenes), the native backend at rtol 1e-6
+and both variants (L1 error, cells, warm time), and the native time over theirs: medians of interleaved calls.
 
-    python benchmarks/fp_competitor.py [--repeats 15]
+    python benchmarks/fp_competitor.py [--quick]
 """
 from __future__ import annotations
-
-import argparse
-import statistics
-import time
 
 import numpy as np
 from numba import njit
 
-import diffusion_pr as dp
-from diffusion_pr import closed_forms as cf
-from diffusion_pr.problem import FokkerPlanckProblem
-from diffusion_pr.solvers import get_backend
-
-from bench_fokker_planck import OUT, PAPER_PC, SPECTRUM, cell_mass  # the same problems and exact cell masses
+from common import PAPER_PC, answer_edges, cell_masses, cli, fig1_scene, fmt, interleaved, section, table
 
 #: the competitor's grid per Fig. 1 scene, tuned by hand on 256 cells (the best of w = 1e-4 ... 3e-2 and a bottom
 #: 1e-8 ... 0.1 of the floor): (w, bottom / floor)
@@ -192,92 +177,82 @@ def adaptive(rtol: float, f, p0: float, V: float, knots: tuple, w: float, bottom
     return e2, r23, z23, est, level
 
 
-def cases():
-    """``name -> (problem, competitor settings, error of (edges, masses, zero weight))``."""
+def cases() -> dict:
+    """``name -> (p0, V, f, competitor settings, error of (edges, masses, zero weight))``."""
+    import diffusion_pr as dp
+
+    def exact(density, zero):
+        return lambda e, m, z: float(np.sum(np.abs(m - cell_masses(density, e))) + abs(z - zero))
+
     out = {
-        "mirror": (FokkerPlanckProblem(1.0, 1.0), dict(knots=(1.0,), w=np.inf, bottom=0.0, wall=True, power=2.0),
-                   lambda e, m, z: float(np.sum(np.abs(m - cell_mass(
-                       lambda p: cf.mirror_gaussian_density(p, 1.0, 1.0), e)))
-                       + abs(z - cf.persson_zero_weight(1.0, 1.0)))),
-        "feller": (FokkerPlanckProblem(1.0, 1.0, dp.ProportionalDiffusivity(1.0)),
+        "mirror": (1.0, 1.0, lambda p: np.ones_like(p), dict(knots=(1.0,), w=np.inf, bottom=0.0, wall=True, power=2.0),
+                   exact(lambda p: dp.mirror_gaussian_density(p, 1.0, 1.0), dp.persson_zero_weight(1.0, 1.0))),
+        "feller": (1.0, 1.0, dp.ProportionalDiffusivity(1.0),
                    dict(knots=(1.0,), w=np.inf, bottom=0.0, wall=True, power=3.0, top=30.0),
-                   lambda e, m, z: float(np.sum(np.abs(m - cell_mass(
-                       lambda p: cf.feller_density(p, 1.0, 0.5, 1.0), e)))
-                       + abs(z - cf.feller_zero_weight(1.0, 0.5, 1.0)))),
+                   exact(lambda p: dp.feller_density(p, 1.0, 0.5, 1.0), dp.feller_zero_weight(1.0, 0.5, 1.0))),
     }
     for zeta, pc in PAPER_PC.items():
-        V = float(dp.stress_variance(SPECTRUM, E_star=8 / 3, mean_pressure=0.004, zeta=zeta))
-        pr = FokkerPlanckProblem(0.004, V, dp.PressureFactor(dp.MuserCutoff(pc), dp.GaussianTail()))
-        ref = get_backend("native")(pr, rtol=1e-10)
-        floor = float(ref.diagnostics["p_floor"])  # the question's non-contact weight: the mass below it
+        p0, V, f = fig1_scene(zeta)
+        ref = dp.propagate(p0, V, diffusivity=f, backend="native", rtol=1e-10)
+        floor = float(answer_edges(ref)[0])  # the question's non-contact weight: the mass below the floor
 
         def err(e, m, z, ref=ref, floor=floor):
             k = int(np.searchsorted(e, floor))  # an edge (a knot)
-            z_mine = z + float(np.sum(m[:k]))
-            return float(np.sum(np.abs(np.diff(ref.cdf(e[k:])) - m[k:])) + abs(z_mine - ref.zero_weight))
+            return float(np.sum(np.abs(np.diff(ref.cdf(e[k:])) - m[k:]))
+                         + abs(z + float(np.sum(m[:k])) - ref.zero_weight))
 
         w, depth = FIG1_GRID[zeta]
-        out[f"fig1-z{zeta:g}"] = (pr, dict(knots=(0.004, pc, floor), w=w, bottom=depth * floor, wall=False), err)
+        out[f"fig1 zeta {zeta:g}"] = (p0, V, f, dict(knots=(p0, pc, floor), w=w, bottom=depth * floor, wall=False),
+                                      err)
     return out
 
 
-def interleaved(runs: dict, repeats: int) -> dict:
-    """Medians of ``repeats`` warm calls of each run, interleaved so that all see the machine in the same state."""
-    for run in runs.values():
-        run()
-    times = {k: [] for k in runs}
-    for _ in range(repeats):
-        for k, run in runs.items():
-            t0 = time.perf_counter()
-            run()
-            times[k].append(time.perf_counter() - t0)
-    return {k: statistics.median(v) for k, v in times.items()}
+def measure(quick: bool) -> list:
+    """One row per problem: native and both competitor variants at rtol 1e-6."""
+    import diffusion_pr as dp
 
-
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--repeats", type=int, default=15, help="interleaved warm calls per solver (default: 15)")
-    args = ap.parse_args()
-    native = get_backend("native")
+    repeats = 5 if quick else 15
     ladder = [int(round(16 * 2 ** (k / 4))) for k in range(0, 26)]  # 16 ... 1218 cells, 2^(1/4) apart
     rows = []
-    for name, (problem, opts, err) in cases().items():
-        f, p0, V = problem.diffusivity, problem.mean_pressure, problem.variance
-        r_nat = native(problem, rtol=1e-6)
-        e_nat = err(np.asarray(r_nat.edges), r_nat.density * r_nat.weights, r_nat.zero_weight)
+    for name, (p0, V, f, opts, err) in cases().items():
+        def native(p0=p0, V=V, f=f):
+            return dp.propagate(p0, V, diffusivity=f, backend="native", rtol=1e-6)
+
+        r = native()
+        e_nat = err(answer_edges(r), np.diff(r.cdf(answer_edges(r))), r.zero_weight)
         pick = next(((n, e) for n in ladder if (e := err(*competitor(n, f, p0, V, **opts))) <= min(1e-6, e_nat)),
                     None)
-        e_a, m_a, z_a, est_a, levels_a = adaptive(1e-6, f, p0, V, **opts)
-        err_a = err(e_a, m_a, z_a)
-        runs = {"native": lambda: native(problem, rtol=1e-6),
-                "adaptive": lambda: adaptive(1e-6, f, p0, V, **opts)}
+        e_a, m_a, z_a, est_a, levels = adaptive(1e-6, f, p0, V, **opts)
+        calls = {"native": native, "adaptive": lambda p0=p0, V=V, f=f, opts=opts: adaptive(1e-6, f, p0, V, **opts)}
         if pick is not None:
-            runs["oracle"] = lambda: competitor(pick[0], f, p0, V, **opts)
-        t = interleaved(runs, args.repeats)
-        t_o = t.get("oracle", float("nan"))
-        n_o, e_o = pick if pick is not None else (0, float("nan"))
-        rows.append((name, e_nat, r_nat.error_estimate, int(r_nat.p.size), t["native"], err_a, est_a,
-                     int(e_a.size - 1), levels_a, t["adaptive"], n_o, e_o, t_o))
-        print(f"{name:10s} native {t['native'] * 1e3:6.2f} ms (error {e_nat:.1e}, estimate {r_nat.error_estimate:.1e},"
-              f" {r_nat.p.size} cells) | competitor with its estimate {t['adaptive'] * 1e3:6.2f} ms (error "
-              f"{err_a:.1e}, estimate {est_a:.1e}, {e_a.size - 1} cells, {levels_a} levels): ratio "
-              f"{t['native'] / t['adaptive']:.2f} | oracle-picked {t_o * 1e3:6.2f} ms ({n_o} + {2 * n_o} cells, "
-              f"error {e_o:.1e}): ratio {t['native'] / t_o:.2f}")
-    lines = ["| problem | native: error | estimate | cells | time [ms] | competitor with its estimate: error | "
-             "estimate | cells (levels) | time [ms] | native / it | oracle-picked competitor: N | error | "
-             "time [ms] | native / it |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for (name, e_nat, est, cells, t_n, err_a, est_a, cells_a, lv_a, t_a, n_o, e_o, t_o) in rows:
-        lines.append(f"| {name} | {e_nat:.1e} | {est:.1e} | {cells} | {t_n * 1e3:.2f} | {err_a:.1e} | {est_a:.1e} | "
-                     f"{cells_a} ({lv_a}) | {t_a * 1e3:.2f} | {t_n / t_a:.2f} | {n_o} | {e_o:.1e} | {t_o * 1e3:.2f} | "
-                     f"{t_n / t_o:.2f} |")
-    lines += ["", f"Both at rtol 1e-6; L1 errors against the closed forms (mirror, Feller) or the native rtol-1e-10 "
-              f"answer (Fig. 1, Muser's cutoff at the paper's p_c; the non-contact weight below the native floor). "
-              f"Medians of {args.repeats} interleaved warm calls in one process.  The oracle-picked competitor is "
-              f"the smallest rung of its ladder whose error is at most the native answer's and at most 1e-6 (no "
-              f"estimate: a bound on what any solver of this kind can do)."]
-    OUT.mkdir(exist_ok=True)
-    (OUT / "fp_competitor.md").write_text("\n".join(lines) + "\n")
+            calls["oracle"] = lambda p0=p0, V=V, f=f, opts=opts, n=pick[0]: competitor(n, f, p0, V, **opts)
+        t = interleaved(calls, repeats)
+        rows.append(dict(problem=name, native_error=e_nat, native_estimate=r.error_estimate,
+                         native_ms=1e3 * t["native"],
+                         adaptive_error=err(e_a, m_a, z_a), adaptive_cells=int(e_a.size - 1), adaptive_levels=levels,
+                         adaptive_ms=1e3 * t["adaptive"], oracle_n=pick[0] if pick else None,
+                         oracle_error=pick[1] if pick else None,
+                         oracle_ms=1e3 * t["oracle"] if pick else None))
+    return rows
+
+
+def run(quick: bool = False) -> str:
+    rows = measure(quick)
+    body = table(["problem", "native: L1 error", "estimate", "time [ms]", "competitor (own estimate): error",
+                  "cells (levels)", "time [ms]", "native / it", "competitor (oracle-picked N): N", "error",
+                  "time [ms]", "native / it"],
+                 [(r["problem"], fmt(r["native_error"], ".1e"), fmt(r["native_estimate"], ".1e"),
+                   fmt(r["native_ms"], ".2f"), fmt(r["adaptive_error"], ".1e"),
+                   f"{r['adaptive_cells']} ({r['adaptive_levels']})", fmt(r["adaptive_ms"], ".2f"),
+                   fmt(r["native_ms"] / r["adaptive_ms"], ".2f"), r["oracle_n"] or "-", fmt(r["oracle_error"], ".1e"),
+                   fmt(r["oracle_ms"], ".2f"),
+                   fmt(r["native_ms"] / r["oracle_ms"] if r["oracle_ms"] else None, ".2f")) for r in rows])
+    return section("Native Fokker-Planck against the independent competitor (rtol 1e-6)", body,
+                   "L1 errors against the closed forms (mirror, Feller) or the native rtol-1e-10 answer (Fig. 1 "
+                   "second-order scenes, Muser's cutoff at the paper's p_c; the mass below the native floor counts "
+                   "as non-contact). Medians of interleaved warm calls in one process. The oracle-picked competitor "
+                   "is the smallest rung of its ladder whose error is at most the native answer's and at most 1e-6.")
 
 
 if __name__ == "__main__":
-    main()
+    cli(run, __doc__)
