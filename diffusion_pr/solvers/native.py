@@ -25,19 +25,12 @@ __all__ = ["solve", "warm_up"]
 
 
 def warm_up() -> float:
-    """Compile (first run after installing) or load (later runs) the staged kernels; return the seconds spent.
+    """Compile (first run after installing) or load from numba's cache (later runs) the staged kernels; return
+    the seconds spent.
 
-    Loaded from their stored machine code where the store holds them (no numba import), else through numba, which
-    then stores them (:mod:`diffusion_pr._machine_code`).
-
-    Solves a small staged problem with a drift and a balance and evaluates the
-    shell closures' compiled coefficient rows once, so that every compiled path
-    a closure uses is ready.  Single-stage problems (the paper's theory) need no
-    warm-up.
+    Solves a small staged problem with a drift and a balance, so that every compiled path a closure uses is
+    ready.  Single-stage problems (the paper's theory) need no warm-up.
     """
-    import numpy as np
-
-    from .._closure_rows import DIFFUSIVITY, model_rows
     from ..problem import Stage, StagedProblem
 
     t0 = time.perf_counter()
@@ -48,7 +41,6 @@ def warm_up() -> float:
                             balance=lambda p: p * 0.002 / (p + 0.002)))
     solve_fv(StagedProblem(0.004, tuple(stages), balance_per_stage=True), rtol=1e-3, backend="native",
              assemble=native_assemble, n_cells=48)  # on 16 cells its drift is unstable, which the engine refuses
-    model_rows(np.ones(1), np.ones(1), np.ones(1), DIFFUSIVITY)
     return time.perf_counter() - t0
 
 

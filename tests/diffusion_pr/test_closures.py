@@ -236,10 +236,9 @@ def test_closure_problem_stages(fig1):
     np.testing.assert_allclose(shell.stages[-1].balance(p), (1 - g) * p, rtol=1e-12)
 
 
-def test_compiled_rows_are_the_numpy_formulas_bit_for_bit(fig1):
-    """The closures' coefficient rows (compiled, diffusion_pr._closure_kernels) against the numpy formulas they
-    replaced, written out here: the same operations in the same order give the same bits (a changed order of
-    operations would show up in the last bit); p < 0 is clamped to 0 and a NaN stays NaN."""
+def test_rows_are_the_model_formulas(fig1):
+    """The closures' coefficient rows (all shells in one vectorized pass) against the models' formulas written out
+    here, to the last bit; p < 0 is clamped to 0 and a NaN stays NaN."""
     from diffusion_pr.closures import LoadExcessDrift, LocalResponseDiffusivity, RigidApproachBalance
 
     sh = spectrum_shells(fig1, E_star=E)
