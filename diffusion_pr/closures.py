@@ -508,40 +508,47 @@ def _common_kz(items: tuple) -> Optional[float]:
 
 
 def _products(kz: float, items: tuple, name: str) -> np.ndarray:
-    """``kz x [item.<name> for item in items]``: the shells' wall products ``kz q`` [pressure], as a column."""
-    return kz * np.array([getattr(it, name) for it in items], dtype=float)[:, None]
+    """``kz x [item.<name> for item in items]``: the shells' wall products ``kz q`` [pressure]."""
+    return kz * np.array([getattr(it, name) for it in items], dtype=float)
 
 
 class _RowPlan:
     """The rows of one shell model for a fixed set of shells, made once per problem and evaluated on many grids.
 
     ``plan(p, out=None)`` writes the rows at the pressures ``p`` (1-D, clamped at 0; a NaN stays NaN) into ``out``
-    (a float array of shape ``(shells, p.size)``; a new one where None or of another shape) and returns it, or None
-    where a value is not finite (the caller then takes its checked path, which says where).
+    (a C-contiguous float array of shape ``(shells, p.size)``; a new one where None or of another layout) in one
+    compiled pass (:func:`diffusion_pr._closure_kernels.model_rows`) and returns it, or None where a value is not
+    finite (the caller then takes its checked path, which says where).
     """
 
-    __slots__ = ("kq", "kq_part", "fill")
+    __slots__ = ("kq", "kq_part", "model")
 
-    def __init__(self, kq: np.ndarray, kq_part: np.ndarray, fill: Any) -> None:
-        self.kq, self.kq_part, self.fill = kq, kq_part, fill
+    def __init__(self, kq: np.ndarray, kq_part: np.ndarray, model: int) -> None:
+        self.kq, self.kq_part, self.model = kq, kq_part, int(model)
 
     def __len__(self) -> int:
-        return int(self.kq.shape[0])
+        return int(self.kq.size)
 
     def __call__(self, p: np.ndarray, out: Optional[np.ndarray] = None) -> Optional[np.ndarray]:
-        pp = np.maximum(np.asarray(p, dtype=float).reshape(-1), 0.0)
-        shape = (self.kq.shape[0], pp.size)
-        if out is None or out.shape != shape or out.dtype != np.float64:
-            out = np.empty(shape)
-        self.fill(pp, self.kq, self.kq_part, out)
-        return out if np.isfinite(out).all() else None
+        from ._closure_kernels import model_rows
+
+        p = np.ascontiguousarray(p, dtype=float).reshape(-1)
+        shape = (self.kq.size, p.size)
+        target = out if (out is not None and out.shape == shape and out.dtype == np.float64
+                         and out.flags.c_contiguous) else np.empty(shape)
+        if not model_rows(self.kq, self.kq_part, p, self.model, target):
+            return None
+        if out is not None and target is not out:
+            out[...] = target
+            return out
+        return target
 
 
 class _ShellModel:
-    """A shell model of ``p`` that is the constant ``_HARD_WALL`` for the hard wall (``kz = 0``) and a formula in
-    the wall products ``kq = kz q_k`` otherwise (``p`` clamped at 0), evaluated row-wise for many shells at once.
-    Each model writes its formula (``_fill``) and names the wall products it takes (``_PRODUCTS``: the attributes
-    multiplied by ``kz`` for ``kq`` and ``kq_part``)."""
+    """A shell model of ``p`` that is the constant ``_HARD_WALL`` for the hard wall (``kz = 0``) and one of the
+    compiled formulas of :mod:`diffusion_pr._closure_kernels` otherwise (``p`` clamped at 0; imported on first
+    use), evaluated row-wise for many shells at once.  Each model names its formula (``_MODEL``) and the wall
+    products it takes (``_PRODUCTS``: the attributes multiplied by ``kz`` for ``kq`` and ``kq_part``)."""
 
     _HARD_WALL = 0.0
 
@@ -559,7 +566,7 @@ class _ShellModel:
         kz = _common_kz(items)
         if kz is None:
             return None
-        return _RowPlan(_products(kz, items, cls._PRODUCTS[0]), _products(kz, items, cls._PRODUCTS[1]), cls._fill)
+        return _RowPlan(_products(kz, items, cls._PRODUCTS[0]), _products(kz, items, cls._PRODUCTS[1]), cls._MODEL)
 
     @classmethod
     def rows(cls, items: tuple, p: np.ndarray) -> np.ndarray:
@@ -567,9 +574,11 @@ class _ShellModel:
         plan = cls.row_plan(items)
         if plan is None:
             return np.array([it(p) for it in items])
-        pp = np.maximum(np.asarray(p, dtype=float).reshape(-1), 0.0)
-        out = np.empty((len(plan), pp.size))
-        cls._fill(pp, plan.kq, plan.kq_part, out)  # (a plan's call says None where one is not finite)
+        from ._closure_kernels import model_rows
+
+        p = np.ascontiguousarray(p, dtype=float).reshape(-1)
+        out = np.empty((len(plan), p.size))
+        model_rows(plan.kq, plan.kq_part, p, plan.model, out)  # (a plan's call says None where one is not finite)
         return out
 
 
@@ -605,14 +614,8 @@ class LocalResponseDiffusivity(_ShellModel):
     kz: float
 
     _HARD_WALL = 1.0  # f = 1: Persson
+    _MODEL = 0  # _closure_kernels.DIFFUSIVITY: g(q_k)^2
     _PRODUCTS = ("q", "q")
-
-    @staticmethod
-    def _fill(p: np.ndarray, kq: np.ndarray, kq_part: np.ndarray, out: np.ndarray) -> None:
-        """``out = g^2``, ``g = p/(p + kq)``."""
-        np.add(p, kq, out=out)
-        np.divide(p, out, out=out)
-        np.multiply(out, out, out=out)
 
     @property
     def zero_power(self) -> float:
@@ -635,17 +638,8 @@ class LoadExcessDrift(_LoadModel):
     q_part: float
     kz: float
 
+    _MODEL = 1  # _closure_kernels.DRIFT
     _PRODUCTS = ("q", "q_part")
-
-    @staticmethod
-    def _fill(p: np.ndarray, kq: np.ndarray, kq_part: np.ndarray, out: np.ndarray) -> None:
-        """``out = part p/(p + kq)^2``, ``part = kq_part/(p + kq_part)``."""
-        denom = np.add(p, kq)
-        np.multiply(denom, denom, out=denom)
-        np.add(p, kq_part, out=out)
-        np.divide(kq_part, out, out=out)
-        np.multiply(out, p, out=out)
-        np.divide(out, denom, out=out)
 
 
 @dataclass(frozen=True)
@@ -656,14 +650,8 @@ class RigidApproachBalance(_LoadModel):
     q_part: float
     kz: float
 
+    _MODEL = 2  # _closure_kernels.BALANCE
     _PRODUCTS = ("q_part", "q_part")
-
-    @staticmethod
-    def _fill(p: np.ndarray, kq: np.ndarray, kq_part: np.ndarray, out: np.ndarray) -> None:
-        """``out = kq_part p/(p + kq_part)``."""
-        denom = np.add(p, kq_part)
-        np.multiply(kq_part, p, out=out)
-        np.divide(out, denom, out=out)
 
 
 def closure_problem(shells: Shells, *, zeta: float, E_star: float, mean_pressure: float, closure: str,

@@ -28,9 +28,13 @@ def warm_up() -> float:
     """Compile (first run after installing) or load from numba's cache (later runs) the staged kernels; return
     the seconds spent.
 
-    Solves a small staged problem with a drift and a balance, so that every compiled path a closure uses is
-    ready.  Single-stage problems (the paper's theory) need no warm-up.
+    Solves a small staged problem with a drift and a balance and evaluates the shell closures' compiled
+    coefficient rows once, so that every compiled path a closure uses is ready.  Single-stage problems (the
+    paper's theory) need no warm-up.
     """
+    import numpy as np
+
+    from .._closure_kernels import DIFFUSIVITY, model_rows
     from ..problem import Stage, StagedProblem
 
     t0 = time.perf_counter()
@@ -41,6 +45,7 @@ def warm_up() -> float:
                             balance=lambda p: p * 0.002 / (p + 0.002)))
     solve_fv(StagedProblem(0.004, tuple(stages), balance_per_stage=True), rtol=1e-3, backend="native",
              assemble=native_assemble, n_cells=48)  # on 16 cells its drift is unstable, which the engine refuses
+    model_rows(np.ones(1), np.ones(1), np.ones(1), DIFFUSIVITY, np.empty((1, 1)))
     return time.perf_counter() - t0
 
 

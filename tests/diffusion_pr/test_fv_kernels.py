@@ -146,9 +146,9 @@ def test_partial_fraction_residues_give_the_same_rational_function():
 
 @pytest.mark.parametrize("n", [1500, 3001, 6000, 9000])
 def test_cram_pfd_pole_blocks_match_lapack(rng, n):
-    """CRAM-16's poles in blocks of 4, and where the block's arrays outgrow ``_PFD_BLOCK_WORDS`` (9000 cells with the
-    derivative) in blocks of 2: the kernel's answer and derivative are LAPACK's pole-by-pole solves (gttrf/gttrs) to
-    round-off."""
+    """CRAM-16's poles in one block of 8, and where the block's arrays outgrow ``_PFD_BLOCK_WORDS`` in blocks of 4
+    (6000 cells with the derivative, 9000 without) or 2 (9000 with): the kernel's answer and derivative are LAPACK's
+    pole-by-pole solves (gttrf/gttrs) to round-off."""
     lo, up = rng.uniform(0.1, 2.0, n - 1) * 100, rng.uniform(0.1, 2.0, n - 1) * 100
     diag = -(np.r_[lo, 0.0] + np.r_[0.0, up])
     wl, wu = rng.uniform(0.0, 1.0, n - 1), -rng.uniform(0.0, 1.0, n - 1)
@@ -203,10 +203,10 @@ def test_flux_form_conserves_probability_in_stiff_cells(rng):
         for _ in range(200):
             y = apply(y)
         ys[name] = y
-    # LAPACK's CRAM-16 is the IPF form (each factor in flux form): its r(0) is ALPHA0 prod (1 - 2 Re(alpha/theta))
+    # the IPF form (each factor in flux form): its r(0) is ALPHA0 prod (1 - 2 Re(alpha/theta))
     r0_ipf = ALPHA0 * np.prod(1.0 - 2.0 * (ALPHA / THETA).real)
     assert abs(ys["kernel"].sum() - r0 ** 200) <= 1e-12
-    assert abs(ys["lapack flux"].sum() - r0_ipf ** 200) <= 1e-12
+    assert abs(ys["lapack flux"].sum() - r0 ** 200) <= 1e-12  # (LAPACK's flux form: the partial fractions too)
     assert abs(ys["kernel ipf"].sum() - r0_ipf ** 200) <= 1e-12
     lost = abs(ys["plain"].sum() - r0 ** 200)
     assert lost > 1e-9  # the case bites: the plain sum does lose probability here
@@ -252,7 +252,7 @@ def test_the_estimate_carries_the_time_integrations_bound(monkeypatch):
 
 @pytest.mark.parametrize("n", [2, 3, 57, 1500, 3001])
 def test_cram_pfd_matches_ipf(rng, n):
-    """Partial fractions (poles eliminated together, blocks of 4 or 2) against the IPF form and its derivative."""
+    """Partial fractions (poles eliminated together) against the IPF form and its derivative."""
     lo, up = rng.uniform(0.1, 2.0, n - 1) * 100, rng.uniform(0.1, 2.0, n - 1) * 100
     diag = -(np.r_[lo, 0.0] + np.r_[0.0, up])
     wl, wu = rng.uniform(0.0, 1.0, n - 1), -rng.uniform(0.0, 1.0, n - 1)
@@ -1103,6 +1103,59 @@ def test_a_regraded_family_that_diverges_falls_back_to_the_first_levels(monkeypa
     monkeypatch.setattr(engine, "REGRADE", False)  # the oracle of the fallback: no regrade at all
     plain = _closure_distribution(spec, **kw)
     assert np.array_equal(plain.edges, r.edges) and np.allclose(plain.cdf(x), r.cdf(x), rtol=0.0, atol=1e-12)
+
+
+def test_many_grids_in_one_call_are_each_grids_own_exponential_bit_for_bit(rng):
+    """expm_tridiagonal_many (a level's grids, every pole, one zgtsv call) against expm_tridiagonal on each grid
+    alone (flux form): the same bits, for grids of 3, 80 and 317 states with random rates, and
+    t = 0 returns the starts."""
+    from diffusion_pr.solvers.fv.cram import expm_tridiagonal_many
+
+    systems, ys = [], []
+    for n in (3, 80, 317):
+        lo, up = rng.uniform(0.1, 2.0, n - 1) * n, rng.uniform(0.1, 2.0, n - 1) * n
+        systems.append((lo, -(np.r_[lo, 0.0] + np.r_[0.0, up]), up))
+        ys.append(rng.uniform(size=n))
+    many = expm_tridiagonal_many(systems, 0.3, ys)
+    for (lo, di, up), y, out in zip(systems, ys, many):
+        assert np.array_equal(out, expm_tridiagonal(lo, di, up, 0.3, y, flux_form=True))
+    assert all(np.array_equal(a, b) for a, b in zip(expm_tridiagonal_many(systems, 0.0, ys), ys))
+
+
+def test_a_singular_system_among_many_names_its_grid_pole_and_row(monkeypatch):
+    """A zero pivot (LAPACK info > 0; the real generators shifted by complex poles never give one, so it is
+    injected) raises with the grid, the pole and the row it is in, not a result: info 4 + 9 + 2 of a stack of
+    grids with 4 and 5 states is pole 1, grid 1, row 2."""
+    from diffusion_pr.solvers.fv import cram
+
+    monkeypatch.setattr(cram, "_gtsv", lambda: (lambda dl, d, du, b, *flags: (dl, d, du, b, 4 + 9 + 2)))
+    gen = lambda n: (np.ones(n - 1), -2.0 * np.ones(n), np.ones(n - 1))  # noqa: E731
+    with pytest.raises(FloatingPointError, match=r"grid 1, pole 1, row 2"):
+        cram.expm_tridiagonal_many([gen(4), gen(5)], 1.0, [np.ones(4), np.ones(5)])
+
+
+@pytest.mark.parametrize("case", ["fig1", "two_stages", "feller"])
+def test_a_level_in_one_lapack_call_is_the_grid_by_grid_solve_bit_for_bit(monkeypatch, case):
+    """The engine integrates a level's grids in one LAPACK call per stage where it can (one to three plain stages,
+    partial fractions): the same answer, bit for bit, as grid by grid (the Fig. 1 scene at zeta = 0.25, two stages of
+    different diffusivities, Feller's solution with its doubling level), and the path is taken."""
+    if case == "fig1":
+        prob = dp.FokkerPlanckProblem(0.004, 1e-5, dp.PressureFactor(dp.MuserCutoff(0.0027), dp.GaussianTail()))
+    elif case == "feller":
+        prob = dp.FokkerPlanckProblem(1.0, 1.0, dp.ProportionalDiffusivity(1.0))
+    else:
+        from diffusion_pr.problem import Stage, StagedProblem
+        prob = StagedProblem(1.0, (Stage(0.3, dp.PressureFactor(dp.MuserCutoff(0.5), dp.GaussianTail())),
+                                   Stage(0.2, dp.ProportionalDiffusivity(1.0))))
+    calls = []
+    one = engine._integrate_level
+    monkeypatch.setattr(engine, "_integrate_level", lambda *a: calls.append(1) or one(*a))
+    fast = engine.solve_fv(prob, rtol=1e-6, backend="native")
+    assert calls and fast.success
+    monkeypatch.setattr(engine, "_one_call_level", lambda prep, order: False)
+    slow = engine.solve_fv(prob, rtol=1e-6, backend="native")
+    assert np.array_equal(fast.edges, slow.edges) and np.array_equal(fast.density, slow.density)
+    assert fast.zero_weight == slow.zero_weight and fast.error_estimate == slow.error_estimate
 
 
 def test_the_cubic_ratio_predictor_saves_corrections():

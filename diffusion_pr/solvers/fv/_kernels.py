@@ -7,7 +7,8 @@ arithmetic in call overhead and copies.  These kernels do the same arithmetic
 in one compiled call per grid:
 
 * :func:`cram_pfd` -- ``exp(t L) y`` in partial fractions, a block of poles
-  eliminated together row by row with LAPACK ``zgttrf``'s partial pivoting;
+  eliminated together row by row with LAPACK ``zgttrf``'s partial pivoting, in
+  real arithmetic on split parts;
 * :func:`gttrf` / :func:`gttrs` -- the complex tridiagonal LU with partial
   pivoting, row for row LAPACK's ``zgttrf`` / ``zgttrs``, keeping the reciprocal
   pivots so that a second solve with the same matrix (the derivative of
@@ -272,12 +273,12 @@ def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusi
             upper[0] -= back
 
 
-#: poles per block of :func:`cram_pfd` (their eliminations interleave): CRAM-16's 8 poles in two blocks of 4,
-#: while the block's complex arrays (4 per row, 7 with the derivative) stay within this many row-arrays (4 MB,
-#: about a processor's second-level cache), else blocks of 2
+#: poles per block of :func:`cram_pfd` (their eliminations interleave): all of CRAM-16's 8 poles in one block
+#: while the block's arrays (about 4 per row and pole, 7 with the derivative) stay within this many, else blocks
+#: of 4 or 2 (one block of 8 took 0.83-0.93x the time of two blocks of 4 on 300-2500 cells)
 _PFD_BLOCK_WORDS = 250000
 #: the largest block of poles (interleaved eliminations) of :func:`cram_pfd`
-_PFD_MAX_BLOCK = 4
+_PFD_MAX_BLOCK = 8
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -315,22 +316,39 @@ def _pfd_pivoting(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d
     The solves of different poles are independent: a block of poles is
     eliminated together, row by row (LAPACK ``zgttrf``'s pivoting per pole, the
     right-hand side eliminated in the same sweep), which turns the latency-bound
-    recurrence of one solve into independent ones.  With ``want_d`` also the
-    derivative in ``A`` of ``exp(t (L - A W)) y`` for the balance bands ``W``:
+    recurrence of one solve into independent ones.  Real and imaginary parts are
+    kept apart (the subdiagonal ``t l_i`` and, where no row was interchanged, the
+    superdiagonal ``t u_i`` are real: half the products of complex arithmetic).
+    ``kind[i]`` records per pole where a row was interchanged (2) or inherits the
+    complex superdiagonal an interchange made (1); only those rows store their
+    superdiagonals.  With ``want_d`` also the derivative in ``A`` of
+    ``exp(t (L - A W)) y`` for the balance bands ``W``:
     ``2 Re sum_j c_j M_j^-1 (t W) M_j^-1 y`` (a second solve per pole with the
     stored elimination).  Returns ``(x, dx, info)``; ``info > 0`` a zero pivot.
     """
     n = diag.size
     m = theta.size
     g_size = _block_size(n, m, want_d)
-    d = np.empty((n, g_size), dtype=np.complex128)
-    du = np.empty((n, g_size), dtype=np.complex128)
-    du2 = np.empty((n, g_size), dtype=np.complex128)
-    b = np.empty((n, g_size), dtype=np.complex128)
+    rr = np.empty((n, g_size))  # reciprocal pivots
+    ri = np.empty((n, g_size))
+    br = np.empty((n, g_size))  # right-hand side, then solution
+    bi = np.empty((n, g_size))
+    kind = np.zeros((n, g_size), dtype=np.int8)
+    ur = np.empty((n, g_size))  # superdiagonals of U, read where kind != 0
+    ui = np.empty((n, g_size))
+    u2 = np.empty((n, g_size))
     nd = n if want_d else 1
-    fl = np.empty((nd, g_size), dtype=np.complex128)
-    piv = np.zeros((nd, g_size), dtype=np.bool_)
-    r = np.empty((nd, g_size), dtype=np.complex128)
+    fr = np.empty((nd, g_size))  # multipliers
+    fi = np.empty((nd, g_size))
+    qr = np.empty((nd, g_size))  # t W x, then its solution
+    qi = np.empty((nd, g_size))
+    pr = np.empty(g_size)  # the current pivot
+    pi = np.empty(g_size)
+    cur_r = np.empty(g_size)  # the current row's superdiagonal where an interchange made it complex
+    cur_i = np.empty(g_size)
+    inherited = np.zeros(g_size, dtype=np.bool_)
+    th_r = np.empty(g_size)
+    th_i = np.empty(g_size)
     out = np.empty(n)
     wv = np.zeros(n)  # 2 Re sum_j (c_j / theta_j) x_j: the result is r0 y + t L wv (:func:`_flux_form`)
     dout = np.zeros(n)
@@ -340,74 +358,127 @@ def _pfd_pivoting(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d
         return out, dout, 0
     for g0 in range(0, m, g_size):
         gs = min(g_size, m - g0)  # the poles of this block
+        if g0 > 0:
+            kind[:, :] = 0
         for jj in range(gs):
-            d[0, jj] = t * diag[0] - theta[g0 + jj]
-            b[0, jj] = y[0]
-            du[0, jj] = t * upper[0] if n > 1 else 0.0
+            th_r[jj] = theta[g0 + jj].real
+            th_i[jj] = theta[g0 + jj].imag
+            pr[jj] = t * diag[0] - th_r[jj]
+            pi[jj] = -th_i[jj]
+            br[0, jj] = y[0]
+            bi[0, jj] = 0.0
+            inherited[jj] = False
         for i in range(n - 1):
             tl = t * lower[i]
             atl = abs(tl)
+            tu = t * upper[i]
             tdn = t * diag[i + 1]
             tun = t * upper[i + 1] if i < n - 2 else 0.0
             yn = y[i + 1]
             for jj in range(gs):
-                di = d[i, jj]
-                dnext = tdn - theta[g0 + jj]
-                if abs(di.real) + abs(di.imag) >= atl:
-                    if di == 0.0:
-                        return out, dout, i + 1
-                    rec = _rec(di)
-                    f = tl * rec
-                    d[i + 1, jj] = dnext - f * du[i, jj]
-                    d[i, jj] = rec
-                    b[i + 1, jj] = yn - f * b[i, jj]
-                    du[i + 1, jj] = tun
-                    du2[i, jj] = 0.0
-                    if want_d:
-                        fl[i, jj] = f
-                        piv[i, jj] = False
-                else:
-                    rec = 1.0 / tl
-                    f = di * rec
-                    tmp = du[i, jj]
-                    du[i, jj] = dnext
-                    d[i + 1, jj] = tmp - f * dnext
-                    du2[i, jj] = tun
-                    du[i + 1, jj] = -f * tun
-                    d[i, jj] = rec
-                    tb = b[i, jj]
-                    b[i, jj] = yn
-                    b[i + 1, jj] = tb - f * yn
-                    if want_d:
-                        fl[i, jj] = f
-                        piv[i, jj] = True
+                x = pr[jj]
+                z = pi[jj]
+                if abs(x) + abs(z) >= atl:  # row i stays the pivot row (LAPACK's test)
+                    s2 = x * x + z * z
+                    if 1e-290 < s2 < 1e290:
+                        q = 1.0 / s2
+                        sr = x * q
+                        si = -z * q
+                    else:
+                        if x == 0.0 and z == 0.0:
+                            return out, dout, i + 1
+                        w = 1.0 / complex(x, z)
+                        sr = w.real
+                        si = w.imag
+                    f_r = tl * sr
+                    f_i = tl * si
+                    rr[i, jj] = sr
+                    ri[i, jj] = si
+                    b_r = br[i, jj]
+                    b_i = bi[i, jj]
+                    br[i + 1, jj] = yn - (f_r * b_r - f_i * b_i)
+                    bi[i + 1, jj] = -(f_r * b_i + f_i * b_r)
+                    if inherited[jj]:  # the complex superdiagonal of an interchange above
+                        ucr = cur_r[jj]
+                        uci = cur_i[jj]
+                        pr[jj] = (tdn - th_r[jj]) - (f_r * ucr - f_i * uci)
+                        pi[jj] = -th_i[jj] - (f_r * uci + f_i * ucr)
+                        kind[i, jj] = 1
+                        ur[i, jj] = ucr
+                        ui[i, jj] = uci
+                        u2[i, jj] = 0.0
+                        inherited[jj] = False
+                    else:
+                        pr[jj] = (tdn - th_r[jj]) - f_r * tu
+                        pi[jj] = -th_i[jj] - f_i * tu
+                else:  # rows i and i + 1 interchanged
+                    ucr = cur_r[jj] if inherited[jj] else tu
+                    uci = cur_i[jj] if inherited[jj] else 0.0
+                    s = 1.0 / tl
+                    f_r = x * s
+                    f_i = z * s
+                    dnr = tdn - th_r[jj]
+                    dni = -th_i[jj]
+                    kind[i, jj] = 2
+                    ur[i, jj] = dnr
+                    ui[i, jj] = dni
+                    u2[i, jj] = tun
+                    pr[jj] = ucr - (f_r * dnr - f_i * dni)
+                    pi[jj] = uci - (f_r * dni + f_i * dnr)
+                    cur_r[jj] = -f_r * tun
+                    cur_i[jj] = -f_i * tun
+                    inherited[jj] = True
+                    rr[i, jj] = s
+                    ri[i, jj] = 0.0
+                    b_r = br[i, jj]
+                    b_i = bi[i, jj]
+                    br[i, jj] = yn
+                    bi[i, jj] = 0.0
+                    br[i + 1, jj] = b_r - f_r * yn
+                    bi[i + 1, jj] = b_i - f_i * yn
+                if want_d:
+                    fr[i, jj] = f_r
+                    fi[i, jj] = f_i
         for jj in range(gs):
-            if d[n - 1, jj] == 0.0:
+            x = pr[jj]
+            z = pi[jj]
+            if x == 0.0 and z == 0.0:
                 return out, dout, n
-            d[n - 1, jj] = _rec(d[n - 1, jj])
-        _back(d, du, du2, b, n, gs)
-        _accumulate(wv, cw, g0, b, n, gs)
+            w = _rec(complex(x, z))
+            rr[n - 1, jj] = w.real
+            ri[n - 1, jj] = w.imag
+        _back(rr, ri, kind, ur, ui, u2, upper, t, br, bi, n, gs)
+        _accumulate(wv, cw, g0, br, bi, n, gs)
         if not want_d:
             continue
-        # r = t W b row by row, eliminated in the same sweep with the stored multipliers and interchanges
+        # q = t W x row by row, eliminated in the same sweep with the stored multipliers and interchanges
         for jj in range(gs):
-            r[0, jj] = t * (wd[0] * b[0, jj] + (wu[0] * b[1, jj] if n > 1 else 0.0))
+            qr[0, jj] = t * (wd[0] * br[0, jj] + (wu[0] * br[1, jj] if n > 1 else 0.0))
+            qi[0, jj] = t * (wd[0] * bi[0, jj] + (wu[0] * bi[1, jj] if n > 1 else 0.0))
         for i in range(n - 1):
             last = i + 2 >= n
             for jj in range(gs):
-                raw = wl[i] * b[i, jj] + wd[i + 1] * b[i + 1, jj]
+                raw_r = wl[i] * br[i, jj] + wd[i + 1] * br[i + 1, jj]
+                raw_i = wl[i] * bi[i, jj] + wd[i + 1] * bi[i + 1, jj]
                 if not last:
-                    raw += wu[i + 1] * b[i + 2, jj]
-                raw *= t
-                f = fl[i, jj]
-                if piv[i, jj]:
-                    tb = r[i, jj]
-                    r[i, jj] = raw
-                    r[i + 1, jj] = tb - f * raw
+                    raw_r += wu[i + 1] * br[i + 2, jj]
+                    raw_i += wu[i + 1] * bi[i + 2, jj]
+                raw_r *= t
+                raw_i *= t
+                f_r = fr[i, jj]
+                f_i = fi[i, jj]
+                q_r = qr[i, jj]
+                q_i = qi[i, jj]
+                if kind[i, jj] == 2:
+                    qr[i, jj] = raw_r
+                    qi[i, jj] = raw_i
+                    qr[i + 1, jj] = q_r - (f_r * raw_r - f_i * raw_i)
+                    qi[i + 1, jj] = q_i - (f_r * raw_i + f_i * raw_r)
                 else:
-                    r[i + 1, jj] = raw - f * r[i, jj]
-        _back(d, du, du2, r, n, gs)
-        _accumulate(dout, c, g0, r, n, gs)
+                    qr[i + 1, jj] = raw_r - (f_r * q_r - f_i * q_i)
+                    qi[i + 1, jj] = raw_i - (f_r * q_i + f_i * q_r)
+        _back(rr, ri, kind, ur, ui, u2, upper, t, qr, qi, n, gs)
+        _accumulate(dout, c, g0, qr, qi, n, gs)
     _flux_form(lower, upper, t, y, wv, r0, out)
     return out, dout, 0
 
@@ -437,26 +508,42 @@ def _flux_form(lower, upper, t, y, w, r0, out):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _accumulate(out, c, g0, x, n, g_size):  # pragma: no cover - numba
-    """``out += 2 Re sum_j c_j x_j`` over the block of poles starting at ``g0``."""
+def _accumulate(out, c, g0, xr, xi, n, g_size):  # pragma: no cover - numba
+    """``out += 2 Re sum_j c_j x_j`` over the block of poles starting at ``g0`` (``x = xr + i xi``)."""
     for i in range(n):
         s = 0.0
         for jj in range(g_size):
             cj = c[g0 + jj]
-            s += cj.real * x[i, jj].real - cj.imag * x[i, jj].imag
+            s += cj.real * xr[i, jj] - cj.imag * xi[i, jj]
         out[i] += 2.0 * s
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _back(d, du, du2, b, n, g_size):  # pragma: no cover - numba
-    """Back substitution of :func:`cram_pfd` for a block of poles (``d`` holds reciprocal pivots)."""
+def _back(rr, ri, kind, ur, ui, u2, upper, t, br, bi, n, g_size):  # pragma: no cover - numba
+    """Back substitution of :func:`_pfd_pivoting` for a block of poles, in place:
+    ``x_i = (b_i - u_i x_{i+1} - u2_i x_{i+2}) / d_i`` (``rr + i ri`` the reciprocal pivots; ``u_i = t upper_i``
+    and ``u2_i = 0`` where ``kind`` is 0)."""
     for jj in range(g_size):
-        b[n - 1, jj] = b[n - 1, jj] * d[n - 1, jj]
-        if n > 1:
-            b[n - 2, jj] = (b[n - 2, jj] - du[n - 2, jj] * b[n - 1, jj]) * d[n - 2, jj]
-    for i in range(n - 3, -1, -1):
+        a = br[n - 1, jj]
+        b = bi[n - 1, jj]
+        br[n - 1, jj] = a * rr[n - 1, jj] - b * ri[n - 1, jj]
+        bi[n - 1, jj] = a * ri[n - 1, jj] + b * rr[n - 1, jj]
+    for i in range(n - 2, -1, -1):
+        tu = t * upper[i]
         for jj in range(g_size):
-            b[i, jj] = (b[i, jj] - du[i, jj] * b[i + 1, jj] - du2[i, jj] * b[i + 2, jj]) * d[i, jj]
+            xr = br[i + 1, jj]
+            xi = bi[i + 1, jj]
+            if kind[i, jj] == 0:
+                a = br[i, jj] - tu * xr
+                b = bi[i, jj] - tu * xi
+            else:
+                a = br[i, jj] - (ur[i, jj] * xr - ui[i, jj] * xi)
+                b = bi[i, jj] - (ur[i, jj] * xi + ui[i, jj] * xr)
+                if i + 2 < n:
+                    a -= u2[i, jj] * br[i + 2, jj]
+                    b -= u2[i, jj] * bi[i + 2, jj]
+            br[i, jj] = a * rr[i, jj] - b * ri[i, jj]
+            bi[i, jj] = a * ri[i, jj] + b * rr[i, jj]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

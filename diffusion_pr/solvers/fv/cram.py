@@ -18,10 +18,12 @@ is at most that times the condition number of ``L``'s eigenvector matrix
 from __future__ import annotations
 
 import functools
+from typing import Sequence
 
 import numpy as np
 
-__all__ = ["ALPHA", "THETA", "ALPHA0", "PFD_RESIDUES", "ERROR_BOUND", "expm_tridiagonal", "CANCELLED"]
+__all__ = ["ALPHA", "THETA", "ALPHA0", "PFD_RESIDUES", "ERROR_BOUND", "expm_tridiagonal", "expm_tridiagonal_many",
+           "CANCELLED"]
 
 #: ``info`` of the compiled stage loops (:func:`._kernels.staged_run`, :func:`._kernels.staged_run_rows`) when their
 #: ``cancel`` flag was set before a stage: ``y`` is the state before that stage (a speculative integration another
@@ -86,14 +88,15 @@ def _gtsv():
 
 def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: float, y: np.ndarray, *,
                      flux_form: bool = False) -> np.ndarray:
-    """``exp(t L) y`` for the tridiagonal ``L = (lower, diag, upper)``: CRAM-16 in the IPF form, eight LAPACK
-    ``zgtsv`` solves.
+    """``exp(t L) y`` for the tridiagonal ``L = (lower, diag, upper)`` by CRAM-16 and LAPACK ``zgtsv``.
 
-    With ``flux_form`` (``L`` must conserve probability, its columns summing to 0) each factor of the IPF form is
-    written as ``r y + t L w`` with ``t L w`` as differences of face fluxes, so that ``sum y`` is conserved to
-    round-off even where ``|t L_ii|`` is huge in cells that hold probability: the compiled kernels' form
-    (:func:`~diffusion_pr.solvers.fv._kernels._flux_form`, docs/backends.md "Probability conserved in stiff
-    cells").  The diagonal then only enters the shifted solves.
+    Without ``flux_form``: the IPF form, eight solves one after another (round-off about 1e-15 of ``max |y|``).
+    With ``flux_form`` (``L`` must conserve probability, its columns summing to 0): the partial fractions, all
+    eight shifted systems stacked into one ``zgtsv`` call (zero couplings between the blocks, so each block is
+    solved as on its own), their sum written as ``r(0) y + t L w`` with ``t L w`` as differences of face fluxes,
+    the compiled kernels' form (:func:`~diffusion_pr.solvers.fv._kernels._flux_form`): ``sum y`` is conserved to
+    round-off even where ``|t L_ii|`` is huge in cells that hold probability (docs/backends.md "Probability
+    conserved in stiff cells"); round-off about 1e-13 of ``max |y|`` (the residues reach 2e2).
 
     Parameters
     ----------
@@ -121,6 +124,8 @@ def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: 
     y = np.array(y, dtype=float)
     if t == 0.0:
         return y
+    if flux_form:
+        return _pfd_flux(lower, diag, upper, t, y)
     tl = (t * lower).astype(np.complex128)
     tu = (t * upper).astype(np.complex128)
     td = (t * diag).astype(np.complex128)
@@ -129,11 +134,66 @@ def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: 
         _, _, _, x, info = gtsv(tl.copy(), td - theta, tu.copy(), y.astype(np.complex128), 1, 1, 1, 1)
         if info != 0:
             raise FloatingPointError(f"CRAM: singular shifted tridiagonal system (LAPACK zgtsv info={info})")
-        if flux_form:  # y + 2 Re(alpha x) = (1 - 2 Re(alpha/theta)) y + t L 2 Re(alpha x / theta)
-            y = _flux_sum(lower, upper, t, y, 2.0 * (alpha / theta * x).real, 1.0 - 2.0 * (alpha / theta).real)
-        else:
-            y += 2.0 * (alpha * x).real
+        y += 2.0 * (alpha * x).real
     return ALPHA0 * y
+
+
+def _pfd_flux(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: float, y: np.ndarray) -> np.ndarray:
+    """:func:`expm_tridiagonal` with ``flux_form`` (:func:`expm_tridiagonal_many` of one grid)."""
+    return expm_tridiagonal_many([(lower, diag, upper)], t, [y])[0]
+
+
+def expm_tridiagonal_many(systems: Sequence[tuple], t: float, ys: Sequence[np.ndarray]) -> list:
+    """``exp(t L_g) y_g`` for several probability-conserving tridiagonal ``L_g = (lower, diag, upper)`` at once:
+    :func:`expm_tridiagonal` with ``flux_form``, every grid's and every pole's shifted system laid end to end in
+    one LAPACK ``zgtsv`` call (zero couplings between the blocks: where a subdiagonal entry is zero ``zgtsv``
+    neither eliminates nor interchanges rows, so each block is solved as on its own).  One call instead of one per
+    grid saves their fixed costs (a level's three grids).
+
+    Raises
+    ------
+    FloatingPointError
+        When a shifted system is singular (LAPACK ``info > 0``), naming the grid, the pole and the row.
+    """
+    ys = [np.array(y, dtype=float) for y in ys]
+    if t == 0.0:
+        return ys
+    sizes = [y.size for y in ys]
+    total = sum(sizes)
+    # the grids' bands and states one after another; a grid's last state is coupled to nothing (zero bands there)
+    lower_row = np.zeros(total)
+    upper_row = np.zeros(total)
+    diag_row = np.empty(total)
+    y_row = np.empty(total)
+    off = 0
+    for (lower, diag, upper), y, n in zip(systems, ys, sizes):
+        lower_row[off:off + n - 1] = lower
+        upper_row[off:off + n - 1] = upper
+        diag_row[off:off + n] = diag
+        y_row[off:off + n] = y
+        off += n
+    m = THETA.size
+    dl = np.empty((m, total), dtype=np.complex128)
+    dl[:] = t * lower_row
+    du = np.empty((m, total), dtype=np.complex128)
+    du[:] = t * upper_row
+    d = (t * diag_row)[None, :] - THETA[:, None]
+    b = np.empty((m, total), dtype=np.complex128)
+    b[:] = y_row
+    _, _, _, x, info = _gtsv()(dl.ravel()[:-1], d.ravel(), du.ravel()[:-1], b.ravel(), 1, 1, 1, 1)
+    if info != 0:
+        pole, row = divmod(int(info) - 1, total)
+        grid = int(np.searchsorted(np.cumsum(sizes), row, side="right"))
+        where = f"grid {grid}, " if len(sizes) > 1 else ""
+        raise FloatingPointError(f"CRAM: singular shifted tridiagonal system (LAPACK zgtsv info={info}: {where}"
+                                 f"pole {pole}, row {row - sum(sizes[:grid]) + 1})")
+    # r(0) y + t L w with w = 2 Re sum_j (c_j/theta_j) x_j, as flux differences (:func:`_flux_sum`), the zero bands
+    # between grids carrying no flux
+    weights = PFD_RESIDUES / THETA
+    w = 2.0 * (weights[:, None] * x.reshape(m, total)).real.sum(axis=0)
+    out = _flux_sum(lower_row[:-1], upper_row[:-1], t, y_row, w, ALPHA0 - 2.0 * float(np.sum(weights.real)))
+    ends = np.cumsum(sizes).tolist()
+    return [out[a:b].copy() for a, b in zip([0, *ends[:-1]], ends)]  # (each grid its own array)
 
 
 def _flux_sum(lower: np.ndarray, upper: np.ndarray, t: float, y: np.ndarray, w: np.ndarray, r: float) -> np.ndarray:

@@ -46,7 +46,7 @@ from ...problem import FokkerPlanckProblem, StagedProblem
 from ...result import PressureDistribution
 from .cram import ALPHA as CRAM_ALPHA
 from .cram import ALPHA0 as CRAM_ALPHA0
-from .cram import CANCELLED, PFD_RESIDUES, expm_tridiagonal
+from .cram import CANCELLED, PFD_RESIDUES, expm_tridiagonal, expm_tridiagonal_many
 from .cram import ERROR_BOUND as CRAM_ERROR_BOUND
 from .cram import THETA as CRAM_THETA
 from .grid import GridSpec, Remap, edges_for, knot_indices, same_grid
@@ -1074,6 +1074,32 @@ def _start(prep: Prepared, edges: np.ndarray, c: np.ndarray) -> np.ndarray:
     return y
 
 
+def _one_call_level(prep: Prepared, order: int) -> bool:
+    """Whether a level's grids integrate in one LAPACK call per stage (:func:`_integrate_level`): LAPACK's stages
+    (not the compiled kernels), constant coefficients, no drift (its splits differ per grid) and no balance (the
+    caller asks for partial fractions too: ``rtol >= PFD_MIN_RTOL``)."""
+    return (not prep.time_dependent and not prep.has_balance and not _compiled(prep)
+            and all(pc.b is None for pc in prep.pieces))
+
+
+def _integrate_level(prep: Prepared, es: Sequence[np.ndarray], order: int) -> list:
+    """``[(y, counters)]`` of every grid of a level, as :func:`solve_on_grid` gives them (bit for bit), each stage's
+    exponential for all grids in one LAPACK call (:func:`~.cram.expm_tridiagonal_many`; where
+    :func:`_one_call_level`).  The stages' ``f`` evaluated once on all grids' centres, as :func:`_coefficients`
+    evaluates it (plain stages have no drift or balance rows to make)."""
+    cs = [centres(e) for e in es]
+    ends = np.cumsum([c.size for c in cs]).tolist()
+    f_rows = prep.row_plans["f"]
+    f_all = _rows(f_rows.funcs, np.concatenate(cs), "the diffusivity", plan=f_rows.plan)
+    np.maximum(f_all, 0.0, out=f_all)
+    ys = [_start(prep, e, c) for e, c in zip(es, cs)]
+    bands = [fv_bands(e, f_all[:, a:b], None, fitted=False, c=c) for e, c, a, b in zip(es, cs, [0, *ends[:-1]], ends)]
+    for k, pc in enumerate(prep.pieces):
+        ys = expm_tridiagonal_many([(lo[k], di[k], up[k]) for lo, di, up in bands], float(pc.duration), ys)
+    return [(y, {"cram_applications": len(prep.pieces), "substeps": 0, "newton_steps": 0, "cram_order": order})
+            for y in ys]
+
+
 def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = native_assemble,
                   n_base: int = 64, refine: int = 1, mean_tol: float = 1e-13,
                   lin_tol: float = 0.0, coef: Optional[dict] = None,
@@ -1837,6 +1863,9 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
     # check where a fresh level passes (p0 = 1, V = 4, Muser cutoff at 0.75: mean off by 3e-3 at 102 cells,
     # estimate 4.6e-4), so the peers keep fresh levels
     reusable = stage_constant and not sixth
+    # LAPACK's plain stages: each stage's exponential for all grids of a level in one call (the same bits)
+    one_call = (loop is None and assemble is native_assemble and rtol >= PFD_MIN_RTOL
+                and _one_call_level(prep, rational_order))
     reuse = None
     remap_factor = 1.0  # the cell factor of a remapped monitor (:func:`_remapped`)
     grading_next = None  # (c_wall, depth fraction, cell factor) the converged level's errors favour (:func:`_regraded`)
@@ -1880,11 +1909,16 @@ def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_
             elif alongside.primed is None and not prep.depth_adaptive:  # (a depth that may be trimmed: not)
                 idle = _OneShot(functools.partial(_prime_alongside, alongside, prep))
         if reuse is not None:
-            coef3 = _coefficients(prep.pieces, [es[-1]], centre_drift=assemble is not native_assemble,
-                                  plans=prep.row_plans)[0]
-            new_grid = lambda: integrate(prep, es[-1], n_base, 4, coef3)  # noqa: E731
+            if one_call:
+                new_grid = lambda: _integrate_level(prep, es[-1:], rational_order)[0]  # noqa: E731
+            else:
+                coef3 = _coefficients(prep.pieces, [es[-1]], centre_drift=assemble is not native_assemble,
+                                      plans=prep.row_plans)[0]
+                new_grid = lambda: integrate(prep, es[-1], n_base, 4, coef3)  # noqa: E731
             # (the new grid in the worker where plain problems run alongside in this thread)
             ys = [reuse[3], reuse[4], *(_run_grids([new_grid], True, side) if side is not None else [new_grid()])]
+        elif one_call:
+            ys = _integrate_level(prep, es, rational_order)
         elif loop is None and not prep.time_dependent:
             # each coefficient evaluated once for the grids of one thread (the worker's finest grid apart, so
             # that it is evaluated and integrated while this thread evaluates and integrates the coarser ones)
