@@ -88,15 +88,15 @@ def _gtsv():
 
 def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: float, y: np.ndarray, *,
                      flux_form: bool = False) -> np.ndarray:
-    """``exp(t L) y`` for the tridiagonal ``L = (lower, diag, upper)`` by CRAM-16 and LAPACK ``zgtsv``.
+    """``exp(t L) y`` for the tridiagonal ``L = (lower, diag, upper)``: CRAM-16 in the IPF form, eight LAPACK
+    ``zgtsv`` solves one after another (round-off about 1e-15 of ``max |y|``).
 
-    Without ``flux_form``: the IPF form, eight solves one after another (round-off about 1e-15 of ``max |y|``).
-    With ``flux_form`` (``L`` must conserve probability, its columns summing to 0): the partial fractions, all
-    eight shifted systems stacked into one ``zgtsv`` call (zero couplings between the blocks, so each block is
-    solved as on its own), their sum written as ``r(0) y + t L w`` with ``t L w`` as differences of face fluxes,
-    the compiled kernels' form (:func:`~diffusion_pr.solvers.fv._kernels._flux_form`): ``sum y`` is conserved to
-    round-off even where ``|t L_ii|`` is huge in cells that hold probability (docs/backends.md "Probability
-    conserved in stiff cells"); round-off about 1e-13 of ``max |y|`` (the residues reach 2e2).
+    With ``flux_form`` (``L`` must conserve probability, its columns summing to 0) each factor of the IPF form is
+    written as ``r y + t L w`` with ``t L w`` as differences of face fluxes, so that ``sum y`` is conserved to
+    round-off even where ``|t L_ii|`` is huge in cells that hold probability: the compiled kernels' form
+    (:func:`~diffusion_pr.solvers.fv._kernels._flux_form`, docs/backends.md "Probability conserved in stiff
+    cells").  The diagonal then only enters the shifted solves.  (:func:`expm_tridiagonal_many`: the partial
+    fractions of several grids in one call.)
 
     Parameters
     ----------
@@ -124,8 +124,6 @@ def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: 
     y = np.array(y, dtype=float)
     if t == 0.0:
         return y
-    if flux_form:
-        return _pfd_flux(lower, diag, upper, t, y)
     tl = (t * lower).astype(np.complex128)
     tu = (t * upper).astype(np.complex128)
     td = (t * diag).astype(np.complex128)
@@ -134,21 +132,21 @@ def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: 
         _, _, _, x, info = gtsv(tl.copy(), td - theta, tu.copy(), y.astype(np.complex128), 1, 1, 1, 1)
         if info != 0:
             raise FloatingPointError(f"CRAM: singular shifted tridiagonal system (LAPACK zgtsv info={info})")
-        y += 2.0 * (alpha * x).real
+        if flux_form:  # y + 2 Re(alpha x) = (1 - 2 Re(alpha/theta)) y + t L 2 Re(alpha x / theta)
+            y = _flux_sum(lower, upper, t, y, 2.0 * (alpha / theta * x).real, 1.0 - 2.0 * (alpha / theta).real)
+        else:
+            y += 2.0 * (alpha * x).real
     return ALPHA0 * y
-
-
-def _pfd_flux(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: float, y: np.ndarray) -> np.ndarray:
-    """:func:`expm_tridiagonal` with ``flux_form`` (:func:`expm_tridiagonal_many` of one grid)."""
-    return expm_tridiagonal_many([(lower, diag, upper)], t, [y])[0]
 
 
 def expm_tridiagonal_many(systems: Sequence[tuple], t: float, ys: Sequence[np.ndarray]) -> list:
     """``exp(t L_g) y_g`` for several probability-conserving tridiagonal ``L_g = (lower, diag, upper)`` at once:
-    :func:`expm_tridiagonal` with ``flux_form``, every grid's and every pole's shifted system laid end to end in
-    one LAPACK ``zgtsv`` call (zero couplings between the blocks: where a subdiagonal entry is zero ``zgtsv``
-    neither eliminates nor interchanges rows, so each block is solved as on its own).  One call instead of one per
-    grid saves their fixed costs (a level's three grids).
+    CRAM-16 in partial fractions, every grid's and every pole's shifted system laid end to end in one LAPACK
+    ``zgtsv`` call (zero couplings between the blocks: where a subdiagonal entry is zero ``zgtsv`` neither
+    eliminates nor interchanges rows, so each block is solved as on its own), the sum written as ``r(0) y + t L w``
+    with face fluxes as the compiled kernels write it (:func:`~diffusion_pr.solvers.fv._kernels._flux_form`).  One
+    call instead of eight per grid saves their fixed costs; the round-off is about 1e-13 of ``max |y|`` (the
+    residues reach 2e2) against the IPF form's 1e-15, more in stiff cells (``eps |t L_ii|``).
 
     Raises
     ------
