@@ -8,8 +8,9 @@ no compilation).  Staged and ``tau``-dependent problems (the closures) apply
 one exponential per stage or midpoint segment, a balance multiplier by Newton
 steps on ``A``; from four stages on (or with a balance) they run in the numba
 kernels of :mod:`diffusion_pr.solvers.fv._kernels` (compiled once per
-installation, about 15-20 s, then cached on disk; loading them costs about
-0.5 s per process: :func:`warm_up` does both where you choose).  Three nested
+installation, about a minute of CPU on a two-core machine, then kept in numba's
+on-disk cache; loading them, numba's import included, costs 1-2 s per process:
+:func:`warm_up` does both where you choose).  Three nested
 grids give a Richardson-extrapolated answer and an error estimate of it
 (:mod:`diffusion_pr.solvers.fv.engine`).
 """

@@ -1108,7 +1108,8 @@ def _integrate_level(prep: Prepared, es: Sequence[np.ndarray], order: int) -> li
 def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = native_assemble,
                   n_base: int = 64, refine: int = 1, mean_tol: float = 1e-13,
                   lin_tol: float = 0.0, coef: Optional[dict] = None,
-                  partial_fractions: bool = True, order: int = 16) -> tuple[np.ndarray, dict]:
+                  partial_fractions: bool = True, order: int = 16,
+                  lapack_partial_fractions: bool = False) -> tuple[np.ndarray, dict]:
     """Integrate from the start to ``tau_end`` on one grid; return ``y = [z, m...]`` and counters.
 
     ``n_base`` is the cell count of the coarsest grid of the nested triple and
@@ -1119,9 +1120,10 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     ``mean_tol p0`` of ``p0``, the last one to first order on the state once the
     miss is below ``lin_tol p0``; after MAX_BALANCE_ITERATIONS the counters carry
     ``"balance_failure"`` and ``y`` is not a result.  ``partial_fractions``: the
-    compiled stages use CRAM in partial fractions (else the IPF form; see
-    PFD_MIN_RTOL) of ``order`` (:func:`cram_order`; LAPACK's stages too, in partial fractions where ``order`` is
-    below 16); ``coef``: the stage coefficients on this grid, if already evaluated.
+    compiled stages use CRAM in partial fractions (else the IPF form, in flux form on LAPACK's stages too; see
+    PFD_MIN_RTOL); ``lapack_partial_fractions``: LAPACK's stages in partial fractions instead
+    (:data:`PFD_MIN_RTOL_LAPACK`); ``order``: the rational approximation's (16); ``coef``: the stage coefficients
+    on this grid, if already evaluated.
     """
     pieces = prep.segment_fn(refine * max(4, n_base // 8)) if prep.time_dependent else prep.pieces
     if coef is None:
@@ -1165,7 +1167,10 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
         return y, counters
     for k in range(len(pieces)):
         for _ in range(reps[k]):
-            y = expm_tridiagonal(lower[k], diag[k], upper[k], dt[k], y, flux_form=bool(partial_fractions))
+            if lapack_partial_fractions:  # (as :func:`_integrate_level` does it: the same bits)
+                y = expm_tridiagonal_many([(lower[k], diag[k], upper[k])], dt[k], [y])[0]
+            else:
+                y = expm_tridiagonal(lower[k], diag[k], upper[k], dt[k], y, flux_form=bool(partial_fractions))
         counters["cram_applications"] += int(reps[k])
     return y, counters
 
@@ -1693,7 +1698,8 @@ def _integrator(assemble: Assemble, rtol: float, order: int) -> Callable:
     return lambda pr, e, nb, rf, cf=None: solve_on_grid(pr, e, assemble=assemble, n_base=nb, refine=rf, coef=cf,
                                                         mean_tol=max(1e-13, MEAN_TOL_FRACTION * rtol),
                                                         lin_tol=math.sqrt(LINEAR_FRACTION * rtol),
-                                                        partial_fractions=rtol >= PFD_MIN_RTOL, order=order)
+                                                        partial_fractions=rtol >= PFD_MIN_RTOL, order=order,
+                                                        lapack_partial_fractions=rtol >= PFD_MIN_RTOL_LAPACK)
 
 
 def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_assemble, n_cells: Optional[int] = None,
