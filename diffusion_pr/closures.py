@@ -499,6 +499,38 @@ def _products(kz: float, items: tuple, name: str) -> np.ndarray:
     return kz * np.array([getattr(it, name) for it in items], dtype=float)
 
 
+class _RowPlan:
+    """The rows of one shell model for a fixed set of shells, made once per problem and evaluated on many grids.
+
+    ``plan(p, out=None)`` writes the rows at the pressures ``p`` (1-D, clamped at 0; a NaN stays NaN) into ``out``
+    (a C-contiguous float array of shape ``(shells, p.size)``; a new one where None or of another layout) in one
+    compiled pass (:func:`diffusion_pr._closure_kernels.model_rows`) and returns it, or None where a value is not
+    finite (the caller then takes its checked path, which says where).
+    """
+
+    __slots__ = ("kq", "kq_part", "model")
+
+    def __init__(self, kq: np.ndarray, kq_part: np.ndarray, model: int) -> None:
+        self.kq, self.kq_part, self.model = kq, kq_part, int(model)
+
+    def __len__(self) -> int:
+        return int(self.kq.size)
+
+    def __call__(self, p: np.ndarray, out: Optional[np.ndarray] = None) -> Optional[np.ndarray]:
+        from ._closure_kernels import model_rows
+
+        p = np.ascontiguousarray(p, dtype=float).reshape(-1)
+        shape = (self.kq.size, p.size)
+        target = out if (out is not None and out.shape == shape and out.dtype == np.float64
+                         and out.flags.c_contiguous) else np.empty(shape)
+        if not model_rows(self.kq, self.kq_part, p, self.model, target):
+            return None
+        if out is not None and target is not out:
+            out[...] = target
+            return out
+        return target
+
+
 class _ShellModel:
     """A shell model of ``p`` that is the constant ``_HARD_WALL`` for the hard wall (``kz = 0``) and one of the
     compiled formulas of :mod:`diffusion_pr._closure_kernels` otherwise (``p`` clamped at 0; imported on first
@@ -514,16 +546,14 @@ class _ShellModel:
         return type(self).rows((self,), p.reshape(-1))[0].reshape(p.shape)
 
     @classmethod
-    def row_plan(cls, items: tuple) -> Any:
-        """The rows of ``items`` as a reusable compiled evaluator (:class:`diffusion_pr._closure_kernels.RowPlan`:
-        ``plan(p, out=None)``), or None where they do not share one ``kz > 0``.  The engine makes one per problem
-        and model and evaluates it on every probe and grid (the same bits as :meth:`rows`)."""
+    def row_plan(cls, items: tuple) -> Optional[_RowPlan]:
+        """The rows of ``items`` as a reusable evaluator (:class:`_RowPlan`: ``plan(p, out=None)``), or None where
+        they do not share one ``kz > 0``.  The engine makes one per problem and model and evaluates it on every
+        probe and grid."""
         kz = _common_kz(items)
         if kz is None:
             return None
-        from ._closure_rows import RowPlan
-
-        return RowPlan(_products(kz, items, cls._PRODUCTS[0]), _products(kz, items, cls._PRODUCTS[1]), cls._MODEL)
+        return _RowPlan(_products(kz, items, cls._PRODUCTS[0]), _products(kz, items, cls._PRODUCTS[1]), cls._MODEL)
 
     @classmethod
     def rows(cls, items: tuple, p: np.ndarray) -> np.ndarray:
@@ -531,9 +561,12 @@ class _ShellModel:
         plan = cls.row_plan(items)
         if plan is None:
             return np.array([it(p) for it in items])
-        from ._closure_rows import model_rows
+        from ._closure_kernels import model_rows
 
-        return model_rows(plan.kq, plan.kq_part, p, plan.model)  # (a plan's call says None where one is not finite)
+        p = np.ascontiguousarray(p, dtype=float).reshape(-1)
+        out = np.empty((len(plan), p.size))
+        model_rows(plan.kq, plan.kq_part, p, plan.model, out)  # (a plan's call says None where one is not finite)
+        return out
 
 
 class _LoadModel(_ShellModel):

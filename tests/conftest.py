@@ -1,7 +1,7 @@
 """Shared pytest fixtures."""
 from __future__ import annotations
 
-import functools
+
 import sys
 from pathlib import Path
 
@@ -19,7 +19,7 @@ def pytest_report_header(config) -> str:
     import importlib.metadata as md
     import platform
 
-    names = ("numpy", "scipy", "numba", "llvmlite", "py-pde", "fipy", "pyfftw", "dask")
+    names = ("numpy", "scipy", "numba", "py-pde", "fipy", "pyfftw", "dask")
     versions = []
     for name in names:
         try:
@@ -32,46 +32,17 @@ def pytest_report_header(config) -> str:
             cpu = next((ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")), cpu)
     except OSError:
         pass
-    return (f"numerical stack: {', '.join(versions)}; CPU: {cpu}; compiled and numpy forms "
-            + ("agree bit for bit" if numpy_is_libm() else "agree to ulps only (numpy's SIMD functions, or FMA)"))
-
-
-@functools.lru_cache(maxsize=None)
-def numpy_is_libm() -> bool:
-    """Whether the compiled kernels and their numpy forms can agree bit for bit on this processor: numpy's ``log``,
-    ``exp`` and ``arcsinh`` give the C library's bits (the compiled kernels' functions), and a compiled polynomial
-    (the grid remap's spline density) numpy's. On processors with AVX-512 numpy runs its own SIMD code for those
-    functions, which differs by an ulp or two in a few values of every thousand, and the compiled spline differed in
-    the last bit at 5 of 2001 points on such a machine (``diffusion_pr.solvers.fv.grid.SAME_GRID_RTOL``). Probed once
-    per session (the report's header and every comparison share it)."""
-    import math
-
-    from diffusion_pr.solvers.fv.grid import Remap
-
-    x = np.exp(np.linspace(-60.0, 5.0, 20000))
-    if not all(np.array_equal(f(v), np.array([g(t) for t in v.tolist()]))
-               for f, g, v in ((np.log, math.log, x), (np.exp, math.exp, np.log(x)), (np.arcsinh, math.asinh, x))):
-        return False
-    plain = Remap((0.0, 2.86, 5.72, 8.58), (1.8, 3.1, 2.7, 2.0))
-    fast = Remap(plain.knots, plain.values, compiled=True)
-    v = np.linspace(-1.0, 10.0, 2001)
-    return bool(np.array_equal(fast.density(v), plain.density(v)) and np.array_equal(fast.forward(v), plain.forward(v)))
+    return f"numerical stack: {', '.join(versions)}; CPU: {cpu}"
 
 
 def _same_bits(a, b) -> bool:
-    """``a`` and ``b`` the same bits where the compiled and the numpy paths can agree bit for bit on this processor
-    (:func:`numpy_is_libm`: as they are written to), else within ulps (relative 1e-12, absolute 1e-15 for values
-    near 0): the property a path's answer must keep on any processor."""
-    a, b = np.asarray(a), np.asarray(b)
-    if numpy_is_libm():
-        return bool(np.array_equal(a, b))
-    return a.shape == b.shape and bool(np.allclose(a, b, rtol=1e-12, atol=1e-15))
+    """``a`` and ``b`` the same shape and the same bits."""
+    return bool(np.array_equal(np.asarray(a), np.asarray(b)))
 
 
 @pytest.fixture
 def same_bits():
-    """``same_bits(a, b)``: equal bit for bit where the compiled kernels and numpy can agree so on this processor
-    (:func:`numpy_is_libm`), else within ulps (:func:`_same_bits`)."""
+    """``same_bits(a, b)``: equal bit for bit (two paths of the engine that must give the same numbers)."""
     return _same_bits
 
 

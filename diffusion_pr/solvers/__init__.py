@@ -104,9 +104,8 @@ def warm_up(name: str) -> float:
     Solves never warm up silently: call this before timing a backend whose
     first call carries a one-time cost (py-pde and FiPy imports; the native
     backend's numba kernels for staged problems such as the closures: compiled
-    on the first run after installing, which also stores their machine code, so
-    that later processes link it without importing numba, 0.16-0.26 s for a
-    closure's first solve; :mod:`diffusion_pr._machine_code`).
+    on the first run after installing and stored in numba's cache, loaded from
+    there by later processes).
     """
     if name not in _REGISTRY:
         raise ValueError(f"backend must be one of {backend_names()}; got backend={name!r}")

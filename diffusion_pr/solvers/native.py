@@ -8,8 +8,9 @@ no compilation).  Staged and ``tau``-dependent problems (the closures) apply
 one exponential per stage or midpoint segment, a balance multiplier by Newton
 steps on ``A``; from four stages on (or with a balance) they run in the numba
 kernels of :mod:`diffusion_pr.solvers.fv._kernels` (compiled once per
-installation, about 15-20 s, then cached on disk; loading them costs about
-0.5 s per process: :func:`warm_up` does both where you choose).  Three nested
+installation, about a minute of CPU on a two-core machine, then kept in numba's
+on-disk cache; loading them, numba's import included, costs 1-2 s per process:
+:func:`warm_up` does both where you choose).  Three nested
 grids give a Richardson-extrapolated answer and an error estimate of it
 (:mod:`diffusion_pr.solvers.fv.engine`).
 """
@@ -25,19 +26,16 @@ __all__ = ["solve", "solve_full", "warm_up"]
 
 
 def warm_up() -> float:
-    """Compile (first run after installing) or load (later runs) the staged kernels; return the seconds spent.
+    """Compile (first run after installing) or load from numba's cache (later runs) the staged kernels; return
+    the seconds spent.
 
-    Loaded from their stored machine code where the store holds them (no numba import), else through numba, which
-    then stores them (:mod:`diffusion_pr._machine_code`).
-
-    Solves a small staged problem with a drift and a balance and evaluates the
-    shell closures' compiled coefficient rows once, so that every compiled path
-    a closure uses is ready.  Single-stage problems (the paper's theory) need no
-    warm-up.
+    Solves a small staged problem with a drift and a balance and evaluates the shell closures' compiled
+    coefficient rows once, so that every compiled path a closure uses is ready.  Single-stage problems (the
+    paper's theory) need no warm-up.
     """
     import numpy as np
 
-    from .._closure_rows import DIFFUSIVITY, model_rows
+    from .._closure_kernels import DIFFUSIVITY, model_rows
     from ..problem import Stage, StagedProblem
 
     t0 = time.perf_counter()
@@ -48,7 +46,7 @@ def warm_up() -> float:
                             balance=lambda p: p * 0.002 / (p + 0.002)))
     solve_fv(StagedProblem(0.004, tuple(stages), balance_per_stage=True), rtol=1e-3, backend="native",
              assemble=native_assemble, n_cells=48)  # on 16 cells its drift is unstable, which the engine refuses
-    model_rows(np.ones(1), np.ones(1), np.ones(1), DIFFUSIVITY)
+    model_rows(np.ones(1), np.ones(1), np.ones(1), DIFFUSIVITY, np.empty((1, 1)))
     return time.perf_counter() - t0
 
 

@@ -236,10 +236,9 @@ def test_closure_problem_stages(fig1):
     np.testing.assert_allclose(shell.stages[-1].balance(p), (1 - g) * p, rtol=1e-12)
 
 
-def test_compiled_rows_are_the_numpy_formulas_bit_for_bit(fig1):
-    """The closures' coefficient rows (compiled, diffusion_pr._closure_kernels) against the numpy formulas they
-    replaced, written out here: the same operations in the same order give the same bits (a changed order of
-    operations would show up in the last bit); p < 0 is clamped to 0 and a NaN stays NaN."""
+def test_rows_are_the_model_formulas(fig1):
+    """The closures' coefficient rows (all shells in one vectorized pass) against the models' formulas written out
+    here, to the last bit; p < 0 is clamped to 0 and a NaN stays NaN."""
     from diffusion_pr.closures import LoadExcessDrift, LocalResponseDiffusivity, RigidApproachBalance
 
     sh = spectrum_shells(fig1, E_star=E)
@@ -622,14 +621,11 @@ def test_shell_extrapolation_doubles_the_shells_where_its_residual_misses(fig1):
     assert true < 1e-6 and true < 10 * r.error_estimate
 
 
-def test_shell_extrapolation_starts_finer_where_coarse_shells_do_not_solve(monkeypatch):
+def test_graded_and_uniform_shells_meet_the_oracle_on_a_stress_scene(monkeypatch):
     """A stress scene (H = 0.8, rms slope 0.031, p0 = 1e-5, zeta = 1e-3; kappa 2e-3 and lambda 1e-5: a thin layer
-    and a start within a shell's diffusion length of the wall).  With uniform shells the ladder needs 96/48/24
-    shells (with the CF-12 stages the 12-shell problem had no balance on the 48-shell problem's grids and all started
-    again from twice the shells; with CRAM-16 it balances and the ladder doubles).  The default grades the shells at both ends
-    ("ends"): the first shells are ~h^2 wide, every coarse problem balances and 48/24/12 meet rtol on grids 4x
-    coarser (the differences fall 3.7x per doubling there, 2.0x with uniform shells).  Both answers agree with the
-    uniform 768/1536-shell oracle (measured 1.7e-7 uniform in the sup of the cdf; estimates 5.6e-7 and 7.9e-8)."""
+    and a start within a shell's diffusion length of the wall).  The default grades the shells at both ends
+    ("ends"): the first shells are ~h^2 wide, every coarse problem balances and 48/24/12 meet rtol; uniform shells
+    need 96/48/24.  Both agree with the uniform 768/1536-shell oracle (1e-6 in the sup of the cdf)."""
     from diffusion_pr import closures
 
     spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
@@ -637,7 +633,7 @@ def test_shell_extrapolation_starts_finer_where_coarse_shells_do_not_solve(monke
     graded = closure_distribution(spec, **kw)
     assert graded.success and graded.diagnostics["shell_grading"] == "ends"
     assert graded.diagnostics["n_shells"] == (48, 24, 12) and "shells_first_tried" not in graded.diagnostics
-    monkeypatch.setattr(closures, "WALL_LAYER_RATIO", 0.0)  # the uniform shells of before
+    monkeypatch.setattr(closures, "WALL_LAYER_RATIO", 0.0)  # uniform shells
     monkeypatch.setattr(closures, "START_WALL_LAYER_RATIO", 0.0)
     r = closure_distribution(spec, **kw)
     assert r.success and r.diagnostics["n_shells"] == (96, 48, 24)

@@ -17,10 +17,9 @@ from diffusion_pr.closures import closure_distribution as _closure_distribution
 from diffusion_pr.closures import closure_problem, spectrum_shells
 from diffusion_pr.solvers.fv import engine
 from diffusion_pr.solvers.fv._kernels import (ALPHA, ALPHA0, BAD_PREDICTION, PFD_RESIDUES, THETA, _fill_row,
-                                              _geometry, _pfd_dominant, flux_weights, _pfd_pivoting, cram_apply, cram_apply_d,
-                                              cram_pfd, gttrf, gttrs)
+                                              _geometry, cram_apply, cram_apply_d, cram_pfd, gttrf, gttrs)
 from diffusion_pr.solvers.fv.operator import bands
-from diffusion_pr.solvers.fv.cram import cf_coefficients, expm_tridiagonal, pfd_coefficients
+from diffusion_pr.solvers.fv.cram import ERROR_BOUND, _flux_sum, expm_tridiagonal
 
 
 #: the engine's own functions, for the oracles that switch one of its decisions off (and back on)
@@ -155,76 +154,19 @@ def test_partial_fraction_residues_give_the_same_rational_function():
     assert np.max(np.abs(pfd - np.exp(x))) < 1e-13
 
 
-@pytest.mark.parametrize("order", [10, 12])
-def test_cf_coefficients_are_the_stored_ones_and_meet_their_bound(order):
-    """The stored CF-10/12 constants are :func:`cf_coefficients`'s output, and ``r(x)`` is within the stated uniform
-    bound of ``exp(x)`` on 40000 points of ``[-1e6, 0]`` (oracle: exp itself; measured 1.36e-10 and 1.63e-12, the best
-    approximations' errors: Carpenter, Ruttan, Varga 1984).
-
-    "The same output" is decided on the rational functions, not on the digits of the poles: the poles come from a
-    singular vector of a Hankel matrix whose singular value is the approximation's error (1.4e-10, 1.6e-12), so
-    another numpy/LAPACK build moves them by far more than eps.  Measured between the build the constants were made
-    with and numpy 2.4.6 (OpenBLAS): poles 2.6e-10 / 2.9e-8 apart (relative), residues 2.4e-9 / 4.3e-7, ``r_inf``
-    4.8e-15 / 2.5e-14, while the two rational functions differ by at most 4.9e-15 / 8.5e-14 on ``(-inf, 0]`` (0.00003
-    and 0.05 of the bound).  Tolerances: poles 1e-6 and residues 1e-5 relative (30x the measured CF-12 spread), and
-    the functions and ``r_inf`` within a tenth of the bound, which a change in a stored constant that matters for
-    the answers cannot pass (a pole moved by 1e-9 relative already moves ``r`` by more)."""
-    theta, res, r_inf, bound = pfd_coefficients(order)
-    t2, c2, r2 = cf_coefficients(order)
-    assert np.allclose(theta, t2, rtol=1e-6, atol=0) and np.allclose(res, c2, rtol=1e-5, atol=0)
-    assert abs(r_inf - r2) < 0.1 * bound
-    x = -np.r_[0.0, np.geomspace(1e-10, 1e6, 40000)]
-    r = r_inf + 2.0 * np.real(np.sum(res[:, None] / (x[None, :] - theta[:, None]), axis=0))
-    r_again = r2 + 2.0 * np.real(np.sum(c2[:, None] / (x[None, :] - t2[:, None]), axis=0))
-    assert np.max(np.abs(r - r_again)) < 0.1 * bound
-    err = np.max(np.abs(r - np.exp(x)))
-    assert err <= bound and err > 0.5 * bound  # the bound is the error, not a loose cover of it
-
-
-def test_cf_coefficients_reject_an_order_they_cannot_give():
-    with pytest.raises(ValueError, match="order must be even"):
-        cf_coefficients(11)
-    with pytest.raises(ValueError, match="order must be 10, 12 or 16"):
-        pfd_coefficients(8)
-
-
-@pytest.mark.parametrize("order", [10, 12])
-@pytest.mark.parametrize("n", [3, 57, 1500])
-def test_cram_pfd_with_cf_poles_matches_the_dense_exponential(rng, order, n):
-    """The kernel with CF-10/12's poles (blocks of 5 or 6 poles, or fewer on large grids) against scipy's dense
-    ``expm`` of a generator with random rates (a random environment: its eigenvectors are far from orthogonal),
-    in L1 relative to ``|y|_1`` (the engine's norm for cell masses) within CRAM_AMPLIFICATION times the uniform
-    bound: measured amplification up to 6.6 at 1500 cells (pointwise up to 1e3); CRAM-16 is 6e-13 from ``expm``."""
-    from scipy.linalg import expm
-
-    lo, up = rng.uniform(0.1, 2.0, n - 1) * n, rng.uniform(0.1, 2.0, n - 1) * n
-    diag = -(np.r_[lo, 0.0] + np.r_[0.0, up])
-    y = rng.uniform(size=n)
-    theta, res, r_inf, bound = pfd_coefficients(order)
-    L = np.diag(diag) + np.diag(lo, -1) + np.diag(up, 1)
-    z = np.zeros(n)
-    for t in (1e-3, 0.1):
-        ref = expm(t * L) @ y
-        out, _, info = cram_pfd(lo, diag, up, z[1:], z, z[1:], t, y, res, theta, r_inf, False)
-        assert info == 0
-        assert np.sum(np.abs(out - ref)) <= engine.CRAM_AMPLIFICATION * bound * np.sum(np.abs(y)) + 1e-12
-
-
-@pytest.mark.parametrize("order", [10, 12])
 @pytest.mark.parametrize("n", [1500, 3001, 6000, 9000])
-def test_cram_pfd_uneven_pole_blocks_match_lapack(rng, order, n):
-    """Where the block of poles is split (``_block_size``), also into blocks that the poles do not fill evenly (with
-    the derivative: CF-10 on 6000 cells 3+2 and on 9000 2+2+1, CF-12 on 6000 3+3 and on 9000 2+2+2; whole blocks
-    below), the kernel's answer and derivative are LAPACK's pole-by-pole solves (gttrf/gttrs) to round-off."""
+def test_cram_pfd_pole_blocks_match_lapack(rng, n):
+    """CRAM-16's poles in one block of 8, and where the block's arrays outgrow ``_PFD_BLOCK_WORDS`` in blocks of 4
+    (6000 cells with the derivative, 9000 without) or 2 (9000 with): the kernel's answer and derivative are LAPACK's
+    pole-by-pole solves (gttrf/gttrs) to round-off."""
     lo, up = rng.uniform(0.1, 2.0, n - 1) * 100, rng.uniform(0.1, 2.0, n - 1) * 100
     diag = -(np.r_[lo, 0.0] + np.r_[0.0, up])
     wl, wu = rng.uniform(0.0, 1.0, n - 1), -rng.uniform(0.0, 1.0, n - 1)
     wd = -(np.r_[wl, 0.0] + np.r_[0.0, wu])
     y = rng.uniform(size=n)
-    theta, res, r_inf, _ = pfd_coefficients(order)
-    ref, dref = _cram_d((lo, diag, up), (wl, wd, wu), 0.01, y, pfd=True, order=order)
+    ref, dref = _cram_d((lo, diag, up), (wl, wd, wu), 0.01, y, pfd=True)
     for want_d in (False, True):
-        out, dout, info = cram_pfd(lo, diag, up, wl, wd, wu, 0.01, y, res, theta, r_inf, want_d)
+        out, dout, info = cram_pfd(lo, diag, up, wl, wd, wu, 0.01, y, PFD_RESIDUES, THETA, ALPHA0, want_d)
         assert info == 0
         assert np.max(np.abs(out - ref)) <= 1e-12 * np.max(np.abs(ref))
         if want_d:
@@ -240,23 +182,6 @@ def _generator_with_drift(rng, n, scale):
     return (lo, diag, up), (wl, wd, wu), rng.uniform(size=n)
 
 
-@pytest.mark.parametrize("order", [10, 12, 16])
-@pytest.mark.parametrize("n", [3, 57, 1500, 3001, 6000, 9000])
-def test_pfd_without_interchanges_is_the_pivoting_kernel_bit_for_bit(rng, order, n):
-    """On a generator (columns sum to 0: LAPACK's pivot test keeps every pivot row) the split-part kernel without
-    interchanges is taken, and its answer and derivative are the pivoting kernel's to the last bit: the same
-    operations in the same order (blocks of 6, 5, 4 and the split blocks of 6000 and 9000 cells with the derivative
-    included)."""
-    band, wband, y = _generator_with_drift(rng, n, 100.0)
-    theta, res, r_inf, _ = pfd_coefficients(order)
-    for want_d in (False, True):
-        out, dout, done = _pfd_dominant(*band, *wband, 0.01, y, res, *flux_weights(res, theta, r_inf), theta, want_d)
-        ref, dref, info = _pfd_pivoting(*band, *wband, 0.01, y, res, *flux_weights(res, theta, r_inf), theta, want_d)
-        assert done and info == 0
-        assert np.array_equal(out, ref)
-        assert np.array_equal(dout, dref)
-
-
 def _stiff_trap(rng, n=120, stiff=40, scale=1e9):
     """A generator whose first ``stiff`` states exchange probability at rates ``scale`` times the others' (a drift
     trapping probability in tiny cells far below the floor, docs/backends.md "Probability conserved in stiff
@@ -268,22 +193,20 @@ def _stiff_trap(rng, n=120, stiff=40, scale=1e9):
     return (lo, -(np.r_[lo, 0.0] + np.r_[0.0, up]), up), y / y.sum()
 
 
-@pytest.mark.parametrize("order", [12, 16])
-def test_flux_form_conserves_probability_in_stiff_cells(rng, order):
+def test_flux_form_conserves_probability_in_stiff_cells(rng):
     """The partial fractions ``r_inf y + 2 Re sum c_j x_j`` lose ``eps sum |t L_ii| m_i`` per application where stiff
     states hold probability (here 36 % of it at ``|t L_ii|`` ~ 4e7): 200 applications gain 1.5e-8.  Written as
     ``r(0) y + t L w`` with face fluxes (the kernels, and LAPACK's path with ``flux_form``) the total is
     ``r(0)^200`` to round-off (1e-12: 200 applications, each a few ulps of the total), and the two forms are the same map:
     they differ by the lost probability, on a non-stiff generator by round-off."""
     (lo, diag, up), y0 = _stiff_trap(rng)
-    theta, res, r_inf, _ = pfd_coefficients(order)
-    cw, r0 = flux_weights(res, theta, r_inf)
+    res, theta, r_inf = PFD_RESIDUES, THETA, ALPHA0
+    r0 = r_inf - 2.0 * float(np.sum((res / theta).real))  # r(0) of the partial fractions
     z, zd = np.zeros(lo.size), np.zeros(diag.size)
     maps = {"kernel": lambda y: cram_pfd(lo, diag, up, z, zd, z, 0.01, y, res, theta, r_inf, False)[0],
-            "lapack flux": lambda y: expm_tridiagonal(lo, diag, up, 0.01, y, order, flux_form=True),
-            "plain": lambda y: _cram_d((lo, diag, up), (z, zd, z), 0.01, y, pfd=True, order=order)[0]}
-    if order == 16:  # the compiled IPF form (rtol below 1e-10)
-        maps["kernel ipf"] = lambda y: cram_apply(lo, diag, up, 0.01, y, ALPHA, THETA, ALPHA0)[0]
+            "lapack flux": lambda y: expm_tridiagonal(lo, diag, up, 0.01, y, flux_form=True),
+            "plain": lambda y: _cram_d((lo, diag, up), (z, zd, z), 0.01, y, pfd=True)[0],
+            "kernel ipf": lambda y: cram_apply(lo, diag, up, 0.01, y, ALPHA, THETA, ALPHA0)[0]}  # (rtol < 1e-10)
     ys = {}
     for name, apply in maps.items():
         y = y0.copy()
@@ -293,9 +216,8 @@ def test_flux_form_conserves_probability_in_stiff_cells(rng, order):
     # LAPACK's CRAM-16 is the IPF form (each factor in flux form): its r(0) is ALPHA0 prod (1 - 2 Re(alpha/theta))
     r0_ipf = ALPHA0 * np.prod(1.0 - 2.0 * (ALPHA / THETA).real)
     assert abs(ys["kernel"].sum() - r0 ** 200) <= 1e-12
-    assert abs(ys["lapack flux"].sum() - (r0 if order < 16 else r0_ipf) ** 200) <= 1e-12
-    if order == 16:
-        assert abs(ys["kernel ipf"].sum() - r0_ipf ** 200) <= 1e-12
+    assert abs(ys["lapack flux"].sum() - r0_ipf ** 200) <= 1e-12
+    assert abs(ys["kernel ipf"].sum() - r0_ipf ** 200) <= 1e-12
     lost = abs(ys["plain"].sum() - r0 ** 200)
     assert lost > 1e-9  # the case bites: the plain sum does lose probability here
     # inside the stiff states round-off moves probability between them (eps |t L_ii| ~ 1e-8 of theirs, differently in
@@ -307,37 +229,40 @@ def test_flux_form_conserves_probability_in_stiff_cells(rng, order):
     assert abs(ys["kernel"][:41].sum() - ys["lapack flux"][:41].sum()) <= 1e-11
     (lo, diag, up), y0 = _stiff_trap(rng, scale=1.0)  # nothing stiff: the same numbers up to round-off
     flux = cram_pfd(lo, diag, up, z, zd, z, 0.01, y0, res, theta, r_inf, False)[0]
-    plain = _cram_d((lo, diag, up), (z, zd, z), 0.01, y0, pfd=True, order=order)[0]
+    plain = _cram_d((lo, diag, up), (z, zd, z), 0.01, y0, pfd=True)[0]
     assert np.max(np.abs(flux - plain)) <= 1e-14
 
 
 def test_pfd_that_needs_interchanges_is_solved_with_them(rng):
-    """A diagonal far weaker than the subdiagonal (``|t d_i - theta| < |t l_i|``): the kernel without interchanges
-    declines, and :func:`cram_pfd` returns the pivoting kernel's answer, which is LAPACK's (gttrf/gttrs) to
-    round-off.  The columns still sum to 0 (the kernels write the result in flux form, which needs that: a drift
+    """A diagonal far weaker than the subdiagonal (``|t d_i - theta| < |t l_i|``): :func:`cram_pfd` interchanges
+    rows as LAPACK does, and its answer is LAPACK's (gttrf/gttrs) to round-off.  The columns still sum to 0 (the kernels write the result in flux form, which needs that: a drift
     against the diffusion makes the superdiagonal negative and the diagonal weak)."""
     n = 40
     (lo, diag, up), wband, y = _generator_with_drift(rng, n, 1.0)
     lo, up = lo * 1e3, -up * 5e2
     band = (lo, -(np.r_[lo, 0.0] + np.r_[0.0, up]), up)  # rows no longer dominant: pivots below the subdiagonal's
-    theta, res, r_inf, _ = pfd_coefficients(12)
-    assert not _pfd_dominant(*band, *wband, 0.01, y, res, *flux_weights(res, theta, r_inf), theta, True)[2]
-    out, dout, info = cram_pfd(*band, *wband, 0.01, y, res, theta, r_inf, True)
-    ref, dref, _ = _pfd_pivoting(*band, *wband, 0.01, y, res, *flux_weights(res, theta, r_inf), theta, True)
-    assert info == 0 and np.array_equal(out, ref) and np.array_equal(dout, dref)
-    lapack, dlapack = _cram_d(band, wband, 0.01, y, pfd=True, order=12)
+    out, dout, info = cram_pfd(*band, *wband, 0.01, y, PFD_RESIDUES, THETA, ALPHA0, True)
+    assert info == 0
+    lapack, dlapack = _cram_d(band, wband, 0.01, y, pfd=True)
     assert np.max(np.abs(out - lapack)) <= 1e-12 * np.max(np.abs(lapack))
     assert np.max(np.abs(dout - dlapack)) <= 1e-12 * np.max(np.abs(dlapack))
 
 
-def test_cram_order_follows_rtol():
-    """CF-10 where its 1.4e-10 per application is below CRAM_SHARE rtol, CF-12 down to rtol 1.7e-7, CRAM-16 below."""
-    assert [engine.cram_order(r) for r in (1e-3, 1e-5, 1e-6, 1e-7, 1e-9, 1e-12)] == [10, 12, 12, 16, 16, 16]
+def test_the_estimate_carries_the_time_integrations_bound(monkeypatch):
+    """A balanced closure (24 shells, zeta = 0.01, rtol 1e-6) on one level: the estimate carries
+    CRAM_AMPLIFICATION x applications x CRAM-16's uniform bound (only that changes with the amplification)."""
+    prob = _closure(0.01, 24)
+    n = engine.solve_fv(prob, rtol=1e-6, backend="native").diagnostics["levels"][0]
+    one = engine.solve_fv(prob, rtol=1e-6, backend="native", n_cells=n)
+    monkeypatch.setattr(engine, "CRAM_AMPLIFICATION", 1e6)
+    big = engine.solve_fv(prob, rtol=1e-6, backend="native", n_cells=n)
+    added = (1e6 - 10) * one.diagnostics["cram_applications"] * ERROR_BOUND
+    assert big.error_estimate - one.error_estimate == pytest.approx(added, rel=1e-6)
 
 
 @pytest.mark.parametrize("n", [2, 3, 57, 1500, 3001])
 def test_cram_pfd_matches_ipf(rng, n):
-    """Partial fractions (poles eliminated together, blocks of 4 or 2) against the IPF form and its derivative."""
+    """Partial fractions (poles eliminated together) against the IPF form and its derivative."""
     lo, up = rng.uniform(0.1, 2.0, n - 1) * 100, rng.uniform(0.1, 2.0, n - 1) * 100
     diag = -(np.r_[lo, 0.0] + np.r_[0.0, up])
     wl, wu = rng.uniform(0.0, 1.0, n - 1), -rng.uniform(0.0, 1.0, n - 1)
@@ -372,21 +297,27 @@ def _matvec(b, y):
     return out
 
 
-def _cram_d(base, wband, t, y, pfd=False, order=16):
+def _cram_d(base, wband, t, y, pfd=False, flux=False):
     """``exp(t L) y`` and its derivative in ``A`` (``L = L0 - A W`` given as ``base``) with LAPACK gttrf/gttrs.
 
-    IPF form (CRAM-16), or partial fractions of ``order`` (``pfd``: every pole solved from ``y``).
+    CRAM-16 in the IPF form, or in partial fractions (``pfd``: every pole solved from ``y``), the sum written
+    plainly or (``flux``) as the kernels write it, ``r(0) y + t L w`` with face fluxes (:func:`_kernels._flux_form`).
     """
     gttrf, gttrs = get_lapack_funcs(("gttrf", "gttrs"), dtype=np.complex128)
     if pfd:
-        thetas, residues, r_inf, _ = pfd_coefficients(order)
+        thetas, residues, r_inf = THETA, PFD_RESIDUES, ALPHA0
         out, dout = r_inf * np.array(y, dtype=float), np.zeros(len(y))
+        w = np.zeros(len(y))
         for c, th in zip(residues, thetas):
             dl, d, du, du2, ipiv, info = gttrf(t * base[0] + 0j, t * base[1] - th, t * base[2] + 0j)
             assert info == 0
             b, info = gttrs(dl, d, du, du2, ipiv, np.asarray(y, dtype=complex))
             r, info = gttrs(dl, d, du, du2, ipiv, t * _matvec(wband, b))
             out, dout = out + 2.0 * (c * b).real, dout + 2.0 * (c * r).real
+            w += 2.0 * (c / th * b).real
+        if flux:
+            out = _flux_sum(base[0], base[2], t, np.array(y, dtype=float), w,
+                            r_inf - 2.0 * float(np.sum((residues / thetas).real)))
         return out, dout
     out, dout = np.array(y, dtype=float), np.zeros(len(y))
     for a, th in zip(ALPHA, THETA):
@@ -462,7 +393,7 @@ class _PythonKernels:
             A = a_mid * self._predicted_ratio() - corr
             have_d = not s_pred < 0.0 and denom != 0.0
             if have_d:
-                trial, dtrial = _cram_d(at(A), wband, dt, y, self.pfd, self.order)
+                trial, dtrial = _cram_d(at(A), wband, dt, y, self.pfd, self.pfd)
                 slope = float(cvec @ dtrial)
             else:
                 trial, dtrial, slope = self._expm(at(A), dt, y), None, s_pred
@@ -471,7 +402,7 @@ class _PythonKernels:
             lo = (A, err) if err > 0 else None
             hi = (A, err) if err < 0 else None
             if abs(err) > BAD_PREDICTION * p0 and denom != 0.0 and a_0 != A:
-                trial0, dtrial0 = _cram_d(at(a_0), wband, dt, y, self.pfd, self.order)
+                trial0, dtrial0 = _cram_d(at(a_0), wband, dt, y, self.pfd, self.pfd)
                 n_cram += 1
                 err0 = float(cvec @ trial0) - p0
                 if abs(err0) < abs(err):
@@ -493,7 +424,7 @@ class _PythonKernels:
                     err = err_new
                 else:
                     if not have_d:
-                        trial, dtrial = _cram_d(at(A), wband, dt, y, self.pfd, self.order)
+                        trial, dtrial = _cram_d(at(A), wband, dt, y, self.pfd, self.pfd)
                         n_cram += 1
                         have_d = True
                     slope = float(cvec @ dtrial)
@@ -519,7 +450,7 @@ class _PythonKernels:
                             a_new = A + (1.0 if err > 0 else -1.0) * (abs(A) + 1.0)
                         if lo and hi and not (min(lo[0], hi[0]) < a_new < max(lo[0], hi[0])):
                             a_new = (lo[0] * hi[1] - hi[0] * lo[1]) / (hi[1] - lo[1])
-                    trial, dtrial = _cram_d(at(a_new), wband, dt, y, self.pfd, self.order)
+                    trial, dtrial = _cram_d(at(a_new), wband, dt, y, self.pfd, self.pfd)
                     n_cram += 1
                     err = float(cvec @ trial) - p0
                 lo, hi = _bracket(lo, hi, a_new, err)
@@ -534,8 +465,7 @@ class _PythonKernels:
 
     def _expm(self, base, t, y):
         if self.pfd:
-            return _cram_d(base, (np.zeros(len(y) - 1), np.zeros(len(y)), np.zeros(len(y) - 1)), t, y, True,
-                           self.order)[0]
+            return _cram_d(base, (np.zeros(len(y) - 1), np.zeros(len(y)), np.zeros(len(y) - 1)), t, y, True, True)[0]
         return expm_tridiagonal(*base, t, y)
 
     def run_rows(self, edges, f_rows, b_rows, w_rows, any_b, *rest, fitted=None):
@@ -547,7 +477,7 @@ class _PythonKernels:
     def run(self, lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, pfd,
             order=16):
         n_cram = n_newton = 0
-        self.ratios, self.kappa, self.pfd, self.order = [], 0.0, pfd, order
+        self.ratios, self.kappa, self.pfd = [], 0.0, pfd
         for k in range(diag.shape[0]):
             base = (lower[k], diag[k], upper[k])
             if balanced[k]:
@@ -1018,7 +948,6 @@ def test_a_first_level_whose_balance_fails_is_repeated_finer(monkeypatch):
     level is repeated with twice the cells (at most twice), and at 4x the start it solves, within 2e-6 of native in
     the cdf (both claim 1e-6).  Without the repetition the solve raises with the balance's message."""
     pytest.importorskip("pde")
-    monkeypatch.setattr(engine, "CRAM_SHARE", 0.0)
     spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 4096, 2 * np.pi / 16, rms_slope=0.1)
     kw = dict(E_star=8 / 3, mean_pressure=1e-5, zeta=1e-5, closure="local_g1_balanced")
     native = closure_distribution(spec, **kw)
@@ -1040,16 +969,13 @@ def test_a_later_level_whose_balance_fails_is_repeated_finer(monkeypatch):
     """Native with CRAM-16, H = 0.8, rms slope 0.031, zeta = 1e-3, p0 = 1e-5, local_g1_balanced on 48 shells: the
     first level solves; the second level's balances fail (injected: until the twenty-fourth session's flux form the
     balance of stage 0 failed there by itself, on 444 cells, the mean 0.1 p0 off after 30 steps); the level is
-    repeated with twice the cells and solves, within 2e-6 of the default (CF-12) answer in the cdf (both claim
+    repeated with twice the cells and solves, within 2e-6 of the uninjected answer in the cdf (both claim
     1e-6).  Without the repetition the solve reports failure (the first level's answer is no result)."""
     monkeypatch.setattr(engine, "_remapped", lambda *a, **k: None)
     monkeypatch.setattr(engine, "LAMPERTI_MEAN_ITERATIONS", 0)
     spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
     kw = dict(E_star=8 / 3, mean_pressure=1e-5, zeta=1e-3, closure="local_g1_balanced", n_shells=48)
-    default = closure_distribution(spec, **kw)
-    assert default.success and default.diagnostics["cram_order"] == 16
-    monkeypatch.setattr(engine, "CRAM_SHARE", 0.0)
-    plain = closure_distribution(spec, **kw)
+    default = plain = closure_distribution(spec, **kw)
     levels = [n for n, _ in plain.diagnostics["history"]]
     assert plain.success and len(levels) >= 2
     failed = _balance_fails_on(monkeypatch, (levels[1],))
@@ -1061,78 +987,6 @@ def test_a_later_level_whose_balance_fails_is_repeated_finer(monkeypatch):
     monkeypatch.setattr(engine, "BALANCE_RETRIES", 0)
     unrepeated = closure_distribution(spec, **kw)
     assert not unrepeated.success and "balance multiplier A of stage 5" in unrepeated.message
-
-
-# --------------------------------------------------------------------------- subnormals flushed (._fpenv)
-from diffusion_pr.solvers.fv import _fpenv  # noqa: E402
-
-_TINY = np.finfo(float).tiny  # the smallest normal double, 2.2e-308
-needs_flush = pytest.mark.skipif(not _fpenv.available(), reason="subnormals are flushed on x86-64 Linux (glibc) only")
-
-
-@needs_flush
-def test_flush_subnormals_is_scoped_to_the_block():
-    sub = np.array([5e-310])
-    before = _fpenv.mxcsr()
-    with _fpenv.flush_subnormals() as active:
-        daz = sub * 1.0  # denormals-are-zero: the subnormal input reads as 0
-        ftz = np.array([1e-300]) * 1e-10  # flush-to-zero: a subnormal result becomes 0
-    # compared outside the block (inside, a comparison would read a subnormal as 0 too)
-    assert active and daz[0] == 0.0 and ftz[0] == 0.0
-    assert _fpenv.mxcsr() == before
-    assert (sub * 1.0)[0] == 5e-310
-    with pytest.raises(ZeroDivisionError):  # restored on an exception too
-        with _fpenv.flush_subnormals():
-            1 / 0
-    assert _fpenv.mxcsr() == before
-    with _fpenv.flush_subnormals(enabled=False) as active:
-        assert not active and (sub * 1.0)[0] == 5e-310
-
-
-@needs_flush
-def test_kernels_flush_subnormal_numbers(monkeypatch):
-    # pure diffusion for a short time from one cell: the resolvents decay from cell to cell through the
-    # subnormal range (2.2e-308 ... 4.9e-324) into 0; flushed, nothing is left in that range
-    n, k = 1000, 4
-    edges = np.linspace(0.0, 1.0, n + 1)
-    y0 = np.zeros(n + 1)
-    y0[n // 2 + 1] = 1.0
-    rows = np.ones((k, n)), np.zeros((k, n)), np.zeros((k, n))
-    out = {}
-    for flush in (False, True):
-        monkeypatch.setattr(engine, "FLUSH_SUBNORMALS", flush)
-        out[flush] = engine._staged_kernels().run_rows(
-            edges, *rows, False, np.zeros(k, dtype=bool), np.full(k, 1e-8), np.ones(k, dtype=np.int64),
-            np.r_[0.0, 0.5 * (edges[1:] + edges[:-1])], y0, 0.5, 1e-10, 1e-5, True, 12)[0]
-    subnormal = lambda y: np.count_nonzero((y != 0.0) & (np.abs(y) < _TINY))  # noqa: E731
-    assert subnormal(out[False]) > 0  # the case this is about
-    assert subnormal(out[True]) == 0
-    # only numbers near the subnormal range changed (a flushed term feeds its neighbours: 1.4e-306 measured)
-    np.testing.assert_allclose(out[True], out[False], rtol=0, atol=1e-300)
-
-
-@needs_flush
-@pytest.mark.parametrize("closure, zeta", [("local_g1", 4.0), ("local_g1_balanced", 1.0)])
-def test_flushing_keeps_the_closure_answers(monkeypatch, closure, zeta):
-    # the Fig. 1 scene at large zeta: the far tail below the floor reaches 1e-265 ... 1e-305 in the answer, and
-    # the subnormal range during the integration (flushing saved 20-35 %).  The balanced closure's grading is kept
-    # reaching the floor (no depth candidates, no remapped monitor): regraded with a depth its answer stays above
-    # 1e-160, remapped above 1e-135
-    spec = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
-    monkeypatch.setattr(engine, "REGRADE_DEPTHS", ())
-    monkeypatch.setattr(engine, "_remapped", lambda *a, **k: None)
-    res = {}
-    for flush in (False, True):
-        monkeypatch.setattr(engine, "FLUSH_SUBNORMALS", flush)
-        res[flush] = closure_distribution(spec, E_star=8 / 3, mean_pressure=0.004, zeta=zeta, closure=closure,
-                                              rtol=1e-6)
-    a, b = res[False], res[True]
-    np.testing.assert_array_equal(a.edges, b.edges)
-    assert np.min(a.density[a.density > 0] * np.diff(a.edges)[a.density > 0]) < 1e-250  # the tail is that deep
-    # flushing changes numbers near the subnormal range and, through them, their neighbours at round-off: a
-    # relative 1e-15 of a 2.7e-284 cell on an AMD EPYC (the Intel machine of the earlier sessions: < 1e-300)
-    np.testing.assert_allclose(b.cdf(a.edges), a.cdf(a.edges), rtol=1e-12, atol=1e-300)
-    assert a.zero_weight == b.zero_weight and a.mean_pressure == b.mean_pressure
 
 
 def _regraded_family_diverges(monkeypatch) -> list:
@@ -1192,98 +1046,6 @@ def test_a_regraded_family_that_diverges_falls_back_to_the_first_levels(monkeypa
     assert np.array_equal(plain.edges, r.edges) and np.allclose(plain.cdf(x), r.cdf(x), rtol=0.0, atol=1e-12)
 
 
-@pytest.mark.parametrize("order", [10, 12])
-@pytest.mark.parametrize("weak_diagonal", [False, True])
-def test_stacked_shifted_solves_are_the_separate_solves_bit_for_bit(rng, order, weak_diagonal):
-    """LAPACK's partial fractions solve all poles in one zgtsv call, the shifted systems stacked with zero couplings:
-    each block's solution has the bits of its own zgtsv solve, with row interchanges inside the blocks
-    (``weak_diagonal``: off-diagonals 1e3 times the shifted diagonal, so that zgtsv swaps rows) and without."""
-    from diffusion_pr.solvers.fv import cram
-
-    gtsv = get_lapack_funcs("gtsv", dtype=np.complex128)
-    n = 301
-    scale = 1e4 if weak_diagonal else 1.0  # off-diagonals far above or below the shifted diagonal
-    tl = rng.normal(size=n - 1) * scale + 0j
-    tu = rng.normal(size=n - 1) * scale + 0j
-    td = (rng.normal(size=n) if weak_diagonal else 100.0 + rng.uniform(size=n)) + 0j
-    y = rng.uniform(size=n)
-    theta = pfd_coefficients(order)[0]
-    stacked = cram._shifted_solves(np.r_[tl, 0.0], td, np.r_[tu, 0.0], y, theta, order, [n])
-    swaps = 0
-    for j, th in enumerate(theta):
-        dl = tl.copy()
-        out = gtsv(dl, td - th, tu.copy(), y.astype(np.complex128), 1, 1, 1, 1)
-        assert out[4] == 0
-        assert np.array_equal(stacked[j], out[3])
-        swaps += int(np.any(out[0][:-1] != 0))  # a fill-in left in dl[:n-2]: rows were interchanged
-    assert swaps == (theta.size if weak_diagonal else 0)
-
-
-def test_a_singular_stacked_block_names_its_pole_and_row():
-    """A shifted system that is singular raises with the pole and the row of the zero pivot, not a result."""
-    from diffusion_pr.solvers.fv import cram
-
-    theta = pfd_coefficients(12)[0]
-    n = 5
-    td = np.zeros(n, dtype=np.complex128)
-    td[2] = theta[3]  # row 3 of the fourth pole's system is zero
-    with pytest.raises(FloatingPointError, match=r"pole 3, row 3"):
-        cram._shifted_solves(np.zeros(n, complex), td, np.zeros(n, complex), np.ones(n), theta, 12, [n])
-
-
-def test_many_grids_in_one_call_are_each_grids_own_exponential_bit_for_bit(rng):
-    """expm_tridiagonal_many (a level's grids, every pole, one zgtsv call) against expm_tridiagonal on each grid
-    alone (CF-10 and CF-12, flux form): the same bits, for grids of 3, 80 and 317 states with random rates, and
-    t = 0 returns the starts."""
-    from diffusion_pr.solvers.fv.cram import expm_tridiagonal_many
-
-    systems, ys = [], []
-    for n in (3, 80, 317):
-        lo, up = rng.uniform(0.1, 2.0, n - 1) * n, rng.uniform(0.1, 2.0, n - 1) * n
-        systems.append((lo, -(np.r_[lo, 0.0] + np.r_[0.0, up]), up))
-        ys.append(rng.uniform(size=n))
-    for order in (10, 12):
-        many = expm_tridiagonal_many(systems, 0.3, ys, order)
-        for (lo, di, up), y, out in zip(systems, ys, many):
-            assert np.array_equal(out, expm_tridiagonal(lo, di, up, 0.3, y, order, flux_form=True))
-    assert all(np.array_equal(a, b) for a, b in zip(expm_tridiagonal_many(systems, 0.0, ys, 12), ys))
-
-
-def test_a_singular_system_among_many_names_its_grid_pole_and_row(monkeypatch):
-    """A zero pivot (LAPACK info > 0; the real generators shifted by complex poles never give one, so it is
-    injected) raises with the grid, the pole and the row it is in, not a result: info 4 + 9 + 2 of a stack of
-    grids with 4 and 5 states is pole 1, grid 1, row 2."""
-    from diffusion_pr.solvers.fv import cram
-
-    monkeypatch.setattr(cram, "_GTSV", lambda dl, d, du, b, *flags: (dl, d, du, b, 4 + 9 + 2))
-    gen = lambda n: (np.ones(n - 1), -2.0 * np.ones(n), np.ones(n - 1))  # noqa: E731
-    with pytest.raises(FloatingPointError, match=r"grid 1, pole 1, row 2"):
-        cram.expm_tridiagonal_many([gen(4), gen(5)], 1.0, [np.ones(4), np.ones(5)], 12)
-
-
-@pytest.mark.parametrize("order, pole", [(10, 4), (12, 5), (16, 4)])
-@pytest.mark.parametrize("want_d", [False, True])
-def test_pfd_one_pole_that_needs_an_interchange_sends_the_block_to_pivoting(order, pole, want_d):
-    """The poles run in vector lanes, 4 and then 2 at a time (:func:`_pfd_dominant`): the interchange test of every
-    lane counts, the 2-lane remainder's too.  Here only ``pole`` fails it, in the first row (its pivot
-    ``t d_0 - theta`` is ``i Im theta``, 1.19 in the 1-norm, against ``|t l_0| = 2``; every other pole's is at least
-    4), and it sits in the last lanes: CF-10's fifth (with its copy in the odd block's extra lane), CF-12's sixth
-    (the 2-lane remainder), CRAM-16's fifth (the second block of 4).  The kernel without interchanges must decline,
-    and :func:`cram_pfd` answer with the pivoting kernel's bits.  (Dropping the remainder's test passed every other
-    test of this file.)"""
-    theta, res, r_inf, _ = pfd_coefficients(order)
-    assert abs(theta[pole].imag - 1.19) < 0.01
-    diag = np.array([theta[pole].real, -100.0, -100.0])
-    lo, up = np.array([2.0, 0.1]), np.array([0.0, 0.1])
-    wl, wd, wu = np.array([0.3, 0.2]), np.array([-0.3, -0.4, -0.1]), np.array([0.1, 0.1])
-    y = np.array([0.2, 0.5, 0.3])
-    cw, r0 = flux_weights(res, theta, r_inf)
-    others = [j for j in range(theta.size) if j != pole]
-    assert min(abs(diag[0] - theta[j].real) + abs(theta[j].imag) for j in others) >= 4.0  # only `pole` fails
-    assert not _pfd_dominant(lo, diag, up, wl, wd, wu, 1.0, y, res, cw, r0, theta, want_d)[2]
-    out, dout, info = cram_pfd(lo, diag, up, wl, wd, wu, 1.0, y, res, theta, r_inf, want_d)
-    ref, dref, _ = _pfd_pivoting(lo, diag, up, wl, wd, wu, 1.0, y, res, cw, r0, theta, want_d)
-    assert info == 0 and np.array_equal(out, ref) and np.array_equal(dout, dref)
 
 
 def test_the_cubic_ratio_predictor_saves_corrections():

@@ -6,41 +6,37 @@ CRAM applications per grid; through LAPACK from Python each costs ~3x its
 arithmetic in call overhead and copies.  These kernels do the same arithmetic
 in one compiled call per grid:
 
+* :func:`cram_pfd` -- ``exp(t L) y`` in partial fractions, a block of poles
+  eliminated together row by row with LAPACK ``zgttrf``'s partial pivoting, in
+  real arithmetic on split parts;
 * :func:`gttrf` / :func:`gttrs` -- the complex tridiagonal LU with partial
-  pivoting, row for row LAPACK's ``zgttrf`` / ``zgttrs`` (row interchanges make a
-  second superdiagonal), keeping the reciprocal pivots so that a second solve
-  with the same matrix (the derivative of :func:`cram_apply_d`) costs no division;
-* :func:`cram_pfd` -- ``exp(t L) y`` in partial fractions, all poles of a block
-  eliminated together; without row interchanges in real arithmetic where no pole
-  needs one (every closure stage measured so far), the poles in vector lanes (LLVM
-  intrinsics, 4 and 2 at a time), with LAPACK's pivoting otherwise;
+  pivoting, row for row LAPACK's ``zgttrf`` / ``zgttrs``, keeping the reciprocal
+  pivots so that a second solve with the same matrix (the derivative of
+  :func:`cram_apply_d`) costs no division;
 * :func:`cram_apply` -- ``exp(t L) y`` in the incomplete partial factorization
   form of :mod:`.cram` (same coefficients, same order of operations);
 * :func:`balanced_stage` -- the balance substeps of
   :func:`~diffusion_pr.solvers.fv.engine.solve_on_grid`;
-* :func:`staged_run` -- every stage of one grid in one call (the bands of all
-  stages as rows of 2-D arrays).
+* :func:`staged_run` / :func:`staged_run_rows` -- every stage of one grid in one
+  call (the bands of all stages as rows of 2-D arrays, or made stage by stage
+  from the coefficient rows).
 
-Module-level ``numba.njit(cache=True)``, no fastmath (the results agree with the
-LAPACK path to round-off; ``tests/diffusion_pr/test_fv_kernels.py``), numba's numpy
-error model (IEEE division, no ZeroDivisionError branch per division: the same bits on
-the 178 A/B answers, 0.87-1.00x the closures' time; thirty-fifth session).  Imported
-lazily by the engine: a single-stage problem never loads numba.
+Plain ``numba.njit(cache=True)``, no fastmath (the results agree with the LAPACK
+path to round-off; ``tests/diffusion_pr/test_fv_kernels.py``), numba's numpy error
+model (IEEE division: no ZeroDivisionError branch per division).  Imported lazily
+by the engine: a single-stage problem never loads numba.
 """
 from __future__ import annotations
 
 import math
-from typing import Callable
-
 import numpy as np
-from llvmlite import ir
-from numba import njit, types
-from numba.extending import intrinsic
+from numba import njit
 
 from .cram import ALPHA, ALPHA0, PFD_RESIDUES, THETA
 from .cram import CANCELLED as _CANCELLED
 
-__all__ = ["cram_pfd", "gttrf", "gttrs", "cram_apply", "cram_apply_d", "balanced_stage", "staged_run", "staged_run_rows", "staged_run_rows_types", "ALPHA", "THETA", "ALPHA0", "PFD_RESIDUES"]
+__all__ = ["cram_pfd", "gttrf", "gttrs", "cram_apply", "cram_apply_d", "balanced_stage", "staged_run",
+           "staged_run_rows", "ALPHA", "THETA", "ALPHA0", "PFD_RESIDUES"]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -277,43 +273,19 @@ def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusi
             upper[0] -= back
 
 
-#: poles per block of :func:`cram_pfd` (their eliminations interleave): all of them up to 6 poles, else 4 (CRAM-16:
-#: two blocks of 4), while the block's arrays (4 per row, 7 with the derivative; 16 bytes per row, array and lane; a
-#: block of an odd number of poles takes one lane more) stay within this many lane-row-arrays (4 MB), else fewer (at
-#: least 2).  Measured (fifty-second session, AMD EPYC, 1 MB L2 per core, 32 MB L3; ``benchmarks/pfd_block_words.py``,
-#: ``results/pfd_block_words*.md``), ns per cell and pole: whole blocks in 4-6 lanes 4.2-5.6 plain and 7.7-9.5 with
-#: the derivative wherever their arrays stay within 243000 lane-row-arrays (CF-12 with the derivative up to 5056
-#: cells), 19-30 from 283000 on; blocks of 2 poles 10 plain and 17 with the derivative at any size.  The earlier limit,
-#: 80000 arrays counted by poles (about the L2 of an older machine, measured one pole at a time before the lanes),
-#: split CF-12's block with the derivative from 1905 cells on: 12.5 ns instead of 7.8 at 2528 cells, the finest grid
-#: of the balanced closures at ``zeta = 0.01``.  Earlier measurements, one pole at a time (before the forty-first
-#: session): blocks of 4, 8.8-9.2 ns plain up to 5000 cells, 16 ns with the derivative up to 2528 cells (blocks of
-#: 2: 12 and 23 ns); the IPF form 27 and 40 ns.  A block of 6 (CF-12) or 5 (CF-10) poles costs per pole what a
-#: block of 4 does (768 cells: 6 poles 0.74x and 5 poles 0.65x the time of CRAM-16's 8).  In vector lanes (the
-#: intrinsics below, forty-first session) :func:`_pfd_dominant` takes 0.57-0.79x that time, the same bits (CF-10/12,
-#: CRAM-16; 79-2528 cells; with and without the derivative)
+#: poles per block of :func:`cram_pfd` (their eliminations interleave): all of CRAM-16's 8 poles in one block
+#: while the block's arrays (about 4 per row and pole, 7 with the derivative) stay within this many, else blocks
+#: of 4 or 2 (one block of 8 took 0.83-0.93x the time of two blocks of 4 on 300-2500 cells)
 _PFD_BLOCK_WORDS = 250000
 #: the largest block of poles (interleaved eliminations) of :func:`cram_pfd`
-_PFD_MAX_BLOCK = 6
+_PFD_MAX_BLOCK = 8
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def cram_pfd(lower, diag, upper, wl, wd, wu, t, y, c, theta, alpha0, want_d):  # pragma: no cover - numba
-    """``exp(t L) y`` by CRAM-16 in partial fractions, ``alpha0 y + 2 Re sum_j c_j (t L - theta_j)^-1 y``.
-
-    First without row interchanges (:func:`_pfd_dominant`: real and imaginary
-    parts in separate arrays, no branch per pole, so that the poles' eliminations
-    run side by side in the processor's vector lanes); where any pole would
-    interchange rows, or a pivot's reciprocal needs numba's guarded division,
-    again with partial pivoting (:func:`_pfd_pivoting`).  Where no row is
-    interchanged the two do the same operations in the same order: the answers
-    are the same bit for bit.  Returns ``(x, dx, info)`` as :func:`_pfd_pivoting`.
-    """
+    """``exp(t L) y`` by CRAM-16 in partial fractions, ``alpha0 y + 2 Re sum_j c_j (t L - theta_j)^-1 y``, and
+    with ``want_d`` its derivative in ``A`` (:func:`_pfd_pivoting`).  Returns ``(x, dx, info)``."""
     cw, r0 = flux_weights(c, theta, alpha0)
-    if t != 0.0 and diag.size > 2:
-        out, dout, done = _pfd_dominant(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d)
-        if done:
-            return out, dout, 0
     return _pfd_pivoting(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d)
 
 
@@ -330,330 +302,11 @@ def flux_weights(c, theta, alpha0):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _block_size(n, m, want_d):  # pragma: no cover - numba
-    """Poles per block of :func:`_pfd_pivoting` and :func:`_pfd_dominant` (see :data:`_PFD_BLOCK_WORDS`)."""
-    g_size = m if m <= _PFD_MAX_BLOCK else 4
-    while g_size > 2 and n * (7 if want_d else 4) * (g_size + (g_size & 1)) > _PFD_BLOCK_WORDS:
+    """Poles per block of :func:`_pfd_pivoting` (see :data:`_PFD_BLOCK_WORDS`)."""
+    g_size = min(m, _PFD_MAX_BLOCK)
+    while g_size > 2 and n * (7 if want_d else 4) * g_size > _PFD_BLOCK_WORDS:
         g_size = (g_size + 1) // 2
     return g_size
-
-
-# --------------------------------------------------------------------------- the poles' lanes
-#
-# :func:`_pfd_dominant` eliminates a block of poles row by row, each pole in its own column of ``(n, lanes)``
-# arrays. The poles are independent, but LLVM's loop vectorizer runs such a loop in vector registers only from
-# 20 iterations on (below that its run-time checks that the arrays do not overlap do not pay), and numba keeps
-# LLVM's SLP vectorizer off (miscompilations, numba PR 8852): a block of 2-6 poles ran one pole at a time. The
-# intrinsics below write the row operations of 4 or 2 neighbouring poles as LLVM vector instructions
-# (``<4 x double>``, ``<2 x double>``): the same IEEE operations in the same order as the scalar code, lane by lane
-# (no fast-math flags: no FMA contraction, no reassociation), so every lane gives the scalar code's bits (the
-# pivoting kernel is the oracle of ``tests/diffusion_pr/test_fv_kernels.py``). Arrays: C-contiguous float64 (2-D
-# ``(rows, lanes)``, 1-D ``(lanes,)``); no bounds checks: the callers keep ``j0 + width <= lanes`` and the rows
-# in range.
-
-
-def _lane_codegen(width: int, body: Callable) -> Callable:
-    """An intrinsic's codegen: ``body(ops, args)`` with ``ops`` the vector helpers of ``width`` lanes."""
-    def codegen(context, builder, signature, args):
-        from numba.core import cgutils
-
-        vec = ir.VectorType(ir.DoubleType(), width)
-        i32 = ir.IntType(32)
-
-        class Ops:
-            @staticmethod
-            def ptr(k, inds):
-                ty = signature.args[k]
-                arr = context.make_array(ty)(context, builder, args[k])
-                p = cgutils.get_item_pointer2(context, builder, arr.data, cgutils.unpack_tuple(builder, arr.shape),
-                                              cgutils.unpack_tuple(builder, arr.strides), ty.layout, inds,
-                                              wraparound=False, boundscheck=False)
-                return builder.bitcast(p, vec.as_pointer())
-
-            @staticmethod
-            def load(k, inds):
-                return builder.load(Ops.ptr(k, inds), align=8)
-
-            @staticmethod
-            def store(value, k, inds):
-                builder.store(value, Ops.ptr(k, inds), align=8)
-
-            @staticmethod
-            def splat(s):
-                undef = ir.Constant(vec, ir.Undefined)
-                v = builder.insert_element(undef, s, ir.Constant(i32, 0))
-                return builder.shuffle_vector(v, undef, ir.Constant(ir.VectorType(i32, width), [0] * width))
-
-            @staticmethod
-            def const(x):
-                return ir.Constant(vec, [x] * width)
-
-            @staticmethod
-            def fabs(v):
-                fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(vec, [vec]),
-                                                    f"llvm.fabs.v{width}f64")
-                return builder.call(fn, [v])
-
-            @staticmethod
-            def plus1(i):
-                return builder.add(i, ir.Constant(i.type, 1))
-
-        Ops.b = builder
-        Ops.vec = vec
-        return body(Ops, args)
-    return codegen
-
-
-def _c_arrays(arrays: tuple, ndim: int) -> bool:
-    """Whether every numba type of ``arrays`` is a C-contiguous float64 array of ``ndim`` dimensions."""
-    return all(isinstance(a, types.Array) and a.ndim == ndim and a.layout == "C" and a.dtype == types.float64
-               for a in arrays)
-
-
-def _fwd_body(store_f: bool) -> Callable:
-    """Row ``i`` of the forward elimination (:func:`_pfd_dominant`'s loop body) for lanes ``j0 ...``: the reciprocal
-    pivots into ``rr, ri``, the next pivots into ``pr, pi``, the eliminated right-hand side into row ``i + 1`` of
-    ``br, bi`` (and the multipliers into ``fr, fi`` with ``store_f``); returns the lanes' ``bad`` test, or'ed."""
-    def body(o, args):
-        if store_f:
-            rr, ri, br, bi, fr, fi, pr, pi, thr, thi, i, j0, tl, atl, tu, tdn, yn = range(17)
-        else:
-            rr, ri, br, bi, pr, pi, thr, thi, i, j0, tl, atl, tu, tdn, yn = range(15)
-        b = o.b
-        i_v, j_v = args[i], args[j0]
-        row, nxt = [i_v, j_v], [o.plus1(i_v), j_v]
-        tl_, atl_, tu_, tdn_, yn_ = (o.splat(args[k]) for k in (tl, atl, tu, tdn, yn))
-        x = o.load(pr, [j_v])
-        z = o.load(pi, [j_v])
-        ax, az = o.fabs(x), o.fabs(z)
-        # bad |= (ax + az < atl) | (ax >= 1e150) | (az >= 1e150) | ((ax <= 1e-150) & (az <= 1e-150)), ordered tests
-        bad = b.or_(b.or_(b.or_(b.fcmp_ordered("<", b.fadd(ax, az), atl_), b.fcmp_ordered(">=", ax, o.const(1e150))),
-                          b.fcmp_ordered(">=", az, o.const(1e150))),
-                    b.and_(b.fcmp_ordered("<=", ax, o.const(1e-150)), b.fcmp_ordered("<=", az, o.const(1e-150))))
-        width = o.vec.count
-        any_bad = b.icmp_unsigned("!=", b.bitcast(bad, ir.IntType(width)), ir.Constant(ir.IntType(width), 0))
-        s = b.fdiv(o.const(1.0), b.fadd(b.fmul(x, x), b.fmul(z, z)))
-        r_re = b.fmul(x, s)
-        r_im = b.fmul(b.fsub(o.const(-0.0), z), s)  # numba's -z: fsub(-0.0, z)
-        f_re = b.fmul(tl_, r_re)
-        f_im = b.fmul(tl_, r_im)
-        o.store(r_re, rr, row)
-        o.store(r_im, ri, row)
-        o.store(b.fsub(b.fsub(tdn_, o.load(thr, [j_v])), b.fmul(f_re, tu_)), pr, [j_v])
-        o.store(b.fsub(b.fsub(o.const(0.0), o.load(thi, [j_v])), b.fmul(f_im, tu_)), pi, [j_v])
-        b_re = o.load(br, row)
-        b_im = o.load(bi, row)
-        o.store(b.fsub(yn_, b.fsub(b.fmul(f_re, b_re), b.fmul(f_im, b_im))), br, nxt)
-        o.store(b.fsub(o.const(0.0), b.fadd(b.fmul(f_re, b_im), b.fmul(f_im, b_re))), bi, nxt)
-        if store_f:
-            o.store(f_re, fr, row)
-            o.store(f_im, fi, row)
-        return any_bad
-    return body
-
-
-def _back_body(o, args):
-    """Row ``i`` of :func:`_back_lanes` for lanes ``j0 ...``: ``x_i = (b_i - t u_i x_{i+1}) / d_i``."""
-    rr, ri, br, bi, i, j0, tu = range(7)
-    b = o.b
-    row, nxt = [args[i], args[j0]], [o.plus1(args[i]), args[j0]]
-    tu_ = o.splat(args[tu])
-    a = b.fsub(o.load(br, row), b.fmul(tu_, o.load(br, nxt)))
-    c = b.fsub(o.load(bi, row), b.fmul(tu_, o.load(bi, nxt)))
-    r_re, r_im = o.load(rr, row), o.load(ri, row)
-    o.store(b.fsub(b.fmul(a, r_re), b.fmul(c, r_im)), br, row)
-    o.store(b.fadd(b.fmul(a, r_im), b.fmul(c, r_re)), bi, row)
-    return None  # (an intrinsic without a result)
-
-
-def _q_body(o, args):
-    """Row ``i`` (not the last two) of the derivative's elimination in :func:`_pfd_dominant` for lanes ``j0 ...``."""
-    br, bi, fr, fi, qr, qi, i, j0, wl_i, wd_n, wu_n, t = range(12)
-    b = o.b
-    i0 = args[i]
-    i1 = o.plus1(i0)
-    i2 = o.plus1(i1)
-    j_v = args[j0]
-    wl_, wd_, wu_, t_ = (o.splat(args[k]) for k in (wl_i, wd_n, wu_n, t))
-    raw_re = b.fadd(b.fadd(b.fmul(wl_, o.load(br, [i0, j_v])), b.fmul(wd_, o.load(br, [i1, j_v]))),
-                    b.fmul(wu_, o.load(br, [i2, j_v])))
-    raw_im = b.fadd(b.fadd(b.fmul(wl_, o.load(bi, [i0, j_v])), b.fmul(wd_, o.load(bi, [i1, j_v]))),
-                    b.fmul(wu_, o.load(bi, [i2, j_v])))
-    raw_re = b.fmul(raw_re, t_)
-    raw_im = b.fmul(raw_im, t_)
-    f_re, f_im = o.load(fr, [i0, j_v]), o.load(fi, [i0, j_v])
-    q_re, q_im = o.load(qr, [i0, j_v]), o.load(qi, [i0, j_v])
-    o.store(b.fsub(raw_re, b.fsub(b.fmul(f_re, q_re), b.fmul(f_im, q_im))), qr, [i1, j_v])
-    o.store(b.fsub(raw_im, b.fadd(b.fmul(f_re, q_im), b.fmul(f_im, q_re))), qi, [i1, j_v])
-    return None  # (an intrinsic without a result)
-
-
-def _make_intrinsic(width: int, names: str, n_2d: int, n_1d: int, n_int: int, result: str, body: Callable):
-    """An intrinsic of the arguments ``names`` (``n_2d`` 2-D and ``n_1d`` 1-D C-contiguous float64 arrays, ``n_int``
-    indices, then floats), returning the boolean ``body`` gives (``result`` ``"bool"``) or nothing."""
-    def typer(typingctx, *a):
-        if not (_c_arrays(a[:n_2d], 2) and _c_arrays(a[n_2d:n_2d + n_1d], 1)):
-            return None
-        rest = len(a) - n_2d - n_1d - n_int
-        args = (*a[:n_2d + n_1d], *(types.intp,) * n_int, *(types.float64,) * rest)
-        if result == "bool":
-            return types.boolean(*args), _lane_codegen(width, body)
-
-        def codegen(context, builder, signature, values):
-            _lane_codegen(width, body)(context, builder, signature, values)
-            return context.get_dummy_value()
-        return types.none(*args), codegen
-
-    # numba's intrinsics take named parameters (no *args in their lowering)
-    namespace = {"typer": typer}
-    exec(f"def lanes(typingctx, {names}):\n    return typer(typingctx, {names})\n", namespace)
-    return intrinsic(namespace["lanes"])
-
-
-_FWD = "rr, ri, br, bi, pr, pi, thr, thi, i, j0, tl, atl, tu, tdn, yn"
-_FWD_F = "rr, ri, br, bi, fr, fi, pr, pi, thr, thi, i, j0, tl, atl, tu, tdn, yn"
-_fwd4, _fwd2 = (_make_intrinsic(w, _FWD, 4, 4, 2, "bool", _fwd_body(False)) for w in (4, 2))
-_fwd_f4, _fwd_f2 = (_make_intrinsic(w, _FWD_F, 6, 4, 2, "bool", _fwd_body(True)) for w in (4, 2))
-_back4, _back2 = (_make_intrinsic(w, "rr, ri, br, bi, i, j0, tu", 4, 0, 2, "none", _back_body) for w in (4, 2))
-_q4, _q2 = (_make_intrinsic(w, "br, bi, fr, fi, qr, qi, i, j0, wl_i, wd_n, wu_n, t", 6, 0, 2, "none", _q_body)
-            for w in (4, 2))
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _pfd_dominant(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d):  # pragma: no cover - numba
-    """:func:`_pfd_pivoting` for matrices that need no row interchange, in real arithmetic on split parts.
-
-    The elimination of row ``i`` keeps the pivot row (``|d_i| >= |t l_i|`` in the
-    1-norm of :func:`_cabs1`, LAPACK's test) for every pole; the superdiagonal
-    then stays ``t u_i`` (real) and the reciprocal pivot is ``conj(d)/|d|^2``
-    (:func:`_rec`'s first branch).  Every complex product of the pivoting kernel
-    is written out in the order numba evaluates it, so where its test holds the
-    results agree bit for bit.  The tests are gathered without branching; if any
-    fails (a row interchange, or a pivot outside ``1e-150 ... 1e150``) the result
-    is discarded: returns ``(x, dx, False)``, and :func:`cram_pfd` pivots.
-
-    The block's poles run in vector lanes (the intrinsics above: 4 and 2 at a time); a block of an odd number of
-    poles gets one more lane, a copy of its last pole, which the sums leave out.
-    """
-    n = diag.size
-    m = theta.size
-    g_size = _block_size(n, m, want_d)
-    lanes = g_size + (g_size & 1)
-    rr = np.empty((n, lanes))  # reciprocal pivots
-    ri = np.empty((n, lanes))
-    br = np.empty((n, lanes))  # right-hand side, then solution
-    bi = np.empty((n, lanes))
-    nd = n if want_d else 1
-    fr = np.empty((nd, lanes))  # multipliers t l_i / d_i
-    fi = np.empty((nd, lanes))
-    qr = np.empty((nd, lanes))  # t W x, then its solution
-    qi = np.empty((nd, lanes))
-    pr = np.empty(lanes)  # the current pivot d_i
-    pi = np.empty(lanes)
-    thr = np.empty(lanes)
-    thi = np.empty(lanes)
-    out = np.empty(n)
-    wv = np.zeros(n)  # 2 Re sum_j (c_j / theta_j) x_j: the result is r0 y + t L wv (:func:`_flux_form`)
-    dout = np.zeros(n)
-    bad = False
-    for g0 in range(0, m, g_size):
-        gs = min(g_size, m - g0)
-        gl = gs + (gs & 1)  # lanes of this block
-        for jj in range(gl):
-            pole = theta[g0 + min(jj, gs - 1)]
-            thr[jj] = pole.real
-            thi[jj] = pole.imag
-            pr[jj] = t * diag[0] - thr[jj]
-            pi[jj] = 0.0 - thi[jj]
-            br[0, jj] = y[0]
-            bi[0, jj] = 0.0
-        for i in range(n - 1):
-            tl = t * lower[i]
-            atl = abs(tl)
-            tu = t * upper[i]
-            tdn = t * diag[i + 1]
-            yn = y[i + 1]
-            j0 = 0
-            while j0 + 4 <= gl:
-                if want_d:
-                    bad |= _fwd_f4(rr, ri, br, bi, fr, fi, pr, pi, thr, thi, i, j0, tl, atl, tu, tdn, yn)
-                else:
-                    bad |= _fwd4(rr, ri, br, bi, pr, pi, thr, thi, i, j0, tl, atl, tu, tdn, yn)
-                j0 += 4
-            if j0 < gl:
-                if want_d:
-                    bad |= _fwd_f2(rr, ri, br, bi, fr, fi, pr, pi, thr, thi, i, j0, tl, atl, tu, tdn, yn)
-                else:
-                    bad |= _fwd2(rr, ri, br, bi, pr, pi, thr, thi, i, j0, tl, atl, tu, tdn, yn)
-        for jj in range(gl):
-            x = pr[jj]
-            z = pi[jj]
-            ax = abs(x)
-            az = abs(z)
-            bad |= (ax >= 1e150) | (az >= 1e150) | ((ax <= 1e-150) & (az <= 1e-150))
-            s = 1.0 / (x * x + z * z)
-            rr[n - 1, jj] = x * s
-            ri[n - 1, jj] = -z * s
-        if bad:
-            return out, dout, False
-        _back_lanes(rr, ri, br, bi, upper, t, n, gl)
-        _accumulate_split(wv, cw, g0, br, bi, n, gs)
-        if not want_d:
-            continue
-        # q = t W x row by row, eliminated with the stored multipliers
-        for jj in range(gl):
-            qr[0, jj] = t * (wd[0] * br[0, jj] + wu[0] * br[1, jj])
-            qi[0, jj] = t * (wd[0] * bi[0, jj] + wu[0] * bi[1, jj])
-        for i in range(n - 2):
-            j0 = 0
-            while j0 + 4 <= gl:
-                _q4(br, bi, fr, fi, qr, qi, i, j0, wl[i], wd[i + 1], wu[i + 1], t)
-                j0 += 4
-            if j0 < gl:
-                _q2(br, bi, fr, fi, qr, qi, i, j0, wl[i], wd[i + 1], wu[i + 1], t)
-        i = n - 2  # the last row: no superdiagonal term
-        for jj in range(gl):
-            raw_re = (wl[i] * br[i, jj] + wd[i + 1] * br[i + 1, jj]) * t
-            raw_im = (wl[i] * bi[i, jj] + wd[i + 1] * bi[i + 1, jj]) * t
-            f_re = fr[i, jj]
-            f_im = fi[i, jj]
-            q_re = qr[i, jj]
-            q_im = qi[i, jj]
-            qr[i + 1, jj] = raw_re - (f_re * q_re - f_im * q_im)
-            qi[i + 1, jj] = raw_im - (f_re * q_im + f_im * q_re)
-        _back_lanes(rr, ri, qr, qi, upper, t, n, gl)
-        _accumulate_split(dout, c, g0, qr, qi, n, gs)
-    _flux_form(lower, upper, t, y, wv, r0, out)
-    return out, dout, True
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _back_lanes(rr, ri, br, bi, upper, t, n, lanes):  # pragma: no cover - numba
-    """Back substitution of :func:`_pfd_dominant`: ``x_i = (b_i - t u_i x_{i+1}) / d_i``, split parts, the
-    poles' lanes 4 and 2 at a time (``lanes`` even)."""
-    for jj in range(lanes):
-        a = br[n - 1, jj]
-        b = bi[n - 1, jj]
-        br[n - 1, jj] = a * rr[n - 1, jj] - b * ri[n - 1, jj]
-        bi[n - 1, jj] = a * ri[n - 1, jj] + b * rr[n - 1, jj]
-    for i in range(n - 2, -1, -1):
-        tu = t * upper[i]
-        j0 = 0
-        while j0 + 4 <= lanes:
-            _back4(rr, ri, br, bi, i, j0, tu)
-            j0 += 4
-        if j0 < lanes:
-            _back2(rr, ri, br, bi, i, j0, tu)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _accumulate_split(out, c, g0, xr, xi, n, g_size):  # pragma: no cover - numba
-    """:func:`_accumulate` on split parts."""
-    for i in range(n):
-        s = 0.0
-        for jj in range(g_size):
-            cj = c[g0 + jj]
-            s += cj.real * xr[i, jj] - cj.imag * xi[i, jj]
-        out[i] += 2.0 * s
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -663,24 +316,41 @@ def _pfd_pivoting(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d
     The solves of different poles are independent: a block of poles is
     eliminated together, row by row (LAPACK ``zgttrf``'s pivoting per pole, the
     right-hand side eliminated in the same sweep), which turns the latency-bound
-    recurrence of one solve into independent ones.  With ``want_d`` also the
-    derivative in ``A`` of ``exp(t (L - A W)) y`` for the balance bands ``W``:
+    recurrence of one solve into independent ones.  Real and imaginary parts are
+    kept apart (the subdiagonal ``t l_i`` and, where no row was interchanged, the
+    superdiagonal ``t u_i`` are real: half the products of complex arithmetic).
+    ``kind[i]`` records per pole where a row was interchanged (2) or inherits the
+    complex superdiagonal an interchange made (1); only those rows store their
+    superdiagonals.  With ``want_d`` also the derivative in ``A`` of
+    ``exp(t (L - A W)) y`` for the balance bands ``W``:
     ``2 Re sum_j c_j M_j^-1 (t W) M_j^-1 y`` (a second solve per pole with the
     stored elimination).  Returns ``(x, dx, info)``; ``info > 0`` a zero pivot.
     """
     n = diag.size
     m = theta.size
     g_size = _block_size(n, m, want_d)
-    d = np.empty((n, g_size), dtype=np.complex128)
-    du = np.empty((n, g_size), dtype=np.complex128)
-    du2 = np.empty((n, g_size), dtype=np.complex128)
-    b = np.empty((n, g_size), dtype=np.complex128)
+    rr = np.empty((n, g_size))  # reciprocal pivots
+    ri = np.empty((n, g_size))
+    br = np.empty((n, g_size))  # right-hand side, then solution
+    bi = np.empty((n, g_size))
+    kind = np.zeros((n, g_size), dtype=np.int8)
+    ur = np.empty((n, g_size))  # superdiagonals of U, read where kind != 0
+    ui = np.empty((n, g_size))
+    u2 = np.empty((n, g_size))
     nd = n if want_d else 1
-    fl = np.empty((nd, g_size), dtype=np.complex128)
-    piv = np.zeros((nd, g_size), dtype=np.bool_)
-    r = np.empty((nd, g_size), dtype=np.complex128)
+    fr = np.empty((nd, g_size))  # multipliers
+    fi = np.empty((nd, g_size))
+    qr = np.empty((nd, g_size))  # t W x, then its solution
+    qi = np.empty((nd, g_size))
+    pr = np.empty(g_size)  # the current pivot
+    pi = np.empty(g_size)
+    cur_r = np.empty(g_size)  # the current row's superdiagonal where an interchange made it complex
+    cur_i = np.empty(g_size)
+    inherited = np.zeros(g_size, dtype=np.bool_)
+    th_r = np.empty(g_size)
+    th_i = np.empty(g_size)
     out = np.empty(n)
-    wv = np.zeros(n)  # as in :func:`_pfd_dominant`
+    wv = np.zeros(n)  # 2 Re sum_j (c_j / theta_j) x_j: the result is r0 y + t L wv (:func:`_flux_form`)
     dout = np.zeros(n)
     if t == 0.0:
         for i in range(n):
@@ -688,74 +358,127 @@ def _pfd_pivoting(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d
         return out, dout, 0
     for g0 in range(0, m, g_size):
         gs = min(g_size, m - g0)  # the poles of this block
+        if g0 > 0:
+            kind[:, :] = 0
         for jj in range(gs):
-            d[0, jj] = t * diag[0] - theta[g0 + jj]
-            b[0, jj] = y[0]
-            du[0, jj] = t * upper[0] if n > 1 else 0.0
+            th_r[jj] = theta[g0 + jj].real
+            th_i[jj] = theta[g0 + jj].imag
+            pr[jj] = t * diag[0] - th_r[jj]
+            pi[jj] = -th_i[jj]
+            br[0, jj] = y[0]
+            bi[0, jj] = 0.0
+            inherited[jj] = False
         for i in range(n - 1):
             tl = t * lower[i]
             atl = abs(tl)
+            tu = t * upper[i]
             tdn = t * diag[i + 1]
             tun = t * upper[i + 1] if i < n - 2 else 0.0
             yn = y[i + 1]
             for jj in range(gs):
-                di = d[i, jj]
-                dnext = tdn - theta[g0 + jj]
-                if abs(di.real) + abs(di.imag) >= atl:
-                    if di == 0.0:
-                        return out, dout, i + 1
-                    rec = _rec(di)
-                    f = tl * rec
-                    d[i + 1, jj] = dnext - f * du[i, jj]
-                    d[i, jj] = rec
-                    b[i + 1, jj] = yn - f * b[i, jj]
-                    du[i + 1, jj] = tun
-                    du2[i, jj] = 0.0
-                    if want_d:
-                        fl[i, jj] = f
-                        piv[i, jj] = False
-                else:
-                    rec = 1.0 / tl
-                    f = di * rec
-                    tmp = du[i, jj]
-                    du[i, jj] = dnext
-                    d[i + 1, jj] = tmp - f * dnext
-                    du2[i, jj] = tun
-                    du[i + 1, jj] = -f * tun
-                    d[i, jj] = rec
-                    tb = b[i, jj]
-                    b[i, jj] = yn
-                    b[i + 1, jj] = tb - f * yn
-                    if want_d:
-                        fl[i, jj] = f
-                        piv[i, jj] = True
+                x = pr[jj]
+                z = pi[jj]
+                if abs(x) + abs(z) >= atl:  # row i stays the pivot row (LAPACK's test)
+                    s2 = x * x + z * z
+                    if 1e-290 < s2 < 1e290:
+                        q = 1.0 / s2
+                        sr = x * q
+                        si = -z * q
+                    else:
+                        if x == 0.0 and z == 0.0:
+                            return out, dout, i + 1
+                        w = 1.0 / complex(x, z)
+                        sr = w.real
+                        si = w.imag
+                    f_r = tl * sr
+                    f_i = tl * si
+                    rr[i, jj] = sr
+                    ri[i, jj] = si
+                    b_r = br[i, jj]
+                    b_i = bi[i, jj]
+                    br[i + 1, jj] = yn - (f_r * b_r - f_i * b_i)
+                    bi[i + 1, jj] = -(f_r * b_i + f_i * b_r)
+                    if inherited[jj]:  # the complex superdiagonal of an interchange above
+                        ucr = cur_r[jj]
+                        uci = cur_i[jj]
+                        pr[jj] = (tdn - th_r[jj]) - (f_r * ucr - f_i * uci)
+                        pi[jj] = -th_i[jj] - (f_r * uci + f_i * ucr)
+                        kind[i, jj] = 1
+                        ur[i, jj] = ucr
+                        ui[i, jj] = uci
+                        u2[i, jj] = 0.0
+                        inherited[jj] = False
+                    else:
+                        pr[jj] = (tdn - th_r[jj]) - f_r * tu
+                        pi[jj] = -th_i[jj] - f_i * tu
+                else:  # rows i and i + 1 interchanged
+                    ucr = cur_r[jj] if inherited[jj] else tu
+                    uci = cur_i[jj] if inherited[jj] else 0.0
+                    s = 1.0 / tl
+                    f_r = x * s
+                    f_i = z * s
+                    dnr = tdn - th_r[jj]
+                    dni = -th_i[jj]
+                    kind[i, jj] = 2
+                    ur[i, jj] = dnr
+                    ui[i, jj] = dni
+                    u2[i, jj] = tun
+                    pr[jj] = ucr - (f_r * dnr - f_i * dni)
+                    pi[jj] = uci - (f_r * dni + f_i * dnr)
+                    cur_r[jj] = -f_r * tun
+                    cur_i[jj] = -f_i * tun
+                    inherited[jj] = True
+                    rr[i, jj] = s
+                    ri[i, jj] = 0.0
+                    b_r = br[i, jj]
+                    b_i = bi[i, jj]
+                    br[i, jj] = yn
+                    bi[i, jj] = 0.0
+                    br[i + 1, jj] = b_r - f_r * yn
+                    bi[i + 1, jj] = b_i - f_i * yn
+                if want_d:
+                    fr[i, jj] = f_r
+                    fi[i, jj] = f_i
         for jj in range(gs):
-            if d[n - 1, jj] == 0.0:
+            x = pr[jj]
+            z = pi[jj]
+            if x == 0.0 and z == 0.0:
                 return out, dout, n
-            d[n - 1, jj] = _rec(d[n - 1, jj])
-        _back(d, du, du2, b, n, gs)
-        _accumulate(wv, cw, g0, b, n, gs)
+            w = _rec(complex(x, z))
+            rr[n - 1, jj] = w.real
+            ri[n - 1, jj] = w.imag
+        _back(rr, ri, kind, ur, ui, u2, upper, t, br, bi, n, gs)
+        _accumulate(wv, cw, g0, br, bi, n, gs)
         if not want_d:
             continue
-        # r = t W b row by row, eliminated in the same sweep with the stored multipliers and interchanges
+        # q = t W x row by row, eliminated in the same sweep with the stored multipliers and interchanges
         for jj in range(gs):
-            r[0, jj] = t * (wd[0] * b[0, jj] + (wu[0] * b[1, jj] if n > 1 else 0.0))
+            qr[0, jj] = t * (wd[0] * br[0, jj] + (wu[0] * br[1, jj] if n > 1 else 0.0))
+            qi[0, jj] = t * (wd[0] * bi[0, jj] + (wu[0] * bi[1, jj] if n > 1 else 0.0))
         for i in range(n - 1):
             last = i + 2 >= n
             for jj in range(gs):
-                raw = wl[i] * b[i, jj] + wd[i + 1] * b[i + 1, jj]
+                raw_r = wl[i] * br[i, jj] + wd[i + 1] * br[i + 1, jj]
+                raw_i = wl[i] * bi[i, jj] + wd[i + 1] * bi[i + 1, jj]
                 if not last:
-                    raw += wu[i + 1] * b[i + 2, jj]
-                raw *= t
-                f = fl[i, jj]
-                if piv[i, jj]:
-                    tb = r[i, jj]
-                    r[i, jj] = raw
-                    r[i + 1, jj] = tb - f * raw
+                    raw_r += wu[i + 1] * br[i + 2, jj]
+                    raw_i += wu[i + 1] * bi[i + 2, jj]
+                raw_r *= t
+                raw_i *= t
+                f_r = fr[i, jj]
+                f_i = fi[i, jj]
+                q_r = qr[i, jj]
+                q_i = qi[i, jj]
+                if kind[i, jj] == 2:
+                    qr[i, jj] = raw_r
+                    qi[i, jj] = raw_i
+                    qr[i + 1, jj] = q_r - (f_r * raw_r - f_i * raw_i)
+                    qi[i + 1, jj] = q_i - (f_r * raw_i + f_i * raw_r)
                 else:
-                    r[i + 1, jj] = raw - f * r[i, jj]
-        _back(d, du, du2, r, n, gs)
-        _accumulate(dout, c, g0, r, n, gs)
+                    qr[i + 1, jj] = raw_r - (f_r * q_r - f_i * q_i)
+                    qi[i + 1, jj] = raw_i - (f_r * q_i + f_i * q_r)
+        _back(rr, ri, kind, ur, ui, u2, upper, t, qr, qi, n, gs)
+        _accumulate(dout, c, g0, qr, qi, n, gs)
     _flux_form(lower, upper, t, y, wv, r0, out)
     return out, dout, 0
 
@@ -785,26 +508,42 @@ def _flux_form(lower, upper, t, y, w, r0, out):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _accumulate(out, c, g0, x, n, g_size):  # pragma: no cover - numba
-    """``out += 2 Re sum_j c_j x_j`` over the block of poles starting at ``g0``."""
+def _accumulate(out, c, g0, xr, xi, n, g_size):  # pragma: no cover - numba
+    """``out += 2 Re sum_j c_j x_j`` over the block of poles starting at ``g0`` (``x = xr + i xi``)."""
     for i in range(n):
         s = 0.0
         for jj in range(g_size):
             cj = c[g0 + jj]
-            s += cj.real * x[i, jj].real - cj.imag * x[i, jj].imag
+            s += cj.real * xr[i, jj] - cj.imag * xi[i, jj]
         out[i] += 2.0 * s
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _back(d, du, du2, b, n, g_size):  # pragma: no cover - numba
-    """Back substitution of :func:`cram_pfd` for a block of poles (``d`` holds reciprocal pivots)."""
+def _back(rr, ri, kind, ur, ui, u2, upper, t, br, bi, n, g_size):  # pragma: no cover - numba
+    """Back substitution of :func:`_pfd_pivoting` for a block of poles, in place:
+    ``x_i = (b_i - u_i x_{i+1} - u2_i x_{i+2}) / d_i`` (``rr + i ri`` the reciprocal pivots; ``u_i = t upper_i``
+    and ``u2_i = 0`` where ``kind`` is 0)."""
     for jj in range(g_size):
-        b[n - 1, jj] = b[n - 1, jj] * d[n - 1, jj]
-        if n > 1:
-            b[n - 2, jj] = (b[n - 2, jj] - du[n - 2, jj] * b[n - 1, jj]) * d[n - 2, jj]
-    for i in range(n - 3, -1, -1):
+        a = br[n - 1, jj]
+        b = bi[n - 1, jj]
+        br[n - 1, jj] = a * rr[n - 1, jj] - b * ri[n - 1, jj]
+        bi[n - 1, jj] = a * ri[n - 1, jj] + b * rr[n - 1, jj]
+    for i in range(n - 2, -1, -1):
+        tu = t * upper[i]
         for jj in range(g_size):
-            b[i, jj] = (b[i, jj] - du[i, jj] * b[i + 1, jj] - du2[i, jj] * b[i + 2, jj]) * d[i, jj]
+            xr = br[i + 1, jj]
+            xi = bi[i + 1, jj]
+            if kind[i, jj] == 0:
+                a = br[i, jj] - tu * xr
+                b = bi[i, jj] - tu * xi
+            else:
+                a = br[i, jj] - (ur[i, jj] * xr - ui[i, jj] * xi)
+                b = bi[i, jj] - (ur[i, jj] * xi + ui[i, jj] * xr)
+                if i + 2 < n:
+                    a -= u2[i, jj] * br[i + 2, jj]
+                    b -= u2[i, jj] * bi[i + 2, jj]
+            br[i, jj] = a * rr[i, jj] - b * ri[i, jj]
+            bi[i, jj] = a * ri[i, jj] + b * rr[i, jj]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -869,8 +608,7 @@ BAD_PREDICTION = 0.5
 @njit(cache=True, nogil=True, error_model="numpy")
 def _predicted_ratio(hist):  # pragma: no cover - numba
     """The next ratio ``A / A_midpoint``: the last four extrapolated by a cubic (fewer: a parabola, a line, a
-    constant).  The cubic (forty-second session) misses the root 5-60x less than the parabola did on the Fig. 1
-    closures (``benchmarks/balance_predictor_lead.py``, ``results/balance_predictor_order_s42.md``)."""
+    constant); on the Fig. 1 closures the cubic misses the root 5-60x less than a parabola."""
     k = int(hist[0])
     if k >= 4:
         r = 4.0 * hist[1] - 6.0 * hist[2] + 4.0 * hist[3] - hist[5]
@@ -1076,21 +814,6 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
 CANCELLED = _CANCELLED
 
 
-@intrinsic
-def _flag_raised(typingctx, flag):
-    """``flag[0] != 0`` read with an atomic acquire load: another thread may set it while the kernel runs, and the
-    compiler may neither keep an earlier read in a register nor move the read out of the stage loop (a plain load
-    in a loop that stores only to other arrays may be hoisted).  ``flag``: a C-contiguous int64 array, one entry."""
-    if not (isinstance(flag, types.Array) and flag.ndim == 1 and flag.dtype == types.int64):
-        return None
-
-    def codegen(context, builder, signature, args):
-        arr = context.make_array(signature.args[0])(context, builder, args[0])
-        value = builder.load_atomic(arr.data, "acquire", 8)
-        return builder.icmp_signed("!=", value, ir.Constant(value.type, 0))
-    return types.boolean(flag), codegen
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def staged_run(lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, max_iter,
                pfd, alpha, theta, alpha0, c, cancel):  # pragma: no cover - numba
@@ -1125,24 +848,6 @@ def staged_run_rows(edges, f_rows, b_rows, w_rows, any_b, balanced, fitted, dt, 
                 reps, cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c, cancel)
 
 
-def staged_run_rows_types() -> tuple:
-    """The one argument signature :func:`staged_run_rows` is compiled for (``Kernels.run_rows`` in the engine).
-
-    The three row arrays are typed with layout ``'A'``: one grid's rows are C-contiguous,
-    a group's rows are column views of one block (``engine._coefficients``). Lazily
-    typed, numba made and loaded two specializations of the same machine code, 30-35 ms
-    of a fresh process's first closure call each; the ``'A'`` one is as fast on
-    contiguous rows (``'A'`` 54.4 ms, ``'C'`` 54.6 ms over the 26 calls of two closure
-    solves; the same bits).
-    """
-    from numba import types as t
-
-    f1, rows, c1 = t.float64[::1], t.float64[:, :], t.complex128[::1]
-    b1 = t.boolean[::1]
-    return (f1, rows, rows, rows, t.boolean, b1, b1, f1, t.int64[::1], f1, f1, t.float64, t.float64, t.float64, t.int64,
-            t.boolean, c1, c1, t.float64, c1, t.int64[::1])
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, balanced, fitted, dt, reps, cvec, y,
          p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c, cancel):  # pragma: no cover - numba
@@ -1165,7 +870,7 @@ def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, b
     n_newton = 0
     hist = np.zeros(PREDICTOR_SIZE)
     for k in range(n_stages):
-        if _flag_raised(cancel):
+        if cancel[0] != 0:
             return y, n_cram, n_newton, CANCELLED, k, 0.0
         if from_rows:
             _fill_row(h, k_int, wall, half_inv_h, f_rows[k], b_rows[k], any_b, True, fitted[k], reached, lo, di, up)
@@ -1197,13 +902,3 @@ def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, b
                     return y, n_cram, n_newton, info, k, 0.0
                 y = y_new
     return y, n_cram, n_newton, 0, -1, 0.0
-
-
-# cached loads skip numba's registry refresh (only a compile needs it): diffusion_pr._numba_load
-from ..._numba_load import LoadedBySignature, load_without_refresh  # noqa: E402
-
-load_without_refresh(globals())
-
-#: :func:`staged_run_rows` loaded for :func:`staged_run_rows_types` and closed to other signatures (the engine's
-#: ``_Kernels``, through :mod:`diffusion_pr._machine_code`)
-staged_run_rows_kernel = LoadedBySignature(staged_run_rows, staged_run_rows_types, close=True)

@@ -38,13 +38,14 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from ... import _machine_code as machine_code
 from ...models import breakpoints_of, evaluate_vectorized, wall_reached, zero_power_of
 from ...problem import FokkerPlanckProblem, StagedProblem
 from ...result import PressureDistribution
-from ._fpenv import flush_subnormals
 from .cram import ALPHA as CRAM_ALPHA
-from .cram import CANCELLED, PFD_ERROR_BOUNDS, expm_tridiagonal, pfd_coefficients
+from .cram import ALPHA0 as CRAM_ALPHA0
+from .cram import CANCELLED, PFD_RESIDUES, expm_tridiagonal
+from .cram import ERROR_BOUND as CRAM_ERROR_BOUND
+from .cram import THETA as CRAM_THETA
 from .grid import GridSpec, Remap, edges_for, knot_indices, same_grid
 from .operator import bands as fv_bands
 from .operator import centres
@@ -197,15 +198,6 @@ LINEAR_FRACTION = 1e-2
 #: IPF form) down to this rtol; its round-off, about 1e-13 of max|y| per application against 1e-15, would
 #: matter below (docs/backends.md)
 PFD_MIN_RTOL = 1e-10
-#: the compiled stages' rational approximation in partial fractions is the lowest order (CF-10, CF-12, else
-#: CRAM-16) whose uniform error per application is at most CRAM_SHARE * rtol: a thousand applications with an
-#: amplification of 10 (the operator's non-normality; measured at most 3.3 on the closures against CRAM-16) stay
-#: within 1e-2 rtol.  At rtol 1e-6: CF-12, six poles instead of eight (1.7e-12 per application; the closures'
-#: CDFs moved by 1.6e-10 ... 5e-10 against CRAM-16), 0.74x the time of a CRAM-16 application.  CF-10 at 1e-6
-#: moved them by 1.3e-8 ... 4e-8, and CF-8 (1.2e-8 per application) made the Richardson estimate chase the
-#: grid-to-grid scatter of the time error (local_g1 refined to 7688 cells): the time error must stay far below
-#: the spatial one, which Richardson removes and it does not
-CRAM_SHARE = 1e-5
 #: the error estimate carries the time integration's bound, CRAM_AMPLIFICATION * applications * uniform error
 CRAM_AMPLIFICATION = 10.0
 #: cells per balance substep (the substeps double with the cells, so Richardson removes their O(dtau^2) error)
@@ -229,9 +221,6 @@ COMPILED_MIN_PIECES = 4
 #: p_max / p0), not its mass, is the tail tolerance: this many fixed-point steps from the mass-based bound (0: the
 #: mass-based bound, as before the nineteenth session)
 LAMPERTI_MEAN_ITERATIONS = 2
-#: the compiled stage kernels flush subnormal numbers to zero (x86-64 Linux; :mod:`._fpenv`): the far tails
-#: below 2.2e-308 cost 20-35 % of a closure's time at zeta >= 1 otherwise, and move the answers by < 1e-305
-FLUSH_SUBNORMALS = True
 #: points of the probe that bounds the spread in :func:`prepare`; the domain grows (x1.5) on a coarse probe
 #: and is confirmed on the full one: 0.2-1.3 ms of 1.8-4.5 ms saved per closure solve (Fig. 1).  Where the
 #: coefficients peak at the probe's end (``local_g1``) the domain and the answer are the same bit for bit; where
@@ -481,17 +470,10 @@ def _affine_envelope_bound(pieces: Sequence, with_b: Sequence, b_rows: np.ndarra
     Where this bound is below ``bounded`` (the bounded drift's), a diffusivity that grows with ``p`` tightens it
     further (:func:`_affine_chernoff_bound`); elsewhere the caller keeps ``bounded`` and nothing more is computed.
     """
-    compiled = len(pieces) >= COMPILED_MIN_PIECES  # (the same bits compiled: :mod:`._tail_kernel`)
-    if compiled:
-
-        rates, intercepts = np.empty(len(with_b)), np.empty(len(with_b))
-        _tail_kernel("envelope_kernel")(np.ascontiguousarray(b_rows, dtype=float),
-                                        np.ascontiguousarray(probe, dtype=float), True, rates, intercepts)
-    else:
-        rates, intercepts = _affine_envelope(np.maximum(b_rows, 0.0), probe)
+    rates, intercepts = _affine_envelope(np.maximum(b_rows, 0.0), probe)
     if not np.any(rates > 0.0):
         return None
-    moments = _affine_moments(pieces, with_b, rates, intercepts, f_rows.max(axis=1), p0, compiled)
+    moments = _affine_moments(pieces, with_b, rates, intercepts, f_rows.max(axis=1), p0)
     if moments is None:  # exp(2 g dtau) beyond double precision (a drift that rises steeply near the wall)
         return None
     mean, var = moments
@@ -509,23 +491,10 @@ def _affine_envelope_bound(pieces: Sequence, with_b: Sequence, b_rows: np.ndarra
 
 
 def _affine_moments(pieces: Sequence, with_b: Sequence, rates: np.ndarray, intercepts: np.ndarray,
-                    f_max: np.ndarray, p0: float, compiled: bool) -> Optional[tuple]:
+                    f_max: np.ndarray, p0: float) -> Optional[tuple]:
     """``(mean, var)`` of :func:`_affine_envelope_bound`'s affine diffusion after every stage (the drifting stages'
     envelopes ``rates``, ``intercepts``, in the order of ``with_b``; ``f_max`` each stage's largest diffusivity), or
-    None where a stage's ``g dtau`` exceeds 350.  ``compiled``: one compiled pass (:mod:`._tail_kernel`), the same
-    bits as the loop below."""
-    if compiled:
-
-        if len(with_b) == len(pieces):  # (every stage has its drift: the rows are the stages')
-            g_k, c_k = rates, intercepts
-        else:
-            g_k, c_k = np.zeros(len(pieces)), np.zeros(len(pieces))
-            at = np.array([pc.b is not None for pc in pieces])
-            g_k[at], c_k[at] = rates, intercepts
-        finite, mean, var = _tail_kernel("moments_kernel")(np.ascontiguousarray(f_max, dtype=float),
-                                                           np.array([pc.duration for pc in pieces], dtype=float),
-                                                           g_k, c_k, float(p0))
-        return (mean, var) if finite else None
+    None where a stage's ``g dtau`` exceeds 350."""
     slopes = _slopes_of(with_b, rates, intercepts)
     mean, var = p0, 0.0
     for pc, fm in zip(pieces, f_max):
@@ -577,32 +546,9 @@ def _affine_chernoff_bound(pieces: Sequence, slopes: dict, f_rows: np.ndarray, p
 
 
 def _chernoff_moments(pieces: Sequence, slopes: dict, f_slopes: np.ndarray, f_intercepts: np.ndarray,
-                      theta: np.ndarray, compiled: Optional[bool] = None) -> tuple:
+                      theta: np.ndarray) -> tuple:
     """``(A, B, ok)`` of :func:`_affine_chernoff_bound` at every ``theta``: the Riccati recursion from the last stage
-    to the first, ``ok`` where the moment stayed finite (``w < 1`` and ``A``, ``B`` finite at every stage).
-
-    ``compiled`` (default: from :data:`COMPILED_MIN_PIECES` stages on, where the solve loads numba anyway): one
-    compiled pass (:mod:`._tail_kernel`; 0.7 ms against 5.5-6.8 ms of numpy for the 48 stages of
-    ``local_g1_shell_balanced`` at ``zeta = 4`` on the Fig. 1 scene), the same bits as the numpy form below.
-    """
-    if compiled is None:
-        compiled = len(pieces) >= COMPILED_MIN_PIECES
-    if compiled:
-
-        k = len(pieces)
-        g_k, c_k, psi_k, grow_k = np.empty(k), np.empty(k), np.empty(k), np.empty(k)
-        for i, pc in enumerate(pieces):  # each stage's scalars as the numpy form computes them
-            g, c = slopes.get(id(pc), (0.0, 0.0))
-            d = pc.duration
-            g_k[i], c_k[i] = g, c
-            psi_k[i] = math.expm1(g * d) / g if g > 0.0 else d
-            grow_k[i] = math.exp(g * d)
-        a, b, ok = np.empty(theta.size), np.empty(theta.size), np.empty(theta.size, dtype=np.bool_)
-        _tail_kernel("chernoff_kernel")(np.ascontiguousarray(theta, dtype=float),
-                                        np.ascontiguousarray(f_slopes, dtype=float),
-                                        np.ascontiguousarray(f_intercepts, dtype=float), g_k, c_k, psi_k, grow_k, a,
-                                        b, ok)
-        return a, b, ok
+    to the first, ``ok`` where the moment stayed finite (``w < 1`` and ``A``, ``B`` finite at every stage)."""
     b = theta.copy()
     a = np.zeros_like(theta)
     ok = np.ones(theta.size, dtype=bool)
@@ -1071,9 +1017,9 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
     ``mean_tol p0`` of ``p0``, the last one to first order on the state once the
     miss is below ``lin_tol p0``; after MAX_BALANCE_ITERATIONS the counters carry
     ``"balance_failure"`` and ``y`` is not a result.  ``partial_fractions``: the
-    compiled stages use CRAM in partial fractions (else the IPF form; see
-    PFD_MIN_RTOL) of ``order`` (:func:`cram_order`; LAPACK's stages too, in partial fractions where ``order`` is
-    below 16); ``coef``: the stage coefficients on this grid, if already evaluated.
+    compiled stages use CRAM in partial fractions (else the IPF form, in flux form on LAPACK's stages too; see
+    PFD_MIN_RTOL); ``order``: the rational approximation's (16); ``coef``: the stage coefficients
+    on this grid, if already evaluated.
     """
     pieces = prep.segment_fn(refine * max(4, n_base // 8)) if prep.time_dependent else prep.pieces
     if coef is None:
@@ -1117,7 +1063,7 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
         return y, counters
     for k in range(len(pieces)):
         for _ in range(reps[k]):
-            y = expm_tridiagonal(lower[k], diag[k], upper[k], dt[k], y, order, flux_form=bool(partial_fractions))
+            y = expm_tridiagonal(lower[k], diag[k], upper[k], dt[k], y, flux_form=bool(partial_fractions))
         counters["cram_applications"] += int(reps[k])
     return y, counters
 
@@ -1144,12 +1090,7 @@ def _trimmed_depth(prep: Prepared, below_floor: float, rtol: float) -> Optional[
 
 
 def cram_order(rtol: float) -> int:
-    """The order of the stages' rational approximation at ``rtol`` (see :data:`CRAM_SHARE`): 10, 12 or 16."""
-    if rtol < PFD_MIN_RTOL:
-        return 16  # the IPF form (CRAM-16 only)
-    for order in (10, 12):
-        if PFD_ERROR_BOUNDS[order] <= CRAM_SHARE * rtol:
-            return order
+    """The order of the stages' rational approximation: 16 (CRAM-16) at every ``rtol``."""
     return 16
 
 
@@ -1188,7 +1129,7 @@ def _cell_errors(diff: np.ndarray, j: int) -> np.ndarray:
     return np.concatenate((np.full(j, d[0] / j) if j > 0 else np.empty(0), d[1:]))
 
 
-def _remapped(spec: GridSpec, edges: np.ndarray, diff: np.ndarray, j: int, compiled: bool = False) -> Optional[tuple]:
+def _remapped(spec: GridSpec, edges: np.ndarray, diff: np.ndarray, j: int) -> Optional[tuple]:
     """``(spec, cell factor)``: ``spec`` remapped (:class:`~.grid.Remap`) so that the first level's errors are
     about equidistributed, and the ratio of the cells it needs for that error to those ``spec`` needs.
 
@@ -1198,8 +1139,7 @@ def _remapped(spec: GridSpec, edges: np.ndarray, diff: np.ndarray, j: int, compi
     :data:`REMAP_KNOTS` equidistant knots; a sign change of a cell's difference is bridged by half its
     neighbours'), its range capped at :data:`REMAP_MAX_RATIO`, and ``D`` is the natural cubic spline through it.  The
     factor is ``(sum e_i rho_i^4 / sum e_i)^(1/4)``, ``rho_i`` the new width over the old at the same cells.
-    None where the density's spline is not safely positive or the errors are not finite.  ``compiled``: the
-    :class:`~.grid.Remap`'s many-point evaluations compiled (the same bits).
+    None where the density's spline is not safely positive or the errors are not finite.
     """
     e = _cell_errors(diff, j)
     if not np.isfinite(e).all() or e.sum() <= 0.0 or e.size + 1 != edges.size:
@@ -1215,7 +1155,7 @@ def _remapped(spec: GridSpec, edges: np.ndarray, diff: np.ndarray, j: int, compi
     log_k = (weights @ log_d) / weights.sum(axis=1)
     log_k = np.maximum(log_k - log_k.max(), -math.log(REMAP_MAX_RATIO))
     try:
-        remap = Remap(tuple(knots), tuple(np.exp(log_k - 0.5 * log_k.min())), compiled=compiled)
+        remap = Remap(tuple(knots), tuple(np.exp(log_k - 0.5 * log_k.min())))
     except ValueError:
         return None
     rho = remap.total / (total * remap.density(v_c))
@@ -1271,7 +1211,7 @@ def _regraded(prep: Prepared, edges: np.ndarray, diff: np.ndarray, j: int, remap
     iw, idp = np.unravel_index(int(np.argmin(cost)), cost.shape)
     best_cost = float(cost[iw, idp])
     if remap:
-        remapped = _remapped(spec, edges, diff, j, compiled=_compiled(prep))
+        remapped = _remapped(spec, edges, diff, j)
         if remapped is not None and remapped[1] < 1.0 - REGRADE_GAIN and remapped[1] < REMAP_PREFERENCE * best_cost:
             return remapped
     if not best_cost < 1.0 - REGRADE_GAIN:
@@ -1285,9 +1225,6 @@ def _compiled(prep: Prepared) -> bool:
     return prep.has_balance or prep.time_dependent or len(prep.pieces) >= COMPILED_MIN_PIECES
 
 
-def _tail_kernel(name: str):
-    """A compiled kernel of :mod:`._tail_kernel`: its stored machine code, else numba's (:mod:`..._machine_code`)."""
-    return machine_code.kernel("diffusion_pr.solvers.fv._tail_kernel", name)
 
 
 def _f64(a) -> np.ndarray:
@@ -1295,36 +1232,15 @@ def _f64(a) -> np.ndarray:
 
 
 class _Kernels:
-    """The compiled staged integration (:mod:`._kernels`), loaded on first use.
-
-    The rows' kernel (:func:`._kernels.staged_run_rows`, every closure's) comes from its stored machine code where
-    the store holds it (:mod:`diffusion_pr._machine_code`: numba not imported), else from numba, loaded for its one
-    signature and closed to others (single-grid rows, C-contiguous, and a group's column views take the same
-    specialization, so a fresh process loads its machine code once). The band kernel (:func:`._kernels.staged_run`,
-    the py-pde and FiPy operators) imports :mod:`._kernels` on its first use.
-    """
+    """The compiled staged integration (:mod:`._kernels`, imported on first use: a single-stage problem never
+    loads numba)."""
 
     def __init__(self) -> None:
-        self._coef = {}
-
-    @property
-    def _k(self):
         from . import _kernels
 
-        return _kernels
-
-    def _staged_run_rows(self):
-        return machine_code.kernel("diffusion_pr.solvers.fv._kernels", "staged_run_rows_kernel")
-
-    def _coefficients(self, pfd: bool, order: int) -> tuple:
-        """``(alpha, theta, alpha0, c)`` as the kernels take them: the IPF form's CRAM-16 (``pfd`` False), or the
-        partial fractions of ``order`` (``theta``, ``alpha0`` and ``c`` theirs; ``alpha`` unused)."""
-        key = 16 if not pfd else int(order)
-        if key not in self._coef:
-            theta, res, r_inf, _ = pfd_coefficients(16 if not pfd else key)
-            self._coef[key] = (np.ascontiguousarray(CRAM_ALPHA), np.ascontiguousarray(theta), float(r_inf),
-                               np.ascontiguousarray(res))
-        return self._coef[key]
+        self._k = _kernels
+        self._coef = (np.ascontiguousarray(CRAM_ALPHA), np.ascontiguousarray(CRAM_THETA), float(CRAM_ALPHA0),
+                      np.ascontiguousarray(PFD_RESIDUES))
 
     def run_rows(self, edges, f_rows, b_rows, w_rows, any_b, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol,
                  pfd, order=16, fitted=None):
@@ -1332,24 +1248,21 @@ class _Kernels:
         ``fitted``: per stage, the drift takes its upwinding weight (None: nowhere)."""
         f = _f64
         fitted = np.zeros(len(balanced), dtype=np.bool_) if fitted is None else fitted
-        args = (f(edges), f_rows, b_rows, w_rows, bool(any_b), np.ascontiguousarray(balanced, dtype=np.bool_),
-                np.ascontiguousarray(fitted, dtype=np.bool_), f(dt), np.ascontiguousarray(reps, dtype=np.int64),
-                f(cvec), f(y), float(p0), float(mean_tol), float(lin_tol), int(MAX_BALANCE_ITERATIONS), bool(pfd),
-                *self._coefficients(pfd, order), _cancel_flag())
-        with flush_subnormals(FLUSH_SUBNORMALS):
-            y, n_cram, n_newton, info, stage, res = self._staged_run_rows()(*args)
+        y, n_cram, n_newton, info, stage, res = self._k.staged_run_rows(
+            f(edges), f(f_rows), f(b_rows), f(w_rows), bool(any_b), np.ascontiguousarray(balanced, dtype=np.bool_),
+            np.ascontiguousarray(fitted, dtype=np.bool_), f(dt), np.ascontiguousarray(reps, dtype=np.int64), f(cvec),
+            f(y), float(p0), float(mean_tol), float(lin_tol), int(MAX_BALANCE_ITERATIONS), bool(pfd), *self._coef,
+            _cancel_flag())
         return self._unless_cancelled(y, n_cram, n_newton, info, stage, res)
 
     def run(self, lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, pfd, order=16):
         """Every stage on one grid: ``(y, n_cram, n_newton, info, stage, residual)`` (:func:`._kernels.staged_run`);
-        ``pfd``: partial fractions of ``order`` (10, 12, 16), else the IPF form of CRAM-16."""
+        ``pfd``: CRAM-16 in partial fractions, else in the IPF form."""
         f = _f64
-        args = (f(lower), f(diag), f(upper), f(wl), f(wd), f(wu), np.ascontiguousarray(balanced, dtype=np.bool_),
-                f(dt), np.ascontiguousarray(reps, dtype=np.int64), f(cvec), f(y), float(p0), float(mean_tol),
-                float(lin_tol), int(MAX_BALANCE_ITERATIONS), bool(pfd), *self._coefficients(pfd, order),
-                _cancel_flag())
-        with flush_subnormals(FLUSH_SUBNORMALS):
-            y, n_cram, n_newton, info, stage, res = self._k.staged_run(*args)
+        y, n_cram, n_newton, info, stage, res = self._k.staged_run(
+            f(lower), f(diag), f(upper), f(wl), f(wd), f(wu), np.ascontiguousarray(balanced, dtype=np.bool_), f(dt),
+            np.ascontiguousarray(reps, dtype=np.int64), f(cvec), f(y), float(p0), float(mean_tol), float(lin_tol),
+            int(MAX_BALANCE_ITERATIONS), bool(pfd), *self._coef, _cancel_flag())
         return self._unless_cancelled(y, n_cram, n_newton, info, stage, res)
 
     def _unless_cancelled(self, y, n_cram, n_newton, info, stage, res) -> tuple:
@@ -1598,11 +1511,9 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
         if 4 * n_base > max_cells and history:
             failure = f"refinement stopped at max_cells={max_cells} (the next grid needs {4 * n_base} cells)"
             break
-        # the coarser grids are every 2nd / 4th edge of it; the inverse's iterations compiled where the solve is
-        # (the same bits)
+        # the coarser grids are every 2nd / 4th edge of it; 
         finest = grid.edges.copy() if grid is not None else edges_for(
-            prep.spec, idx, 4, known=reuse[2] if reuse is not None else None,
-            compiled=loop is None and _compiled(prep))
+            prep.spec, idx, 4, known=reuse[2] if reuse is not None else None)
         es = [finest[::4 >> k] for k in range(3)]  # coarsest first
         ks = [0, 1, 2]  # each grid's refinement exponent (its cells are n_base << k)
         if plain_only:  # the N and 2N grids alone, or one grid alone
@@ -1692,7 +1603,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
                               f"missed p0 by {mean_miss / prep.p0:.2e} p0")
         est = max(est, mean_miss / float(out_edges[-1]))
         # the time integration's own error (not removed by Richardson): its uniform bound per application
-        est += CRAM_AMPLIFICATION * max(cc.get("cram_applications", 0) * PFD_ERROR_BOUNDS[cc.get("cram_order", 16)]
+        est += CRAM_AMPLIFICATION * max(cc.get("cram_applications", 0) * CRAM_ERROR_BOUND
                                         for _, cc in ys)
         history.append((n_base, est))
         # the estimate falls like N^-4: the cells that meet rtol, as a factor on this level's (the next level's

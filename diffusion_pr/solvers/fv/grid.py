@@ -27,14 +27,7 @@ from typing import Optional
 
 import numpy as np
 
-from ... import _machine_code as machine_code
-
 __all__ = ["GridSpec", "Remap", "edges_for", "same_grid", "SAME_GRID_RTOL"]
-
-
-def _grid_kernel(name: str):
-    """A compiled kernel of :mod:`._grid_kernel`: its stored machine code, else numba's (:mod:`.._machine_code`)."""
-    return machine_code.kernel("diffusion_pr.solvers.fv._grid_kernel", name)
 
 
 @dataclass(frozen=True)
@@ -54,10 +47,6 @@ class Remap:
 
     knots: tuple
     values: tuple
-    #: its evaluations at many points (the inverse's start table, :meth:`forward` and :meth:`density` of 1-D arrays)
-    #: compiled (:mod:`._grid_kernel`; the same bits where the processor allows, else within ulps:
-    #: :data:`SAME_GRID_RTOL`); not part of its identity
-    compiled: bool = field(default=False, repr=False, compare=False, hash=False)
     _x: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
     _y: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
     _m: np.ndarray = field(init=False, repr=False, compare=False, hash=False)
@@ -83,7 +72,7 @@ class Remap:
         object.__setattr__(self, "_pieces", np.array([x[:-1], x[1:], h, m[:-1], m[1:], 6 * h, c_l, c_r, cum[:-1],
                                                       h**4, 24 * h, 0.5 * c_l, h * h, 0.5 * c_r]))
         probe = np.linspace(0.0, x[-1], 64 * (x.size - 1) + 1)
-        f_probe, d_probe = self._both_compiled(probe) if self.compiled else self._both(probe)
+        f_probe, d_probe = self._both(probe)
         if np.min(d_probe) < 0.2 * np.min(y):
             raise ValueError("Remap: the density's spline is not safely positive")
         object.__setattr__(self, "_start", (f_probe, probe))
@@ -113,43 +102,21 @@ class Remap:
             d_out = np.where(v > x[-1], self._y[-1], (ml * a**3 + mr * b**3) / h6 + c_l * a + c_r * b)
         return f_out, d_out
 
-    def _both_compiled(self, v: np.ndarray) -> tuple:
-        """:meth:`_both` of a 1-D ``v`` in one compiled pass (:mod:`._grid_kernel`), the same bits up to
-        :data:`SAME_GRID_RTOL`."""
-        v = np.ascontiguousarray(v, dtype=float)
-        f_out, d_out = np.empty(v.size), np.empty(v.size)
-        _grid_kernel("remap_both_kernel")(self._x, float(self._y[-1]), self._pieces, v, f_out, d_out)
-        return f_out, d_out
-
     def density(self, v: np.ndarray) -> np.ndarray:
         """``D(v) = F'(v)``."""
-        if self.compiled and np.ndim(v) == 1:
-            return self._both_compiled(v)[1]
         return self._both(v, forward=False)[1]
 
     def forward(self, v: np.ndarray) -> np.ndarray:
         """``F(v)``."""
-        if self.compiled and np.ndim(v) == 1:
-            return self._both_compiled(v)[0]
         return self._both(v, density=False)[0]
 
-    def inverse(self, t: np.ndarray, compiled: Optional[bool] = None) -> np.ndarray:
+    def inverse(self, t: np.ndarray) -> np.ndarray:
         """``F^-1(t)`` on ``[0, total]``: a tabulated start, then safeguarded Newton to round-off (``F`` and ``D`` from
-        one search); each value depends on its own ``t`` only (nested grids agree bit for bit).  ``compiled`` (default:
-        the map's own :attr:`compiled`): the iterations in one compiled pass (:mod:`._grid_kernel`), the same bits up
-        to :data:`SAME_GRID_RTOL`."""
-        compiled = self.compiled if compiled is None else compiled
+        one search); each value depends on its own ``t`` only (nested grids agree bit for bit)."""
         t = np.asarray(t, dtype=float)
         f_tab, v_tab = self._start
         k = np.clip(np.searchsorted(f_tab, t, side="right") - 1, 0, f_tab.size - 2)
         x0, lo, hi, tol = np.interp(t, f_tab, v_tab), v_tab[k], v_tab[k + 1], 1e-15 * max(self.total, 1.0)
-        if compiled:
-
-            out = np.empty(t.size)
-            _grid_kernel("remap_inverse_kernel")(np.ascontiguousarray(t.reshape(-1)), x0.reshape(-1), lo.reshape(-1),
-                                                 hi.reshape(-1), tol, 40, self._x, float(self._y[-1]), self._pieces,
-                                                 out)
-            return out.reshape(t.shape)
         return _safeguarded_newton(self._both, t, x0, lo, hi, tol, 40)
 
 
@@ -261,48 +228,33 @@ class GridSpec:
         return np.diff(self.phi(self.all_knots))
 
 
-#: edges of one family made by the compiled and the numpy path agree to this relative difference, not always bit for
-#: bit: on processors with AVX-512 numpy's log, exp and arcsinh are its own SIMD code, which differs from the C
-#: library's (the compiled kernels') by an ulp or two in a few values of every thousand (the fifty-first session's
-#: machine: np.log 52, np.exp 8609, np.arcsinh 29344 of 200000 values); elsewhere they call the C library
+#: two edge arrays within this relative difference of each other are the same grid (:func:`same_grid`)
 SAME_GRID_RTOL = 1e-12
 
 
 def same_grid(a: np.ndarray, b: np.ndarray) -> bool:
     """Whether two edge arrays are the same grid: the same size and every edge within :data:`SAME_GRID_RTOL` of the
-    other's (the compiled and the numpy path of :func:`edges_for` may differ by ulps; a cell's mass moves by about
+    other's (a cell's mass moves by about
     that fraction, far below any tolerance, so masses on the two combine cell by cell)."""
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
     return a.shape == b.shape and bool(np.all(np.abs(a - b) <= SAME_GRID_RTOL * np.abs(b)))
 
 
-def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float, compiled: bool = False) -> np.ndarray:
+def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float) -> np.ndarray:
     """``Phi^-1(targets)`` on ``[a, b]``: a tabulated start, then Newton (to round-off).
 
     Newton steps from the table's start (``Phi`` is smooth and increasing:
     from the table's interpolation error, 1e-4 relative or less, it converges in
     two to four steps); if a step leaves ``[a, b]`` or 8 steps do not converge,
     the safeguarded bisection-Newton of :func:`_invert_safe` takes over from the start.  With a
-    :class:`Remap` ``F``: ``F^-1`` first, then the base monitor's inverse.  ``compiled``: the plain Newton steps
-    (and the remap's) in one compiled pass each (:mod:`._grid_kernel`), the same bits up to :data:`SAME_GRID_RTOL`.
+    :class:`Remap` ``F``: ``F^-1`` first, then the base monitor's inverse. 
     """
     if spec.remap is not None:
-        # (compiled where asked, else as the map was made: either way the same bits)
-        return _invert(spec.base, spec.remap.inverse(targets, compiled or None) + float(spec._base_wall), a, b,
-                       compiled)
+        return _invert(spec.base, spec.remap.inverse(targets) + float(spec._base_wall), a, b)
     table, phi_table = _table(spec, a, b)
     x0 = np.interp(targets, phi_table, table)
     tol = 1e-14 * np.maximum(np.abs(targets), 1.0)
-    if compiled and x0.ndim == 1:
-
-        out = np.empty(x0.size)
-        newton = _grid_kernel("monitor_newton_kernel")
-        if newton(np.ascontiguousarray(targets, dtype=float), x0, tol, float(a), float(b), float(spec.p_wall),
-                  float(spec.scale), float(spec.c_wall), float(spec._delta), float(spec.c_0), float(spec.p0),
-                  float(spec.w0), float(spec.w0**2), out):
-            return out
-        return _invert_safe(spec, targets, x0, a, b, tol)
     x = x0
     for _ in range(8):
         r = spec.phi(x) - targets
@@ -440,8 +392,8 @@ def knot_indices(spec: GridSpec, n_cells: int) -> np.ndarray:
 MIN_GAP = 3
 
 
-def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1, known: Optional[np.ndarray] = None,
-              compiled: bool = False) -> np.ndarray:
+def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1,
+              known: Optional[np.ndarray] = None) -> np.ndarray:
     """Edges of the grid whose knots sit at edge indices ``factor * idx`` (pressure).
 
     The edge with index ``i`` is ``Phi^-1(T(i / (factor n)))`` with ``n = idx[-1]`` and
@@ -454,8 +406,7 @@ def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1, known: Optional[
 
     ``known``: the grid of ``idx // 2`` with the same ``factor`` (the level this one doubles, whose edges are every
     second one of this grid, bit for bit: each edge is the inverse of its own target): taken as they are, only the
-    new edges between them are inverted (half the work).  ``compiled``: the inverse's Newton iterations compiled
-    (:mod:`._grid_kernel`; the same bits up to :data:`SAME_GRID_RTOL`, for solves that load numba anyway).
+    new edges between them are inverted (half the work).
 
     Raises
     ------
@@ -492,8 +443,8 @@ def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1, known: Optional[
     if new_only:
         edges = np.empty(n * factor + 1)
         edges[::2] = known
-        edges[1::2] = _invert(spec, targets, k[0], k[-1], compiled)
+        edges[1::2] = _invert(spec, targets, k[0], k[-1])
     else:
-        edges = _invert(spec, targets, k[0], k[-1], compiled)
+        edges = _invert(spec, targets, k[0], k[-1])
     edges[factor * idx] = k  # knots exactly
     return edges
