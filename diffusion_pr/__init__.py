@@ -68,9 +68,9 @@ _LAZY = {
     "closure_distribution": "closures",
     "solve_problem": "api",
     "choose_backend": "api",
-    "BackendUnavailableError": "solvers",
-    "backend_names": "solvers",
-    "is_available": "solvers",
+    "BackendUnavailableError": "fokker_planck.backends",
+    "backend_names": "fokker_planck.backends",
+    "is_available": "fokker_planck.backends",
 }
 
 __all__ = sorted(_LAZY) + ["__version__"]

@@ -54,7 +54,7 @@ def _exact_schedule(spectrum: Any, E_star: float, mean_pressure: float, zeta: fl
 
 
 def _check_backend(backend: object) -> str:
-    from .solvers import backend_names
+    from .fokker_planck.backends import backend_names
 
     names = sorted(set(BACKENDS) | set(backend_names()))
     if not isinstance(backend, str) or backend not in names:
@@ -71,7 +71,7 @@ def _check_rtol(rtol: object) -> float:
 
 def choose_backend(problem: Any, options: Optional[dict] = None) -> str:
     """The ``"auto"`` choice: ``"closed_form"`` if exact (and no finite-volume option given), else ``"native"``."""
-    from .solvers.closed_form import exact_kind
+    from .fokker_planck.backends.closed_form import exact_kind
 
     if not isinstance(problem, FokkerPlanckProblem) or exact_kind(problem) is None:
         return "native"
@@ -82,7 +82,7 @@ def choose_backend(problem: Any, options: Optional[dict] = None) -> str:
 
 def _accepted_options(name: str) -> set:
     """Keyword options of backend ``name``'s ``solve`` (besides ``rtol``)."""
-    from .solvers import get_backend
+    from .fokker_planck.backends import get_backend
 
     return set(_keyword_options(get_backend(name)))
 
@@ -103,13 +103,13 @@ def _solve(problem: Any, backend: str, rtol: float, options: dict) -> PressureDi
 
 
 def _solve_full(problem: Any, backend: str, rtol: float, options: dict, **engine: Any) -> Any:
-    """:func:`_solve` with the finite-volume engine's :class:`~diffusion_pr.solvers.fv.engine.FVSolution`
+    """:func:`_solve` with the finite-volume engine's :class:`~diffusion_pr.fokker_planck.engine.FVSolution`
     (``engine``: its ``grid``, ``plain`` and ``warm_start`` arguments); a backend that is not a finite-volume one
     (closed form) gives a solution that holds its result alone, and takes no grid."""
     import sys
 
-    from .solvers import get_backend
-    from .solvers.fv.engine import FVSolution
+    from .fokker_planck.backends import get_backend
+    from .fokker_planck.engine import FVSolution
 
     backend = _check_backend(backend)
     rtol = _check_rtol(rtol)
@@ -327,8 +327,8 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
                            rtol: float = 1e-6, closure: str = "second_order", warm_start: Any = None,
                            **options: Any) -> tuple:
     """``(result, solution)``: :func:`pressure_distribution`'s result and the finite-volume solution it came from
-    (:class:`~diffusion_pr.solvers.fv.engine.FVSolution`, None where there is none), started from ``warm_start``
-    (a sweep's :class:`~diffusion_pr.solvers.fv.engine.WarmStart`)."""
+    (:class:`~diffusion_pr.fokker_planck.engine.FVSolution`, None where there is none), started from ``warm_start``
+    (a sweep's :class:`~diffusion_pr.fokker_planck.engine.WarmStart`)."""
     if closure != "second_order":
         from .closures import _closure_distribution, check_closure
 
@@ -423,7 +423,7 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
         from tqdm.auto import tqdm
 
         items = tqdm(z, desc="zeta sweep", unit="wall")
-    from .solvers.fv.engine import MAX_CELLS
+    from .fokker_planck.engine import MAX_CELLS
 
     # the engine's bound on a first level's cells: its finest grid within max_cells
     cap = int(kwargs.get("max_cells", MAX_CELLS)) // 4

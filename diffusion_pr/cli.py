@@ -146,7 +146,7 @@ def _main(argv: Optional[Sequence[str]] = None) -> int:
         parser.print_help()
         return 0
     if args.command == "fig1":
-        from .fig1 import run_fig1
+        from .jobs.fig1 import run_fig1
 
         t0 = time.perf_counter()
         report = run_fig1(n=args.n, zetas=args.zetas, hard_wall=not args.no_hard_wall, seed=args.seed,
@@ -180,7 +180,7 @@ def _main(argv: Optional[Sequence[str]] = None) -> int:
             print(f"wrote curve: {args.out}")
         return 0 if res.success else 1
     if args.command == "make-reference":
-        from .reference_data import generate_reference
+        from .jobs.reference_data import generate_reference
 
         generate_reference(zetas=args.zetas, seeds=args.seeds, n=args.n, tol=args.tol, out_dir=args.out,
                            surface=args.surface)

@@ -9,7 +9,7 @@ import pytest
 
 import diffusion_pr as dp
 from diffusion_pr import closed_forms as cf
-from diffusion_pr.solvers import BackendUnavailableError
+from diffusion_pr.fokker_planck.backends import BackendUnavailableError
 
 FIG1 = dict(hurst=0.3, q_min=2 * np.pi / 1024, q_max=2 * np.pi / 32, rms_slope=0.031)
 

@@ -26,8 +26,8 @@ import diffusion_pr as dp
 from diffusion_pr import closed_forms as cf
 from diffusion_pr.models import PressureFactor, ProportionalDiffusivity, GaussianTail, make_cutoff
 from diffusion_pr.problem import FokkerPlanckProblem
-from diffusion_pr.solvers import BackendUnavailableError, get_backend
-from diffusion_pr.solvers.fv import DIAGNOSTIC_KEYS
+from diffusion_pr.fokker_planck.backends import BackendUnavailableError, get_backend
+from diffusion_pr.fokker_planck import DIAGNOSTIC_KEYS
 
 BACKENDS = ["pypde", "fipy"]
 P0 = 0.004
@@ -105,7 +105,7 @@ def test_same_answer_on_all_27_scenes(scene):
 @pytest.mark.parametrize("zeta", [4.0, 0.25, 0.01])
 def test_same_answer_on_fig1_scenes(zeta):
     s = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
-    from diffusion_pr.reference_data import PAPER_CUTOFF_PRESSURES
+    from diffusion_pr.jobs.reference_data import PAPER_CUTOFF_PRESSURES
 
     kw = dict(E_star=8 / 3, mean_pressure=P0, zeta=zeta, cutoff="muser", p_c=PAPER_CUTOFF_PRESSURES[zeta], rtol=1e-5)
     ref = dp.pressure_distribution(s, backend="native", **{**kw, "rtol": 1e-7})
@@ -150,7 +150,7 @@ def test_missing_dependency_names_the_extra(monkeypatch: pytest.MonkeyPatch, nam
     monkeypatch.setitem(sys.modules, module, None)  # import of `module` now raises ImportError
     with pytest.raises(BackendUnavailableError, match=rf"diffusion-pr\[{extra}\]"):
         get_backend(name)
-    backend_module = importlib.import_module(f"diffusion_pr.solvers.{name}_backend")
+    backend_module = importlib.import_module(f"diffusion_pr.fokker_planck.backends.{name}_backend")
     with pytest.raises(BackendUnavailableError, match=rf"diffusion-pr\[{extra}\]"):
         backend_module.solve(FokkerPlanckProblem(1.0, 1.0))
 
@@ -172,8 +172,8 @@ def test_package_import_does_not_import_peers() -> None:
     """Importing diffusion_pr and the registry must not pull in py-pde or FiPy."""
     import subprocess
 
-    code = ("import sys, diffusion_pr, diffusion_pr.solvers; "
-            "import diffusion_pr.solvers.pypde_backend, diffusion_pr.solvers.fipy_backend; "
+    code = ("import sys, diffusion_pr, diffusion_pr.fokker_planck.backends; "
+            "import diffusion_pr.fokker_planck.backends.pypde, diffusion_pr.fokker_planck.backends.fipy; "
             "print('pde' in sys.modules, 'fipy' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
     assert out == ["False", "False"]

@@ -155,7 +155,7 @@ def test_fig1_bad_zetas_fail_before_any_gfmd(tmp_path, capsys, monkeypatch):
 
 
 def test_make_reference_never_writes_into_the_package_by_default(tmp_path, monkeypatch):
-    from diffusion_pr.reference_data import DATA_DIR, generate_reference
+    from diffusion_pr.jobs.reference_data import DATA_DIR, generate_reference
 
     action = next(a for a in _subparsers(_parser())["make-reference"]._actions if a.dest == "out")
     assert action.default == "reference_out"

@@ -40,7 +40,7 @@ def kolmogorov(a, b, p_min=P0 / 20, p_max=0.3):
 
 # ----------------------------------------------------------------------------- shells
 def test_discrete_shells_are_the_spectrum_modes():
-    from diffusion_pr.reference_data import case_name, load_reference
+    from diffusion_pr.jobs.reference_data import case_name, load_reference
 
     spec = load_reference(case_name(4.0, 1)).spectrum
     sh = spectrum_shells(spec, E_star=E)
@@ -181,7 +181,7 @@ def test_gfmd_large_zeta_is_its_own_gap_field_through_the_wall_law():
     the wall range 10 % off in the exponent 0.028-0.031."""
     import gfmd_ref
 
-    from diffusion_pr.reference_data import case_name, load_reference
+    from diffusion_pr.jobs.reference_data import case_name, load_reference
 
     case = load_reference(case_name(4.0, 1))
     h, length = gfmd_ref.fig1_surface(1024, 1)
@@ -348,7 +348,7 @@ def test_engine_backends_agree_on_a_closure(fig1, backend):
 def test_main_job_draws_the_best_closure_beside_the_paper(tmp_path):
     """diffusion-pr fig1: the balanced closure is a theory curve of every wall, compared,
     reported, written to the CSV and named in the figure's legend."""
-    from diffusion_pr import fig1
+    from diffusion_pr.jobs import fig1
 
     report = fig1.run_fig1(n=32, zetas=(0.25,), hard_wall=False, rtol=1e-4, out_dir=tmp_path, log=lambda s: None)
     (case,) = report.cases
@@ -587,7 +587,7 @@ def test_shell_extrapolation_is_checked(fig1):
         closure_distribution(fig1, closure="local_g1", shell_extrapolation=True, n_shells=90, **kw)
     with pytest.raises(ValueError, match="applies to the shell closures"):
         closure_distribution(fig1, closure="second_order", shell_extrapolation=True, **kw)
-    from diffusion_pr.reference_data import case_name, load_reference
+    from diffusion_pr.jobs.reference_data import case_name, load_reference
 
     discrete = load_reference(case_name(4.0, 1)).spectrum
     with pytest.raises(ValueError, match="continuum spectra"):
@@ -678,7 +678,7 @@ def test_plain_masses_are_the_grids_own_and_need_a_fixed_grid(fig1, same_bits):
     summing to 1 within the grids' own error; with "only" it integrates the two coarser grids of a given family and
     no more, with "finest" the 4N grid alone (the same masses, bit for bit, as the full solve's), and refuses
     without a given grid."""
-    from diffusion_pr.solvers import native
+    from diffusion_pr.fokker_planck.backends import native
 
     shells = spectrum_shells(fig1, E_star=E, n_shells=96)
     problem = closure_problem(shells, zeta=1.0, E_star=E, mean_pressure=P0, closure="local_g1")
@@ -707,8 +707,8 @@ def test_plain_masses_of_an_unstable_grid_say_so(fig1, monkeypatch):
     states sum in absolute value above UNSTABLE_L1 is reported in ``plain_failure`` (which the ladder reads as no
     plain masses).  Made to trigger by lowering the bound below 1 (a probability distribution sums to 1); at the
     default bound the same solve reports no failure."""
-    from diffusion_pr.solvers import native
-    from diffusion_pr.solvers.fv import engine
+    from diffusion_pr.fokker_planck.backends import native
+    from diffusion_pr.fokker_planck import engine
 
     problem = closure_problem(spectrum_shells(fig1, E_star=E, n_shells=24), zeta=1.0, E_star=E, mean_pressure=P0,
                               closure="local_g1")
@@ -973,7 +973,7 @@ def test_forced_grids_do_not_make_the_kernels_compile_again(fig1):
     grids; zeta = 0.25: the 4N grids too) no compiled kernel has a read-only signature."""
     import numba
 
-    from diffusion_pr.solvers.fv import _kernels
+    from diffusion_pr.fokker_planck import _kernels
 
     for zeta in (1.0, 0.25):
         closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure="local_g1")

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from diffusion_pr.closed_forms import mirror_gaussian_density, persson_zero_weight
-from diffusion_pr.comparison import (
+from diffusion_pr.compare import (
     SimulatedHistogram,
     bin_averaged_density,
     compare,
@@ -122,7 +122,7 @@ def test_kolmogorov_between_two_samples(rng):
     a = SimulatedHistogram.from_pressures(sample_mirror(rng, 1.0, 1.0, 200_000), bins=np.linspace(0, 7, 141))
     b = SimulatedHistogram.from_pressures(sample_mirror(rng, 1.0, 1.0, 200_000), bins=np.linspace(0, 7, 141))
     c = SimulatedHistogram.from_pressures(sample_mirror(rng, 1.5, 1.0, 200_000), bins=np.linspace(0, 7, 141))
-    from diffusion_pr.comparison import kolmogorov_between
+    from diffusion_pr.compare import kolmogorov_between
 
     # two-sample Kolmogorov at 99.9 %: 1.95 sqrt(2/N) = 6.2e-3, plus one quantile step 4.9e-4
     assert kolmogorov_between(a, b) < 1.95 * np.sqrt(2 / 2e5) + 1.0 / 2048
@@ -183,7 +183,7 @@ def test_kolmogorov_is_the_absolute_sup_distance(rng, p0_theory):
 
 
 def test_kolmogorov_between_is_symmetric_and_absolute(rng):
-    from diffusion_pr.comparison import kolmogorov_between
+    from diffusion_pr.compare import kolmogorov_between
 
     x = sample_mirror(rng, 1.0, 1.0, 40_000)
     y = sample_mirror(rng, 1.5, 1.0, 40_000)

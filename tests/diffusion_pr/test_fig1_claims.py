@@ -3,7 +3,7 @@
 Distances between a theory and GFMD are asserted only against pooled ensembles
 (``gfmd_ref.bundled_ensemble``: compact per-seed quantiles), with tolerances
 derived from the ensemble's own bootstrap noise
-(:func:`diffusion_pr.comparison.compare_ensemble`, K over ``p >= p0/20``); no test
+(:func:`diffusion_pr.compare.compare_ensemble`, K over ``p >= p0/20``); no test
 asserts a single seed's K below its noise (about 0.07 at the 95th percentile).
 Single-seed checks that remain (curvature, moments, fits, the gap-field mapping)
 compare quantities far above that noise.  Numbers: ``docs/fig1.md``,
@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 import diffusion_pr as dp
-from diffusion_pr.comparison import compare, compare_ensemble, fit_cutoff_pressure, fit_tail_pressure, tail_curvatures
-from diffusion_pr.reference_data import FIG1_SCENE, case_name, load_reference, paper_theory
+from diffusion_pr.compare import compare, compare_ensemble, fit_cutoff_pressure, fit_tail_pressure, tail_curvatures
+from diffusion_pr.jobs.reference_data import FIG1_SCENE, case_name, load_reference, paper_theory
 
 E_STAR = FIG1_SCENE["E_star"]
 P0 = FIG1_SCENE["mean_pressure"]
@@ -207,7 +207,7 @@ def _ensemble_compare(name, zeta, closure, *, paper_pc=False, n_cells=800):
     from oracles.closure_reference import reference_distribution
 
     from diffusion_pr.closures import closure_distribution
-    from diffusion_pr.fig1 import paper_cutoff_pressure
+    from diffusion_pr.jobs.fig1 import paper_cutoff_pressure
 
     group = bundled_ensemble(name).group(zeta)
     rec = group.records[0]

@@ -1,4 +1,4 @@
-"""The main job (diffusion_pr.fig1.run_fig1): its numbers against independent values.
+"""The main job (diffusion_pr.jobs.fig1.run_fig1): its numbers against independent values.
 
 One small run (64^2, hard wall + two exponential walls) is shared by the tests.
 Oracles, all recomputed here from the surface and the GFMD pressure field
@@ -22,9 +22,9 @@ import numpy as np
 import pytest
 
 import gfmd_ref
-from diffusion_pr import fig1
+from diffusion_pr.jobs import fig1
 from diffusion_pr.closed_forms import persson_zero_weight
-from diffusion_pr.reference_data import ReferenceCase, paper_theory
+from diffusion_pr.jobs.reference_data import ReferenceCase, paper_theory
 from diffusion_pr.spectra import DiscreteSpectrum
 
 N, SEED, ZETAS = 64, 2, (0.01, 0.25)

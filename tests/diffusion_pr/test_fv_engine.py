@@ -1,4 +1,4 @@
-"""The engine's coefficient-row plans and work arrays (diffusion_pr.solvers.fv.engine).
+"""The engine's coefficient-row plans and work arrays (diffusion_pr.fokker_planck.engine).
 
 Both are speed measures with no effect on any answer: the oracles are the paths they replace (a model type's
 ``rows``; freshly allocated arrays), compared bit for bit.
@@ -14,8 +14,8 @@ import diffusion_pr as dp
 from diffusion_pr import StagedProblem, Stage
 from diffusion_pr.closures import (LoadExcessDrift, LocalResponseDiffusivity, RigidApproachBalance,
                                    spectrum_shells)
-from diffusion_pr.solvers import native
-from diffusion_pr.solvers.fv import engine
+from diffusion_pr.fokker_planck.backends import native
+from diffusion_pr.fokker_planck import engine
 
 E = 8 / 3
 P0 = 0.004
@@ -159,7 +159,7 @@ def test_two_user_threads_solving_at_once_get_the_serial_bits(fig1):
 def test_probe_points_are_linspace_bit_for_bit(rng):
     """The domain probe's points without np.linspace's overhead: its values, bit for bit, over 12 decades of
     p_hi and both probe sizes (the domain, and so every answer, depends on them)."""
-    from diffusion_pr.solvers.fv.engine import PROBE_POINTS, PROBE_POINTS_COARSE, _probe_points
+    from diffusion_pr.fokker_planck.engine import PROBE_POINTS, PROBE_POINTS_COARSE, _probe_points
 
     for p_hi in [*10.0 ** rng.uniform(-9, 9, 400), 4.0, 0.016]:
         for n in (PROBE_POINTS_COARSE, PROBE_POINTS):

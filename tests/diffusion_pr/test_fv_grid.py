@@ -6,8 +6,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from diffusion_pr.solvers.fv import grid
-from diffusion_pr.solvers.fv.grid import GridSpec, Remap, edges_for, knot_indices
+from diffusion_pr.fokker_planck import grid
+from diffusion_pr.fokker_planck.grid import GridSpec, Remap, edges_for, knot_indices
 
 SPECS = [
     # a floor 16 decades down with a cutoff knot (Fig. 1 scene), a wall at 0 with a p0 grading, no grading
@@ -199,7 +199,7 @@ def test_remap_inverse_bisects_from_a_poor_start(rng):
 def test_sorted_unique_is_numpys_unique():
     """The grid table's ``np.unique`` without numpy 2's import of ``numpy.ma`` (oracle: ``np.unique``): the same
     values and dtype on random finite arrays with repeats, empty and single-element ones."""
-    from diffusion_pr.solvers.fv.grid import _sorted_unique
+    from diffusion_pr.fokker_planck.grid import _sorted_unique
 
     rng = np.random.default_rng(7)
     for _ in range(500):

@@ -1,7 +1,7 @@
-"""The compiled staged integration (diffusion_pr.solvers.fv._kernels) against the LAPACK path.
+"""The compiled staged integration (diffusion_pr.fokker_planck._kernels) against the LAPACK path.
 
 Oracles: LAPACK ``zgtsv`` (scipy) for the pivoted tridiagonal solve, the
-LAPACK CRAM of :mod:`diffusion_pr.solvers.fv.cram` for the exponential, and the
+LAPACK CRAM of :mod:`diffusion_pr.fokker_planck.expm` for the exponential, and the
 numpy stage loop of ``_PythonKernels`` (the engine's loop before the kernels) for the
 balance substeps: same algorithm, so they
 must agree to round-off (1e-12 relative: a few hundred operations of 1e-16).
@@ -15,11 +15,11 @@ from scipy.linalg import get_lapack_funcs
 import diffusion_pr as dp
 from diffusion_pr.closures import closure_distribution as _closure_distribution
 from diffusion_pr.closures import closure_problem, spectrum_shells
-from diffusion_pr.solvers.fv import engine
-from diffusion_pr.solvers.fv._kernels import (ALPHA, ALPHA0, BAD_PREDICTION, PFD_RESIDUES, THETA, _fill_row,
+from diffusion_pr.fokker_planck import engine
+from diffusion_pr.fokker_planck._kernels import (ALPHA, ALPHA0, BAD_PREDICTION, PFD_RESIDUES, THETA, _fill_row,
                                               _geometry, cram_apply, cram_apply_d, cram_pfd, gttrf, gttrs)
-from diffusion_pr.solvers.fv.operator import bands
-from diffusion_pr.solvers.fv.cram import ERROR_BOUND, _flux_sum, expm_tridiagonal
+from diffusion_pr.fokker_planck.operator import bands
+from diffusion_pr.fokker_planck.expm import ERROR_BOUND, _flux_sum, expm_tridiagonal
 
 
 #: the engine's own functions, for the oracles that switch one of its decisions off (and back on)
@@ -111,7 +111,7 @@ def test_upwinding_weight_keeps_the_spectrum_real(rng):
     ``|Pe| <= 2`` the weight is 0: the bands are the central ones, bit for bit."""
     from scipy.linalg import eigvals
 
-    from diffusion_pr.solvers.fv.operator import fitted_weight
+    from diffusion_pr.fokker_planck.operator import fitted_weight
 
     n = 120
     edges = np.r_[0.0, np.geomspace(1e-6, 1.0, n)]
@@ -903,7 +903,7 @@ def test_wall_depth_maps_fractions_to_the_inner_scale_and_back():
     ``_depth_fraction`` inverts it (round-off), 0 is the default (the grading reaches the floor)."""
     from dataclasses import replace
 
-    from diffusion_pr.solvers.fv.grid import GridSpec
+    from diffusion_pr.fokker_planck.grid import GridSpec
 
     spec = GridSpec(p_wall=1e-9, p_max=0.05, knots=(1e-9, 0.004, 0.05), scale=0.004, c_wall=0.6, c_0=1.0,
                     w0=1e-3, p0=0.004)

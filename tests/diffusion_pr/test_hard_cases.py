@@ -257,7 +257,7 @@ def test_an_unstable_grid_fails_clearly(monkeypatch):
     states summed to 2e3 in absolute value (the solve reported an estimate of 1.5e3 and a mass 1.3e3 off), at rtol
     1e-7 the 10168-cell grid reached 1e237 and the refinement raised a ValueError on a NaN.  Such a grid is no
     result: the solve stops with success False and says why, every number finite."""
-    from diffusion_pr.solvers.fv import engine
+    from diffusion_pr.fokker_planck import engine
 
     monkeypatch.setattr(engine, "_fitted_stages", lambda prep, coef: np.zeros(coef["has_b"].size, dtype=bool))
     bad = _seed7_problem_122()(1e-8)

@@ -177,7 +177,7 @@ def test_default_diffusivity_declares_what_the_probes_measure_and_answers_the_sa
     oracles: the documented probes on an undeclared ``f = 1``, and the native answer for that undeclared callable,
     which must be the same bits (the declaration only saves the probes' time)."""
     from diffusion_pr.problem import FokkerPlanckProblem
-    from diffusion_pr.solvers import get_backend
+    from diffusion_pr.fokker_planck.backends import get_backend
 
     unit = FokkerPlanckProblem(1.0, 1.0).diffusivity
     plain = lambda p: np.ones_like(np.asarray(p, dtype=float))  # noqa: E731

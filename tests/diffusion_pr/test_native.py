@@ -25,9 +25,9 @@ from diffusion_pr import closed_forms as cf
 from diffusion_pr.api import propagate as dp_propagate
 from diffusion_pr.models import GaussianTail, LinearTail, MuserCutoff, PressureFactor, ProportionalDiffusivity, SharpCutoff
 from diffusion_pr.problem import FokkerPlanckProblem, Stage, StagedProblem
-from diffusion_pr.solvers import native
-from diffusion_pr.solvers.fv import DIAGNOSTIC_KEYS, FLOOR, engine
-from diffusion_pr.solvers.fv.cram import expm_tridiagonal
+from diffusion_pr.fokker_planck.backends import native
+from diffusion_pr.fokker_planck import DIAGNOSTIC_KEYS, FLOOR, engine
+from diffusion_pr.fokker_planck.expm import expm_tridiagonal
 
 
 def cell_mass(density_fun, edges: np.ndarray, n: int = 8) -> np.ndarray:
@@ -241,8 +241,8 @@ def test_single_stage_solve_needs_no_jit_and_warm_up_loads_the_staged_kernels():
     code = ("import sys; import diffusion_pr as dp; from diffusion_pr.problem import FokkerPlanckProblem; "
             "r = dp.solve_problem(FokkerPlanckProblem(1.0, 1.0), rtol=1e-6); "
             "print(r.success, 'numba' in sys.modules); "
-            "from diffusion_pr.solvers import warm_up; s = warm_up('native'); "
-            "print(s > 0, 'diffusion_pr.solvers.fv._kernels' in sys.modules)")
+            "from diffusion_pr.fokker_planck.backends import warm_up; s = warm_up('native'); "
+            "print(s > 0, 'diffusion_pr.fokker_planck._kernels' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split("\n")
     assert out[:2] == ["True False", "True True"]
 
@@ -257,7 +257,7 @@ def test_balance_newton_skip_matches_always_newton(monkeypatch, closure_like_pro
     """A balance substep skips its Newton step on A only when the midpoint-predicted A already holds the mean
     to MEAN_TOL_FRACTION * rtol * p0 (1e-9 p0 here); oracle: the same solve with the Newton step forced on every
     substep (fraction 0 -> the 1e-13 floor).  The two must agree far inside rtol (5e-8 = rtol/20 in L1)."""
-    from diffusion_pr.solvers.fv import engine
+    from diffusion_pr.fokker_planck import engine
 
     problem = closure_like_problem()
     r = native.solve(problem, rtol=1e-6)
@@ -316,7 +316,7 @@ def test_n_start_hint_refines_as_usual_and_meets_rtol():
     """A warm start only moves the first level: a hint that is too small still refines to rtol, a good hint (the
     neighbour's levels[0]) needs one level; both within rtol of an rtol-1e-10 run (the oracle)."""
     prob = FokkerPlanckProblem(0.004, 3e-5, PressureFactor(MuserCutoff(0.0027), GaussianTail()))
-    from diffusion_pr.solvers.fv.engine import WarmStart
+    from diffusion_pr.fokker_planck.engine import WarmStart
 
     ref = native.solve(prob, rtol=1e-10)
     plain = native.solve(prob, rtol=1e-6)
@@ -335,7 +335,7 @@ def test_domain_ends_where_the_gaussian_bound_puts_the_tail_below_its_share_of_r
     rtol against the closed form."""
     import math
 
-    from diffusion_pr.solvers.fv import engine
+    from diffusion_pr.fokker_planck import engine
 
     for mass in (1e-6, 1e-9, 1e-13):
         z = engine._tail_quantile(mass)
@@ -360,7 +360,7 @@ def test_depth_below_the_floor_follows_the_probability_that_sinks_there(monkeypa
     the depth never trimmed, at rtol 1e-9; both answers within rtol of it (trimming to 3 e-folds whatever w
     moves the zeta = 0.25 answer by ~1e-2)."""
     from diffusion_pr.cumulants import stress_variance
-    from diffusion_pr.solvers.fv import engine
+    from diffusion_pr.fokker_planck import engine
     from diffusion_pr.spectra import SelfAffineSpectrum
 
     spec = SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
@@ -404,7 +404,7 @@ def test_the_wall_flux_follows_fellers_classification(p_wall, alpha):
     the wall is reached, ``alpha p_1 < 1``, and 0 at the entrance boundary ``alpha p_1 >= 1``).  At the bottom of
     a wall that is not reached (``p_wall > 0``) only a drift towards it adds to diffusion's outflow.  Exact up to
     round-off; total probability stays conserved (the column sums are 0)."""
-    from diffusion_pr.solvers.fv.operator import bands
+    from diffusion_pr.fokker_planck.operator import bands
 
     p_1 = 0.5
     edges = p_wall + np.r_[0.0, np.geomspace(1e-4, 1.0, 60)]

@@ -133,7 +133,7 @@ def test_the_papers_numbers_live_only_in_paper_py():
 
 
 def test_reference_data_cutoffs_by_bundled_zeta():
-    from diffusion_pr.reference_data import PAPER_CUTOFF_PRESSURES
+    from diffusion_pr.jobs.reference_data import PAPER_CUTOFF_PRESSURES
 
     assert PAPER_CUTOFF_PRESSURES == {0.001: 0.0068, 0.01: 0.0082, 0.25: 0.0027, 0.5: 0.0027, 1.0: 0.0027,
                                       2.0: 0.0027, 4.0: 0.0027}

@@ -29,7 +29,7 @@ from hypothesis import strategies as st  # noqa: E402
 
 import diffusion_pr as dp  # noqa: E402
 import gfmd_ref  # noqa: E402
-from diffusion_pr.comparison import SimulatedHistogram, compare  # noqa: E402
+from diffusion_pr.compare import SimulatedHistogram, compare  # noqa: E402
 
 FAST = settings(max_examples=25, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])

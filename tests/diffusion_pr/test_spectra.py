@@ -339,7 +339,7 @@ def test_on_lattice_spectrum_brings_large_zeta_theory_to_the_ensemble():
     K above 3x the noise (a real, not a sampling, difference)."""
     import gfmd_ref
 
-    from diffusion_pr.comparison import compare_ensemble
+    from diffusion_pr.compare import compare_ensemble
 
     group = gfmd_ref.bundled_ensemble("fig1_n1024").group(zeta=4.0)
     spec = SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)

@@ -55,7 +55,7 @@ def test_fig1_bundle_agrees_with_independent_reference_seeds(fig1, wall):
     """diffusion_pr/data holds seeds 1 and 2 made by another command and code version
     (diffusion-pr make-reference, git 5d3793b, tol 1e-6): the same solutions to within
     the solver tolerance: contact fraction to 1e-3 relative, CDF to one level step."""
-    from diffusion_pr.reference_data import case_name, load_reference
+    from diffusion_pr.jobs.reference_data import case_name, load_reference
 
     for seed in (1, 2):
         ref = load_reference(case_name(None if wall == "hard" else wall, seed))

@@ -1,4 +1,4 @@
-"""Ensemble reductions and diffusion_pr.comparison.compare_ensemble on synthetic
+"""Ensemble reductions and diffusion_pr.compare.compare_ensemble on synthetic
 ensembles whose distribution is known exactly (i.i.d. exponential pressures)."""
 from __future__ import annotations
 
@@ -114,7 +114,7 @@ def test_bootstrap_bands_cover_the_truth(expo):
 
 
 def test_compare_ensemble_oracles(expo):
-    from diffusion_pr.comparison import compare_ensemble
+    from diffusion_pr.compare import compare_ensemble
 
     samples, recs = expo
     # theory == the pool itself: K and L1 vanish; per-seed K is each seed's distance from the pool
@@ -148,7 +148,7 @@ def test_compare_ensemble_oracles(expo):
 
 
 def test_compare_ensemble_contact_fraction_uses_gfmd_threshold():
-    from diffusion_pr.comparison import compare_ensemble
+    from diffusion_pr.compare import compare_ensemble
 
     rng = np.random.default_rng(5)
     hard = [_record(np.where(rng.random(M) < 0.4, 0.0, rng.exponential(P0, M)), s) for s in range(1, 5)]
@@ -165,7 +165,7 @@ def test_compare_ensemble_contact_fraction_uses_gfmd_threshold():
 
 
 def test_compare_ensemble_rejects_mixed_pools_and_counts_exclusions(expo):
-    from diffusion_pr.comparison import compare_ensemble
+    from diffusion_pr.compare import compare_ensemble
 
     _, recs = expo
     rng = np.random.default_rng(1)

@@ -382,7 +382,7 @@ def test_hard_scenes_converge(n, seed, p0):
     failed to converge). ``ccg`` with its increments of ``u`` must converge at tol 1e-9 to
     pressures within 1e-7 p0 of the plain search's."""
     if n == 64:
-        from diffusion_pr.fig1 import FIG1_SCENE as S
+        from diffusion_pr.jobs.fig1 import FIG1_SCENE as S
 
         h = gfmd_ref.self_affine_surface(n, length=S["length"], hurst=S["hurst"], q_min=S["q_min"],
                                          q_max=S["q_max"], rms_slope=S["rms_slope"], seed=seed)

@@ -9,7 +9,7 @@ unit), roughness on wavelengths ``32 <= lambda <= 1024``, Hurst exponent
 wall.
 
 Each bundled case is a small compressed ``.npz`` in ``diffusion_pr/data/``
-holding the pressure histogram (:class:`~diffusion_pr.comparison.SimulatedHistogram`),
+holding the pressure histogram (:class:`~diffusion_pr.compare.SimulatedHistogram`),
 the surface's own discrete spectrum (:class:`~diffusion_pr.spectra.DiscreteSpectrum`,
 shells of equal ``|q|``), and the provenance: parameters, seed, solver,
 tolerance, residual, iterations, code version and the command that regenerates
@@ -27,10 +27,10 @@ from typing import Any, Iterable, Optional, Sequence
 
 import numpy as np
 
-from .comparison import SimulatedHistogram
-from .paper import FIG1_SCENE, LARGE_ZETA, cutoff_pressure  # noqa: F401  (FIG1_SCENE re-exported)
+from ..compare import SimulatedHistogram
+from ..paper import FIG1_SCENE, LARGE_ZETA, cutoff_pressure  # noqa: F401  (FIG1_SCENE re-exported)
 
-DATA_DIR = Path(__file__).resolve().parent / "data"
+DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 
 #: zeta values (units of the grid spacing) of the bundled exponential-wall cases.
 FIG1_ZETAS: tuple[float, ...] = (0.001, 0.01, 0.1, 0.25, 0.5, 1.0, 2.0, 4.0)
@@ -83,7 +83,7 @@ def paper_theory(case: Any, *, cutoff: str = "muser", p_c: Optional[float] = Non
                  rtol: float = 1e-5) -> Any:
     """The paper's theory curve for one case: the one definition used everywhere.
 
-    The main job (:func:`diffusion_pr.fig1.run_fig1`), the Fig. 1 claims
+    The main job (:func:`diffusion_pr.jobs.fig1.run_fig1`), the Fig. 1 claims
     tests and the claims benchmark all call this function, so they draw the
     same curve for the same case.
 
@@ -108,8 +108,8 @@ def paper_theory(case: Any, *, cutoff: str = "muser", p_c: Optional[float] = Non
     -------
     PressureDistribution
     """
-    from .api import pressure_distribution
-    from .paper import cutoff_pressure
+    from ..api import pressure_distribution
+    from ..paper import cutoff_pressure
 
     if case.zeta is None:
         return pressure_distribution(case.spectrum, E_star=case.E_star, mean_pressure=case.mean_pressure,
@@ -134,7 +134,7 @@ def load_reference(name: str, data_dir: Path | str | None = None) -> ReferenceCa
     ValueError
         If no such case is bundled (the message lists the available ones).
     """
-    from .spectra import DiscreteSpectrum
+    from ..spectra import DiscreteSpectrum
 
     folder = Path(data_dir) if data_dir is not None else DATA_DIR
     path = folder / f"{name}.npz"
@@ -160,7 +160,7 @@ def save_case(path: Path, pressure: np.ndarray, heights: np.ndarray, provenance:
     n_bins = max(10, int(math.ceil(top / bin_width)))
     edges = np.arange(n_bins + 1) * bin_width
     hist = SimulatedHistogram.from_pressures(pressure, bins=edges, metadata=provenance)
-    from .spectra import DiscreteSpectrum
+    from ..spectra import DiscreteSpectrum
 
     spectrum = DiscreteSpectrum.from_heights(heights, float(provenance["length"]))
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -1,7 +1,7 @@
 """py-pde backend (name ``"pypde"``): the operator written with py-pde's own Laplacian and gradient.
 
 py-pde's grids are uniform, so the equation is written on the cell index
-``x = 0..n`` of the engine's graded grid (:mod:`diffusion_pr.solvers.fv`; a
+``x = 0..n`` of the engine's graded grid (:mod:`diffusion_pr.fokker_planck`; a
 :class:`pde.CartesianGrid` with unit spacing) for the cell masses ``m_i``.
 With ``v = f m / h`` (``f Pr`` at the cell centres) and ``K = 1/h`` the Ito
 flux form ``d/dx[K d/dx(v)]`` (conservative, face coefficient the mean of the
@@ -35,10 +35,10 @@ from typing import Optional
 
 import numpy as np
 
-from ..result import PressureDistribution
+from ...result import PressureDistribution
 from . import timed_import
-from .fv.engine import MAX_CELLS, FVSolution, Prepared, solve_fv_full
-from .fv.operator import centres, probe_bands, state_bands, wall_drift, wall_drift_rate
+from ..engine import MAX_CELLS, FVSolution, Prepared, solve_fv_full
+from ..operator import centres, probe_bands, state_bands, wall_drift, wall_drift_rate
 
 __all__ = ["solve", "warm_up", "assemble"]
 

@@ -444,7 +444,7 @@ def fit_cutoff_pressure(hist: SimulatedHistogram, spectrum: Any, *, E_star: floa
     """
     from scipy.optimize import minimize_scalar
 
-    from .api import pressure_distribution
+    from ..api import pressure_distribution
 
     lo, hi = bounds if bounds is not None else (0.02 * mean_pressure, 5.0 * mean_pressure)
     if not (0 < lo < hi):
@@ -489,7 +489,7 @@ def fit_tail_pressure(hist: SimulatedHistogram, spectrum: Any, *, E_star: float,
     """
     from scipy.optimize import minimize_scalar
 
-    from .api import pressure_distribution
+    from ..api import pressure_distribution
 
     lo, hi = bounds if bounds is not None else (0.05 * mean_pressure, 1e3 * mean_pressure)
     mask = hist.density > 0

@@ -16,7 +16,7 @@ in one compiled call per grid:
 * :func:`cram_apply` -- ``exp(t L) y`` in the incomplete partial factorization
   form of :mod:`.cram` (same coefficients, same order of operations);
 * :func:`balanced_stage` -- the balance substeps of
-  :func:`~diffusion_pr.solvers.fv.engine.solve_on_grid`;
+  :func:`~diffusion_pr.fokker_planck.engine.solve_on_grid`;
 * :func:`staged_run` / :func:`staged_run_rows` -- every stage of one grid in one
   call (the bands of all stages as rows of 2-D arrays, or made stage by stage
   from the coefficient rows).
@@ -32,8 +32,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .cram import ALPHA, ALPHA0, PFD_RESIDUES, THETA
-from .cram import CANCELLED as _CANCELLED
+from .expm import ALPHA, ALPHA0, PFD_RESIDUES, THETA
+from .expm import CANCELLED as _CANCELLED
 
 __all__ = ["cram_pfd", "gttrf", "gttrs", "cram_apply", "cram_apply_d", "balanced_stage", "staged_run",
            "staged_run_rows", "ALPHA", "THETA", "ALPHA0", "PFD_RESIDUES"]
@@ -490,7 +490,7 @@ def _flux_form(lower, upper, t, y, w, r0, out):  # pragma: no cover - numba
     The partial fractions ``alpha0 y + 2 Re sum_j c_j x_j`` (``x_j = (t L - theta_j)^-1 y``) equal
     ``r(0) y + t L w`` with ``w = 2 Re sum_j (c_j/theta_j) x_j``, since
     ``(t L - theta)^-1 = (t L (t L - theta)^-1 - 1)/theta``.  ``L`` conserves probability (its
-    column sums vanish: :func:`~diffusion_pr.solvers.fv.operator.bands`), so ``t L w`` is written
+    column sums vanish: :func:`~diffusion_pr.fokker_planck.operator.bands`), so ``t L w`` is written
     with the net flux ``F_i = t (lower_i w_i - upper_i w_{i+1})`` from state ``i`` to ``i + 1``
     (the diagonal is not read): ``(t L w)_i = F_{i-1} - F_i`` telescopes, and the total is
     ``r(0) sum y`` up to ``eps sum |F|``.  The partial-fraction sum itself loses

@@ -38,14 +38,14 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from ...models import breakpoints_of, evaluate_vectorized, wall_reached, zero_power_of
-from ...problem import FokkerPlanckProblem, StagedProblem
-from ...result import PressureDistribution
-from .cram import ALPHA as CRAM_ALPHA
-from .cram import ALPHA0 as CRAM_ALPHA0
-from .cram import CANCELLED, PFD_RESIDUES, expm_tridiagonal
-from .cram import ERROR_BOUND as CRAM_ERROR_BOUND
-from .cram import THETA as CRAM_THETA
+from ..models import breakpoints_of, evaluate_vectorized, wall_reached, zero_power_of
+from ..problem import FokkerPlanckProblem, StagedProblem
+from ..result import PressureDistribution
+from .expm import ALPHA as CRAM_ALPHA
+from .expm import ALPHA0 as CRAM_ALPHA0
+from .expm import CANCELLED, PFD_RESIDUES, expm_tridiagonal
+from .expm import ERROR_BOUND as CRAM_ERROR_BOUND
+from .expm import THETA as CRAM_THETA
 from .grid import GridSpec, Remap, edges_for, knot_indices, same_grid
 from .operator import bands as fv_bands
 from .operator import centres

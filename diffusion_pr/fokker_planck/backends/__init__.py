@@ -13,10 +13,10 @@ from typing import Callable, Dict, Tuple
 
 # name -> (module, function, pip extra that provides its dependency or None)
 _REGISTRY: Dict[str, Tuple[str, str, str | None]] = {
-    "native": ("diffusion_pr.solvers.native", "solve", None),
-    "closed_form": ("diffusion_pr.solvers.closed_form", "solve", None),
-    "pypde": ("diffusion_pr.solvers.pypde_backend", "solve", "pypde"),
-    "fipy": ("diffusion_pr.solvers.fipy_backend", "solve", "fipy"),
+    "native": ("diffusion_pr.fokker_planck.backends.native", "solve", None),
+    "closed_form": ("diffusion_pr.fokker_planck.backends.closed_form", "solve", None),
+    "pypde": ("diffusion_pr.fokker_planck.backends.pypde", "solve", "pypde"),
+    "fipy": ("diffusion_pr.fokker_planck.backends.fipy", "solve", "fipy"),
 }
 
 # the third-party module each optional backend needs

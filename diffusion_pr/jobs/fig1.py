@@ -6,7 +6,7 @@ doi:10.1103/PhysRevLett.100.055504 (numbers and the paper's sentences in
 :mod:`diffusion_pr.paper`) at a chosen grid resolution (the physical cell stays
 ``L = 1024`` grid spacings of the paper's system, so ``zeta`` keeps its
 meaning), draws the theory curves of :func:`theory_curves` for every wall (the
-paper's: :func:`diffusion_pr.reference_data.paper_theory`, the same function
+paper's: :func:`diffusion_pr.jobs.reference_data.paper_theory`, the same function
 the claims tests and the claims benchmark use), and writes a figure, a CSV of
 the curves and histograms and a text report.  It is the package's main job
 (``diffusion-pr fig1``); the docs page ``fig1`` discusses its results.
@@ -25,7 +25,7 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
-from .paper import FIG1_SCENE, contact_threshold, cutoff_pressure
+from ..paper import FIG1_SCENE, contact_threshold, cutoff_pressure
 
 #: zeta values of the default scene: those the paper gives cutoff pressures for.
 DEFAULT_ZETAS: tuple[float, ...] = (0.001, 0.01, 0.25, 1.0, 4.0)
@@ -51,7 +51,7 @@ def theory_curves(case: Any, *, cutoff: str, backend: str, rtol: float) -> dict[
     The one place where the main job's curves are chosen: every entry is
     compared with the wall's histogram, listed in the report, written to the
     curves CSV and drawn in the figure.  The first entry, :data:`PAPER`, is
-    the paper's curve (:func:`~diffusion_pr.reference_data.paper_theory`:
+    the paper's curve (:func:`~diffusion_pr.jobs.reference_data.paper_theory`:
     Persson's mirror Gaussian for the hard wall, the second-order cumulant
     theory with the paper's ``p_c`` for exponential walls).  Add another
     theory curve for the same case as a further entry.  The second entry,
@@ -59,7 +59,7 @@ def theory_curves(case: Any, *, cutoff: str, backend: str, rtol: float) -> dict[
     (:func:`diffusion_pr.pressure_distribution` with ``closure=BEST_CLOSURE``, no
     fitted number), solved by the finite-volume engine on the same spectrum.
     """
-    from .api import pressure_distribution
+    from ..api import pressure_distribution
     from .reference_data import paper_theory
 
     curves = {PAPER: paper_theory(case, cutoff=cutoff, backend=backend, rtol=rtol)}
@@ -83,7 +83,7 @@ class Fig1Case:
     theories : dict
         ``label -> PressureDistribution`` from :func:`theory_curves`.
     comparisons : dict
-        ``label -> Comparison`` (:func:`diffusion_pr.comparison.compare`, contact
+        ``label -> Comparison`` (:func:`diffusion_pr.compare.compare`, contact
         fractions at :attr:`contact_threshold` on both sides).
     contact_threshold : float
         Pressure above which a point counts as in contact: 0 (hard wall) or
@@ -227,10 +227,10 @@ def run_fig1(*, n: int = 512, zetas: Sequence[float] = DEFAULT_ZETAS, hard_wall:
     import gfmd_ref
     from gfmd_ref._validation import check_writable_dir
 
-    from .comparison import SimulatedHistogram, compare
-    from .cumulants import stress_variance
+    from ..compare import SimulatedHistogram, compare
+    from ..cumulants import stress_variance
     from .reference_data import ReferenceCase
-    from .spectra import DiscreteSpectrum
+    from ..spectra import DiscreteSpectrum
 
     n, walls = _check_inputs(n, zetas, hard_wall, seed, tol, progress, log)
     if out_dir is not None:
@@ -345,7 +345,7 @@ def plot_fig1(report: Fig1Report, ax: Any = None) -> Any:
     """
     import matplotlib.pyplot as plt
 
-    from .plotting import plot_histogram
+    from ..plotting import plot_histogram
 
     if ax is None:
         _, ax = plt.subplots(figsize=(6.4, 4.6))

@@ -6,7 +6,7 @@ expresses it, ``d/dp(f dP/dp) + d/dp((f' - a) P)``::
     TransientTerm() == DiffusionTerm(coeff=f_face) + CentralDifferenceConvectionTerm(coeff=[f'_face - a_face])
 
 on a non-uniform :class:`fipy.Grid1D` with the cell widths of the shared
-engine's grid (:mod:`diffusion_pr.solvers.fv`), ``f_face`` the mean of the
+engine's grid (:mod:`diffusion_pr.fokker_planck`), ``f_face`` the mean of the
 neighbouring cells' ``f`` and ``f'_face`` their difference quotient, so that
 the discrete flux is the conservative Ito flux ``-(f_{i+1} P_{i+1} - f_i P_i)/d``;
 ``P = 0`` is constrained on the wall face (``f Pr = 0`` there: Feller's exit
@@ -42,10 +42,10 @@ from typing import Optional
 
 import numpy as np
 
-from ..result import PressureDistribution
+from ...result import PressureDistribution
 from . import timed_import
-from .fv.engine import MAX_CELLS, FVSolution, Prepared, solve_fv_full
-from .fv.operator import centres, state_bands, wall_drift_rate
+from ..engine import MAX_CELLS, FVSolution, Prepared, solve_fv_full
+from ..operator import centres, state_bands, wall_drift_rate
 
 __all__ = ["solve", "warm_up", "assemble"]
 

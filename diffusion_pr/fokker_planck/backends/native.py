@@ -2,25 +2,25 @@
 
 Autonomous problems (``D(p, eta) = D(eta) f(p)``) are one matrix exponential
 of the tridiagonal finite-volume operator applied to the start, computed by
-CRAM-16 (:mod:`diffusion_pr.solvers.fv.cram`: eight complex tridiagonal
+CRAM-16 (:mod:`diffusion_pr.fokker_planck.expm`: eight complex tridiagonal
 solves, scipy's LAPACK: no JIT, so the paper's solve in a fresh process costs
 no compilation).  Staged and ``tau``-dependent problems (the closures) apply
 one exponential per stage or midpoint segment, a balance multiplier by Newton
 steps on ``A``; from four stages on (or with a balance) they run in the numba
-kernels of :mod:`diffusion_pr.solvers.fv._kernels` (compiled once per
+kernels of :mod:`diffusion_pr.fokker_planck._kernels` (compiled once per
 installation, about a minute of CPU on a two-core machine, then kept in numba's
 on-disk cache; loading them, numba's import included, costs 1-2 s per process:
 :func:`warm_up` does both where you choose).  Three nested
 grids give a Richardson-extrapolated answer and an error estimate of it
-(:mod:`diffusion_pr.solvers.fv.engine`).
+(:mod:`diffusion_pr.fokker_planck.engine`).
 """
 from __future__ import annotations
 
 import time
 from typing import Optional
 
-from ..result import PressureDistribution
-from .fv.engine import MAX_CELLS, FVSolution, native_assemble, solve_fv, solve_fv_full
+from ...result import PressureDistribution
+from ..engine import MAX_CELLS, FVSolution, native_assemble, solve_fv, solve_fv_full
 
 __all__ = ["solve", "solve_full", "warm_up"]
 
@@ -35,8 +35,8 @@ def warm_up() -> float:
     """
     import numpy as np
 
-    from .._closure_kernels import DIFFUSIVITY, model_rows
-    from ..problem import Stage, StagedProblem
+    from ...closures._kernels import DIFFUSIVITY, model_rows
+    from ...problem import Stage, StagedProblem
 
     t0 = time.perf_counter()
     stages = []

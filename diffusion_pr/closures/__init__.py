@@ -38,8 +38,8 @@ from typing import Any, Optional
 
 import numpy as np
 
-from ._validation import check_nonnegative, check_positive
-from .spectra import DiscreteSpectrum, Spectrum
+from .._validation import check_nonnegative, check_positive
+from ..spectra import DiscreteSpectrum, Spectrum
 
 __all__ = [
     "CLOSURES",
@@ -504,7 +504,7 @@ class _RowPlan:
 
     ``plan(p, out=None)`` writes the rows at the pressures ``p`` (1-D, clamped at 0; a NaN stays NaN) into ``out``
     (a C-contiguous float array of shape ``(shells, p.size)``; a new one where None or of another layout) in one
-    compiled pass (:func:`diffusion_pr._closure_kernels.model_rows`) and returns it, or None where a value is not
+    compiled pass (:func:`diffusion_pr.closures._kernels.model_rows`) and returns it, or None where a value is not
     finite (the caller then takes its checked path, which says where).
     """
 
@@ -517,7 +517,7 @@ class _RowPlan:
         return int(self.kq.size)
 
     def __call__(self, p: np.ndarray, out: Optional[np.ndarray] = None) -> Optional[np.ndarray]:
-        from ._closure_kernels import model_rows
+        from ._kernels import model_rows
 
         p = np.ascontiguousarray(p, dtype=float).reshape(-1)
         shape = (self.kq.size, p.size)
@@ -533,7 +533,7 @@ class _RowPlan:
 
 class _ShellModel:
     """A shell model of ``p`` that is the constant ``_HARD_WALL`` for the hard wall (``kz = 0``) and one of the
-    compiled formulas of :mod:`diffusion_pr._closure_kernels` otherwise (``p`` clamped at 0; imported on first
+    compiled formulas of :mod:`diffusion_pr.closures._kernels` otherwise (``p`` clamped at 0; imported on first
     use), evaluated row-wise for many shells at once.  Each model names its formula (``_MODEL``) and the wall
     products it takes (``_PRODUCTS``: the attributes multiplied by ``kz`` for ``kq`` and ``kq_part``)."""
 
@@ -561,7 +561,7 @@ class _ShellModel:
         plan = cls.row_plan(items)
         if plan is None:
             return np.array([it(p) for it in items])
-        from ._closure_kernels import model_rows
+        from ._kernels import model_rows
 
         p = np.ascontiguousarray(p, dtype=float).reshape(-1)
         out = np.empty((len(plan), p.size))
@@ -667,7 +667,7 @@ def closure_problem(shells: Shells, *, zeta: float, E_star: float, mean_pressure
         takes each shell's own ``q_k``, which breaks the ``zeta -> 0`` limit and is
         there for the tests that show it).
     """
-    from .problem import Stage, StagedProblem
+    from ..problem import Stage, StagedProblem
 
     if closure not in ("local_g1", *_BALANCED):
         raise ValueError("closure_problem builds 'local_g1', 'local_g1_balanced' or 'local_g1_shell_balanced'; "
@@ -736,8 +736,8 @@ def lognormal_gap_distribution(spectrum: Spectrum, *, E_star: float, mean_pressu
     """
     from scipy.special import log_ndtr, ndtr
 
-    from .cumulants import stress_variance
-    from .result import PressureDistribution
+    from ..cumulants import stress_variance
+    from ..result import PressureDistribution
 
     z = float(check_nonnegative("zeta", zeta))
     if z == 0.0:
@@ -879,7 +879,7 @@ def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: f
                           **options: Any) -> tuple:
     """``(result, solution)``: :func:`closure_distribution`'s result and the finite-volume solution of its (last)
     ``n``-shell solve (None where there is none), which started from ``warm_start`` (a sweep's, a
-    :class:`~diffusion_pr.solvers.fv.engine.WarmStart`)."""
+    :class:`~diffusion_pr.fokker_planck.engine.WarmStart`)."""
     closure = check_closure(closure)
     for name, value in (("E_star", E_star), ("mean_pressure", mean_pressure), ("zeta", zeta)):
         if np.ndim(value) != 0:
@@ -899,7 +899,7 @@ def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: f
                          "'local_g1_shell_balanced') on the finite-volume backends; got "
                          f"closure={closure!r}, backend={backend!r}")
     if closure == "second_order":
-        from .api import pressure_distribution
+        from ..api import pressure_distribution
 
         if n_shells is not None:
             raise ValueError("n_shells applies to the shell-by-shell closures, not to 'second_order'")
@@ -1001,10 +1001,10 @@ def _ladder_below(top: int) -> list:
 
 def _solve_shells(problem: Any, shells: Shells, closure: str, backend: str, rtol: float, options: dict, *,
                   keep: bool, warm_start: Any = None, note: Optional[dict] = None) -> Any:
-    """The closure's :class:`~diffusion_pr.solvers.fv.engine.FVSolution` with the closure and the shell count in
+    """The closure's :class:`~diffusion_pr.fokker_planck.engine.FVSolution` with the closure and the shell count in
     the result's diagnostics (and ``note``); with ``keep`` the last level's plain masses too (the shell
     extrapolation's corrections are taken from them)."""
-    from .api import _solve_full
+    from ..api import _solve_full
 
     sol = _solve_full(problem, backend, rtol, options, plain="keep" if keep else None, warm_start=warm_start)
     res = sol.result
@@ -1015,10 +1015,10 @@ def _solve_shells(problem: Any, shells: Shells, closure: str, backend: str, rtol
 def _coarser_on_grid(sol: Any, m: int, scene: tuple, rtol: float, options: dict, *, plain: Optional[str]) -> Any:
     """The ``m``-shell problem of ``scene = (spectrum, E, p0, z, closure, grading)`` solved on the
     grids of ``sol`` (the ``n``-shell solution), in full (``plain=None``) or for the plain masses of some of its
-    grids alone (``plain`` a mode of :data:`~diffusion_pr.solvers.fv.engine.PLAIN_GRIDS`); a balance with no root
+    grids alone (``plain`` a mode of :data:`~diffusion_pr.fokker_planck.engine.PLAIN_GRIDS`); a balance with no root
     there is a failed solution that says so."""
-    from .api import _solve_full
-    from .solvers.fv.engine import FVSolution
+    from ..api import _solve_full
+    from ..fokker_planck.engine import FVSolution
 
     res = sol.result
     sub = {k: v for k, v in options.items() if k != "n_cells"}  # (the grid fixes the cells)
@@ -1069,7 +1069,7 @@ def _shell_corrected(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
 
     ``res`` (``n`` shells) is extrapolated in space; the difference between it and the continuum is a
     difference between problems on the same grid, whose spatial errors are correlated: it is taken from the
-    plain masses ``P`` of the last level's grids alone (``plain=`` of :func:`~diffusion_pr.solvers.fv.engine.solve_fv_full`),
+    plain masses ``P`` of the last level's grids alone (``plain=`` of :func:`~diffusion_pr.fokker_planck.engine.solve_fv_full`),
     solved for ``n/2``, ``n/4`` and ``n/8`` shells on ``res``'s grids.  With ``top`` the most shells solved, the
     shells' table (:func:`_shell_table`) gives the continuum ``X`` on each grid (Richardson ``R(top/2, top)``, or
     Romberg's sixth order where the observed order allows it) and its residual; the correction is
@@ -1087,8 +1087,8 @@ def _shell_corrected(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
     solves' price, nothing integrated twice).  Where the sum still misses ``rtol`` the ``2 top``-shell problem is
     solved on the same grids (per doubling, the grids the correction uses).  The cost: the ``n/2``, ``n/4`` and
     ``n/8``-shell problems on the two coarser grids, 0.38x ``res`` (0.88x with the ``4N`` grids)."""
-    from .solvers.fv.engine import RICHARDSON_DIVISOR
-    from .solvers.fv.grid import same_grid
+    from ..fokker_planck.engine import RICHARDSON_DIVISOR
+    from ..fokker_planck.grid import same_grid
 
     res = sol.result
     n = int(res.diagnostics["n_shells"])
@@ -1491,14 +1491,14 @@ def _shell_combined(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
     """The continuum closure from the ``n``-shell result ``res`` and full solves of fewer shells on its grids.
 
     The ``n/2``-, ``n/4``- and (where ``n/8 >= MIN_ROMBERG_SHELLS`` shells solve there) ``n/8``-shell problems
-    are solved on ``res``'s grids (``grid=`` of :func:`~diffusion_pr.solvers.fv.engine.solve_fv_full`),
+    are solved on ``res``'s grids (``grid=`` of :func:`~diffusion_pr.fokker_planck.engine.solve_fv_full`),
     so the cell masses combine cell by cell as :func:`_shell_table` says (Richardson, or Romberg where the
     observed order allows it), its residual added to the grids' estimate: the solves' own estimates with the
     table's weights in absolute value (``(4 e(n) + e(n/2))/3`` for Richardson; the spatial errors of the solves
     are not assumed to cancel).  Where the sum misses ``rtol``, the ``2n``-shell problem is solved on the same
     grids and the table is made again from the top (one solve per doubling, up to :data:`MAX_CONTINUUM_SHELLS`).
     Used where the plain grids' correction misses (:func:`_shell_extrapolated`) or no plain masses were kept."""
-    from .solvers.fv.grid import same_grid
+    from ..fokker_planck.grid import same_grid
 
     res = sol.result
     n = int(res.diagnostics["n_shells"])

@@ -94,7 +94,7 @@ def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: 
     With ``flux_form`` (``L`` must conserve probability, its columns summing to 0) each factor of the IPF form is
     written as ``r y + t L w`` with ``t L w`` as differences of face fluxes, so that ``sum y`` is conserved to
     round-off even where ``|t L_ii|`` is huge in cells that hold probability: the compiled kernels' form
-    (:func:`~diffusion_pr.solvers.fv._kernels._flux_form`, docs/backends.md "Probability conserved in stiff
+    (:func:`~diffusion_pr.fokker_planck._kernels._flux_form`, docs/backends.md "Probability conserved in stiff
     cells").  The diagonal then only enters the shifted solves.
 
     Parameters

@@ -26,9 +26,9 @@ from typing import Optional, Tuple
 import numpy as np
 from numpy.typing import NDArray
 
-from ..models import GaussianTail, PressureFactor, ProportionalDiffusivity, SharpCutoff
-from ..problem import FokkerPlanckProblem, _unit
-from ..result import PressureDistribution
+from ...models import GaussianTail, PressureFactor, ProportionalDiffusivity, SharpCutoff
+from ...problem import FokkerPlanckProblem, _unit
+from ...result import PressureDistribution
 
 Array = NDArray[np.float64]
 
@@ -151,8 +151,8 @@ def solve(problem: FokkerPlanckProblem, *, rtol: float = 1e-6, tail_mass: float 
     """
     # the closed forms (and scipy.special) are imported here, where one is evaluated, not by exact_kind: that is
     # asked by the "auto" choice of every solve
-    from .. import closed_forms as cf
-    from .fv.engine import MAX_RATIO
+    from ... import closed_forms as cf
+    from ..engine import MAX_RATIO
 
     t0 = time.perf_counter()
     kind = exact_kind(problem)
