@@ -2,14 +2,22 @@
 from __future__ import annotations
 
 
+import importlib.util
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-# the test oracles (tests/oracles, e.g. the closures' reference solver) import as ``oracles.*``
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+# the test oracles (tests/oracles, e.g. the closures' reference solver) import as ``oracles.*``; registered as a
+# package of its own, since putting tests/ on sys.path would shadow the installed diffusion_pr and gfmd_ref with
+# the namespace packages tests/diffusion_pr and tests/gfmd_ref
+_ORACLES = Path(__file__).resolve().parent / "oracles"
+_spec = importlib.util.spec_from_file_location("oracles", _ORACLES / "__init__.py",
+                                               submodule_search_locations=[str(_ORACLES)])
+if "oracles" not in sys.modules:
+    sys.modules["oracles"] = importlib.util.module_from_spec(_spec)
+    _spec.loader.exec_module(sys.modules["oracles"])
 
 
 def pytest_report_header(config) -> str:
