@@ -182,7 +182,7 @@ def test_non_power_of_two_and_loaded_array(tmp_path, n):
     "kw, name",
     [
         (dict(heights=np.full((8, 8), np.nan)), "heights"),
-        (dict(heights=np.zeros((8, 6))), "heights"),
+        (dict(heights=np.zeros((8, 1))), "heights"),
         (dict(heights=np.zeros(8)), "heights"),
         (dict(heights=np.zeros((2, 4, 4))), "heights"),
         (dict(heights=np.where(np.eye(8) > 0, np.inf, 0.0)), "heights"),
@@ -195,6 +195,8 @@ def test_non_power_of_two_and_loaded_array(tmp_path, n):
         (dict(method="newton"), "method"),
         (dict(interaction=ExponentialRepulsion(1.0), method="ccg"), "method"),
         (dict(tol=-1e-8), "tol"),
+        (dict(tol=10.0), r"tol must be a number in \(0, 0.1\].*tol=10.0"),
+        (dict(tol=0.5), "tol=0.5"),
         (dict(max_iter=0), "max_iter"),
     ],
 )
@@ -252,7 +254,7 @@ def test_cli_run(tmp_path, capsys):
     assert any(f.endswith(".png") for f in files) and any(f.endswith(".csv") for f in files)
     d = np.load(next(tmp_path.glob("*.npz")))
     assert np.sum(d["density"] * np.diff(d["edges"])) + d["zero_weight"] == pytest.approx(1)
-    res, hist, paths = run_default_scene(48, interaction="exp", zeta=0.1, out_dir=None,
+    res, hist, paths = run_default_scene(64, interaction="exp", zeta=0.1, out_dir=None,
                                          verbose=False)
     assert res.converged and paths == {}
     assert gfmd_ref.FIG1["E_star"] == pytest.approx(8 / 3)
@@ -276,7 +278,7 @@ class Block:
             raise ImportError(f"{name} blocked")
 sys.meta_path.insert(0, Block())
 import gfmd_ref
-h, L = gfmd_ref.fig1_surface(32, seed=1)
+h, L = gfmd_ref.fig1_surface(64, seed=1)
 r = gfmd_ref.solve_contact(h, length=L, E_star=8 / 3, mean_pressure=0.004, interaction=gfmd_ref.HardWall())
 assert r.converged
 try:
@@ -306,7 +308,7 @@ def test_solves_without_the_optional_extras(tmp_path):
     (HardWall(), "ccg", 64, 20000),
     (HardWall(), "pk", 64, 20000),
     (ExponentialRepulsion(0.001), "newton", 64, 20000),
-    (HardWall(), "fire", 32, 200000),
+    (HardWall(), "fire", 64, 200000),
 ])
 def test_unreachable_tol_stalls_early_and_says_so(inter, method, n, max_iter):
     """tol 1e-18 is below the round-off of every residual (relative to p0, eps = 2e-16):
