@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import gfmd_ref
-from gfmd_ref import (ConvergenceWarning, ExponentialRepulsion, HardWall, fig1_surface,
+from gfmd_ref import (ConvergenceWarning, ExponentialRepulsion, HardWall, PressureHistogram, fig1_surface,
                       pressure_histogram, solve_contact)
 
 E, P0 = 8.0 / 3.0, 0.004
@@ -234,13 +234,43 @@ def test_pressure_histogram(fig1_64):
     assert np.sum(hist.density * np.diff(hist.edges)) + hist.zero_weight == pytest.approx(1, abs=1e-12)
     assert hist.counts.sum() == nz and hist.n_outside == 0
     assert len(hist.centers) == 20
-    # array input and explicit range: values outside the range still count in the norm
-    h2 = pressure_histogram(np.array([0.0, 0.0, 1.0, 2.0, 3.0]), bins=2, range=(0.5, 2.5))
+    # a bare array goes through from_pressures; values outside the bins still count in the norm
+    h2 = PressureHistogram.from_pressures(np.array([0.0, 0.0, 1.0, 2.0, 3.0]), bins=[0.5, 1.5, 2.5])
     assert h2.zero_weight == pytest.approx(0.4)
-    assert h2.n_outside == 1
+    assert h2.n_outside == 1 and h2.moments["outside_bins"] == pytest.approx(0.2)
     assert np.sum(h2.density * np.diff(h2.edges)) == pytest.approx(0.4)
     with pytest.raises(ValueError, match="pressure"):
-        pressure_histogram(np.array([np.nan, 1.0]))
+        PressureHistogram.from_pressures(np.array([np.nan, 1.0]))
+    with pytest.raises(TypeError, match="ContactResult.*ndarray.*from_pressures"):
+        pressure_histogram(r.pressure)
+
+
+def test_histogram_carries_the_comparison_contract():
+    """A histogram of an exponential-wall result carries the solver's contact threshold
+    (0.01 p0) as the default of contact_area, the field's moments and quantiles and the
+    solver's parameters; rebinning keeps the mass."""
+    h, L = gfmd_ref.fig1_surface(64, seed=1)
+    r = _solve(h, L, ExponentialRepulsion(0.002), tol=1e-8)
+    hist = pressure_histogram(r, bins=40)
+    p = r.pressure.ravel()
+    thr = gfmd_ref.EXP_CONTACT_THRESHOLD * P0
+    assert r.contact_threshold == thr == hist.contact_threshold
+    assert r.contact_area() == hist.contact_area() == r.contact_fraction == np.mean(p > thr)
+    assert r.contact_area(0.0) == hist.contact_area(0.0) == 1.0 != hist.contact_area()
+    assert hist.moments["mean"] == pytest.approx(P0, rel=1e-12)
+    assert hist.moments["variance"] == pytest.approx(np.var(p), rel=1e-12)
+    assert hist.moments["third_central"] == pytest.approx(np.mean((p - p.mean()) ** 3), rel=1e-9)
+    np.testing.assert_array_equal(hist.quantiles, np.quantile(p, hist.quantile_levels))
+    assert hist.fraction_above(np.median(p)) == pytest.approx(0.5, abs=1 / 2048)
+    assert hist.metadata["zeta"] == 0.002 and hist.metadata["interaction"] == "ExponentialRepulsion"
+    coarse = hist.rebinned(4)
+    assert coarse.edges.size == 11 and coarse.counts.sum() == hist.counts.sum()
+    assert np.sum(coarse.density * coarse.widths) == pytest.approx(np.sum(hist.density * hist.widths), rel=1e-12)
+    for bad, name in ((-1.0, "threshold=-1.0"), (np.nan, "threshold=nan")):
+        with pytest.raises(ValueError, match=name):
+            hist.contact_area(bad)
+        with pytest.raises(ValueError, match=name):
+            r.contact_area(bad)
 
 
 def test_cli_run(tmp_path, capsys):
