@@ -329,15 +329,14 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog="gfmd-ref", description="GFMD reference solver: `gfmd-ref run` solves the paper's Fig. 1 scene (or "
                                      "a height map) and writes the pressure histogram (.npz, .csv, .png); "
-                                     "lengths are in the unit of the cell's side L. A command is required "
-                                     "(without one: a usage line and exit code 2).")
+                                     "lengths are in the unit of the cell's side L. Without a command: this help "
+                                     "(exit code 0).")
     try:
         ver = version("diffusion-pr")
     except PackageNotFoundError:  # pragma: no cover - source tree not installed
         ver = "unknown"
     parser.add_argument("--version", action="version", version=f"gfmd-ref (diffusion-pr {ver})")
-    sub = parser.add_subparsers(dest="command", required=True,
-                                metavar="{run,ensemble,ensemble-summary,ensemble-ingest,ensemble-bundle}")
+    sub = parser.add_subparsers(dest="command")
     add_run_arguments(sub.add_parser("run", help="solve the Fig. 1 scene, write the histogram"))
     add_ensemble_arguments(sub.add_parser("ensemble", help="run or resume an ensemble on Dask into a store"))
     ps = sub.add_parser("ensemble-summary", help="per-group table of an ensemble store")
@@ -366,7 +365,7 @@ def main(argv=None) -> int:
         try:
             print(load_ensemble(args.store).summary())
         except ValueError as exc:
-            print(f"error: {exc}", file=sys.stderr)
+            print(f"gfmd-ref: error: {exc}", file=sys.stderr)
             return 2
         return 0
     if args.command == "ensemble-ingest":
@@ -377,7 +376,7 @@ def main(argv=None) -> int:
             run = ingest_fields(args.fields, args.store, field_command=args.field_command, command=command,
                                 progress=not args.no_progress)
         except ValueError as exc:
-            print(f"error: {exc}", file=sys.stderr)
+            print(f"gfmd-ref: error: {exc}", file=sys.stderr)
             return 2
         return 0 if run.success else 1
     if args.command == "ensemble-bundle":
@@ -390,11 +389,12 @@ def main(argv=None) -> int:
                                       regenerate=args.regenerate,
                                       seeds=None if args.seeds is None else parse_seeds(args.seeds))
         except ValueError as exc:
-            print(f"error: {exc}", file=sys.stderr)
+            print(f"gfmd-ref: error: {exc}", file=sys.stderr)
             return 2
         print(f"wrote {path} ({size / 1e6:.2f} MB)")
         return 0
-    raise AssertionError(args.command)  # pragma: no cover - argparse allows only the commands above
+    parser.print_help()  # no command: the help, as `diffusion-pr` does
+    return 0
 
 
 if __name__ == "__main__":  # pragma: no cover

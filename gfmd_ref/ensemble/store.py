@@ -237,7 +237,7 @@ class EnsembleRecord:
         if unit not in ("grid", "paper"):
             raise ValueError(f"unit must be 'grid' or 'paper'; got unit={unit!r}")
         z = self.zeta
-        return None if z is None or unit == "grid" else z * 1024.0 / self.n
+        return z if z is None or unit == "grid" else z * 1024.0 / self.n
 
     @property
     def length(self) -> float:
