@@ -11,7 +11,8 @@ from typing import Optional
 
 import numpy as np
 
-from ._validation import check_int, check_real
+from ._validation import check_int, check_positive, check_real
+from .solvers import ContactResult
 
 __all__ = ["pressure_histogram", "PressureHistogram"]
 
@@ -132,10 +133,7 @@ class PressureHistogram:
         if np.ndim(bins) == 0:
             bins = check_int("bins", bins, minimum=1)
         n_quantiles = check_int("n_quantiles", n_quantiles, minimum=2)
-        if p_max is not None:
-            p_max = check_real("p_max", p_max, low=0.0)
-            if p_max == 0:
-                raise ValueError(f"p_max must be a finite number > 0; got p_max={p_max!r}")
+        p_max = None if p_max is None else check_positive("p_max", p_max)
         values = np.asarray(pressure, dtype=float).ravel()
         if values.size == 0 or not np.all(np.isfinite(values)):
             raise ValueError("pressure must be a non-empty array of finite values")
@@ -193,8 +191,6 @@ def pressure_histogram(result, bins=100, range=None, n_quantiles: int = 2049) ->
     n_quantiles : int
         Number of stored quantile levels (>= 2).
     """
-    from .solvers import ContactResult
-
     if not isinstance(result, ContactResult):
         raise TypeError("pressure_histogram needs a gfmd_ref.ContactResult (from solve_contact); got "
                         f"{type(result).__name__}: for a bare pressure array use "
