@@ -1,9 +1,14 @@
-"""Command line: ``gfmd-ref run`` solves the paper's Fig. 1 scene and writes the
-pressure histogram (``.npz``, ``.csv``, ``.png``); ``gfmd-ref ensemble`` runs (or
-resumes) an ensemble of cases on Dask into a store directory, ``gfmd-ref
+"""Command line: ``gfmd-ref run`` solves the paper's Fig. 1 scene (or a user's periodic
+height map, ``--heights``) and writes the pressure histogram (``.npz``, ``.csv``,
+``.png``); ``gfmd-ref ensemble`` runs (or resumes) an ensemble of cases on Dask into a
+store directory (exit code 1 if a case failed or did not converge), ``gfmd-ref
 ensemble-summary DIR`` prints its per-group table, ``gfmd-ref ensemble-ingest``
 reduces saved pressure fields into a store and ``gfmd-ref ensemble-bundle``
 writes compact package data from stores (see docs/ensembles.md).
+
+Lengths: the unit of the cell's side ``L``; for the Fig. 1 scene ``--length-unit grid``
+(default, ``L = n`` grid spacings, as :func:`~gfmd_ref.fig1_surface` and the ensemble
+store) or ``paper`` (grid spacings of the paper's 1024^2 system, ``L = 1024``).
 
 The same job is callable from Python: :func:`run_default_scene`, and another CLI
 can mount the sub-command with :func:`add_run_arguments` + :func:`run_from_args`.
@@ -337,8 +342,9 @@ def main(argv=None) -> int:
         ver = "unknown"
     parser.add_argument("--version", action="version", version=f"gfmd-ref (diffusion-pr {ver})")
     sub = parser.add_subparsers(dest="command")
-    add_run_arguments(sub.add_parser("run", help="solve the Fig. 1 scene, write the histogram"))
-    add_ensemble_arguments(sub.add_parser("ensemble", help="run or resume an ensemble on Dask into a store"))
+    add_run_arguments(sub.add_parser("run", help="solve the Fig. 1 scene or a height map, write the histogram"))
+    add_ensemble_arguments(sub.add_parser("ensemble", help="run or resume an ensemble on Dask into a store (exit code 1 "
+                                                       "if a case failed or did not converge)"))
     ps = sub.add_parser("ensemble-summary", help="per-group table of an ensemble store")
     ps.add_argument("store", help="store directory")
     pi = sub.add_parser("ensemble-ingest", help="reduce saved pressure fields (npz: pressure + meta) into a store")
