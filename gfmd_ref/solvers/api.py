@@ -73,7 +73,7 @@ class ContactResult:
     interaction: object
     mean_pressure: float
     E_star: float
-    length: float
+    length: float | tuple
     tol: float
     contact_threshold: float = 0.0
     info: dict = field(default_factory=dict)
