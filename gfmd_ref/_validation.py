@@ -30,24 +30,62 @@ def check_int(name: str, value, minimum: int = 1) -> int:
 
 
 def check_heights(heights) -> np.ndarray:
-    """A finite, square, 2-D float64 array (C-contiguous copy if needed)."""
+    """A finite 2-D float64 array of at least 2 x 2 points, one periodic cell (rows and
+    columns may differ; a C-contiguous copy if needed)."""
     try:
         h = np.asarray(heights, dtype=np.float64)
     except (TypeError, ValueError):
         raise ValueError(
-            f"heights must be a square 2-D array of finite real numbers; got {type(heights).__name__}"
+            f"heights must be a 2-D array of finite real numbers; got {type(heights).__name__}"
         ) from None
-    if h.ndim != 2 or h.shape[0] != h.shape[1]:
+    if h.ndim != 2 or min(h.shape) < 2:
         raise ValueError(
-            "heights must be a square 2-D array (n, n) describing one L x L periodic cell; "
-            f"got shape {h.shape}"
-        )
-    if h.shape[0] < 2:
-        raise ValueError(f"heights must be at least 2 x 2; got shape {h.shape}")
+            f"heights must be a 2-D array (rows, columns), each >= 2, of one periodic cell; got shape {h.shape}")
     if not np.all(np.isfinite(h)):
         bad = int(np.size(h) - np.count_nonzero(np.isfinite(h)))
         raise ValueError(f"heights must be finite; got {bad} NaN/inf value(s)")
     return np.ascontiguousarray(h)
+
+
+#: a map is periodic when its largest jump across the cell boundary is at most this
+#: multiple of its largest step between neighbours inside (per axis).
+PERIODIC_JUMP_LIMIT = 3.0
+
+
+def check_periodic(h: np.ndarray) -> None:
+    """Refuse a height map that is not one periodic cell.
+
+    The solvers treat ``heights`` as one period of an infinite surface, so the last
+    row (column) is a neighbour of the first. Rule, per axis: the largest jump across
+    that boundary must not exceed :data:`PERIODIC_JUMP_LIMIT` times the largest step
+    between neighbours inside the map (a tilted plane of ``n`` points has a ratio
+    ``n - 1``; a periodic random surface about 1).
+    """
+    for axis, name in ((0, "first (rows)"), (1, "second (columns)")):
+        inside = float(np.max(np.abs(np.diff(h, axis=axis))))
+        jump = float(np.max(np.abs(np.take(h, 0, axis=axis) - np.take(h, -1, axis=axis))))
+        if jump > PERIODIC_JUMP_LIMIT * inside:
+            raise ValueError(
+                f"heights is not periodic along its {name} axis: the jump across the boundary ({jump:.3g}) "
+                f"is {jump / inside if inside > 0 else float('inf'):.3g} times the largest step inside "
+                f"({inside:.3g}; allowed: <= {PERIODIC_JUMP_LIMIT:g}). Prepare measured data as one periodic "
+                "cell: remove the mean plane (detrend) and multiply by a window that goes to zero at the edges "
+                "(e.g. numpy.hanning along each axis), or pad it with zeros to twice its size; or pass "
+                "check_periodic=False to solve it as it is")
+
+
+#: the meaningful range of a solver tolerance (relative to p0): a residual of 10 % of
+#: p0 is already the coarsest answer worth calling converged.
+TOL_MAX = 0.1
+
+
+def check_tol(tol) -> float:
+    """A residual tolerance in ``(0, TOL_MAX]`` (relative to the mean pressure)."""
+    if isinstance(tol, (str, bytes, bool, np.bool_)) or not isinstance(tol, numbers.Real) \
+            or not math.isfinite(float(tol)) or not 0 < float(tol) <= TOL_MAX:
+        raise ValueError(f"tol must be a number in (0, {TOL_MAX:g}] (relative to the mean pressure p0); "
+                         f"got tol={tol!r}")
+    return float(tol)
 
 
 def check_real(name: str, value, *, low: float | None = None, high: float | None = None) -> float:

@@ -1,9 +1,14 @@
-"""Command line: ``gfmd-ref run`` solves the paper's Fig. 1 scene and writes the
-pressure histogram (``.npz``, ``.csv``, ``.png``); ``gfmd-ref ensemble`` runs (or
-resumes) an ensemble of cases on Dask into a store directory, ``gfmd-ref
+"""Command line: ``gfmd-ref run`` solves the paper's Fig. 1 scene (or a user's periodic
+height map, ``--heights``) and writes the pressure histogram (``.npz``, ``.csv``,
+``.png``); ``gfmd-ref ensemble`` runs (or resumes) an ensemble of cases on Dask into a
+store directory (exit code 1 if a case failed or did not converge), ``gfmd-ref
 ensemble-summary DIR`` prints its per-group table, ``gfmd-ref ensemble-ingest``
 reduces saved pressure fields into a store and ``gfmd-ref ensemble-bundle``
 writes compact package data from stores (see docs/ensembles.md).
+
+Lengths: the unit of the cell's side ``L``; for the Fig. 1 scene ``--length-unit grid``
+(default, ``L = n`` grid spacings, as :func:`~gfmd_ref.fig1_surface` and the ensemble
+store) or ``paper`` (grid spacings of the paper's 1024^2 system, ``L = 1024``).
 
 The same job is callable from Python: :func:`run_default_scene`, and another CLI
 can mount the sub-command with :func:`add_run_arguments` + :func:`run_from_args`.
@@ -20,18 +25,47 @@ import numpy as np
 
 from .histogram import pressure_histogram
 from .interactions import ExponentialRepulsion, HardWall
-from ._validation import check_int, check_writable_dir
+from ._validation import check_heights, check_int, check_positive, check_tol, check_writable_dir
 from .scene import FIG1, fig1_surface, zeta_on_grid
 from .solvers import ConvergenceWarning, solve_contact
 
 __all__ = ["main", "run_default_scene", "add_run_arguments", "run_from_args"]
 
 
+#: The paper's length unit (``--length-unit paper``), worded identically in ``diffusion-pr fig1 --help``.
+ZETA_UNIT = "grid spacings of the paper's 1024^2 Fig. 1 system"
+#: The units of ``--length-unit`` for the Fig. 1 scene: lengths (zeta) in units of the cell's L.
+LENGTH_UNITS = {"grid": "grid spacings of the solved n^2 grid (L = n)", "paper": f"{ZETA_UNIT} (L = 1024)"}
+
+
+def load_heights(path) -> np.ndarray:
+    """A 2-D height map from ``.npy`` or text (``.txt``, ``.csv``, ``.dat``: whitespace or
+    comma separated rows); ValueError naming the file otherwise."""
+    path = os.fspath(path)
+    try:
+        if path.endswith(".npy"):
+            h = np.load(path, allow_pickle=False)
+        else:
+            with open(path) as fh:
+                comma = "," in fh.read(4096)
+            h = np.loadtxt(path, delimiter="," if comma else None, ndmin=2)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"heights={path!r}: not a readable 2-D height map (.npy, or .txt/.csv rows): {exc}") from None
+    if h.ndim != 2:
+        raise ValueError(f"heights={path!r}: a 2-D height map is needed; got shape {h.shape}")
+    return h
+
+
 def run_default_scene(
     n: int = 256,
     *,
-    interaction: str = "hard",
-    zeta: float = 0.01,
+    interaction: str | None = None,
+    zeta: float | None = None,
+    length_unit: str = "grid",
+    heights=None,
+    length=None,
+    E_star: float | None = None,
+    mean_pressure: float | None = None,
     seed: int = 1,
     tol: float = 1e-8,
     method: str = "auto",
@@ -41,65 +75,102 @@ def run_default_scene(
     verbose: bool = True,
 ):
     """Solve the Fig. 1 scene (H = 0.3, rms slope 0.031, E* = 8/3, p0 = 0.004,
-    wavelengths L ... L/32) and write the pressure histogram.
+    wavelengths L ... L/32) or a user's height map, and write the pressure histogram.
 
     Parameters
     ----------
     n : int
-        Grid points per side (>= 2).
-    interaction : str
-        ``"hard"`` or ``"exp"`` (exponential repulsion, the paper's Eq. 7).
-    zeta : float
-        Decay length of the exponential wall in grid spacings of the paper's
-        1024^2 Fig. 1 system (the unit ``diffusion-pr fig1 --zetas`` uses).  The
-        scene is solved on :func:`~gfmd_ref.scene.fig1_surface` (``L = n``), so
-        the solver gets ``zeta * n / 1024`` (:func:`~gfmd_ref.scene.zeta_on_grid`).
+        Grid points per side of the Fig. 1 scene (>= 64: its shortest wavelength L/32 needs
+        two points).
+    interaction : {"hard", "exp"}, optional
+        Hard wall or exponential repulsion (the paper's Eq. 7). Default: ``"exp"`` when
+        ``zeta`` is given, else ``"hard"``; ``"hard"`` with a ``zeta`` is an error.
+    zeta : float, optional
+        Decay length of the exponential wall (default 0.01), in the unit of the cell's
+        side L: for the Fig. 1 scene set by ``length_unit``, for a height map the unit of
+        ``length``.
+    length_unit : {"grid", "paper"}
+        Fig. 1 scene only: ``"grid"`` (default), lengths in grid spacings of the solved
+        ``n x n`` grid (``L = n``, as :func:`~gfmd_ref.fig1_surface` and the ensembles);
+        ``"paper"``, in grid spacings of the paper's 1024^2 system (``L = 1024``; the
+        solver gets ``zeta * n / 1024``, :func:`~gfmd_ref.scene.zeta_on_grid`).
+    heights : array or path, optional
+        A periodic height map (or a ``.npy``/``.txt``/``.csv`` file of one) instead of the
+        Fig. 1 scene; rows and columns may differ (:func:`~gfmd_ref.solve_contact`).
+    length : float or (float, float), optional
+        With ``heights``: the map's side along its first axis or both sides, in the user's
+        length unit (default: the number of rows, i.e. lengths in grid spacings).
+    E_star, mean_pressure : float, optional
+        Contact modulus and mean pressure (default: the paper's 8/3 and 0.004).
     seed : int
-        Surface seed.
+        Surface seed (Fig. 1 scene).
     tol : float
-        Residual tolerance relative to p0.
+        Residual tolerance relative to p0, in (0, 0.1].
     out_dir : path or None
         Output folder, checked for writability before the solve; None writes nothing.
 
     Returns ``(result, histogram, paths)``; ``paths`` maps "npz", "csv", "png" to the
-    written files (empty if ``out_dir`` is None).
+    written files (empty if ``out_dir`` is None). Bad input raises ValueError before any
+    solve.
     """
-    n = check_int("n", n, minimum=2)
-    if interaction in ("hard", "hardwall", "hard-wall"):
-        inter = HardWall()
-    elif interaction in ("exp", "exponential"):
-        inter = ExponentialRepulsion(zeta_on_grid(zeta, n))
+    if interaction is None:
+        interaction = "hard" if zeta is None else "exp"
+    if interaction not in ("hard", "exp"):
+        raise ValueError(f"interaction must be 'hard' or 'exp'; got interaction={interaction!r}")
+    if interaction == "hard" and zeta is not None:
+        raise ValueError(f"zeta={zeta!r} is the range of the exponential wall: use interaction 'exp' "
+                         "(or omit it: a zeta implies the exponential wall)")
+    if length_unit not in LENGTH_UNITS:
+        raise ValueError(f"length_unit must be one of {tuple(LENGTH_UNITS)}; got length_unit={length_unit!r}")
+    zeta = 0.01 if zeta is None else check_positive("zeta", zeta)
+    tol = check_tol(tol)
+    E_star = FIG1["E_star"] if E_star is None else check_positive("E_star", E_star)
+    p0 = FIG1["mean_pressure"] if mean_pressure is None else check_positive("mean_pressure", mean_pressure)
+    if heights is None:
+        if length is not None:
+            raise ValueError("length applies to a height map (heights=...); the Fig. 1 scene's L is set by "
+                             "length_unit")
+        n = check_int("n", n, minimum=2)
+        z_solver = zeta_on_grid(zeta, n) if length_unit == "paper" else zeta
+        unit = LENGTH_UNITS[length_unit]
+        name = f"fig1_{{}}_n{n}_seed{seed}"
+        scene = f"Fig. 1 surface, n={n}, seed={seed}"
     else:
-        raise ValueError(f"interaction must be 'hard' or 'exp'; got {interaction!r}")
+        if length_unit != "grid":
+            raise ValueError(f"length_unit={length_unit!r} applies to the Fig. 1 scene; a height map's lengths are "
+                             "in the unit of length")
+        src = heights
+        heights = load_heights(heights) if isinstance(heights, (str, os.PathLike)) else heights
+        h = check_heights(heights)
+        length = float(h.shape[0]) if length is None else length
+        z_solver, unit = zeta, "the unit of the map's length"
+        stem = os.path.splitext(os.path.basename(os.fspath(src)))[0] if isinstance(src, (str, os.PathLike)) else "map"
+        name = stem + f"_{{}}_{h.shape[0]}x{h.shape[1]}"
+        scene = f"height map {stem}, {h.shape[0]} x {h.shape[1]}, length {length}"
+    inter = HardWall() if interaction == "hard" else ExponentialRepulsion(z_solver)
     if out_dir is not None:
         out_dir = check_writable_dir("out_dir", out_dir)
-    h, length = fig1_surface(n, seed=seed)
-    p0 = FIG1["mean_pressure"]
-    res = solve_contact(
-        h,
-        length=length,
-        E_star=FIG1["E_star"],
-        mean_pressure=p0,
-        interaction=inter,
-        tol=tol,
-        method=method,
-        progress=progress,
-    )
+    if heights is None:
+        h, length = fig1_surface(n, seed=seed)
+    res = solve_contact(h, length=length, E_star=E_star, mean_pressure=p0, interaction=inter, tol=tol,
+                        method=method, progress=progress)
     pmax = float(res.pressure.max())
     hist = pressure_histogram(res, bins=bins, range=(0.0, pmax) if pmax > 0 else None)
     paths = {}
-    label = "hard" if isinstance(inter, HardWall) else f"exp_zeta{zeta:g}"
+    label = "hard" if interaction == "hard" else f"exp_zeta{zeta:g}" + ("" if heights is not None else f"{length_unit}")
     if out_dir is not None:
-        stem = os.path.join(out_dir, f"fig1_{label}_n{n}_seed{seed}")
+        stem = os.path.join(out_dir, name.format(label))
         meta = dict(
-            n=n, seed=seed, interaction=label, tol=tol, method=res.method,
-            zeta_fig1_units=None if isinstance(inter, HardWall) else zeta,
-            zeta_grid_units=None if isinstance(inter, HardWall) else inter.zeta,
-            E_star=FIG1["E_star"], mean_pressure=p0, hurst=FIG1["hurst"],
-            rms_slope=FIG1["rms_slope"], contact_fraction=res.contact_fraction,
+            scene=scene, interaction=label, tol=tol, method=res.method,
+            zeta=None if interaction == "hard" else zeta, zeta_unit=None if interaction == "hard" else unit,
+            zeta_solver=None if interaction == "hard" else z_solver, length=res.length,
+            E_star=E_star, mean_pressure=p0, contact_fraction=res.contact_fraction,
+            contact_threshold=res.contact_threshold,
             iterations=res.iterations, residual=res.residual, converged=res.converged,
             wall_time=res.wall_time, zero_weight=hist.zero_weight,
         )
+        if heights is None:
+            meta.update(n=n, seed=seed, hurst=FIG1["hurst"], rms_slope=FIG1["rms_slope"])
         np.savez(
             stem + "_histogram.npz", edges=hist.edges, centers=hist.centers,
             density=hist.density, counts=hist.counts, zero_weight=hist.zero_weight,
@@ -119,12 +190,11 @@ def run_default_scene(
 
         fig, ax = plt.subplots(figsize=(5.5, 4))
         m = hist.density > 0
-        ax.semilogy(hist.centers[m], hist.density[m], "o-", ms=3,
-                    label=f"GFMD {label}, n={n}")
+        ax.semilogy(hist.centers[m], hist.density[m], "o-", ms=3, label=f"GFMD {label}")
         ax.set_xlabel("local pressure p")
         ax.set_ylabel("Pr(p) (continuous part)")
-        ax.set_title(f"Fig. 1 scene: contact fraction {res.contact_fraction:.4f}, "
-                     f"zero weight {hist.zero_weight:.3f}", fontsize=9)
+        ax.set_title(f"{scene}: contact fraction {res.contact_fraction:.4f}, "
+                     f"zero weight {hist.zero_weight:.3f}", fontsize=8)
         ax.legend(fontsize=8)
         fig.tight_layout()
         fig.savefig(stem + "_histogram.png", dpi=120)
@@ -132,11 +202,11 @@ def run_default_scene(
         paths = dict(npz=stem + "_histogram.npz", csv=stem + "_histogram.csv",
                      png=stem + "_histogram.png")
     if verbose:
-        print(f"scene: Fig. 1 surface, n={n}, seed={seed}, interaction={label}, "
-              f"E*={FIG1['E_star']:.6g}, p0={p0}")
+        wall = "hard wall" if interaction == "hard" else f"exponential wall, zeta={zeta:g} in {unit}"
+        print(f"scene: {scene}, {wall}, E*={E_star:.6g}, p0={p0}")
         print(f"method:           {res.method}")
         print(f"converged:        {res.converged}")
-        print(f"contact fraction: {res.contact_fraction:.6f}")
+        print(f"contact fraction: {res.contact_fraction:.6f} (p > {res.contact_threshold:.3g})")
         print(f"iterations:       {res.iterations}")
         print(f"residual:         {res.residual:.3e} (tol {tol:.1e}, relative to p0)")
         print(f"wall time:        {res.wall_time:.3f} s")
@@ -145,21 +215,38 @@ def run_default_scene(
     return res, hist, paths
 
 
-#: The unit of ``--zeta``, worded identically in ``diffusion-pr fig1 --help``.
-ZETA_UNIT = "grid spacings of the paper's 1024^2 Fig. 1 system"
+def _length_arg(text: str):
+    parts = [float(v) for v in text.split(",")]
+    if len(parts) not in (1, 2):
+        raise ValueError(text)
+    return parts[0] if len(parts) == 1 else tuple(parts)
 
 
 def add_run_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add the ``run`` options to an (sub)parser."""
-    parser.add_argument("--n", type=int, default=256, help="grid points per side (default: 256)")
-    parser.add_argument("--interaction", choices=["hard", "exp"], default="hard",
-                        help="hard wall or exponential repulsion (default: hard)")
-    parser.add_argument("--zeta", type=float, default=0.01,
-                        help=f"decay length of the exponential wall, in {ZETA_UNIT}, "
-                             "with --interaction exp (default: 0.01)")
-    parser.add_argument("--seed", type=int, default=1, help="surface seed, integer >= 0 (default: 1)")
+    parser.add_argument("--n", type=int, default=256,
+                        help="grid points per side of the Fig. 1 scene, >= 64 (default: 256)")
+    parser.add_argument("--heights", default=None,
+                        help="solve this periodic height map (.npy, or .txt/.csv rows; rows and columns may differ) "
+                             "instead of the Fig. 1 scene (default: the Fig. 1 scene)")
+    parser.add_argument("--length", type=_length_arg, default=None,
+                        help="with --heights: the map's side along its first axis (same spacing along the second), "
+                             "or 'Lx,Ly', in the user's length unit (default: the number of rows, i.e. grid spacings)")
+    parser.add_argument("--length-unit", choices=list(LENGTH_UNITS), default="grid",
+                        help="Fig. 1 scene: the unit of --zeta (the unit of the cell's side L): grid = "
+                             f"{LENGTH_UNITS['grid']}; paper = {LENGTH_UNITS['paper']} (default: grid)")
+    parser.add_argument("--interaction", choices=["hard", "exp"], default=None,
+                        help="hard wall or exponential repulsion (default: exp if --zeta is given, else hard)")
+    parser.add_argument("--zeta", type=float, default=None,
+                        help="decay length of the exponential wall (implies --interaction exp), in the unit of "
+                             f"--length-unit (grid: {LENGTH_UNITS['grid']}; paper: {ZETA_UNIT}) or, with "
+                             "--heights, of --length (default: 0.01)")
+    parser.add_argument("--E-star", type=float, default=None, help="contact modulus E* (default: the paper's 8/3)")
+    parser.add_argument("--mean-pressure", type=float, default=None,
+                        help="mean pressure p0, in the unit of E* (default: the paper's 0.004)")
+    parser.add_argument("--seed", type=int, default=1, help="Fig. 1 surface seed, integer >= 0 (default: 1)")
     parser.add_argument("--tol", type=float, default=1e-8,
-                        help="residual tolerance, relative to p0 (dimensionless; default: 1e-8)")
+                        help="residual tolerance, relative to p0, in (0, 0.1] (dimensionless; default: 1e-8)")
     parser.add_argument("--method", choices=["auto", "ccg", "pk", "newton", "fire"], default="auto",
                         help="solver: ccg (preconditioned constrained CG), pk (plain Polonsky-Keer), fire "
                              "(hard wall); newton, fire (exponential wall) (default: auto = ccg / newton)")
@@ -173,8 +260,9 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParse
 def run_from_args(args) -> int:
     try:
         res, _, _ = run_default_scene(
-            args.n, interaction=args.interaction, zeta=args.zeta, seed=args.seed,
-            tol=args.tol, method=args.method, bins=args.bins, out_dir=args.out,
+            args.n, interaction=args.interaction, zeta=args.zeta, length_unit=args.length_unit,
+            heights=args.heights, length=args.length, E_star=args.E_star, mean_pressure=args.mean_pressure,
+            seed=args.seed, tol=args.tol, method=args.method, bins=args.bins, out_dir=args.out,
             progress=args.progress,
         )
     except ValueError as exc:
@@ -189,10 +277,12 @@ def add_ensemble_arguments(parser: argparse.ArgumentParser) -> argparse.Argument
     parser.add_argument("--n", default="1024", help="grid size(s), comma separated (default 1024; L = n)")
     parser.add_argument("--seeds", default="1-4", help="surface seeds, e.g. 1-64 or 1,3,5-7 (default 1-4)")
     parser.add_argument("--walls", default="hard",
-                        help="walls: 'hard' and/or exponential ranges zeta, in grid spacings of the solved n^2 grid "
-                             "(L = n; the same as the run command's unit at n = 1024, where the paper's system "
-                             "is solved; the same physical wall at another n is zeta * n / 1024), "
+                        help="walls: 'hard' and/or exponential ranges zeta in the unit of --length-unit, "
                              "e.g. hard,4,0.25 (default: hard)")
+    parser.add_argument("--length-unit", choices=list(LENGTH_UNITS), default="grid",
+                        help=f"the unit of the zeta of --walls (the unit of the cell's side L): grid = "
+                             f"{LENGTH_UNITS['grid']}, paper = {LENGTH_UNITS['paper']}, converted to zeta * n / 1024 "
+                             "on each grid; the store records zeta in grid spacings with L = n (default: grid)")
     parser.add_argument("--mean-pressures", default=None,
                         help="loads p0, comma separated (default the paper's 0.004)")
     parser.add_argument("--E-star", type=float, default=None, help="contact modulus (default 8/3)")
@@ -225,31 +315,36 @@ def ensemble_from_args(args, argv=None) -> int:
         ns = [int(v) if v.strip().lstrip("-").isdigit() else v for v in str(args.n).split(",")]
         loads = None if args.mean_pressures is None else args.mean_pressures.split(",")
         command = "gfmd-ref " + " ".join(sys.argv[1:] if argv is None else argv)
-        run = run_ensemble(args.store, n=ns, seeds=args.seeds, walls=args.walls, mean_pressures=loads,
+        run = run_ensemble(args.store, n=ns, seeds=args.seeds, walls=args.walls, length_unit=args.length_unit,
+                           mean_pressures=loads,
                            surface=surface, E_star=args.E_star, tol=args.tol, method=args.method,
                            workers=args.workers, threads_per_worker=args.threads_per_worker,
                            scheduler=args.scheduler, serial=args.serial, progress=not args.no_progress,
                            command=command)
     except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"gfmd-ref: error: {exc}", file=sys.stderr)
         return 2
-    return 0 if run.success else 1
+    # like `run`: a case that did not converge is not a success (it stays in the store, marked)
+    return 0 if run.success and run.n_not_converged == 0 else 1
 
 
 def main(argv=None) -> int:
     from importlib.metadata import PackageNotFoundError, version
 
     parser = argparse.ArgumentParser(
-        prog="gfmd-ref", description="GFMD reference solver: `gfmd-ref run` solves the paper's Fig. 1 scene and "
-                                     "writes the pressure histogram (.npz, .csv, .png).")
+        prog="gfmd-ref", description="GFMD reference solver: `gfmd-ref run` solves the paper's Fig. 1 scene (or "
+                                     "a height map) and writes the pressure histogram (.npz, .csv, .png); "
+                                     "lengths are in the unit of the cell's side L. Without a command: this help "
+                                     "(exit code 0).")
     try:
         ver = version("diffusion-pr")
     except PackageNotFoundError:  # pragma: no cover - source tree not installed
         ver = "unknown"
     parser.add_argument("--version", action="version", version=f"gfmd-ref (diffusion-pr {ver})")
     sub = parser.add_subparsers(dest="command")
-    add_run_arguments(sub.add_parser("run", help="solve the Fig. 1 scene, write the histogram"))
-    add_ensemble_arguments(sub.add_parser("ensemble", help="run or resume an ensemble on Dask into a store"))
+    add_run_arguments(sub.add_parser("run", help="solve the Fig. 1 scene or a height map, write the histogram"))
+    add_ensemble_arguments(sub.add_parser("ensemble", help="run or resume an ensemble on Dask into a store (exit code 1 "
+                                                       "if a case failed or did not converge)"))
     ps = sub.add_parser("ensemble-summary", help="per-group table of an ensemble store")
     ps.add_argument("store", help="store directory")
     pi = sub.add_parser("ensemble-ingest", help="reduce saved pressure fields (npz: pressure + meta) into a store")
@@ -276,7 +371,7 @@ def main(argv=None) -> int:
         try:
             print(load_ensemble(args.store).summary())
         except ValueError as exc:
-            print(f"error: {exc}", file=sys.stderr)
+            print(f"gfmd-ref: error: {exc}", file=sys.stderr)
             return 2
         return 0
     if args.command == "ensemble-ingest":
@@ -287,7 +382,7 @@ def main(argv=None) -> int:
             run = ingest_fields(args.fields, args.store, field_command=args.field_command, command=command,
                                 progress=not args.no_progress)
         except ValueError as exc:
-            print(f"error: {exc}", file=sys.stderr)
+            print(f"gfmd-ref: error: {exc}", file=sys.stderr)
             return 2
         return 0 if run.success else 1
     if args.command == "ensemble-bundle":
@@ -300,12 +395,12 @@ def main(argv=None) -> int:
                                       regenerate=args.regenerate,
                                       seeds=None if args.seeds is None else parse_seeds(args.seeds))
         except ValueError as exc:
-            print(f"error: {exc}", file=sys.stderr)
+            print(f"gfmd-ref: error: {exc}", file=sys.stderr)
             return 2
         print(f"wrote {path} ({size / 1e6:.2f} MB)")
         return 0
-    parser.print_help()
-    return 2
+    parser.print_help()  # no command: the help, as `diffusion-pr` does
+    return 0
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -25,6 +25,7 @@ FIG1 = dict(hurst=0.3, rms_slope=0.031, E_star=8.0 / 3.0, mean_pressure=0.004, n
 def fig1_surface(n: int = 1024, seed=1):
     """Fig. 1 surface on an ``n x n`` grid (``length = n``, ``q_min = 2 pi/n``,
     ``q_max = 32 q_min``, ``H = 0.3``, rms slope 0.031). Returns ``(heights, length)``.
+    ``n >= 64``: the shortest wavelength ``n/32`` must span two grid points.
 
     Lengths are in grid spacings of *this* grid (``length = n``).  The contact
     problem is scale invariant (fixed rms slope, E* and p0), so this is the
@@ -32,6 +33,9 @@ def fig1_surface(n: int = 1024, seed=1):
     paper's unit converts with :func:`zeta_on_grid`.
     """
     n = check_int("n", n, minimum=2)
+    if n < 2 * FIG1["n_waves"]:
+        raise ValueError(f"n must be >= {2 * FIG1['n_waves']}: the Fig. 1 roughness's shortest wavelength, "
+                         f"L/{FIG1['n_waves']}, needs 2 grid points (Nyquist); got n={n}")
     length = float(n)
     qmin = 2.0 * math.pi / length
     h = self_affine_surface(

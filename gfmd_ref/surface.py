@@ -13,7 +13,7 @@ import math
 import numpy as np
 import scipy.fft as sfft
 
-from ._validation import check_int, check_positive, check_real, check_seed
+from ._validation import check_heights, check_int, check_positive, check_real, check_seed
 
 __all__ = ["self_affine_surface", "wavevector_magnitude", "spectral_rms_slope"]
 
@@ -25,9 +25,13 @@ def wavevector_magnitude(n: int, length: float) -> np.ndarray:
 
 
 def spectral_rms_slope(heights: np.ndarray, length: float) -> float:
-    """Full rms gradient ``sqrt(<|grad h|^2>) = sqrt(sum_q q^2 |h~(q)|^2)`` of a periodic array."""
-    h = np.asarray(heights, dtype=np.float64)
+    """Full rms gradient ``sqrt(<|grad h|^2>) = sqrt(sum_q q^2 |h~(q)|^2)`` of a periodic
+    square ``(n, n)`` array of side ``length`` [length, > 0] (dimensionless)."""
+    h = check_heights(heights)
+    length = check_positive("length", length)
     n = h.shape[0]
+    if h.shape[1] != n:
+        raise ValueError(f"heights must be a square (n, n) array; got shape {h.shape}")
     ht = sfft.fft2(h) / h.size
     q = wavevector_magnitude(n, length)
     return float(np.sqrt(np.sum(q**2 * np.abs(ht) ** 2)))
@@ -61,7 +65,9 @@ def self_affine_surface(
     hurst : float
         Hurst exponent ``H`` in ``[0, 1]``.
     q_min, q_max : float
-        Band limits ``0 < q_min < q_max`` (inclusive).
+        Band limits ``0 < q_min < q_max`` (inclusive) [1/length]. ``q_max`` must not
+        exceed the grid's Nyquist wavenumber ``pi / dx = pi n / length``: shorter waves
+        are not representable on the grid (ValueError).
     rms_slope, h_rms : float
         Exactly one must be given. ``rms_slope`` is the full ``sqrt(<|grad h|^2>)``,
         evaluated spectrally from the realised modes (``sum_q q^2 |h~(q)|^2``);
@@ -93,6 +99,10 @@ def self_affine_surface(
     q_max = check_positive("q_max", q_max)
     if not q_max > q_min:
         raise ValueError(f"q_max must be > q_min (= {q_min!r}); got q_max={q_max!r}")
+    nyquist = math.pi * n / length
+    if q_max > nyquist * (1 + 1e-12):
+        raise ValueError(f"q_max must be <= the grid's Nyquist wavenumber pi n / length = {nyquist:.6g} "
+                         f"(n={n}, length={length!r}); got q_max={q_max!r}: use n >= {math.ceil(q_max * length / math.pi)}")
     if (rms_slope is None) == (h_rms is None):
         raise ValueError(
             "exactly one of rms_slope and h_rms must be given; got "

@@ -33,6 +33,7 @@ from typing import Optional
 
 import numpy as np
 
+from .._validation import check_tol, check_writable_dir
 from .store import (
     Ensemble,
     _parse_wall,
@@ -231,8 +232,12 @@ def _floats(name, values) -> list:
 
 def build_cases(*, n=1024, seeds=(1,), walls=("hard",), mean_pressures=None, surface: Optional[EnsembleSurface] = None,
                 E_star: Optional[float] = None, tol: float = 1e-6, method: str = "auto",
-                max_iter: Optional[int] = None) -> list:
+                max_iter: Optional[int] = None, length_unit: str = "grid") -> list:
     """The case grid (list of parameter dicts), every parameter checked.
+
+    Lengths: a case's cell is ``L = n`` grid spacings and its ``zeta`` is in that unit.
+    ``length_unit="paper"`` reads the zetas of ``walls`` in grid spacings of the paper's
+    1024^2 system (``L = 1024``) and converts them to ``zeta * n / 1024`` on each grid.
 
     ``max_iter`` (default: the solver's) enters the parameters, hence the key,
     only when given: rerunning non-converged cases with a larger ``max_iter`` makes
@@ -258,9 +263,9 @@ def build_cases(*, n=1024, seeds=(1,), walls=("hard",), mean_pressures=None, sur
     walls = parse_walls(walls)
     loads = _floats("mean_pressures", FIG1_MEAN_PRESSURE if mean_pressures is None else mean_pressures)
     E = _floats("E_star", FIG1_E_STAR if E_star is None else E_star)[0]
-    tol = _floats("tol", tol)[0]
-    if tol >= 1:
-        raise ValueError(f"tol must be in (0, 1) (relative to p0); got {tol!r}")
+    tol = check_tol(tol)
+    if length_unit not in ("grid", "paper"):
+        raise ValueError(f"length_unit must be 'grid' or 'paper'; got length_unit={length_unit!r}")
     allowed = ("auto", "ccg", "newton", "fire")
     if method not in allowed:
         raise ValueError(f"method must be one of {allowed}; got {method!r}")
@@ -277,6 +282,8 @@ def build_cases(*, n=1024, seeds=(1,), walls=("hard",), mean_pressures=None, sur
         for p0 in loads:
             for s in seeds:
                 for z in walls:
+                    if z is not None and length_unit == "paper":
+                        z = z * nn / 1024.0
                     cases.append(dict(n=nn, length=float(nn), seed=s, zeta=z, mean_pressure=p0, E_star=E,
                                       surface=surface.as_dict(), tol=tol, method=method, **extra))
     return cases
@@ -377,6 +384,25 @@ def _local_cluster(workers: Optional[int], threads: int):
     return Client(cluster), cluster, f"local cluster: {workers} worker(s) x 1 case, {threads} FFT thread(s) each"
 
 
+def _probe_scheduler(address: str, timeout: float = 2.0) -> None:
+    """ValueError naming ``address`` unless a TCP connection to it opens within ``timeout`` s."""
+    import socket
+    from urllib.parse import urlsplit
+
+    try:
+        url = urlsplit(address if "://" in address else "tcp://" + address)
+        host_, port = url.hostname, url.port
+    except ValueError:
+        host_ = port = None
+    if url.scheme != "tcp" or not host_ or port is None:
+        return  # another transport (tls://, inproc://, ...): Dask reports it
+    try:
+        socket.create_connection((host_, port), timeout=timeout).close()
+    except OSError as exc:
+        raise ValueError(f"scheduler={address!r}: no Dask scheduler accepts connections there "
+                         f"({exc.strerror or exc}); start one (dask scheduler) or omit --scheduler") from None
+
+
 def _write_manifest(store: Path, entry: dict) -> None:
     store.mkdir(parents=True, exist_ok=True)
     man = store / "ensemble.json"
@@ -388,7 +414,7 @@ def _write_manifest(store: Path, entry: dict) -> None:
     os.replace(tmp, man)
 
 
-def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), mean_pressures=None,
+def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), length_unit: str = "grid", mean_pressures=None,
                  surface: Optional[EnsembleSurface] = None, E_star: Optional[float] = None, tol: float = 1e-6,
                  method: str = "auto", max_iter: Optional[int] = None, workers: Optional[int] = None,
                  threads_per_worker: Optional[int] = None,
@@ -405,7 +431,12 @@ def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), mean_pressures=
     seeds : str, int or sequence
         Surface seeds, e.g. ``"1-64"``.
     walls : str or sequence
-        ``"hard"`` and/or exponential-wall ranges ``zeta`` [grid units], e.g. ``"hard,4,0.25"``.
+        ``"hard"`` and/or exponential-wall ranges ``zeta`` in the unit of ``length_unit``,
+        e.g. ``"hard,4,0.25"``.
+    length_unit : {"grid", "paper"}
+        ``"grid"`` (default): grid spacings of each solved grid (``L = n``); ``"paper"``: grid
+        spacings of the paper's 1024^2 system, stored as ``zeta * n / 1024`` (records keep
+        ``zeta`` in units of their ``L = n``; :meth:`EnsembleRecord.zeta_in`).
     mean_pressures : float or sequence, optional
         Loads ``p0`` [units of E*] (default the paper's 0.004).
     surface : EnsembleSurface, optional
@@ -417,7 +448,8 @@ def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), mean_pressures=
     workers, threads_per_worker : int, optional
         Local cluster size (default: one single-threaded worker per core).
     scheduler : str, optional
-        Address of a running Dask scheduler (``tcp://host:8786``).
+        Address of a running Dask scheduler (``tcp://host:8786``); one that does not
+        accept a connection within 2 s is a ValueError before anything is computed.
     client : dask.distributed.Client, optional
         An existing client (takes precedence over ``scheduler``).
     serial : bool
@@ -430,10 +462,16 @@ def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), mean_pressures=
     Returns
     -------
     EnsembleRun
+
+    Raises
+    ------
+    ValueError
+        Bad parameters, an unwritable ``store`` or an unreachable ``scheduler``, before
+        any case is computed.
     """
     t0 = time.perf_counter()
     cases = build_cases(n=n, seeds=seeds, walls=walls, mean_pressures=mean_pressures, surface=surface,
-                        E_star=E_star, tol=tol, method=method, max_iter=max_iter)
+                        E_star=E_star, tol=tol, method=method, max_iter=max_iter, length_unit=length_unit)
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, numbers.Integral) or workers < 1):
         raise ValueError(f"workers must be an integer >= 1; got {workers!r}")
     if threads_per_worker is not None and (isinstance(threads_per_worker, bool)
@@ -446,6 +484,9 @@ def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), mean_pressures=
     store = Path(store)
     if store.exists() and not store.is_dir():
         raise ValueError(f"store must be a directory; {str(store)!r} is a file")
+    check_writable_dir("store", store)
+    if scheduler is not None and client is None and not serial:
+        _probe_scheduler(scheduler)
     out = stream if stream is not None else sys.stdout
     done = store_keys(store)
     todo = [c for c in cases if case_key(c) not in done]
@@ -464,7 +505,8 @@ def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), mean_pressures=
     store.mkdir(parents=True, exist_ok=True)
     if todo:
         _write_manifest(store, dict(command=command, started=prov["run_started"], n_cases=len(cases),
-                                    n_skipped=skipped, code=prov["code"], host=host()))
+                                    n_skipped=skipped, code=prov["code"], host=host(), length_unit=length_unit,
+                                    zeta_unit="grid spacings of each record's grid (L = n)"))
     bar = None
     if progress and todo:
         from tqdm.auto import tqdm

@@ -190,7 +190,7 @@ class EnsembleRecord:
     """One case of an ensemble (read from a store or from bundled data).
 
     ``quantiles`` are the pressures [pressure units] at ``levels``; ``zeta`` is
-    ``None`` for the hard wall; ``contact_fraction`` uses the solver's definition;
+    ``None`` for the hard wall, else in the unit of ``length`` (grid spacings, ``L = n``); ``contact_fraction`` uses the solver's definition;
     ``provenance`` says how the number was made. Records of bundled data have no
     histogram (``hist_counts is None``) and ``spectrum_q`` may be ``None``.
     """
@@ -230,6 +230,14 @@ class EnsembleRecord:
     @property
     def n(self) -> int:
         return int(self.params["n"])
+
+    def zeta_in(self, unit: str = "grid") -> Optional[float]:
+        """The wall range in ``"grid"`` spacings of this record's grid (as stored, ``L = n``)
+        or in ``"paper"`` grid spacings of the 1024^2 Fig. 1 system (``zeta * 1024 / n``)."""
+        if unit not in ("grid", "paper"):
+            raise ValueError(f"unit must be 'grid' or 'paper'; got unit={unit!r}")
+        z = self.zeta
+        return z if z is None or unit == "grid" else z * 1024.0 / self.n
 
     @property
     def length(self) -> float:
@@ -317,13 +325,17 @@ def write_record(store: os.PathLike | str, params: dict, provenance: dict, reduc
 
 
 def read_record(path: os.PathLike | str) -> EnsembleRecord:
-    """Read one record file."""
-    with np.load(path, allow_pickle=False) as z:
-        params = json.loads(str(z["params"]))
-        prov = json.loads(str(z["provenance"]))
-        scal = json.loads(str(z["scalars"]))
-        arr = {k: (np.array(z[k]) if k in z.files else None) for k in _ARRAYS}
-    return EnsembleRecord(key=case_key(params), params=params, provenance=prov, **arr, **scal)
+    """Read one record file; ValueError naming the file if it is not a readable record."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            params = json.loads(str(z["params"]))
+            prov = json.loads(str(z["provenance"]))
+            scal = json.loads(str(z["scalars"]))
+            arr = {k: (np.array(z[k]) if k in z.files else None) for k in _ARRAYS}
+        return EnsembleRecord(key=case_key(params), params=params, provenance=prov, **arr, **scal)
+    except Exception as exc:  # zip, npy, JSON or field errors of a damaged or foreign file
+        raise ValueError(f"{os.fspath(path)!r} is not a readable ensemble record ({type(exc).__name__}: {exc}); "
+                         "delete it (its case is recomputed by the next run) or move it out of the store") from None
 
 
 def store_keys(store: os.PathLike | str) -> set:
@@ -523,7 +535,8 @@ class Ensemble:
         """The per-group table as text (what ``gfmd-ref ensemble-summary`` prints)."""
         rows = self.summary_rows()
         lines = [f"ensemble: {self.source or '(in memory)'}: {len(self.records)} records in {len(rows)} groups; "
-                 f"{self.n_not_converged} not converged (excluded from every reduction)",
+                 f"{self.n_not_converged} not converged (excluded from every reduction); "
+                 "wall zeta in grid spacings of the record's grid (L = n)",
                  f"{'n':>5} {'p0':>8} {'wall':>10} {'seeds':>5} {'not conv':>8} "
                  f"{'contact frac (sd)':>20} {'sd/p0 (sd)':>16} {'skewness (sd)':>16} {'med it':>7} {'med s':>7}"]
         for r in rows:

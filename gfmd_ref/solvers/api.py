@@ -18,7 +18,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validation import check_heights, check_int, check_positive
+from .._validation import check_heights, check_int, check_positive, check_real, check_tol
+from .._validation import check_periodic as _check_periodic
 from ..fft import check_threads
 from ..interactions import ExponentialRepulsion, HardWall
 from .ccg import ccg
@@ -50,9 +51,10 @@ class ContactResult:
     """Solution of one contact problem.
 
     ``pressure`` has mean ``mean_pressure`` to round-off (load control), ``gap =
-    displacement - heights``. ``contact_fraction``: hard wall, fraction of nodes with
-    ``pressure > 0``; exponential wall, fraction with ``pressure > contact_threshold``
-    (``EXP_CONTACT_THRESHOLD * p0 = 0.01 p0``). ``iterations`` counts the costly
+    displacement - heights``. ``contact_fraction`` is :meth:`contact_area` at its default
+    threshold ``contact_threshold``: hard wall, fraction of nodes with ``pressure > 0``;
+    exponential wall, fraction with ``pressure > EXP_CONTACT_THRESHOLD * p0 = 0.01 p0``.
+    ``length`` is the cell side ``L`` (a float) or ``(Lx, Ly)`` for a rectangular cell. ``iterations`` counts the costly
     operator applications (one FFT pair each: CG/FIRE steps, Newton line-search
     evaluations). ``residual`` is relative to ``mean_pressure`` (see module doc).
     """
@@ -71,10 +73,17 @@ class ContactResult:
     interaction: object
     mean_pressure: float
     E_star: float
-    length: float
+    length: float | tuple
     tol: float
     contact_threshold: float = 0.0
     info: dict = field(default_factory=dict)
+
+    def contact_area(self, threshold: float | None = None) -> float:
+        """Relative contact area: the fraction of nodes with ``pressure > threshold``
+        [pressure]; default :attr:`contact_threshold` (hard wall 0, exponential wall
+        ``EXP_CONTACT_THRESHOLD * mean_pressure``)."""
+        thr = self.contact_threshold if threshold is None else check_real("threshold", threshold, low=0.0)
+        return float(np.count_nonzero(self.pressure > thr)) / self.pressure.size
 
 
 def _full_contact_hard(h, p0, el):
@@ -108,6 +117,7 @@ def solve_contact(
     progress: bool = False,
     warm_start: bool = False,
     threads: int | None = None,
+    check_periodic: bool = True,
 ) -> ContactResult:
     """Equilibrium of an elastic half-space pressed on a rigid periodic rough surface.
 
@@ -120,11 +130,13 @@ def solve_contact(
 
     Parameters
     ----------
-    heights : (n, n) array
-        Rigid surface heights [length] on one ``L x L`` periodic cell (square grids only;
-        any ``n >= 2``, not only powers of two). Contact happens where ``h`` is high.
-    length : float
-        Cell side ``L`` [length] (> 0); the grid spacing is ``L / n``.
+    heights : (nx, ny) array
+        Rigid surface heights [length] on one periodic cell (any ``nx, ny >= 2``, square
+        or rectangular, not only powers of two). Contact happens where ``h`` is high.
+        The map must be periodic (see ``check_periodic``).
+    length : float or (float, float)
+        Cell side(s) [length] (> 0): ``L`` along the first axis with the same spacing
+        ``L / nx`` along the second (``Ly = L ny / nx``), or ``(Lx, Ly)``.
     E_star : float
         Contact modulus ``E* = E/(1 - nu^2)`` [pressure] (> 0).
     mean_pressure : float
@@ -133,7 +145,7 @@ def solve_contact(
         ``ExponentialRepulsion(zeta)``: ``zeta`` [length].
     tol : float
         Convergence tolerance on the residual [dimensionless], relative to ``p0``
-        (see module doc).
+        (see module doc); in ``(0, 0.1]``.
     max_iter : int, optional
         Cap on operator applications (FFT pairs; default depends on method and size).
     method : {"auto", "ccg", "pk", "newton", "fire"}
@@ -156,6 +168,11 @@ def solve_contact(
     threads : int, optional
         FFT threads (default :data:`gfmd_ref.fft.DEFAULT_THREADS` = 1). The answer does
         not depend on it beyond round-off.
+    check_periodic : bool
+        Refuse (ValueError) a map whose jump across the cell boundary exceeds 3 times its
+        largest step between neighbours inside (:func:`gfmd_ref._validation.check_periodic`:
+        a measured, non-periodic map must be detrended and windowed, or padded, first).
+        False solves the map as it is, as one period.
 
     Returns
     -------
@@ -176,10 +193,17 @@ def solve_contact(
     """
     t0 = time.perf_counter()
     h = check_heights(heights)
-    length = check_positive("length", length)
+    if np.ndim(length) == 1 and len(length) == 2:
+        lengths = (check_positive("length[0]", length[0]), check_positive("length[1]", length[1]))
+    else:
+        lengths = (check_positive("length", length),) * 2
+        lengths = (lengths[0], lengths[0] * h.shape[1] / h.shape[0])
+    length = lengths[0] if h.shape[0] == h.shape[1] and lengths[0] == lengths[1] else lengths
     E_star = check_positive("E_star", E_star)
     p0 = check_positive("mean_pressure", mean_pressure)
-    tol = check_positive("tol", tol)
+    tol = check_tol(tol)
+    if check_periodic:
+        _check_periodic(h)
     threads = check_threads(threads)
     if not isinstance(interaction, (HardWall, ExponentialRepulsion)):
         raise ValueError("interaction must be gfmd_ref.HardWall() or gfmd_ref.ExponentialRepulsion(zeta); "
@@ -190,7 +214,7 @@ def solve_contact(
         raise ValueError(f"method must be one of {allowed} for {kind}; got {method!r}")
     if method == "auto":
         method = METHODS[kind][0]
-    n = h.shape[0]
+    n = max(h.shape)
     if max_iter is None:
         max_iter = default_max_iter(n, interaction, method)
     max_iter = check_int("max_iter", max_iter, minimum=1)
@@ -202,16 +226,16 @@ def solve_contact(
         # tol 1e-18, E* = 1e-2 ... 1e-10, 64^2). Where even 1e-3 is out of reach the problem is
         # not computable in double precision: refuse it. Below that, an unreachable tol ends
         # by stall detection (converged=False).
-        q1 = 2.0 * math.pi / length
+        q1 = 2.0 * math.pi / max(lengths)
         floor = 2.2e-16 * (p0 / E_star) / (q1 * zeta)
         if not floor < EXP_FLOOR_LIMIT:
             need = 2.2e-16 * p0 / (q1 * zeta * EXP_FLOOR_LIMIT)
             raise ValueError(
                 f"E_star={E_star!r} is too small for mean_pressure={p0!r} and zeta={zeta!r}: the elastic "
                 f"response is below double precision (force-residual floor {floor:.1e} p0); need E_star > {need:.1e}")
-    el = Elastic(n, length, E_star, threads)
+    el = Elastic(h.shape, lengths, E_star, threads)
     hs = float(np.std(h))
-    h_scale = hs if hs > 0 else length
+    h_scale = hs if hs > 0 else max(lengths)
 
     closed = _full_contact_hard(h, p0, el) if method in ("ccg", "pk") else None
     if closed is not None:

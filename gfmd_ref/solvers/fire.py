@@ -30,7 +30,7 @@ def fire(h, p0, zeta, el, tol, max_iter, progress):
     mass-weighted metric (Bitzek et al., PRL 97, 170201, 2006). The hard wall is a
     projection ``z >= h`` with the inward velocity of clipped nodes removed.
     """
-    n2 = el.n * el.n
+    n2 = el.size
     hard = zeta is None
     kfloor = el.q1 * el.E_star / 2.0
     kappa = kfloor if hard else max(p0 / zeta, kfloor)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import gfmd_ref
-from gfmd_ref import (ConvergenceWarning, ExponentialRepulsion, HardWall, fig1_surface,
+from gfmd_ref import (ConvergenceWarning, ExponentialRepulsion, HardWall, PressureHistogram, fig1_surface,
                       pressure_histogram, solve_contact)
 
 E, P0 = 8.0 / 3.0, 0.004
@@ -182,7 +182,7 @@ def test_non_power_of_two_and_loaded_array(tmp_path, n):
     "kw, name",
     [
         (dict(heights=np.full((8, 8), np.nan)), "heights"),
-        (dict(heights=np.zeros((8, 6))), "heights"),
+        (dict(heights=np.zeros((8, 1))), "heights"),
         (dict(heights=np.zeros(8)), "heights"),
         (dict(heights=np.zeros((2, 4, 4))), "heights"),
         (dict(heights=np.where(np.eye(8) > 0, np.inf, 0.0)), "heights"),
@@ -195,6 +195,8 @@ def test_non_power_of_two_and_loaded_array(tmp_path, n):
         (dict(method="newton"), "method"),
         (dict(interaction=ExponentialRepulsion(1.0), method="ccg"), "method"),
         (dict(tol=-1e-8), "tol"),
+        (dict(tol=10.0), r"tol must be a number in \(0, 0.1\].*tol=10.0"),
+        (dict(tol=0.5), "tol=0.5"),
         (dict(max_iter=0), "max_iter"),
     ],
 )
@@ -232,13 +234,43 @@ def test_pressure_histogram(fig1_64):
     assert np.sum(hist.density * np.diff(hist.edges)) + hist.zero_weight == pytest.approx(1, abs=1e-12)
     assert hist.counts.sum() == nz and hist.n_outside == 0
     assert len(hist.centers) == 20
-    # array input and explicit range: values outside the range still count in the norm
-    h2 = pressure_histogram(np.array([0.0, 0.0, 1.0, 2.0, 3.0]), bins=2, range=(0.5, 2.5))
+    # a bare array goes through from_pressures; values outside the bins still count in the norm
+    h2 = PressureHistogram.from_pressures(np.array([0.0, 0.0, 1.0, 2.0, 3.0]), bins=[0.5, 1.5, 2.5])
     assert h2.zero_weight == pytest.approx(0.4)
-    assert h2.n_outside == 1
+    assert h2.n_outside == 1 and h2.moments["outside_bins"] == pytest.approx(0.2)
     assert np.sum(h2.density * np.diff(h2.edges)) == pytest.approx(0.4)
     with pytest.raises(ValueError, match="pressure"):
-        pressure_histogram(np.array([np.nan, 1.0]))
+        PressureHistogram.from_pressures(np.array([np.nan, 1.0]))
+    with pytest.raises(TypeError, match="ContactResult.*ndarray.*from_pressures"):
+        pressure_histogram(r.pressure)
+
+
+def test_histogram_carries_the_comparison_contract():
+    """A histogram of an exponential-wall result carries the solver's contact threshold
+    (0.01 p0) as the default of contact_area, the field's moments and quantiles and the
+    solver's parameters; rebinning keeps the mass."""
+    h, L = gfmd_ref.fig1_surface(64, seed=1)
+    r = _solve(h, L, ExponentialRepulsion(0.002), tol=1e-8)
+    hist = pressure_histogram(r, bins=40)
+    p = r.pressure.ravel()
+    thr = gfmd_ref.EXP_CONTACT_THRESHOLD * P0
+    assert r.contact_threshold == thr == hist.contact_threshold
+    assert r.contact_area() == hist.contact_area() == r.contact_fraction == np.mean(p > thr)
+    assert r.contact_area(0.0) == hist.contact_area(0.0) == 1.0 != hist.contact_area()
+    assert hist.moments["mean"] == pytest.approx(P0, rel=1e-12)
+    assert hist.moments["variance"] == pytest.approx(np.var(p), rel=1e-12)
+    assert hist.moments["third_central"] == pytest.approx(np.mean((p - p.mean()) ** 3), rel=1e-9)
+    np.testing.assert_array_equal(hist.quantiles, np.quantile(p, hist.quantile_levels))
+    assert hist.fraction_above(np.median(p)) == pytest.approx(0.5, abs=1 / 2048)
+    assert hist.metadata["zeta"] == 0.002 and hist.metadata["interaction"] == "ExponentialRepulsion"
+    coarse = hist.rebinned(4)
+    assert coarse.edges.size == 11 and coarse.counts.sum() == hist.counts.sum()
+    assert np.sum(coarse.density * coarse.widths) == pytest.approx(np.sum(hist.density * hist.widths), rel=1e-12)
+    for bad, name in ((-1.0, "threshold=-1.0"), (np.nan, "threshold=nan")):
+        with pytest.raises(ValueError, match=name):
+            hist.contact_area(bad)
+        with pytest.raises(ValueError, match=name):
+            r.contact_area(bad)
 
 
 def test_cli_run(tmp_path, capsys):
@@ -252,7 +284,7 @@ def test_cli_run(tmp_path, capsys):
     assert any(f.endswith(".png") for f in files) and any(f.endswith(".csv") for f in files)
     d = np.load(next(tmp_path.glob("*.npz")))
     assert np.sum(d["density"] * np.diff(d["edges"])) + d["zero_weight"] == pytest.approx(1)
-    res, hist, paths = run_default_scene(48, interaction="exp", zeta=0.1, out_dir=None,
+    res, hist, paths = run_default_scene(64, interaction="exp", zeta=0.1, out_dir=None,
                                          verbose=False)
     assert res.converged and paths == {}
     assert gfmd_ref.FIG1["E_star"] == pytest.approx(8 / 3)
@@ -276,7 +308,7 @@ class Block:
             raise ImportError(f"{name} blocked")
 sys.meta_path.insert(0, Block())
 import gfmd_ref
-h, L = gfmd_ref.fig1_surface(32, seed=1)
+h, L = gfmd_ref.fig1_surface(64, seed=1)
 r = gfmd_ref.solve_contact(h, length=L, E_star=8 / 3, mean_pressure=0.004, interaction=gfmd_ref.HardWall())
 assert r.converged
 try:
@@ -306,7 +338,7 @@ def test_solves_without_the_optional_extras(tmp_path):
     (HardWall(), "ccg", 64, 20000),
     (HardWall(), "pk", 64, 20000),
     (ExponentialRepulsion(0.001), "newton", 64, 20000),
-    (HardWall(), "fire", 32, 200000),
+    (HardWall(), "fire", 64, 200000),
 ])
 def test_unreachable_tol_stalls_early_and_says_so(inter, method, n, max_iter):
     """tol 1e-18 is below the round-off of every residual (relative to p0, eps = 2e-16):
