@@ -52,7 +52,7 @@ def test_bare_command_prints_help(capsys):
     assert main([]) == 0
     out = capsys.readouterr().out
     assert "usage: diffusion-pr" in out and "fig1" in out and "theory" in out and "make-reference" in out
-    assert gfmd_main([]) == 2  # gfmd-ref: help and the usage-error code (its sub-commands are on another branch)
+    assert gfmd_main([]) == 0  # gfmd-ref: the help, as diffusion-pr
     out = capsys.readouterr().out
     assert "usage: gfmd-ref" in out and "run" in out and "writes the pressure histogram" in out
 
@@ -112,8 +112,9 @@ def test_gfmd_ref_zeta_is_the_same_wall_as_diffusion_pr_fig1():
     """
     from gfmd_ref.cli import run_default_scene
 
-    res, _, _ = run_default_scene(32, interaction="exp", zeta=0.25, out_dir=None, verbose=False, tol=1e-10)
-    h = gfmd_ref.self_affine_surface(32, length=1024.0, hurst=0.3, q_min=2 * np.pi / 1024,
+    res, _, _ = run_default_scene(64, interaction="exp", zeta=0.25, length_unit="paper", out_dir=None,
+                                  verbose=False, tol=1e-10)
+    h = gfmd_ref.self_affine_surface(64, length=1024.0, hurst=0.3, q_min=2 * np.pi / 1024,
                                      q_max=2 * np.pi / 32, rms_slope=0.031, seed=1)
     ref = gfmd_ref.solve_contact(h, length=1024.0, E_star=8 / 3, mean_pressure=0.004,
                                  interaction=gfmd_ref.ExponentialRepulsion(0.25), tol=1e-10)
@@ -150,7 +151,7 @@ def test_fig1_bad_zetas_fail_before_any_gfmd(tmp_path, capsys, monkeypatch):
             main(["fig1", "--n", "16", "--zetas", bad, "--out", str(tmp_path)])
         assert exc.value.code == 2
         assert "--zetas" in capsys.readouterr().err
-    assert main(["fig1", "--n", "16", "--cutoff", "muser", "--backend", "nope", "--out", str(tmp_path)]) == 2
+    assert main(["fig1", "--n", "64", "--cutoff", "muser", "--backend", "nope", "--out", str(tmp_path)]) == 2
     assert "backend" in capsys.readouterr().err
 
 
@@ -161,7 +162,7 @@ def test_make_reference_never_writes_into_the_package_by_default(tmp_path, monke
     assert action.default == "reference_out"
     monkeypatch.chdir(tmp_path)
     before = sorted(p.name for p in DATA_DIR.iterdir())
-    written = generate_reference(zetas=(None,), seeds=(3,), n=16, progress=False, log=lambda s: None)
+    written = generate_reference(zetas=(None,), seeds=(3,), n=64, progress=False, log=lambda s: None)
     assert [p.parent.resolve() for p in written] == [(tmp_path / "reference_out").resolve()]
     assert sorted(p.name for p in DATA_DIR.iterdir()) == before
     with pytest.raises(ValueError, match="out_dir"):

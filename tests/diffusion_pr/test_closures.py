@@ -350,7 +350,7 @@ def test_main_job_draws_the_best_closure_beside_the_paper(tmp_path):
     reported, written to the CSV and named in the figure's legend."""
     from diffusion_pr.jobs import fig1
 
-    report = fig1.run_fig1(n=32, zetas=(0.25,), hard_wall=False, rtol=1e-4, out_dir=tmp_path, log=lambda s: None)
+    report = fig1.run_fig1(n=64, zetas=(0.25,), hard_wall=False, rtol=1e-4, out_dir=tmp_path, log=lambda s: None)
     (case,) = report.cases
     th = case.theories[fig1.BEST_CLOSURE]
     best = "local_g1_shell_balanced"

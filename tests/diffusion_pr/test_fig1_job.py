@@ -196,7 +196,7 @@ def test_another_theory_curve_goes_through_theory_curves(monkeypatch, tmp_path):
         return curves
 
     monkeypatch.setattr(fig1, "theory_curves", with_extra)
-    report = fig1.run_fig1(n=32, zetas=(0.25,), hard_wall=False, rtol=1e-4, out_dir=tmp_path, log=lambda s: None)
+    report = fig1.run_fig1(n=64, zetas=(0.25,), hard_wall=False, rtol=1e-4, out_dir=tmp_path, log=lambda s: None)
     (case,) = report.cases
     assert list(case.comparisons) == ["paper", fig1.BEST_CLOSURE, "extra"]
     assert case.comparisons["extra"] == case.comparisons["paper"]
@@ -216,7 +216,7 @@ def test_bad_input_fails_before_any_gfmd(monkeypatch, tmp_path, kwargs, name):
         raise AssertionError("GFMD ran before the input was checked")
 
     monkeypatch.setattr(gfmd_ref, "solve_contact", no_gfmd)
-    args = {"n": 32, "zetas": (0.25,), "out_dir": tmp_path, **kwargs}
+    args = {"n": 64, "zetas": (0.25,), "out_dir": tmp_path, **kwargs}
     with pytest.raises(ValueError, match=name):
         fig1.run_fig1(**args)
 

@@ -108,7 +108,7 @@ def test_contact_threshold_agrees_with_gfmd_ref_and_its_docs():
 
 def test_gfmd_contact_fraction_uses_that_threshold():
     # behaviour, not only the constant: count p > 0.01 p0 on a small exponential-wall solve
-    h, length = gfmd_ref.fig1_surface(32, seed=3)
+    h, length = gfmd_ref.fig1_surface(64, seed=3)
     res = gfmd_ref.solve_contact(h, length=length, E_star=paper.E_STAR, mean_pressure=paper.MEAN_PRESSURE,
                                  interaction=gfmd_ref.ExponentialRepulsion(0.002), tol=1e-8)
     p = np.asarray(res.pressure)
