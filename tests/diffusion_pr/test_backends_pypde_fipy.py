@@ -150,7 +150,7 @@ def test_missing_dependency_names_the_extra(monkeypatch: pytest.MonkeyPatch, nam
     monkeypatch.setitem(sys.modules, module, None)  # import of `module` now raises ImportError
     with pytest.raises(BackendUnavailableError, match=rf"diffusion-pr\[{extra}\]"):
         get_backend(name)
-    backend_module = importlib.import_module(f"diffusion_pr.fokker_planck.backends.{name}_backend")
+    backend_module = importlib.import_module(f"diffusion_pr.fokker_planck.backends.{name}")
     with pytest.raises(BackendUnavailableError, match=rf"diffusion-pr\[{extra}\]"):
         backend_module.solve(FokkerPlanckProblem(1.0, 1.0))
 
