@@ -37,8 +37,8 @@ MAX_BALANCE_ITERATIONS = 30
 #: p0 by less than sqrt(LINEAR_FRACTION * rtol) p0: its O(miss^2) state error is then about LINEAR_FRACTION * rtol
 LINEAR_FRACTION = 1e-2
 #: the compiled stages use CRAM in partial fractions (all poles eliminated together, 2-3x faster than the
-#: IPF form) down to this rtol; its round-off, about 1e-13 of max|y| per application against 1e-15, would
-#: matter below (docs/backends.md)
+#: IPF form) down to this rtol; below, the IPF form: the partial fractions' round-off, about 1e-13 of max|y| per
+#: application against 1e-15, makes the balanced closures' refinement diverge there (docs/backends.md)
 PFD_MIN_RTOL = 1e-10
 #: cells per balance substep (the substeps double with the cells, so Richardson removes their O(dtau^2) error)
 SUBSTEP_CELLS = 16
