@@ -33,7 +33,6 @@ import numpy as np
 from numba import njit
 
 from .expm import ALPHA, ALPHA0, PFD_RESIDUES, THETA
-from .expm import CANCELLED as _CANCELLED
 
 __all__ = ["cram_pfd", "gttrf", "gttrs", "cram_apply", "cram_apply_d", "balanced_stage", "staged_run",
            "staged_run_rows", "ALPHA", "THETA", "ALPHA0", "PFD_RESIDUES"]
@@ -809,14 +808,9 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
     return y, n_cram, n_newton, 0, 0.0
 
 
-#: ``info`` of :func:`staged_run` / :func:`staged_run_rows` when their ``cancel`` flag was set before a stage
-#: (:data:`.cram.CANCELLED`, where the engine reads it without importing numba)
-CANCELLED = _CANCELLED
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def staged_run(lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, max_iter,
-               pfd, alpha, theta, alpha0, c, cancel):  # pragma: no cover - numba
+               pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
     """All stages of one grid in one call: row ``k`` of the band arrays is stage ``k``'s operator.
 
     Stage ``k`` applies ``reps[k]`` steps of length ``dt[k]``: plain exponentials
@@ -824,33 +818,31 @@ def staged_run(lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, 
     with the balance operator in row ``k`` of ``wl, wd, wu``.
 
     Returns ``(y, n_cram, n_newton, info, stage, residual)``; on ``info != 0``
-    ``stage`` is the failing stage and ``y`` the state before it.  ``cancel`` (int64, one entry): where another
-    thread sets it to non-zero, the call returns before its next stage with ``info`` :data:`CANCELLED`.
+    ``stage`` is the failing stage and ``y`` the state before it.
     """
     empty = np.zeros((1, 1))
     # bands given: no drift weight is chosen here (the ``fitted`` argument, ``balanced`` in its place, is not read)
     return _run(lower, diag, upper, wl, wd, wu, empty[0], empty, empty, empty, False, balanced, balanced, dt, reps,
-                cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c, cancel)
+                cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def staged_run_rows(edges, f_rows, b_rows, w_rows, any_b, balanced, fitted, dt, reps, cvec, y, p0, mean_tol,
-                    lin_tol, max_iter, pfd, alpha, theta, alpha0, c, cancel):  # pragma: no cover - numba
+                    lin_tol, max_iter, pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
     """:func:`staged_run` for the native operator, its bands made stage by stage from the coefficient rows.
 
     ``f_rows`` (centres), ``b_rows`` and ``w_rows`` (faces) hold every stage's
     diffusivity, drift and balance; no band array of all stages is formed.
-    ``fitted[k]``: stage ``k``'s drift takes its upwinding weight (:func:`_fill_row`); ``cancel`` as in
-    :func:`staged_run`.
+    ``fitted[k]``: stage ``k``'s drift takes its upwinding weight (:func:`_fill_row`).
     """
     empty = np.zeros((1, 1))
     return _run(empty, empty, empty, empty, empty, empty, edges, f_rows, b_rows, w_rows, any_b, balanced, fitted, dt,
-                reps, cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c, cancel)
+                reps, cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, balanced, fitted, dt, reps, cvec, y,
-         p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c, cancel):  # pragma: no cover - numba
+         p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
     """The stage loop of :func:`staged_run` (bands given) and :func:`staged_run_rows` (bands made per stage)."""
     from_rows = edges.size > 1
     n_stages = f_rows.shape[0] if from_rows else diag.shape[0]
@@ -870,8 +862,6 @@ def _run(lower, diag, upper, wl, wd, wu, edges, f_rows, b_rows, w_rows, any_b, b
     n_newton = 0
     hist = np.zeros(PREDICTOR_SIZE)
     for k in range(n_stages):
-        if cancel[0] != 0:
-            return y, n_cram, n_newton, CANCELLED, k, 0.0
         if from_rows:
             _fill_row(h, k_int, wall, half_inv_h, f_rows[k], b_rows[k], any_b, True, fitted[k], reached, lo, di, up)
             if balanced[k]:

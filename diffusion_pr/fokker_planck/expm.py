@@ -19,17 +19,9 @@ from __future__ import annotations
 
 import functools
 
-
 import numpy as np
 
-__all__ = ["ALPHA", "THETA", "ALPHA0", "PFD_RESIDUES", "ERROR_BOUND", "expm_tridiagonal",
-           "CANCELLED"]
-
-#: ``info`` of the compiled stage loops (:func:`._kernels.staged_run`, :func:`._kernels.staged_run_rows`) when their
-#: ``cancel`` flag was set before a stage: ``y`` is the state before that stage (a speculative integration another
-#: thread no longer needs; engine.plain_batch_ahead). Here, in a module without numba, so that the engine reads it
-#: without importing the kernels.
-CANCELLED = -2
+__all__ = ["ALPHA", "THETA", "ALPHA0", "PFD_RESIDUES", "ERROR_BOUND", "expm_tridiagonal"]
 
 ALPHA = np.array([
     +5.464930576870210e+3 - 3.797983575308356e+4j,
@@ -74,8 +66,6 @@ def _partial_fraction_residues() -> np.ndarray:
 #: (independent solves, all poles at once in :func:`._kernels.cram_pfd`; round-off about 1e-13 of ``max |y|``
 #: against 1e-15 for the IPF form, since the residues reach 2e2)
 PFD_RESIDUES = _partial_fraction_residues()
-
-
 
 
 @functools.cache

@@ -1,7 +1,7 @@
-"""The engine's coefficient-row plans and work arrays (diffusion_pr.fokker_planck.engine).
+"""The engine's coefficient-row plans (diffusion_pr.fokker_planck.domain) and its thread safety.
 
-Both are speed measures with no effect on any answer: the oracles are the paths they replace (a model type's
-``rows``; freshly allocated arrays), compared bit for bit.
+The plans are a speed measure with no effect on any answer: the oracle is the path they replace (a model type's
+``rows``), compared bit for bit.
 """
 from __future__ import annotations
 
@@ -14,8 +14,7 @@ import diffusion_pr as dp
 from diffusion_pr import StagedProblem, Stage
 from diffusion_pr.closures import (LoadExcessDrift, LocalResponseDiffusivity, RigidApproachBalance,
                                    spectrum_shells)
-from diffusion_pr.fokker_planck.backends import native
-from diffusion_pr.fokker_planck import engine
+from diffusion_pr.fokker_planck import domain
 
 E = 8 / 3
 P0 = 0.004
@@ -64,8 +63,8 @@ def test_row_plans_follow_the_pieces_that_have_each_coefficient(fig1):
     (the rows ``_coefficients`` scatters back to those stages); a user's callables have no plan."""
     m = _models(fig1, 0.5 * 0.25 * E)
     stages = tuple(Stage(1e-6, f, drift=b if k % 3 else None) for k, (f, b) in enumerate(zip(m["f"], m["b"])))
-    _, pieces, _, _ = engine._pieces_of(StagedProblem(P0, stages))
-    plans = engine.row_plans(pieces)
+    _, pieces, _, _ = domain._pieces_of(StagedProblem(P0, stages))
+    plans = domain.row_plans(pieces)
     with_b = tuple(s.drift for s in stages if s.drift is not None)
     assert plans["b"].stages == tuple(k for k in range(len(stages)) if k % 3) and plans["b"].funcs == with_b
     assert plans["f"].every and not plans["b"].every and plans["w"].stages == () and plans["w"].plan is None
@@ -73,29 +72,7 @@ def test_row_plans_follow_the_pieces_that_have_each_coefficient(fig1):
     p = np.linspace(0.0, 0.02, 33)
     np.testing.assert_array_equal(plans["b"].plan(p), LoadExcessDrift.rows(with_b, p))
     user = tuple(Stage(0.1, lambda p: np.ones_like(p)) for _ in range(3))
-    assert all(v.plan is None for v in engine.row_plans(engine._pieces_of(StagedProblem(1.0, user))[1]).values())
-
-
-def test_work_arrays_are_per_thread_per_key_and_never_nested():
-    """The same key gives this thread the same memory again, another key or thread other memory; a block above
-    WORK_MAX_BYTES and a nested block of the same prefix get fresh arrays."""
-    get = engine._thread_work("test:")
-    a = get("x", (3, 5))
-    assert a.shape == (3, 5) and a.flags.c_contiguous
-    assert np.shares_memory(a, get("x", (2, 7))) and not np.shares_memory(a, get("y", (3, 5)))
-    other = []
-    t = threading.Thread(target=lambda: other.append(engine._thread_work("test:")("x", (3, 5))))
-    t.start()
-    t.join()
-    assert not np.shares_memory(a, other[0])
-    big = (engine.WORK_MAX_BYTES // 8 + 1,)
-    assert not np.shares_memory(get("x", big), get("x", big))
-    with engine._work_arrays("test:") as outer:
-        b = outer("x", (4,))
-        with engine._work_arrays("test:") as inner:
-            assert not np.shares_memory(b, inner("x", (4,)))
-        with engine._work_arrays("other:") as third:
-            assert np.shares_memory(third("x", (4,)), engine._thread_work("other:")("x", (4,)))
+    assert all(v.plan is None for v in domain.row_plans(domain._pieces_of(StagedProblem(1.0, user))[1]).values())
 
 
 def _bits(r):
@@ -109,25 +86,9 @@ def _partial_drift_problem():
                                     for k in range(24)))
 
 
-def test_answers_do_not_depend_on_the_work_arrays(fig1, monkeypatch):
-    """The same bits with every work array fresh (WORK_MAX_BYTES = 0): the Fig. 1 closures on two threads with the
-    ladder's plain problems alongside (zeta 0.25) and in a batch after the solve (zeta 0.01), and a staged problem
-    whose stages have a drift on two of three, solved after a problem that filled the same rows everywhere."""
-    def answers():
-        out = [_bits(dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=z, closure=c, rtol=1e-6))
-               for c, z in (("local_g1_balanced", 0.25), ("local_g1_shell_balanced", 0.01), ("local_g1", 1.0))]
-        return out + [_bits(native.solve(_partial_drift_problem(), rtol=1e-6))]
-
-    reused = answers()
-    monkeypatch.setattr(engine, "WORK_MAX_BYTES", 0)
-    fresh = answers()
-    for a, b in zip(reused, fresh):
-        np.testing.assert_array_equal(a, b)
-
-
 def test_two_user_threads_solving_at_once_get_the_serial_bits(fig1):
     """Two threads of one process (a Dask worker with two threads) solving different closure scenes at once share
-    the engine's one worker thread; each keeps its own work arrays, so every answer is its serial solve's bit for
+    the engine; no state is shared between solves, so every answer is its serial solve's bit for
     bit (each scene solved 4 times per thread, so that the solves overlap)."""
     scenes = (("local_g1_balanced", 0.25), ("local_g1_shell_balanced", 1.0))
 
@@ -159,7 +120,7 @@ def test_two_user_threads_solving_at_once_get_the_serial_bits(fig1):
 def test_probe_points_are_linspace_bit_for_bit(rng):
     """The domain probe's points without np.linspace's overhead: its values, bit for bit, over 12 decades of
     p_hi and both probe sizes (the domain, and so every answer, depends on them)."""
-    from diffusion_pr.fokker_planck.engine import PROBE_POINTS, PROBE_POINTS_COARSE, _probe_points
+    from diffusion_pr.fokker_planck.domain import PROBE_POINTS, PROBE_POINTS_COARSE, _probe_points
 
     for p_hi in [*10.0 ** rng.uniform(-9, 9, 400), 4.0, 0.016]:
         for n in (PROBE_POINTS_COARSE, PROBE_POINTS):

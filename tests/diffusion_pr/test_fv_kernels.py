@@ -15,7 +15,7 @@ from scipy.linalg import get_lapack_funcs
 import diffusion_pr as dp
 from diffusion_pr.closures import closure_distribution as _closure_distribution
 from diffusion_pr.closures import closure_problem, spectrum_shells
-from diffusion_pr.fokker_planck import engine
+from diffusion_pr.fokker_planck import domain, engine, grading, stages
 from diffusion_pr.fokker_planck._kernels import (ALPHA, ALPHA0, BAD_PREDICTION, PFD_RESIDUES, THETA, _fill_row,
                                               _geometry, cram_apply, cram_apply_d, cram_pfd, gttrf, gttrs)
 from diffusion_pr.fokker_planck.operator import bands
@@ -23,7 +23,7 @@ from diffusion_pr.fokker_planck.expm import ERROR_BOUND, _flux_sum, expm_tridiag
 
 
 #: the engine's own functions, for the oracles that switch one of its decisions off (and back on)
-_REAL_PREPARE, _REAL_REGRADED, _REAL_REMAPPED = engine.prepare, engine._regraded, engine._remapped
+_REAL_PREPARE, _REAL_REGRADED, _REAL_REMAPPED = engine.prepare, engine._regraded, grading._remapped
 
 
 def _lamperti_off(monkeypatch) -> None:
@@ -474,15 +474,14 @@ class _PythonKernels:
         wl, wd, wu = bands(edges, np.zeros_like(w_rows), w_rows, fitted=False)
         return self.run(lower, diag, upper, wl, wd, wu, *rest)
 
-    def run(self, lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, pfd,
-            order=16):
+    def run(self, lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, pfd):
         n_cram = n_newton = 0
         self.ratios, self.kappa, self.pfd = [], 0.0, pfd
         for k in range(diag.shape[0]):
             base = (lower[k], diag[k], upper[k])
             if balanced[k]:
                 y, nc, nn = self._balanced(base, (wl[k], wd[k], wu[k]), cvec, y, dt[k], int(reps[k]), p0, mean_tol,
-                                           lin_tol, engine.MAX_BALANCE_ITERATIONS)
+                                           lin_tol, stages.MAX_BALANCE_ITERATIONS)
                 n_cram += nc
                 n_newton += nn
             else:
@@ -499,7 +498,7 @@ def test_compiled_staged_path_equals_python_path(monkeypatch, zeta):
     prob = closure_problem(spectrum_shells(spec, E_star=8 / 3, n_shells=24), zeta=zeta, E_star=8 / 3,
                            mean_pressure=0.004, closure="local_g1_shell_balanced")
     fast = engine.solve_fv(prob, rtol=1e-4, backend="native", n_cells=40)
-    monkeypatch.setattr(engine, "_staged_kernels", lambda: _PythonKernels())  # numpy and LAPACK
+    monkeypatch.setattr(stages, "_staged_kernels", lambda: _PythonKernels())  # numpy and LAPACK
     slow = engine.solve_fv(prob, rtol=1e-4, backend="native", n_cells=40)
     assert fast.diagnostics["newton_steps"] == slow.diagnostics["newton_steps"]
     assert np.max(np.abs(fast.density * fast.weights - slow.density * slow.weights)) < 1e-12
@@ -574,7 +573,7 @@ def test_compiled_far_search_equals_python_path(monkeypatch, scene):
     prob = closure_problem(spectrum_shells(spec, E_star=8 / 3, n_shells=24), zeta=zeta, E_star=8 / 3,
                            mean_pressure=p0, closure=closure)
     fast = engine.solve_fv(prob, rtol=1e-4, backend="native", n_cells=40)
-    monkeypatch.setattr(engine, "_staged_kernels", lambda: _PythonKernels())
+    monkeypatch.setattr(stages, "_staged_kernels", lambda: _PythonKernels())
     slow = engine.solve_fv(prob, rtol=1e-4, backend="native", n_cells=40)
     assert fast.success and slow.success
     steps = (fast.diagnostics["newton_steps"], slow.diagnostics["newton_steps"])
@@ -651,7 +650,7 @@ def test_a_balance_bounds_the_tails_share_of_the_mean_not_its_mass(monkeypatch, 
     kw = dict(E_star=8 / 3, mean_pressure=1.07e-3, zeta=3.5e-3, closure="local_g1_balanced", n_shells=96,
               shell_extrapolation=False)
     r = closure_distribution(spec, **kw)
-    monkeypatch.setattr(engine, "LAMPERTI_MEAN_ITERATIONS", 0)
+    monkeypatch.setattr(domain, "LAMPERTI_MEAN_ITERATIONS", 0)
     by_mass = closure_distribution(spec, **kw)
     _lamperti_off(monkeypatch)
     oracle = closure_distribution(spec, rtol=1e-7, **kw)
@@ -699,7 +698,7 @@ def test_balanced_closure_answer_does_not_follow_rtol(zeta):
     returns from below and the answer depends on the depth of the domain; the
     depth used to be ln(10/rtol) e-folds and the two answers differed by 7e-4 in
     F(p0/20) at zeta = 0.001 (70x the looser rtol).  Now the depth is fixed
-    (engine.BOTTOM_EFOLDS_DRIFT).
+    (domain.BOTTOM_EFOLDS_DRIFT).
     """
     from diffusion_pr.closures import closure_distribution
 
@@ -725,7 +724,7 @@ def _closure(zeta, n_shells, per_stage=True):
 def test_balance_that_does_not_converge_is_reported(monkeypatch):
     """No Newton step allowed: the balance cannot hold the mean and the solve says so (never a result),
     also when the finest grid ran in the second thread."""
-    monkeypatch.setattr(engine, "MAX_BALANCE_ITERATIONS", 0)
+    monkeypatch.setattr(stages, "MAX_BALANCE_ITERATIONS", 0)
     with pytest.raises(RuntimeError, match="balance multiplier A of stage .* did not converge"):
         engine.solve_fv(_closure(0.01, 24), rtol=1e-4, backend="native", n_cells=40)
 
@@ -739,8 +738,8 @@ def test_linearized_last_newton_step_keeps_the_answer(monkeypatch, zeta):
     """
     prob = _closure(zeta, 32)
     shipped = engine.solve_fv(prob, rtol=1e-5, backend="native")
-    monkeypatch.setattr(engine, "MEAN_TOL_FRACTION", 1e-7)
-    monkeypatch.setattr(engine, "LINEAR_FRACTION", 0.0)
+    monkeypatch.setattr(stages, "MEAN_TOL_FRACTION", 1e-7)
+    monkeypatch.setattr(stages, "LINEAR_FRACTION", 0.0)
     tight = engine.solve_fv(prob, rtol=1e-5, backend="native")
     assert shipped.success and tight.success
     assert tight.diagnostics["newton_steps"] > shipped.diagnostics["newton_steps"] or zeta > 0.1
@@ -765,8 +764,8 @@ def test_predicted_multiplier_gives_the_converged_balance(monkeypatch, closure, 
     prob = closure_problem(shells, zeta=zeta, E_star=8 / 3, mean_pressure=p0, closure=closure)
     kw = dict(rtol=1e-6, backend="native", n_cells=48, p_floor=1e-16 * 0.5 * zeta * 8 / 3 * shells.q_min)
     shipped = engine.solve_fv(prob, **kw)
-    monkeypatch.setattr(engine, "MEAN_TOL_FRACTION", 1e-7)
-    monkeypatch.setattr(engine, "LINEAR_FRACTION", 0.0)
+    monkeypatch.setattr(stages, "MEAN_TOL_FRACTION", 1e-7)
+    monkeypatch.setattr(stages, "LINEAR_FRACTION", 0.0)
     tight = engine.solve_fv(prob, **kw)
     assert np.array_equal(shipped.edges, tight.edges)
     assert shipped.diagnostics["newton_steps"] < tight.diagnostics["newton_steps"]
@@ -798,7 +797,7 @@ def test_partial_fraction_and_ipf_stages_agree(monkeypatch, zeta):
     x = np.geomspace(1e-9, 0.1, 500)
     runs = []
     for threshold in (0.0, 1.0):  # everything PFD / everything IPF
-        monkeypatch.setattr(engine, "PFD_MIN_RTOL", threshold)
+        monkeypatch.setattr(stages, "PFD_MIN_RTOL", threshold)
         runs.append(engine.solve_fv(prob, rtol=1e-6, backend="native"))
     assert all(r.success for r in runs)
     assert runs[0].diagnostics["levels"] == runs[1].diagnostics["levels"]
@@ -833,7 +832,7 @@ def test_regrading_moves_the_cells_where_the_first_level_erred(monkeypatch):
 
 def test_remapped_monitor_puts_the_cells_where_the_first_level_erred(monkeypatch):
     """Balanced closure (Fig. 1, 96 shells) at zeta = 0.25: after the first level the monitor is remapped so that
-    its errors are about equidistributed (grid.Remap, engine._remapped): the second level needs 0.52x the cells of
+    its errors are about equidistributed (grid.Remap, grading._remapped): the second level needs 0.52x the cells of
     the logarithmic grading's best family (measured 164 against 317), and its answer is within rtol of the
     rtol-1e-9 oracle (computed without the remap: an independent grid family) in L1 of the cell masses, within 10x
     of its own estimate (measured 7.6e-8 against the estimate 1.4e-7), and within 2 rtol of the answer without the
@@ -841,10 +840,10 @@ def test_remapped_monitor_puts_the_cells_where_the_first_level_erred(monkeypatch
     that family's own prediction (measured 1.10x).  Without the remap, the old family returns bit for bit."""
     spec = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
     kw = dict(E_star=8 / 3, mean_pressure=0.004, closure="local_g1_balanced", zeta=0.25)
-    monkeypatch.setattr(engine, "_remapped", lambda *a, **k: None)
+    monkeypatch.setattr(grading, "_remapped", lambda *a, **k: None)
     ref = closure_distribution(spec, rtol=1e-9, **kw)
     plain = closure_distribution(spec, **kw)
-    monkeypatch.setattr(engine, "_remapped", _REAL_REMAPPED)
+    monkeypatch.setattr(grading, "_remapped", _REAL_REMAPPED)
     r = closure_distribution(spec, **kw)
     assert r.success and r.diagnostics["grid"][0].remap is not None and plain.diagnostics["grid"][0].remap is None
     assert r.diagnostics["remap_factor"] < 0.85 and plain.diagnostics["remap_factor"] == 1.0
@@ -856,7 +855,7 @@ def test_remapped_monitor_puts_the_cells_where_the_first_level_erred(monkeypatch
     x = np.geomspace(1e-12, 1e3, 3000) * 0.004
     assert np.max(np.abs(r.cdf(x) - plain.cdf(x))) < 2e-6
     assert abs(r.diagnostics["cells_needed"] / plain.diagnostics["cells_needed"] - 1.0) < 0.25
-    monkeypatch.setattr(engine, "_remapped", lambda *a, **k: None)
+    monkeypatch.setattr(grading, "_remapped", lambda *a, **k: None)
     again = closure_distribution(spec, **kw)
     assert np.array_equal(again.density, plain.density) and again.zero_weight == plain.zero_weight
 
@@ -886,10 +885,10 @@ def test_regrading_also_moves_where_the_logarithmic_grading_ends(monkeypatch):
     spec = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
     kw = dict(E_star=8 / 3, mean_pressure=0.004, closure="local_g1_balanced", zeta=1.0)
     x = np.geomspace(1e-12, 1e3, 3000) * 0.004
-    monkeypatch.setattr(engine, "_remapped", lambda *a, **k: None)  # the logarithmic grading's candidates alone
+    monkeypatch.setattr(grading, "_remapped", lambda *a, **k: None)  # the logarithmic grading's candidates alone
     ref = closure_distribution(spec, rtol=1e-9, **kw)
     r = closure_distribution(spec, **kw)
-    monkeypatch.setattr(engine, "REGRADE_DEPTHS", ())
+    monkeypatch.setattr(grading, "REGRADE_DEPTHS", ())
     shallow = closure_distribution(spec, **kw)
     assert r.success and shallow.success
     assert 0.0 < r.diagnostics["wall_depth"] < 1.0 and shallow.diagnostics["wall_depth"] == 0.0
@@ -908,19 +907,19 @@ def test_wall_depth_maps_fractions_to_the_inner_scale_and_back():
     spec = GridSpec(p_wall=1e-9, p_max=0.05, knots=(1e-9, 0.004, 0.05), scale=0.004, c_wall=0.6, c_0=1.0,
                     w0=1e-3, p0=0.004)
     for k in (0.2, 0.5, 0.8):
-        depth = engine._wall_depth(spec, k)
+        depth = grading._wall_depth(spec, k)
         assert np.isclose(np.log(depth / 1e-9) / np.log(0.004 / 1e-9), k, rtol=1e-12)
-        assert np.isclose(engine._depth_fraction(replace(spec, wall_depth=depth)), k,
+        assert np.isclose(grading._depth_fraction(replace(spec, wall_depth=depth)), k,
                           rtol=1e-12)
-    assert engine._wall_depth(spec, 0.0) == 0.0 and spec._delta == 1e-9 and engine._depth_fraction(spec) == 0.0
+    assert grading._wall_depth(spec, 0.0) == 0.0 and spec._delta == 1e-9 and grading._depth_fraction(spec) == 0.0
 
 
 def _balance_fails_on(monkeypatch, n_bases=None, levels: int = 0) -> list:
     """Make the balance of every grid of some levels report a failure (the counters of
-    :func:`engine.solve_on_grid`, as the kernel reports a multiplier that does not converge): the levels whose
+    :func:`stages.solve_on_grid`, as the kernel reports a multiplier that does not converge): the levels whose
     coarsest grid has ``n_bases`` cells, or else the first ``levels`` levels attempted, whatever their cells; returns
     the list of ``(cells, n_base)`` of the grids it failed."""
-    real = engine.solve_on_grid
+    real = stages.solve_on_grid
     failed = []
     seen = []  # the coarsest cells of the levels attempted, in order
 
@@ -936,7 +935,7 @@ def _balance_fails_on(monkeypatch, n_bases=None, levels: int = 0) -> list:
                                                       "(injected by the test)")
         return y, counters
 
-    monkeypatch.setattr(engine, "solve_on_grid", solve)
+    monkeypatch.setattr(stages, "solve_on_grid", solve)
     return failed
 
 
@@ -971,8 +970,8 @@ def test_a_later_level_whose_balance_fails_is_repeated_finer(monkeypatch):
     balance of stage 0 failed there by itself, on 444 cells, the mean 0.1 p0 off after 30 steps); the level is
     repeated with twice the cells and solves, within 2e-6 of the uninjected answer in the cdf (both claim
     1e-6).  Without the repetition the solve reports failure (the first level's answer is no result)."""
-    monkeypatch.setattr(engine, "_remapped", lambda *a, **k: None)
-    monkeypatch.setattr(engine, "LAMPERTI_MEAN_ITERATIONS", 0)
+    monkeypatch.setattr(grading, "_remapped", lambda *a, **k: None)
+    monkeypatch.setattr(domain, "LAMPERTI_MEAN_ITERATIONS", 0)
     spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
     kw = dict(E_star=8 / 3, mean_pressure=1e-5, zeta=1e-3, closure="local_g1_balanced", n_shells=48)
     default = plain = closure_distribution(spec, **kw)
@@ -994,7 +993,7 @@ def _regraded_family_diverges(monkeypatch) -> list:
     probability moved from the fullest cell to one a quarter of the way from it to the top, so that the levels' Richardson differences, and
     with them the estimates, grow with every refinement (the first level's family is left alone); returns the specs
     it was applied to."""
-    real_regraded, real_solve = engine._regraded, engine.solve_on_grid
+    real_regraded, real_solve = engine._regraded, stages.solve_on_grid
     regraded = []
 
     def regrade(*args, **kw):
@@ -1015,7 +1014,7 @@ def _regraded_family_diverges(monkeypatch) -> list:
         return y, counters
 
     monkeypatch.setattr(engine, "_regraded", regrade)
-    monkeypatch.setattr(engine, "solve_on_grid", solve)
+    monkeypatch.setattr(stages, "solve_on_grid", solve)
     return regraded
 
 

@@ -257,9 +257,9 @@ def test_an_unstable_grid_fails_clearly(monkeypatch):
     states summed to 2e3 in absolute value (the solve reported an estimate of 1.5e3 and a mass 1.3e3 off), at rtol
     1e-7 the 10168-cell grid reached 1e237 and the refinement raised a ValueError on a NaN.  Such a grid is no
     result: the solve stops with success False and says why, every number finite."""
-    from diffusion_pr.fokker_planck import engine
+    from diffusion_pr.fokker_planck import stages
 
-    monkeypatch.setattr(engine, "_fitted_stages", lambda prep, coef: np.zeros(coef["has_b"].size, dtype=bool))
+    monkeypatch.setattr(stages, "_fitted_stages", lambda prep, coef: np.zeros(coef["has_b"].size, dtype=bool))
     bad = _seed7_problem_122()(1e-8)
     assert not bad.success and "exponential integration is unstable on the 5760-cell grid" in bad.message
     assert np.all(np.isfinite(bad.density)) and np.isfinite(bad.error_estimate)

@@ -26,7 +26,7 @@ from diffusion_pr.api import propagate as dp_propagate
 from diffusion_pr.models import GaussianTail, LinearTail, MuserCutoff, PressureFactor, ProportionalDiffusivity, SharpCutoff
 from diffusion_pr.problem import FokkerPlanckProblem, Stage, StagedProblem
 from diffusion_pr.fokker_planck.backends import native
-from diffusion_pr.fokker_planck import DIAGNOSTIC_KEYS, FLOOR, engine
+from diffusion_pr.fokker_planck import DIAGNOSTIC_KEYS, FLOOR, domain
 from diffusion_pr.fokker_planck.expm import expm_tridiagonal
 
 
@@ -88,7 +88,7 @@ def test_an_exit_wall_is_graded_and_converges_at_fourth_order(exit_weight):
     assert r.success, r.message
     err = l1_error(r, dens, zw)
     assert err <= 1e-6 and err <= r.error_estimate <= 10 * err, (err, r.error_estimate)
-    assert r.diagnostics["wall_grading"] == engine.C_EXIT_WALL and r.diagnostics["n_cells"] <= 1000
+    assert r.diagnostics["wall_grading"] == domain.C_EXIT_WALL and r.diagnostics["n_cells"] <= 1000
 
 
 @pytest.mark.parametrize("ctau", [8.0, 20.0])
@@ -229,7 +229,7 @@ def test_unreachable_tolerance_is_reported_not_hidden():
 def test_one_diagnostics_schema():
     r = native.solve(FokkerPlanckProblem(1.0, 1.0, PressureFactor(MuserCutoff(0.3), GaussianTail())), rtol=1e-5)
     assert set(DIAGNOSTIC_KEYS) <= set(r.diagnostics)
-    assert r.diagnostics["time_integration"] == "cram16" and r.diagnostics["cram_order"] == 16
+    assert r.diagnostics["time_integration"] == "cram16"
 
 
 def test_single_stage_solve_needs_no_jit_and_warm_up_loads_the_staged_kernels():
@@ -257,11 +257,11 @@ def test_balance_newton_skip_matches_always_newton(monkeypatch, closure_like_pro
     """A balance substep skips its Newton step on A only when the midpoint-predicted A already holds the mean
     to MEAN_TOL_FRACTION * rtol * p0 (1e-9 p0 here); oracle: the same solve with the Newton step forced on every
     substep (fraction 0 -> the 1e-13 floor).  The two must agree far inside rtol (5e-8 = rtol/20 in L1)."""
-    from diffusion_pr.fokker_planck import engine
+    from diffusion_pr.fokker_planck import stages
 
     problem = closure_like_problem()
     r = native.solve(problem, rtol=1e-6)
-    monkeypatch.setattr(engine, "MEAN_TOL_FRACTION", 0.0)
+    monkeypatch.setattr(stages, "MEAN_TOL_FRACTION", 0.0)
     ref = native.solve(problem, rtol=1e-6)
     assert r.success and ref.success
     assert ref.diagnostics["levels"] == r.diagnostics["levels"]
@@ -335,17 +335,15 @@ def test_domain_ends_where_the_gaussian_bound_puts_the_tail_below_its_share_of_r
     rtol against the closed form."""
     import math
 
-    from diffusion_pr.fokker_planck import engine
-
     for mass in (1e-6, 1e-9, 1e-13):
-        z = engine._tail_quantile(mass)
+        z = domain._tail_quantile(mass)
         assert math.isclose(math.erfc(z / math.sqrt(2.0)), mass, rel_tol=1e-9)
     for rtol in (1e-4, 1e-6, 1e-8):
         r = native.solve(FokkerPlanckProblem(1.0, 1.0), rtol=rtol)
         p_max = r.diagnostics["p_max"]
         beyond = 0.5 * math.erfc((p_max - 1.0) / math.sqrt(2.0)) - 0.5 * math.erfc((p_max + 1.0) / math.sqrt(2.0))
-        assert beyond <= engine.TAIL_FRACTION * rtol
-        assert beyond >= 1e-3 * engine.TAIL_FRACTION * rtol  # and the domain is not wastefully long
+        assert beyond <= domain.TAIL_FRACTION * rtol
+        assert beyond >= 1e-3 * domain.TAIL_FRACTION * rtol  # and the domain is not wastefully long
         cdf = ndtr(r.edges - 1.0) - ndtr(r.edges + 1.0)  # mass of the mirror Gaussian below p, up to a constant
         err = float(np.sum(np.abs(np.diff(cdf) - r.density * r.weights))
                     + abs(r.zero_weight - cf.persson_zero_weight(1.0, 1.0)))
@@ -370,7 +368,7 @@ def test_depth_below_the_floor_follows_the_probability_that_sinks_there(monkeypa
     floor = r.diagnostics["p_floor"]
     depth = np.log(floor / r.diagnostics["domain_bottom"])
     if trims:  # ln(10 (w + estimate)/rtol): the first level's estimate (~1e-5) dominates w here
-        assert engine.BOTTOM_EFOLDS_TRIMMED <= depth <= np.log(10.0 / 1e-6) - 2.0
+        assert domain.BOTTOM_EFOLDS_TRIMMED <= depth <= np.log(10.0 / 1e-6) - 2.0
     else:
         assert depth == pytest.approx(np.log(10.0 / 1e-6))
     monkeypatch.setattr(engine, "_trimmed_depth", lambda *a: None)
@@ -529,7 +527,7 @@ def test_a_drift_that_grows_with_p_is_bounded_by_its_affine_envelope(rate, p0):
                 + 1 - cdf(r.edges[-1]))
     assert err <= 1e-6 and r.error_estimate / 10 <= err <= 10 * r.error_estimate, (err, r.error_estimate)
     beyond = float(ndtr(-(r.diagnostics["p_max"] - m) / np.sqrt(W)))
-    assert 0.25 * engine.TAIL_FRACTION * 1e-6 <= beyond <= engine.TAIL_FRACTION * 1e-6, beyond
+    assert 0.25 * domain.TAIL_FRACTION * 1e-6 <= beyond <= domain.TAIL_FRACTION * 1e-6, beyond
 
 
 @pytest.mark.parametrize("p0, p_1, alpha_p1, beta_tau", [(1.0, 1.0, 0.5, -1.0), (0.0309, 27.1, 0.479, -1.41),
@@ -550,7 +548,7 @@ def test_a_growing_cir_drift_against_the_absorbed_cir_process(p0, p_1, alpha_p1,
 @pytest.mark.parametrize("p0, p_1, alpha_p1, beta_tau", [(1.0, 1.0, 0.5, -1.0), (0.00269, 52.6, 0.875, -1.86),
                                                          (3.2, 0.103, 0.915, -1.69)])
 def test_the_affine_chernoff_bound_against_the_cir_tail(p0, p_1, alpha_p1, beta_tau):
-    """``engine._affine_chernoff_bound`` for the CIR process (drift and diffusivity affine, so the envelope is the
+    """``domain._affine_chernoff_bound`` for the CIR process (drift and diffusivity affine, so the envelope is the
     process itself): the exact tail beyond the bound (``closed_forms.cir_density`` integrated) is at most the
     tolerated mass, and not far below it (a Chernoff bound is within a few e-folds of the quantile: measured
     1.0e-11 ... 1.5e-11 against 5e-10).  Breaks that fail it (and the growing-CIR solves): the diffusivity's slope
@@ -561,14 +559,14 @@ def test_the_affine_chernoff_bound_against_the_cir_tail(p0, p_1, alpha_p1, beta_
     V = 1.0
     tau, alpha, beta = V / 2, alpha_p1 / p_1, beta_tau / (V / 2)
     problem = FokkerPlanckProblem(p0, V, ProportionalDiffusivity(p_1), drift=lambda p, t: alpha - beta * p)
-    pieces = engine._pieces_of(problem)[1]
+    pieces = domain._pieces_of(problem)[1]
     probe = np.linspace(0.0, 40.0 * p0 + 40.0 * tau / p_1 * 50, 4097)[1:]
-    rates, intercepts = engine._affine_envelope(engine._rows([pc.b for pc in pieces], probe, "the drift"), probe)
+    rates, intercepts = domain._affine_envelope(domain._rows([pc.b for pc in pieces], probe, "the drift"), probe)
     slopes = {id(pc): (float(g), float(c)) for pc, g, c in zip(pieces, rates, intercepts)}
-    f_rows = engine._rows([pc.f for pc in pieces], probe, "the diffusivity")
+    f_rows = domain._rows([pc.f for pc in pieces], probe, "the diffusivity")
     mass = 5e-10
-    z = engine._tail_quantile(2 * mass)  # the one-sided tail of z is mass
-    bound = engine._affine_chernoff_bound(pieces, slopes, f_rows, probe, p0, math.sqrt(2 * tau * p0 / p_1), z)
+    z = domain._tail_quantile(2 * mass)  # the one-sided tail of z is mass
+    bound = domain._affine_chernoff_bound(pieces, slopes, f_rows, probe, p0, math.sqrt(2 * tau * p0 / p_1), z)
     assert bound is not None and bound > p0
     dens = lambda p: float(cf.cir_density(p, p0, tau, 1 / p_1, alpha, beta))  # noqa: E731
     tail, lo = 0.0, bound
@@ -585,7 +583,7 @@ def test_probability_through_a_truncated_bottom_is_reported(monkeypatch):
     ``p0 - 2 s``): success False with the bottom named.  This is the check that would have caught the drift towards
     the wall of ``test_a_drift_towards_the_wall_moves_the_domains_bottom`` before its fix (removing the check makes
     this test fail)."""
-    monkeypatch.setattr(engine, "_tail_quantile", lambda mass: 2.0)
+    monkeypatch.setattr(domain, "_tail_quantile", lambda mass: 2.0)
     r = native.solve(FokkerPlanckProblem(1.0, 0.01), rtol=1e-6)
     assert not r.success
     assert "left through the domain's bottom" in r.message and r.zero_weight > 1e-2

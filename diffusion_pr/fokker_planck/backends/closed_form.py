@@ -152,7 +152,7 @@ def solve(problem: FokkerPlanckProblem, *, rtol: float = 1e-6, tail_mass: float 
     # the closed forms (and scipy.special) are imported here, where one is evaluated, not by exact_kind: that is
     # asked by the "auto" choice of every solve
     from ... import closed_forms as cf
-    from ..engine import MAX_RATIO
+    from ..domain import MAX_RATIO
 
     t0 = time.perf_counter()
     kind = exact_kind(problem)

@@ -20,7 +20,8 @@ import time
 from typing import Optional
 
 from ...result import PressureDistribution
-from ..engine import MAX_CELLS, FVSolution, native_assemble, solve_fv, solve_fv_full
+from ..engine import MAX_CELLS, FVSolution, solve_fv, solve_fv_full
+from ..stages import native_assemble
 
 __all__ = ["solve", "solve_full", "warm_up"]
 
@@ -73,7 +74,7 @@ def solve(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cel
 
 def solve_full(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cells: int = MAX_CELLS,
                p_floor: Optional[float] = None, **engine) -> FVSolution:
-    """:func:`solve` with the engine's :class:`~.fv.engine.FVSolution` (``engine``: ``grid``, ``plain``,
-    ``warm_start`` of :func:`~.fv.engine.solve_fv_full`)."""
+    """:func:`solve` with the engine's :class:`~diffusion_pr.fokker_planck.engine.FVSolution` (``engine``: ``grid``, ``plain``,
+    ``warm_start`` of :func:`~diffusion_pr.fokker_planck.engine.solve_fv_full`)."""
     return solve_fv_full(problem, rtol=rtol, backend="native", assemble=native_assemble, n_cells=n_cells,
                          max_cells=max_cells, p_floor=p_floor, time_integration="cram16", **engine)

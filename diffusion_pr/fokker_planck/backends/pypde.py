@@ -37,7 +37,8 @@ import numpy as np
 
 from ...result import PressureDistribution
 from . import timed_import
-from ..engine import MAX_CELLS, FVSolution, Prepared, solve_fv_full
+from ..domain import Prepared
+from ..engine import MAX_CELLS, FVSolution, solve_fv_full
 from ..operator import centres, probe_bands, state_bands, wall_drift, wall_drift_rate
 
 __all__ = ["solve", "warm_up", "assemble"]
@@ -176,8 +177,8 @@ def solve(problem, *, rtol: float = 1e-6, method: str = "cram", n_cells: Optiona
 
 def solve_full(problem, *, rtol: float = 1e-6, method: str = "cram", n_cells: Optional[int] = None,
                max_cells: int = MAX_CELLS, p_floor: Optional[float] = None, **engine) -> FVSolution:
-    """:func:`solve` with the engine's :class:`~.fv.engine.FVSolution` (``engine``: ``grid``, ``plain``,
-    ``warm_start`` of :func:`~.fv.engine.solve_fv_full`)."""
+    """:func:`solve` with the engine's :class:`~diffusion_pr.fokker_planck.engine.FVSolution` (``engine``: ``grid``, ``plain``,
+    ``warm_start`` of :func:`~diffusion_pr.fokker_planck.engine.solve_fv_full`)."""
     _, import_time = timed_import("pde", "pypde", "py-pde")
     if method not in ("cram", "loop"):
         raise ValueError(f"method must be 'cram' or 'loop'; got method={method!r}")
