@@ -65,7 +65,6 @@ _LAZY = {
     "propagate": "api",
     "pressure_distribution": "api",
     "pressure_distributions": "api",
-    "closure_distribution": "closures",
     "solve_problem": "api",
     "choose_backend": "api",
     "BackendUnavailableError": "fokker_planck.backends",

@@ -27,6 +27,9 @@ __all__ = [
     "check_finite_array",
     "check_in_range",
     "check_callable",
+    "check_int",
+    "check_seed",
+    "check_writable_dir",
 ]
 
 
@@ -223,3 +226,43 @@ def check_callable(name: str, obj: Any) -> Callable[..., Any]:
     if not callable(obj):
         raise InputTypeError(f"{name} must be callable (a vectorized function of p); got {obj!r} of type {type(obj).__name__}")
     return obj
+
+
+def check_int(name: str, value: Any, minimum: int = 1) -> int:
+    """Require an integer (not a bool or float) >= ``minimum``; return it as ``int``."""
+    import numbers
+
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}; got {value!r}")
+    return int(value)
+
+
+def check_seed(name: str, value: Any) -> Any:
+    """Require an integer >= 0 or a :class:`numpy.random.SeedSequence` (what ``default_rng`` accepts
+    reproducibly)."""
+    import numbers
+
+    if isinstance(value, np.random.SeedSequence):
+        return value
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral) or value < 0:
+        raise ValueError(f"{name} must be an integer >= 0 or a numpy SeedSequence; got {name}={value!r}")
+    return int(value)
+
+
+def check_writable_dir(name: str, path: Any) -> str:
+    """Create the folder ``path`` if needed and check that a file can be written in it (before any expensive
+    work, so an unwritable output folder is an immediate ``ValueError`` naming the parameter)."""
+    import os
+    import tempfile
+
+    try:
+        folder = os.fspath(path)
+    except TypeError:
+        raise ValueError(f"{name} must be a path; got {name}={path!r}") from None
+    try:
+        os.makedirs(folder, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise ValueError(f"{name}={folder!r} is not a writable folder: {exc.strerror or exc}") from None
+    return folder

@@ -90,7 +90,7 @@ def _accepted_options(name: str) -> set:
 @functools.lru_cache(maxsize=None)
 def _keyword_options(solve: Callable) -> frozenset:
     """Keyword options of a backend's ``solve`` function (besides ``rtol``), read once per function (a signature
-    costs about 1 ms, and the closures solve up to ten problems per call)."""
+    costs about 1 ms)."""
     import inspect
 
     params = inspect.signature(solve).parameters
@@ -258,14 +258,13 @@ def pressure_distribution(
 ) -> PressureDistribution:
     """Pressure distribution of a rough contact (Müser 2008, Eqs. 2, 9, 10; docs/theory.md).
 
-    ``closure`` picks the theory (docs/closures.md):
+    ``closure`` picks the theory (docs/closures.md, :data:`diffusion_pr.closures.CLOSURES`):
     ``"second_order"`` (the paper, default; everything below), or the
-    parameter-free ``"lognormal_gap"``, ``"local_g1"``, ``"local_g1_balanced"``
-    (:func:`diffusion_pr.closures.closure_distribution`; no cutoff, tail or drift;
-    on a continuum spectrum the shell closures answer for the continuum limit,
-    Richardson-extrapolated in the number of shells, unless
-    ``shell_extrapolation=False``).  ``diagnostics["closure"]`` names it in every
-    result.
+    parameter-free ``"lognormal_gap"`` (closed form), ``"local_g1"``, ``"local_g1_balanced"``,
+    ``"local_g1_shell_balanced"`` (no cutoff, tail or drift; solved by
+    :mod:`diffusion_pr.closures`).  On a continuum spectrum the shell closures answer for the continuum limit,
+    extrapolated in the number of shells (options ``n_shells`` and ``shell_extrapolation`` below).
+    ``diagnostics["closure"]`` names the closure in every result.
 
     Steps: ``V = stress_variance(spectrum, E_star, p0, zeta)`` (Eq. 9 with
     ``G1`` of Eq. 10 for ``zeta > 0``; Persson's ``V0`` for ``zeta = 0``);
@@ -302,7 +301,13 @@ def pressure_distribution(
     drift : callable, optional
         ``A(p, eta)`` (pressure per unit magnification).
     backend, rtol, **options
-        As in :func:`propagate`.
+        As in :func:`propagate`.  The shell closures take a finite-volume backend (``"auto"`` is ``"native"``)
+        and two more options: ``n_shells`` (continuum spectra: the number of shells, default 96; or, with the
+        extrapolation, its first solve's, default 48) and ``shell_extrapolation`` (default None: True for a
+        continuum spectrum without ``n_shells``; True: the continuum closure, extrapolated in the number of
+        shells cell by cell on the first solve's grids, its ``error_estimate`` the grids' estimate plus the
+        shells' residual, ``diagnostics["shell_error"]`` the first solve's distance from the continuum; False: the
+        ``n_shells`` problem itself, exact for a :class:`~diffusion_pr.spectra.DiscreteSpectrum`'s own shells).
 
     Returns
     -------
@@ -333,12 +338,18 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
         from .closures import _closure_distribution, check_closure
 
         check_closure(closure)
-        if drift is not None:
-            raise ValueError(f"drift applies to closure='second_order' only; got closure={closure!r}")
+        for name, value in (("drift", drift), ("cutoff", None if cutoff == "sharp" else cutoff), ("p_c", p_c),
+                            ("tail", tail), ("p_t", p_t)):
+            if value is not None:
+                raise ValueError(f"{name} applies to closure='second_order' only; closure={closure!r} has no fitted "
+                                 f"cutoff, tail or drift (got {name}={value!r})")
         return _closure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
-                                     closure=closure, cutoff=None if cutoff == "sharp" else cutoff, p_c=p_c,
-                                     tail=tail, p_t=p_t, backend=backend, rtol=rtol, warm_start=warm_start,
-                                     **options)
+                                     closure=closure, backend=_check_backend(backend), rtol=_check_rtol(rtol),
+                                     warm_start=warm_start, **options)
+    for name in ("n_shells", "shell_extrapolation"):
+        if options.get(name) is not None:
+            raise ValueError(f"{name} applies to the shell closures, not to 'second_order'")
+        options.pop(name, None)
     from .cumulants import stress_variance, variance_vs_magnification
 
     E = check_positive("E_star", E_star)

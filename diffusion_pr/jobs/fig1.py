@@ -165,7 +165,7 @@ class Fig1Report:
 def _check_inputs(n: Any, zetas: Any, hard_wall: Any, seed: Any, tol: Any, progress: Any,
                   log: Any) -> tuple[int, list[float]]:
     """Validate the scalar inputs of :func:`run_fig1` (ValueError naming the parameter)."""
-    from gfmd_ref._validation import check_int, check_positive, check_seed
+    from .._validation import check_int, check_positive, check_seed
 
     n = check_int("n", n, minimum=2)
     if isinstance(zetas, (str, bytes)) or not hasattr(zetas, "__iter__"):
@@ -225,7 +225,7 @@ def run_fig1(*, n: int = 512, zetas: Sequence[float] = DEFAULT_ZETAS, hard_wall:
         For any bad input, before any GFMD work.
     """
     import gfmd_ref
-    from gfmd_ref._validation import check_writable_dir
+    from .._validation import check_writable_dir
 
     from ..compare import SimulatedHistogram, compare
     from ..cumulants import stress_variance

@@ -200,7 +200,7 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
     """
 
     import gfmd_ref
-    from gfmd_ref._validation import check_int, check_positive, check_seed, check_writable_dir
+    from .._validation import check_int, check_positive, check_seed, check_writable_dir
 
     if surface not in ("fig1", "fig1-skewed"):
         raise ValueError(f"surface must be 'fig1' or 'fig1-skewed'; got surface={surface!r}")

@@ -14,9 +14,8 @@ import numpy as np
 import pytest
 
 import diffusion_pr as dp
-from diffusion_pr import closures
-from diffusion_pr.closures import (CLOSURES, closure_distribution, closure_problem, contact_fraction,
-                                   lognormal_gap_distribution, spectrum_shells)
+from diffusion_pr.closed_forms import lognormal_gap_distribution
+from diffusion_pr.closures import CLOSURES, closure_problem, contact_fraction, continuum, shells, spectrum_shells
 from oracles.closure_reference import reference_distribution
 
 E, P0 = 8.0 / 3.0, 0.004
@@ -77,7 +76,7 @@ def test_continuum_shell_count_is_converged(fig1):
 @pytest.mark.parametrize("closure", ["local_g1", "local_g1_balanced", "local_g1_shell_balanced", "second_order"])
 def test_hard_wall_is_persson(fig1, persson, closure):
     """zeta = 0: g = 1, no drift, absorbing wall: every shell closure is Persson's mirror Gaussian."""
-    solve = closure_distribution if closure == "second_order" else reference_distribution
+    solve = dp.pressure_distribution if closure == "second_order" else reference_distribution
     r = solve(fig1, E_star=E, mean_pressure=P0, zeta=0.0, closure=closure)
     assert r.diagnostics["closure"] == closure
     assert kolmogorov(r, persson, p_min=0.0) < 2e-6  # measured 5e-7 (1600 cells)
@@ -89,7 +88,7 @@ def test_hard_wall_shell_closures_are_one_exponential(fig1, persson, closure):
     """zeta = 0: the 96 shells share f = 1 and no drift, so they commute and the engine integrates them as one
     exponential (4.9 ms -> 1.1 ms); the answer is Persson's closed form within rtol (measured: cdf 7.9e-10,
     zero weight 6e-11)."""
-    r = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.0, closure=closure, rtol=1e-6)
+    r = dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.0, closure=closure, rtol=1e-6)
     assert r.success and r.diagnostics["n_stages"] == 1
     x = np.linspace(0.0, 20 * P0, 2001)
     assert np.max(np.abs(r.cdf(x) - persson.cdf(x))) < 1e-6
@@ -98,7 +97,7 @@ def test_hard_wall_shell_closures_are_one_exponential(fig1, persson, closure):
 
 def test_lognormal_gap_refuses_the_hard_wall(fig1):
     with pytest.raises(ValueError, match="zeta > 0"):
-        closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.0, closure="lognormal_gap")
+        dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.0, closure="lognormal_gap")
 
 
 # ----------------------------------------------------------------------------- conservation
@@ -277,7 +276,7 @@ def test_rows_are_the_model_formulas(fig1):
 def test_bad_input(fig1, kwargs, match):
     kw = {"zeta": 0.1, **kwargs}
     with pytest.raises(ValueError, match=match):
-        closure_distribution(fig1, E_star=E, mean_pressure=P0, **kw)
+        dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, **kw)
 
 
 def test_closure_names():
@@ -325,7 +324,7 @@ def test_engine_native_agrees_with_the_reference(fig1, closure, zeta):
     ref = reference_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure)
     # the balanced closure costs the engine 2-5 s at rtol 1e-6: checked at 1e-4
     rtol = 1e-4 if "balanced" in closure and zeta > 0 else 1e-6
-    eng = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure, backend="native",
+    eng = dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure, backend="native",
                                rtol=rtol, shell_extrapolation=False)  # the same 96 shells as the reference
     assert eng.success and eng.diagnostics["closure"] == closure
     assert kolmogorov(eng, ref) < 3e-4
@@ -339,8 +338,8 @@ def test_engine_backends_agree_on_a_closure(fig1, backend):
     (local_g1): native - fipy 0 to round-off (same engine), native - pypde 1.5e-3, all three
     1.2e-3 ... 3.6e-3 from the reference: the engine's estimate (7e-5) is optimistic."""
     kw = dict(E_star=E, mean_pressure=P0, zeta=0.25, closure="local_g1", rtol=1e-4)
-    nat = closure_distribution(fig1, backend="native", **kw)
-    other = closure_distribution(fig1, backend=backend, **kw)
+    nat = dp.pressure_distribution(fig1, backend="native", **kw)
+    other = dp.pressure_distribution(fig1, backend=backend, **kw)
     assert other.success and other.diagnostics["closure"] == "local_g1"
     assert kolmogorov(nat, other) < 3e-3
 
@@ -381,10 +380,10 @@ _IN_SPACE = "correction from plain grids, extrapolated in space (N and 2N grids)
 
 def _second_order_size_counted(monkeypatch) -> None:
     """The N and 2N grids' extrapolation of the shells' correction not trusted: ``c_2N`` with its second-order size
-    counted (what ``closures._correction_in_space`` returns where the problem's own grids do not trust it; on
+    counted (what ``continuum._correction_in_space`` returns where the problem's own grids do not trust it; on
     uniform shells the default before the thirty-first session), to reach the paths that follow from it."""
-    in_space = closures._correction_in_space
-    monkeypatch.setattr(closures, "_correction_in_space",
+    in_space = continuum._correction_in_space
+    monkeypatch.setattr(continuum, "_correction_in_space",
                         lambda c_n, c_2n, own: (c_2n,) + 2 * in_space(c_n, c_2n, own)[2:3] + (False,))
 
 
@@ -397,7 +396,7 @@ def test_shell_extrapolation_reaches_the_continuum_closure(fig1, monkeypatch, cl
     (Fig. 1 scene), 50x rtol; the default for a continuum spectrum is the extrapolated answer: a 48-shell solve
     corrected from the plain grids of 24, 12 and 6 shells, Romberg to sixth order (the observed ratio of the
     Richardson differences is 15.3, a fourth order).  The correction is extrapolated in space from the N and 2N
-    grids (``closures._correction_in_space``).  Where the problem's own grids do not trust that extrapolation, its
+    grids (``continuum._correction_in_space``).  Where the problem's own grids do not trust that extrapolation, its
     error is counted at its second-order size; forced so at zeta = 0.25, that size (7.6e-7) is too large for rtol,
     and the 4N grids extrapolate it in space (the default took that path there before the thirty-first session,
     which counts the extrapolated correction's own error on uniform shells).  The oracle is the continuum closure
@@ -407,11 +406,11 @@ def test_shell_extrapolation_reaches_the_continuum_closure(fig1, monkeypatch, cl
     twenty-ninth session: 6.5e-7 / 7.1e-7 in L1 at zeta = 1), the plain 96-shell answer does not (measured 5.2e-5 /
     5.3e-5 / 7.7e-5), and diagnostics["shell_error"] says how far the 48-shell one is (5.7e-4 ... 6.7e-4 in L1)."""
     kw = dict(E_star=E, mean_pressure=P0, zeta=zeta, closure=closure)
-    fine = {n: closure_distribution(fig1, rtol=1e-9, n_shells=n, **kw) for n in (384, 768)}
+    fine = {n: dp.pressure_distribution(fig1, rtol=1e-9, n_shells=n, **kw) for n in (384, 768)}
     if scheme != _IN_SPACE:
         _second_order_size_counted(monkeypatch)
-    r = closure_distribution(fig1, **kw)  # the default for a continuum spectrum
-    plain = closure_distribution(fig1, shell_extrapolation=False, **kw)
+    r = dp.pressure_distribution(fig1, **kw)  # the default for a continuum spectrum
+    plain = dp.pressure_distribution(fig1, shell_extrapolation=False, **kw)
     edges = r.edges
     oracle = (4.0 * fine[768].cdf(edges) - fine[384].cdf(edges)) / 3.0
     true = np.max(np.abs(r.cdf(edges) - oracle))
@@ -436,11 +435,11 @@ def test_shell_extrapolation_reaches_the_continuum_closure(fig1, monkeypatch, cl
 
 
 def test_split_to_finer_is_exact_for_a_linear_density_and_aggregates_back():
-    """``closures._split_to_finer`` shares each cell's mass between its halves as a density linear across the cell
+    """``continuum._split_to_finer`` shares each cell's mass between its halves as a density linear across the cell
     would: for the masses of a linear density (uniform cells) the halves are the fine cells' masses exactly (one-sided
     slopes at the ends included), for a quadratic one within its curvature's share (h^3 of the cell), and the halves
     always sum to the cell.  A slope of the wrong sign or size fails the first assertion."""
-    from diffusion_pr.closures import _split_to_finer
+    from diffusion_pr.closures.continuum import _split_to_finer
 
     fine_edges = np.linspace(0.0, 3.0, 41)
 
@@ -456,10 +455,10 @@ def test_split_to_finer_is_exact_for_a_linear_density_and_aggregates_back():
 
 
 def test_correction_in_space_needs_the_problems_own_finest_grid():
-    """``closures._correction_in_space`` extrapolates the correction only where the n-shell problem's own masses on
+    """``continuum._correction_in_space`` extrapolates the correction only where the n-shell problem's own masses on
     the 4N grid show how well the same extrapolation does (else ``c_2N`` with its second-order estimate), and where
     that factor times SPLIT_MARGIN is below 1."""
-    from diffusion_pr.closures import _correction_in_space
+    from diffusion_pr.closures.continuum import _correction_in_space
 
     rng = np.random.default_rng(5)
     c_n, c_2n = rng.normal(size=9), rng.normal(size=17)
@@ -475,7 +474,7 @@ def test_correction_in_space_needs_the_problems_own_finest_grid():
     limit = lambda n: np.r_[0.1, np.diff(np.sin(np.linspace(0.0, 1.0, n + 1)))]  # noqa: E731
     p = [limit(m) + np.r_[1e-3 / m ** 2, np.cos(x(m)) / m ** 3] for m in (8, 16, 32)]
     corr, err, sec, split = _correction_in_space(c_n, c_2n, p)
-    assert split and err == pytest.approx(closures.SPLIT_FLOOR * second)
+    assert split and err == pytest.approx(continuum.SPLIT_FLOOR * second)
     assert np.allclose(corr[1::2] + corr[2::2], (4.0 * (c_2n[1::2] + c_2n[2::2]) - c_n[1:]) / 3.0)
 
 
@@ -486,10 +485,10 @@ def test_correction_in_space_against_the_correction_from_the_4n_grids(fig1, monk
     sum of their estimates (5.6e-8 + 1.3e-9), while the correction's second-order error is 5.6e-7: the extrapolation
     removes 98 % of it.  The split's sign flipped, or a factor 1.5 instead of 3, fails."""
     kw = dict(E_star=E, mean_pressure=P0, zeta=1.0, closure="local_g1_balanced")
-    r = closure_distribution(fig1, **kw)
-    in_space = closures._correction_in_space
-    monkeypatch.setattr(closures, "_correction_in_space", lambda *a: in_space(*a)[:2] + (1.0, False))
-    finest = closure_distribution(fig1, **kw)
+    r = dp.pressure_distribution(fig1, **kw)
+    in_space = continuum._correction_in_space
+    monkeypatch.setattr(continuum, "_correction_in_space", lambda *a: in_space(*a)[:2] + (1.0, False))
+    finest = dp.pressure_distribution(fig1, **kw)
     assert r.diagnostics["shell_scheme"].endswith("(N and 2N grids)")
     assert finest.diagnostics["shell_scheme"].endswith("(4N grids)")
     assert np.array_equal(r.edges, finest.edges) and r.diagnostics["shells_solved"] == finest.diagnostics[
@@ -513,8 +512,8 @@ def test_on_uniform_shells_the_estimate_counts_the_extrapolated_correction(fig1,
     10 at zeta = 0.25.  The bound 5x: the grids' own estimate is taken 15/7 safe by design (RICHARDSON_DIVISOR), the
     rest is the shells' table.  Counting the second-order size again fails all three."""
     kw = dict(E_star=E, mean_pressure=P0, zeta=zeta, closure=closure)
-    r = closure_distribution(fig1, **kw)
-    ref = closure_distribution(fig1, rtol=1e-8, **kw)
+    r = dp.pressure_distribution(fig1, **kw)
+    ref = dp.pressure_distribution(fig1, rtol=1e-8, **kw)
     d = r.diagnostics
     assert r.success and ref.success and d["shell_grading"] == "uniform" and d["shell_scheme"] == _IN_SPACE
     true = l1_on_cells(r, ref)
@@ -526,7 +525,7 @@ def test_where_the_walls_layer_is_thin_the_estimate_keeps_the_corrections_second
     """Fig. 1 scene at zeta = 0.01 (graded shells): the thin layer's tables were 2-2.7x optimistic on two scenes
     where the correction's second-order size hid it (docs/closures.md "The correction extrapolated in space"), so
     there that size is what the estimate counts, and the extrapolated correction's own error is diagnostics only."""
-    r = closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.01, closure="local_g1_balanced")
+    r = dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.01, closure="local_g1_balanced")
     d = r.diagnostics
     assert r.success and d["shell_grading"] != "uniform" and d["shell_scheme"].startswith(_IN_SPACE)
     # (plus the later rungs' refinement error where they are on the N grid alone: 96 shells here, COARSE_RUNGS)
@@ -539,7 +538,7 @@ def test_romberg_is_not_taken_on_a_ratio_just_above_its_order(l1_on_cells, monke
     shells (a ``benchmarks/closure_estimates.py`` scene): on 6/12/24/48 shells the ``R(n/2, n)`` differences fall
     17.8x (16 at fourth order), then 6.7x, 11.4x and 9.3x on finer ladders.  Romberg's column on 48 shells was
     1.86e-6 off while its residual claimed 6.8e-7; with the extrapolated correction's own error counted the answer
-    claimed 9.6e-7 and was 1.94e-6 off.  Romberg is trusted up to :data:`closures.ROMBERG_MAX_RATIO` = 17 now: the
+    claimed 9.6e-7 and was 1.94e-6 off.  Romberg is trusted up to :data:`continuum.ROMBERG_MAX_RATIO` = 17 now: the
     ladder grows to 96 shells, and the answer is within its estimate of the rtol-1e-8 one (measured 3.0e-7 against
     6.3e-7).  ``ROMBERG_MAX_RATIO = 20`` (the value before) fails it.  That is the table on the whole ladder
     (``UNIFORM_PARTS`` off).  With the zero weight and the cells apart (the default since the forty-ninth session)
@@ -547,8 +546,8 @@ def test_romberg_is_not_taken_on_a_ratio_just_above_its_order(l1_on_cells, monke
     1.3e-7 off against 2.9e-7."""
     spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
     kw = dict(E_star=E, mean_pressure=0.016, zeta=0.03, closure="local_g1_shell_balanced")
-    ref = closure_distribution(spec, rtol=1e-8, **kw)
-    r = closure_distribution(spec, **kw)
+    ref = dp.pressure_distribution(spec, rtol=1e-8, **kw)
+    r = dp.pressure_distribution(spec, **kw)
     assert r.success and ref.success and r.diagnostics["shell_grading"] == "uniform"
     assert l1_on_cells(r, ref) + ref.error_estimate <= min(1e-6, r.error_estimate)
     # at 192 shells the two parts take different branches: the zero weight Romberg (its R ratio 12.5), the cells R
@@ -558,7 +557,7 @@ def test_romberg_is_not_taken_on_a_ratio_just_above_its_order(l1_on_cells, monke
 def _assert_exact_midpoints(spectrum, shells, edges) -> None:
     """Each node inside its shell, where the cumulative V0 (the spectrum's own, the oracle) reaches half the shell
     to 1e-12 of its power, and the shells' powers the cumulative's increments."""
-    from diffusion_pr.closures import MIDPOINT_TOL
+    from diffusion_pr.closures.shells import MIDPOINT_TOL
 
     w = lambda q: (0.25 * E * E) * q * q  # noqa: E731
     cum = spectrum.cumulative(w, edges)
@@ -582,23 +581,23 @@ def test_shell_midpoints_are_exact_in_diffusion_time(fig1):
 def test_shell_extrapolation_is_checked(fig1):
     kw = dict(E_star=E, mean_pressure=P0, zeta=1.0)
     with pytest.raises(ValueError, match="shell_extrapolation must be None, True or False"):
-        closure_distribution(fig1, closure="local_g1", shell_extrapolation="yes", **kw)
+        dp.pressure_distribution(fig1, closure="local_g1", shell_extrapolation="yes", **kw)
     with pytest.raises(ValueError, match="n_shells divisible by 4"):
-        closure_distribution(fig1, closure="local_g1", shell_extrapolation=True, n_shells=90, **kw)
+        dp.pressure_distribution(fig1, closure="local_g1", shell_extrapolation=True, n_shells=90, **kw)
     with pytest.raises(ValueError, match="applies to the shell closures"):
-        closure_distribution(fig1, closure="second_order", shell_extrapolation=True, **kw)
+        dp.pressure_distribution(fig1, closure="second_order", shell_extrapolation=True, **kw)
     from diffusion_pr.jobs.reference_data import case_name, load_reference
 
     discrete = load_reference(case_name(4.0, 1)).spectrum
     with pytest.raises(ValueError, match="continuum spectra"):
-        closure_distribution(discrete, closure="local_g1", shell_extrapolation=True, **kw)
+        dp.pressure_distribution(discrete, closure="local_g1", shell_extrapolation=True, **kw)
     # the hard wall: every stage commutes, the shells do not matter (the answer is the plain one, bit for bit)
-    hard = closure_distribution(fig1, closure="local_g1_balanced", shell_extrapolation=True,
+    hard = dp.pressure_distribution(fig1, closure="local_g1_balanced", shell_extrapolation=True,
                                 **dict(kw, zeta=0.0))
-    plain = closure_distribution(fig1, closure="local_g1_balanced", shell_extrapolation=False, **dict(kw, zeta=0.0))
+    plain = dp.pressure_distribution(fig1, closure="local_g1_balanced", shell_extrapolation=False, **dict(kw, zeta=0.0))
     assert hard.diagnostics["shell_error"] == 0.0 and np.array_equal(hard.density, plain.density)
     # n_shells given: that problem itself unless asked otherwise
-    assert "shell_error" not in closure_distribution(fig1, closure="local_g1", n_shells=48, **kw).diagnostics
+    assert "shell_error" not in dp.pressure_distribution(fig1, closure="local_g1", n_shells=48, **kw).diagnostics
 
 
 def test_shell_extrapolation_doubles_the_shells_where_its_residual_misses(fig1):
@@ -607,7 +606,7 @@ def test_shell_extrapolation_doubles_the_shells_where_its_residual_misses(fig1):
     rtol: the 96-shell problem is solved on the same grids and 96/48/24 combined (measured: estimate 7.3e-7, true
     3.0e-7 in L1 against the uniform 384/768 oracle; before the grading, 384 uniform shells were needed)."""
     kw = dict(E_star=E, mean_pressure=P0, zeta=0.01, closure="local_g1_balanced")
-    r = closure_distribution(fig1, **kw)
+    r = dp.pressure_distribution(fig1, **kw)
     assert r.success and r.diagnostics["n_shells"] == (96, 48, 24) and r.diagnostics["shell_grading"] == "end"
     assert r.diagnostics["shells_solved"] == (6, 12, 24, 48, 96)
     # doubled on the plain N grid (the first table's correction on the N and 2N grids, COARSE_RUNGS)
@@ -615,7 +614,7 @@ def test_shell_extrapolation_doubles_the_shells_where_its_residual_misses(fig1):
     assert r.diagnostics["shell_extrapolation_order"] == 4 and r.diagnostics["richardson_order_ratio"] < 12.0
     # the oracle at rtol 1e-8 (1e-9 takes 40 s at this wall), uniform shells (independent of the grading): its own
     # error is about 3e-8 (it moves by that to 1536/3072)
-    fine = {n: closure_distribution(fig1, rtol=1e-8, n_shells=n, **kw) for n in (384, 768)}
+    fine = {n: dp.pressure_distribution(fig1, rtol=1e-8, n_shells=n, **kw) for n in (384, 768)}
     oracle = (4.0 * fine[768].cdf(r.edges) - fine[384].cdf(r.edges)) / 3.0
     true = np.max(np.abs(r.cdf(r.edges) - oracle))
     assert true < 1e-6 and true < 10 * r.error_estimate
@@ -626,19 +625,17 @@ def test_graded_and_uniform_shells_meet_the_oracle_on_a_stress_scene(monkeypatch
     and a start within a shell's diffusion length of the wall).  The default grades the shells at both ends
     ("ends"): the first shells are ~h^2 wide, every coarse problem balances and 48/24/12 meet rtol; uniform shells
     need 96/48/24.  Both agree with the uniform 768/1536-shell oracle (1e-6 in the sup of the cdf)."""
-    from diffusion_pr import closures
-
     spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
     kw = dict(E_star=E, mean_pressure=1e-5, zeta=1e-3, closure="local_g1_balanced")
-    graded = closure_distribution(spec, **kw)
+    graded = dp.pressure_distribution(spec, **kw)
     assert graded.success and graded.diagnostics["shell_grading"] == "ends"
     assert graded.diagnostics["n_shells"] == (48, 24, 12) and "shells_first_tried" not in graded.diagnostics
-    monkeypatch.setattr(closures, "WALL_LAYER_RATIO", 0.0)  # uniform shells
-    monkeypatch.setattr(closures, "START_WALL_LAYER_RATIO", 0.0)
-    r = closure_distribution(spec, **kw)
+    monkeypatch.setattr(shells, "WALL_LAYER_RATIO", 0.0)  # uniform shells
+    monkeypatch.setattr(shells, "START_WALL_LAYER_RATIO", 0.0)
+    r = dp.pressure_distribution(spec, **kw)
     assert r.success and r.diagnostics["n_shells"] == (96, 48, 24)
     x = np.geomspace(1e-8, 1e3, 3000) * 1e-5
-    fine = {n: closure_distribution(spec, rtol=1e-8, n_shells=n, **kw) for n in (768, 1536)}
+    fine = {n: dp.pressure_distribution(spec, rtol=1e-8, n_shells=n, **kw) for n in (768, 1536)}
     oracle = (4.0 * fine[1536].cdf(x) - fine[768].cdf(x)) / 3.0
     for answer in (graded, r):
         assert np.max(np.abs(oracle - answer.cdf(x))) < 1e-6
@@ -651,8 +648,8 @@ def test_continuum_closure_is_the_same_from_pypde(fig1):
     within what both claim (rtol 1e-6 each: 2e-6; measured 4.7e-8)."""
     pytest.importorskip("pde")
     kw = dict(E_star=E, mean_pressure=P0, zeta=1.0, closure="local_g1_balanced")
-    nat = closure_distribution(fig1, backend="native", **kw)
-    peer = closure_distribution(fig1, backend="pypde", **kw)
+    nat = dp.pressure_distribution(fig1, backend="native", **kw)
+    peer = dp.pressure_distribution(fig1, backend="pypde", **kw)
     assert nat.success and peer.success and peer.diagnostics["shell_extrapolation"]
     x = np.geomspace(1e-12, 1e3, 3000) * P0
     assert np.max(np.abs(peer.cdf(x) - nat.cdf(x))) < 2e-6
@@ -664,8 +661,8 @@ def test_graded_continuum_closure_is_the_same_from_pypde(fig1):
     2.2e-8 in 10 s, not run here)."""
     pytest.importorskip("pde")
     kw = dict(E_star=E, mean_pressure=P0, zeta=0.001, closure="local_g1")
-    nat = closure_distribution(fig1, backend="native", **kw)
-    peer = closure_distribution(fig1, backend="pypde", **kw)
+    nat = dp.pressure_distribution(fig1, backend="native", **kw)
+    peer = dp.pressure_distribution(fig1, backend="pypde", **kw)
     assert nat.success and peer.success and peer.diagnostics["shell_grading"] == "end"
     assert peer.diagnostics["n_shells"] == nat.diagnostics["n_shells"]
     x = np.geomspace(1e-12, 1e3, 3000) * P0
@@ -728,7 +725,7 @@ def test_the_later_rungs_on_the_coarse_grid_keep_the_answer_within_its_estimate(
     kw = dict(E_star=E, mean_pressure=P0)
     for closure, zeta, rungs in (("local_g1_shell_balanced", 0.01, (96, 192)), ("local_g1_balanced", 0.01, (96,)),
                                  ("local_g1_shell_balanced", 0.001, ())):
-        on = closure_distribution(fig1, zeta=zeta, closure=closure, **kw)
+        on = dp.pressure_distribution(fig1, zeta=zeta, closure=closure, **kw)
         d = on.diagnostics
         assert on.success and d["shells_on_the_coarse_grid"] == rungs
         if not rungs:
@@ -736,7 +733,7 @@ def test_the_later_rungs_on_the_coarse_grid_keep_the_answer_within_its_estimate(
             continue
         assert "refined by the N grid's rungs" in d["shell_scheme"]
         assert d["shell_refinement_error"] < 0.1 * 1e-6  # measured 5.9e-8, 3.4e-8
-        oracle = closure_distribution(fig1, zeta=zeta, closure=closure, rtol=1e-8, **kw)
+        oracle = dp.pressure_distribution(fig1, zeta=zeta, closure=closure, rtol=1e-8, **kw)
         assert l1_on_cells(on, oracle) < on.error_estimate <= 1e-6
 
 
@@ -748,13 +745,11 @@ def test_a_uniform_ladder_keeps_its_later_rungs_on_both_grids(monkeypatch, l1_on
     the ladder goes on to 192 shells and the answer is 7.6e-8 off against 7.2e-7 (measured).  Oracle: the rtol-1e-8
     answer; the answer must be within its estimate and rtol, and the same bits as with the switch off.  Break that
     fails it: the guard on graded shells dropped."""
-    from diffusion_pr import closures
-
     spec = dp.SelfAffineSpectrum(0.8336925280073781, 2 * np.pi / 512, 2 * np.pi / 4, C0=3952.347752033435)
     kw = dict(E_star=E, mean_pressure=2.470362841947012e-05, zeta=0.19652159259222554,
               closure="local_g1_shell_balanced")
-    on = closure_distribution(spec, **kw)
-    oracle = closure_distribution(spec, rtol=1e-8, **kw)
+    on = dp.pressure_distribution(spec, **kw)
+    oracle = dp.pressure_distribution(spec, rtol=1e-8, **kw)
     assert on.success and l1_on_cells(on, oracle) < on.error_estimate <= 1e-6
     assert on.diagnostics["shell_grading"] == "uniform" and on.diagnostics["shells_on_the_coarse_grid"] == ()
 
@@ -778,8 +773,8 @@ def test_the_uniform_table_takes_the_zero_weights_order_apart(monkeypatch, l1_on
     (measured 4.4x and 3.2x) above its estimate."""
     spec = dp.SelfAffineSpectrum(hurst, q_min, q_max, C0=C0)
     kw = dict(E_star=E, mean_pressure=p0, zeta=zeta, closure=closure)
-    oracle = closure_distribution(spec, rtol=1e-8, **kw)
-    r = closure_distribution(spec, **kw)
+    oracle = dp.pressure_distribution(spec, rtol=1e-8, **kw)
+    r = dp.pressure_distribution(spec, **kw)
     assert r.success and r.diagnostics["shell_grading"] == "uniform"
     assert l1_on_cells(r, oracle) + oracle.error_estimate <= min(r.error_estimate, 1e-6)
 
@@ -798,17 +793,15 @@ def test_graded_shells_restore_the_order_where_the_wall_layer_is_thin(fig1, monk
     (rho - 1) and the shells double to 384.  Graded towards q_max (shell_grading "end") the order is two again:
     48 shells meet rtol.  Both answers meet it against the uniform oracle R(768, 1536) at rtol 1e-8 (measured
     1.2e-7 graded, estimate 1.9e-7; the oracle moves by 3.7e-8 in L1 to R(1536, 3072))."""
-    from diffusion_pr import closures
-
     kw = dict(E_star=E, mean_pressure=P0, zeta=0.001, closure="local_g1")
-    graded = closure_distribution(fig1, **kw)
+    graded = dp.pressure_distribution(fig1, **kw)
     assert graded.success and graded.diagnostics["shell_grading"] == "end"
     assert graded.diagnostics["wall_layer_ratio"] < 1e-3 and graded.diagnostics["n_shells"] == (48, 24, 12)
-    monkeypatch.setattr(closures, "WALL_LAYER_RATIO", 0.0)  # never graded: the uniform shells of before
-    uniform = closure_distribution(fig1, **kw)
+    monkeypatch.setattr(shells, "WALL_LAYER_RATIO", 0.0)  # never graded: the uniform shells of before
+    uniform = dp.pressure_distribution(fig1, **kw)
     assert uniform.success and uniform.diagnostics["shell_grading"] == "uniform"
     assert uniform.diagnostics["n_shells"][0] >= 384 and uniform.diagnostics["shell_order_ratio"] < 3.0
-    fine = {n: closure_distribution(fig1, rtol=1e-8, n_shells=n, **kw) for n in (768, 1536)}
+    fine = {n: dp.pressure_distribution(fig1, rtol=1e-8, n_shells=n, **kw) for n in (768, 1536)}
     for r in (graded, uniform):
         l1_true = _l1_to_oracle(r, fine)
         assert l1_true < 1e-6 and l1_true < 2 * r.error_estimate  # (2: the oracle's own 3.7e-8 against 1.9e-7)
@@ -822,19 +815,17 @@ def test_thin_layer_table_does_not_trust_one_fourth_order_ratio(monkeypatch):
     ratio, at most 2^2.5) solves 192 shells: within rtol of the uniform oracle R(768, 1536) at rtol 1e-8 (which
     moves by 2e-9 to R(1536, 3072)), measured 5.8e-7 against an estimate of 7.8e-7.  The tolerance: rtol itself,
     and the estimate at most 3x optimistic (the oracle's own error is 300x below)."""
-    from diffusion_pr import closures
-
     spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
     kw = dict(E_star=E, mean_pressure=0.016, zeta=0.01, closure="local_g1_balanced")
-    r = closure_distribution(spec, **kw)
+    r = dp.pressure_distribution(spec, **kw)
     assert r.success and r.diagnostics["shell_grading"] == "end" and r.diagnostics["shell_extrapolation_order"] == 4
     assert r.diagnostics["n_shells"][0] >= 96
-    fine = {n: closure_distribution(spec, rtol=1e-8, n_shells=n, **kw) for n in (768, 1536)}
+    fine = {n: dp.pressure_distribution(spec, rtol=1e-8, n_shells=n, **kw) for n in (768, 1536)}
     true = _l1_to_oracle(r, fine)
     assert true < 1e-6 and true < 3.0 * r.error_estimate, (true, r.error_estimate)
     # the table of the L1 sums (as before): 48 shells, Romberg, 7x optimistic
-    monkeypatch.setattr(closures, "_thin_layer_table", lambda ladder, start=False: closures._shell_table(ladder))
-    old = closure_distribution(spec, **kw)
+    monkeypatch.setattr(continuum, "_thin_layer_table", lambda ladder, start=False: continuum._shell_table(ladder))
+    old = dp.pressure_distribution(spec, **kw)
     assert old.diagnostics["n_shells"][0] == 48 and old.diagnostics["shell_extrapolation_order"] == 6
     assert _l1_to_oracle(old, fine) > 3.0 * old.error_estimate
 
@@ -846,7 +837,7 @@ def test_thin_layer_table_bounds_known_series():
     residual must bound its true error in both entries (the oracle: the series' limits).  Trusting a fourth order
     at the observed 12.6 (the cap at 16) claims 4.3e-5 for the cell's 5.8e-5; one L1 ratio for both entries
     under-counts the zero weight."""
-    from diffusion_pr.closures import _thin_layer_table
+    from diffusion_pr.closures.continuum import _thin_layer_table
 
     def ladder(n):
         h = 1.0 / n
@@ -865,15 +856,13 @@ def test_uniform_table_below_second_order_does_not_trust_a_faster_r_ratio(monkey
     limit).  Divided by the R ratio minus 1 (as before) the residual claimed 5.1e-4; divided by the P ratio minus 1,
     since the P differences show no clear second order (below SECOND_ORDER_CLEAR), it bounds the truth, by at most
     3x."""
-    from diffusion_pr import closures
-
     ladder = [np.array([0.0, 1.0 + 8.0 / n ** 2 + 1.0 / n ** 1.5 - 200.0 / n ** 4]) for n in (48, 24, 12, 6)]
-    x, residual, info = closures._shell_table(ladder)
+    x, residual, info = continuum._shell_table(ladder)
     true = abs(x[1] - 1.0)
     assert info["shell_order_ratio"] == pytest.approx(3.14, abs=0.01) and info["shell_extrapolation_order"] == 4
     assert true <= residual <= 3.0 * true
-    monkeypatch.setattr(closures, "SECOND_ORDER_CLEAR", 0.0)  # the R ratio trusted whatever the P ratio
-    assert closures._shell_table(ladder)[1] < 0.5 * true
+    monkeypatch.setattr(continuum, "SECOND_ORDER_CLEAR", 0.0)  # the R ratio trusted whatever the P ratio
+    assert continuum._shell_table(ladder)[1] < 0.5 * true
 
 
 def test_uniform_ladder_below_second_order_meets_rtol():
@@ -883,19 +872,17 @@ def test_uniform_ladder_below_second_order_meets_rtol():
     R(24, 48) was 1.35e-6 from the rtol-1e-8 answer (which agrees with R(768, 1536) of uniform shells at rtol 1e-8
     to 3.8e-9) against a claimed 8.6e-7.  With the P ratio as the divisor it solves 96 shells: measured 2.5e-7
     against an estimate of 5.7e-7.  Tolerance: rtol, and the estimate at most 3x optimistic."""
-    from diffusion_pr import closures
-
     spec = dp.SelfAffineSpectrum(0.7845346538596203, 2 * np.pi / 8192, 2 * np.pi / 64, C0=1205070503.773731)
     kw = dict(E_star=E, mean_pressure=0.0006022650141953662, zeta=2.9105108588108473, closure="local_g1")
-    oracle = closure_distribution(spec, rtol=1e-8, **kw)
-    r = closure_distribution(spec, **kw)
+    oracle = dp.pressure_distribution(spec, rtol=1e-8, **kw)
+    r = dp.pressure_distribution(spec, **kw)
     assert r.success and oracle.success and r.diagnostics["shell_grading"] == "uniform"
 
     def l1(a):
         x, y = a.cdf(a.edges), oracle.cdf(a.edges)
         return abs(x[0] - y[0]) + float(np.sum(np.abs(np.diff(x) - np.diff(y))))
 
-    assert r.diagnostics["shell_order_ratio"] < closures.SECOND_ORDER_CLEAR
+    assert r.diagnostics["shell_order_ratio"] < continuum.SECOND_ORDER_CLEAR
     assert l1(r) < 1e-6 and l1(r) < 3.0 * r.error_estimate, (l1(r), r.error_estimate)
 
 
@@ -907,23 +894,21 @@ def test_thin_start_table_counts_a_crossing_undivided(monkeypatch):
     agrees with R(768, 1536) of uniform shells at rtol 1e-8 to 1.3e-9) against a claimed 9.1e-7.  Counted undivided
     (shells graded at both ends) it solves 192 shells: measured 4.5e-8 against an estimate of 3.3e-7.  Tolerance:
     rtol, and the estimate at most 3x optimistic; the rule off, the old answer misses rtol."""
-    from diffusion_pr import closures
-
     spec = dp.SelfAffineSpectrum(0.7901175467891104, 2 * np.pi / 2048, 2 * np.pi / 8, C0=1610216.250921402)
     kw = dict(E_star=E, mean_pressure=6.69553841547732e-05, zeta=0.16074799068709744,
               closure="local_g1_shell_balanced")
-    oracle = closure_distribution(spec, rtol=1e-8, **kw)
+    oracle = dp.pressure_distribution(spec, rtol=1e-8, **kw)
 
     def l1(a):
         x, y = a.cdf(a.edges), oracle.cdf(a.edges)
         return abs(x[0] - y[0]) + float(np.sum(np.abs(np.diff(x) - np.diff(y))))
 
-    r = closure_distribution(spec, **kw)
+    r = dp.pressure_distribution(spec, **kw)
     assert r.success and oracle.success and r.diagnostics["shell_grading"] == "ends"
     assert l1(r) < 1e-6 and l1(r) < 3.0 * r.error_estimate, (l1(r), r.error_estimate)
-    table = closures._shell_table
-    monkeypatch.setattr(closures, "_shell_table", lambda ladder, thin=False, start=False: table(ladder, thin, False))
-    old = closure_distribution(spec, **kw)
+    table = continuum._shell_table
+    monkeypatch.setattr(continuum, "_shell_table", lambda ladder, thin=False, start=False: table(ladder, thin, False))
+    old = dp.pressure_distribution(spec, **kw)
     assert old.diagnostics["n_shells"][0] < r.diagnostics["n_shells"][0] and l1(old) > 1e-6
 
 
@@ -933,7 +918,7 @@ def test_shell_grading_follows_the_wall_layer(fig1):
     1.9, where the balanced closure takes 2x the time graded), "end" below it (zeta = 0.02: kappa 0.31), "ends"
     where also lambda < START_LAYER_RATIO (p0 = 1e-3: lambda 1.4); the hard wall is never graded.  Graded shells
     keep exact tau-midpoints and sum to V0."""
-    from diffusion_pr.closures import START_LAYER_RATIO, WALL_LAYER_RATIO, shell_grading
+    from diffusion_pr.closures.shells import START_LAYER_RATIO, WALL_LAYER_RATIO, shell_grading
 
     dv = spectrum_shells(fig1, E_star=E, n_shells=48).dV0
     for zeta, p0, want in ((0.02, P0, "end"), (0.05, P0, "uniform"), (0.02, 1e-3, "ends"), (0.05, 1e-3, "uniform")):
@@ -976,7 +961,7 @@ def test_forced_grids_do_not_make_the_kernels_compile_again(fig1):
     from diffusion_pr.fokker_planck import _kernels
 
     for zeta in (1.0, 0.25):
-        closure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure="local_g1")
+        dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure="local_g1")
     dispatchers = [k for k in vars(_kernels).values() if isinstance(k, numba.core.registry.CPUDispatcher)]
     assert any(k.signatures for k in dispatchers)
     read_only = [str(sig) for k in dispatchers for sig in k.signatures
@@ -993,20 +978,20 @@ def test_romberg_is_not_taken_where_the_shells_ratio_is_far_above_its_order(monk
     """Two stress scenes (``benchmarks/stress_balance.py``) on uniform shells, where the 6/12/24/48-shell ladder is
     not yet asymptotic: ``R(n/2, n)`` falls 33x and 42x per doubling (16 at fourth order), because ``R`` on 12 or 24
     shells happens to lie near the continuum, and Romberg's sixth-order column with its /15 residual claimed 5.4e-7
-    and 1.0e-6 where the L1 error was 1.0e-5 and 3.8e-6 (19x and 3.8x).  Above :data:`closures.ROMBERG_MAX_RATIO`
+    and 1.0e-6 where the L1 error was 1.0e-5 and 3.8e-6 (19x and 3.8x).  Above :data:`continuum.ROMBERG_MAX_RATIO`
     the order is not taken as observed: ``R(n/2, n)`` with its last difference undivided as the residual, so the
     ladder grows (to 192 and 384 shells).  By default both scenes' shells are graded at both ends now (a load deep in
-    the wall's layer, :data:`closures.START_WALL_LAYER_RATIO`), which answers them on asymptotic tables; the uniform
+    the wall's layer, :data:`shells.START_WALL_LAYER_RATIO`), which answers them on asymptotic tables; the uniform
     shells are forced here to test the gate.  Oracle: the default rtol-1e-8 answer.  Breaks that fail it: the gate
     removed (the seventeenth session's strict xfail), the residual divided by 15."""
     H, lo, hi, slope = spectrum
     spec = dp.SelfAffineSpectrum(H, 2 * np.pi / lo, 2 * np.pi / hi, rms_slope=slope)
     kw = dict(E_star=E, mean_pressure=p0, zeta=zeta, closure=closure)
-    ref = closure_distribution(spec, rtol=1e-8, **kw)
-    monkeypatch.setattr(closures, "START_WALL_LAYER_RATIO", 0.0)  # uniform shells, as before the thin-start rule
-    r = closure_distribution(spec, **kw)
+    ref = dp.pressure_distribution(spec, rtol=1e-8, **kw)
+    monkeypatch.setattr(shells, "START_WALL_LAYER_RATIO", 0.0)  # uniform shells, as before the thin-start rule
+    r = dp.pressure_distribution(spec, **kw)
     assert r.success and ref.success and r.diagnostics["shell_grading"] == "uniform"
-    assert r.diagnostics["n_shells"][0] > closures.EXTRAPOLATION_SHELLS * (2 if p0 > 1e-4 else 1)
+    assert r.diagnostics["n_shells"][0] > shells.EXTRAPOLATION_SHELLS * (2 if p0 > 1e-4 else 1)
     assert l1_on_cells(r, ref) <= r.error_estimate + ref.error_estimate
 
 def test_a_load_deep_in_a_layer_thick_only_at_q_max_grades_both_ends(l1_on_cells):
@@ -1018,12 +1003,12 @@ def test_a_load_deep_in_a_layer_thick_only_at_q_max_grades_both_ends(l1_on_cells
     oracle.  Break that fails it: START_WALL_LAYER_RATIO = 1 (uniform shells, the old rule)."""
     spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 4096, 2 * np.pi / 16, rms_slope=0.1)
     kw = dict(E_star=E, mean_pressure=1e-5, zeta=0.3, closure="local_g1_shell_balanced")
-    grading, kappa, lam = closures.shell_grading(spec, E_star=E, zeta=0.3, mean_pressure=1e-5,
+    grading, kappa, lam = shells.shell_grading(spec, E_star=E, zeta=0.3, mean_pressure=1e-5,
                                                  closure="local_g1_shell_balanced")
-    assert grading == "ends" and closures.WALL_LAYER_RATIO < kappa < closures.START_WALL_LAYER_RATIO
-    assert lam < closures.START_LAYER_RATIO
-    assert closures.shell_grading(spec, E_star=E, zeta=0.3, mean_pressure=1e-5)[0] == "uniform"  # local_g1
-    r = closure_distribution(spec, **kw)
-    ref = closure_distribution(spec, rtol=1e-8, **kw)
+    assert grading == "ends" and shells.WALL_LAYER_RATIO < kappa < shells.START_WALL_LAYER_RATIO
+    assert lam < shells.START_LAYER_RATIO
+    assert shells.shell_grading(spec, E_star=E, zeta=0.3, mean_pressure=1e-5)[0] == "uniform"  # local_g1
+    r = dp.pressure_distribution(spec, **kw)
+    ref = dp.pressure_distribution(spec, rtol=1e-8, **kw)
     assert r.success and ref.success and r.diagnostics["shell_grading"] == "ends"
     assert l1_on_cells(r, ref) <= r.error_estimate + ref.error_estimate

@@ -206,7 +206,6 @@ def _ensemble_compare(name, zeta, closure, *, paper_pc=False, n_cells=800):
 
     from oracles.closure_reference import reference_distribution
 
-    from diffusion_pr.closures import closure_distribution
     from diffusion_pr.jobs.fig1 import paper_cutoff_pressure
 
     group = bundled_ensemble(name).group(zeta)
@@ -218,7 +217,7 @@ def _ensemble_compare(name, zeta, closure, *, paper_pc=False, n_cells=800):
         kw = {"n_cells": n_cells, "n_steps": n_cells}
     elif closure == "second_order" and paper_pc and zeta is not None:
         kw = {"cutoff": "muser", "p_c": paper_cutoff_pressure(zeta), "rtol": 1e-5}
-    solve = reference_distribution if closure.startswith("local") else closure_distribution
+    solve = reference_distribution if closure.startswith("local") else dp.pressure_distribution
     th = solve(_mean_spectrum(group), E_star=E, mean_pressure=p0, zeta=0.0 if zeta is None else zeta,
                closure=closure, **kw)
     return compare_ensemble(th, group, n_boot=200, n_split=50)
