@@ -544,7 +544,8 @@ def _rebuilt(sol: Any, scene: tuple, rtol: float, options: dict, *, masses: np.n
     (:func:`~diffusion_pr.fokker_planck.engine.build_result`, with its one meaning of ``success``): the masses
     ``[zero weight, cells]``, the cells' first ``moments``, the L1 ``estimate``, ``failure`` (a reason it is no
     answer, or None) and ``extra`` diagnostics over the ``n``-shell solve's."""
-    from ..fokker_planck.engine import build_result, prepare
+    from ..fokker_planck.domain import prepare
+    from ..fokker_planck.engine import build_result
 
     res = sol.result
     problem, _ = shell_problem(scene, int(res.diagnostics["n_shells"]))
