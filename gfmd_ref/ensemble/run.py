@@ -242,13 +242,13 @@ def build_cases(*, n=1024, seeds=(1,), walls=("hard",), mean_pressures=None, sur
     tol = check_tol(tol)
     if length_unit not in ("grid", "paper"):
         raise ValueError(f"length_unit must be 'grid' or 'paper'; got length_unit={length_unit!r}")
-    allowed = ("auto", "ccg", "newton", "fire")
+    allowed = ("auto", "ccg", "pk", "newton", "fire")
     if method not in allowed:
         raise ValueError(f"method must be one of {allowed}; got {method!r}")
     for z in walls:
-        if method == "ccg" and z is not None or method == "newton" and z is None:
+        if method in ("ccg", "pk") and z is not None or method == "newton" and z is None:
             raise ValueError(f"method={method!r} does not apply to wall {wall_label(z)} "
-                             "(ccg: hard wall only, newton: exponential walls only; use 'auto')")
+                             "(ccg, pk: hard wall only, newton: exponential walls only; use 'auto')")
     extra = {} if max_iter is None else {"max_iter": check_int("max_iter", max_iter)}
     cases = []
     for nn in grid:
