@@ -257,7 +257,14 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParse
     return parser
 
 
+def _error(exc: Exception) -> int:
+    print(f"gfmd-ref: error: {exc}", file=sys.stderr)
+    return 2
+
+
 def run_from_args(args) -> int:
+    """Run the ``run`` sub-command from parsed arguments: exit code 0 (converged), 1 (not
+    converged) or 2 (bad input)."""
     try:
         res, _, _ = run_default_scene(
             args.n, interaction=args.interaction, zeta=args.zeta, length_unit=args.length_unit,
@@ -266,8 +273,7 @@ def run_from_args(args) -> int:
             progress=args.progress,
         )
     except ValueError as exc:
-        print(f"gfmd-ref: error: {exc}", file=sys.stderr)
-        return 2
+        return _error(exc)
     return 0 if res.converged else 1
 
 
@@ -303,29 +309,38 @@ def add_ensemble_arguments(parser: argparse.ArgumentParser) -> argparse.Argument
     return parser
 
 
-def ensemble_from_args(args, argv=None) -> int:
-    from .ensemble import FIG1_SURFACE, EnsembleSurface, run_ensemble
+def _ensemble_command(args, command: str) -> int:
+    """The ``ensemble*`` sub-commands (ValueError on bad input)."""
+    from . import ensemble as ens
 
-    try:
-        surface = EnsembleSurface(
-            FIG1_SURFACE.hurst if args.hurst is None else args.hurst,
-            FIG1_SURFACE.rms_slope if args.rms_slope is None else args.rms_slope,
-            FIG1_SURFACE.n_waves if args.n_waves is None else args.n_waves,
-        )
+    if args.command == "ensemble":
+        fig1 = ens.FIG1_SURFACE
+        surface = ens.EnsembleSurface(fig1.hurst if args.hurst is None else args.hurst,
+                                      fig1.rms_slope if args.rms_slope is None else args.rms_slope,
+                                      fig1.n_waves if args.n_waves is None else args.n_waves)
         ns = [int(v) if v.strip().lstrip("-").isdigit() else v for v in str(args.n).split(",")]
         loads = None if args.mean_pressures is None else args.mean_pressures.split(",")
-        command = "gfmd-ref " + " ".join(sys.argv[1:] if argv is None else argv)
-        run = run_ensemble(args.store, n=ns, seeds=args.seeds, walls=args.walls, length_unit=args.length_unit,
-                           mean_pressures=loads,
-                           surface=surface, E_star=args.E_star, tol=args.tol, method=args.method,
-                           workers=args.workers, threads_per_worker=args.threads_per_worker,
-                           scheduler=args.scheduler, serial=args.serial, progress=not args.no_progress,
-                           command=command)
-    except ValueError as exc:
-        print(f"gfmd-ref: error: {exc}", file=sys.stderr)
-        return 2
-    # like `run`: a case that did not converge is not a success (it stays in the store, marked)
-    return 0 if run.success and run.n_not_converged == 0 else 1
+        run = ens.run_ensemble(args.store, n=ns, seeds=args.seeds, walls=args.walls, length_unit=args.length_unit,
+                               mean_pressures=loads, surface=surface, E_star=args.E_star, tol=args.tol,
+                               method=args.method, workers=args.workers, threads_per_worker=args.threads_per_worker,
+                               scheduler=args.scheduler, serial=args.serial, progress=not args.no_progress,
+                               command=command)
+        # like `run`: a case that did not converge is not a success (it stays in the store, marked)
+        return 0 if run.success and run.n_not_converged == 0 else 1
+    if args.command == "ensemble-summary":
+        print(ens.load_ensemble(args.store).summary())
+        return 0
+    if args.command == "ensemble-ingest":
+        run = ens.ingest_fields(args.fields, args.store, field_command=args.field_command, command=command,
+                                progress=not args.no_progress)
+        return 0 if run.success else 1
+    from .ensemble.data import write_bundle
+    from .ensemble.run import parse_seeds
+
+    path, size = write_bundle(args.stores, args.out, name=args.name, command=command, regenerate=args.regenerate,
+                              seeds=None if args.seeds is None else parse_seeds(args.seeds))
+    print(f"wrote {path} ({size / 1e6:.2f} MB)")
+    return 0
 
 
 def main(argv=None) -> int:
@@ -359,48 +374,17 @@ def main(argv=None) -> int:
     pb.add_argument("--regenerate", default="", help="the commands that regenerate the stores (provenance)")
     pb.add_argument("--seeds", default=None, help="only these seeds, e.g. 1-32 (default all)")
     args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()  # no command: the help, as `diffusion-pr` does
+        return 0
     if args.command == "run":
         with warnings.catch_warnings():
             warnings.simplefilter("always", ConvergenceWarning)
             return run_from_args(args)
-    if args.command == "ensemble":
-        return ensemble_from_args(args, argv)
-    if args.command == "ensemble-summary":
-        from .ensemble import load_ensemble
-
-        try:
-            print(load_ensemble(args.store).summary())
-        except ValueError as exc:
-            print(f"gfmd-ref: error: {exc}", file=sys.stderr)
-            return 2
-        return 0
-    if args.command == "ensemble-ingest":
-        from .ensemble import ingest_fields
-
-        command = "gfmd-ref " + " ".join(sys.argv[1:] if argv is None else argv)
-        try:
-            run = ingest_fields(args.fields, args.store, field_command=args.field_command, command=command,
-                                progress=not args.no_progress)
-        except ValueError as exc:
-            print(f"gfmd-ref: error: {exc}", file=sys.stderr)
-            return 2
-        return 0 if run.success else 1
-    if args.command == "ensemble-bundle":
-        from .ensemble.data import write_bundle
-        from .ensemble.run import parse_seeds
-
-        command = "gfmd-ref " + " ".join(sys.argv[1:] if argv is None else argv)
-        try:
-            path, size = write_bundle(args.stores, args.out, name=args.name, command=command,
-                                      regenerate=args.regenerate,
-                                      seeds=None if args.seeds is None else parse_seeds(args.seeds))
-        except ValueError as exc:
-            print(f"gfmd-ref: error: {exc}", file=sys.stderr)
-            return 2
-        print(f"wrote {path} ({size / 1e6:.2f} MB)")
-        return 0
-    parser.print_help()  # no command: the help, as `diffusion-pr` does
-    return 0
+    try:
+        return _ensemble_command(args, "gfmd-ref " + " ".join(sys.argv[1:] if argv is None else argv))
+    except ValueError as exc:
+        return _error(exc)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -19,7 +19,7 @@ from numba import njit
 
 __all__ = ["DEFAULT_THREADS", "FFTPair", "check_threads", "spectral_multiply", "spectral_scale"]
 
-#: FFT threads when a caller does not say: one was faster than two on a loaded 2-core machine.
+#: FFT threads when a caller does not say (one is faster than two on a loaded 2-core machine).
 DEFAULT_THREADS = 1
 
 

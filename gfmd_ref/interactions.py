@@ -1,8 +1,9 @@
 """Wall interactions (Müser 2008, Eq. 7; docs/gfmd.md)."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+
+from ._validation import check_positive
 
 __all__ = ["HardWall", "ExponentialRepulsion"]
 
@@ -25,10 +26,4 @@ class ExponentialRepulsion:
     zeta: float
 
     def __post_init__(self):
-        try:
-            z = float(self.zeta)
-        except (TypeError, ValueError):
-            raise ValueError(f"zeta must be a finite number > 0; got {self.zeta!r}") from None
-        if not math.isfinite(z) or z <= 0:
-            raise ValueError(f"zeta must be a finite number > 0; got {self.zeta!r}")
-        object.__setattr__(self, "zeta", z)
+        object.__setattr__(self, "zeta", check_positive("zeta", self.zeta))

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 
-from ._validation import check_int, check_real
+from ._validation import check_int, check_positive
 from .surface import self_affine_surface
 
 #: Fig. 1 parameters: H, rms slope, E*, p0, the number of waves per period of the
@@ -36,24 +36,19 @@ def fig1_surface(n: int = 1024, seed=1):
     if n < 2 * FIG1["n_waves"]:
         raise ValueError(f"n must be >= {2 * FIG1['n_waves']}: the Fig. 1 roughness's shortest wavelength, "
                          f"L/{FIG1['n_waves']}, needs 2 grid points (Nyquist); got n={n}")
-    length = float(n)
+    return band_surface(n, float(n), FIG1["hurst"], FIG1["rms_slope"], FIG1["n_waves"], seed), float(n)
+
+
+def band_surface(n: int, length: float, hurst: float, rms_slope: float, n_waves: int, seed):
+    """A self-affine surface of one scene family: wavelengths ``length`` down to
+    ``length / n_waves`` (``q_min = 2 pi/length``, ``q_max = n_waves q_min``), Hurst
+    exponent ``hurst`` and rms slope ``rms_slope`` (:func:`~gfmd_ref.self_affine_surface`)."""
     qmin = 2.0 * math.pi / length
-    h = self_affine_surface(
-        n,
-        length=length,
-        hurst=FIG1["hurst"],
-        q_min=qmin,
-        q_max=FIG1["n_waves"] * qmin,
-        rms_slope=FIG1["rms_slope"],
-        seed=seed,
-    )
-    return h, length
+    return self_affine_surface(n, length=length, hurst=hurst, q_min=qmin, q_max=n_waves * qmin,
+                               rms_slope=rms_slope, seed=seed)
 
 
 def zeta_on_grid(zeta: float, n: int) -> float:
     """A wall range in grid spacings of the paper's 1024^2 system, converted to
     grid spacings of the ``n x n`` grid of :func:`fig1_surface` (``zeta * n / 1024``)."""
-    zeta = check_real("zeta", zeta)
-    if zeta <= 0:
-        raise ValueError(f"zeta must be a finite real number > 0; got zeta={zeta!r}")
-    return zeta * check_int("n", n, minimum=2) / FIG1["length"]
+    return check_positive("zeta", zeta) * check_int("n", n, minimum=2) / FIG1["length"]

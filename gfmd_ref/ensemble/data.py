@@ -1,19 +1,11 @@
 """Bundled ensembles: compact per-seed quantiles shipped as package data.
 
-A bundle is one compressed ``.npz`` in ``gfmd_ref/data/`` made from one or more
-stores by :func:`write_bundle` (``gfmd-ref ensemble-bundle``). Per record it keeps
-the case parameters, the convergence provenance (converged, residual,
-iterations, wall time, source), the moments, sd, skewness, contact fraction and
-zero weight (float64, from the full field) and the quantiles at
-:data:`BUNDLE_LEVELS` as float32; per surface (seed) the exact shell spectrum.
-
-Levels: ``i/1024``, ``i = 0 ... 1024`` (every other level of a store). The
-pooled CDF of a group is a mean of per-seed CDFs; each is known exactly at its
-stored quantiles and is monotone in between, so any Kolmogorov distance read
-from these quantiles is exact to one level step, 1/1024 = 9.8e-4 (< 1e-3). float32 keeps 7 significant digits of each pressure, a CDF
-error of ``density x 6e-8 p``, far below that step; pressures below 1.2e-38
-(deep non-contact of the exponential walls) are stored as 0, which affects no
-distance over ``p >= p0/20`` and no contact fraction (threshold 0.01 p0).
+A bundle is one compressed ``.npz`` in ``gfmd_ref/data/`` made from one or more stores
+by :func:`write_bundle` (``gfmd-ref ensemble-bundle``). Per record it keeps the case
+parameters, the convergence provenance, the moments, sd, skewness, contact fraction and
+zero weight (float64, from the full field) and the quantiles at :data:`BUNDLE_LEVELS`
+(``i/1024``: a Kolmogorov distance read from them is exact to one level step, 9.8e-4) as
+float32 (pressures below 1.2e-38 become 0); per surface (seed) the exact shell spectrum.
 """
 from __future__ import annotations
 

@@ -1,25 +1,18 @@
-"""GFMD ensembles on Dask: seeds x walls x loads x grid sizes, resumable.
+"""GFMD ensembles on Dask: seeds x walls x loads x grid sizes, resumable (docs/ensembles.md).
 
-Each case is one :func:`~gfmd_ref.solve_contact` on a self-affine surface
-(default: the paper's Fig. 1 surface, :func:`~gfmd_ref.fig1_surface`), reduced by
-:func:`~gfmd_ref.ensemble.store.reduce_pressure_field` and written as one record
-of an :mod:`~gfmd_ref.ensemble.store` directory by the worker that solved it.
-
-Scheduling: :func:`run_ensemble` uses ``dask.distributed``: an existing cluster
-(``client=`` or ``scheduler="tcp://..."``), else a local cluster of worker
-processes (default: one single-threaded worker per core with one FFT thread
-each, see ``docs/ensembles.md``), or no cluster at all (``serial=True``: the same
-case function in this process). Dask is an optional dependency: ``pip install
-"diffusion-pr[ensemble]"`` (a serial run does without it). Cases are submitted
-seeds outer, walls inner, so the mix of cheap and costly walls is the same all
-along the run and the progress bar's mean rate gives an honest ETA.
-
-Safety: parameters are checked before anything is scheduled; finished cases
-(converged or not) are skipped on a rerun; a case lost with its worker is
-rescheduled by the Dask scheduler; writes are atomic and idempotent.
+Each case is one :func:`~gfmd_ref.solve_contact` on a self-affine surface (default: the
+paper's Fig. 1 surface, :func:`~gfmd_ref.fig1_surface`), reduced by
+:func:`~gfmd_ref.ensemble.store.reduce_pressure_field` and written as one record of an
+:mod:`~gfmd_ref.ensemble.store` directory by the worker that solved it. Cases run on an
+existing Dask cluster, a local cluster (one single-threaded worker per core) or, with
+``serial=True``, in this process (Dask is the optional ``diffusion-pr[ensemble]``).
+Parameters are checked before anything is scheduled; finished cases are skipped on a
+rerun; writes are atomic and idempotent.
 """
 from __future__ import annotations
 
+import functools
+import importlib
 import json
 import math
 import numbers
@@ -33,7 +26,8 @@ from typing import Optional
 
 import numpy as np
 
-from .._validation import check_tol, check_writable_dir
+from .._validation import check_int, check_positive, check_real, check_tol, check_writable_dir
+from ..scene import band_surface
 from .store import (
     Ensemble,
     _parse_wall,
@@ -90,17 +84,9 @@ class EnsembleSurface:
     n_waves: int = 32
 
     def __post_init__(self):
-        h = float(self.hurst)
-        if not (math.isfinite(h) and 0.0 <= h <= 1.0):
-            raise ValueError(f"hurst must be in [0, 1]; got {self.hurst!r}")
-        s = float(self.rms_slope)
-        if not (math.isfinite(s) and s > 0):
-            raise ValueError(f"rms_slope must be a finite number > 0; got {self.rms_slope!r}")
-        if isinstance(self.n_waves, bool) or not isinstance(self.n_waves, numbers.Integral) or self.n_waves < 1:
-            raise ValueError(f"n_waves must be an integer >= 1; got {self.n_waves!r}")
-        object.__setattr__(self, "hurst", h)
-        object.__setattr__(self, "rms_slope", s)
-        object.__setattr__(self, "n_waves", int(self.n_waves))
+        object.__setattr__(self, "hurst", check_real("hurst", self.hurst, low=0.0, high=1.0))
+        object.__setattr__(self, "rms_slope", check_positive("rms_slope", self.rms_slope))
+        object.__setattr__(self, "n_waves", check_int("n_waves", self.n_waves))
 
     def as_dict(self) -> dict:
         return dict(kind="self_affine", hurst=self.hurst, rms_slope=self.rms_slope, n_waves=self.n_waves)
@@ -115,17 +101,13 @@ FIG1_MEAN_PRESSURE = 0.004
 
 def case_surface(params: dict) -> np.ndarray:
     """Heights of a case (deterministic in its parameters)."""
-    from ..surface import self_affine_surface
-
     s = params["surface"]
-    n, length = int(params["n"]), float(params["length"])
-    qmin = 2.0 * math.pi / length
-    return self_affine_surface(n, length=length, hurst=float(s["hurst"]), q_min=qmin,
-                               q_max=int(s["n_waves"]) * qmin, rms_slope=float(s["rms_slope"]),
-                               seed=int(params["seed"]))
+    return band_surface(int(params["n"]), float(params["length"]), float(s["hurst"]), float(s["rms_slope"]),
+                        int(s["n_waves"]), int(params["seed"]))
 
 
-def _code_version_uncached() -> dict:
+@functools.lru_cache(maxsize=None)
+def _code_version() -> dict:
     try:
         from importlib.metadata import version
 
@@ -148,16 +130,10 @@ def _code_version_uncached() -> dict:
     return dict(package="diffusion-pr", version=ver, git=rev)
 
 
-_CODE_VERSION: Optional[dict] = None
-
-
 def code_version() -> dict:
     """``{"package", "version", "git"}`` of the code making a record (git revision of
     the gfmd_ref sources with ``+dirty`` if they have uncommitted changes)."""
-    global _CODE_VERSION
-    if _CODE_VERSION is None:
-        _CODE_VERSION = _code_version_uncached()
-    return dict(_CODE_VERSION)
+    return dict(_code_version())
 
 
 # ----------------------------------------------------------------------------- parameters
@@ -266,17 +242,14 @@ def build_cases(*, n=1024, seeds=(1,), walls=("hard",), mean_pressures=None, sur
     tol = check_tol(tol)
     if length_unit not in ("grid", "paper"):
         raise ValueError(f"length_unit must be 'grid' or 'paper'; got length_unit={length_unit!r}")
-    allowed = ("auto", "ccg", "newton", "fire")
+    allowed = ("auto", "ccg", "pk", "newton", "fire")
     if method not in allowed:
         raise ValueError(f"method must be one of {allowed}; got {method!r}")
     for z in walls:
-        if method == "ccg" and z is not None or method == "newton" and z is None:
+        if method in ("ccg", "pk") and z is not None or method == "newton" and z is None:
             raise ValueError(f"method={method!r} does not apply to wall {wall_label(z)} "
-                             "(ccg: hard wall only, newton: exponential walls only; use 'auto')")
-    if max_iter is not None and (isinstance(max_iter, bool) or not isinstance(max_iter, numbers.Integral)
-                                 or max_iter < 1):
-        raise ValueError(f"max_iter must be an integer >= 1; got {max_iter!r}")
-    extra = {} if max_iter is None else {"max_iter": int(max_iter)}
+                             "(ccg, pk: hard wall only, newton: exponential walls only; use 'auto')")
+    extra = {} if max_iter is None else {"max_iter": check_int("max_iter", max_iter)}
     cases = []
     for nn in grid:
         for p0 in loads:
@@ -358,7 +331,7 @@ DEFAULT_THREADS_PER_WORKER = 1
 
 def _require_dask():
     try:
-        import dask.distributed  # noqa: F401
+        importlib.import_module("dask.distributed")
     except ImportError as exc:
         raise ImportError('run_ensemble on a cluster needs Dask: pip install "diffusion-pr[ensemble]" '
                           "(or pass serial=True)") from exc
@@ -412,6 +385,22 @@ def _write_manifest(store: Path, entry: dict) -> None:
     tmp = store / f".ensemble.json.{os.getpid()}.tmp"
     tmp.write_text(json.dumps(info, indent=1, sort_keys=True))
     os.replace(tmp, man)
+
+
+def _progress_bar(progress: bool, todo: list, **kw):
+    """A tqdm bar on stderr over ``todo``, or None (no progress wanted or nothing to do)."""
+    if not (progress and todo):
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=len(todo), file=sys.stderr, **kw)
+
+
+def _report(msg: str, failed: dict, verbose: bool, out) -> None:
+    if verbose:
+        print(msg, file=out, flush=True)
+        for k, v in failed.items():
+            print(f"  failed {k}: {v}", file=out)
 
 
 def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), length_unit: str = "grid", mean_pressures=None,
@@ -472,13 +461,9 @@ def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), length_unit: st
     t0 = time.perf_counter()
     cases = build_cases(n=n, seeds=seeds, walls=walls, mean_pressures=mean_pressures, surface=surface,
                         E_star=E_star, tol=tol, method=method, max_iter=max_iter, length_unit=length_unit)
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, numbers.Integral) or workers < 1):
-        raise ValueError(f"workers must be an integer >= 1; got {workers!r}")
-    if threads_per_worker is not None and (isinstance(threads_per_worker, bool)
-                                           or not isinstance(threads_per_worker, numbers.Integral)
-                                           or threads_per_worker < 1):
-        raise ValueError(f"threads_per_worker must be an integer >= 1; got {threads_per_worker!r}")
-    threads = DEFAULT_THREADS_PER_WORKER if threads_per_worker is None else int(threads_per_worker)
+    workers = None if workers is None else check_int("workers", workers)
+    threads = DEFAULT_THREADS_PER_WORKER if threads_per_worker is None else check_int("threads_per_worker",
+                                                                                      threads_per_worker)
     if not serial:
         _require_dask()
     store = Path(store)
@@ -507,19 +492,20 @@ def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), length_unit: st
         _write_manifest(store, dict(command=command, started=prov["run_started"], n_cases=len(cases),
                                     n_skipped=skipped, code=prov["code"], host=host(), length_unit=length_unit,
                                     zeta_unit="grid spacings of each record's grid (L = n)"))
-    bar = None
-    if progress and todo:
-        from tqdm.auto import tqdm
+    bar = _progress_bar(progress, todo, unit="case", smoothing=0.0, desc="gfmd ensemble")
 
-        bar = tqdm(total=len(todo), unit="case", smoothing=0.0, desc="gfmd ensemble", file=sys.stderr)
-
-    def _done(summary):
+    def _collect(case, get):
         nonlocal not_conv, computed
-        computed += 1
-        if not summary["converged"]:
-            not_conv += 1
+        try:
+            summary = get()
+        except Exception as exc:  # e.g. KilledWorker; reported, not stored; a rerun retries
+            failed[case_label(case)] = f"{type(exc).__name__}: {exc}"
+        else:
+            computed += 1
+            not_conv += not summary["converged"]
+            if bar is not None:
+                bar.set_postfix(not_converged=not_conv, refresh=False)
         if bar is not None:
-            bar.set_postfix(not_converged=not_conv, refresh=False)
             bar.update(1)
 
     own = None
@@ -528,12 +514,7 @@ def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), length_unit: st
             pass
         elif serial:
             for c in todo:
-                try:
-                    _done(solve_case(c, str(store), prov, threads))
-                except Exception as exc:  # reported, not stored; a rerun retries
-                    failed[case_label(c)] = f"{type(exc).__name__}: {exc}"
-                    if bar is not None:
-                        bar.update(1)
+                _collect(c, lambda: solve_case(c, str(store), prov, threads))
         else:
             from dask.distributed import Client, as_completed
 
@@ -554,13 +535,7 @@ def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), length_unit: st
                 futs[f] = c
             try:
                 for f in as_completed(list(futs)):
-                    c = futs[f]
-                    try:
-                        _done(f.result())
-                    except Exception as exc:  # e.g. KilledWorker after repeated worker deaths
-                        failed[case_label(c)] = f"{type(exc).__name__}: {exc}"
-                        if bar is not None:
-                            bar.update(1)
+                    _collect(futs[f], f.result)
             except BaseException:
                 client.cancel(list(futs))  # interrupted: do not leave cases running on a shared cluster
                 raise
@@ -574,10 +549,7 @@ def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), length_unit: st
     msg = (f"ensemble: {computed} computed now ({not_conv} not converged: kept in the store, excluded from "
            f"reductions), {skipped} skipped, {len(failed)} failed; "
            f"{len(cases) - skipped - computed} of {len(cases)} remain; {time.perf_counter() - t0:.1f} s, {sched}")
-    if verbose:
-        print(msg, file=out, flush=True)
-        for k, v in failed.items():
-            print(f"  failed {k}: {v}", file=out)
+    _report(msg, failed, verbose, out)
     return EnsembleRun(str(store), len(cases), skipped, computed, not_conv, failed, time.perf_counter() - t0,
                        sched, msg)
 
@@ -617,15 +589,12 @@ def ingest_fields(field_dir, store, *, surface: Optional[EnsembleSurface] = None
     for f in files:
         with np.load(f, allow_pickle=False) as z:
             meta = json.loads(str(z["meta"]))
-        params = dict(n=int(meta["n"]), length=float(meta["length"]), seed=int(meta["seed"]),
-                      zeta=None if meta["zeta"] is None else float(meta["zeta"]),
-                      mean_pressure=float(meta["mean_pressure"]), E_star=float(meta["E_star"]),
-                      surface=surface.as_dict(), tol=float(meta["tol"]), method=method)
-        build_cases(n=params["n"], seeds=[params["seed"]], walls=[params["zeta"] or "hard"],
-                    mean_pressures=params["mean_pressure"], surface=surface, E_star=params["E_star"],
-                    tol=params["tol"], method=method)  # validation
-        if params["length"] != float(params["n"]):
-            raise ValueError(f"{f.name}: length {params['length']} != n {params['n']} (ensembles use L = n)")
+        params = build_cases(n=int(meta["n"]), seeds=[int(meta["seed"])],
+                             walls=["hard" if meta["zeta"] is None else float(meta["zeta"])],
+                             mean_pressures=float(meta["mean_pressure"]), surface=surface,
+                             E_star=float(meta["E_star"]), tol=float(meta["tol"]), method=method)[0]
+        if float(meta["length"]) != float(params["n"]):
+            raise ValueError(f"{f.name}: length {float(meta['length'])} != n {params['n']} (ensembles use L = n)")
         plan.append((f, meta, params))
     todo = [(f, m, p) for f, m, p in plan if case_key(p) not in done]
     if verbose:
@@ -636,11 +605,7 @@ def ingest_fields(field_dir, store, *, surface: Optional[EnsembleSurface] = None
         _write_manifest(Path(store), dict(command=command, started=base["run_started"], n_cases=len(plan),
                                           n_skipped=len(plan) - len(todo), code=base["code"], host=host(),
                                           ingested_from=str(field_dir), field_command=field_command))
-    bar = None
-    if progress and todo:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=len(todo), unit="field", desc="ingest", file=sys.stderr)
+    bar = _progress_bar(progress, todo, unit="field", desc="ingest")
     not_conv = 0
     failed = {}
     for f, meta, params in todo:
@@ -668,9 +633,6 @@ def ingest_fields(field_dir, store, *, surface: Optional[EnsembleSurface] = None
     computed = len(todo) - len(failed)
     msg = (f"ingest: {computed} reduced now ({not_conv} not converged), {len(plan) - len(todo)} skipped, "
            f"{len(failed)} failed; {time.perf_counter() - t0:.1f} s")
-    if verbose:
-        print(msg, file=out, flush=True)
-        for k, v in failed.items():
-            print(f"  failed {k}: {v}", file=out)
+    _report(msg, failed, verbose, out)
     return EnsembleRun(str(store), len(plan), len(plan) - len(todo), computed, not_conv, failed,
                        time.perf_counter() - t0, "ingest (this process)", msg)

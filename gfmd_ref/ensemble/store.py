@@ -1,32 +1,17 @@
 """The ensemble store: one small file per case, keyed by the case's parameters.
 
 A store is a directory. Each finished case is one compressed ``.npz`` file
-``<label>__<key>.npz`` where ``key`` is the first 16 hex digits of the SHA-1 of
-the canonical JSON of the case parameters (:func:`case_key`) and ``label`` a
-readable name (``n1024_hard_p0.004_s7``). A record holds
+``<label>__<key>.npz``: ``key`` is the first 16 hex digits of the SHA-1 of the
+canonical JSON of the case parameters (:func:`case_key`), ``label`` a readable name
+(``n1024_hard_p0.004_s7``). A record holds the parameters, the provenance (convergence,
+code version, FFT threads, host, command) and the reductions of the pressure field
+(:func:`reduce_pressure_field`) and of the surface (:func:`shell_spectrum`); the fields
+are listed in ``docs/ensembles.md``.
 
-* ``params`` (JSON): grid ``n``, cell ``length``, ``seed``, ``zeta`` (``None``:
-  hard wall), ``mean_pressure`` ``p0``, ``E_star``, the surface parameters,
-  ``tol``, ``method``;
-* ``provenance`` (JSON): converged, residual (relative to ``p0``), iterations,
-  wall time [s], code version and git revision, FFT backend and threads, host,
-  creation time, the command that made the record, and for ingested fields the
-  source file and the command that computed it;
-* the reductions of the pressure field (:func:`reduce_pressure_field`): the
-  quantiles at :data:`STORE_LEVELS` (uniform, step 1/2048), raw moments, sd,
-  skewness, contact fraction with the solver's definition (``p > 0`` for the hard
-  wall, ``p > 0.01 p0`` for exponential walls), the weight of exactly-zero
-  pressures, a histogram on fixed edges ``0 ... 20 p0`` (400 bins, plus an
-  overflow count), and the surface's shell spectrum (exact lattice shells
-  ``m^2 + k^2``, summed power ``|h~(q)|^2`` and multiplicity).
-
-Why a directory of small files: every case is written by exactly one
-``os.replace`` of a temporary file in the same directory (atomic on POSIX), so
-concurrent writers (Dask workers on a shared file system) never share a file,
-a killed process leaves at most a ``*.tmp`` file that readers ignore, and two
-writers of the same case (a task retried after its worker died) write the same
-content under the same name: the store stays duplicate-free by construction.
-A Zarr array would need a coordinated index for appends; this needs none.
+Every record is written by one ``os.replace`` of a temporary file in the same directory
+(atomic on POSIX): concurrent writers never share a file, a killed process leaves at most
+a ``*.tmp`` file that readers ignore, and two writers of the same case write the same
+content under the same name, so the store stays duplicate-free without an index.
 """
 from __future__ import annotations
 

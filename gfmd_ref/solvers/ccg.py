@@ -93,8 +93,11 @@ def ccg(h, p0, el, tol, max_iter, progress, h_scale, precond=True):
         return sg, gn, n_ol, max(load, comp / (p0 * h_scale), pen / h_scale), gv_max
 
     def exact_u():
+        nonlocal n_fft, since_exact, u_rounding
         kr.scatter_contact(pc, idx, nc, p)
         el.fft.apply_route(el.Gn, p, u, dot=False)
+        n_fft += 1
+        since_exact, u_rounding = 0, 0.0
 
     while True:
         sg, gn, n_ol, res, gv_max = residual()
@@ -103,8 +106,6 @@ def ccg(h, p0, el, tol, max_iter, progress, h_scale, precond=True):
             fold = False
         if mon.done(res, it) and since_exact > 0:  # every stop is judged on an exact u
             exact_u()
-            n_fft += 1
-            since_exact, u_rounding = 0, 0.0
             sg, gn, n_ol, res, _ = residual()
         if mon.check(res, it):
             break
@@ -157,8 +158,6 @@ def ccg(h, p0, el, tol, max_iter, progress, h_scale, precond=True):
             fold, fold_scale = True, scale
         else:
             exact_u()
-            n_fft += 1
-            since_exact, u_rounding = 0, 0.0
     kr.scatter_contact(pc, idx, nc, p)
     # displacement: z0 such that the gap vanishes on the contact set
     mask = p > 0

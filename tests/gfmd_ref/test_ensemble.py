@@ -144,6 +144,7 @@ def test_killed_run_resumes_complete_and_duplicate_free(tmp_path):
     (dict(mean_pressures=[0.004, 0.0]), "mean_pressures"),
     (dict(tol=2.0), "tol"),
     (dict(method="ccg", walls="hard,0.1"), "method"),
+    (dict(method="pk", walls="hard,0.1"), "method"),
     (dict(workers=0), "workers"),
     (dict(max_iter=0), "max_iter"),
 ])
@@ -153,6 +154,13 @@ def test_bad_parameters_rejected_before_any_work(tmp_path, kw, name):
     with pytest.raises(ValueError, match=name):
         run_ensemble(tmp_path / "s", progress=False, verbose=False, **args)
     assert not (tmp_path / "s").exists()
+
+
+def test_every_method_of_the_cli_builds_cases():
+    """`gfmd-ref ensemble --method` offers what `gfmd-ref run` offers, pk included."""
+    for method, walls in (("ccg", "hard"), ("pk", "hard"), ("newton", "0.25"), ("fire", "hard,0.25")):
+        cases = build_cases(n=N, seeds="1", walls=walls, method=method)
+        assert cases and all(c["method"] == method for c in cases)
 
 
 def test_non_converged_case_recorded_excluded_and_counted(tmp_path, capsys):

@@ -250,11 +250,11 @@ def test_cli_runs_a_users_rectangular_map(tmp_path, capsys):
 
 def test_pressure_histogram_carries_everything_of_diffusion_prs_histogram():
     """gfmd_ref.PressureHistogram has every field and method of
-    diffusion_pr.comparison.SimulatedHistogram with the same values on the same field,
+    diffusion_pr.compare.SimulatedHistogram with the same values on the same field,
     so compare() takes it as it is (gfmd_ref itself never imports diffusion_pr)."""
     import dataclasses
 
-    from diffusion_pr.comparison import SimulatedHistogram
+    from diffusion_pr.compare import SimulatedHistogram
 
     h, L = gfmd_ref.fig1_surface(64, seed=1)
     r = solve_contact(h, length=L, E_star=E, mean_pressure=P0, interaction=ExponentialRepulsion(0.002))
