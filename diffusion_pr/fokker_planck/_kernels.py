@@ -313,8 +313,9 @@ def _pfd_dominant(lower, diag, upper, wl, wd, wu, t, y, c, cw, r0, theta, want_d
     every pole: the superdiagonal stays ``t u_i`` (real) and the reciprocal pivot is ``conj(d)/|d|^2``.  Each
     row's values of a block of :data:`_LANES` poles lie next to each other in one flat array (row ``i`` at
     ``i _ROW``), so that the loops over the poles have no branch and fixed distances between their loads and
-    stores: LLVM vectorizes them.  The tests are gathered without branching; if any fails (a row interchange, or
-    a pivot outside ``1e-150 ... 1e150``) returns ``(x, dx, False)``, and :func:`cram_pfd` pivots.  The sums
+    stores: LLVM vectorizes them.  The tests are gathered over the poles without branching; at the first row
+    where any fails (a row interchange, or a pivot outside ``1e-150 ... 1e150``) returns ``(x, dx, False)``, and
+    :func:`cram_pfd` pivots.  The sums
     over the poles are taken during the back substitutions (the solutions are not stored for a later pass).
     """
     n = diag.size
