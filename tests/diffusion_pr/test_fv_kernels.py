@@ -248,6 +248,24 @@ def test_pfd_that_needs_interchanges_is_solved_with_them(rng):
     assert np.max(np.abs(dout - dlapack)) <= 1e-12 * np.max(np.abs(dlapack))
 
 
+@pytest.mark.parametrize("n", [3, 57, 1264])
+def test_pfd_without_interchanges_is_the_pivoting_kernel_bit_for_bit(rng, n):
+    """Where no row is interchanged, :func:`cram_pfd`'s vectorized path (``_pfd_dominant``) does the pivoting
+    kernel's operations in its order: the same bits (with and without the derivative)."""
+    from diffusion_pr.fokker_planck._kernels import _pfd_dominant, _pfd_pivoting, flux_weights
+
+    (lo, diag, up), (wl, wd, wu), y = _generator_with_drift(rng, n, 100.0)
+    cw, r0 = flux_weights(PFD_RESIDUES, THETA, ALPHA0)
+    for want_d in (False, True):
+        args = (lo, diag, up, wl, wd, wu, 0.01, y, PFD_RESIDUES, cw, r0, THETA, want_d)
+        out, dout, done = _pfd_dominant(*args)
+        ref, dref, info = _pfd_pivoting(*args)
+        assert done and info == 0
+        assert np.array_equal(out, ref)
+        if want_d:
+            assert np.array_equal(dout, dref)
+
+
 def test_the_estimate_carries_the_time_integrations_bound(monkeypatch):
     """A balanced closure (24 shells, zeta = 0.01, rtol 1e-6) on one level: the estimate carries
     CRAM_AMPLIFICATION x applications x CRAM-16's uniform bound (only that changes with the amplification)."""
