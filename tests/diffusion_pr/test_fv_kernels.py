@@ -252,7 +252,7 @@ def test_pfd_that_needs_interchanges_is_solved_with_them(rng):
 def test_pfd_without_interchanges_is_the_pivoting_kernel_bit_for_bit(rng, n):
     """Where no row is interchanged, :func:`cram_pfd`'s vectorized path (``_pfd_dominant``) does the pivoting
     kernel's operations in its order: the same bits (with and without the derivative)."""
-    from diffusion_pr.fokker_planck._kernels import _pfd_dominant, _pfd_pivoting, flux_weights
+    from diffusion_pr.fokker_planck._pfd import _pfd_dominant, _pfd_pivoting, flux_weights
 
     (lo, diag, up), (wl, wd, wu), y = _generator_with_drift(rng, n, 100.0)
     cw, r0 = flux_weights(PFD_RESIDUES, THETA, ALPHA0)
