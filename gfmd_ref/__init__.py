@@ -1,15 +1,9 @@
 """gfmd_ref: Green's-function molecular dynamics reference solver.
 
 A standalone (numpy, scipy, numba) solver for an elastic half-space pressed on a
-rigid, periodic rough surface, with hard-wall or exponential repulsion. It never
-imports :mod:`diffusion_pr`.
-
-Public API: :func:`self_affine_surface`, :class:`HardWall`,
-:class:`ExponentialRepulsion`, :func:`solve_contact` (-> :class:`ContactResult`),
-:class:`ConvergenceWarning`, :func:`pressure_histogram`, :func:`fig1_surface`;
-ensembles (:mod:`gfmd_ref.ensemble`; Dask for cluster runs, ``pip install
-"diffusion-pr[ensemble]"``): :func:`run_ensemble`, :func:`load_ensemble`,
-:func:`bundled_ensemble`.
+rigid, periodic rough surface, with hard-wall or exponential repulsion (docs/gfmd.md).
+It never imports :mod:`diffusion_pr`. Ensembles (:mod:`gfmd_ref.ensemble`) need Dask
+for cluster runs (``pip install "diffusion-pr[ensemble]"``).
 """
 from .ensemble import EnsembleSurface, bundled_ensemble, ingest_fields, load_ensemble, run_ensemble
 from .histogram import PressureHistogram, pressure_histogram

@@ -1,17 +1,7 @@
-"""Command line: ``gfmd-ref run`` solves the paper's Fig. 1 scene (or a user's periodic
-height map, ``--heights``) and writes the pressure histogram (``.npz``, ``.csv``,
-``.png``); ``gfmd-ref ensemble`` runs (or resumes) an ensemble of cases on Dask into a
-store directory (exit code 1 if a case failed or did not converge), ``gfmd-ref
-ensemble-summary DIR`` prints its per-group table, ``gfmd-ref ensemble-ingest``
-reduces saved pressure fields into a store and ``gfmd-ref ensemble-bundle``
-writes compact package data from stores (see docs/ensembles.md).
-
-Lengths: the unit of the cell's side ``L``; for the Fig. 1 scene ``--length-unit grid``
-(default, ``L = n`` grid spacings, as :func:`~gfmd_ref.fig1_surface` and the ensemble
-store) or ``paper`` (grid spacings of the paper's 1024^2 system, ``L = 1024``).
-
-The same job is callable from Python: :func:`run_default_scene`, and another CLI
-can mount the sub-command with :func:`add_run_arguments` + :func:`run_from_args`.
+"""Command line ``gfmd-ref``: ``run`` (Fig. 1 scene or ``--heights`` map -> pressure
+histogram), ``ensemble``, ``ensemble-summary``, ``ensemble-ingest``, ``ensemble-bundle``
+(docs/ensembles.md). ``run`` from Python: :func:`run_default_scene`; another CLI mounts it
+with :func:`add_run_arguments` + :func:`run_from_args`.
 """
 from __future__ import annotations
 

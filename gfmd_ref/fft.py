@@ -1,12 +1,8 @@
 """Real 2-D FFTs of the solvers: Fourier multipliers applied to real fields (scipy.fft).
 
-Every solver iteration applies the half-space Green's function ``2/(q E*)`` or its
-inverse ``q E*/2`` to a real ``(n, n)`` field: ``rfft2``, a real multiplier on the half
-spectrum, ``irfft2``. :meth:`FFTPair.apply_route` does it into a caller's array and
-returns the dot product of input and output by Parseval, taken in the multiply
-(:func:`spectral_multiply`); with ``float32`` data and multiplier it runs in single
-precision (for a preconditioner or a step length, whose rounding only perturbs a search).
-The transforms are scipy.fft's (pocketfft, ``workers=threads``).
+``rfft2``, a real multiplier (``2/(q E*)`` or ``q E*/2``) on the half spectrum, ``irfft2``.
+:meth:`FFTPair.apply_route` writes into a caller's array and returns the input-output dot
+product by Parseval; ``float32`` data and multiplier run in single precision.
 """
 from __future__ import annotations
 
@@ -19,7 +15,7 @@ from numba import njit
 
 __all__ = ["DEFAULT_THREADS", "FFTPair", "check_threads", "spectral_multiply", "spectral_scale"]
 
-#: FFT threads when a caller does not say (one is faster than two on a loaded 2-core machine).
+#: FFT threads when a caller does not say.
 DEFAULT_THREADS = 1
 
 
@@ -28,9 +24,8 @@ def spectral_multiply(spec, mult, n_last):
     """``spec *= mult`` for the half spectrum of a real ``(n0, n_last)`` field ``x`` and
     a real multiplier; returns ``sum_k w_k mult_k |X_k|^2`` (``w_k`` = 1 on the columns
     that are their own mirror, 2 elsewhere), which by Parseval is ``sum_i x_i y_i`` for
-    ``y = irfft2(mult X) n0 n_last``: the dot product a conjugate-gradient step needs.
-    The product is written in real arithmetic, ``(Re x m, Im x m)`` (numpy's values bit for
-    bit); two accumulators per row shorten the add-latency chain."""
+    ``y = irfft2(mult X) n0 n_last``. Real arithmetic, ``(Re x m, Im x m)``, gives numpy's
+    values bit for bit; two accumulators per row shorten the add chain."""
     n0, nh = spec.shape
     last = nh - 1 if n_last % 2 == 0 else nh  # the Nyquist column has weight 1
     s = 0.0
@@ -68,8 +63,7 @@ def spectral_multiply(spec, mult, n_last):
 
 @njit(cache=True, error_model="numpy")
 def spectral_scale(spec, mult):
-    """``spec *= mult`` (a real multiplier on a half spectrum) without the dot product of
-    :func:`spectral_multiply`: a loop the compiler vectorizes; numpy's values bit for bit."""
+    """``spec *= mult`` (real multiplier, half spectrum), numpy's values bit for bit."""
     sf = spec.ravel()
     mf = mult.ravel()
     for k in range(sf.size):

@@ -342,10 +342,8 @@ def _local_cluster(workers: Optional[int], threads: int):
 
     ncpu = os.cpu_count() or 1
     workers = max(1, ncpu // threads) if workers is None else int(workers)
-    # Dask's nanny sets OMP/MKL/OPENBLAS_NUM_THREADS=1 before it
-    # spawns a worker; BLAS threading changes the round-off of np.vdot in the Newton solver
-    # (measured: 5e-16 relative in the quantiles), so the workers are spawned with this process's
-    # BLAS setting and a case gives bit-identical records on a worker and in this process.
+    # Dask's nanny sets OMP/MKL/OPENBLAS_NUM_THREADS=1; BLAS threading changes np.vdot's round-off,
+    # so workers get this process's setting and give bit-identical records.
     import dask
 
     pre = dict(dask.config.get("distributed.nanny.pre-spawn-environ", default={}) or {})

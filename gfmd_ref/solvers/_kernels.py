@@ -1,18 +1,9 @@
 """Real-space Numba kernels of the contact solvers (module level, ``cache=True``, no fastmath).
 
-Compiled with numba's numpy error model: a division by zero gives IEEE inf/NaN instead of
-a ZeroDivisionError branch on every division (which kept loops such as the exponents'
-``-(u - h)/zeta`` from vectorizing).
-
-Grid arrays are C-contiguous ``(n, n)``; the kernels loop over the flat view. The hard
-wall's contact-set fields are packed: ``pc[k]``, ``tc[k]``, ``gcon[k]`` belong to the node
-``idx[k]`` (``idx`` sorted), so a pass over the set reads them in order instead of
-gathering from full grids that no longer fit in the cache.
-
-Overflow guard: every exponential ``exp(x)`` of the exponential wall is evaluated with
-``x`` clamped to ``[EXP_MIN, EXP_MAX] = [-745, 700]``. ``exp(700) = 1.0e304`` stays finite
-(and so do sums of up to ~1e4 such values); ``exp(-745)`` underflows to the smallest
-subnormal / zero, which is the physically right answer (no contact).
+numba's numpy error model: a division by zero gives IEEE inf/NaN (no exception branch).
+Grid arrays are C-contiguous ``(n, n)``, looped over flat. The hard wall's contact-set
+fields are packed: ``pc[k]``, ``tc[k]``, ``gcon[k]`` belong to node ``idx[k]`` (``idx``
+sorted). Exponents are clamped to ``[EXP_MIN, EXP_MAX]`` (overflow guard, docs/gfmd.md).
 """
 from __future__ import annotations
 
@@ -35,11 +26,8 @@ def _clamp_exp(x):
 
 
 # --------------------------------------------------------------------------- hard wall, CCG
-#
-# Memory traffic bounds these kernels, so an iteration makes one full pass (the gap,
-# :func:`pk_gap`) and otherwise touches only the contact set through its index list
-# ``idx[:nc]`` (10 % of the nodes on the Fig. 1 surface). The contact set is also kept as
-# a one-byte mask ``c`` (``c = p > 0``).
+# One full pass per iteration (:func:`pk_gap`); the rest touches only ``idx[:nc]``.
+# The contact set is also kept as a mask ``c`` (``c = p > 0``).
 
 
 @njit(cache=True, error_model="numpy")
@@ -73,18 +61,12 @@ def contact_dot(r, tc, idx, nc):
 
 @njit(cache=True, error_model="numpy")
 def pk_gap(u, h, pc, c, idx, nc, masked, want_masked, gcon, ol, olg, gv, a, scale, fold):
-    """Gap ``g = u - h - gbar`` with ``gbar`` the mean of ``u - h`` over the contact set.
-    ``gcon[k]`` = ``g`` at ``idx[k]`` (``pc[k]``, the pressure there, packed in the same
-    order), from a pass over the set; then one full pass writes, with ``want_masked``,
-    ``masked = g`` on the set and 0 elsewhere (the input of the preconditioner's FFT) and
-    collects the overlaps (``g < 0`` off the set) in ``ol[:n_overlap]`` (indices) and
-    ``olg`` (their gaps).
+    """Gap ``g = u - h - gbar``, ``gbar`` the mean of ``u - h`` over the contact set.
 
-    With ``fold`` both passes first bring ``u`` up to date: ``u = scale (u + a gv)``, the
-    last step's increment (``gv = G dv``, float32, :func:`pk_step`'s ``dv`` transformed in
-    place, ``a = 1``; or the step length's ``r`` with ``a = -tau``), and the full pass
-    zeroes ``gv`` for the next step's ``dv``; the gap is that of the new ``u``, the same
-    bits as a separate pass over ``u`` before it.
+    ``gcon[k]`` = ``g`` at ``idx[k]``; with ``want_masked``, ``masked = g`` on the set and 0
+    elsewhere (the preconditioner's input); the overlaps (``g < 0`` off the set) go to
+    ``ol[:n_overlap]`` (indices) and ``olg`` (gaps). With ``fold``, ``u = scale (u + a gv)``
+    is applied first (the last step's increment) and ``gv`` is zeroed.
     Returns ``(sum_c g, sum_c g^2, max_c |p g|, max(-g) off the set, n_overlap,
     max |gv|)`` (the last 0 without ``fold``)."""
     uf = u.ravel()
@@ -168,16 +150,12 @@ def pk_direction(z, from_gap, gcon, idx, nc, tc, shift, beta, t2):
 
 @njit(cache=True, error_model="numpy")
 def pk_step(pc, c, tc, idx, nc, ol, olg, n_overlap, tau, idx_new, pc_new, tc_new, t2, dv, want_dv):
-    """Polonsky-Keer step of the pressures, packed on the contact set (``pc[k]``, ``tc[k]``
-    = ``p``, ``t`` at ``idx[k]``): ``p -= tau t`` on the set, projected on ``p >= 0`` (a
-    projected node leaves the set: ``c`` false, its ``t2`` zero); ``p = -tau g`` at the
-    overlaps ``ol[:n_overlap]`` (they join the set where that is positive, with ``t = 0``).
-    One pass over the two sorted lists in index order, which writes the new set's
-    indices, pressures and directions to ``idx_new``, ``pc_new``, ``tc_new`` in increasing
-    index order. The load is restored by :func:`pk_rescale`. With ``want_dv`` the whole
-    change of every node it visits, projections and new contacts included, goes to ``dv``
-    (full grid, ``p_new - p_old``, float32; the caller keeps ``dv`` zero elsewhere): the
-    increment whose ``G dv`` updates ``u`` (:func:`pk_gap`'s ``fold``).
+    """Polonsky-Keer step of the packed pressures: ``p -= tau t``, projected on ``p >= 0``.
+
+    A projected node leaves the set; an overlap ``ol[m]`` joins it where ``-tau g > 0``
+    (with ``t = 0``). One merge pass over both sorted lists writes the new set to
+    ``idx_new``, ``pc_new``, ``tc_new``. With ``want_dv``, ``dv = p_new - p_old`` (float32)
+    at every visited node. The load is restored by :func:`pk_rescale`.
     Returns ``(n_projected, sum p, new nc)``."""
     cf = c.ravel()
     t2f = t2.ravel()
@@ -271,22 +249,15 @@ def exp_log_mean(u, h, zeta):
     return zeta * (m + math.log(s / n))
 
 
-#: exp(x) rounds to +0 for every x below this (the smallest subnormal is exp(-744.44); half of it, exp(-745.13),
-#: is where round-to-nearest gives 0)
+#: exp(x) rounds to +0 for every x below this (round-to-nearest gives 0 below exp(-745.13))
 EXP_ZERO = -746.0
 
 
 @njit(cache=True, error_model="numpy")
 def exp_exponents(u, h, zeta, e, keep):
     """``e = x - m`` with the wall's exponents ``x = -(u - h)/zeta`` and their largest
-    ``m`` (returned): the first half of :func:`exp_log_mean`, whose exponentials
-    ``exp(e)`` numpy then takes in place (vectorized), see
-    :func:`gfmd_ref.solvers.newton.z0_residual`.
-    Where ``e`` is below :data:`EXP_ZERO` its exponential is ``+0`` (IEEE rounding):
-    there ``e`` is written as that ``0.0`` and ``keep`` is False, so that numpy
-    exponentiates only where ``keep`` (``where=keep``), with the same bits. The C
-    library's ``exp`` takes a slow underflow path for such arguments (``-inf`` included),
-    which dominates at small ``zeta`` where most nodes are far from the wall."""
+    ``m`` (returned). Below :data:`EXP_ZERO` (exponential ``+0``) ``e`` is set to 0 and
+    ``keep`` False, so numpy's ``exp(where=keep)`` skips libm's slow underflow path."""
     uf = u.ravel()
     hf = h.ravel()
     ef = e.ravel()
@@ -437,13 +408,11 @@ def ncg_update(x, r, d, gd, wdiag, minv, p, a):
 
 @njit(cache=True, error_model="numpy")
 def ncg_shift(r, minv, p, c, cp):
-    """``r -= c``, one pass: the projection of the diagonal preconditioner on the
-    constraint ``sum dp = 0`` (``c = (minv.r)/sum minv``: a constant gradient is in the
-    constraint's null space, and removing it avoids cancellation; then ``z = minv r`` has
-    ``sum z = 0``). Returns ``(r.z, max |p (r - cp)|)`` with ``z = minv r`` after the
-    shift and ``cp = sum p r / sum p`` before it (a constant shift of the dual gradient is
-    a shift of ``z0``): the preconditioned norm and the predicted force residual of the
-    Newton iterate, times ``zeta p0``."""
+    """``r -= c``: project the diagonal preconditioner on ``sum dp = 0``.
+
+    ``c = (minv.r)/sum minv`` makes ``z = minv r`` sum to 0. Returns ``(r.z, max |p (r -
+    cp)|)``, ``cp = sum p r / sum p`` before the shift: the preconditioned norm and the
+    predicted force residual times ``zeta p0``."""
     rf = r.ravel()
     mf = minv.ravel()
     pf = p.ravel()
@@ -507,8 +476,8 @@ def project_active(z, h, v, pel, contact):
 
 @njit(cache=True, error_model="numpy")
 def hard_force(contact, pel, f):
-    """Hard-wall projected force of a displacement field: a contact node carries ``max(p_el, 0)`` as wall reaction, so its net force is ``max(-p_el, 0)``
-    (no tension); a free node feels ``-p_el``. Returns ``(max |f|, sum of reactions)``."""
+    """Hard-wall projected force: 0 on a compressed contact node, ``-p_el`` elsewhere.
+    Returns ``(max |f|, sum of reactions)``."""
     cf = contact.ravel()
     pf = pel.ravel()
     ff = f.ravel()

@@ -1,13 +1,8 @@
 """``solve_contact``: the equilibrium of an elastic half-space on a rigid rough surface.
 
-Geometry and conventions (docs/gfmd.md): rigid rough surface ``h`` (zero mean not
-required), elastic half-space with contact modulus ``E*`` pressed on it with mean
-pressure ``p0``. Solid surface ``z = z0 + u`` (``<u> = 0``), gap ``g = z - h``. Each
-Fourier mode ``q != 0`` of ``u`` is a spring of stiffness ``q E*/2`` (per unit area): the
-elastic pressure is ``p_el = p0 + IFFT[(q E*/2) FFT(z)]`` and, inversely,
-``u = IFFT[(2/(q E*)) FFT(p)]``. The residuals (dimensionless, relative to ``p0``) are
-defined in :mod:`~gfmd_ref.solvers.ccg` (hard wall, ``ccg``/``pk``),
-:mod:`~gfmd_ref.solvers.newton` (exponential wall) and :mod:`~gfmd_ref.solvers.fire`.
+Conventions and residuals: docs/gfmd.md. Solid surface ``z = z0 + u`` (``<u> = 0``), gap
+``g = z - h``; each mode ``q != 0`` is a spring ``q E*/2`` per unit area, so
+``u = IFFT[(2/(q E*)) FFT(p)]``.
 """
 from __future__ import annotations
 
@@ -150,9 +145,8 @@ def solve_contact(
         Cap on operator applications (FFT pairs; default depends on method and size).
     method : {"auto", "ccg", "pk", "newton", "fire"}
         ``"ccg"``: Polonsky-Keer constrained conjugate gradients with a Fourier-diagonal
-        preconditioner (``q E*/2``, the inverse of the Green's function; hard wall only;
-        4x fewer iterations than ``"pk"`` at 1024^2); ``"pk"``: the same without the
-        preconditioner (the algorithm of Tamaas' ``PolonskyKeerRey``);
+        preconditioner ``q E*/2`` (hard wall only); ``"pk"``: the same without the
+        preconditioner;
         ``"newton"``: dual Newton-CG (exponential wall only); ``"fire"``: GFMD with
         mass-weighted FIRE (both). ``"auto"`` picks ``ccg`` / ``newton``.
         With ``ccg``/``pk``, a load high enough for full contact is answered by the closed form
@@ -163,8 +157,7 @@ def solve_contact(
         residual down to ``tol``).
     warm_start : bool
         Exponential wall with ``newton``: start from the hard-wall (CCG) solution
-        instead of the uniform pressure ``p0``. Default False: on the Fig. 1 surface the
-        cold start is faster for every zeta from 4 down to 0.001.
+        instead of the uniform pressure ``p0`` (default False, the faster one).
     threads : int, optional
         FFT threads (default :data:`gfmd_ref.fft.DEFAULT_THREADS` = 1). The answer does
         not depend on it beyond round-off.
@@ -221,11 +214,8 @@ def solve_contact(
     hard = isinstance(interaction, HardWall)
     zeta = None if hard else interaction.zeta
     if not hard:
-        # u = G p carries an absolute error ~ eps p0 / (E* q1), i.e. a force residual floor
-        # ~ eps p0 / (E* q1 zeta) relative to p0 (within a factor 4 of the residual reached at
-        # tol 1e-18, E* = 1e-2 ... 1e-10, 64^2). Where even 1e-3 is out of reach the problem is
-        # not computable in double precision: refuse it. Below that, an unreachable tol ends
-        # by stall detection (converged=False).
+        # u = G p has absolute error ~ eps p0/(E* q1): a residual floor eps p0/(E* q1 zeta).
+        # Refuse a floor above 1e-3; below it an unreachable tol ends by stall detection.
         q1 = 2.0 * math.pi / max(lengths)
         floor = 2.2e-16 * (p0 / E_star) / (q1 * zeta)
         if not floor < EXP_FLOOR_LIMIT:

@@ -14,12 +14,10 @@ import numpy as np
 from . import _kernels as kr
 from .monitor import Monitor
 
-#: stall windows (iterations without halving the best residual): preconditioned ``ccg``
-#: (longest stretch seen on the Fig. 1 surface 5-10, 64^2-512^2) and plain ``pk`` (8-33).
+#: stall windows (iterations without halving the best residual) of ``ccg`` and ``pk``
 CCG_STALL_WINDOW = 50
 PK_STALL_WINDOW = 200
-#: the rounding of one single-precision ``G dv`` relative to its largest value (a bound:
-#: 2-4e-7 seen over every increment of tol-1e-10 solves of Fig. 1 surfaces, 256^2-1024^2)
+#: bound on the rounding of one single-precision ``G dv`` relative to its largest value
 INCREMENT_ROUNDING = 2e-6
 #: an exact ``u = G p`` is taken where the increments' rounding accumulated since the last
 #: one could exceed this share of the residual (in units of ``h_scale``), after
@@ -33,31 +31,10 @@ REFRESH = 50
 def ccg(h, p0, el, tol, max_iter, progress, h_scale, precond=True):
     """Polonsky-Keer constrained CG on the pressures; returns the solver's answer dict.
 
-    ``precond=True`` (``method="ccg"``): the search direction is built from ``z = K (g on
-    the contact set)``, ``K = q E*/2`` the inverse of the Green's function (a
-    Fourier-diagonal preconditioner; one more FFT pair per iteration), shifted to zero mean
-    on the contact set; ``beta = (g.z)_new / (g.z)_old``. On the Fig. 1 surface it takes
-    about 4x fewer iterations than the plain search (``precond=False``, ``method="pk"``, the
-    algorithm of Tamaas' ``PolonskyKeerRey``).
-
-    The search runs in single precision: the preconditioner's FFT pair and ``r = G t`` of
-    the step length (``float32`` data and multipliers; the sums over the contact set in
-    double). ``p``, the step itself and every residual stay in double precision, so the
-    rounding (relative 1e-7) only perturbs the search direction and the step length.
-    ``u = G p`` is updated by the step's whole pressure change ``dv`` (projections and new
-    contacts included), transformed in single precision: ``u <- scale (u + G dv)``, folded
-    into the next gap pass (:func:`~gfmd_ref.solvers._kernels.pk_gap`). A step that kept
-    the contact set changed ``p`` by ``-tau t`` alone, so its ``G dv`` is ``-tau r`` and its
-    FFT pair is saved. The rounding of the increments is relative to the increment, not to
-    ``u``, and the bound :data:`INCREMENT_ROUNDING` ``sum max |G dv|`` is tracked: an exact
-    ``u`` (double precision) is taken where it could exceed :data:`INCREMENT_SHARE` of the
-    residual, where the residual stalls, every :data:`REFRESH` steps, and always before
-    convergence is declared (docs/gfmd.md).
-
-    Start: uniform ``p0``. One full pass per iteration (the gap, which also applies the last
-    increment of ``u``); the rest works on the contact set's sorted index list, with the
-    pressure and the direction packed in its order (the full grid ``p`` is written only for
-    an exact ``u`` and the answer; see :mod:`gfmd_ref.solvers._kernels`).
+    ``precond=True`` is ``method="ccg"`` (Fourier-diagonal preconditioner ``K = q E*/2``),
+    ``precond=False`` is ``method="pk"``. The single-precision search and the ``u``
+    increments with their rounding bound are described in docs/gfmd.md ("Methods").
+    Start: uniform ``p0``.
     """
     n2 = h.size
     f32 = np.float32
@@ -127,8 +104,7 @@ def ccg(h, p0, el, tol, max_iter, progress, h_scale, precond=True):
         rsum, srt = kr.contact_dot(r32, tc, idx, nc)
         den = srt - (rsum / nc if nc > 0 else 0.0) * st  # sum_c (r - rbar) t
         tau = sgt / den if den != 0 else 0.0
-        # the increment's G dv instead of an exact u, unless the rounding u may have gathered is no longer far
-        # below the residual, or the residual stalls, or REFRESH increments ran
+        # increment u by G dv unless its rounding bound nears the residual, the residual stalls, or REFRESH ran
         use_incr = not (u_rounding > INCREMENT_SHARE * res * h_scale or since_exact + 1 >= REFRESH
                         or it - mon.it_best > INCREMENT_STALL)
         nc_before = nc

@@ -21,14 +21,9 @@ N_MIN, F_INC, F_DEC, A0, F_A = 5, 1.1, 0.5, 0.1, 0.99
 
 
 def fire(h, p0, zeta, el, tol, max_iter, progress):
-    """Mass-weighted FIRE dynamics of the Fourier modes of the solid surface ``z``
-    (``zeta=None``: hard wall).
+    """Mass-weighted FIRE dynamics of the Fourier modes of ``z`` (``zeta=None``: hard wall).
 
-    Mode masses ``m(q) = q E*/2 + kappa`` (every elastic mode has the same
-    frequency; ``kappa`` = mean interaction stiffness ``p0/zeta`` for the exponential
-    wall, ``q_1 E*/2`` for the hard wall and as a floor), FIRE velocity mixing in the
-    mass-weighted metric (Bitzek et al., PRL 97, 170201, 2006). The hard wall is a
-    projection ``z >= h`` with the inward velocity of clipped nodes removed.
+    Mode masses ``m(q) = q E*/2 + kappa`` and the wall handling: docs/gfmd.md ("Methods").
     """
     n2 = el.size
     hard = zeta is None

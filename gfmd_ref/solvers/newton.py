@@ -28,11 +28,11 @@ def log_ratio(p: np.ndarray, p0: float, out: np.ndarray) -> np.ndarray:
 
 def z0_residual(u: np.ndarray, h: np.ndarray, p: np.ndarray, p0: float, zeta: float,
                 scratch: np.ndarray, keep: np.ndarray | None = None) -> tuple:
-    """``(z0, residual)`` of the exponential wall with one (vectorized) exponential per
-    node: ``z0 = zeta log(mean(exp(-(u - h)/zeta)))`` (log-sum-exp, as
-    :func:`~gfmd_ref.solvers._kernels.exp_log_mean`) and ``max |p0 exp(-(z0 + u - h)/zeta) - p| / p0``
-    (:func:`~gfmd_ref.solvers._kernels.exp_sum_residual`); ``scratch`` holds the exponentials, ``keep``
-    (a boolean array of the same shape, made if None) where they are not ``+0``."""
+    """``(z0, residual)`` of the exponential wall, one exponential per node.
+
+    ``z0 = zeta log(mean(exp(-(u - h)/zeta)))`` (log-sum-exp) and residual
+    ``max |p0 exp(-(z0 + u - h)/zeta) - p| / p0``; ``scratch`` holds the exponentials,
+    ``keep`` (made if None) marks where they are not ``+0``."""
     if keep is None:
         keep = np.empty(u.shape, dtype=np.bool_)
     m = kr.exp_exponents(u, h, zeta, scratch, keep)
@@ -42,25 +42,13 @@ def z0_residual(u: np.ndarray, h: np.ndarray, p: np.ndarray, p0: float, zeta: fl
 
 
 def newton(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0):
-    """Newton-CG on the dual (pressure) energy of the exponential wall
+    """Newton-CG on the dual (pressure) energy of the exponential wall.
 
-    ``Phi(p) = mean(p u/2 - p h + zeta p log(p/p0))``, ``u = G p``, ``mean(p) = p0``,
-
-    whose minimiser is the equilibrium pressure (``p = p0 exp(-(z0 + u - h)/zeta)``).
-    The Hessian ``G + diag(zeta/p)`` is inverted by projected CG (constraint
-    ``sum dp = 0``) with the diagonal preconditioner ``1/(G_ii + zeta/p)``; steps
-    that decrease ``p`` are taken multiplicatively (``p exp(dp/p)``) so ``p`` stays
-    positive, with an Armijo backtracking on ``Phi``.
-
-    A CG iteration is one FFT pair and three fused passes
-    (:func:`~gfmd_ref.solvers._kernels.ncg_update`, ``ncg_shift``, ``ncg_direction``);
-    ``G d`` runs in single precision in every Newton step whose forcing asks the CG for no
-    more than :data:`SINGLE_CG_MIN_FORCING` of the predicted residual (else in double); the
-    line search, ``u = G p`` and the residual (:func:`z0_residual`) stay in double. The
-    line search judges by the force residual where the energy change is below the
-    round-off of the energy's terms (their mean magnitude, which exceeds ``|Phi|`` by
-    orders near the solution). ``p_init`` (optional) is the start pressure, ``iters0`` the
-    iterations already spent on it.
+    ``Phi(p) = mean(p u/2 - p h + zeta p log(p/p0))``, ``u = G p``, ``mean(p) = p0``; its
+    minimiser is the equilibrium pressure. Projected PCG, multiplicative steps and the line
+    search are described in docs/gfmd.md ("Methods"). ``G d`` runs in single precision
+    where the forcing asks for no more than :data:`SINGLE_CG_MIN_FORCING`. ``p_init``
+    (optional) is the start pressure, ``iters0`` the iterations already spent on it.
     """
     n2 = h.size
     pmin = max(p0 * 1e-300, 1e-300)
@@ -129,8 +117,7 @@ def newton(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0):
             Et, _ = kr.dual_energy(utry, h, ptry, log_ratio(ptry, p0, lp), zeta)
             if Et <= E + 1e-4 * alpha * slope:
                 break
-            # energy differences at round-off (of the energy's terms, whose magnitude E_scale can exceed |E|
-            # by 1e4 near the solution): judge by the force residual instead
+            # energy change at round-off of its terms (E_scale >> |E| near the solution): use the force residual
             if (abs(Et - E) <= 1e-11 * max(abs(E), E_scale)
                     and z0_residual(utry, h, ptry, p0, zeta, scratch, keep)[1] < (1.0 - 1e-4 * alpha) * res):
                 break
