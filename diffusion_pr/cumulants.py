@@ -228,16 +228,11 @@ def diffusivity_vs_magnification(
     ea, E, p0, z = _check_magnification_inputs(spectrum, eta, E_star, mean_pressure, zeta)
     qmin = spectrum.q_min
     if isinstance(spectrum, DiscreteSpectrum):
-        if bins is None:
-            eta_max = spectrum.q_max / qmin
-            edges = np.arange(0.5, eta_max + 1.0, 1.0)
-        else:
-            edges = check_finite_array("bins", bins, ndim=1, min_size=2)
-            if np.any(np.diff(edges) <= 0):
-                raise ValueError("bins must be strictly increasing edges in eta")
-        v_edges = np.asarray(
-            variance_vs_magnification(spectrum, edges, E_star=E, mean_pressure=p0, zeta=z), dtype=float
-        )
+        edges = (np.arange(0.5, spectrum.q_max / qmin + 1.0, 1.0) if bins is None
+                 else check_finite_array("bins", bins, ndim=1, min_size=2))
+        if np.any(np.diff(edges) <= 0):
+            raise ValueError("bins must be strictly increasing edges in eta")
+        v_edges = np.asarray(variance_vs_magnification(spectrum, edges, E_star=E, mean_pressure=p0, zeta=z))
         d_bins = 0.5 * np.diff(v_edges) / np.diff(edges)
         j = np.searchsorted(edges, ea, side="left") - 1  # eta in (e_j, e_{j+1}]
         inside = (j >= 0) & (j < d_bins.size)

@@ -1,30 +1,18 @@
 """Pressure dependence of the diffusivity: cutoffs ``c(p)`` and tails ``t(p)``.
 
 The magnification-dependent diffusivity of the Fokker-Planck equation
-(docs/theory.md) is ``D(p, eta) = D(eta) * c(p) * t(p)``.  This module holds the
-pressure factors as small frozen dataclasses that are vectorized callables of a
-pressure array (same units as ``mean_pressure`` and ``E_star``):
+(docs/theory.md) is ``D(p, eta) = D(eta) * c(p) * t(p)``.  The pressure factors
+are small frozen dataclasses, vectorized callables of a pressure array (same
+units as ``mean_pressure`` and ``E_star``):
 
-Cutoffs ``c(p)`` (switch ``D`` off at and below ``p = 0``)
-    * :class:`SharpCutoff` -- ``theta(p)``; with ``t = 1`` the exact solution is
-      Persson's mirror Gaussian plus a ``delta(p)`` non-contact peak.
-    * :class:`MuserCutoff` -- the seed paper's printed factor
-      ``1 - theta(p_c - p) cos(pi p / p_c)`` (Müser, PRL 100, 055504 (2008),
-      doi:10.1103/PhysRevLett.100.055504).  Read literally it rises from 0 to 2
-      just below ``p_c`` and drops to 1 above: it is *discontinuous* at ``p_c``.
-    * :class:`RaisedCosineCutoff` -- ``(1 - cos(pi p / p_c)) / 2`` below ``p_c``:
-      C1 everywhere (second derivative jumps at 0 and ``p_c``).
-    * :class:`SmoothstepCutoff` -- ``6x^5 - 15x^4 + 10x^3`` with ``x = p / p_c``:
-      C2 everywhere, what the paper's text asks for ("D, D' and D''
-      continuous").
-
-Tails ``t(p)`` (large-pressure behaviour)
-    * :class:`GaussianTail` -- ``t = 1`` (Gaussian tails, the default).
-    * :class:`LinearTail` -- ``t = 1 + p / p_t``.
-    * :class:`MaxLinearTail` -- ``t = max(1, p / p_t)``.
-
-    Both linear variants make ``D`` grow proportionally to ``p`` at large ``p``,
-    which gives exponential tails (the paper's "D proportional to sigma").
+* cutoffs, which switch ``D`` off at and below ``p = 0``: :class:`SharpCutoff`
+  (``theta(p)``: Persson's mirror Gaussian), :class:`MuserCutoff` (the seed
+  paper's printed factor, discontinuous at ``p_c``; Müser, PRL 100, 055504
+  (2008), doi:10.1103/PhysRevLett.100.055504), :class:`RaisedCosineCutoff` (C1)
+  and :class:`SmoothstepCutoff` (C2, the paper's "D, D' and D'' continuous");
+* tails, for large pressures: :class:`GaussianTail` (``t = 1``, the default),
+  :class:`LinearTail` and :class:`MaxLinearTail`, whose ``D ∝ p`` at large
+  ``p`` gives exponential tails (the paper's "D proportional to sigma").
 
 Any vectorized callable of ``p`` is accepted wherever a cutoff or tail is.
 

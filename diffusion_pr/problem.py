@@ -160,20 +160,16 @@ class FokkerPlanckProblem:
             are skipped (their drift cannot be represented in ``tau``; the
             conversion raises if a drift is given there).
         variance_function, diffusivity_function : callable, optional
-            The exact ``V(eta)`` (pressure squared) and ``D(eta) = (1/2) dV/deta``
-            (pressure squared per unit magnification), vectorized, consistent with
-            ``variance_of_eta`` at the nodes (a continuum spectrum's
+            The exact, vectorized ``V(eta)`` (pressure squared) and
+            ``D(eta) = (1/2) dV/deta`` (pressure squared per unit magnification),
+            consistent with ``variance_of_eta`` at the nodes (a continuum spectrum's
             :func:`~diffusion_pr.cumulants.variance_vs_magnification` and
             :func:`~diffusion_pr.cumulants.diffusivity_vs_magnification`).  Given
-            both, ``eta(tau)`` solves ``(V(eta) - V(1))/2 = tau`` to round-off
-            (safeguarded Newton inside the table's bracket) and the drift is
-            divided by the exact ``D``: ``a(p, tau)`` is then as smooth in ``tau``
-            as ``A`` and ``D`` are in ``eta``, which the midpoint time segments
-            need to converge at second order.  Without them ``eta(tau)`` and ``D``
-            are interpolated linearly between the nodes (``D`` from finite
-            differences): ``a`` has a kink at every node, the segments converge
-            erratically and a tight ``rtol`` may be out of reach.  A discrete spectrum's staircase ``V`` has no such
-            functions.
+            both, ``eta(tau)`` solves ``(V(eta) - V(1))/2 = tau`` to round-off and
+            ``a(p, tau)`` is as smooth in ``tau`` as ``A`` and ``D`` are in ``eta``
+            (second-order convergence of the midpoint time segments).  Without them
+            ``eta(tau)`` and ``D`` are interpolated linearly between the nodes:
+            ``a`` has a kink at every node and a tight ``rtol`` may be out of reach.
         """
         eta = np.asarray(eta, dtype=float)
         v = np.asarray(variance_of_eta, dtype=float)

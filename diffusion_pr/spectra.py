@@ -50,6 +50,12 @@ def _lattice_k2(n: int) -> np.ndarray:
     return (k[:, None] ** 2 + k[None, :] ** 2).ravel()
 
 
+def _merge_shells(key: np.ndarray, power: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Distinct ``key`` values (sorted), the summed ``power`` and the number of modes of each."""
+    uk, inv = np.unique(key, return_inverse=True)
+    return uk, np.bincount(inv, weights=power, minlength=uk.size), np.bincount(inv, minlength=uk.size)
+
+
 @lru_cache(maxsize=64)
 def _leggauss(n: int) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Legendre nodes and weights on [-1, 1] (cached, read-only)."""
@@ -457,10 +463,7 @@ class DiscreteSpectrum(Spectrum):
         if not total > 0:
             raise ValueError("power is zero for every mode: a flat surface has no spectrum")
         keep = pa > empty_tol * total
-        uq, inv = np.unique(qa[keep], return_inverse=True)
-        shell_power = np.bincount(inv, weights=pa[keep], minlength=uq.size)
-        mult = np.bincount(inv, minlength=uq.size)
-        return cls(uq, shell_power, mult, length)
+        return cls(*_merge_shells(qa[keep], pa[keep]), length)
 
     @classmethod
     def on_lattice(cls, spectrum: "Spectrum", n: int, length: float, *,
@@ -552,11 +555,8 @@ class DiscreteSpectrum(Spectrum):
         if not total > 0:
             raise ValueError("heights are constant: a flat surface has no spectrum")
         keep = (pw > empty_tol * total) & (k2 > 0)
-        uk2, inv = np.unique(k2[keep], return_inverse=True)
-        shell_power = np.bincount(inv, weights=pw[keep], minlength=uk2.size)
-        mult = np.bincount(inv, minlength=uk2.size)
-        q = 2 * math.pi / L * np.sqrt(uk2.astype(float))
-        return cls(q, shell_power, mult, float(L))
+        uk2, shell_power, mult = _merge_shells(k2[keep], pw[keep])
+        return cls(2 * math.pi / L * np.sqrt(uk2.astype(float)), shell_power, mult, float(L))
 
     @property
     def q_min(self) -> float:  # type: ignore[override]
