@@ -14,15 +14,10 @@ doi:10.1103/PhysRevLett.100.055504; B. N. J. Persson, J. Chem. Phys. 115, 3840
 
       h_rms^2 = 2 pi \int q C(q) dq,        gbar^2 = <|grad h|^2> = 2 pi \int q^3 C(q) dq.
 
-Two kinds of spectra share one interface (:class:`Spectrum`):
-
-* :class:`SelfAffineSpectrum`: a continuum power law with optional roll-off;
-  integrals are evaluated by Gauss-Legendre quadrature in ``ln q`` on each
-  power-law segment (accurate to ~1e-14 for smooth weights, checked against
-  :func:`scipy.integrate.quad` in the tests).
-* :class:`DiscreteSpectrum`: the spectrum of one realization, i.e. the list of
-  its non-zero modes' ``|q|`` and ``|h~(q)|^2``; "integrals" are exact sums over
-  those modes, so a theory evaluated with it uses exactly that surface's modes.
+Two kinds of spectra share one interface (:class:`Spectrum`): the continuum
+power law :class:`SelfAffineSpectrum` (integrals by Gauss-Legendre quadrature in
+``ln q``) and :class:`DiscreteSpectrum`, the non-zero modes of one realization
+(integrals are exact sums over them).
 
 Wavevectors are angular (rad / length), in the length unit of ``L``.
 """
