@@ -1,16 +1,10 @@
 """Shared input checks for :mod:`diffusion_pr`.
 
-Every helper raises :class:`ValueError` (for a wrong kind of object its
-subclass :class:`InputTypeError`, which is also a :class:`TypeError`) whose
-message names the parameter, shows the offending value and states the allowed
-range, e.g.::
-
-    ValueError: variance must be > 0 and finite; got -1.0
-
-Scalars are returned as ``float``; array-likes are returned as a float
-``numpy.ndarray`` so callers can use the checked value directly. These are
-internal helpers (leading underscore module), but other modules of the package
-import them, so their signatures are stable.
+Every check raises :class:`ValueError` (for a wrong kind of object its
+subclass :class:`InputTypeError`, also a :class:`TypeError`) whose message
+names the parameter, shows the offending value and states the allowed range,
+e.g. ``ValueError: variance must be > 0 and finite; got -1.0``.  Scalars are
+returned as ``float``, array-likes as a float ``numpy.ndarray``.
 """
 from __future__ import annotations
 
@@ -34,12 +28,7 @@ __all__ = [
 
 
 class InputTypeError(TypeError, ValueError):
-    """Wrong kind of input (not a number, not callable, ...).
-
-    Subclasses both :class:`TypeError` and :class:`ValueError`, so callers and
-    tests may catch either; every check in this module therefore raises a
-    ``ValueError`` in the broad sense.
-    """
+    """Wrong kind of input (not a number, not callable, ...): both a ``TypeError`` and a ``ValueError``."""
 
 
 def _as_float(name: str, value: Any) -> float | np.ndarray:
@@ -50,9 +39,7 @@ def _as_float(name: str, value: Any) -> float | np.ndarray:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as exc:
         raise InputTypeError(f"{name} must be a real number or array of real numbers; got {value!r}") from exc
-    if arr.ndim == 0:
-        return float(arr)
-    return arr
+    return float(arr) if arr.ndim == 0 else arr
 
 
 def _show(value: float | np.ndarray, bad: np.ndarray | None = None) -> str:
@@ -61,62 +48,32 @@ def _show(value: float | np.ndarray, bad: np.ndarray | None = None) -> str:
         return repr(float(value))
     arr = np.asarray(value)
     if bad is not None and np.any(bad):
-        first = arr[bad].ravel()[:3]
-        return f"array of shape {arr.shape} with offending entries {first.tolist()}"
+        return f"array of shape {arr.shape} with offending entries {arr[bad].ravel()[:3].tolist()}"
     return f"array of shape {arr.shape}"
 
 
-def check_finite(name: str, value: ArrayLike) -> float | np.ndarray:
-    """Require ``value`` (scalar or array) to be finite (no NaN, no inf).
-
-    Parameters
-    ----------
-    name : str
-        Parameter name used in the error message.
-    value : float or array_like
-        Value to check.
-
-    Returns
-    -------
-    float or numpy.ndarray
-        ``value`` as float / float array.
-
-    Raises
-    ------
-    ValueError
-        If any entry is NaN or infinite.
-    """
+def _check(name: str, value: ArrayLike, ok: Callable[[np.ndarray], np.ndarray], want: str) -> float | np.ndarray:
+    """``value`` as float / float array if ``ok`` holds for every entry, else ``ValueError: <name> must <want>``."""
     v = _as_float(name, value)
-    bad = ~np.isfinite(v)
+    bad = ~ok(np.asarray(v))
     if np.any(bad):
-        raise ValueError(f"{name} must be finite; got {_show(v, np.atleast_1d(bad) if np.ndim(v) else None)}")
+        raise ValueError(f"{name} must {want}; got {_show(v, bad if np.ndim(v) else None)}")
     return v
+
+
+def check_finite(name: str, value: ArrayLike) -> float | np.ndarray:
+    """``value`` (scalar or array) as float, required finite (no NaN, no inf)."""
+    return _check(name, value, np.isfinite, "be finite")
 
 
 def check_positive(name: str, value: ArrayLike) -> float | np.ndarray:
-    """Require ``value`` (scalar or every array entry) to be finite and > 0.
-
-    Returns the value as float (scalar) or float array; raises ``ValueError``
-    with the parameter name, the value and the allowed range otherwise.
-    """
-    v = _as_float(name, value)
-    bad = ~(np.isfinite(v) & (np.asarray(v) > 0))
-    if np.any(bad):
-        raise ValueError(f"{name} must be > 0 and finite; got {_show(v, bad if np.ndim(v) else None)}")
-    return v
+    """``value`` (scalar or every array entry) as float, required finite and > 0."""
+    return _check(name, value, lambda v: np.isfinite(v) & (v > 0), "be > 0 and finite")
 
 
 def check_nonnegative(name: str, value: ArrayLike) -> float | np.ndarray:
-    """Require ``value`` (scalar or every array entry) to be finite and >= 0.
-
-    Returns the value as float (scalar) or float array; raises ``ValueError``
-    with the parameter name, the value and the allowed range otherwise.
-    """
-    v = _as_float(name, value)
-    bad = ~(np.isfinite(v) & (np.asarray(v) >= 0))
-    if np.any(bad):
-        raise ValueError(f"{name} must be >= 0 and finite; got {_show(v, bad if np.ndim(v) else None)}")
-    return v
+    """``value`` (scalar or every array entry) as float, required finite and >= 0."""
+    return _check(name, value, lambda v: np.isfinite(v) & (v >= 0), "be >= 0 and finite")
 
 
 def check_finite_array(
@@ -127,7 +84,7 @@ def check_finite_array(
     shape: tuple[int | None, ...] | None = None,
     min_size: int = 1,
 ) -> np.ndarray:
-    """Require ``arr`` to be a finite real float array of the expected shape.
+    """``arr`` as a finite real float array of the expected shape.
 
     Parameters
     ----------
@@ -141,17 +98,6 @@ def check_finite_array(
         Required shape; ``None`` entries match any length.
     min_size : int, default 1
         Minimum number of elements.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``arr`` as a float array (a copy only if conversion was needed).
-
-    Raises
-    ------
-    ValueError
-        On NaN/inf entries, a wrong number of dimensions, wrong shape or too
-        few elements.
     """
     if np.iscomplexobj(arr):
         raise ValueError(f"{name} must be real-valued; got a complex array")
@@ -164,12 +110,10 @@ def check_finite_array(
             raise ValueError(f"{name} must have shape {want}; got shape {a.shape}")
     if a.size < min_size:
         raise ValueError(f"{name} must have at least {min_size} element(s); got {a.size}")
-    bad = ~np.isfinite(a)
-    if np.any(bad):
-        raise ValueError(
-            f"{name} must be finite (no NaN or inf); got {int(bad.sum())} non-finite entr"
-            f"{'y' if bad.sum() == 1 else 'ies'} in an array of shape {a.shape}"
-        )
+    n_bad = int(np.count_nonzero(~np.isfinite(a)))
+    if n_bad:
+        raise ValueError(f"{name} must be finite (no NaN or inf); got {n_bad} non-finite "
+                         f"entr{'y' if n_bad == 1 else 'ies'} in an array of shape {a.shape}")
     return a
 
 
@@ -182,47 +126,20 @@ def check_in_range(
     lo_inclusive: bool = True,
     hi_inclusive: bool = True,
 ) -> float | np.ndarray:
-    """Require ``lo <(=) value <(=) hi`` for a scalar or every array entry.
+    """``value`` (scalar or every array entry) as float, required in ``[lo, hi]`` (NaN rejected).
 
-    Parameters
-    ----------
-    name : str
-        Parameter name used in the error message.
-    value : float or array_like
-        Value to check (NaN is always rejected).
-    lo, hi : float
-        Bounds; use ``-inf``/``inf`` for one-sided ranges.
-    lo_inclusive, hi_inclusive : bool, default True
-        Whether the bounds themselves are allowed.
-
-    Returns
-    -------
-    float or numpy.ndarray
-        The checked value as float / float array.
+    ``lo_inclusive`` / ``hi_inclusive`` (default True) say whether the bounds
+    themselves are allowed; use ``-inf`` / ``inf`` for one-sided ranges.
     """
-    v = _as_float(name, value)
-    va = np.asarray(v)
-    ok_lo = va >= lo if lo_inclusive else va > lo
-    ok_hi = va <= hi if hi_inclusive else va < hi
-    bad = ~(ok_lo & ok_hi) | np.isnan(va)
-    if np.any(bad):
-        left = "[" if lo_inclusive else "("
-        right = "]" if hi_inclusive else ")"
-        raise ValueError(
-            f"{name} must lie in {left}{lo}, {hi}{right}; got {_show(v, bad if np.ndim(v) else None)}"
-        )
-    return v
+    def ok(v: np.ndarray) -> np.ndarray:
+        return (v >= lo if lo_inclusive else v > lo) & (v <= hi if hi_inclusive else v < hi) & ~np.isnan(v)
+
+    interval = f"{'[' if lo_inclusive else '('}{lo}, {hi}{']' if hi_inclusive else ')'}"
+    return _check(name, value, ok, f"lie in {interval}")
 
 
 def check_callable(name: str, obj: Any) -> Callable[..., Any]:
-    """Require ``obj`` to be callable.
-
-    Raises
-    ------
-    InputTypeError
-        (a ``ValueError`` and a ``TypeError``) naming ``name`` if ``obj`` is
-        not callable.
-    """
+    """``obj``, required callable (else :class:`InputTypeError` naming ``name``)."""
     if not callable(obj):
         raise InputTypeError(f"{name} must be callable (a vectorized function of p); got {obj!r} of type {type(obj).__name__}")
     return obj

@@ -38,18 +38,21 @@ __all__ = ["G1", "stress_variance", "variance_vs_magnification", "diffusivity_vs
 
 def _check_spectrum(spectrum: Spectrum) -> Spectrum:
     if not isinstance(spectrum, Spectrum):
-        raise ValueError(
-            "spectrum must be a diffusion_pr.spectra.Spectrum (SelfAffineSpectrum or DiscreteSpectrum); "
-            f"got {type(spectrum).__name__}"
-        )
+        raise ValueError("spectrum must be a diffusion_pr.spectra.Spectrum (SelfAffineSpectrum or DiscreteSpectrum); "
+                         f"got {type(spectrum).__name__}")
     return spectrum
 
 
-def _check_scalar_zeta(zeta: ArrayLike) -> float:
+def _check_magnification_inputs(spectrum: Spectrum, eta: ArrayLike, E_star: float, mean_pressure: float,
+                                zeta: ArrayLike) -> tuple[np.ndarray, float, float, float]:
+    """Checked ``eta`` (array), ``E*``, ``p0`` and scalar ``zeta`` of the ``*_vs_magnification`` functions."""
+    _check_spectrum(spectrum)
+    E = check_positive("E_star", E_star)
+    p0 = check_positive("mean_pressure", mean_pressure)
     z = check_nonnegative("zeta", zeta)
     if np.ndim(z) != 0:
         raise ValueError(f"zeta must be a scalar here (vectorize over eta); got an array of shape {np.shape(z)}")
-    return float(z)
+    return check_finite_array("eta", eta, min_size=0), E, p0, float(z)
 
 
 def G1(q: ArrayLike, *, zeta: ArrayLike, E_star: float, mean_pressure: float) -> np.ndarray | float:
@@ -166,19 +169,14 @@ def variance_vs_magnification(
     float or numpy.ndarray
         Same shape as ``eta``.
     """
-    _check_spectrum(spectrum)
-    E = check_positive("E_star", E_star)
-    p0 = check_positive("mean_pressure", mean_pressure)
-    z = _check_scalar_zeta(zeta)
-    ea = check_finite_array("eta", eta, min_size=0)
+    ea, E, p0, z = _check_magnification_inputs(spectrum, eta, E_star, mean_pressure, zeta)
     k = z * E / (2.0 * p0)
 
     def weight(q: np.ndarray) -> np.ndarray:
         g = 1.0 / (1.0 + k * q)
         return (0.25 * E * E) * q * q * g * g
 
-    out = spectrum.cumulative(weight, ea * spectrum.q_min)
-    return out
+    return spectrum.cumulative(weight, ea * spectrum.q_min)
 
 
 def diffusivity_vs_magnification(
@@ -227,23 +225,14 @@ def diffusivity_vs_magnification(
     float or numpy.ndarray
         ``D`` [pressure^2 per unit magnification], same shape as ``eta``.
     """
-    _check_spectrum(spectrum)
-    E = check_positive("E_star", E_star)
-    p0 = check_positive("mean_pressure", mean_pressure)
-    z = _check_scalar_zeta(zeta)
-    ea = check_finite_array("eta", eta, min_size=0)
+    ea, E, p0, z = _check_magnification_inputs(spectrum, eta, E_star, mean_pressure, zeta)
     qmin = spectrum.q_min
     if isinstance(spectrum, DiscreteSpectrum):
-        if bins is None:
-            eta_max = spectrum.q_max / qmin
-            edges = np.arange(0.5, eta_max + 1.0, 1.0)
-        else:
-            edges = check_finite_array("bins", bins, ndim=1, min_size=2)
-            if np.any(np.diff(edges) <= 0):
-                raise ValueError("bins must be strictly increasing edges in eta")
-        v_edges = np.asarray(
-            variance_vs_magnification(spectrum, edges, E_star=E, mean_pressure=p0, zeta=z), dtype=float
-        )
+        edges = (np.arange(0.5, spectrum.q_max / qmin + 1.0, 1.0) if bins is None
+                 else check_finite_array("bins", bins, ndim=1, min_size=2))
+        if np.any(np.diff(edges) <= 0):
+            raise ValueError("bins must be strictly increasing edges in eta")
+        v_edges = np.asarray(variance_vs_magnification(spectrum, edges, E_star=E, mean_pressure=p0, zeta=z))
         d_bins = 0.5 * np.diff(v_edges) / np.diff(edges)
         j = np.searchsorted(edges, ea, side="left") - 1  # eta in (e_j, e_{j+1}]
         inside = (j >= 0) & (j < d_bins.size)

@@ -1,59 +1,29 @@
 """Pressure dependence of the diffusivity: cutoffs ``c(p)`` and tails ``t(p)``.
 
 The magnification-dependent diffusivity of the Fokker-Planck equation
-(docs/theory.md) is ``D(p, eta) = D(eta) * c(p) * t(p)``.  This module holds the
-pressure factors as small frozen dataclasses that are vectorized callables of a
-pressure array (same units as ``mean_pressure`` and ``E_star``):
+(docs/theory.md) is ``D(p, eta) = D(eta) * c(p) * t(p)``.  The pressure factors
+are small frozen dataclasses, vectorized callables of a pressure array (same
+units as ``mean_pressure`` and ``E_star``):
 
-Cutoffs ``c(p)`` (switch ``D`` off at and below ``p = 0``)
-    * :class:`SharpCutoff` -- ``theta(p)``; with ``t = 1`` the exact solution is
-      Persson's mirror Gaussian plus a ``delta(p)`` non-contact peak.
-    * :class:`MuserCutoff` -- the seed paper's printed factor
-      ``1 - theta(p_c - p) cos(pi p / p_c)`` (Müser, PRL 100, 055504 (2008),
-      doi:10.1103/PhysRevLett.100.055504).  Read literally it rises from 0 to 2
-      just below ``p_c`` and drops to 1 above: it is *discontinuous* at ``p_c``.
-    * :class:`RaisedCosineCutoff` -- ``(1 - cos(pi p / p_c)) / 2`` below ``p_c``:
-      C1 everywhere (second derivative jumps at 0 and ``p_c``).
-    * :class:`SmoothstepCutoff` -- ``6x^5 - 15x^4 + 10x^3`` with ``x = p / p_c``:
-      C2 everywhere, what the paper's text asks for ("D, D' and D''
-      continuous").
-
-Tails ``t(p)`` (large-pressure behaviour)
-    * :class:`GaussianTail` -- ``t = 1`` (Gaussian tails, the default).
-    * :class:`LinearTail` -- ``t = 1 + p / p_t``.
-    * :class:`MaxLinearTail` -- ``t = max(1, p / p_t)``.
-
-    Both linear variants make ``D`` grow proportionally to ``p`` at large ``p``,
-    which gives exponential tails (the paper's "D proportional to sigma").
+* cutoffs, which switch ``D`` off at and below ``p = 0``: :class:`SharpCutoff`
+  (``theta(p)``: Persson's mirror Gaussian), :class:`MuserCutoff` (the seed
+  paper's printed factor, discontinuous at ``p_c``; Müser, PRL 100, 055504
+  (2008), doi:10.1103/PhysRevLett.100.055504), :class:`RaisedCosineCutoff` (C1)
+  and :class:`SmoothstepCutoff` (C2, the paper's "D, D' and D'' continuous");
+* tails, for large pressures: :class:`GaussianTail` (``t = 1``, the default),
+  :class:`LinearTail` and :class:`MaxLinearTail`, whose ``D ∝ p`` at large
+  ``p`` gives exponential tails (the paper's "D proportional to sigma").
 
 Any vectorized callable of ``p`` is accepted wherever a cutoff or tail is.
 
-The model protocol (what the solvers read from a pressure factor)
-------------------------------------------------------------------
-A diffusivity, drift or balance callable may declare two things; every class
-here does, and user callables (and the closures' ``f_k``, ``b_k``, ``w_k``) can
-too, by the same names:
-
-``zero_power`` (class constant or property, dimensionless)
-    The power ``k`` of ``f(p) ~ C p^k`` as ``p -> 0+``.  By Feller's boundary
-    classification (W. Feller, Ann. Math. 55, 468 (1952),
-    doi:10.2307/1969644) probability reaches ``p = 0`` in finite diffusion
-    time iff ``k < 2`` (:func:`wall_reached`); there the wall absorbs and the
-    absorbed mass is the non-contact weight.  For ``k >= 2`` (the smooth
-    cutoffs) mass only creeps towards 0 and the solvers resolve it on a
-    logarithmic grid down to a floor fixed by the problem.
-``breakpoints()`` (method)
-    The pressures (units of pressure) where ``f`` or one of its first two
-    derivatives jumps; the solvers put cell edges there.
-
-Documented fallback for plain callables (:func:`zero_power_of`,
-:func:`breakpoints_of`): ``k`` is the median slope of ``log f`` against ``log p`` between
-consecutive probes ``p = s 10^-j`` (``j = 2..8``, ``s`` the problem's
-pressure scale) at which ``f > 0``, snapped to the nearest integer when within
-0.02 of it; ``f = 0`` at every probe means no mass can reach 0 (``k = inf``).
-Breakpoints of a plain callable are found by a probe on 4096 points and
-bisection of every jump larger than the local smooth variation (to 1e-13
-relative), so a user's literal cutoff costs the same grid as the built-in one.
+The model protocol (:class:`PressureModel`): a diffusivity, drift or balance
+callable may declare ``zero_power``, the ``k`` of ``f(p) ~ C p^k`` as ``p -> 0+``
+(by Feller's classification, W. Feller, Ann. Math. 55, 468 (1952),
+doi:10.2307/1969644, mass reaches the absorbing wall ``p = 0`` in finite time
+iff ``k < 2``; for ``k >= 2`` the solvers resolve it on a logarithmic grid down
+to a floor), and ``breakpoints()``, the pressures where ``f``, ``f'`` or ``f''``
+jump (cell edges go there).  Every class here declares both; for a plain
+callable :func:`zero_power_of` and :func:`breakpoints_of` probe them.
 """
 from __future__ import annotations
 
@@ -119,9 +89,12 @@ def evaluate_vectorized(f: Callable, p: np.ndarray, name: str | None = None) -> 
     return out
 
 
-
 def zero_power_of(f: Callable, scale: float) -> float:
-    """``k`` of ``f ~ p^k`` at ``p -> 0+``: declared ``zero_power`` or the documented probe.
+    """``k`` of ``f ~ p^k`` at ``p -> 0+``: the declared ``zero_power``, else a probe.
+
+    The probe takes the median slope of ``log f`` against ``log p`` between
+    consecutive ``p = scale 10^-j`` (``j = 2..8``) with ``f > 0``, snapped to
+    the nearest integer within 0.02; ``f = 0`` at every probe gives ``inf``.
 
     Parameters
     ----------
@@ -150,16 +123,13 @@ def zero_power_of(f: Callable, scale: float) -> float:
 def breakpoints_of(f: Callable, p_lo: float, p_hi: float) -> tuple[float, ...]:
     """Non-smooth points of ``f`` in ``(p_lo, p_hi)`` (units of pressure).
 
-    Declared by ``f.breakpoints()`` when present; otherwise the documented
-    fallback: jumps of ``f`` located by a 4096-point probe and bisection.
+    Declared by ``f.breakpoints()`` when present; otherwise the jumps of ``f``
+    found on a 4096-point probe and bisected to 1e-13 relative.
     """
     method = getattr(f, "breakpoints", None)
     declared = getattr(f, "declared", None)
     if callable(method) and (not callable(declared) or declared()):
-        declared_points = method()
-        if not declared_points:  # (most models: smooth)
-            return ()
-        return tuple(sorted(float(b) for b in declared_points if p_lo < float(b) < p_hi))
+        return tuple(sorted(float(b) for b in method() if p_lo < float(b) < p_hi))
     x = np.linspace(p_lo, p_hi, 4097)
     y = evaluate_vectorized(f, x)
     d = np.abs(np.diff(y))
@@ -188,11 +158,11 @@ def breakpoints_of(f: Callable, p_lo: float, p_hi: float) -> tuple[float, ...]:
 class SharpCutoff:
     """Sharp cutoff ``c(p) = theta(p)`` (1 for ``p > 0``, 0 otherwise).
 
-    Continuity: discontinuous at ``p = 0`` (``continuity = -1``).  Mass that
-    diffuses to ``p = 0`` is absorbed there and becomes the non-contact weight.
+    Discontinuous at ``p = 0`` (``continuity = -1``); mass that diffuses to
+    ``p = 0`` is absorbed there and becomes the non-contact weight.
     """
 
-    continuity: ClassVar[int] = -1  # -1 = the function itself jumps somewhere
+    continuity: ClassVar[int] = -1  # -1: the function itself jumps somewhere
     zero_power: ClassVar[float] = 0.0  # f(0+) = 1: the wall is reached (Feller)
 
     def breakpoints(self) -> tuple[float, ...]:
@@ -200,36 +170,42 @@ class SharpCutoff:
         return ()
 
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
-        p = np.asarray(p, dtype=float)
-        return np.where(p > 0.0, 1.0, 0.0)
+        return np.where(np.asarray(p, dtype=float) > 0.0, 1.0, 0.0)
 
 
 @dataclass(frozen=True)
-class MuserCutoff:
-    """The seed paper's cutoff, exactly as printed.
+class _Cutoff:
+    """A switch from 0 at ``p <= 0`` to its plateau, ending at the cutoff pressure ``p_c`` (> 0, units of pressure).
+
+    Subclasses set ``continuity`` (the highest continuous derivative, -1 for a
+    jump), ``zero_power`` and ``__call__``.
+    """
+
+    p_c: float
+    continuity: ClassVar[int]
+    zero_power: ClassVar[float]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "p_c", check_positive("p_c", self.p_c))
+
+    def breakpoints(self) -> tuple[float, ...]:
+        """``p_c`` (units of pressure), where the switch ends."""
+        return (self.p_c,)
+
+
+@dataclass(frozen=True)
+class MuserCutoff(_Cutoff):
+    """The seed paper's cutoff, exactly as printed, for a cutoff pressure ``p_c`` > 0 (units of pressure).
 
     ``c(p) = 1 - theta(p_c - p) cos(pi p / p_c)`` for ``p >= 0`` and 0 for
     ``p < 0`` (Müser 2008, text below Eq. 10).  Below ``p_c`` it rises from 0 to
     2; above ``p_c`` it is 1.  It is continuous with zero slope at ``p = 0`` but
     jumps from 2 to 1 at ``p = p_c`` (``continuity = -1``).  ``c ~ (pi p/p_c)^2/2``
     near 0, so no mass reaches ``p = 0``: the non-contact peak broadens instead.
-
-    Parameters
-    ----------
-    p_c : float
-        Cutoff pressure (units of pressure), > 0.
     """
 
-    p_c: float
     continuity: ClassVar[int] = -1
     zero_power: ClassVar[float] = 2.0  # f ~ p^2 at 0: the wall is not reached
-
-    def breakpoints(self) -> tuple[float, ...]:
-        """``p_c`` (units of pressure), where the switch ends."""
-        return (self.p_c,)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "p_c", check_positive("p_c", self.p_c))
 
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         p = np.asarray(p, dtype=float)
@@ -239,28 +215,15 @@ class MuserCutoff:
 
 
 @dataclass(frozen=True)
-class RaisedCosineCutoff:
-    """C1 raised-cosine switch: ``(1 - cos(pi p/p_c)) / 2`` on ``[0, p_c]``.
+class RaisedCosineCutoff(_Cutoff):
+    """C1 raised-cosine switch ``(1 - cos(pi p/p_c)) / 2`` on ``[0, p_c]`` (``p_c`` > 0, units of pressure).
 
     0 for ``p <= 0``, 1 for ``p >= p_c``.  Value and first derivative are
     continuous; the second derivative jumps at 0 and ``p_c`` (``continuity = 1``).
-
-    Parameters
-    ----------
-    p_c : float
-        Cutoff pressure (units of pressure), > 0.
     """
 
-    p_c: float
     continuity: ClassVar[int] = 1
     zero_power: ClassVar[float] = 2.0  # f ~ p^2 at 0: the wall is not reached
-
-    def breakpoints(self) -> tuple[float, ...]:
-        """``p_c`` (units of pressure), where the switch ends."""
-        return (self.p_c,)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "p_c", check_positive("p_c", self.p_c))
 
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         x = np.clip(np.asarray(p, dtype=float) / self.p_c, 0.0, 1.0)
@@ -268,29 +231,16 @@ class RaisedCosineCutoff:
 
 
 @dataclass(frozen=True)
-class SmoothstepCutoff:
-    """C2 quintic smoothstep ``6x^5 - 15x^4 + 10x^3`` with ``x = p / p_c``.
+class SmoothstepCutoff(_Cutoff):
+    """C2 quintic smoothstep ``6x^5 - 15x^4 + 10x^3``, ``x = p / p_c`` (``p_c`` > 0, units of pressure).
 
     0 for ``p <= 0``, 1 for ``p >= p_c``; value, first and second derivatives
     are continuous everywhere (``continuity = 2``): the switch the paper's text
     describes.  ``c ~ 10 (p/p_c)^3`` near 0, so no mass reaches ``p = 0``.
-
-    Parameters
-    ----------
-    p_c : float
-        Cutoff pressure (units of pressure), > 0.
     """
 
-    p_c: float
     continuity: ClassVar[int] = 2
     zero_power: ClassVar[float] = 3.0  # f ~ p^3 at 0: the wall is not reached
-
-    def breakpoints(self) -> tuple[float, ...]:
-        """``p_c`` (units of pressure), where the switch ends."""
-        return (self.p_c,)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "p_c", check_positive("p_c", self.p_c))
 
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         x = np.clip(np.asarray(p, dtype=float) / self.p_c, 0.0, 1.0)
@@ -312,20 +262,19 @@ class GaussianTail:
 
 
 @dataclass(frozen=True)
-class LinearTail:
-    """Tail factor ``t(p) = 1 + p / p_t`` (exponential tail of ``Pr``).
-
-    Parameters
-    ----------
-    p_t : float
-        Crossover pressure (units of pressure), > 0.
-    """
+class _LinearTailBase:
+    """A tail growing as ``p / p_t`` at large ``p``; ``p_t`` > 0 is the crossover pressure (units of pressure)."""
 
     p_t: float
     zero_power: ClassVar[float] = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "p_t", check_positive("p_t", self.p_t))
+
+
+@dataclass(frozen=True)
+class LinearTail(_LinearTailBase):
+    """Tail factor ``t(p) = 1 + p / p_t`` (exponential tail of ``Pr``); ``p_t`` > 0 (units of pressure)."""
 
     def breakpoints(self) -> tuple[float, ...]:
         """Smooth for ``p > 0``."""
@@ -336,20 +285,8 @@ class LinearTail:
 
 
 @dataclass(frozen=True)
-class MaxLinearTail:
-    """Tail factor ``t(p) = max(1, p / p_t)`` (exponential tail above ``p_t``).
-
-    Parameters
-    ----------
-    p_t : float
-        Crossover pressure (units of pressure), > 0.
-    """
-
-    p_t: float
-    zero_power: ClassVar[float] = 0.0
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "p_t", check_positive("p_t", self.p_t))
+class MaxLinearTail(_LinearTailBase):
+    """Tail factor ``t(p) = max(1, p / p_t)`` (exponential tail above ``p_t`` > 0, units of pressure)."""
 
     def breakpoints(self) -> tuple[float, ...]:
         """The kink at ``p_t`` (units of pressure)."""
@@ -391,10 +328,9 @@ def make_cutoff(cutoff: object, p_c: float | None = None) -> PressureFunction:
     if cutoff is None:
         return SharpCutoff()
     if isinstance(cutoff, str):
-        key = cutoff.lower()
-        if key not in _CUTOFFS:
+        cls = _CUTOFFS.get(cutoff.lower())
+        if cls is None:
             raise ValueError(f"cutoff must be one of {sorted(_CUTOFFS)} or a callable; got cutoff={cutoff!r}")
-        cls = _CUTOFFS[key]
         if cls is SharpCutoff:
             return SharpCutoff()
         if p_c is None:
@@ -419,8 +355,7 @@ def make_tail(tail: object, p_t: float | None = None) -> PressureFunction:
     if tail is None or (isinstance(tail, str) and tail.lower() == "gaussian"):
         return GaussianTail()
     if isinstance(tail, str):
-        key = tail.lower()
-        cls = {"linear": LinearTail, "max_linear": MaxLinearTail}.get(key)
+        cls = {"linear": LinearTail, "max_linear": MaxLinearTail}.get(tail.lower())
         if cls is None:
             raise ValueError(f"tail must be 'gaussian', 'linear', 'max_linear' or a callable; got tail={tail!r}")
         if p_t is None:

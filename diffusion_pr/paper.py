@@ -25,7 +25,7 @@ One number here is **not** the paper's: :data:`EXP_CONTACT_THRESHOLD`.  The
 paper shows pressure histograms only; to compare "contact fractions" of an
 exponential (soft) wall, whose pressure is never exactly zero, this project
 counts a point as in contact when ``p > 0.01 p0`` (the definition of
-:attr:`gfmd_ref.ContactResult.contact_fraction`, ``gfmd_ref.solver.EXP_CONTACT_THRESHOLD``;
+:attr:`gfmd_ref.ContactResult.contact_fraction`, ``gfmd_ref.EXP_CONTACT_THRESHOLD``;
 see the docs page ``gfmd``).  :mod:`gfmd_ref` does not import
 :mod:`diffusion_pr`, so it keeps its own copy; a test checks that the two agree.
 
@@ -85,7 +85,7 @@ LARGE_ZETA: float = 0.25
 PAPER_CUTOFF_PRESSURES: dict[float, float] = {0.001: 0.0068, 0.01: 0.0082, LARGE_ZETA: CUTOFF_PRESSURE_LARGE_ZETA}
 
 #: Exponential wall: a point is "in contact" when ``p > EXP_CONTACT_THRESHOLD * p0`` (this
-#: project's convention, not the paper's; equal to ``gfmd_ref.solver.EXP_CONTACT_THRESHOLD``).
+#: project's convention, not the paper's; equal to ``gfmd_ref.EXP_CONTACT_THRESHOLD``).
 EXP_CONTACT_THRESHOLD: float = 0.01
 
 #: The Fig. 1 scene as keyword arguments (lengths in grid spacings of the 1024^2 system,

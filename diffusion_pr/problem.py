@@ -37,11 +37,15 @@ def _unit(p: Array) -> Array:
     return np.ones_like(np.asarray(p, dtype=float))
 
 
-# the model protocol (docs/theory.md), declared: f(0+) = 1 reaches the wall, no non-smooth point.  Undeclared, every
-# solve ran the documented probes (7 points for the power, 4097 and a bisection for jumps), which give the same
-# answers: 0.88x the time of a mirror solve at rtol 1e-6, the same bits (tests/diffusion_pr/test_models.py)
-_unit.zero_power = 0.0
-_unit.breakpoints = lambda: ()
+def _number(name: str, value: object, unit: str, *, zero_ok: bool = False) -> float:
+    """``value`` as a float, required finite and > 0 (>= 0 with ``zero_ok``); else a ``ValueError``."""
+    try:
+        v = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        v = math.nan
+    if not math.isfinite(v) or v < 0.0 or (v == 0.0 and not zero_ok):
+        raise ValueError(f"{name} must be a finite number {'>=' if zero_ok else '>'} 0 ({unit}); got {name}={value!r}")
+    return v
 
 
 @dataclass(frozen=True)
@@ -72,15 +76,8 @@ class FokkerPlanckProblem:
     metadata: dict = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
-        for name in ("mean_pressure", "variance"):
-            value = getattr(self, name)
-            try:
-                value = float(value)
-            except (TypeError, ValueError):
-                raise ValueError(f"{name} must be a finite number > 0; got {name}={value!r}") from None
-            if not np.isfinite(value) or value <= 0.0:
-                raise ValueError(f"{name} must be a finite number > 0 (units of pressure{'^2' if name == 'variance' else ''}); got {name}={value!r}")
-            object.__setattr__(self, name, value)
+        object.__setattr__(self, "mean_pressure", _number("mean_pressure", self.mean_pressure, "pressure"))
+        object.__setattr__(self, "variance", _number("variance", self.variance, "pressure^2"))
         if self.diffusivity is None:
             object.__setattr__(self, "diffusivity", _unit)
         if not callable(self.diffusivity):
@@ -163,22 +160,16 @@ class FokkerPlanckProblem:
             are skipped (their drift cannot be represented in ``tau``; the
             conversion raises if a drift is given there).
         variance_function, diffusivity_function : callable, optional
-            The exact ``V(eta)`` (pressure squared) and ``D(eta) = (1/2) dV/deta``
-            (pressure squared per unit magnification), vectorized, consistent with
-            ``variance_of_eta`` at the nodes (a continuum spectrum's
+            The exact, vectorized ``V(eta)`` (pressure squared) and
+            ``D(eta) = (1/2) dV/deta`` (pressure squared per unit magnification),
+            consistent with ``variance_of_eta`` at the nodes (a continuum spectrum's
             :func:`~diffusion_pr.cumulants.variance_vs_magnification` and
             :func:`~diffusion_pr.cumulants.diffusivity_vs_magnification`).  Given
-            both, ``eta(tau)`` solves ``(V(eta) - V(1))/2 = tau`` to round-off
-            (safeguarded Newton inside the table's bracket) and the drift is
-            divided by the exact ``D``: ``a(p, tau)`` is then as smooth in ``tau``
-            as ``A`` and ``D`` are in ``eta``, which the midpoint time segments
-            need to converge at second order.  Without them ``eta(tau)`` and ``D``
-            are interpolated linearly between the nodes (``D`` from finite
-            differences): ``a`` has a kink at every node, the segments converge
-            erratically and a tight ``rtol`` may be out of reach (a 513-node table
-            took over 200 s to fail at rtol 1e-6 where the exact map takes 0.2 s;
-            docs/backends.md).  A discrete spectrum's staircase ``V`` has no such
-            functions.
+            both, ``eta(tau)`` solves ``(V(eta) - V(1))/2 = tau`` to round-off and
+            ``a(p, tau)`` is as smooth in ``tau`` as ``A`` and ``D`` are in ``eta``
+            (second-order convergence of the midpoint time segments).  Without them
+            ``eta(tau)`` and ``D`` are interpolated linearly between the nodes:
+            ``a`` has a kink at every node and a tight ``rtol`` may be out of reach.
         """
         eta = np.asarray(eta, dtype=float)
         v = np.asarray(variance_of_eta, dtype=float)
@@ -318,13 +309,7 @@ class Stage:
     balance: Optional[Callable[[Array], Array]] = None
 
     def __post_init__(self) -> None:
-        try:
-            d = float(self.duration)
-        except (TypeError, ValueError):
-            raise ValueError(f"Stage.duration must be a finite number >= 0 (pressure^2); got {self.duration!r}") from None
-        if not math.isfinite(d) or d < 0.0:
-            raise ValueError(f"Stage.duration must be a finite number >= 0 (pressure^2); got {self.duration!r}")
-        object.__setattr__(self, "duration", d)
+        object.__setattr__(self, "duration", _number("Stage.duration", self.duration, "pressure^2", zero_ok=True))
         for name in ("diffusivity", "drift", "balance"):
             value = getattr(self, name)
             if (value is not None or name == "diffusivity") and not callable(value):
@@ -358,13 +343,7 @@ class StagedProblem:
     balance_per_stage: bool = False
 
     def __post_init__(self) -> None:
-        try:
-            p0 = float(self.mean_pressure)
-        except (TypeError, ValueError):
-            raise ValueError(f"mean_pressure must be a finite number > 0 (pressure); got {self.mean_pressure!r}") from None
-        if not np.isfinite(p0) or p0 <= 0.0:
-            raise ValueError(f"mean_pressure must be a finite number > 0 (pressure); got {self.mean_pressure!r}")
-        object.__setattr__(self, "mean_pressure", p0)
+        object.__setattr__(self, "mean_pressure", _number("mean_pressure", self.mean_pressure, "pressure"))
         stages = tuple(self.stages)
         if not stages or not all(isinstance(s, Stage) for s in stages):
             raise ValueError("stages must be a non-empty sequence of Stage objects")

@@ -14,15 +14,10 @@ doi:10.1103/PhysRevLett.100.055504; B. N. J. Persson, J. Chem. Phys. 115, 3840
 
       h_rms^2 = 2 pi \int q C(q) dq,        gbar^2 = <|grad h|^2> = 2 pi \int q^3 C(q) dq.
 
-Two kinds of spectra share one interface (:class:`Spectrum`):
-
-* :class:`SelfAffineSpectrum`: a continuum power law with optional roll-off;
-  integrals are evaluated by Gauss-Legendre quadrature in ``ln q`` on each
-  power-law segment (accurate to ~1e-14 for smooth weights, checked against
-  :func:`scipy.integrate.quad` in the tests).
-* :class:`DiscreteSpectrum`: the spectrum of one realization, i.e. the list of
-  its non-zero modes' ``|q|`` and ``|h~(q)|^2``; "integrals" are exact sums over
-  those modes, so a theory evaluated with it uses exactly that surface's modes.
+Two kinds of spectra share one interface (:class:`Spectrum`): the continuum
+power law :class:`SelfAffineSpectrum` (integrals by Gauss-Legendre quadrature in
+``ln q``) and :class:`DiscreteSpectrum`, the non-zero modes of one realization
+(integrals are exact sums over them).
 
 Wavevectors are angular (rad / length), in the length unit of ``L``.
 """
@@ -37,15 +32,23 @@ from typing import Callable, Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ._validation import (
-    check_finite_array,
-    check_in_range,
-    check_positive,
-)
+from ._validation import check_finite_array, check_in_range, check_positive
 
 __all__ = ["Spectrum", "SelfAffineSpectrum", "DiscreteSpectrum"]
 
 Weight = Callable[[np.ndarray], ArrayLike]
+
+
+def _lattice_k2(n: int) -> np.ndarray:
+    """``m^2 + k^2`` of every mode of the full ``n x n`` FFT lattice, flattened (integers)."""
+    k = np.fft.fftfreq(n, d=1.0 / n).astype(np.int64)
+    return (k[:, None] ** 2 + k[None, :] ** 2).ravel()
+
+
+def _merge_shells(key: np.ndarray, power: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Distinct ``key`` values (sorted), the summed ``power`` and the number of modes of each."""
+    uk, inv = np.unique(key, return_inverse=True)
+    return uk, np.bincount(inv, weights=power, minlength=uk.size), np.bincount(inv, minlength=uk.size)
 
 
 @lru_cache(maxsize=64)
@@ -79,19 +82,12 @@ def _eval_weight(weight: Weight | None, q: np.ndarray) -> np.ndarray:
 
 
 class Spectrum(abc.ABC):
-    r"""Common interface of isotropic height spectra.
+    """Common interface of isotropic height spectra.
 
-    Every spectrum provides the attributes ``q_min`` and ``q_max`` (smallest
-    and largest wavenumber carrying roughness [rad/length]), the properties
-    :attr:`h_rms` [length], :attr:`mean_square_gradient` and
-    :attr:`rms_slope` [dimensionless], and the methods :meth:`integrate`
-    (``2 pi \int q C(q) weight(q) dq``, or ``sum_q |h~(q)|^2 weight(|q|)``
-    for a discrete spectrum), :meth:`cumulative` (the same restricted to
-    ``|q'| <= q``, vectorized over ``q``) and :meth:`quadrature` (nodes and
-    weights with ``integrate(f) ~= sum_i w_i f(q_i)``).
+    ``q_min`` and ``q_max`` [rad/length] are the smallest and largest
+    wavenumbers carrying roughness (attributes or properties of a subclass).
     """
 
-    # Subclasses provide ``q_min`` and ``q_max`` (attributes or properties).
     q_min: float
     q_max: float
 
@@ -121,7 +117,6 @@ class Spectrum(abc.ABC):
             Same shape as ``q``; units length^2 x units of ``weight``.
         """
 
-    # ------------------------------------------------------------------ generic
     def psd(self, q: ArrayLike) -> np.ndarray | float:
         """Continuum PSD ``C(q)`` [length^4]; not defined for every spectrum."""
         raise NotImplementedError(f"{type(self).__name__} has no continuum PSD C(q)")
@@ -129,20 +124,10 @@ class Spectrum(abc.ABC):
     def integrate(self, weight: Weight | None = None, *, method: Literal["gauss", "quad"] = "gauss") -> float:
         r"""``2 pi \int q C(q) weight(q) dq`` (continuum) or ``sum |h~|^2 weight`` (discrete).
 
-        Parameters
-        ----------
-        weight : callable or None
-            Vectorized function of ``q`` [rad/length]; ``None`` means 1
-            (giving ``h_rms^2``).
-        method : {"gauss", "quad"}
-            Quadrature choice for continuum spectra (see
-            :meth:`SelfAffineSpectrum.integrate`); discrete sums are exact and
-            ignore it.
-
-        Returns
-        -------
-        float
-            In length^2 x units of ``weight``.
+        ``weight``: a vectorized function of ``q`` [rad/length], ``None`` for 1
+        (giving ``h_rms^2``); the result is in length^2 x units of ``weight``.
+        ``method`` chooses the quadrature of a continuum spectrum (see
+        :meth:`SelfAffineSpectrum.integrate`); discrete sums are exact and ignore it.
         """
         if method not in ("gauss", "quad"):
             raise ValueError(f"method must be 'gauss' or 'quad'; got {method!r}")
@@ -238,11 +223,8 @@ class SelfAffineSpectrum(Spectrum):
             )
         (name, value), = given.items()
         value = check_positive(name, value)
-        object.__setattr__(self, "hurst", float(hurst))
-        object.__setattr__(self, "q_min", float(q_min))
-        object.__setattr__(self, "q_max", float(q_max))
-        object.__setattr__(self, "q_roll", float(q_roll))
-        object.__setattr__(self, "C0", 1.0)
+        for attr, v in (("hurst", hurst), ("q_min", q_min), ("q_max", q_max), ("q_roll", q_roll), ("C0", 1.0)):
+            object.__setattr__(self, attr, float(v))
         try:
             if name == "C0":
                 c0 = value
@@ -258,7 +240,6 @@ class SelfAffineSpectrum(Spectrum):
             raise ValueError(f"derived C0 is not a positive finite number ({c0!r}); check {name}={value!r}")
         object.__setattr__(self, "C0", float(c0))
 
-    # ----------------------------------------------------------- closed forms
     def _moment_unit(self, n: int) -> float:
         r"""``\int q^n C(q) dq / C0`` over the support, in closed form [rad^(n+1) / length^(n+1)]."""
         m, r, M, H = self.q_min, self.q_roll, self.q_max, self.hurst
@@ -278,12 +259,6 @@ class SelfAffineSpectrum(Spectrum):
         """``gbar^2 = 2 pi int q^3 C dq`` [dimensionless] (closed form)."""
         return 2 * math.pi * self.C0 * self._moment_unit(3)
 
-    @property
-    def rms_slope(self) -> float:
-        """``gbar`` [dimensionless] (closed form)."""
-        return math.sqrt(self.mean_square_gradient)
-
-    # --------------------------------------------------------------- the PSD
     def psd(self, q: ArrayLike) -> np.ndarray | float:
         """``C(q)`` [length^4] for ``q`` [rad/length]; 0 outside ``[q_min, q_max]``.
 
@@ -299,7 +274,6 @@ class SelfAffineSpectrum(Spectrum):
         c = np.where((qa >= self.q_min) & (qa <= self.q_max), c, 0.0)
         return float(c) if c.ndim == 0 else c
 
-    # ------------------------------------------------------------ quadrature
     def _segments(self) -> list[tuple[float, float]]:
         """Power-law segments ``(lo, hi)`` [rad/length] of the support."""
         segs = []
@@ -327,37 +301,21 @@ class SelfAffineSpectrum(Spectrum):
         return q, w
 
     def quadrature(self) -> tuple[np.ndarray, np.ndarray]:
-        r"""Gauss-Legendre nodes in ``ln q`` on each power-law segment.
+        r"""Gauss-Legendre nodes ``q`` [rad/length] in ``ln q`` on each power-law segment, weights [length^2].
 
-        Returns
-        -------
-        q : numpy.ndarray
-            Nodes [rad/length].
-        w : numpy.ndarray
-            Weights [length^2] such that ``sum w f(q) ~= 2 pi \int q C f dq``;
-            exact to round-off for weights analytic in a strip around the
-            real ``ln q`` axis (powers of ``q``, ``G1(q)^2``).
+        ``sum w f(q) ~= 2 pi \int q C f dq``, exact to round-off for weights
+        analytic in a strip around the real ``ln q`` axis (powers of ``q``,
+        ``G1(q)^2``).
         """
         return self._rule
 
     def integrate(self, weight: Weight | None = None, *, method: Literal["gauss", "quad"] = "gauss") -> float:
-        r"""``2 pi \int_{q_min}^{q_max} q C(q) weight(q) dq``.
+        r"""``2 pi \int_{q_min}^{q_max} q C(q) weight(q) dq`` [length^2 x units of ``weight``].
 
-        Parameters
-        ----------
-        weight : callable or None
-            Function of ``q`` [rad/length]; ``None`` means 1. For
-            ``method="gauss"`` it must be vectorized.
-        method : {"gauss", "quad"}
-            ``"gauss"``: fixed high-order Gauss-Legendre in ``ln q`` per
-            segment (fast; for smooth weights). ``"quad"``: adaptive
-            :func:`scipy.integrate.quad` per segment in ``ln q`` (scalar
-            calls; for weights with kinks inside a segment).
-
-        Returns
-        -------
-        float
-            In length^2 x units of ``weight``.
+        ``method="gauss"``: fixed high-order Gauss-Legendre in ``ln q`` per
+        segment (a vectorized ``weight``; smooth weights).  ``"quad"``: adaptive
+        :func:`scipy.integrate.quad` per segment in ``ln q`` (scalar calls; for
+        weights with kinks inside a segment).
         """
         if method == "gauss":
             return super().integrate(weight)
@@ -383,20 +341,8 @@ class SelfAffineSpectrum(Spectrum):
         r"""``2 pi \int_{q_min}^{min(q, q_max)} q' C(q') weight(q') dq'``, vectorized over ``q``.
 
         Gauss-Legendre in ``ln q'`` on each (truncated) power-law segment; 0
-        for ``q <= q_min``, the full integral for ``q >= q_max``.
-
-        Parameters
-        ----------
-        weight : callable or None
-            Vectorized function of ``q`` [rad/length] (called with a 2-d
-            array); ``None`` means 1.
-        q : float or array_like
-            Upper limits [rad/length], any shape.
-
-        Returns
-        -------
-        float or numpy.ndarray
-            Shape of ``q``; units length^2 x units of ``weight``.
+        for ``q <= q_min``, the full integral for ``q >= q_max``.  ``weight`` is
+        called with a 2-d array of ``q``.
         """
         qa = check_finite_array("q", q, min_size=0)
         flat = qa.ravel()
@@ -469,7 +415,6 @@ class DiscreteSpectrum(Spectrum):
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
 
-    # ------------------------------------------------------------ builders
     @classmethod
     def from_modes(
         cls,
@@ -513,10 +458,7 @@ class DiscreteSpectrum(Spectrum):
         if not total > 0:
             raise ValueError("power is zero for every mode: a flat surface has no spectrum")
         keep = pa > empty_tol * total
-        uq, inv = np.unique(qa[keep], return_inverse=True)
-        shell_power = np.bincount(inv, weights=pa[keep], minlength=uq.size)
-        mult = np.bincount(inv, minlength=uq.size)
-        return cls(uq, shell_power, mult, length)
+        return cls(*_merge_shells(qa[keep], pa[keep]), length)
 
     @classmethod
     def on_lattice(cls, spectrum: "Spectrum", n: int, length: float, *,
@@ -555,8 +497,7 @@ class DiscreteSpectrum(Spectrum):
             raise ValueError(f"n must be an integer >= 2 (grid points per side); got n={n!r}")
         L = check_positive("length", length)
         unit = 2.0 * np.pi / L
-        k = np.fft.fftfreq(int(n), d=1.0 / int(n)).astype(np.int64)
-        k2 = (k[:, None] ** 2 + k[None, :] ** 2).ravel()
+        k2 = _lattice_k2(int(n))
         k2 = k2[k2 > 0]
         uk2, mult = np.unique(k2, return_counts=True)
         q = unit * np.sqrt(uk2.astype(float))
@@ -603,20 +544,15 @@ class DiscreteSpectrum(Spectrum):
         ht = np.fft.fft2(h) / (n * n)
         pw = ht.real**2 + ht.imag**2
         pw[0, 0] = 0.0
-        k = np.fft.fftfreq(n, d=1.0 / n).astype(np.int64)
-        k2 = (k[:, None] ** 2 + k[None, :] ** 2).ravel()
+        k2 = _lattice_k2(n)
         pw = pw.ravel()
         total = pw.sum()
         if not total > 0:
             raise ValueError("heights are constant: a flat surface has no spectrum")
         keep = (pw > empty_tol * total) & (k2 > 0)
-        uk2, inv = np.unique(k2[keep], return_inverse=True)
-        shell_power = np.bincount(inv, weights=pw[keep], minlength=uk2.size)
-        mult = np.bincount(inv, minlength=uk2.size)
-        q = 2 * math.pi / L * np.sqrt(uk2.astype(float))
-        return cls(q, shell_power, mult, float(L))
+        uk2, shell_power, mult = _merge_shells(k2[keep], pw[keep])
+        return cls(2 * math.pi / L * np.sqrt(uk2.astype(float)), shell_power, mult, float(L))
 
-    # ----------------------------------------------------------- interface
     @property
     def q_min(self) -> float:  # type: ignore[override]
         """Smallest non-empty ``|q|`` [rad/length]."""
@@ -637,20 +573,7 @@ class DiscreteSpectrum(Spectrum):
         return self.q, self.power
 
     def cumulative(self, weight: Weight | None, q: ArrayLike) -> np.ndarray | float:
-        r"""Staircase ``sum_{|q'| <= q} |h~(q')|^2 weight(|q'|)``, vectorized over ``q``.
-
-        Parameters
-        ----------
-        weight : callable or None
-            Vectorized function of ``q`` [rad/length]; ``None`` means 1.
-        q : float or array_like
-            Upper limits [rad/length] (inclusive), any shape.
-
-        Returns
-        -------
-        float or numpy.ndarray
-            Shape of ``q``; units length^2 x units of ``weight``.
-        """
+        r"""Staircase ``sum_{|q'| <= q} |h~(q')|^2 weight(|q'|)``, vectorized over ``q`` (inclusive limits)."""
         qa = check_finite_array("q", q, min_size=0)
         cs = np.concatenate(([0.0], np.cumsum(self.power * _eval_weight(weight, self.q))))
         idx = np.searchsorted(self.q, qa, side="right")

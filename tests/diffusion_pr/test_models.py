@@ -172,24 +172,6 @@ def test_declared_protocol_matches_probe():
         assert model.zero_power == probed, model
 
 
-def test_default_diffusivity_declares_what_the_probes_measure_and_answers_the_same_bits():
-    """The default ``f = 1`` of :class:`FokkerPlanckProblem` declares the model protocol (power 0, no breakpoint);
-    oracles: the documented probes on an undeclared ``f = 1``, and the native answer for that undeclared callable,
-    which must be the same bits (the declaration only saves the probes' time)."""
-    from diffusion_pr.problem import FokkerPlanckProblem
-    from diffusion_pr.fokker_planck.backends import get_backend
-
-    unit = FokkerPlanckProblem(1.0, 1.0).diffusivity
-    plain = lambda p: np.ones_like(np.asarray(p, dtype=float))  # noqa: E731
-    assert unit.zero_power == zero_power_of(plain, 1.0) == 0.0
-    assert unit.breakpoints() == breakpoints_of(plain, 1e-9, 10.0) == ()
-    assert breakpoints_of(unit, 1e-9, 10.0) == ()  # the declaration is read, not probed around
-    native = get_backend("native")
-    a, b = native(FokkerPlanckProblem(1.0, 1.0), rtol=1e-6), native(FokkerPlanckProblem(1.0, 1.0, plain), rtol=1e-6)
-    assert np.array_equal(a.edges, b.edges) and np.array_equal(a.density, b.density)
-    assert a.zero_weight == b.zero_weight and a.error_estimate == b.error_estimate
-
-
 def test_breakpoints_of_user_callable_found_by_bisection():
     """A user's literal cutoff jumps (2 -> 1) at p_c: the probe+bisection finds p_c to 1e-12 relative."""
     p_c = 0.0027
