@@ -5,12 +5,8 @@ expresses it, ``d/dp(f dP/dp) + d/dp((f' - a) P)``::
 
     TransientTerm() == DiffusionTerm(coeff=f_face) + CentralDifferenceConvectionTerm(coeff=[f'_face - a_face])
 
-on a non-uniform :class:`fipy.Grid1D` with the engine's cell widths, ``f_face`` the mean of the neighbouring
-cells' ``f`` and ``f'_face`` their difference quotient, so the discrete flux is the conservative
-``-(f_{i+1} P_{i+1} - f_i P_i)/d``; ``P = 0`` on the wall face (Feller's exit condition).  FiPy's assembled
-operator agrees with the native one to round-off, except where the native operator leans a user's drift
-upwind (:func:`~diffusion_pr.fokker_planck.operator.fitted_weight`).  The drift's wall flux
-(:func:`~diffusion_pr.fokker_planck.operator.wall_drift`) is carried by the wall face's diffusion coefficient.
+on a non-uniform :class:`fipy.Grid1D` with the engine's cells, ``P = 0`` on the wall face (docs/backends.md):
+the native operator to round-off, except where that leans a user's drift upwind.
 
 ``method="cram"`` (default): one ``sweep`` with ``dt = 1`` gives the matrix, integrated by CRAM-16.
 ``method="loop"``: FiPy's own Crank-Nicolson loop (Rannacher start; steps double with the cells, so
@@ -140,12 +136,10 @@ def solve(problem, *, rtol: float = 1e-6, method: str = "cram", n_cells: Optiona
     Parameters
     ----------
     problem : FokkerPlanckProblem or StagedProblem
-    rtol : float
-        Target L1 error (validated by :func:`diffusion_pr.solve_problem`).
     method : {"cram", "loop"}
         CRAM-16 on FiPy's operator, or FiPy's own Crank-Nicolson loop.
-    n_cells, max_cells, p_floor
-        As for the native backend.
+    rtol, n_cells, max_cells, p_floor
+        As for :func:`~diffusion_pr.fokker_planck.backends.native.solve`.
 
     Raises
     ------

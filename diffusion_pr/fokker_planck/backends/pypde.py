@@ -1,15 +1,8 @@
 """py-pde backend (name ``"pypde"``): the operator written with py-pde's own Laplacian and gradient.
 
-py-pde's grids are uniform, so the equation is written on the cell index ``x = 0..n`` of the engine's graded
-grid for the cell masses ``m_i``.  With ``v = f m / h`` and ``K = 1/h`` the flux form ``d/dx[K d/dx(v)]`` is
-built from py-pde's Laplacian alone::
+On the cell index of the engine's grid, with ``v = f m / h`` and ``K = 1/h`` (docs/backends.md)::
 
     dm/dtau = (laplace(K v) - v laplace(K) + K laplace(v)) / 2  -  gradient(a m / h)
-
-with ``f Pr = 0`` on the wall face (Feller's exit condition), no flux at ``p_max`` and the drift's wall flux
-added as the native operator takes it (:func:`~diffusion_pr.fokker_planck.operator.wall_drift`).  This differs
-from the native operator at ``O(h^2)``, an independent discretization; Richardson extrapolation makes both
-agree within rtol.  Operators use py-pde's ``backend="scipy"``.
 
 ``method="cram"`` (default) reads the tridiagonal matrix off with three probes and integrates it by CRAM-16;
 ``method="loop"`` uses py-pde's ``PDEBase.solve`` (``solve_ivp`` BDF at 1e-3 rtol; slow; no balance).
@@ -138,12 +131,10 @@ def solve(problem, *, rtol: float = 1e-6, method: str = "cram", n_cells: Optiona
     Parameters
     ----------
     problem : FokkerPlanckProblem or StagedProblem
-    rtol : float
-        Target L1 error (validated by :func:`diffusion_pr.solve_problem`).
     method : {"cram", "loop"}
         CRAM-16 on py-pde's operator, or py-pde's own solver loop.
-    n_cells, max_cells, p_floor
-        As for the native backend.
+    rtol, n_cells, max_cells, p_floor
+        As for :func:`~diffusion_pr.fokker_planck.backends.native.solve`.
 
     Raises
     ------
