@@ -31,36 +31,29 @@ TAIL_FRACTION = 1e-3
 FLOOR = 1e-6
 #: largest p0 / spread whose distribution double precision can resolve
 MAX_RATIO = 1e12
-#: the weight of the logarithmic grading towards an exit wall (``f ~ p^k``, ``0 < k < 2``, the wall reached): its
-#: wall face is first order (the density at ``p = 0`` and ``d(f Pr)/dp`` there from the wall cell alone), so cells
-#: that shrink geometrically towards ``p = 0`` down to :data:`EXIT_WALL_DEPTH` make that error negligible, and the
-#: extrapolated masses converge at fourth order as elsewhere (docs/backends.md "Exit walls graded": 272-512 cells
-#: graded where an ungraded grid needs 4184-65536 at rtol 1e-6)
+#: the weight of the logarithmic grading towards an exit wall (``f ~ p^k``, ``0 < k < 2``): its wall face is first
+#: order, so cells shrinking geometrically towards ``p = 0`` make that error negligible (docs/backends.md
+#: "Exit walls graded")
 C_EXIT_WALL = 1.0
-#: the inner scale of that grading, ``delta = EXIT_WALL_DEPTH rtol s`` (``s`` the spread): cells are about uniform
-#: below it.  The first-order wall error left is about ``1e-4 delta / s``, so ``rtol s`` keeps it 1e4 below rtol
+#: the inner scale of that grading, ``delta = EXIT_WALL_DEPTH rtol s`` (``s`` the spread); the wall error left is
+#: about ``1e-4 delta / s``
 EXIT_WALL_DEPTH = 1.0
 #: e-folds of p resolved below the floor where the wall is not reached: ln(10/rtol), at least this many;
 #: mass that goes further down returns above the floor with probability below exp(-e-folds) = rtol/10
 #: for f ~ p^2 (ln p drifts down at the rate it diffuses)
 BOTTOM_EFOLDS_MIN = 8.0
-#: e-folds resolved below the floor where a drift is present, whatever rtol (ln 1e7: the depth of rtol = 1e-6):
-#: a drift can cancel the Ito drift of ln p below the floor (the balanced closures), probability then returns
-#: from below and the answer depends on the depth (docs/closures.md), which therefore may not follow rtol
+#: e-folds resolved below the floor where a drift is present, whatever rtol: a drift can cancel the Ito drift of
+#: ln p there, so the answer depends on the depth (docs/closures.md), which therefore may not follow rtol
 BOTTOM_EFOLDS_DRIFT = math.log(1e7)
 #: fewest e-folds below the floor after the first level's trim (:func:`_trimmed_depth`)
 BOTTOM_EFOLDS_TRIMMED = 3.0
 #: weight of the logarithmic grading towards the floor (Phi units per e-fold of p)
 C_WALL = 0.6
-#: a problem with at least this many pieces (stages, time segments) or a balance is integrated by the
-#: compiled kernels of :mod:`._kernels` (numba); fewer pieces go through LAPACK (no numba import)
+#: a problem with at least this many pieces or a balance is integrated by the compiled kernels (:mod:`._kernels`)
 COMPILED_MIN_PIECES = 4
-#: where a balance holds the mean, the Lamperti bound is taken where the tail's share of the mean (its mass times
-#: p_max / p0), not its mass, is the tail tolerance: this many fixed-point steps from the mass-based bound (0: the
-#: mass-based bound)
+#: fixed-point steps of the Lamperti bound on the tail's share of the mean (mass times p_max / p0) under a balance
 LAMPERTI_MEAN_ITERATIONS = 2
-#: points of the probe that bounds the spread in :func:`prepare`; the domain grows (x1.5) on the coarse probe
-#: and is confirmed on the full one
+#: points of the probe that bounds the spread in :func:`prepare` (grown on the coarse one, confirmed on the full)
 PROBE_POINTS = 1024
 PROBE_POINTS_COARSE = 128
 
@@ -93,18 +86,14 @@ class Prepared:
     label: str = ""
     balance_per_stage: bool = False
     segment_fn: Optional[Callable] = field(default=None, compare=False)
-    #: the depth below the floor is an accuracy knob (ln(10/rtol) e-folds: no drift, no balance), which the first
-    #: level may shorten to what its probability below the floor needs (:func:`_trimmed_depth`)
+    #: the depth below the floor may be shortened after the first level (:func:`_trimmed_depth`)
     depth_adaptive: bool = False
-    #: the upper end was shortened by the Lamperti bound (:func:`prepare`); a solve whose top cell then holds
-    #: more than rtol is repeated on the conservative domain (:func:`solve_fv`)
+    #: the upper end was shortened by the Lamperti bound (:func:`prepare`)
     lamperti_bounded: bool = False
-    #: the drift takes its upwinding weight (``operator.fitted_weight``) on plain stages: the user's drift of a
-    #: FokkerPlanckProblem; a closure's drift (a StagedProblem) keeps the central value its balance search and its
-    #: validation against the reference solver are built on
+    #: the drift takes its upwinding weight (``operator.fitted_weight``): a FokkerPlanckProblem's drift, not a
+    #: closure's
     fitted_drift: bool = False
-    #: the coefficients' breakpoints, where the density may jump or kink (None: unknown, every knot counts); ``p0``
-    #: and the floor are knots of the grids only, across which the final density is smooth (:func:`density_knots`)
+    #: the coefficients' breakpoints, where the density may jump or kink (None: unknown; :func:`density_knots`)
     breakpoints: Optional[tuple] = None
     #: the pieces' coefficients gathered once (:func:`row_plans`; None for a time-dependent problem)
     row_plans: Optional[dict] = field(default=None, compare=False)
@@ -120,16 +109,13 @@ class StageRows:
     funcs: tuple
     #: whether every piece has it
     every: bool
-    #: ``plan(p, out=None)``: the rows of ``funcs`` in one compiled call, where their type offers
-    #: ``row_plan(items)`` (the closures' shell models: the wall products gathered once per problem instead of on
-    #: every grid); the same bits as the type's ``rows`` (:func:`_rows` tries it first); else None
+    #: ``plan(p, out=None)``: the rows of ``funcs`` in one compiled call, where their type offers ``row_plan``;
+    #: else None
     plan: Optional[Callable]
 
 
 def row_plans(pieces: Sequence) -> dict:
-    """``{"f": StageRows, "b": StageRows, "w": StageRows}`` of ``pieces``: which have each coefficient, its
-    callables and their compiled plan (:class:`StageRows`), gathered once per problem instead of on every probe
-    and grid (a pass of Python over the stages each time)."""
+    """``{"f": StageRows, "b": StageRows, "w": StageRows}`` of ``pieces``, gathered once per problem."""
     out = {}
     for key in ("f", "b", "w"):
         stages = tuple(k for k, pc in enumerate(pieces) if getattr(pc, key) is not None)
@@ -146,10 +132,8 @@ def _plan(plans: Optional[dict], key: str) -> Optional[Callable]:
 
 
 def density_knots(prep: Prepared) -> tuple:
-    """The knots where the final density may jump or kink: the coefficients' breakpoints.  ``p0`` and the floor
-    only where one of them is one too: the start's delta has diffused into a smooth density, and the floor cuts
-    the report, not the problem (a spline of the cdf runs across both; at the floor see
-    ``diagnostics["floor_ghosts"]``; docs/backends.md)."""
+    """The knots where the final density may jump or kink: the coefficients' breakpoints (``p0`` and the floor
+    only where they are breakpoints too)."""
     if prep.breakpoints is None:
         return tuple(float(k) for k in prep.spec.knots)
     return tuple(float(k) for k in prep.spec.knots if any(abs(k - b) <= 1e-9 * k for b in prep.breakpoints))
@@ -168,9 +152,7 @@ def _rows(funcs: Sequence, p: np.ndarray, name: str, out: Optional[np.ndarray] =
           plan: Optional[Callable] = None) -> np.ndarray:
     """``[g(p) for g in funcs]`` as rows, checked like :func:`_check_f`.
 
-    ``plan``: the rows' compiled evaluator made once for ``funcs`` (:func:`row_plans`), tried first.
-    Callables of one type that offers ``rows(items, p)`` (the closures' models)
-    are evaluated in one vectorized pass; the values are the same.
+    ``plan`` (:func:`row_plans`) is tried first, then a type's ``rows(items, p)`` (one vectorized pass).
     """
     if plan is not None:
         block = plan(p, out)
@@ -178,7 +160,6 @@ def _rows(funcs: Sequence, p: np.ndarray, name: str, out: Optional[np.ndarray] =
             return block
     kinds = {type(g) for g in funcs}
     if len(kinds) == 1 and callable(getattr(next(iter(kinds)), "rows", None)):
-        # one call for all rows (the closures' models evaluate them in a compiled pass, no temporaries)
         block = np.asarray(next(iter(kinds)).rows(tuple(funcs), p), dtype=float)
         if block.shape == (len(funcs), p.size) and np.isfinite(block).all():
             if out is None:
@@ -187,17 +168,13 @@ def _rows(funcs: Sequence, p: np.ndarray, name: str, out: Optional[np.ndarray] =
             return out
     if out is None:
         out = np.empty((len(funcs), p.size))
-    for k, g in enumerate(funcs):  # (each row written where it goes: no list, no stacked copy)
+    for k, g in enumerate(funcs):
         out[k] = _check_f(g, p, f"{name} of stage {k}")
     return out
 
 
 def _tau_independent(problem: FokkerPlanckProblem) -> bool:
-    """Whether the drift ``a(p, tau)`` returns identical values at nine probe times (then one stage).
-
-    A documented shortcut: a drift written as a function of ``(p, tau)`` that
-    ignores ``tau`` is integrated by one exponential instead of midpoint segments.
-    """
+    """Whether the drift ``a(p, tau)`` returns identical values at nine probe times (then one stage)."""
     p = np.linspace(0.0, problem.mean_pressure * 4.0, 257)[1:]
     ref = np.asarray(problem.drift(p, 0.0), dtype=float)
     for t in np.linspace(0.0, problem.tau_end, 9)[1:]:
@@ -216,8 +193,7 @@ def _pieces_of(problem) -> tuple[float, list, bool, Optional[Callable]]:
                 continue
             if (pieces and s.drift is None and s.balance is None and pieces[-1].b is None and pieces[-1].w is None
                     and s.diffusivity is pieces[-1].f):
-                # consecutive stages with the same diffusivity object and nothing else commute: one exponential
-                # of the summed duration is their product, exactly (the shell closures at the hard wall)
+                # consecutive stages with the same diffusivity and nothing else commute: one exponential, exactly
                 pieces[-1] = _Piece(pieces[-1].duration + s.duration, s.diffusivity, None, None)
                 continue
             pieces.append(_Piece(s.duration, s.diffusivity, s.drift, s.balance))
@@ -248,23 +224,19 @@ def _pieces_of(problem) -> tuple[float, list, bool, Optional[Callable]]:
 
 
 def _is_exit(reached: bool, zero_power: float) -> bool:
-    """Whether the wall is reached by a vanishing diffusivity, ``f ~ p^k`` with ``0 < k < 2`` (Feller's exit
-    boundary, with or without a drift away from it that does not make it an entrance)."""
+    """Whether the wall is reached by a vanishing diffusivity, ``f ~ p^k`` with ``0 < k < 2`` (Feller's exit)."""
     return bool(reached and 0.0 < zero_power < 2.0)
 
 
 def _exit_wall(prep: Prepared) -> bool:
-    """Whether an exit wall (:func:`_is_exit`) meets cells not graded towards it (another problem's grid family):
-    the extrapolated values converge at second order there (:data:`EXIT_RICHARDSON_DIVISOR`); the exit walls'
-    own grids are graded (:data:`C_EXIT_WALL`) and converge at fourth order."""
+    """Whether an exit wall (:func:`_is_exit`) meets an ungraded grid family (second order there)."""
     return _is_exit(prep.reached, prep.zero_power) and prep.spec.c_wall == 0.0
 
 
 @functools.lru_cache(maxsize=64)
 def _tail_quantile(mass: float) -> float:
     """``z`` with ``erfc(z / sqrt 2) = mass``: a diffusion whose quadratic variation is at most ``s^2`` leaves
-    ``p0 + z s`` with probability at most ``mass`` (time change to Brownian motion, reflection principle).  A pure
-    function of one number, remembered: every solve at the same rtol asks for the same one."""
+    ``p0 + z s`` with probability at most ``mass`` (time change to Brownian motion, reflection principle)."""
     z = math.sqrt(max(2.0 * math.log(1.0 / mass), 1.0))
     for _ in range(50):  # Newton on ln erfc (erfc is log-concave: monotone convergence from above)
         g = math.log(math.erfc(z / math.sqrt(2.0))) - math.log(mass)
@@ -293,11 +265,8 @@ def _affine_envelope_bound(pieces: Sequence, with_b: Sequence, b_rows: np.ndarra
     stays above (comparison theorem), and is linear: ``Y = exp(-g tau) (X + c/g)`` is a martingale whose quadratic
     variation is at most ``2 F (1 - exp(-2 g dtau))/(2 g)`` per stage.  So the mean bound and the variance propagate
     through the stages as ``M <- exp(g dtau) M + c expm1(g dtau)/g``, ``V <- exp(2 g dtau) V + F expm1(2 g dtau)/g``,
-    and ``M + z sqrt(V)`` bounds the tail as ``p0 + shift + z s`` does for a bounded drift (``g = 0`` is that bound).
-    A drift that grows with ``p`` (the CIR drift ``alpha - beta p`` with ``beta < 0``) outruns the bounded one once
-    ``|beta| tau`` nears 1: only this one closes there.  A growth beyond double precision (``g dtau > 350``): None.
-    Where this bound is below ``bounded`` (the bounded drift's), a diffusivity that grows with ``p`` tightens it
-    further (:func:`_affine_chernoff_bound`); elsewhere the caller keeps ``bounded`` and nothing more is computed.
+    and ``M + z sqrt(V)`` bounds the tail (``g = 0`` gives ``p0 + shift + z s``).  None where ``g dtau > 350``.
+    Where this bound is below ``bounded``, :func:`_affine_chernoff_bound` may tighten it.
     """
     rates, intercepts = _affine_envelope(np.maximum(b_rows, 0.0), probe)
     if not np.any(rates > 0.0):
@@ -310,8 +279,7 @@ def _affine_envelope_bound(pieces: Sequence, with_b: Sequence, b_rows: np.ndarra
     bound = mean + z * spread
     if not (math.isfinite(bound) and spread > 0.0):
         return None
-    # a diffusivity that grows with p too (the CIR diffusivity p/p_1): with it bounded by F0 + F1 p as well, the
-    # dominating diffusion is affine, and its exponential moments bound the tail tighter than F = max f does
+    # a diffusivity growing with p, bounded by F0 + F1 p: the affine diffusion's exponential moments bound tighter
     chernoff = _affine_chernoff_bound(pieces, _slopes_of(with_b, rates, intercepts), f_rows, probe, p0, spread,
                                       z) if bound < bounded else None
     if chernoff is not None and chernoff < bound:
@@ -321,9 +289,8 @@ def _affine_envelope_bound(pieces: Sequence, with_b: Sequence, b_rows: np.ndarra
 
 def _affine_moments(pieces: Sequence, with_b: Sequence, rates: np.ndarray, intercepts: np.ndarray,
                     f_max: np.ndarray, p0: float) -> Optional[tuple]:
-    """``(mean, var)`` of :func:`_affine_envelope_bound`'s affine diffusion after every stage (the drifting stages'
-    envelopes ``rates``, ``intercepts``, in the order of ``with_b``; ``f_max`` each stage's largest diffusivity), or
-    None where a stage's ``g dtau`` exceeds 350."""
+    """``(mean, var)`` of :func:`_affine_envelope_bound`'s affine diffusion after every stage, or None where a
+    stage's ``g dtau`` exceeds 350."""
     slopes = _slopes_of(with_b, rates, intercepts)
     mean, var = p0, 0.0
     for pc, fm in zip(pieces, f_max):
@@ -349,10 +316,9 @@ def _slopes_of(with_b: Sequence, rates: np.ndarray, intercepts: np.ndarray) -> d
 def _affine_chernoff_bound(pieces: Sequence, slopes: dict, f_rows: np.ndarray, probe: np.ndarray, p0: float,
                            spread: float, z: float) -> Optional[float]:
     """The Chernoff bound ``min_theta (log E exp(theta X) + ln(1/mass))/theta`` of the affine diffusion whose drift
-    is ``c + g p`` (``slopes``, :func:`_affine_envelope_bound`) and whose diffusivity is ``F0 + F1 p`` (each stage's
-    affine envelope of its row of ``f`` on the probe, ``f_rows``: :func:`_affine_envelope`),
-    started at ``p0``; ``mass`` is the one-sided Gaussian tail of ``z``.  None where ``f`` does not grow with ``p``
-    (the bound with ``F = max f`` is then as tight) or no ``theta`` has a finite moment.
+    is ``c + g p`` and whose diffusivity is ``F0 + F1 p`` (affine envelopes on the probe), started at ``p0``;
+    ``mass`` is the one-sided Gaussian tail of ``z``.  None where ``f`` does not grow with ``p`` or no ``theta``
+    has a finite moment.
 
     The generator ``(c + g x) d/dx + (F0 + F1 x) d^2/dx^2`` maps ``exp(A + B x)`` to itself with the Riccati
     equations ``B' = g B + F1 B^2``, ``A' = c B + F0 B^2`` in the time left; per stage of length ``d``, with
@@ -412,11 +378,8 @@ def prepare(problem, *, rtol: float, p_floor: Optional[float] = None, lamperti: 
         double precision (``> 1e12``), or a coefficient that is not a
         vectorized finite callable.
 
-    ``lamperti=False``: the upper end from the spread alone, never the shorter
-    Lamperti bound (the fallback of :func:`~.engine.solve_fv_full` where that bound was too short).
-    ``on_grid``: the grid family is given (another problem's, :class:`~.engine.GridFamily`): no domain probe, no
-    grading; the wall, the floor and the lumping are classified for it (the plain-mass solves of
-    ``plain=`` of :func:`~.engine.solve_fv_full`).
+    ``lamperti=False``: the upper end from the spread alone, never the shorter Lamperti bound.
+    ``on_grid``: the grid family is given: no domain probe, no grading.
     """
     p0, pieces, time_dependent, segment_fn = _pieces_of(problem)
     tau_end = float(sum(pc.duration for pc in pieces))
@@ -441,18 +404,15 @@ def _prepare_probed(problem, rtol: float, p_floor: Optional[float], lamperti: bo
         probe = _probe_points(p_hi, points)
         f_rows = _rows([pc.f for pc in pieces], probe, "the diffusivity", plan=_plan(plans, "f"))
         f_max = f_rows.max(axis=1)
-        # only a drift away from the wall moves the upper tail up (comparison: the diffusion with the drift
-        # max(a, 0) stays above); a restoring drift may outgrow p (the CIR drift alpha - beta p)
-        # sum_k 2 dtau_k max f_k and sum_k dtau_k max b_k, added in stage order (cumsum is sequential)
+        # only a drift away from the wall moves the upper tail up (comparison with the drift max(a, 0))
         var = _ordered_sum(2.0 * durations * f_max)
-        shift = 0.0  # (what the empty sum gives, without its arrays)
+        shift = 0.0
         if with_b:
             b_rows = _rows([pc.b for pc in with_b], probe, "the drift", plan=_plan(plans, "b"))
             shift = _ordered_sum(durations_b * np.maximum(b_rows, 0.0).max(axis=1))
         s = math.sqrt(var)
         new = p0 + shift + z * s
-        # where that bound does not close on this probe, a drift that grows with p may: its affine envelope (tried
-        # only there, so that every problem the bounded drift closes keeps its domain, and no time is spent on it)
+        # where that bound does not close on this probe, a drift growing with p may: its affine envelope
         grown = _affine_envelope_bound(pieces, with_b, b_rows, f_rows, probe, p0, z, new) if with_b and new > p_hi \
             else None
         if grown is not None and grown[0] < new:
@@ -468,8 +428,7 @@ def _prepare_probed(problem, rtol: float, p_floor: Optional[float], lamperti: bo
         raise ValueError("could not bound the pressure domain: the diffusivity grows faster than linearly in p, or "
                          "the drift faster than exponentially in the diffusion time (the spread estimate exceeded "
                          f"{p_hi:.3g} after 60 iterations)")
-    # a drift towards the wall moves the lower tail down (comparison: below p0 the process is above the one with
-    # the drift -max(-a, 0) there, and every excursion below p0 starts at p0): the domain's bottom takes it
+    # a drift towards the wall moves the lower tail down (comparison with the drift -max(-a, 0) below p0)
     shift_down = 0.0
     if with_b:
         below = b_rows[:, :int(np.searchsorted(probe, p0, side="right"))]  # (the probe increases: probe <= p0)
@@ -490,12 +449,9 @@ def _prepare_probed(problem, rtol: float, p_floor: Optional[float], lamperti: bo
     p_max = new
     lamperti_bounded = False
     if lamperti and not growing and not time_dependent and len(pieces) >= COMPILED_MIN_PIECES:
-        # the upper tail in the Lamperti coordinate Y = int dp / sqrt(2 F), F = sum dtau_k f_k: Y - Y(p0) is
-        # a unit-variance diffusion whose Ito drift -F'/(2 sqrt(2F)) points down where F grows, so z units of
-        # Y bound the tail like z spreads do for constant f (checked after the solve: the top cell's mass)
+        # the Lamperti coordinate Y = int dp / sqrt(2 F), F = sum dtau_k f_k: Y - Y(p0) is a unit-variance
+        # diffusion whose Ito drift -F'/(2 sqrt(2F)) points down where F grows, so z units of Y bound the tail
         nodes = np.linspace(p0, p_max, 2049)
-        # sum_k dtau_k max(f_k, 0), reduced over the stages in their order (as a loop of += adds them); a new
-        # array, weighted in place (a model's own rows are never written to)
         weighted = np.maximum(_rows([pc.f for pc in pieces], nodes, "the diffusivity", plan=_plan(plans, "f")), 0.0)
         weighted *= durations[:, None]
         F = np.add.reduce(weighted, axis=0)
@@ -504,10 +460,7 @@ def _prepare_probed(problem, rtol: float, p_floor: Optional[float], lamperti: bo
             y_l = np.concatenate(([0.0], np.cumsum(0.5 * np.diff(nodes) * (rho[1:] + rho[:-1]))))
             z_tail = z
             for _ in range(LAMPERTI_MEAN_ITERATIONS if with_w else 0):
-                # a balance holds the mean: the tail beyond the bound takes its share of the mean, about its mass
-                # times p_max / p0, and the balance moves the whole distribution to make up for it, so that share
-                # is what must stay below the tail tolerance (the top cell's check after the solve does not see
-                # a share of the mean carried beyond the bound)
+                # under a balance the tail's share of the mean (mass times p_max / p0) must meet the tolerance
                 if y_l[-1] <= z_tail:
                     break
                 p_cut = float(np.interp(z_tail, y_l, nodes)) + shift
@@ -517,9 +470,8 @@ def _prepare_probed(problem, rtol: float, p_floor: Optional[float], lamperti: bo
                 lamperti_bounded = p_max < new
     bps, k_min, reached, floor = _wall_of(pieces, time_dependent, p0, p_max, p_floor)
     has_balance = any(pc.w is not None for pc in pieces)
-    has_drift = any(pc.b is not None for pc in pieces)  # (the domain's depth below the floor depends on both)
-    # far from the wall (p0 - z s above the floor) less than the tail tolerance gets below p0 - z s:
-    # the domain starts there (what arrives is booked into zero_weight, below the tail tolerance)
+    has_drift = any(pc.b is not None for pc in pieces)
+    # far from the wall less than the tail tolerance gets below p0 - z s: the domain starts there
     p_lo = p0 - (z * s + shift + shift_down)
     truncated = p_lo > floor
     if truncated:
@@ -527,8 +479,6 @@ def _prepare_probed(problem, rtol: float, p_floor: Optional[float], lamperti: bo
     elif reached:
         floor_domain = 0.0
     else:  # the wall is not reached: resolve BOTTOM_EFOLDS e-folds below the floor (the floor is an edge)
-        # with a drift the depth is part of the problem (fixed): a drift may cancel the downward Ito drift of
-        # ln p (the balanced closures), so what returns from below depends on the depth and must not on rtol
         depth = BOTTOM_EFOLDS_DRIFT if (has_drift or has_balance) else max(BOTTOM_EFOLDS_MIN, math.log(10.0 / rtol))
         floor_domain = floor * math.exp(-depth)
     extra_knots = {floor} if (not reached and not truncated) else set()
@@ -560,16 +510,14 @@ def _prepare_probed(problem, rtol: float, p_floor: Optional[float], lamperti: bo
 
 
 def _ordered_sum(terms: np.ndarray) -> float:
-    """``terms[0] + terms[1] + ...`` added left to right (``cumsum`` is sequential; ``sum`` is pairwise), 0 where
-    empty: the same bits as a Python loop of ``+=`` from 0."""
+    """``terms[0] + terms[1] + ...`` added left to right (the bits of a loop of ``+=``), 0 where empty."""
     if terms.size == 1:
         return float(terms[0])
     return float(np.cumsum(terms)[-1]) if terms.size else 0.0
 
 
 def _probe_points(p_hi: float, points: int) -> np.ndarray:
-    """``np.linspace(0, p_hi, points + 1)[1:]``, its values (``k (p_hi / points)``, the last ``p_hi`` exactly)
-    without its overhead (the domain probe asks for several)."""
+    """The values of ``np.linspace(0, p_hi, points + 1)[1:]``, without its overhead."""
     probe = np.arange(1, points + 1, dtype=float)
     probe *= p_hi / points
     probe[-1] = p_hi
@@ -582,7 +530,7 @@ def _wall_of(pieces: Sequence, time_dependent: bool, p0: float, p_max: float, p_
     bps: list[float] = []
     k_min = math.inf
     scale = p0
-    seen = set()  # (a model shared by several stages is asked once: its breakpoints are the same)
+    seen = set()  # a model shared by several stages is asked once
     for pc in pieces[:1] if time_dependent else pieces:
         for g in (pc.f, pc.b, pc.w):
             if g is not None and id(g) not in seen:
@@ -611,9 +559,8 @@ def _prepared_on(problem, p0: float, pieces: Sequence, time_dependent: bool, seg
 def _prepared(problem, p0: float, pieces: Sequence, time_dependent: bool, segment_fn: Optional[Callable],
               tau_end: float, spec: GridSpec, k_min: float, reached: bool, floor: float, truncated: bool,
               lamperti_bounded: bool, breakpoints: Sequence[float] = (), plans: Optional[dict] = None) -> Prepared:
-    """The :class:`Prepared` record of a classified problem on its grid family (:func:`prepare`,
-    :func:`_prepared_on`): the floor is an edge whose cells below are lumped where the wall is not reached and the
-    domain is not truncated above it."""
+    """The :class:`Prepared` record of a classified problem on its grid family (cells below the floor lumped
+    where the wall is not reached and the domain not truncated)."""
     has_balance = any(pc.w is not None for pc in pieces)
     has_drift = any(pc.b is not None for pc in pieces)
     return Prepared(mean_conserved=has_balance or not has_drift, p0=p0, tau_end=tau_end, pieces=tuple(pieces),
@@ -629,14 +576,10 @@ def _prepared(problem, p0: float, pieces: Sequence, time_dependent: bool, segmen
 def _trimmed_depth(prep: Prepared, below_floor: float, rtol: float) -> Optional[Prepared]:
     """``prep`` with a shallower domain below the floor, or None (keep it).
 
-    Where the depth is an accuracy knob (:attr:`Prepared.depth_adaptive`), it is
-    there so that what sinks below the floor does not come back: from ``d``
-    e-folds down, ``ln p`` returns with probability ``exp(-d)`` (it drifts down
-    at the rate it diffuses for ``f ~ p^2``).  The probability that goes below the
-    floor at all is at most ``below_floor`` (the first level's lumped weight plus
-    its error estimate), so ``d = ln(10 below_floor / rtol)`` keeps the returning
-    probability below ``rtol/10``, as ``ln(10/rtol)`` does for a weight of 1
-    (at least :data:`BOTTOM_EFOLDS_TRIMMED`).  Trimmed when that saves at least two e-folds.
+    From ``d`` e-folds below the floor ``ln p`` returns with probability ``exp(-d)`` (``f ~ p^2``); at most
+    ``below_floor`` goes below at all, so ``d = ln(10 below_floor / rtol)`` (at least
+    :data:`BOTTOM_EFOLDS_TRIMMED`) keeps the returning probability below ``rtol/10``.  Trimmed when that saves at
+    least two e-folds.
     """
     if not prep.depth_adaptive:
         return None

@@ -1,18 +1,11 @@
 """The shared finite-volume engine: nested grids, Richardson extrapolation, the one result builder.
 
-Every finite-volume backend (``native``, ``pypde``, ``fipy``) goes through :func:`solve_fv`; a backend contributes
-only its way of writing the operator (an ``assemble(edges, f_c, a_faces)`` returning the tridiagonal bands of
-:mod:`.operator`) and, optionally, its own time loop.  The problem is prepared by :mod:`.domain` (the wall, the
-floor, the domain, the grid family) and each grid integrated by :mod:`.stages`; this module owns
-
-* the start (two cells around ``p0`` carrying mass 1 and mean ``p0`` exactly) on three nested grids ``N, 2N, 4N``
-  (time substeps doubled with the cells),
-* the error control: Richardson extrapolation of order 2 on each pair and the estimate
-  ``||R(2N,4N) - R(N,2N)||_1 / 7`` of the reported ``R(2N, 4N)``, refined until it meets ``rtol`` (the grid
-  family regraded after the first level, :mod:`.grading`), with the retries on the conservative domain,
-* the non-contact weight: the absorbed mass at ``p = 0`` where the wall is reached, else the mass below the floor
-  ``p_floor = FLOOR * p0`` (fixed by the problem, not by the grid),
-* the one result builder and diagnostics schema (:func:`build_result`).
+Every finite-volume backend goes through :func:`solve_fv`, contributing only its operator (``assemble``
+returning the tridiagonal bands of :mod:`.operator`) and optionally its own time loop.  :mod:`.domain` prepares
+the problem, :mod:`.stages` integrates one grid; this module owns the three nested grids ``N, 2N, 4N``, the
+Richardson extrapolation with the error estimate ``||R(2N,4N) - R(N,2N)||_1 / 7`` of the reported ``R(2N,4N)``,
+refined until it meets ``rtol``, the non-contact weight (absorbed at ``p = 0``, else the mass below
+``p_floor = FLOOR * p0``) and the one result builder (:func:`build_result`).
 """
 from __future__ import annotations
 
@@ -36,27 +29,21 @@ __all__ = ["FLOOR", "MAX_CELLS", "RICHARDSON_DIVISOR", "solve_fv", "solve_fv_ful
 
 #: default cap on the cells of the finest grid
 MAX_CELLS = 65536
-#: ||R(2N,4N) - R(N,2N)|| / RICHARDSON_DIVISOR estimates the error of R(2N,4N): 2^p - 1 for order p;
-#: 7 assumes third order (the extrapolated values converge at order 3-4: wall cells, knots), conservative by
-#: up to 2 where they converge at order 4
+#: ||R(2N,4N) - R(N,2N)|| / RICHARDSON_DIVISOR estimates the error of R(2N,4N): 2^p - 1 for order p = 3
+#: (the extrapolated values converge at order 3-4)
 RICHARDSON_DIVISOR = 7.0
-#: the same where a vanishing diffusivity reaches the wall (``f ~ p^k``, ``0 < k < 2``: Feller's exit boundary):
-#: there the extrapolated values converge at second order only (``N^-1.9`` on Feller's solution ``f = p/p_1``), so
-#: 2^2 - 1.  An exit wall's own grids are graded (:data:`~.domain.C_EXIT_WALL`); only an exit wall on another
-#: problem's ungraded grid family uses it (:func:`~.domain._exit_wall`)
+#: the same, 2^2 - 1, for an exit wall (``f ~ p^k``, ``0 < k < 2``) on an ungraded grid family: second order there
 EXIT_RICHARDSON_DIVISOR = 3.0
 #: the grids a solve with ``plain=`` integrates alone, by mode (refinement exponents: 0 the N grid, 1 the 2N grid,
-#: 2 the 4N grid); ``plain="keep"`` integrates the three grids as usual and returns their plain masses too
+#: 2 the 4N grid)
 PLAIN_GRIDS = {"only": (0, 1), "finest": (2,), "coarsest": (0,), "answer": (1,)}
 
 
 @dataclass(frozen=True)
 class GridFamily:
-    """The nested grids of a solve's last level: the family ``spec``, the knot indices ``knots`` of the coarsest
-    grid (``knots[-1]`` its cells) and the ``edges`` of the finest (``4 knots[-1]`` cells; the coarser grids are
-    every second and fourth of them).  Passed as ``grid=`` to :func:`solve_fv_full`, another problem is solved on
-    the same grids, edge for edge (the closures' extrapolation in the number of shells combines two problems cell
-    by cell)."""
+    """The nested grids of a solve's last level: the family ``spec``, the coarsest grid's knot indices ``knots``
+    (``knots[-1]`` its cells) and the finest grid's ``edges``.  Passed as ``grid=`` to :func:`solve_fv_full`,
+    another problem is solved on the same grids, edge for edge."""
 
     spec: GridSpec
     knots: tuple
@@ -72,10 +59,9 @@ class GridFamily:
 class WarmStart:
     """Where a solve of a neighbouring problem starts (a sweep over the wall range).
 
-    ``n_start``: cells of the first level's coarsest grid (refined from there as usual).  ``wall_grading``: the
-    weight of the logarithmic grading towards the wall (``c_wall``, in (0, :data:`WALL_GRADING_MAX`]; None:
-    :data:`C_WALL`) and ``wall_depth`` where it ends, as the fraction in [0, 1) of the way from the floor to ``p0``
-    in ``ln p`` (0: it reaches the floor); both only where the grading may change (:func:`_regradable`)."""
+    ``n_start``: cells of the first level's coarsest grid.  ``wall_grading``: ``c_wall`` (None: the default) and
+    ``wall_depth`` where the grading ends, as the fraction in [0, 1) of the way from the floor to ``p0`` in
+    ``ln p``; both only where the grading may change."""
 
     n_start: int
     wall_grading: Optional[float] = None
@@ -86,12 +72,10 @@ class WarmStart:
 class FVSolution:
     """What :func:`solve_fv_full` returns: the ``result`` and what a caller needs to solve related problems.
 
-    ``grid``: the grids of the last level (:class:`GridFamily`).  ``plain``: with ``plain=`` the plain (not
-    extrapolated) cell masses ``[z, m...]`` of the level's N, 2N and 4N grids, each lumped below the floor as the
-    answer is (None where a grid was not integrated), and ``plain_failure`` why they are no result (a balance
-    without a root, an unstable grid) or None.  ``cells_needed``: the coarsest cells the last level's estimate
-    predicts for ``rtol``; ``next_start``: the :class:`WarmStart` for a neighbouring problem (None where the solve
-    failed or integrated plain grids only)."""
+    ``grid``: the last level's grids.  ``plain``: with ``plain=``, the plain cell masses ``[z, m...]`` of the N,
+    2N and 4N grids, lumped below the floor (None where not integrated), and ``plain_failure`` why they are no
+    result, or None.  ``cells_needed``: the coarsest cells predicted for ``rtol``; ``next_start``: the
+    :class:`WarmStart` for a neighbouring problem (None where the solve failed or was plain)."""
 
     result: PressureDistribution
     grid: Optional[GridFamily] = None
@@ -104,8 +88,7 @@ class FVSolution:
 SAFETY = 0.5
 #: cells of the first level's coarsest grid at rtol 1e-4 (times (1e-4/rtol)^(1/4), at least 16)
 START_CELLS = 25.0
-#: ... for staged problems without a balance (``local_g1``: the first level is 1/4-1/3 of the work of a solve and
-#: its prediction holds from fewer cells)
+#: ... for staged problems without a balance
 START_CELLS_STAGED = 18.0
 #: the next level's cells: NEED_MARGIN times those the N^-4 law predicts for SAFETY * rtol
 NEED_MARGIN = 1.25
@@ -113,9 +96,7 @@ NEED_MARGIN = 1.25
 MIN_GROWTH = 1.5
 #: the largest growth of the cells from one level to the next
 MAX_GROWTH = 8.0
-#: a refinement whose error estimate grew at two levels in a row to more than this factor above the smallest it
-#: had reached diverges and stops: the operator loses accuracy on the finer grids (e.g. a restoring drift whose
-#: cells below the floor hold most of the probability at face Peclet numbers up to ~1e5)
+#: a refinement whose estimate grew at two levels in a row to more than this factor above its smallest diverges
 DIVERGENCE_FACTOR = 10.0
 #: a level whose balance fails is repeated with twice the cells, at most this many times per solve
 BALANCE_RETRIES = 2
@@ -139,10 +120,8 @@ FLOOR_GHOSTS = 3
 
 
 def _floor_ghosts(edges: np.ndarray, y: np.ndarray, j: int) -> Optional[tuple]:
-    """``(edges, cumulative)`` of the last :data:`FLOOR_GHOSTS` cells below the floor (``edges[j]``; ``y = [z, m...]``
-    unlumped), the cumulative taken from the floor (negative): the density is smooth across the floor, which is
-    a cut of the report, not of the problem, so the cdf's spline runs on below it instead of ending there
-    (``diagnostics["floor_ghosts"]``; None where fewer cells lie below)."""
+    """``(edges, cumulative)`` of the last :data:`FLOOR_GHOSTS` cells below the floor ``edges[j]`` (cumulative from
+    the floor, negative), so the cdf's spline runs on across the floor; None where fewer cells lie below."""
     if j < FLOOR_GHOSTS:
         return None
     below = y[1 + j - FLOOR_GHOSTS:1 + j]
@@ -186,16 +165,9 @@ def solve_fv_full(problem, *, rtol: float, backend: str, assemble: Assemble = na
                   warm_start: Optional[WarmStart] = None) -> FVSolution:
     """Solve ``problem`` to ``rtol`` on nested grids (the engine's entry point).
 
-    The upper end of a staged problem's domain comes from the Lamperti bound,
-    which sees the diffusivity and the drift but not a balance's drift (its
-    multiplier is found during the solve), and it bounds the tail's probability,
-    not its share of the mean.  Where the solve then leaves more than ``rtol`` in
-    the top cell, or (native operator, which conserves the mean to round-off)
-    misses the mean by more than ``rtol p0 / 2``, or fails to refine for another
-    reason than the balance, it is repeated once on the conservative domain (the
-    spread alone), and ``diagnostics["domain"]`` says so.  Where the grid family
-    that the first level's errors favoured (:func:`_regraded`) diverges, the solve
-    is repeated on the first level's family, and ``diagnostics["regrade"]`` says so.
+    Where the Lamperti-bounded domain proves too short (tail mass or mean miss above tolerance, or a failed
+    refinement), the solve is repeated once on the conservative domain (``diagnostics["domain"]``); where the
+    regraded grid family diverges, once on the first level's family (``diagnostics["regrade"]``).
 
     Parameters
     ----------
@@ -208,8 +180,7 @@ def solve_fv_full(problem, *, rtol: float, backend: str, assemble: Assemble = na
         ``assemble(edges, f_centres, a_faces, a_centres) -> (lower, diag, upper)``: the
         backend's operator on the state ``[z, m_0..m_{n-1}]``.
     n_cells : int, optional
-        Cells of the coarsest grid (fixed: no adaptive refinement beyond the
-        three nested grids).  Default: chosen from ``rtol`` and refined.
+        Cells of the coarsest grid (fixed: no refinement).  Default: chosen from ``rtol`` and refined.
     max_cells : int
         Cap on the cells of the finest grid.
     p_floor : float, optional
@@ -217,8 +188,7 @@ def solve_fv_full(problem, *, rtol: float, backend: str, assemble: Assemble = na
     time_integration : str
         Label of the integrator stored in the diagnostics.
     loop : callable, optional
-        ``loop(prep, edges, n_base, refine) -> (y, counters)`` replacing the CRAM
-        integration (a library's own time loop).
+        ``loop(prep, edges, n_base, refine) -> (y, counters)``: a library's own time loop instead of CRAM.
     extra : dict, optional
         Backend-specific diagnostics added to the common ones.
     grid : GridFamily, optional
@@ -226,10 +196,8 @@ def solve_fv_full(problem, *, rtol: float, backend: str, assemble: Assemble = na
         edge, without refinement (its coarsest grid's cells are ``n_cells``).
     plain : {"keep", "only", "finest", "coarsest", "answer"}, optional
         ``"keep"``: also return the plain cell masses of the last level's three grids (``FVSolution.plain``).
-        The others (with ``grid``) integrate only the N and 2N grids (``"only"``), only the 4N grid
-        (``"finest"``), only the N grid (``"coarsest"``) or only the 2N grid (``"answer"``) and return those
-        (:data:`PLAIN_GRIDS`): no Richardson, no estimate; the result is the finest integrated grid's, failed by
-        construction, and ``FVSolution.plain_failure`` says whether a balance failed or a grid was unstable.
+        The others (with ``grid``) integrate only the grids :data:`PLAIN_GRIDS` names, without Richardson or
+        estimate; the result is then failed by construction.
     warm_start : WarmStart, optional
         Where the refinement starts (a neighbouring problem's ``next_start``).
 
@@ -277,10 +245,8 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
                   max_cells: int, p_floor: Optional[float], time_integration: str, loop: Optional[Callable],
                   extra: Optional[dict], grid: Optional[GridFamily], plain: Optional[str],
                   warm_start: Optional[WarmStart], lamperti: bool, regrade: bool, t_start: float):
-    """One attempt of :func:`solve_fv_full` on the Lamperti-bounded domain (``lamperti``) or the conservative one,
-    regrading after the first level or not (``regrade``): an :class:`FVSolution`, or ``(diagnostics key, why)``
-    where the solve is to be repeated with ``lamperti`` (key ``"domain"``) or ``regrade`` (key ``"regrade"``)
-    off."""
+    """One attempt of :func:`solve_fv_full`: an :class:`FVSolution`, or ``(key, why)`` where the solve is to be
+    repeated with ``lamperti`` (key ``"domain"``) or ``regrade`` (key ``"regrade"``) off."""
     plain_only = plain in PLAIN_GRIDS
     fixed = n_cells is not None or grid is not None  # the three nested grids only, no refinement
     prep = prepare(problem, rtol=rtol, p_floor=p_floor, lamperti=lamperti, on_grid=grid.spec if plain_only else None)
@@ -290,8 +256,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
         if warm_start.wall_grading is not None:
             prep = replace(prep, spec=replace(prep.spec, c_wall=float(warm_start.wall_grading)))
         prep = replace(prep, spec=replace(prep.spec, wall_depth=_wall_depth(prep.spec, float(warm_start.wall_depth))))
-    # the native operator on coefficients constant within each stage: a grid's integration does not depend on
-    # the level it belongs to (levels can reuse grids)
+    # coefficients constant within each stage: a grid's integration does not depend on its level (reusable)
     stage_constant = (loop is None and assemble is native_assemble and not prep.time_dependent
                       and (prep.balance_per_stage or not prep.has_balance))
     t_prep = time.perf_counter() - t_start
@@ -311,9 +276,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
     failure = None
     balance_broke = False  # the failure is a balance's (not the domain's business)
     balance_retries = 0
-    # a level that doubles the previous one reuses its two finer grids and integrates only its new finest grid;
-    # native operator only (py-pde's index-space operator on a doubled coarse level can fail the mean check where
-    # a fresh level passes)
+    # a level that doubles the previous one reuses its two finer grids (native operator only)
     reusable = stage_constant
     reuse = None
     remap_factor = 1.0  # the cell factor of a remapped monitor (:func:`_remapped`)
@@ -362,8 +325,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
             failure = broken[0]
             balance_broke = True
             if not fixed and balance_retries < BALANCE_RETRIES and 8 * n_base <= max_cells:
-                # the level's grids do not resolve a balance (a first shell far wider than p0): the same level
-                # with twice the cells
+                # the grids do not resolve a balance: the same level with twice the cells
                 balance_retries += 1
                 failure, balance_broke = None, False
                 n = 2 * n_base
@@ -373,8 +335,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
             break
         unstable = _unstable_grid(es, ys)
         if unstable is not None:
-            # a first level too coarse for its drift is refined; a level that refinement made unstable is no
-            # result, and finer grids only cost more
+            # a first level too coarse for its drift is refined; a later unstable level is no result
             if not history and not fixed and 4 * n_base * MAX_GROWTH <= max_cells:
                 n = int(math.ceil(n_base * MAX_GROWTH))
                 continue
@@ -406,15 +367,11 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
             est += float(np.abs(out_y[neg] - repl).sum())
             out_y = out_y.copy()
             out_y[neg] = repl
-        # where the exact mean is p0 (no drift, or a balance), the computed mean's miss is a known error: the L1
-        # error is at least |mean - p0| / p_max, and a level whose mean misses by more than its share of rtol p0
-        # is refined further (the native operator conserves the mean to round-off; py-pde's index-space
-        # operator does not, and its Richardson estimate can miss it on coarse graded grids)
+        # where the exact mean is p0, the L1 error is at least |mean - p0| / p_max: a level missing it is refined
         mean_miss = abs(mean_full - prep.p0) if prep.mean_conserved else 0.0
         if (prep.lamperti_bounded and assemble is native_assemble and loop is None
                 and mean_miss > SAFETY * rtol * prep.p0):
-            # the native operator conserves the mean to round-off on any grid: a miss is the domain's top cut (the
-            # tail beyond the Lamperti bound carries mean, not only mass), which refinement cannot remove
+            # the native operator conserves the mean to round-off: a miss is the domain's top cut
             return "domain", (f"conservative: on the Lamperti-bounded domain (p_max = {out_edges[-1]:.4g}) the mean "
                               f"missed p0 by {mean_miss / prep.p0:.2e} p0")
         est = max(est, mean_miss / float(out_edges[-1]))
@@ -422,8 +379,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
         est += CRAM_AMPLIFICATION * max(cc.get("cram_applications", 0) * CRAM_ERROR_BOUND
                                         for _, cc in ys)
         history.append((n_base, est))
-        # the estimate falls like N^-4: the cells that meet rtol, as a factor on this level's (the next level's
-        # growth where it misses; a sweep's next start where it meets rtol)
+        # the estimate falls like N^-order: the factor on this level's cells that meets rtol
         need = NEED_MARGIN * max((est / (SAFETY * rtol)) ** (1.0 / order),
                                  (mean_miss / (SAFETY * rtol * prep.p0)) ** (1.0 / order))
         best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(3)], mean_full, need)
@@ -433,8 +389,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
         trimmed = _trimmed_depth(prep, float(out_y[0]) + est, rtol) if len(history) == 1 else None
         if (est <= SAFETY * rtol and mean_miss <= SAFETY * rtol * prep.p0) or fixed:
             if warm_start is not None and _regradable(prep):
-                # the grading this level's errors favour, for the next problem of a sweep (not used here; only
-                # where a start was given, as a sweep gives it: it costs 0.3 ms)
+                # the grading this level's errors favour, for the next problem of a sweep
                 suggested = _regraded(prep, e1, diff, j1)
                 if suggested is not None:
                     grading_next = (float(suggested[0].c_wall), _depth_fraction(suggested[0]), float(suggested[1]))
@@ -461,8 +416,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
             prep = trimmed
             n = int(min(max(math.ceil(n_base * min(need, MAX_GROWTH) * ratio), 16), cap))
             continue
-        # the remap only under the native operator (py-pde's index-space operator on a remapped grid can
-        # claim an estimate below its error)
+        # the remap only under the native operator (py-pde's on a remapped grid can underestimate its error)
         remap = assemble is native_assemble and loop is None
         regraded = _regraded(prep, e1, diff, j1, remap=remap) if (
             regrade and len(history) == 1 and _regradable(prep)) else None
@@ -482,17 +436,14 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
         # converge: once more without (a divergence only: other failures are reported as they are)
         return "regrade", f"the first level's grid family (the regraded one failed: {failure})"
     edges, y, moments, est, cnt, cells, mean_full, need_last = best
-    # the coarsest grid this problem needs for rtol, predicted from the last level as the refinement predicts it
-    # (a sweep starts the next problem there: its previous cells over-resolve where the need falls)
+    # the coarsest grid this problem needs for rtol (where a sweep starts the next problem)
     grading_needed, depth_needed = float(prep.spec.c_wall), _depth_fraction(prep.spec)
     if grading_next is not None:  # the cells are then those of the favoured grading
         grading_needed, depth_needed, factor = grading_next
         need_last *= factor
     need_last /= remap_factor  # a sweep starts on the family without the remap (its grading passes on)
     cells_needed = int(min(max(math.ceil(cells[0] * need_last), 16), max(16, cap)))
-    # a balance fixes the mean: the tail cut at p_max takes its share of the mean with it, and the balance
-    # moves the whole distribution to make up for it: the top cell counts with its weight in the mean,
-    # p_max / p0
+    # under a balance the top cell's mass counts with its weight p_max / p0 in the mean
     top_weight = max(1.0, float(edges[-1]) / prep.p0) if prep.has_balance else 1.0
     if prep.lamperti_bounded and failure is None and abs(float(y[-1])) * top_weight > rtol:
         # the Lamperti bound was too short (a balance's drift, which it does not see, carried the tail further)
@@ -500,8 +451,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
                           f"{abs(float(y[-1])):.2e}" + (f" (x p_max/p0 = {top_weight:.3g} in the mean)"
                                                          if top_weight > 1.0 else "") + " > rtol")
     if prep.lamperti_bounded and failure is not None and not balance_broke:
-        # the peers' operators do not conserve the mean to round-off (no early sign, above): a refinement that
-        # failed on the shorter domain is tried once on the conservative one
+        # a refinement that failed on the shorter domain is tried once on the conservative one
         return "domain", (f"conservative: on the Lamperti-bounded domain (p_max = {edges[-1]:.4g}) the solve "
                           f"failed: {failure}")
     timings = {"setup": t_prep, "solve": time.perf_counter() - t_start - t_prep,
@@ -522,9 +472,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
                                  "wall_depth_needed": depth_needed,
                                  **(extra or {})},
                           failure=failure)
-    # where a sweep's next problem starts: at most this problem's first grid (starting at its own cells
-    # over-resolves where the need falls), on the family without a remap (its cells are the remap's over its
-    # factor), with the grading its last level's errors favour
+    # where a sweep's next problem starts: at most this problem's first grid, without a remap
     next_start = None
     if result.success:
         start = int(min(math.ceil(min(cells[0] / remap_factor, cells_needed)), cap))
@@ -534,20 +482,14 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
                       next_start=next_start)
 
 
-#: a grid whose states sum in absolute value to more than this is not a probability distribution any more: the
-#: rational approximation amplified some mode (docs/backends.md "An unstable grid")
+#: a grid whose states sum in absolute value to more than this is unstable (docs/backends.md "An unstable grid")
 UNSTABLE_L1 = 2.0
 
 
 def _unstable_grid(es: Sequence[np.ndarray], ys: Sequence[tuple]) -> Optional[str]:
-    """Why a level's integration is no result, or None: a grid's state not finite, or its absolute sum above
-    :data:`UNSTABLE_L1` (probabilities sum to 1; a few round-off negatives do not move that).
-
-    The rational approximations hold near the negative real axis.  A drift that dominates the diffusion (cell Peclet
-    numbers ``|a| h / f`` above 2, where the central flux's off-diagonals change sign) gives the operator complex
-    eigenvalues, and one near a pole is amplified at every application.  A user's drift leans upwind on such faces
-    (:func:`.operator.fitted_weight`); the check is for the drifts that keep the central flux (closures, balances,
-    py-pde's and FiPy's operators).  ``es[i]`` is the grid of ``ys[i]``."""
+    """Why a level's integration is no result, or None: a grid's state ``ys[i]`` (on ``es[i]``) not finite, or its
+    absolute sum above :data:`UNSTABLE_L1`.  A central-flux drift dominating the diffusion (cell Peclet number
+    above 2) gives complex eigenvalues, which the rational approximation can amplify."""
     for edges, (y, _) in zip(es, ys):
         total = float(np.abs(y).sum())
         if not math.isfinite(total) or total > UNSTABLE_L1:
@@ -565,11 +507,8 @@ def _cells_below_floor(prep: Prepared, edges: np.ndarray) -> int:
 def _plain_solution(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple], idx: np.ndarray,
                     ks: Sequence[int], finest: np.ndarray, *, backend: str, rtol: float, t_start: float,
                     t_prep: float) -> FVSolution:
-    """The solution of a plain solve (``plain`` "only", "finest", "coarsest" or "answer"): the grids' own masses
-    (``ks`` their refinement exponents; ``finest`` the level's 4N grid), lumped below the floor as an answer is, in the N, 2N and 4N grid's places
-    of ``plain`` (None where not integrated); the result is the finest integrated grid's (not extrapolated, no
-    estimate: ``success`` is False by construction); ``plain_failure`` is a balance's failure, an unstable grid's
-    (:func:`_unstable_grid`) or None."""
+    """The :class:`FVSolution` of a plain solve: the grids' own masses (``ks`` their refinement exponents), lumped
+    below the floor; the result is the finest integrated grid's, failed by construction."""
     j1 = _cells_below_floor(prep, es[0][::1 << ks[0]])  # the N grid's (every 2^k-th edge) cells below the floor
     broken = [cc["balance_failure"] for _, cc in ys if "balance_failure" in cc]
     unstable = _unstable_grid(es, ys)
@@ -593,17 +532,10 @@ def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarr
                  mean_full: Optional[float] = None, failure: Optional[str] = None) -> PressureDistribution:
     """The one place a finite-volume result is made (one meaning of ``success``).
 
-    ``p`` of the result holds each cell's barycentre ``moments / masses``
-    (clipped into the cell; the midpoint where the mass is not positive), so
-    that ``sum(weights * p * density)`` is the first moment the solver computed
-    (to the same order as the masses), not a midpoint-rule approximation.
-
-    ``success`` requires all of: the error estimate <= rtol, total probability
-    within rtol of 1, the mean (with the floor's mass counted at the floor)
-    within ``rtol p0`` of ``p0``, negative probability (kept, never clipped)
-    below rtol, the probability in the top cell below rtol, and, where the domain
-    starts above the wall and the floor (a truncated bottom), the probability that
-    left through it below rtol.
+    ``p`` holds each cell's barycentre ``moments / masses`` (clipped into the cell), so ``sum(weights * p *
+    density)`` is the solver's first moment.  ``success`` requires: the estimate <= rtol, total probability
+    within rtol of 1, the mean within ``rtol p0`` of ``p0`` (where conserved), negative probability (never
+    clipped), the top cell's probability and what left through a truncated bottom all below rtol.
     """
     h = edges[1:] - edges[:-1]
     m = np.asarray(y[1:], dtype=float)

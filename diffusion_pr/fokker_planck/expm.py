@@ -8,12 +8,8 @@ doi:10.13182/NSE15-26 (coefficients: Table II of that paper)::
 
     y <- y + 2 Re[ alpha_j (t L - theta_j I)^-1 y ],  j = 1..8;   y <- alpha_0 y
 
-Eight complex tridiagonal solves (LAPACK ``zgtsv``, partial pivoting).  The
-uniform error of the order-16 Chebyshev rational approximation of ``exp(x)``
-on ``(-inf, 0]`` is about ``2e-16`` (Carpenter, Ruttan, Varga 1984: the
-Halphen constant ``9.289^-16``); for a diagonalizable ``L`` the error in ``y``
-is at most that times the condition number of ``L``'s eigenvector matrix
-(bounded here by the diagonal similarity of the finite-volume operator).
+The uniform error on ``(-inf, 0]`` is about ``2e-16`` (the Halphen constant ``9.289^-16``); for a
+diagonalizable ``L`` the error in ``y`` is at most that times the condition number of its eigenvectors.
 """
 from __future__ import annotations
 
@@ -47,10 +43,8 @@ ERROR_BOUND = 3.2e-16
 
 
 def _partial_fraction_residues() -> np.ndarray:
-    """Residues ``c_j`` of the same rational function in partial fractions (double precision, ~2e-15 relative).
+    """Residues ``c_j`` of the same rational function in partial fractions (~2e-15 relative).
 
-    The IPF product is ``r(z) = alpha0 prod_k [1 + alpha_k/(z - theta_k) + conj(alpha_k)/(z - conj(theta_k))]``
-    for real ``z``; its residue at ``theta_j`` is
     ``c_j = alpha0 alpha_j prod_{k != j} [1 + alpha_k/(theta_j - theta_k) + conj(alpha_k)/(theta_j - conj(theta_k))]``,
     so ``r(z) = alpha0 + 2 Re sum_j c_j/(z - theta_j)``.
     """
@@ -62,9 +56,8 @@ def _partial_fraction_residues() -> np.ndarray:
     return out
 
 
-#: partial-fraction residues of the same approximation: ``exp(t L) y = alpha0 y + 2 Re sum_j c_j (t L - theta_j)^-1 y``
-#: (independent solves, all poles at once in :func:`._kernels.cram_pfd`; round-off about 1e-13 of ``max |y|``
-#: against 1e-15 for the IPF form, since the residues reach 2e2)
+#: partial-fraction residues: ``exp(t L) y = alpha0 y + 2 Re sum_j c_j (t L - theta_j)^-1 y`` (round-off about
+#: 1e-13 of ``max |y|``, against 1e-15 for the IPF form: the residues reach 2e2)
 PFD_RESIDUES = _partial_fraction_residues()
 
 
@@ -79,13 +72,11 @@ def _gtsv():
 def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: float, y: np.ndarray, *,
                      flux_form: bool = False) -> np.ndarray:
     """``exp(t L) y`` for the tridiagonal ``L = (lower, diag, upper)``: CRAM-16 in the IPF form, eight LAPACK
-    ``zgtsv`` solves one after another (round-off about 1e-15 of ``max |y|``).
+    ``zgtsv`` solves (round-off about 1e-15 of ``max |y|``).
 
-    With ``flux_form`` (``L`` must conserve probability, its columns summing to 0) each factor of the IPF form is
-    written as ``r y + t L w`` with ``t L w`` as differences of face fluxes, so that ``sum y`` is conserved to
-    round-off even where ``|t L_ii|`` is huge in cells that hold probability: the compiled kernels' form
-    (:func:`~diffusion_pr.fokker_planck._kernels._flux_form`, docs/backends.md "Probability conserved in stiff
-    cells").  The diagonal then only enters the shifted solves.
+    With ``flux_form`` (``L``'s columns summing to 0) each factor is written as ``r y + t L w`` with ``t L w`` as
+    differences of face fluxes, so ``sum y`` is conserved to round-off even where ``|t L_ii|`` is huge
+    (docs/backends.md "Probability conserved in stiff cells").
 
     Parameters
     ----------
@@ -98,7 +89,7 @@ def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: 
     y : ndarray, shape (n,)
         Start vector.
     flux_form : bool
-        Each factor as ``r y + t L w`` (see above).
+        See above.
 
     Returns
     -------

@@ -16,29 +16,26 @@ from .grid import GridSpec, Remap
 WALL_GRADING_MAX = 10.0
 #: regrade only where the predicted cells fall by at least this fraction
 REGRADE_GAIN = 0.15
-#: candidate factors on ``c_wall`` (the weight of the logarithmic grading); 0.04 is the balanced closures' choice
-#: at large ``zeta`` (Fig. 1: zeta = 4 on 95 cells instead of 138 at 0.2x)
+#: candidate factors on ``c_wall`` (the weight of the logarithmic grading)
 REGRADE_FACTORS = (0.04, 0.07, 0.1, 0.15, 0.2, 0.3, 0.45, 0.7, 1.5, 2.0)
 #: candidate inner scales of the logarithmic grading (``GridSpec.wall_depth``), as fractions of the way from the
 #: floor to ``p0`` in ``ln p``
 REGRADE_DEPTHS = (0.2, 0.35, 0.5, 0.65, 0.8)
-#: the remapped monitor (:func:`_remapped`, a :class:`~.grid.Remap`): knots of its density's spline, the largest
-#: ratio of its densities, and the share of the cells it must save beyond the logarithmic grading's best candidate
-#: to be taken
+#: the remapped monitor (:func:`_remapped`): knots of its density's spline, the largest ratio of its densities,
+#: and the share of the regrading's best cells it must undercut
 REMAP_KNOTS = 12
 REMAP_MAX_RATIO = 16.0
 REMAP_PREFERENCE = 0.9
 
 
 def _regradable(prep: Prepared) -> bool:
-    """Whether the grading towards the wall may change (:func:`_regraded`, the ``wall_grading`` option): a
-    graded wall (``c_wall > 0``) whose depth below the floor is fixed (a drift or a balance); not an exit wall's
-    grading (:data:`C_EXIT_WALL`: there is no floor)."""
+    """Whether the grading towards the wall may change: ``c_wall > 0``, the depth below the floor fixed, no exit
+    wall."""
     return prep.spec.c_wall > 0.0 and not prep.depth_adaptive and not prep.reached
 
 
 def _delta_of(spec: GridSpec, wall_depth: float) -> float:
-    """``replace(spec, wall_depth=wall_depth)._delta`` without making the family (the same number)."""
+    """``replace(spec, wall_depth=wall_depth)._delta`` without making the family."""
     if wall_depth > 0.0:
         return wall_depth
     return spec.p_wall if spec.p_wall > 0.0 else 1e-12 * spec.p_max
@@ -70,12 +67,9 @@ def _remapped(spec: GridSpec, edges: np.ndarray, diff: np.ndarray, j: int) -> Op
     about equidistributed, and the ratio of the cells it needs for that error to those ``spec`` needs.
 
     A cell's error falls like its width to the fourth power, so for a given total the fewest cells have widths
-    ``~ e_i^(-1/5)`` (``e_i`` the error of cell ``i`` on the N grid; Lagrange): the density of the new monitor in
-    ``v = Phi - Phi(p_wall)`` is ``D ~ e^(1/5)``.  ``ln D`` is smoothed (Gaussian weights of one knot spacing at
-    :data:`REMAP_KNOTS` equidistant knots; a sign change of a cell's difference is bridged by half its
-    neighbours'), its range capped at :data:`REMAP_MAX_RATIO`, and ``D`` is the natural cubic spline through it.  The
-    factor is ``(sum e_i rho_i^4 / sum e_i)^(1/4)``, ``rho_i`` the new width over the old at the same cells.
-    None where the density's spline is not safely positive or the errors are not finite.
+    ``~ e_i^(-1/5)`` (Lagrange): the new monitor's density is ``D ~ e^(1/5)``, smoothed at :data:`REMAP_KNOTS`
+    knots and capped at :data:`REMAP_MAX_RATIO`.  The factor is ``(sum e_i rho_i^4 / sum e_i)^(1/4)``, ``rho_i``
+    the new width over the old.  None where the spline is not safely positive or the errors are not finite.
     """
     e = _cell_errors(diff, j)
     if not np.isfinite(e).all() or e.sum() <= 0.0 or e.size + 1 != edges.size:
@@ -103,18 +97,11 @@ def _regraded(prep: Prepared, edges: np.ndarray, diff: np.ndarray, j: int, remap
     and its inner scale ``wall_depth``) needs the fewest cells for the first level's error, and the ratio of the
     cells it needs to those the old family needs; or None where no candidate saves :data:`REGRADE_GAIN`.
 
-    ``diff`` are the first level's Richardson differences ``[zero weight, cells from j on]`` on ``edges`` (the N
-    grid, cells below the floor lumped into the first entry).  A cell's error scales with its width to the
-    fourth power, and a width with the inverse density ``dPhi/dp`` of the monitor times the total ``Phi`` per
-    cell; so under a candidate monitor ``Phi'`` the error becomes ``sum_i d_i rho_i^4`` with
-    ``rho_i = (Phi'_tot / Phi_tot) (dPhi/dp / dPhi'/dp)(p_i)``, and the cells for the same error scale with its
-    fourth root.  The lumped entry's error was made below the floor: it is charged with the largest ``rho`` of
-    the cells there (a candidate that widens them, where the balanced closures keep half their probability at
-    ``zeta <= 0.1``, is charged for it).  Where the depth below the floor is part of the problem (a drift or a
-    balance: the closures), this is what adapts: at large ``zeta`` the balanced closures' probability never gets
-    near the floor, and the cells the default grading puts there (half of them) are moved up.  The candidates
-    (:data:`REGRADE_FACTORS` on ``c_wall`` times :data:`REGRADE_DEPTHS`) are costed together in one array
-    expression: the monitor is ``rest(p) + c_wall / (p - p_wall + delta)`` and only the last term changes.
+    ``diff``: the first level's Richardson differences ``[zero weight, cells from j on]`` on the N grid ``edges``.
+    A cell's error scales with its width to the fourth power, so under a candidate monitor ``Phi'`` the error
+    becomes ``sum_i d_i rho_i^4`` with ``rho_i = (Phi'_tot / Phi_tot) (dPhi/dp / dPhi'/dp)(p_i)``, and the cells
+    for the same error scale with its fourth root.  The lumped entry is charged with the largest ``rho`` below
+    the floor.  Candidates: :data:`REGRADE_FACTORS` on ``c_wall`` times :data:`REGRADE_DEPTHS`.
     """
     spec = prep.spec
     d = np.abs(diff)
@@ -142,7 +129,7 @@ def _regraded(prep: Prepared, edges: np.ndarray, diff: np.ndarray, j: int, remap
     cost = (np.sum(d * rho[:, :, :n_pts] ** 4, axis=2) / float(np.sum(d))) ** 0.25
     same = (weights == spec.c_wall)[:, None] & (deltas == spec._delta)[None, :]
     cost[same] = np.inf  # the present grading is no candidate
-    # within the range the wall_grading option accepts (a sweep passes the choice on: 2x per entry grew past it)
+    # within the range the wall_grading option accepts
     cost[weights > WALL_GRADING_MAX, :] = np.inf
     iw, idp = np.unravel_index(int(np.argmin(cost)), cost.shape)
     best_cost = float(cost[iw, idp])

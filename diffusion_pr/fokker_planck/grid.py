@@ -4,19 +4,12 @@ The cell density is the derivative of a smooth monotone monitor function ::
 
     Phi(p) = p / s  +  c_wall ln(p - p_wall + delta)  +  c_0 asinh((p - p0) / w0)
 
-(``s``: the width of the final distribution; the logarithm grades the cells
-geometrically towards the wall where the wall is not reached, ``f ~ p^k`` with
-``k >= 2``, so that the density creeping towards 0 is resolved down to the
-floor, and towards an exit wall, ``0 < k < 2``, down to ``delta`` of order ``rtol``
-times the spread, so that its first-order wall face costs nothing; the ``asinh`` grades towards the start ``p0`` where the local spread is
-small).  After the first level a problem may replace ``Phi`` by ``F(Phi)`` (:class:`Remap`: ``F' > 0`` a
-smooth function tabulated from the first level's errors), which moves cells to where the errors are without
-leaving the family of smooth maps.  Knots -- the wall, every breakpoint of the coefficients, ``p0`` and
-``p_max`` -- are cell edges; between knots the edges are ``Phi^-1`` of equally
-spaced values, so the grid with ``2 n`` cells per segment nests in the one with
-``n`` (each cell split in two) and the grid spacing is smooth inside every
-segment: the conditions under which Richardson extrapolation on nested grids
-is valid.  Pressures in the units of ``p0``.
+(``s``: the width of the final distribution; the logarithm grades the cells geometrically towards the wall
+down to ``delta``; the ``asinh`` towards the start ``p0``).  A :class:`Remap` ``F`` may replace ``Phi`` by
+``F(Phi)``, moving cells to where the first level's errors were.  Knots (the wall, the coefficients'
+breakpoints, ``p0``, ``p_max``) are cell edges; between knots the edges are ``Phi^-1`` of equally spaced
+values, so the grid with ``2 n`` cells nests in the one with ``n`` and the spacing is smooth inside every
+segment: the conditions for Richardson extrapolation on nested grids.  Pressures in the units of ``p0``.
 """
 from __future__ import annotations
 
@@ -34,10 +27,8 @@ __all__ = ["GridSpec", "Remap", "edges_for", "same_grid", "SAME_GRID_RTOL"]
 class Remap:
     """A smooth increasing map ``F`` of the monitor's values ``v = Phi(p) - Phi(p_wall)`` (dimensionless).
 
-    ``F(v) = integral_0^v D``, with the density ``D > 0`` the natural cubic spline through ``values`` at
-    ``knots`` (``knots[0] = 0``, ``knots[-1]`` the whole ``Phi``); constant beyond the last knot.  ``F`` is then a
-    piecewise quartic, C3, integrated in closed form: a grid uniform in ``F(v)`` is a smooth map of a uniform grid
-    whose cells are ``D`` times denser than ``Phi``'s, so nested grids and Richardson stay valid.
+    ``F(v) = integral_0^v D``, ``D > 0`` the natural cubic spline through ``values`` at ``knots`` (``knots[0] = 0``),
+    constant beyond the last knot: ``F`` is a C3 piecewise quartic, so nested grids and Richardson stay valid.
 
     Raises
     ------
@@ -66,8 +57,7 @@ class Remap:
         inc = 0.5 * h * (y[:-1] + y[1:]) - h**3 * (m[:-1] + m[1:]) / 24.0  # integral of the spline per interval
         cum = np.concatenate(([0.0], np.cumsum(inc)))
         object.__setattr__(self, "_cum", cum)
-        # each piece's numbers once, gathered onto the points in one call (computed per piece with the operations
-        # and operands that :meth:`_both`'s formulas would apply per point: the same bits)
+        # each piece's coefficients once (the operations :meth:`_both` would apply per point: the same bits)
         c_l, c_r = y[:-1] / h - m[:-1] * h / 6, y[1:] / h - m[1:] * h / 6
         object.__setattr__(self, "_pieces", np.array([x[:-1], x[1:], h, m[:-1], m[1:], 6 * h, c_l, c_r, cum[:-1],
                                                       h**4, 24 * h, 0.5 * c_l, h * h, 0.5 * c_r]))
@@ -111,8 +101,8 @@ class Remap:
         return self._both(v, density=False)[0]
 
     def inverse(self, t: np.ndarray) -> np.ndarray:
-        """``F^-1(t)`` on ``[0, total]``: a tabulated start, then safeguarded Newton to round-off (``F`` and ``D`` from
-        one search); each value depends on its own ``t`` only (nested grids agree bit for bit)."""
+        """``F^-1(t)`` on ``[0, total]`` by safeguarded Newton to round-off; each value depends on its own ``t`` only
+        (nested grids agree bit for bit)."""
         t = np.asarray(t, dtype=float)
         f_tab, v_tab = self._start
         k = np.clip(np.searchsorted(f_tab, t, side="right") - 1, 0, f_tab.size - 2)
@@ -141,9 +131,8 @@ class GridSpec:
     p0 : float
         The start (pressure), one of the knots.
     wall_depth : float
-        ``delta``, the inner scale of the logarithmic grading (pressure above ``p_wall``): the cells grow
-        geometrically from ``p_wall + delta`` up and are about uniform below it.  0 (default): ``p_wall`` itself
-        where ``p_wall > 0`` (the grading reaches the floor), else ``1e-12 p_max``.
+        ``delta``, the inner scale of the logarithmic grading (pressure above ``p_wall``).  0 (default):
+        ``p_wall`` where ``p_wall > 0``, else ``1e-12 p_max``.
     """
 
     p_wall: float
@@ -167,9 +156,9 @@ class GridSpec:
         if self.remap is not None:
             return self.remap.forward(self._base_value(p))
         p = np.asarray(p, dtype=float)
-        rel = np.subtract(p, self.p_wall, out=np.empty(p.shape))  # (an array also for a 0-d p: written in place)
+        rel = np.subtract(p, self.p_wall, out=np.empty(p.shape))  # an array also for a 0-d p
         out = rel / self.scale
-        if self.c_wall > 0.0:  # (in place: the same operations, without their temporaries)
+        if self.c_wall > 0.0:  # in place
             delta = self._delta
             rel += delta
             rel /= delta
@@ -190,7 +179,7 @@ class GridSpec:
             return self.remap.density(self._base_value(p)) * self.base.dphi(p)
         p = np.asarray(p, dtype=float)
         out = np.full(p.shape, 1.0 / self.scale)
-        if self.c_wall > 0.0:  # (in place: the same operations, without their temporaries)
+        if self.c_wall > 0.0:  # in place
             w = np.subtract(p, self.p_wall, out=np.empty(p.shape))
             w += self._delta
             out += np.divide(self.c_wall, w, out=w)
@@ -233,23 +222,16 @@ SAME_GRID_RTOL = 1e-12
 
 
 def same_grid(a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether two edge arrays are the same grid: the same size and every edge within :data:`SAME_GRID_RTOL` of the
-    other's (a cell's mass moves by about
-    that fraction, far below any tolerance, so masses on the two combine cell by cell)."""
+    """Whether two edge arrays are the same grid: the same size, every edge within :data:`SAME_GRID_RTOL` of the
+    other's (masses on the two then combine cell by cell)."""
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
     return a.shape == b.shape and bool(np.all(np.abs(a - b) <= SAME_GRID_RTOL * np.abs(b)))
 
 
 def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float) -> np.ndarray:
-    """``Phi^-1(targets)`` on ``[a, b]``: a tabulated start, then Newton (to round-off).
-
-    Newton steps from the table's start (``Phi`` is smooth and increasing:
-    from the table's interpolation error, 1e-4 relative or less, it converges in
-    two to four steps); if a step leaves ``[a, b]`` or 8 steps do not converge,
-    the safeguarded bisection-Newton of :func:`_invert_safe` takes over from the start.  With a
-    :class:`Remap` ``F``: ``F^-1`` first, then the base monitor's inverse. 
-    """
+    """``Phi^-1(targets)`` on ``[a, b]``: Newton from a tabulated start, to round-off; :func:`_invert_safe` where a
+    step leaves ``[a, b]`` or 8 steps do not converge.  With a :class:`Remap` ``F``: ``F^-1`` first."""
     if spec.remap is not None:
         return _invert(spec.base, spec.remap.inverse(targets) + float(spec._base_wall), a, b)
     table, phi_table = _table(spec, a, b)
@@ -270,8 +252,7 @@ def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float) -> np.ndarr
 
 
 def _sorted_unique(x: np.ndarray) -> np.ndarray:
-    """``np.unique`` of a finite 1-D array (the same values): numpy 2's ``unique`` imports ``numpy.ma`` on its first
-    call, 15-25 ms of a fresh process's first closure solve."""
+    """``np.unique`` of a finite 1-D array (without numpy 2's import of ``numpy.ma`` on first call)."""
     x = np.sort(x)
     keep = np.empty(x.size, dtype=bool)
     keep[:1] = True
@@ -331,7 +312,7 @@ class _NaturalSpline:
     def __init__(self, x: np.ndarray, y: np.ndarray) -> None:
         n = x.size
         h = x[1:] - x[:-1]
-        if n == 3:  # one interior knot (the wall, p0 and p_max): LAPACK's elimination of the 3x3 system, exactly
+        if n == 3:  # one interior knot: the 3x3 system solved directly
             m1 = 6.0 * ((y[2] - y[1]) / h[1] - (y[1] - y[0]) / h[0]) / (2.0 * (h[0] + h[1]))
             self.x, self.y, self.h, self.m = x, y, h, np.array([0.0, m1, 0.0])
             return
@@ -344,10 +325,9 @@ class _NaturalSpline:
         self.x, self.y, self.h, self.m = x, y, h, np.linalg.solve(a, b)  # m: second derivatives
 
     def min_slope(self) -> float:
-        """The smallest first derivative on ``[x_0, x_-1]``, exact: on each piece ``r'`` is quadratic, so its minimum
-        is at an end, or inside where ``r''`` (linear, ``m_i`` to ``m_{i+1}``) changes sign from - to +."""
+        """The smallest first derivative on ``[x_0, x_-1]``, exact: ``r'`` is quadratic on each piece, so its minimum
+        is at an end or where ``r''`` changes sign from - to +."""
         lowest = math.inf
-        # (plain floats: a few pieces, where numpy's calls would cost more than the arithmetic)
         for h, yl, yr, ml, mr in zip(self.h.tolist(), self.y[:-1].tolist(), self.y[1:].tolist(),
                                      self.m[:-1].tolist(), self.m[1:].tolist()):
             mid = (yr - yl) / h - (mr - ml) * h / 6.0  # r' without its quadratic terms
@@ -359,12 +339,9 @@ class _NaturalSpline:
         return lowest
 
     def on_pieces(self, t: np.ndarray, counts: np.ndarray) -> np.ndarray:
-        """The spline at ``t`` whose first ``counts[0]`` points lie on the first piece, the next ``counts[1]`` on the
-        second, ... (the last piece's count includes its right end; ``edges_for`` knows each point's piece, so there
-        is no search): ``m_i a^3/(6 h) + m_{i+1} b^3/(6 h) + (y_i/h - m_i h/6) a + (y_{i+1}/h - m_{i+1} h/6) b`` with
-        ``a = x_{i+1} - t``, ``b = t - x_i``."""
+        """The spline at ``t``, whose first ``counts[0]`` points lie on the first piece, the next ``counts[1]`` on the
+        second, ... (no search)."""
         x, y, h, m = self.x, self.y, self.h, self.m
-        # every piece's numbers repeated onto its points in one call
         pieces = np.array([x[1:], x[:-1], 6 * h, m[:-1], m[1:], y[:-1] / h - m[:-1] * h / 6.0,
                            y[1:] / h - m[1:] * h / 6.0])
         xr, xl, hi6, ml, mr, cl, cr = np.repeat(pieces, counts, axis=1)
@@ -375,8 +352,7 @@ class _NaturalSpline:
 def knot_indices(spec: GridSpec, n_cells: int) -> np.ndarray:
     """Edge index of every knot (wall, interior knots, ``p_max``) on the grid of about ``n_cells`` cells.
 
-    ``round(n Phi(knot)/Phi_total)``, pushed apart to at least :data:`MIN_GAP`
-    cells between neighbouring knots.
+    ``round(n Phi(knot)/Phi_total)``, at least :data:`MIN_GAP` cells apart.
     """
     k = spec.all_knots
     ph = spec.phi(k)
@@ -397,16 +373,10 @@ def edges_for(spec: GridSpec, idx: np.ndarray, factor: int = 1,
     """Edges of the grid whose knots sit at edge indices ``factor * idx`` (pressure).
 
     The edge with index ``i`` is ``Phi^-1(T(i / (factor n)))`` with ``n = idx[-1]`` and
-    ``T(x) = Phi_0 + Phi_total x + r(x)``, ``r`` the natural cubic spline through
-    the knots' rounding residuals: ``T`` is smooth (C2) across the knots, so every
-    grid of the family is a smooth map of a uniform one (the condition for
-    Richardson extrapolation and for py-pde's uniform-grid operators), the grid
-    with ``factor = 2`` nests exactly in the one with ``factor = 1``, and every
-    knot is an edge.
-
-    ``known``: the grid of ``idx // 2`` with the same ``factor`` (the level this one doubles, whose edges are every
-    second one of this grid, bit for bit: each edge is the inverse of its own target): taken as they are, only the
-    new edges between them are inverted (half the work).
+    ``T(x) = Phi_0 + Phi_total x + r(x)``, ``r`` the natural cubic spline through the knots' rounding residuals:
+    ``T`` is C2, so every grid is a smooth map of a uniform one, ``factor = 2`` nests exactly in ``factor = 1``
+    and every knot is an edge.  ``known``: the edges of the grid this one doubles (every second edge, bit for
+    bit); only the new edges are inverted.
 
     Raises
     ------

@@ -1,28 +1,14 @@
 """The finite-volume operator of ``dPr/dtau = d^2(f Pr)/dp^2 - d/dp(a Pr)`` on a grid.
 
-State ``y = [z, m_0, ..., m_{n-1}]``: ``z`` the probability absorbed at the
-wall ``p_wall`` (0 where the wall is reached, the floor otherwise), ``m_i`` the
-probability in cell ``i``.  With cell centres ``c_i``, widths ``h_i`` and
-``u_i = m_i / h_i``, the flux through the face between cells ``i`` and ``i+1``
-is ``-(f_{i+1} u_{i+1} - f_i u_i) / (c_{i+1} - c_i) + a_face ((1/2 + s) u_i + (1/2 - s) u_{i+1})``.
-The central face value ``s = 0`` (FiPy's too; second order on the smoothly graded grids) holds
-wherever the cell Peclet number ``Pe = a_face (c_{i+1} - c_i) / min(f_i, f_{i+1})`` is at most 2 in
-size.  Beyond, the drift's weight leans upwind just enough to keep the off-diagonal entries
-non-negative, ``s = sign(Pe) (1/2 - 1/|Pe|)`` (:func:`fitted_weight`; upwind where ``f = 0``), so the
-operator's spectrum stays real: the central value gives a complex spectrum there, which a rational
-approximation of the exponential amplifies near its poles (docs/backends.md, "An unstable grid").
-Such faces lie where the drift dominates the diffusion, far below the floor in the problems met
-so far; the weight is first order there.  A closure's drift and a balance drift keep the central
-value (``fitted=False``): the mean-pressure search and the closures' validation are built on it.
-Through the wall face ``-(f_0 u_0 - 0)/(c_0 - p_wall)``
-(``f Pr = 0`` at the wall, Feller's exit condition) plus the drift's flux
-``a_wall u_0``, the sum clipped to an outflow (:func:`wall_drift`: a drift away
-from the wall that outweighs diffusion there makes an entrance boundary, which
-nothing crosses); where the wall is not reached the domain's bottom absorbs
-(a drift away from it carries nothing back); nothing leaves through ``p_max``.  The matrix is
-tridiagonal (``z`` couples to ``m_0`` only), total probability
-``z + sum m_i`` is conserved exactly and, without drift,
-``sum c_i m_i + p_wall z`` too (summation by parts).
+State ``y = [z, m_0, ..., m_{n-1}]``: ``z`` the probability absorbed at ``p_wall``, ``m_i`` the probability in
+cell ``i`` (centre ``c_i``, width ``h_i``, ``u_i = m_i / h_i``).  The flux through the face between cells ``i``
+and ``i+1`` is ``-(f_{i+1} u_{i+1} - f_i u_i) / (c_{i+1} - c_i) + a_face ((1/2 + s) u_i + (1/2 - s) u_{i+1})``:
+central (``s = 0``, second order) where the cell Peclet number ``|Pe| <= 2``, leaning upwind beyond
+(:func:`fitted_weight`) so that the spectrum stays real (docs/backends.md, "An unstable grid").  Closure and
+balance drifts keep the central value (``fitted=False``).  The wall face carries ``-(f_0 u_0)/(c_0 - p_wall)``
+(``f Pr = 0`` at the wall, Feller's exit condition) plus the drift's flux, clipped to an outflow
+(:func:`wall_drift`); nothing leaves through ``p_max``.  The matrix is tridiagonal, ``z + sum m_i`` is
+conserved exactly and, without drift, ``sum c_i m_i + p_wall z`` too (summation by parts).
 """
 from __future__ import annotations
 
@@ -75,15 +61,11 @@ def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = No
     edges : ndarray, shape (n+1,)
         Cell edges (pressure), ``edges[0]`` the wall.
     f_c : ndarray, shape (..., n)
-        ``f`` at the cell centres (dimensionless), >= 0.  Leading axes (e.g. one
-        row per stage) give one operator per row.
+        ``f`` at the cell centres (dimensionless), >= 0; leading axes give one operator per row (stage).
     a_faces : ndarray, shape (..., n), optional
-        Drift at the faces ``edges[0..n-1]`` (the wall face and the interior
-        faces; pressure per unit tau); the top face carries no flux.
+        Drift at the faces ``edges[0..n-1]`` (pressure per unit tau); the top face carries no flux.
     fitted : bool or ndarray of bool, shape (...)
-        Interior faces take the drift's upwinding weight (:func:`fitted_weight`, the default);
-        False: the central value (the balance operator, a drift on a balanced stage).  One flag
-        per row of the leading axes, or one for all.
+        Interior faces take :func:`fitted_weight` (default); False: the central value.  Per row or for all.
     c : ndarray, shape (n,), optional
         The cell centres :func:`centres` gives, where the caller has them.
 
@@ -134,15 +116,10 @@ def bands(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray] = No
 def wall_drift(diag: np.ndarray, upper: np.ndarray, out, a_wall, h_0: float, p_wall: float = 0.0) -> None:
     """Add the drift's flux through the wall face to bands on ``[z, m_0..m_{n-1}]`` (in place).
 
-    ``out`` is the diffusive outflow rate of cell 0 (per unit of ``m_0``; ``upper[..., 0]`` of bands without
-    the wall's drift), ``a_wall`` the drift on the wall face (pressure per unit tau) and ``h_0`` cell 0's width.
-    A drift towards the wall carries ``|a_wall| u_0`` out; a drift away from it carries back what diffusion takes
-    out, at most: the net flux ``(a_wall - out h_0) u_0`` is the continuum's ``a Pr - d(f Pr)/dp`` at the wall
-    where it leaves (Feller's exit boundary: the absorbed mass is the non-contact weight) and 0 where the drift
-    holds probability off the wall (``f = p/p_1`` with ``a_wall p_1 >= 1``, or ``f ~ p^k``, ``1 < k < 2``, with
-    ``a_wall > 0``: an entrance boundary, never reached).  Nothing flows back out of the absorbed mass.
-    ``p_wall > 0`` (the wall is not reached: the domain's bottom, far below the floor) absorbs what crosses it,
-    all of it below the floor and counted in the non-contact weight; a drift away from it carries nothing back.
+    ``out`` is cell 0's diffusive outflow rate (per unit of ``m_0``), ``a_wall`` the drift on the wall face
+    (pressure per unit tau), ``h_0`` cell 0's width.  The net flux ``(a_wall - out h_0) u_0`` is clipped to an
+    outflow: where the drift holds probability off the wall (an entrance boundary) nothing is absorbed, and
+    nothing flows back out of ``z``.  A bottom ``p_wall > 0`` (wall not reached) absorbs what crosses it.
     """
     rate = wall_drift_rate(out, a_wall, h_0, p_wall)
     diag[..., 1] += rate
@@ -150,9 +127,8 @@ def wall_drift(diag: np.ndarray, upper: np.ndarray, out, a_wall, h_0: float, p_w
 
 
 def wall_drift_rate(out, a_wall, h_0: float, p_wall: float = 0.0):
-    """The wall's drift term of cell 0's rate per unit of ``m_0`` (1/tau), :func:`wall_drift`'s: ``a_wall / h_0``
-    where the drift points to the wall, ``min(a_wall / h_0, out)`` where it points away from the wall ``p_wall = 0``
-    (0 from the bottom ``p_wall > 0`` of a wall that is not reached)."""
+    """:func:`wall_drift`'s term of cell 0's rate per unit of ``m_0`` (1/tau): ``a_wall / h_0`` towards the wall,
+    ``min(a_wall / h_0, out)`` away from a wall at 0, nothing away from a bottom ``p_wall > 0``."""
     a_wall = np.asarray(a_wall, dtype=float)
     towards = np.minimum(a_wall, 0.0) / h_0
     if p_wall > 0.0:
@@ -161,11 +137,9 @@ def wall_drift_rate(out, a_wall, h_0: float, p_wall: float = 0.0):
 
 
 def state_bands(lower_m: np.ndarray, diag_m: np.ndarray, upper_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Bands on ``[z, m_0..m_{n-1}]`` from an operator on the cell masses alone.
+    """Bands on ``[z, m_0..m_{n-1}]`` from an operator ``L_m`` on the cell masses alone.
 
-    A library assembles ``dm/dtau = L_m m`` (mass leaves through the wall
-    face only); the absorbed-mass row is ``z' = -(column sum of L_m at cell 0)``
-    so that ``z + sum m`` is conserved exactly, as in :func:`bands`.
+    The absorbed-mass row is ``z' = -(column sum of L_m at cell 0)``, so ``z + sum m`` is conserved exactly.
     """
     n = diag_m.size
     lower = np.zeros(n)
@@ -179,10 +153,9 @@ def state_bands(lower_m: np.ndarray, diag_m: np.ndarray, upper_m: np.ndarray) ->
 
 
 def probe_bands(apply, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sub-, main and super-diagonal of a tridiagonal linear map ``apply`` (3 probes).
+    """Sub-, main and super-diagonal of a tridiagonal linear map ``apply(m) -> dm/dtau`` on length ``n``.
 
-    ``apply(m) -> dm/dtau`` on arrays of length ``n``; columns ``j = k mod 3``
-    are probed together (their rows do not overlap in a tridiagonal matrix).
+    Columns ``j = k mod 3`` are probed together (their rows do not overlap in a tridiagonal matrix).
     """
     lower = np.zeros(n - 1)
     diag = np.zeros(n)

@@ -28,17 +28,15 @@ __all__ = ["Assemble", "native_assemble", "solve_on_grid"]
 DRIFT_SPLIT = 2.0
 #: at most this many exponential steps per drift stage
 MAX_DRIFT_SPLIT = 256
-#: a balance substep keeps the mean within MEAN_TOL_FRACTION * rtol * p0 of p0 (else Newton steps on A); the
-#: distribution then moves by about that much in L1, far below the error estimate
+#: a balance substep keeps the mean within MEAN_TOL_FRACTION * rtol * p0 of p0 (else Newton steps on A)
 MEAN_TOL_FRACTION = 1e-2
 #: Newton steps on the balance multiplier of one substep before the solve reports failure
 MAX_BALANCE_ITERATIONS = 30
 #: the last Newton step on A is taken to first order on the state (no further exponential) once the mean misses
 #: p0 by less than sqrt(LINEAR_FRACTION * rtol) p0: its O(miss^2) state error is then about LINEAR_FRACTION * rtol
 LINEAR_FRACTION = 1e-2
-#: the compiled stages use CRAM in partial fractions (all poles eliminated together, 2-3x faster than the
-#: IPF form) down to this rtol; below, the IPF form: the partial fractions' round-off, about 1e-13 of max|y| per
-#: application against 1e-15, makes the balanced closures' refinement diverge there (docs/backends.md)
+#: the compiled stages use CRAM in partial fractions down to this rtol, below it the IPF form (round-off 1e-15
+#: of max|y| per application against 1e-13; docs/backends.md)
 PFD_MIN_RTOL = 1e-10
 #: cells per balance substep (the substeps double with the cells, so Richardson removes their O(dtau^2) error)
 SUBSTEP_CELLS = 16
@@ -56,10 +54,8 @@ def native_assemble(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.nda
 def _substeps(prep: Prepared, piece: _Piece, n_base: int, refine: int) -> int:
     """Balance substeps of ``piece``: ``refine`` times those of the coarsest grid (``n_base`` cells).
 
-    Doubling exactly with the cells keeps the O(dtau^2) error of the frozen ``A``
-    in step with the O(h^2) spatial error, so one Richardson step removes both.
-    A problem whose ``A`` is one number per stage (``balance_per_stage``) has one
-    substep per stage on every grid: there the frozen ``A`` is the definition.
+    Doubling with the cells keeps the O(dtau^2) error of the frozen ``A`` in step with the O(h^2) error, so one
+    Richardson step removes both; ``balance_per_stage`` problems have one substep per stage.
     """
     if prep.balance_per_stage:
         return 1
@@ -70,8 +66,7 @@ def _coefficients(pieces: Sequence, grids: Sequence[np.ndarray], centre_drift: b
                   plans: Optional[dict] = None) -> list:
     """Every stage's ``f`` (centres), drift and balance (faces; centres too if ``centre_drift``) as rows, per grid.
 
-    Each callable is evaluated once, on the points of all ``grids`` (edge arrays) together; ``plans``: the
-    pieces' :func:`~.domain.row_plans`.
+    Each callable is evaluated once, on the points of all ``grids`` together.
     """
     cs = [centres(e) for e in grids]
     faces = [e[:-1] for e in grids]
@@ -82,7 +77,7 @@ def _coefficients(pieces: Sequence, grids: Sequence[np.ndarray], centre_drift: b
     shape = (k_stages, c_all.size)
     keys = ("f", "b", "w", "b_c", "w_c") if centre_drift else ("f", "b", "w")
     rows = {key: np.empty(shape) for key in keys}
-    for key in keys[1:]:  # (the stages without a drift or a balance have rows of zeros)
+    for key in keys[1:]:  # stages without a drift or a balance have rows of zeros
         if not layout[key[0]].every:
             rows[key].fill(0.0)
     has = {"b": np.zeros(k_stages, dtype=bool), "w": np.zeros(k_stages, dtype=bool)}
@@ -104,23 +99,21 @@ def _coefficients(pieces: Sequence, grids: Sequence[np.ndarray], centre_drift: b
 
 
 def _fitted_stages(prep: Prepared, coef: dict) -> np.ndarray:
-    """Which stages' drift takes its upwinding weight (the native operator): plain drift stages of a problem whose
-    drift is fitted (:attr:`Prepared.fitted_drift`)."""
+    """Which stages' drift takes its upwinding weight: plain drift stages where :attr:`Prepared.fitted_drift`."""
     return coef["has_b"] & ~coef["has_w"] & bool(prep.fitted_drift)
 
 
 def _stage_bands(edges: np.ndarray, coef: dict, assemble: Assemble, fitted: bool | np.ndarray = False) -> tuple:
     """Rows of the stages' bands ``L_k`` and of their balance operators (0 where a stage has none).
 
-    Without a balance the balance rows are a single row of zeros (never read).  ``fitted``: per stage, the native
-    operator's drift takes its upwinding weight (:func:`_fitted_stages`; False: nowhere).
+    Without a balance the balance rows are one row of zeros.  ``fitted``: :func:`_fitted_stages`.
     """
     n_stages, n = coef["f"].shape
     any_w = bool(coef["has_w"].any())
     if assemble is native_assemble:  # all stages at once (the compiled path makes them in its kernel)
         any_b = bool(coef["has_b"].any())
         base = fv_bands(edges, coef["f"], coef["b"] if any_b else None, fitted=fitted, c=coef.get("c"))
-        if not any_w:  # (assembling the zero row cost as much as the stages' own bands on a one-stage problem)
+        if not any_w:
             return base, (np.zeros((1, n)), np.zeros((1, n + 1)), np.zeros((1, n)))
         return base, fv_bands(edges, np.zeros((n_stages, n)), coef["w"], fitted=False)
     rows = []
@@ -174,22 +167,17 @@ def solve_on_grid(prep: Prepared, edges: np.ndarray, *, assemble: Assemble = nat
                   partial_fractions: bool = True) -> tuple[np.ndarray, dict]:
     """Integrate from the start to ``tau_end`` on one grid; return ``y = [z, m...]`` and counters.
 
-    ``n_base`` is the cell count of the coarsest grid of the nested triple and
-    ``refine`` (1, 2, 4) this grid's refinement factor: time segments and
-    balance substeps are ``refine`` times those of the coarsest grid (one
-    substep per stage for a ``balance_per_stage`` problem).  A balance substep
-    takes Newton steps on ``A`` (one exponential each) until the mean is within
-    ``mean_tol p0`` of ``p0``, the last one to first order on the state once the
-    miss is below ``lin_tol p0``; after MAX_BALANCE_ITERATIONS the counters carry
-    ``"balance_failure"`` and ``y`` is not a result.  ``partial_fractions``: the
-    compiled stages use CRAM in partial fractions (else the IPF form), LAPACK's stages the IPF form in flux form
-    (else plain; see PFD_MIN_RTOL); ``coef``: the stage coefficients on this grid, if already evaluated.
+    ``n_base``: cells of the coarsest grid; ``refine`` (1, 2, 4): this grid's factor on its time segments and
+    balance substeps.  A balance substep takes Newton steps on ``A`` until the mean is within ``mean_tol p0`` of
+    ``p0`` (the last to first order once the miss is below ``lin_tol p0``); after MAX_BALANCE_ITERATIONS the
+    counters carry ``"balance_failure"``.  ``partial_fractions``: CRAM in partial fractions in the kernels and
+    the flux form on LAPACK (see PFD_MIN_RTOL); ``coef``: the coefficients on this grid, if evaluated.
     """
     pieces = prep.segment_fn(refine * max(4, n_base // 8)) if prep.time_dependent else prep.pieces
     if coef is None:
         coef = _coefficients(pieces, [edges], centre_drift=assemble is not native_assemble,
                              plans=prep.row_plans if pieces is prep.pieces else None)[0]
-    c = coef["c"]  # (the centres the coefficients were evaluated at)
+    c = coef["c"]
     n = c.size
     y = _start(prep, edges, c)
     compiled = _compiled(prep)
@@ -235,8 +223,7 @@ def _f64(a) -> np.ndarray:
 
 
 class _Kernels:
-    """The compiled staged integration (:mod:`._kernels`, imported on first use: a problem with fewer than
-    :data:`~.domain.COMPILED_MIN_PIECES` plain stages never loads numba)."""
+    """The compiled staged integration (:mod:`._kernels`, imported on first use)."""
 
     def __init__(self) -> None:
         from . import _kernels
@@ -247,8 +234,7 @@ class _Kernels:
 
     def run_rows(self, edges, f_rows, b_rows, w_rows, any_b, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol,
                  pfd, fitted=None):
-        """:meth:`run` with the native operator's bands made in the kernel (:func:`._kernels.staged_run_rows`);
-        ``fitted``: per stage, the drift takes its upwinding weight (None: nowhere)."""
+        """:meth:`run` with the native operator's bands made in the kernel; ``fitted`` as :func:`_fitted_stages`."""
         f = _f64
         fitted = np.zeros(len(balanced), dtype=np.bool_) if fitted is None else fitted
         out = self._k.staged_run_rows(
@@ -258,8 +244,7 @@ class _Kernels:
         return _as_python(*out)
 
     def run(self, lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, pfd):
-        """Every stage on one grid: ``(y, n_cram, n_newton, info, stage, residual)`` (:func:`._kernels.staged_run`);
-        ``pfd``: CRAM-16 in partial fractions, else in the IPF form."""
+        """Every stage on one grid: ``(y, n_cram, n_newton, info, stage, residual)``; ``pfd``: partial fractions."""
         f = _f64
         out = self._k.staged_run(
             f(lower), f(diag), f(upper), f(wl), f(wd), f(wu), np.ascontiguousarray(balanced, dtype=np.bool_), f(dt),
@@ -284,8 +269,7 @@ def _staged_kernels() -> _Kernels:
 
 
 def _integrator(assemble: Assemble, rtol: float) -> Callable:
-    """``integrate(prep, edges, n_base, refine, coef=None) -> (y, counters)``: :func:`solve_on_grid` with the
-    tolerances of ``rtol`` (the balance's mean, its last linear step, the partial fractions)."""
+    """``integrate(prep, edges, n_base, refine, coef=None) -> (y, counters)``: :func:`solve_on_grid` at ``rtol``."""
     return lambda pr, e, nb, rf, cf=None: solve_on_grid(pr, e, assemble=assemble, n_base=nb, refine=rf, coef=cf,
                                                         mean_tol=max(1e-13, MEAN_TOL_FRACTION * rtol),
                                                         lin_tol=math.sqrt(LINEAR_FRACTION * rtol),

@@ -1,10 +1,7 @@
 """Backends for the Fokker-Planck problem, registered by name, imported lazily.
 
-Every backend module exposes ``solve(problem, *, rtol, **options) ->
-PressureDistribution`` where ``problem`` is a
-:class:`~diffusion_pr.problem.FokkerPlanckProblem`.  Importing
-:mod:`diffusion_pr` imports none of them: py-pde (about 1.4 s) and FiPy (about
-0.9 s) are loaded only when their backend is asked for.
+Every backend module exposes ``solve(problem, *, rtol, **options) -> PressureDistribution``.  Importing
+:mod:`diffusion_pr` imports none of them: py-pde and FiPy load only when their backend is asked for.
 """
 from __future__ import annotations
 
@@ -45,8 +42,7 @@ def get_backend(name: str) -> Callable:
     ValueError
         Unknown backend name.
     BackendUnavailableError
-        The backend's dependency is not installed; the message names the pip
-        extra that installs it.
+        The backend's dependency is not installed (the message names the pip extra).
     """
     if name not in _REGISTRY:
         raise ValueError(f"backend must be one of {backend_names()} or 'auto'; got backend={name!r}")
@@ -64,10 +60,7 @@ def get_backend(name: str) -> Callable:
 
 
 def timed_import(module: str, backend: str, label: str) -> tuple[object, float]:
-    """Import a backend's third-party ``module``; return ``(module, seconds)``.
-
-    The seconds are 0 when it was already imported (so a result can report
-    its import cost separately from its solve time).
+    """Import a backend's third-party ``module``; return ``(module, seconds)`` (0 s if already imported).
 
     Raises
     ------
@@ -99,13 +92,9 @@ def is_available(name: str) -> bool:
 
 
 def warm_up(name: str) -> float:
-    """Do backend ``name``'s one-time work now (imports, first assembly); return the seconds spent.
+    """Do backend ``name``'s one-time work now (imports, compiled kernels); return the seconds spent.
 
-    Solves never warm up silently: call this before timing a backend whose
-    first call carries a one-time cost (py-pde and FiPy imports; the native
-    backend's numba kernels for staged problems such as the closures: compiled
-    on the first run after installing and stored in numba's cache, loaded from
-    there by later processes).
+    Call it before timing a backend: solves never warm up silently.
     """
     if name not in _REGISTRY:
         raise ValueError(f"backend must be one of {backend_names()}; got backend={name!r}")

@@ -9,14 +9,9 @@ Two factorized problems have exact solutions (Müser 2008, Eq. 2 and docs/theory
 * ``f = slope * p``: Feller's solution (W. Feller, Ann. Math. 54, 173
   (1951)) with ``tau = V/2`` and zero weight ``exp(-p0 / (slope tau))``.
 
-The density is evaluated on the nodes of Gauss-Legendre panels (16 nodes per
-panel) whose widths follow the solution's scales, so that
-``sum(weights * density) + zero_weight = 1`` to about 1e-13 and any smooth
-moment integrates to the same accuracy.  ``error_estimate`` is that
-quadrature defect (plus the truncated tail mass beyond the last panel).
-
-:func:`exact_kind` decides whether a problem is one of these; the ``"auto"``
-backend choice in :mod:`diffusion_pr.api` uses it.
+The density is evaluated on Gauss-Legendre panels (16 nodes each) following the solution's scales, so that
+``sum(weights * density) + zero_weight = 1`` to about 1e-13 (``error_estimate``: that defect); smooth moments
+integrate to the same accuracy.  :func:`exact_kind` recognizes these problems (used by ``backend="auto"``).
 """
 from __future__ import annotations
 
@@ -48,18 +43,13 @@ def exact_kind(problem: FokkerPlanckProblem) -> Optional[Tuple[str, float]]:
     Returns
     -------
     ("mirror", c) or ("feller", slope) or None
-        ``("mirror", c)`` for ``f = c`` (constant, > 0, sharp or no cutoff);
-        ``("feller", slope)`` for ``f = slope * p``; ``None`` otherwise, or
-        when the problem has a drift or a ``tau``-dependent ``f``.
+        ``("mirror", c)`` for ``f = c > 0``, ``("feller", slope)`` for ``f = slope * p``; ``None`` otherwise
+        (also with a drift or a ``tau``-dependent ``f``).
 
     Notes
     -----
-    Recognized by type (``None``/default ``f``, :class:`SharpCutoff`,
-    ``PressureFactor(SharpCutoff, GaussianTail)``,
-    :class:`ProportionalDiffusivity`, and the same wrapped in a
-    ``PressureFactor`` with a Gaussian tail) and, for any other callable, by
-    probing it at 3000 pressures from ``1e-12 p0`` to ``p0 + 48 sqrt(V)``:
-    constant to 1e-14 relative, or ``f(p)/p`` constant to 1e-14 relative.
+    Recognized by model type and, for any other callable, by probing it at 3000 pressures from ``1e-12 p0``
+    to ``p0 + 48 sqrt(V)``: ``f`` or ``f(p)/p`` constant to 1e-14 relative.
     """
     if not problem.autonomous:
         return None
@@ -90,13 +80,7 @@ def exact_kind(problem: FokkerPlanckProblem) -> Optional[Tuple[str, float]]:
 
 
 def _panel_edges(p0: float, width: float, far: float, p_max: float, p_lo: float = 0.0) -> Array:
-    """Panel edges on ``[0, p_max]``: ``width/4`` near ``p0``, growing away from it.
-
-    The panel width at ``p`` is ``clip(|p - p0| / 4, width / 4, far)``:
-    fine where the density varies on the scale ``width`` (its standard
-    deviation), up to ``far`` in the tails (Gaussian: ``width/2``; Feller's
-    exponential tail: ``max(width, slope tau)/2``).
-    """
+    """Panel edges on ``[p_lo, p_max]`` of width ``clip(|p - p0| / 4, width / 4, far)`` (pressure)."""
     edges = [float(p_lo)]
     p = float(p_lo)
     lo_w = width / 4.0
@@ -131,26 +115,17 @@ def solve(problem: FokkerPlanckProblem, *, rtol: float = 1e-6, tail_mass: float 
     problem : FokkerPlanckProblem
         Must be one of the kinds :func:`exact_kind` recognizes.
     rtol : float
-        Accepted for the common backend signature; the result is exact to
-        about 1e-13 regardless.
+        Accepted for the common signature; the result is exact to about 1e-13 regardless.
     tail_mass : float
         Probability allowed beyond the last panel (default 1e-16).
 
     Raises
     ------
     ValueError
-        If the problem has no closed form here, or ``p0/sqrt(V)`` is beyond
-        what double precision resolves (``> 1e12``: the distribution is
-        narrower than the spacing of doubles at ``p0``).
-
-    Notes
-    -----
-    The panels start at ``max(0, p0 - 12 sd)`` (the mirror Gaussian) or where
-    Feller's density is below ``tail_mass``, so the cost does not grow with
-    ``p0 / sqrt(V)``.
+        If the problem has no closed form here, or ``p0/sqrt(V) > 1e12`` (narrower than double precision
+        resolves at ``p0``).
     """
-    # the closed forms (and scipy.special) are imported here, where one is evaluated, not by exact_kind: that is
-    # asked by the "auto" choice of every solve
+    # imported here, not by exact_kind, which every "auto" solve asks
     from ... import closed_forms as cf
     from ..domain import MAX_RATIO
 

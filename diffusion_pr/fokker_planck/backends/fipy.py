@@ -5,35 +5,12 @@ expresses it, ``d/dp(f dP/dp) + d/dp((f' - a) P)``::
 
     TransientTerm() == DiffusionTerm(coeff=f_face) + CentralDifferenceConvectionTerm(coeff=[f'_face - a_face])
 
-on a non-uniform :class:`fipy.Grid1D` with the cell widths of the shared
-engine's grid (:mod:`diffusion_pr.fokker_planck`), ``f_face`` the mean of the
-neighbouring cells' ``f`` and ``f'_face`` their difference quotient, so that
-the discrete flux is the conservative Ito flux ``-(f_{i+1} P_{i+1} - f_i P_i)/d``;
-``P = 0`` is constrained on the wall face (``f Pr = 0`` there: Feller's exit
-condition).  FiPy's central convection face value is the arithmetic mean, the
-engine's too, so FiPy's assembled operator and the native one agree to
-round-off, except on the faces where the native operator leans a user's drift
-upwind (cell Peclet number above 2, :func:`.fv.operator.fitted_weight`).
-FiPy's constrained wall face carries no convection, so the drift's flux through
-it is carried by the wall face's diffusion coefficient: its transfer
-``gamma_0 P_0 / (h_0/2)`` is the native operator's net wall outflow
-(:func:`.fv.operator.wall_drift`: out where the drift points to the wall, back
-at most what diffusion takes out where it points away), implicit in the loop
-as in the assembled matrix.
+on a non-uniform :class:`fipy.Grid1D` with the engine's cells, ``P = 0`` on the wall face (docs/backends.md):
+the native operator to round-off, except where that leans a user's drift upwind.
 
-Two ways to integrate (``method=``):
-
-``"cram"`` (default)
-    FiPy assembles the operator (one ``sweep`` with ``dt = 1`` gives the
-    matrix); the engine applies CRAM-16 per stage, with its nested grids,
-    Richardson extrapolation and error estimate.
-``"loop"``
-    FiPy's own time loop: Crank-Nicolson as ``eq.solve`` half steps
-    (backward Euler to ``dt/2`` then extrapolation), the first steps
-    replaced by backward-Euler pairs (Rannacher); steps double with the cells
-    so Richardson removes the O(dtau^2) error with the O(h^2) one.  Slow (FiPy
-    rebuilds its matrix at every solve); problems with a balance multiplier
-    need ``"cram"``.
+``method="cram"`` (default): one ``sweep`` with ``dt = 1`` gives the matrix, integrated by CRAM-16.
+``method="loop"``: FiPy's own Crank-Nicolson loop (Rannacher start; steps double with the cells, so
+Richardson removes the O(dtau^2) error with the O(h^2) one); slow, no balance.
 """
 from __future__ import annotations
 
@@ -71,9 +48,7 @@ def _terms(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray], va
     vel[1:-1] = np.diff(f_c) / np.diff(c)
     if a_faces is not None:
         vel[1:-1] -= a_faces[1:]
-        # the constrained wall face carries no convection: the net flux a P - d(f P)/dp through it, an outflow
-        # (out where the drift points to the wall; back at most what diffusion takes out where it points away),
-        # is carried by the wall face's transfer coefficient, P_0 / (h_0 / 2) times gamma_0
+        # the constrained wall face carries no convection: its net outflow rides on the transfer gamma_0 P_0 / (h_0/2)
         out = gamma[0] / (0.5 * h[0] * h[0])
         net = out - float(wall_drift_rate(out, a_faces[0], h[0], edges[0]))
         gamma[0] = max(net, 0.0) * 0.5 * h[0] * h[0]
@@ -146,11 +121,7 @@ def _loop(prep: Prepared, edges: np.ndarray, n_base: int, refine: int) -> tuple[
 
 
 def warm_up() -> float:
-    """Import FiPy and assemble one tiny operator; returns the seconds spent.
-
-    Call it before timing solves: FiPy's first use loads its solver stack.
-    Nothing is warmed up silently inside :func:`solve`.
-    """
+    """Import FiPy and assemble one tiny operator; return the seconds spent."""
     t0 = time.perf_counter()
     timed_import("fipy", "fipy", "FiPy")
     e = np.linspace(0.0, 1.0, 9)
@@ -165,13 +136,10 @@ def solve(problem, *, rtol: float = 1e-6, method: str = "cram", n_cells: Optiona
     Parameters
     ----------
     problem : FokkerPlanckProblem or StagedProblem
-    rtol : float
-        Target L1 error (validated by :func:`diffusion_pr.solve_problem`).
     method : {"cram", "loop"}
-        The engine's exponential integration of FiPy's operator, or FiPy's own
-        Crank-Nicolson loop.
-    n_cells, max_cells, p_floor
-        As for the native backend.
+        CRAM-16 on FiPy's operator, or FiPy's own Crank-Nicolson loop.
+    rtol, n_cells, max_cells, p_floor
+        As for :func:`~diffusion_pr.fokker_planck.backends.native.solve`.
 
     Raises
     ------

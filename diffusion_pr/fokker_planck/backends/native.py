@@ -1,18 +1,10 @@
 """The native backend: the shared finite-volume engine with its own operator.
 
-Autonomous problems (``D(p, eta) = D(eta) f(p)``) are one matrix exponential
-of the tridiagonal finite-volume operator applied to the start, computed by
-CRAM-16 (:mod:`diffusion_pr.fokker_planck.expm`: eight complex tridiagonal
-solves, scipy's LAPACK: no JIT, so the paper's solve in a fresh process costs
-no compilation).  Staged and ``tau``-dependent problems (the closures) apply
-one exponential per stage or midpoint segment, a balance multiplier by Newton
-steps on ``A``; from four stages on (or with a balance) they run in the numba
-kernels of :mod:`diffusion_pr.fokker_planck._kernels` (compiled once per
-installation, about a minute of CPU on a two-core machine, then kept in numba's
-on-disk cache; loading them, numba's import included, costs 1-2 s per process:
-:func:`warm_up` does both where you choose).  Three nested
-grids give a Richardson-extrapolated answer and an error estimate of it
-(:mod:`diffusion_pr.fokker_planck.engine`).
+Autonomous problems (``D(p, eta) = D(eta) f(p)``) are one CRAM-16 exponential of the tridiagonal operator
+(:mod:`~diffusion_pr.fokker_planck.expm`, SciPy's LAPACK, no compilation).  Staged problems apply one
+exponential per stage, a balance by Newton steps; from four stages on (or with a balance) they run in the numba
+kernels of :mod:`~diffusion_pr.fokker_planck._kernels` (compiled on first use and cached on disk;
+:func:`warm_up`).  Nested grids and Richardson extrapolation: :mod:`~diffusion_pr.fokker_planck.engine`.
 """
 from __future__ import annotations
 
@@ -27,12 +19,9 @@ __all__ = ["solve", "solve_full", "warm_up"]
 
 
 def warm_up() -> float:
-    """Compile (first run after installing) or load from numba's cache (later runs) the staged kernels; return
-    the seconds spent.
+    """Compile or load from numba's cache the staged kernels and the closures' rows; return the seconds spent.
 
-    Solves a small staged problem with a drift and a balance and evaluates the shell closures' compiled
-    coefficient rows once, so that every compiled path a closure uses is ready.  Single-stage problems (the
-    paper's theory) need no warm-up.
+    Single-stage problems (the paper's theory) need no warm-up.
     """
     import numpy as np
 
@@ -59,11 +48,9 @@ def solve(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cel
     ----------
     problem : FokkerPlanckProblem or StagedProblem
     rtol : float
-        Target L1 error of ``Pr`` (density integral plus zero weight); the
-        caller (:func:`diffusion_pr.solve_problem`) validates it.
+        Target L1 error of ``Pr`` (density integral plus zero weight).
     n_cells : int, optional
-        Cells of the coarsest of the three nested grids (no refinement loop);
-        integer >= 8.
+        Cells of the coarsest of the three nested grids (no refinement); >= 8.
     max_cells : int
         Cap on the cells of the finest grid.
     p_floor : float, optional

@@ -1,32 +1,11 @@
 """py-pde backend (name ``"pypde"``): the operator written with py-pde's own Laplacian and gradient.
 
-py-pde's grids are uniform, so the equation is written on the cell index
-``x = 0..n`` of the engine's graded grid (:mod:`diffusion_pr.fokker_planck`; a
-:class:`pde.CartesianGrid` with unit spacing) for the cell masses ``m_i``.
-With ``v = f m / h`` (``f Pr`` at the cell centres) and ``K = 1/h`` the Ito
-flux form ``d/dx[K d/dx(v)]`` (conservative, face coefficient the mean of the
-neighbouring ``K``) is built from py-pde's Laplacian alone::
+On the cell index of the engine's grid, with ``v = f m / h`` and ``K = 1/h`` (docs/backends.md)::
 
     dm/dtau = (laplace(K v) - v laplace(K) + K laplace(v)) / 2  -  gradient(a m / h)
 
-with the boundary conditions of the physics: ``f Pr = 0`` on the wall face
-(``{"value": 0}`` for ``K v`` and ``v``; Feller's exit condition; the mass
-that leaves is the non-contact weight), no flux at ``p_max``
-(``{"derivative": 0}``), and py-pde's central gradient with ``a Pr = 0`` on
-both faces for the drift, whose flux through the wall face is then added as
-the native operator takes it (:func:`.fv.operator.wall_drift`: out where the
-drift points to the wall, back at most what diffusion takes out where it points
-away; the loop adds it to cell 0's rate).  This differs from the native operator at
-``O(h^2)`` (face coefficient ``(1/h_i + 1/h_{i+1})/2`` against ``1/d``, drift
-at the centres against the faces), an independent discretization of the same
-equation: the engine's Richardson extrapolation makes both agree within rtol.
-Operators use py-pde's ``backend="scipy"`` (no Numba compilation).
-
-Two ways to integrate (``method=``): ``"cram"`` (default; the tridiagonal
-matrix of py-pde's operator is read off with three probes and integrated by
-the engine's CRAM-16) or ``"loop"`` (py-pde's own ``PDEBase.solve`` with its
-``"scipy"`` solver, i.e. ``solve_ivp`` BDF at tolerances 1e-3 rtol; slow;
-not for problems with a balance multiplier).
+``method="cram"`` (default) reads the tridiagonal matrix off with three probes and integrates it by CRAM-16;
+``method="loop"`` uses py-pde's ``PDEBase.solve`` (``solve_ivp`` BDF at 1e-3 rtol; slow; no balance).
 """
 from __future__ import annotations
 
@@ -93,8 +72,8 @@ def assemble(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray],
 
 
 def _wall_rate(ops: _Operators, f_c: np.ndarray, h: np.ndarray, a_wall: float, p_wall: float) -> float:
-    """The wall's drift term of cell 0's rate per unit of ``m_0`` (:func:`.fv.operator.wall_drift` on py-pde's
-    diffusive outflow, read off with one probe)."""
+    """The wall's drift term of cell 0's rate per unit of ``m_0`` (``wall_drift_rate`` on py-pde's diffusive
+    outflow, read off with one probe)."""
     e0 = np.zeros(h.size)
     e0[0] = 1.0
     return float(wall_drift_rate(-float(np.sum(ops.rate(e0, f_c, h, None))), a_wall, h[0], p_wall))
@@ -138,11 +117,7 @@ def _loop(prep: Prepared, edges: np.ndarray, n_base: int, refine: int, tol: floa
 
 
 def warm_up() -> float:
-    """Import py-pde and build one operator set; returns the seconds spent.
-
-    Call it before timing solves (py-pde's import costs about a second);
-    nothing is warmed up silently inside :func:`solve`.
-    """
+    """Import py-pde and build one operator set; return the seconds spent."""
     t0 = time.perf_counter()
     timed_import("pde", "pypde", "py-pde")
     assemble(np.linspace(0.0, 1.0, 9), np.ones(8), None)
@@ -156,13 +131,10 @@ def solve(problem, *, rtol: float = 1e-6, method: str = "cram", n_cells: Optiona
     Parameters
     ----------
     problem : FokkerPlanckProblem or StagedProblem
-    rtol : float
-        Target L1 error (validated by :func:`diffusion_pr.solve_problem`).
     method : {"cram", "loop"}
-        The engine's exponential integration of py-pde's operator, or py-pde's
-        own solver loop.
-    n_cells, max_cells, p_floor
-        As for the native backend.
+        CRAM-16 on py-pde's operator, or py-pde's own solver loop.
+    rtol, n_cells, max_cells, p_floor
+        As for :func:`~diffusion_pr.fokker_planck.backends.native.solve`.
 
     Raises
     ------
