@@ -130,18 +130,15 @@ def solve_problem(problem: Any, *, backend: str = "auto", rtol: float = 1e-6,
     rtol : float
         Target L1 error of ``Pr`` (dimensionless), in [1e-14, 1).
     **options
-        The backend's own options (e.g. ``n_cells``, ``max_cells``,
-        ``p_floor``; ``method="cram"|"loop"`` for py-pde and FiPy); an unknown
-        name is an error.
+        The backend's own options (e.g. ``n_cells``, ``max_cells``, ``p_floor``; ``method="cram"|"loop"`` for
+        py-pde and FiPy); an unknown name is an error.
 
     Raises
     ------
     ValueError
-        Unknown backend or option, bad ``rtol``, or ``closed_form`` asked for a
-        problem without a closed form.
+        Unknown backend or option, bad ``rtol``, or ``closed_form`` asked for a problem without a closed form.
     BackendUnavailableError
-        The backend's optional dependency is missing (the message names the
-        pip extra).
+        The backend's optional dependency is missing (the message names the pip extra).
     """
     if not isinstance(problem, (FokkerPlanckProblem, StagedProblem)):
         raise ValueError(f"problem must be a FokkerPlanckProblem or StagedProblem; got {type(problem).__name__}")
@@ -162,31 +159,26 @@ def propagate(
 ) -> PressureDistribution:
     """Solve ``dPr/dtau = -d/dp[a Pr] + d^2/dp^2[f(p) Pr]`` from ``delta(p - p0)`` to ``tau = V/2``.
 
-    ``p = 0`` absorbs: what reaches it is ``zero_weight`` (the non-contact
-    peak).  With ``f = 1`` the answer is Persson's mirror Gaussian of
-    variance ``V`` plus ``erfc(p0/sqrt(2V)) delta(p)``.  Whether the wall is
-    reached at all is Feller's test with the drift: where ``f(p) -> 0`` at
-    ``p = 0`` and the drift away from it outweighs diffusion there (e.g.
-    ``f = p/p_1`` with ``a(0) p_1 >= 1``), ``p = 0`` is an entrance boundary,
-    nothing crosses it and ``zero_weight`` is exactly 0 (the result's
-    ``diagnostics["wall"]`` says which case applied).
+    ``p = 0`` absorbs: what reaches it is ``zero_weight`` (the non-contact peak).  With ``f = 1`` the answer is
+    Persson's mirror Gaussian of variance ``V`` plus ``erfc(p0/sqrt(2V)) delta(p)``.  Where ``f(p) -> 0`` at
+    ``p = 0`` and the drift away from it outweighs diffusion there (Feller's test; e.g. ``f = p/p_1`` with
+    ``a(0) p_1 >= 1``), ``p = 0`` is an entrance boundary and ``zero_weight`` is exactly 0
+    (``diagnostics["wall"]`` says which case applied).
 
     Parameters
     ----------
     mean_pressure : float
         ``p0`` (units of pressure), finite and > 0.
     variance : float
-        ``V`` (pressure squared), finite and > 0: ``f = 1`` without the wall
-        would give a Gaussian of variance ``V``.
+        ``V`` (pressure squared), finite and > 0: ``f = 1`` without the wall would give a Gaussian of variance ``V``.
     diffusivity : callable, optional
-        Vectorized ``f(p) >= 0`` (dimensionless) of the pressure; ``None``
-        means 1.  E.g. a :class:`~diffusion_pr.models.PressureFactor` or
-        :class:`~diffusion_pr.models.ProportionalDiffusivity`.
+        Vectorized ``f(p) >= 0`` (dimensionless); ``None`` means 1.  E.g. a
+        :class:`~diffusion_pr.models.PressureFactor` or :class:`~diffusion_pr.models.ProportionalDiffusivity`.
     drift : callable, optional
         Vectorized ``a(p, tau)`` (pressure per unit ``tau``).
     backend : str
-        ``"auto"`` (closed form where exact, else ``"native"``),
-        ``"closed_form"``, ``"native"``, ``"pypde"``, ``"fipy"``.
+        ``"auto"`` (closed form where exact, else ``"native"``), ``"closed_form"``, ``"native"``, ``"pypde"``,
+        ``"fipy"``.
     rtol : float
         Target L1 error (density integral plus zero weight), in [1e-14, 1).
     **options
@@ -195,14 +187,14 @@ def propagate(
     Returns
     -------
     PressureDistribution
-        ``p``, ``density``, ``weights``, ``zero_weight``, ``mass``, ``mean``,
-        ``success``, ``error_estimate``, ``wall_time``, ``backend``, ``plot()``.
+        ``p``, ``density``, ``weights``, ``zero_weight``, ``mass``, ``mean``, ``success``, ``error_estimate``,
+        ``wall_time``, ``backend``, ``plot()``.
 
     Raises
     ------
     ValueError
-        Bad ``mean_pressure``/``variance``/``rtol`` (NaN, <= 0), a
-        non-callable ``diffusivity`` or ``drift``, an unknown backend.
+        Bad ``mean_pressure``/``variance``/``rtol`` (NaN, <= 0), a non-callable ``diffusivity`` or ``drift``, an
+        unknown backend.
     BackendUnavailableError
         Optional backend not installed.
 
