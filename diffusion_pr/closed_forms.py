@@ -423,20 +423,17 @@ def drifted_mirror_gaussian_zero_weight(mean_pressure: float, variance: float, d
 
 def lognormal_gap_distribution(spectrum: Any, *, E_star: float, mean_pressure: float, zeta: float,
                                n_cells: int = 4000, rtol: float = 1e-6) -> Any:
-    r"""The ``"lognormal_gap"`` closure: a log-normal pressure, closed form.
+    """The ``"lognormal_gap"`` closure: a log-normal pressure, closed form.
 
-    The gap fluctuation ``delta g~(q) = -(1 - G1(q)) h~(q)`` of the second-order
-    response (Müser 2008, Eq. 10) is Gaussian with variance
-    ``sum (1 - G1)^2 |h~|^2 = zeta^2 V / p0^2`` (since ``1 - G1 = (zeta q E*/(2 p0)) G1``);
-    the wall law ``p = p_w exp(-g/zeta)`` makes ``ln p`` Gaussian with variance
-    ``s^2 = V/p0^2`` (``V``: :func:`~diffusion_pr.cumulants.stress_variance`).  The
-    mean is fixed to ``p0`` (force balance), so ``<ln p> = ln p0 - s^2/2``.
+    The gap fluctuation ``delta g~(q) = -(1 - G1(q)) h~(q)`` of the second-order response (Müser 2008, Eq. 10) is
+    Gaussian with variance ``zeta^2 V / p0^2`` (since ``1 - G1 = (zeta q E*/(2 p0)) G1``); the wall law
+    ``p = p_w exp(-g/zeta)`` makes ``ln p`` Gaussian with variance ``s^2 = V/p0^2``
+    (``V``: :func:`~diffusion_pr.cumulants.stress_variance`), and force balance fixes the mean to ``p0``:
+    ``<ln p> = ln p0 - s^2/2``.
 
-    The result is given on ``n_cells`` cells uniform in ``ln p`` over
-    ``[<ln p> - 9.5 s, <ln p> + s^2 + 9.5 s]`` (plus ``[0, p_lo]``; the upper end
-    covers where ``p Pr(p)`` lives) with the exact cell masses (normal CDF)
-    and, as each cell's point, the exact conditional mean of ``p`` in the cell, so
-    mass and mean are exact to round-off (the mass beyond ``9.5 s``, below 1e-20, is dropped).
+    Given on ``n_cells`` cells uniform in ``ln p`` over ``[<ln p> - 9.5 s, <ln p> + s^2 + 9.5 s]`` (plus
+    ``[0, p_lo]``) with the exact cell masses and, as each cell's point, the exact conditional mean of ``p`` in
+    the cell: mass and mean are exact to round-off (the mass dropped beyond ``9.5 s`` is below 1e-20).
 
     Parameters
     ----------
@@ -445,19 +442,17 @@ def lognormal_gap_distribution(spectrum: Any, *, E_star: float, mean_pressure: f
     E_star, mean_pressure : float
         ``E*`` and ``p0`` [pressure], > 0.
     zeta : float
-        Wall range [length], > 0.  ``zeta = 0`` (hard wall) raises: the
-        exponential wall law that makes the pressure log-normal does not exist there.
+        Wall range [length], > 0 (``zeta = 0``, the hard wall, raises: it has no exponential wall law).
     n_cells : int
         Cells in ``ln p`` (>= 100).
     rtol : float
-        Accepted for the common signature of the closures (kept in the diagnostics); the result is exact to
-        round-off.
+        Accepted for the closures' common signature (kept in the diagnostics); the result is exact to round-off.
 
     Returns
     -------
     PressureDistribution
-        As the ``"closed_form"`` backend's results: ``success`` True, ``error_estimate`` the cells' mass defect,
-        the same diagnostics keys, plus ``diagnostics["closure"] = "lognormal_gap"`` and
+        As the ``"closed_form"`` backend's results (``success`` True, ``error_estimate`` the cells' mass defect,
+        the same diagnostics keys), plus ``diagnostics["closure"] = "lognormal_gap"`` and
         ``diagnostics["ln_variance"] = s^2``.
     """
     from .cumulants import stress_variance
