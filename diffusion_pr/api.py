@@ -1,22 +1,10 @@
 """Public entry points: :func:`propagate` and :func:`pressure_distribution`.
 
-``propagate`` solves the factorized Fokker-Planck problem of docs/theory.md in
-the diffusion time ``tau`` (from ``delta(p - p0)`` up to ``tau = V/2``);
-``pressure_distribution`` does the whole scene of Müser, PRL 100, 055504
-(2008), doi:10.1103/PhysRevLett.100.055504: the stress variance from the
-spectrum (with ``G1`` for ``zeta > 0``, Eqs. 9-10), the pressure factor
-``f(p) = c(p) t(p)``, optionally a magnification-dependent drift, and the
-solve.
-
-Backend choice (``backend="auto"``): the closed form wherever it is exact
-(constant ``f`` with the sharp or no cutoff: Persson's mirror Gaussian;
-``f ∝ p``: Feller's solution) and no finite-volume option is given, otherwise
-``"native"``.  ``"pypde"`` and ``"fipy"`` write the same equation with their
-own operators on the shared engine (``docs/backends.md``); every backend
-returns the same ``zero_weight`` (one definition, ``docs/theory.md``) and
-density within ``rtol``.  ``rtol`` is validated once, here; an unknown
-keyword option is an error naming the options the backend accepts.
-"""
+``propagate`` solves the Fokker-Planck problem of docs/theory.md in the diffusion time ``tau``;
+``pressure_distribution`` does the whole scene of Müser, PRL 100, 055504 (2008),
+doi:10.1103/PhysRevLett.100.055504: the stress variance of the spectrum, the pressure factor ``f(p) = c(p) t(p)``,
+an optional drift, and the solve.  ``backend="auto"`` takes the closed form wherever it is exact, else
+``"native"`` (docs/backends.md); every backend returns the same ``zero_weight`` and density within ``rtol``."""
 from __future__ import annotations
 
 import functools
@@ -89,8 +77,7 @@ def _accepted_options(name: str) -> set:
 
 @functools.lru_cache(maxsize=None)
 def _keyword_options(solve: Callable) -> frozenset:
-    """Keyword options of a backend's ``solve`` function (besides ``rtol``), read once per function (a signature
-    costs about 1 ms)."""
+    """Keyword options of a backend's ``solve`` function (besides ``rtol``), read once per function."""
     import inspect
 
     params = inspect.signature(solve).parameters
@@ -103,9 +90,8 @@ def _solve(problem: Any, backend: str, rtol: float, options: dict) -> PressureDi
 
 
 def _solve_full(problem: Any, backend: str, rtol: float, options: dict, **engine: Any) -> Any:
-    """:func:`_solve` with the finite-volume engine's :class:`~diffusion_pr.fokker_planck.engine.FVSolution`
-    (``engine``: its ``grid``, ``plain`` and ``warm_start`` arguments); a backend that is not a finite-volume one
-    (closed form) gives a solution that holds its result alone, and takes no grid."""
+    """:func:`_solve` with the engine's :class:`~diffusion_pr.fokker_planck.engine.FVSolution` (``engine``: its
+    ``grid``, ``plain``, ``warm_start``); a closed form gives a solution holding its result alone."""
     import sys
 
     from .fokker_planck.backends import get_backend
@@ -144,18 +130,15 @@ def solve_problem(problem: Any, *, backend: str = "auto", rtol: float = 1e-6,
     rtol : float
         Target L1 error of ``Pr`` (dimensionless), in [1e-14, 1).
     **options
-        The backend's own options (e.g. ``n_cells``, ``max_cells``,
-        ``p_floor``; ``method="cram"|"loop"`` for py-pde and FiPy); an unknown
-        name is an error.
+        The backend's own options (e.g. ``n_cells``, ``max_cells``, ``p_floor``; ``method="cram"|"loop"`` for
+        py-pde and FiPy); an unknown name is an error.
 
     Raises
     ------
     ValueError
-        Unknown backend or option, bad ``rtol``, or ``closed_form`` asked for a
-        problem without a closed form.
+        Unknown backend or option, bad ``rtol``, or ``closed_form`` asked for a problem without a closed form.
     BackendUnavailableError
-        The backend's optional dependency is missing (the message names the
-        pip extra).
+        The backend's optional dependency is missing (the message names the pip extra).
     """
     if not isinstance(problem, (FokkerPlanckProblem, StagedProblem)):
         raise ValueError(f"problem must be a FokkerPlanckProblem or StagedProblem; got {type(problem).__name__}")
@@ -176,31 +159,26 @@ def propagate(
 ) -> PressureDistribution:
     """Solve ``dPr/dtau = -d/dp[a Pr] + d^2/dp^2[f(p) Pr]`` from ``delta(p - p0)`` to ``tau = V/2``.
 
-    ``p = 0`` absorbs: what reaches it is ``zero_weight`` (the non-contact
-    peak).  With ``f = 1`` the answer is Persson's mirror Gaussian of
-    variance ``V`` plus ``erfc(p0/sqrt(2V)) delta(p)``.  Whether the wall is
-    reached at all is Feller's test with the drift: where ``f(p) -> 0`` at
-    ``p = 0`` and the drift away from it outweighs diffusion there (e.g.
-    ``f = p/p_1`` with ``a(0) p_1 >= 1``), ``p = 0`` is an entrance boundary,
-    nothing crosses it and ``zero_weight`` is exactly 0 (the result's
-    ``diagnostics["wall"]`` says which case applied).
+    ``p = 0`` absorbs: what reaches it is ``zero_weight`` (the non-contact peak).  With ``f = 1`` the answer is
+    Persson's mirror Gaussian of variance ``V`` plus ``erfc(p0/sqrt(2V)) delta(p)``.  Where ``f(p) -> 0`` at
+    ``p = 0`` and the drift away from it outweighs diffusion there (Feller's test; e.g. ``f = p/p_1`` with
+    ``a(0) p_1 >= 1``), ``p = 0`` is an entrance boundary and ``zero_weight`` is exactly 0
+    (``diagnostics["wall"]`` says which case applied).
 
     Parameters
     ----------
     mean_pressure : float
         ``p0`` (units of pressure), finite and > 0.
     variance : float
-        ``V`` (pressure squared), finite and > 0: ``f = 1`` without the wall
-        would give a Gaussian of variance ``V``.
+        ``V`` (pressure squared), finite and > 0: ``f = 1`` without the wall would give a Gaussian of variance ``V``.
     diffusivity : callable, optional
-        Vectorized ``f(p) >= 0`` (dimensionless) of the pressure; ``None``
-        means 1.  E.g. a :class:`~diffusion_pr.models.PressureFactor` or
-        :class:`~diffusion_pr.models.ProportionalDiffusivity`.
+        Vectorized ``f(p) >= 0`` (dimensionless); ``None`` means 1.  E.g. a
+        :class:`~diffusion_pr.models.PressureFactor` or :class:`~diffusion_pr.models.ProportionalDiffusivity`.
     drift : callable, optional
         Vectorized ``a(p, tau)`` (pressure per unit ``tau``).
     backend : str
-        ``"auto"`` (closed form where exact, else ``"native"``),
-        ``"closed_form"``, ``"native"``, ``"pypde"``, ``"fipy"``.
+        ``"auto"`` (closed form where exact, else ``"native"``), ``"closed_form"``, ``"native"``, ``"pypde"``,
+        ``"fipy"``.
     rtol : float
         Target L1 error (density integral plus zero weight), in [1e-14, 1).
     **options
@@ -209,14 +187,14 @@ def propagate(
     Returns
     -------
     PressureDistribution
-        ``p``, ``density``, ``weights``, ``zero_weight``, ``mass``, ``mean``,
-        ``success``, ``error_estimate``, ``wall_time``, ``backend``, ``plot()``.
+        ``p``, ``density``, ``weights``, ``zero_weight``, ``mass``, ``mean``, ``success``, ``error_estimate``,
+        ``wall_time``, ``backend``, ``plot()``.
 
     Raises
     ------
     ValueError
-        Bad ``mean_pressure``/``variance``/``rtol`` (NaN, <= 0), a
-        non-callable ``diffusivity`` or ``drift``, an unknown backend.
+        Bad ``mean_pressure``/``variance``/``rtol`` (NaN, <= 0), a non-callable ``diffusivity`` or ``drift``, an
+        unknown backend.
     BackendUnavailableError
         Optional backend not installed.
 
@@ -258,29 +236,21 @@ def pressure_distribution(
 ) -> PressureDistribution:
     """Pressure distribution of a rough contact (Müser 2008, Eqs. 2, 9, 10; docs/theory.md).
 
-    ``closure`` picks the theory (docs/closures.md, :data:`diffusion_pr.closures.CLOSURES`):
-    ``"second_order"`` (the paper, default; everything below), or the
-    parameter-free ``"lognormal_gap"`` (closed form), ``"local_g1"``, ``"local_g1_balanced"``,
-    ``"local_g1_shell_balanced"`` (no cutoff, tail or drift; solved by
-    :mod:`diffusion_pr.closures`).  On a continuum spectrum the shell closures answer for the continuum limit,
-    extrapolated in the number of shells (options ``n_shells`` and ``shell_extrapolation`` below).
-    ``diagnostics["closure"]`` names the closure in every result.
+    ``closure`` picks the theory (docs/closures.md, :data:`diffusion_pr.closures.CLOSURES`): ``"second_order"``
+    (the paper, default; everything below), or the parameter-free ``"lognormal_gap"`` (closed form),
+    ``"local_g1"``, ``"local_g1_balanced"``, ``"local_g1_shell_balanced"`` (no cutoff, tail or drift; solved by
+    :mod:`diffusion_pr.closures`; on a continuum spectrum extrapolated to the continuum limit in the number of
+    shells).  ``diagnostics["closure"]`` names the closure in every result.
 
-    Steps: ``V = stress_variance(spectrum, E_star, p0, zeta)`` (Eq. 9 with
-    ``G1`` of Eq. 10 for ``zeta > 0``; Persson's ``V0`` for ``zeta = 0``);
-    ``f(p) = c(p) t(p)`` from ``cutoff``/``tail``; without drift one solve of
-    ``dPr/dtau = d^2(f Pr)/dp^2`` to ``tau = V/2`` (closed form if exact);
-    with a drift ``A(p, eta)`` the problem is mapped onto ``tau`` through
-    ``V(eta)`` (:func:`~diffusion_pr.cumulants.variance_vs_magnification`,
-    ``eta = q/q_min`` from 1 to ``q_max/q_min``) and solved by a
-    finite-volume backend.
+    Steps: ``V = stress_variance(spectrum, E_star, p0, zeta)`` (Eqs. 9-10); ``f(p) = c(p) t(p)``; one solve of
+    ``dPr/dtau = d^2(f Pr)/dp^2`` to ``tau = V/2``; with a drift ``A(p, eta)`` the problem is mapped onto ``tau``
+    through ``V(eta)`` (:func:`~diffusion_pr.cumulants.variance_vs_magnification`, ``eta = q/q_min``).
 
     Parameters
     ----------
     spectrum : Spectrum
-        :class:`~diffusion_pr.spectra.SelfAffineSpectrum` or
-        :class:`~diffusion_pr.spectra.DiscreteSpectrum` (lengths in the unit
-        of ``zeta``).
+        :class:`~diffusion_pr.spectra.SelfAffineSpectrum` or :class:`~diffusion_pr.spectra.DiscreteSpectrum`
+        (lengths in the unit of ``zeta``).
     E_star : float
         Contact modulus (pressure), > 0.
     mean_pressure : float
@@ -288,38 +258,36 @@ def pressure_distribution(
     zeta : float
         Range of the exponential repulsion (length), >= 0; 0 = hard wall.
     cutoff : str or callable
-        ``"sharp"`` (default; exact mirror Gaussian), ``"muser"``/``"seed"``
-        (the paper's printed factor, discontinuous at ``p_c``),
-        ``"raised_cosine"`` (C1), ``"smoothstep"`` (C2), or a callable ``c(p)``.
+        ``"sharp"`` (default; exact mirror Gaussian), ``"muser"``/``"seed"`` (the paper's printed factor,
+        discontinuous at ``p_c``), ``"raised_cosine"`` (C1), ``"smoothstep"`` (C2), or a callable ``c(p)``.
     p_c : float, optional
         Cutoff pressure (pressure) for the smooth cutoffs, > 0.
     tail : str or callable, optional
-        ``None``/``"gaussian"``, ``"linear"`` (``1 + p/p_t``),
-        ``"max_linear"`` (``max(1, p/p_t)``), or a callable ``t(p)``.
+        ``None``/``"gaussian"``, ``"linear"`` (``1 + p/p_t``), ``"max_linear"`` (``max(1, p/p_t)``), or a
+        callable ``t(p)``.
     p_t : float, optional
         Tail crossover pressure (pressure), > 0.
     drift : callable, optional
         ``A(p, eta)`` (pressure per unit magnification).
     backend, rtol, **options
-        As in :func:`propagate`.  The shell closures take a finite-volume backend (``"auto"`` is ``"native"``)
-        and two more options: ``n_shells`` (continuum spectra: the number of shells, default 96; or, with the
-        extrapolation, its first solve's, default 48) and ``shell_extrapolation`` (default None: True for a
-        continuum spectrum without ``n_shells``; True: the continuum closure, extrapolated in the number of
-        shells cell by cell on the first solve's grids, its ``error_estimate`` the grids' estimate plus the
-        shells' residual, ``diagnostics["shell_error"]`` the first solve's distance from the continuum; False: the
-        ``n_shells`` problem itself, exact for a :class:`~diffusion_pr.spectra.DiscreteSpectrum`'s own shells).
+        As in :func:`propagate`.  The shell closures take a finite-volume backend (``"auto"`` is ``"native"``) and
+        two more options: ``n_shells`` (the number of shells, default 96; with the extrapolation its first
+        solve's, default 48) and ``shell_extrapolation`` (default None: True for a continuum spectrum without
+        ``n_shells``; True: the continuum closure, its ``error_estimate`` the grids' estimate plus the shells'
+        residual; False: the ``n_shells`` problem itself, exact for a
+        :class:`~diffusion_pr.spectra.DiscreteSpectrum`'s own shells).
 
     Returns
     -------
     PressureDistribution
-        With ``diagnostics["stress_variance"]`` (``V``, pressure squared),
-        ``diagnostics["zeta"]`` and, with a drift, the ``eta`` grid used.
+        With ``diagnostics["stress_variance"]`` (``V``, pressure squared), ``diagnostics["zeta"]`` and, with a
+        drift, the ``eta`` grid used.
 
     Raises
     ------
     ValueError
-        Bad numbers (NaN, out of range) naming the parameter, NaN spectra,
-        ``p_c <= 0``, unknown cutoff/tail/backend names.
+        Bad numbers (NaN, out of range) naming the parameter, NaN spectra, ``p_c <= 0``, unknown
+        cutoff/tail/backend names.
     """
     return _pressure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta, cutoff=cutoff,
                                   p_c=p_c, tail=tail, p_t=p_t, drift=drift, backend=backend, rtol=rtol,
@@ -394,14 +362,9 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
                            **kwargs: Any) -> list:
     """:func:`pressure_distribution` for every wall range of ``zetas``, in the given order (a sweep).
 
-    Neighbouring walls need about the same grid, so each native finite-volume
-    solve starts where the previous one's estimate says the grid suffices
-    (the cells it predicts for ``rtol``, at most its first grid, and the
-    grading towards the wall its errors favour) and usually needs one refinement level instead of
-    two: a 100-zeta sweep of the Fig. 1 scene at rtol 1e-6 takes about 0.16 s
-    instead of 0.23 s (docs/backends.md).
-    Every answer meets ``rtol`` on its own; it may differ from a single call's
-    (another grid) by less than ``rtol``.  Sort ``zetas`` for the best effect.
+    Each native solve starts from the grid the previous one's estimate predicts (docs/backends.md).  Every answer
+    meets ``rtol`` on its own; it may differ from a single call's (another grid) by less than ``rtol``.  Sort
+    ``zetas`` for the best effect.
 
     Parameters
     ----------
@@ -410,14 +373,11 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
     zetas : array_like
         Wall ranges (length), one-dimensional, each >= 0.
     backend : str
-        As in :func:`pressure_distribution`; the chaining applies to ``"native"``
-        results (``"auto"`` picks it wherever no closed form is exact).
+        As in :func:`pressure_distribution`; the chaining applies to ``"native"`` results.
     progress : bool
         Show a tqdm progress bar.
     **kwargs
-        Everything else :func:`pressure_distribution` takes (``E_star``,
-        ``mean_pressure``, ``cutoff``, ``p_c``, ``closure``, ``rtol``, backend
-        options) except ``zeta``.
+        Everything else :func:`pressure_distribution` takes, except ``zeta``.
 
     Returns
     -------
@@ -452,13 +412,9 @@ SWEEP_TREND_MAX = 1.5
 
 
 def _sweep_start(result: PressureDistribution, sol: Any, previous_needed: Optional[int], cap: int) -> tuple:
-    """``(warm start, cells_needed)`` for the next solve of a sweep after ``result`` (its finite-volume solution
-    ``sol``).
-
-    The solution's ``next_start`` (the cells its estimate predicts for its rtol, at most its own first grid, and the
-    grading its last level's errors favour), its cells times the growth of the need since ``previous_needed``
-    where it grows (at most SWEEP_TREND_MAX: a start just short of the need costs a second level of twice the
-    cells), at most ``cap``.  None after a result of another backend or a failed one."""
+    """``(warm start, cells_needed)`` for the next solve of a sweep after ``result``: ``sol.next_start``, its cells
+    grown with the need since ``previous_needed`` (at most SWEEP_TREND_MAX), at most ``cap``; None after another
+    backend's or a failed result."""
     if sol is None or result.backend != "native" or not result.success or sol.next_start is None:
         return None, None
     needed = sol.cells_needed

@@ -1,49 +1,20 @@
 r"""Closed-form pressure distributions of the cumulant / diffusion theory.
 
-All pressures share one unit (that of ``mean_pressure``); variances are in
-pressure^2, densities in 1/pressure, ``tau`` in pressure^2 (it is the
-integrated diffusivity ``\int D deta``) and ``slope`` in 1/pressure.
+All pressures share one unit (that of ``mean_pressure``); variances are in pressure^2, densities in
+1/pressure, ``tau`` in pressure^2 (the integrated diffusivity ``\int D deta``) and ``slope`` in 1/pressure.
 
-* Gaussian (soft wall, leading cumulant order; Müser, Phys. Rev. Lett. 100,
-  055504 (2008), Eq. 2, doi:10.1103/PhysRevLett.100.055504):
-  ``phi(p; p0, V)``.
-* Persson's mirror Gaussian for a hard wall (B. N. J. Persson, J. Chem. Phys.
-  115, 3840 (2001), doi:10.1063/1.1388626): the solution of
-  ``dPr/dtau = d^2 Pr/dp^2`` absorbed at ``p = 0``,
-  ``Pr(p) = phi(p; p0, V) - phi(p; -p0, V)`` on ``p > 0`` plus the weight
-  ``1 - a_r = erfc(p0/sqrt(2V))`` in ``delta(p)``, ``V = 2 tau``.
-* Feller's solution for a diffusivity linear in pressure,
-  ``dPr/dtau = d^2 (f Pr)/dp^2`` with ``f(p) = a p`` (``a = 1/p1 = slope``),
-  from ``delta(p - p0)`` (W. Feller, Ann. Math. 54, 173 (1951),
-  doi:10.2307/1969318)::
-
-      Pr(p, tau) = (1/(a tau)) sqrt(p0/p) exp(-(p + p0)/(a tau)) I1(2 sqrt(p p0)/(a tau)),
-
-  with mass ``exp(-p0/(a tau))`` absorbed in ``delta(p)``. It is the law of the
-  Ito process ``dp = sqrt(2 a p) dW`` killed at 0, so the full mean stays
-  ``p0`` (martingale) and the variance is ``2 a p0 tau``.
-* The same with an affine drift, ``dPr/dtau = -d/dp[(alpha - beta p) Pr] +
-  d^2 (a p Pr)/dp^2`` (the Cox-Ingersoll-Ross process absorbed at 0; J. C. Cox,
-  J. E. Ingersoll and S. A. Ross, Econometrica 53, 385 (1985),
-  doi:10.2307/1911242): ``Z = 2 p/a`` is a squared Bessel process of dimension
-  ``delta = 2 alpha/a`` run on the clock ``s = (exp(beta tau) - 1)/beta`` and
-  scaled by ``exp(-beta tau)``; for ``delta < 2`` it reaches 0 (Feller's exit
-  boundary) with probability ``Q(1 - delta/2, z0/2s)``, the regularized upper
-  incomplete gamma function (A. Goeing-Jaeschke and M. Yor, Bernoulli 9, 313
-  (2003), doi:10.3150/bj/1068128980); for ``delta >= 2`` never (an entrance
-  boundary).  :func:`cir_density`, :func:`cir_zero_weight`.  ``alpha = beta =
-  0`` is Feller's solution.
-* The mirror Gaussian with a constant drift ``a``, ``dPr/dtau = d^2 Pr/dp^2 -
-  a dPr/dp`` absorbed at ``p = 0`` (Brownian motion with drift killed at 0,
-  method of images with the Girsanov weight; e.g. A. N. Borodin and
-  P. Salminen, *Handbook of Brownian Motion*, 2nd ed., Birkhaeuser 2002,
-  doi:10.1007/978-3-0348-8163-0, part II, 2.1.15.6): with the shift
-  ``S = a tau`` and ``V = 2 tau``, ``Pr(p) = phi(p; p0 + S, V) (1 - exp(-2 p
-  p0 / V))``, and the weight ``Phi(-(p0 + S)/sqrt V) + exp(-2 S p0 / V)
-  Phi((S - p0)/sqrt V)`` in ``delta(p)``.
-  :func:`drifted_mirror_gaussian_density`,
-  :func:`drifted_mirror_gaussian_zero_weight`.
-"""
+* Gaussian, the soft wall at leading order (Müser, Phys. Rev. Lett. 100, 055504 (2008),
+  doi:10.1103/PhysRevLett.100.055504): :func:`gaussian_density`.
+* Persson's mirror Gaussian for a hard wall (B. N. J. Persson, J. Chem. Phys. 115, 3840 (2001),
+  doi:10.1063/1.1388626): :func:`mirror_gaussian_density`, :func:`persson_zero_weight`.
+* Feller's solution for ``f(p) = a p`` (W. Feller, Ann. Math. 54, 173 (1951), doi:10.2307/1969318):
+  :func:`feller_density`, :func:`feller_zero_weight`.
+* The same with an affine drift, the Cox-Ingersoll-Ross process absorbed at 0 (Econometrica 53, 385 (1985),
+  doi:10.2307/1911242; A. Goeing-Jaeschke and M. Yor, Bernoulli 9, 313 (2003), doi:10.3150/bj/1068128980):
+  :func:`cir_density`, :func:`cir_zero_weight`.
+* The mirror Gaussian with a constant drift (method of images with the Girsanov weight; A. N. Borodin and
+  P. Salminen, *Handbook of Brownian Motion*, 2nd ed., 2002, doi:10.1007/978-3-0348-8163-0, part II, 2.1.15.6):
+  :func:`drifted_mirror_gaussian_density`, :func:`drifted_mirror_gaussian_zero_weight`."""
 from __future__ import annotations
 
 import math
@@ -143,10 +114,9 @@ def gaussian_moments(mean_pressure: float, variance: float) -> Moments:
 def mirror_gaussian_density(p: ArrayLike, mean_pressure: float, variance: float) -> np.ndarray | float:
     """Persson's mirror Gaussian ``phi(p; p0, V) - phi(p; -p0, V)`` for ``p > 0``, 0 for ``p <= 0``.
 
-    The continuous part only; the ``delta(p)`` weight is
-    :func:`persson_zero_weight`. Computed as
-    ``phi(p; p0, V) (1 - exp(-2 p p0 / V))`` (``-expm1``), accurate for small
-    ``p p0 / V``.
+    The continuous part of the solution of ``dPr/dtau = d^2 Pr/dp^2`` absorbed at ``p = 0`` (``V = 2 tau``); the
+    ``delta(p)`` weight is :func:`persson_zero_weight`.  Computed as ``phi(p; p0, V) (1 - exp(-2 p p0 / V))``
+    (``-expm1``), accurate for small ``p p0 / V``.
 
     Parameters
     ----------
@@ -290,10 +260,8 @@ def feller_zero_weight(mean_pressure: float, tau: float, slope: float) -> float:
 def feller_moments(mean_pressure: float, tau: float, slope: float) -> Moments:
     """Moments of the Feller solution including its ``delta(p)`` peak.
 
-    ``p`` is the martingale ``dp = sqrt(2 a p) dW`` stopped at 0, so
-    ``<p> = p0`` and ``d<p^2>/dtau = <2 a p> = 2 a p0``: variance
-    ``2 a p0 tau`` [pressure^2]; zero weight ``exp(-p0/(a tau))``.
-    """
+    ``p`` is the martingale ``dp = sqrt(2 a p) dW`` stopped at 0: ``<p> = p0``, variance ``2 a p0 tau``
+    [pressure^2], zero weight ``exp(-p0/(a tau))``."""
     p0 = check_positive("mean_pressure", mean_pressure)
     t = check_positive("tau", tau)
     a = check_positive("slope", slope)
@@ -399,12 +367,9 @@ def drifted_mirror_gaussian_density(p: ArrayLike, mean_pressure: float, variance
                                     drift_shift: float) -> np.ndarray | float:
     """The mirror Gaussian carried by a constant drift: ``phi(p; p0 + S, V) (1 - exp(-2 p p0 / V))`` for ``p > 0``.
 
-    The continuous part of the solution of ``dPr/dtau = d^2 Pr/dp^2 - a dPr/dp``
-    from ``delta(p - p0)``, absorbed at ``p = 0``, at ``V = 2 tau`` and ``S = a tau``
-    (the images' Girsanov weights combine into the mirror's own factor); the
-    ``delta(p)`` weight is :func:`drifted_mirror_gaussian_zero_weight`. ``S = 0``
-    is :func:`mirror_gaussian_density`. The mean is not conserved (the drift
-    moves it).
+    The continuous part of the solution of ``dPr/dtau = d^2 Pr/dp^2 - a dPr/dp`` from ``delta(p - p0)``, absorbed
+    at ``p = 0``, with ``V = 2 tau`` and ``S = a tau``; the ``delta(p)`` weight is
+    :func:`drifted_mirror_gaussian_zero_weight`.  ``S = 0`` is :func:`mirror_gaussian_density`.
 
     Parameters
     ----------
@@ -458,20 +423,17 @@ def drifted_mirror_gaussian_zero_weight(mean_pressure: float, variance: float, d
 
 def lognormal_gap_distribution(spectrum: Any, *, E_star: float, mean_pressure: float, zeta: float,
                                n_cells: int = 4000, rtol: float = 1e-6) -> Any:
-    r"""The ``"lognormal_gap"`` closure: a log-normal pressure, closed form.
+    """The ``"lognormal_gap"`` closure: a log-normal pressure, closed form.
 
-    The gap fluctuation ``delta g~(q) = -(1 - G1(q)) h~(q)`` of the second-order
-    response (Müser 2008, Eq. 10) is Gaussian with variance
-    ``sum (1 - G1)^2 |h~|^2 = zeta^2 V / p0^2`` (since ``1 - G1 = (zeta q E*/(2 p0)) G1``);
-    the wall law ``p = p_w exp(-g/zeta)`` makes ``ln p`` Gaussian with variance
-    ``s^2 = V/p0^2`` (``V``: :func:`~diffusion_pr.cumulants.stress_variance`).  The
-    mean is fixed to ``p0`` (force balance), so ``<ln p> = ln p0 - s^2/2``.
+    The gap fluctuation ``delta g~(q) = -(1 - G1(q)) h~(q)`` of the second-order response (Müser 2008, Eq. 10) is
+    Gaussian with variance ``zeta^2 V / p0^2`` (since ``1 - G1 = (zeta q E*/(2 p0)) G1``); the wall law
+    ``p = p_w exp(-g/zeta)`` makes ``ln p`` Gaussian with variance ``s^2 = V/p0^2``
+    (``V``: :func:`~diffusion_pr.cumulants.stress_variance`), and force balance fixes the mean to ``p0``:
+    ``<ln p> = ln p0 - s^2/2``.
 
-    The result is given on ``n_cells`` cells uniform in ``ln p`` over
-    ``[<ln p> - 9.5 s, <ln p> + s^2 + 9.5 s]`` (plus ``[0, p_lo]``; the upper end
-    covers where ``p Pr(p)`` lives) with the exact cell masses (normal CDF)
-    and, as each cell's point, the exact conditional mean of ``p`` in the cell, so
-    mass and mean are exact to round-off (the mass beyond ``9.5 s``, below 1e-20, is dropped).
+    Given on ``n_cells`` cells uniform in ``ln p`` over ``[<ln p> - 9.5 s, <ln p> + s^2 + 9.5 s]`` (plus
+    ``[0, p_lo]``) with the exact cell masses and, as each cell's point, the exact conditional mean of ``p`` in
+    the cell: mass and mean are exact to round-off (the mass dropped beyond ``9.5 s`` is below 1e-20).
 
     Parameters
     ----------
@@ -480,19 +442,17 @@ def lognormal_gap_distribution(spectrum: Any, *, E_star: float, mean_pressure: f
     E_star, mean_pressure : float
         ``E*`` and ``p0`` [pressure], > 0.
     zeta : float
-        Wall range [length], > 0.  ``zeta = 0`` (hard wall) raises: the
-        exponential wall law that makes the pressure log-normal does not exist there.
+        Wall range [length], > 0 (``zeta = 0``, the hard wall, raises: it has no exponential wall law).
     n_cells : int
         Cells in ``ln p`` (>= 100).
     rtol : float
-        Accepted for the common signature of the closures (kept in the diagnostics); the result is exact to
-        round-off.
+        Accepted for the closures' common signature (kept in the diagnostics); the result is exact to round-off.
 
     Returns
     -------
     PressureDistribution
-        As the ``"closed_form"`` backend's results: ``success`` True, ``error_estimate`` the cells' mass defect,
-        the same diagnostics keys, plus ``diagnostics["closure"] = "lognormal_gap"`` and
+        As the ``"closed_form"`` backend's results (``success`` True, ``error_estimate`` the cells' mass defect,
+        the same diagnostics keys), plus ``diagnostics["closure"] = "lognormal_gap"`` and
         ``diagnostics["ln_variance"] = s^2``.
     """
     from .cumulants import stress_variance

@@ -14,17 +14,12 @@ Array = NDArray[np.float64]
 class EdgeCdf:
     """The cumulative ``cum`` given at the cell ``edges``, as a function of pressure (pressure units).
 
-    Exact at the edges; between them a cubic spline of ``cum`` against a coordinate (one per segment between
-    the ``knots``, where the density may jump or kink), clipped to the cell's two edge values; 0 below the first
-    edge, ``cum[-1]`` above the last.  ``coordinate``: an increasing map of pressure, or a sequence of them
-    (None in it, or for it: ``p`` itself).  With several, each cell takes the spline whose coordinate interpolates
-    best there, judged by :func:`_halving_miss` (the spline on every other edge, at the edges it left out).
-    The finite-volume results' :meth:`PressureDistribution.cdf` (without the delta at 0) use the grid's own
-    monitor function ``Phi`` and ``p``: ``Phi`` is logarithmic towards a floor, where the density of a
-    non-contact peak goes like ``1/p`` and a spline in ``p`` missed by up to 5x the solve's rtol; ``p`` is better
-    where that grading runs on over a density that is flat in ``p`` (docs/backends.md).  The splines and the
-    choice are made once, at construction; a call evaluates them.
-    """
+    Exact at the edges; between them a cubic spline of ``cum`` against a coordinate (one per segment between the
+    ``knots``, where the density may jump or kink), clipped to the cell's two edge values; 0 below the first edge,
+    ``cum[-1]`` above the last.  ``coordinate``: an increasing map of pressure, or a sequence of them (None: ``p``
+    itself); with several, each cell takes the spline that interpolates best there (:func:`_halving_miss`).  The
+    finite-volume results use the grid's monitor function ``Phi`` (logarithmic towards a floor, where a
+    non-contact peak's density goes like ``1/p``) and ``p`` (docs/backends.md)."""
 
     def __init__(self, edges: Array, cum: Array, knots: Any, coordinate: Any = None) -> None:
         from scipy.interpolate import CubicSpline
@@ -77,17 +72,14 @@ class EdgeCdf:
 
 
 def edge_cdf(edges: Array, cum: Array, knots: Any, p: Any, coordinate: Any = None) -> Array:
-    """:class:`EdgeCdf` of ``edges``, ``cum``, ``knots`` and ``coordinate``, at the pressures ``p`` (the engine's
-    estimate of this interpolation's error uses it)."""
+    """:class:`EdgeCdf` of ``edges``, ``cum``, ``knots`` and ``coordinate``, at the pressures ``p``."""
     return EdgeCdf(edges, cum, knots, coordinate)(p)
 
 
 def _halving_miss(u: Array, values: Array) -> Array:
-    """Per cell of the nodes ``u`` (one segment), how badly a cubic spline of ``values`` in ``u`` interpolates
-    there: the spline through every other node, at the nodes it left out (about 16x the full spline's own error
-    where the data are smooth in ``u``), the largest within two nodes of the cell.  Zeros on fewer than 6 cells
-    (no judgement: the first coordinate is taken).  (A local cubic through the four nearest kept nodes instead
-    of the spline was 20 % faster and chose worse: 3.4e-7 against 1.8e-7 on the worst random problem.)"""
+    """Per cell of the nodes ``u``, how badly a cubic spline of ``values`` in ``u`` interpolates there: the spline
+    through every other node at the nodes it left out (about 16x the full spline's error on smooth data), the
+    largest within two nodes of the cell.  Zeros on fewer than 6 cells (the first coordinate is taken)."""
     from scipy.interpolate import CubicSpline
 
     n = u.size - 1
@@ -102,53 +94,38 @@ def _halving_miss(u: Array, values: Array) -> Array:
 
 @dataclass(frozen=True)
 class PressureDistribution:
-    """A pressure distribution ``Pr(p)`` with its diagnostics.
-
-    ``Pr(p) = density(p) + zero_weight * delta(p)``.
+    """A pressure distribution ``Pr(p) = density(p) + zero_weight * delta(p)`` with its diagnostics.
 
     Attributes
     ----------
     p : ndarray
-        Pressure grid (units of pressure): for finite-volume backends each
-        cell's barycentre (the mean pressure of the probability in it, so that
-        ``sum(weights * p * density)`` is the solver's first moment), for
-        closed forms the quadrature nodes.
+        Pressure grid (units of pressure): each cell's barycentre for finite-volume backends (so that
+        ``sum(weights * p * density)`` is the solver's first moment), the quadrature nodes for closed forms.
     density : ndarray
         Continuous part of ``Pr`` on ``p`` (1 / pressure), non-negative.
     weights : ndarray
-        Quadrature weights on ``p`` (units of pressure) such that
-        ``sum(weights * g(p) * density)`` integrates ``g`` against the
-        continuous part (cell widths for finite volumes).
+        Quadrature weights on ``p`` (units of pressure): ``sum(weights * g(p) * density)`` integrates ``g``
+        against the continuous part (cell widths for finite volumes).
     zero_weight : float
-        The non-contact weight, one definition for every backend: where the
-        diffusivity reaches the wall (``f ~ p^k`` with ``k < 2``, Feller) the
-        probability absorbed at ``p = 0``; where it does not (``k >= 2``) the
-        probability that reached the floor ``diagnostics["p_floor"]`` (fixed by
-        the problem: ``1e-6 p0`` by default), below which the density is not
-        resolved.  ``1 - zero_weight`` is the relative contact area at that
-        resolution; a contact threshold ``p_t`` is ``1 - cdf(p_t)``.
+        The non-contact weight, one definition for every backend: the probability absorbed at ``p = 0`` where the
+        diffusivity reaches the wall (``f ~ p^k``, ``k < 2``), else the probability below the floor
+        ``diagnostics["p_floor"]`` (``1e-6 p0`` by default).  ``1 - zero_weight`` is the relative contact area.
     mean_pressure, variance : float
         The problem's ``p0`` and ``V`` (the inputs).
     backend : str
-        Which backend produced it (``"closed_form"``, ``"native"``, ``"pypde"``,
-        ``"fipy"``).
+        Which backend produced it (``"closed_form"``, ``"native"``, ``"pypde"``, ``"fipy"``).
     success : bool
         True only when the solver reached the requested tolerance.
     message : str
         Human-readable status.
     error_estimate : float
-        Estimated L1 error of the density (``integral |density - exact| dp``
-        plus the error of ``zero_weight``), from step/grid refinement or 0
-        for closed forms evaluated to round-off.
+        Estimated L1 error of the density plus the error of ``zero_weight``; 0 for closed forms.
     wall_time : float
-        Seconds spent in the solve (excluding imports / JIT compilation, which
-        are in ``diagnostics``).
+        Seconds spent in the solve (excluding imports and compilation).
     diagnostics : dict
-        The same keys from every backend (``backend, rtol, n_cells, levels,
-        zero_power, wall, p_floor, p_max, mass_error, mean_error,
-        negative_mass, min_density, tail_mass, time_integration, n_stages,
-        substeps, timings``) plus backend-specific extras.  Never mutated
-        after the result is returned.
+        The same keys from every backend (``backend, rtol, n_cells, levels, zero_power, wall, p_floor, p_max,
+        mass_error, mean_error, negative_mass, min_density, tail_mass, time_integration, n_stages, substeps,
+        timings``) plus backend-specific extras.  Never mutated after the result is returned.
     edges : ndarray, optional
         Cell edges (length ``len(p) + 1``) for finite-volume results.
     """
@@ -203,13 +180,10 @@ class PressureDistribution:
         return 1.0 - float(self.zero_weight)
 
     def moment(self, order: int, central: bool = False) -> float:
-        """Moment ``<p^k>`` (or ``<(p - mean)^k>`` if ``central``) of the full ``Pr``,
-        including the ``delta(p)`` peak at ``p = 0``.
+        """Moment ``<p^k>`` (or ``<(p - mean)^k>`` if ``central``) of the full ``Pr``, including the ``delta(p)`` peak.
 
-        Finite-volume results integrate, in every cell, the linear density with
-        the cell's mass and barycentre (so the within-cell spread, ``h^2/12`` for
-        the second moment, is not lost); closed forms use their quadrature.
-        """
+        Finite-volume results integrate in every cell the linear density with the cell's mass and barycentre (the
+        within-cell spread is kept); closed forms use their quadrature."""
         shift = self.mean if central else 0.0
         if self.edges is not None:
             value = self._cell_moment(order, shift)
@@ -224,25 +198,12 @@ class PressureDistribution:
     def cdf(self, p: Any) -> Array:
         """Cumulative probability ``P(pressure <= p)`` including the delta at 0.
 
-        Finite-volume results: exact at the cell edges (the cumulative cell
-        masses), a cubic spline of them in between (one per segment between
-        the solver's knots, ``diagnostics["knots"]``, where the density may
-        jump or kink), clipped to the cell's two edge values (fourth-order accurate
-        for a piecewise smooth density; stays within the cell's probability).  Each cell takes the
-        spline in the grid's own coordinate, its monitor function ``Phi(p)`` (``diagnostics["grid"]``;
-        logarithmic towards a floor), or in ``p``, whichever interpolates better there; the spline runs
-        on through ``p0`` and, where ``diagnostics["floor_ghosts"]`` keeps the cells below it, through the
-        floor (:class:`EdgeCdf`).  Over 262 random problems at rtol 1e-6 the largest miss between the
-        edges is 2.0e-7; a spline in ``p`` alone, broken at every knot, missed by up to 4.9e-6
-        (docs/backends.md).  Point-wise results on
-        Gauss-Legendre panels (the closed forms; ``diagnostics["panels"]``)
-        integrate, on each panel, the polynomial through the density at its
-        nodes: the exact cumulative to about 1e-13, whatever the bin.  Other
-        point-wise results integrate a shape-preserving cubic (PCHIP)
-        interpolant of the density; the segment ``[0, p[0]]`` is taken as
-        linear from ``density[0]`` at ``p[0]`` down to ``p = 0`` when the
-        density vanishes there, constant otherwise.
-        """
+        Finite-volume results: exact at the cell edges, between them :class:`EdgeCdf` (a spline per segment between
+        ``diagnostics["knots"]``, in the grid's monitor function or in ``p``, whichever interpolates better, clipped to
+        the cell's probability; fourth-order accurate for a piecewise smooth density; docs/backends.md).  Results on
+        Gauss-Legendre panels (``diagnostics["panels"]``) integrate each panel's interpolating polynomial: exact to
+        about 1e-13.  Other point-wise results integrate a PCHIP interpolant (the density linear from 0 at
+        ``p = 0`` on ``[0, p[0]]``), scaled to the quadrature's mass."""
         p = np.asarray(p, dtype=float)
         if self.edges is not None:
             out = np.where(p < self.edges[0], 0.0, self._edge_interpolant(p))
@@ -280,10 +241,8 @@ class PressureDistribution:
         return panels if n_panels >= 1 and self.p.size % n_panels == 0 and self.p.size >= 2 * n_panels else None
 
     def _panel_cdf(self, p: Array, panels: Array) -> Array:
-        """Cumulative of the continuous part on Gauss-Legendre panels: on each panel the
-        Legendre interpolant through the density at its ``m`` nodes (degree ``m - 1``,
-        the polynomial the panel's quadrature integrates exactly), integrated from the
-        panel's left edge; 0 below the first panel, the total mass above the last."""
+        """Cumulative of the continuous part on Gauss-Legendre panels: each panel's Legendre interpolant through its
+        ``m`` nodes, integrated from the panel's left edge; 0 below the first panel, the total mass above the last."""
         from numpy.polynomial import legendre as leg
 
         n_panels = panels.size - 1

@@ -1,41 +1,28 @@
-r"""Parameter-free closures beyond the paper's second order (docs/closures.md).
+"""Parameter-free closures beyond the paper's second order (docs/closures.md).
 
-The paper (M. H. Müser, Phys. Rev. Lett. 100, 055504 (2008),
-doi:10.1103/PhysRevLett.100.055504) broadens a Gaussian with the second-order
-(cumulant) variance ``V = sum_q (q E*/2)^2 G1(q)^2 |h~(q)|^2`` and needs a fitted
-cutoff pressure ``p_c`` near ``p = 0``.  The closures here need no fitted number:
+The paper (M. H. Müser, Phys. Rev. Lett. 100, 055504 (2008), doi:10.1103/PhysRevLett.100.055504) broadens a
+Gaussian with the second-order variance ``V = sum_q (q E*/2)^2 G1(q)^2 |h~(q)|^2`` and needs a fitted cutoff
+pressure ``p_c``.  The closures here need no fitted number:
 
 ``"second_order"``
-    The paper (the default of :func:`diffusion_pr.pressure_distribution`, which solves it itself):
-    ``dPr/dtau = d^2/dp^2 [f(p) Pr]`` to ``tau = V/2`` with the cutoff/tail factor
-    ``f``.
+    The paper: ``dPr/dtau = d^2/dp^2 [f(p) Pr]`` to ``tau = V/2`` (solved by
+    :func:`diffusion_pr.pressure_distribution` itself).
 ``"lognormal_gap"``
-    The gap fluctuation ``-(1 - G1(q)) h~(q)`` is Gaussian with variance
-    ``zeta^2 V / p0^2``; the wall law ``p = p_w exp(-gap/zeta)`` maps it onto a
-    log-normal pressure with ``Var(ln p) = s^2 = V / p0^2`` and the mean fixed to
-    ``p0``.  Closed form (:func:`diffusion_pr.closed_forms.lognormal_gap_distribution`).  Not defined for the hard
-    wall (``zeta = 0``).
+    The gap fluctuation ``-(1 - G1(q)) h~(q)`` is Gaussian; the wall law ``p = p_w exp(-gap/zeta)`` makes the
+    pressure log-normal with ``Var(ln p) = V / p0^2`` and mean ``p0``
+    (:func:`diffusion_pr.closed_forms.lognormal_gap_distribution`; ``zeta > 0`` only).
 ``"local_g1"``
-    Shell by shell in ``q`` (diffusion time ``tau`` advancing by ``dV0_k/2``
-    across shell ``k``): ``dPr/dtau = d^2/dp^2 [g(q_k; p)^2 Pr]`` with the response
-    factor evaluated at the *local* pressure, ``g(q; p) = 1/(1 + zeta q E*/(2p))``.
+    Shell by shell in ``q`` (``tau`` advancing by ``dV0_k/2`` across shell ``k``):
+    ``dPr/dtau = d^2/dp^2 [g(q_k; p)^2 Pr]`` with ``g(q; p) = 1/(1 + zeta q E*/(2p))`` at the local pressure.
 ``"local_g1_balanced"``
-    As ``local_g1`` plus the drift ``b = (1 - g(q_min; p)) (g(q_k; p)^2/p - A p)``,
-    ``A(tau)`` the one number per instant that keeps ``<p> = p0``.
+    As ``local_g1`` plus the drift ``b = (1 - g(q_min; p)) (g(q_k; p)^2/p - A p)``, ``A(tau)`` the one number
+    per instant that keeps ``<p> = p0``.
 ``"local_g1_shell_balanced"``
-    As ``local_g1_balanced`` with the partition at the shell's own wavenumber:
-    ``b = (1 - g(q_k; p)) (g(q_k; p)^2/p - A p)``.  The best on the
-    GFMD ensembles (docs/fig1.md).
+    As ``local_g1_balanced`` with ``g(q_k; p)`` in the partition; the best on the GFMD ensembles (docs/fig1.md).
 
-The modules: :mod:`~diffusion_pr.closures.shells` (the shells of a spectrum),
-:mod:`~diffusion_pr.closures.models` (the shells' coefficients and their staged problem),
-:mod:`~diffusion_pr.closures.continuum` (the extrapolation in the number of shells); here the registry
-:data:`CLOSURES` and :func:`closure_distribution`, which :func:`diffusion_pr.pressure_distribution` calls for every
-closure but ``"second_order"``.
-
-Units: pressures in the unit of ``E_star`` and ``mean_pressure``; lengths
-(``zeta``, ``1/q``) in the unit of the spectrum; ``tau`` in pressure^2.
-"""
+Submodules: :mod:`~diffusion_pr.closures.shells`, :mod:`~diffusion_pr.closures.models`,
+:mod:`~diffusion_pr.closures.continuum`.  Pressures in the unit of ``E_star``; lengths in the unit of the
+spectrum; ``tau`` in pressure^2."""
 from __future__ import annotations
 
 import functools

@@ -1,14 +1,8 @@
-r"""The continuum closure: the shell closures extrapolated in the number of shells (docs/closures.md).
+"""The continuum closure: the shell closures extrapolated in the number of shells (docs/closures.md).
 
-The shell sum is the exponential midpoint rule in the diffusion time with exact ``tau``-midpoints: symmetric, its
-error even in the shell width.  The ``n``-shell problem is solved to ``rtol`` on nested grids; the ``n/2``-,
-``n/4``- and ``n/8``-shell problems are integrated on the same grids (``grid=`` of
-:func:`~diffusion_pr.fokker_planck.engine.solve_fv_full`), so their masses combine cell by cell
-(:func:`_shell_table`: Richardson or Romberg in the shells, with a residual).  The answer is built by the engine's
-one result builder (:func:`~diffusion_pr.fokker_planck.engine.build_result`).
-
-Units: masses and L1 distances dimensionless; pressures in the unit of ``E_star``.
-"""
+The shell sum is the exponential midpoint rule in ``tau``: its error is even in the shell width.  Fewer-shell
+problems are integrated on the ``n``-shell grids, so their masses combine cell by cell (:func:`_shell_table`).
+Masses and L1 distances are dimensionless; pressures in the unit of ``E_star``."""
 from __future__ import annotations
 
 import math
@@ -25,37 +19,27 @@ __all__ = ["MAX_CONTINUUM_SHELLS", "solve_full", "shell_extrapolated"]
 
 #: the most shells the extrapolation grows to where its residual misses rtol
 MAX_CONTINUUM_SHELLS = 1536
-#: the later rungs of the ladder (where it doubles past its first table) are solved on the answer's N grid alone
-#: where the shells are graded (:func:`_shell_corrected`); their refinement's spatial error is counted as this
-#: multiple of its size times four times the first table's correction's relative second-order error
+#: the counted spatial error of the later rungs solved on the N grid alone, as a multiple of their refinement's
+#: size times four times the first correction's relative second-order error
 REFINEMENT_MARGIN = 3.0
-#: ... where that counted error, predicted from the first table's residual, takes at most this share of the room the
-#: grids' estimate leaves in rtol (else the later rungs get both grids from the start)
+#: ... where that counted error takes at most this share of the room left in rtol (else both grids throughout)
 COARSE_ROOM = 0.5
-#: the shells grow only while the grids' estimate leaves the extrapolation's residual this share of rtol at least
+#: the shells grow only while the grids' estimate leaves the shells' residual this share of rtol at least
 SHELL_SHARE = 0.9
 #: where the grids' estimate alone takes SHELL_SHARE of rtol, the first solve is repeated at this fraction of rtol
 GRID_RETRY_FRACTION = 0.25
-#: the observed ratio of successive shell differences above which the midpoint rule's second order is taken as
-#: asymptotic (4 at second order; 3.0 is an order of 1.58)
+#: the ratio of successive shell differences above which second order is taken as asymptotic (4 at second order)
 SHELL_ORDER_RATIO = 3.0
-#: ... and the ratio below which that second order is not yet clear (an order of 1.81): the shells' table then
-#: divides the last ``R(n/2, n)`` difference by at most that ratio minus 1 (:func:`_uniform_table`)
+#: ... and below which second order is not yet clear (:func:`_uniform_table`)
 SECOND_ORDER_CLEAR = 3.5
-#: the observed ratio of successive ``R(n/2, n)`` differences above which their fourth order is taken as asymptotic
-#: and Romberg's sixth-order column is used (16 at fourth order; 12 is an order of 3.58)
+#: the ratio of successive ``R(n/2, n)`` differences above which Romberg's next column is used (16 at fourth order)
 ROMBERG_RATIO = 12.0
-#: the largest such ratio Romberg trusts (16 x 1.0625): above it the ladder is taken as not yet asymptotic
-#: (docs/closures.md "Pre-asymptotic shell ladders and thin starts")
+#: the largest such ratio Romberg trusts: above it the ladder is pre-asymptotic
 ROMBERG_MAX_RATIO = 17.0
-#: where the wall's layer is thin (graded shells), the largest ratio of successive ``R(n/2, n)`` differences the
-#: shells' table trusts: ``2^2.5``, the order the frozen layer leaves after one Richardson step (docs/closures.md
-#: "The thin layer's table")
+#: on graded shells, the largest ratio of ``R(n/2, n)`` differences trusted (the frozen layer's order 2.5)
 THIN_LAYER_RATIO = 2.0 ** 2.5
-#: the plain grids' correction extrapolated in space from the N and 2N grids (:func:`_correction_in_space`): its
-#: own error is the second-order estimate times this multiple of the same extrapolation's observed error on the
-#: n-shell problem's own three grids, relative to their second-order estimate (docs/closures.md "The correction
-#: extrapolated in space"); the extrapolation is used where the factor is below 1
+#: the space-extrapolated correction's error: the second-order estimate times this multiple of the same
+#: extrapolation's observed relative error on the n-shell problem's own grids (used where the factor is below 1)
 SPLIT_MARGIN = 4.0
 #: ... and never less than this fraction of the second-order estimate
 SPLIT_FLOOR = 0.1
@@ -65,8 +49,7 @@ MIN_ROMBERG_SHELLS = 6
 
 def solve_full(problem: Any, backend: str, rtol: float, options: dict, **engine: Any) -> Any:
     """The :class:`~diffusion_pr.fokker_planck.engine.FVSolution` of a closure's staged problem by the
-    finite-volume backend ``backend`` (a registered name; its options ``options`` checked by the caller;
-    ``engine``: the ``grid``, ``plain`` and ``warm_start`` arguments of its ``solve_full``, None ones left out)."""
+    finite-volume backend ``backend``; ``engine``: the ``grid``, ``plain``, ``warm_start`` arguments (None dropped)."""
     from ..fokker_planck.backends import get_backend
 
     solver = get_backend(backend)
@@ -76,14 +59,11 @@ def solve_full(problem: Any, backend: str, rtol: float, options: dict, **engine:
 
 def _shell_residual(m_n: np.ndarray, m_h: np.ndarray, m_q: np.ndarray) -> tuple:
     """``(estimate, rho, difference)``: the L1 error of ``R(n/2, n) = (4 m(n) - m(n/2))/3`` from the masses of
-    ``n``, ``n/2`` and ``n/4`` shells, the observed ratio ``rho = |m(n/2) - m(n/4)| / |m(n) - m(n/2)|`` (L1; 4 for
-    the midpoint rule's second order) and ``|R(n/2, n) - R(n/4, n/2)|`` in L1.
+    ``n``, ``n/2``, ``n/4`` shells, the observed ratio ``rho = |m(n/2) - m(n/4)| / |m(n) - m(n/2)|`` and
+    ``|R(n/2, n) - R(n/4, n/2)|``.
 
-    With an error ``a n^-p`` the extrapolation leaves ``a n^-p (4 - 2^p)/3`` and
-    ``R(n/2, n) - R(n/4, n/2) = a n^-p (4 - 2^p)(1 - 2^p)/3``: the error is that difference over ``rho - 1``
-    (``rho = 2^p``).  Where ``rho`` >= :data:`SHELL_ORDER_RATIO` the second order is taken as asymptotic and
-    the difference is the fourth-order term, over 15; below it (the last shells freeze a thin wall layer,
-    :func:`~diffusion_pr.closures.shells.shell_grading`) over ``max(rho - 1, 1)``."""
+    With an error ``a n^-p``, ``R(n/2, n) - R(n/4, n/2)`` is the error of ``R(n/2, n)`` times ``1 - 2^p``: the
+    estimate is that difference over ``rho - 1``; over 15 (fourth order) where ``rho >= SHELL_ORDER_RATIO``."""
     d_top = float(np.sum(np.abs(m_n - m_h)))
     d_half = float(np.sum(np.abs(m_h - m_q)))
     rho = d_half / d_top if d_top > 0.0 else math.inf
@@ -107,9 +87,8 @@ def _ladder_below(top: int) -> list:
 
 def solve_shells(problem: Any, shells: Shells, closure: str, backend: str, rtol: float, options: dict, *,
                   keep: bool, warm_start: Any = None, note: Optional[dict] = None) -> Any:
-    """The closure's :class:`~diffusion_pr.fokker_planck.engine.FVSolution` with the closure and the shell count in
-    the result's diagnostics (and ``note``); with ``keep`` the last level's plain masses too (the shell
-    extrapolation's corrections are taken from them)."""
+    """The closure's FVSolution with the closure and shell count in its diagnostics (and ``note``); with ``keep``
+    the last level's plain masses too."""
     sol = solve_full(problem, backend, rtol, options, plain="keep" if keep else None, warm_start=warm_start)
     res = sol.result
     return replace(sol, result=replace(res, diagnostics={**res.diagnostics, "closure": closure,
@@ -117,10 +96,9 @@ def solve_shells(problem: Any, shells: Shells, closure: str, backend: str, rtol:
 
 
 def _coarser_on_grid(sol: Any, m: int, scene: tuple, rtol: float, options: dict, *, plain: Optional[str]) -> Any:
-    """The ``m``-shell problem of ``scene = (spectrum, E, p0, z, closure, grading)`` solved on the
-    grids of ``sol`` (the ``n``-shell solution), in full (``plain=None``) or for the plain masses of some of its
-    grids alone (``plain`` a mode of :data:`~diffusion_pr.fokker_planck.engine.PLAIN_GRIDS`); a balance with no root
-    there is a failed solution that says so."""
+    """The ``m``-shell problem of ``scene`` solved on the grids of ``sol``, in full (``plain=None``) or for the
+    plain masses of some grids (a mode of :data:`~diffusion_pr.fokker_planck.engine.PLAIN_GRIDS`); a balance with no
+    root is a failed solution that says so."""
     from ..fokker_planck.engine import FVSolution
 
     res = sol.result
@@ -146,8 +124,8 @@ def _failed_extrapolation(sol: Any, scene: tuple, rtol: float, options: dict, wh
 
 
 def shell_extrapolated(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
-    """The continuum closure from the ``n``-shell solution ``sol`` (:func:`_shell_corrected` where its plain masses
-    were kept, else :func:`_shell_combined`)."""
+    """The continuum closure from the ``n``-shell solution ``sol``: :func:`_shell_corrected` where its plain masses
+    were kept and it meets ``rtol``, else :func:`_shell_combined`."""
     z = scene[3]
     res = sol.result
     if z == 0.0 or not res.success or res.edges is None or sol.grid is None:
@@ -157,8 +135,7 @@ def shell_extrapolated(sol: Any, scene: tuple, rtol: float, options: dict) -> An
         out = _shell_corrected(sol, scene, rtol, options)
         if out.success:
             return out
-        # the plain grids' correction misses rtol (on steep spectra at small loads its spatial error dominates):
-        # the n/2 and n/4-shell problems are solved in full instead
+        # the plain grids' correction misses rtol: solve the coarser-shell problems in full
         combined = _shell_combined(sol, scene, rtol, options)
         tried = out.diagnostics["timings"].get("shells", 0.0)
         timings = dict(combined.diagnostics["timings"])
@@ -170,25 +147,13 @@ def shell_extrapolated(sol: Any, scene: tuple, rtol: float, options: dict) -> An
 
 
 def _shell_corrected(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
-    """The continuum closure as ``res = sol.result`` plus a correction from plain grids.
+    """The continuum closure as ``res = sol.result`` plus a correction from plain grids (docs/closures.md).
 
-    ``res`` (``n`` shells) is extrapolated in space; the difference between it and the continuum is a
-    difference between problems on the same grid, whose spatial errors are correlated: it is taken from the
-    plain masses ``P`` of the last level's grids alone (``plain=`` of :func:`~diffusion_pr.fokker_planck.engine.solve_fv_full`),
-    solved for ``n/2``, ``n/4`` and ``n/8`` shells on ``res``'s grids.  With ``top`` the most shells solved, the
-    shells' table (:func:`_shell_table`) gives the continuum ``X`` on each grid (Richardson ``R(top/2, top)``, or
-    Romberg's sixth order where the observed order allows it) and its residual; the correction is
-    ``c = X(top) - P(n)`` per grid, and the answer ``m(res) + c``.
-
-    First from the ``N`` and ``2N`` grids alone: ``c`` on the ``2N`` grid extrapolated in space
-    (:func:`_correction_in_space`; ``c_2N`` itself where the problem's own grids do not trust that).  Its error is
-    counted as the extrapolation's own estimate on uniform shells, and at the second-order size
-    ``|agg(c_2N) - c_N|/3`` (the error of ``c_2N``) where the wall's layer is thin (docs/closures.md "The
-    correction's own error counted").  Where the counted error leaves the sum above ``rtol``, the ``4N``
-    grids are integrated too and the correction is extrapolated in space as the answer is,
-    ``(4 agg(c_4N) - c_2N)/3`` on the ``2N`` grid, its error the engine's estimate of that extrapolation (the full
-    solves' price, nothing integrated twice).  Where the sum still misses ``rtol`` the ``2 top``-shell problem is
-    solved on the same grids (per doubling, the grids the correction uses)."""
+    The shells' difference is taken from the plain masses ``P`` of the last level's grids, solved for ``n/2``,
+    ``n/4``, ``n/8`` shells on ``res``'s grids: ``c = X(top) - P(n)`` per grid, ``X`` the continuum of
+    :func:`_shell_table`, and the answer ``m(res) + c``.  ``c`` is extrapolated in space from the ``N`` and ``2N``
+    grids (:func:`_correction_in_space`), or from the ``4N`` grids too where its counted error misses ``rtol``;
+    where the sum still misses, the ``2 top``-shell problem is solved on the same grids."""
     from ..fokker_planck.engine import RICHARDSON_DIVISOR
     from ..fokker_planck.grid import same_grid
 
@@ -199,9 +164,7 @@ def _shell_corrected(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
     finest = False  # the correction from the 4N grids too, extrapolated in space
     evaluated: dict = {}  # ("base", n) -> the first table's evaluation (the later rungs' tables add to it)
     thin = scene[5] != "uniform"  # graded shells: the wall's layer is thin (shell_grading)
-    # the later rungs on the N grid alone (graded shells only): their refinement of the first table's continuum is
-    # added to that table's correction; "coarse" off once the 2N grids are wanted after all (the margin misses, or
-    # the 4N grids)
+    # graded shells: the later rungs on the N grid alone ("coarse"), until the 2N grids are wanted after all
     state = {"coarse": thin, "base": n}
 
     def masses_of(s: Any, mode: str) -> Optional[list]:
@@ -227,7 +190,7 @@ def _shell_corrected(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
             add_grid(2, "finest", ms)
 
     def add_grid(g: int, mode: str, ms: list) -> None:
-        """Grid ``g`` (the plain mode ``mode`` integrates it alone) of the shell counts ``ms`` that lack it."""
+        """Grid ``g`` (integrated alone by plain mode ``mode``) for the shell counts ``ms`` that lack it."""
         for m, got in solve_plain([m for m in ms if plain[m] is not None and plain[m][g] is None], mode).items():
             if got is None:
                 plain[m] = None
@@ -247,8 +210,7 @@ def _shell_corrected(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
         return _shell_table([masses[m][g] for m in used], thin=thin, start=scene[5] == "ends")
 
     def evaluate(top: int, masses: dict, finest: bool) -> dict:
-        """The correction and its errors from the table of ``top`` shells (``masses`` the plain masses by shell
-        count, every rung of ``_ladder_below(top)`` in it)."""
+        """The correction and its errors from the table of ``top`` shells."""
         if state["coarse"] and top > state["base"]:
             return evaluate_coarse(top, masses)
         c = [None, None, None]
@@ -264,23 +226,18 @@ def _shell_corrected(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
         else:
             ev["corr"], ev["split_error"], ev["corr_error"], ev["split"] = _correction_in_space(c[0], c[1],
                                                                                              masses[n])
-        # counted: on uniform shells the extrapolated correction's own error; where the wall's layer is thin the
-        # second-order size, a margin the thin layer's table needs (docs/closures.md "The correction's own error
-        # counted")
+        # counted: the extrapolated correction's own error; the second-order size where the layer is thin
         ev["counted"] = ev["split_error"] if ev["split"] and not finest and not thin else ev["corr_error"]
         ev["grids"] = res.error_estimate + ev["counted"]
-        # the N grid's continuum, and that grid's relative error of the correction (4 s / |c_2N|: the later rungs'
-        # refinement, a difference of the same kind, is counted with it)
+        # the N grid's continuum and its relative error of the correction (4 s / |c_2N|), for the later rungs
         size = l1(c[1])
         ev["x_coarse"], ev["n_relative"] = c[0] + masses[n][0], 4.0 * ev["corr_error"] / size if size > 0.0 else 0.0
         return ev
 
     def evaluate_coarse(top: int, masses: dict) -> dict:
-        """:func:`evaluate` where the rungs above the first table's (``state["base"]``) are on the N grid alone: the
-        first table's correction (extrapolated in space as there) plus the refinement of the N grid's continuum
-        from the first table's to this one's, split onto the 2N grid; that refinement's spatial error is counted as
-        :data:`REFINEMENT_MARGIN` times its size times the N grid's relative error of the first correction
-        (``4 s / |c_2N|``, ``s`` that correction's second-order estimate on the 2N grid)."""
+        """:func:`evaluate` for rungs on the N grid alone: the first table's correction plus the refinement of the N
+        grid's continuum, split onto the 2N grid; its error counted as :data:`REFINEMENT_MARGIN` times its size times
+        the N grid's relative error of the first correction."""
         base = state["base"]
         ev0 = evaluated["base", base]  # (kept by the loop where it doubled from the first table)
         x_n, residual, table_n = table(top, masses, 0)
@@ -294,9 +251,7 @@ def _shell_corrected(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
         return ev
 
     def next_step(top: int, ev: dict, finest: bool) -> str:
-        """What the ladder does after the table of ``top`` shells: "done", "finest" (the correction's spatial
-        error misses: the 4N grids), "full" (the later rungs' 2N grids: their refinement's counted error is what
-        misses), "stop" (no room or no more shells) or "double"."""
+        """"done", "finest" (the 4N grids), "full" (the later rungs' 2N grids), "stop" or "double"."""
         if ev["grids"] + ev["residual"] <= rtol:
             return "done"
         coarse = ev["refinement_error"] is not None
@@ -327,8 +282,7 @@ def _shell_corrected(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
             break
         if top == state["base"]:
             evaluated["base", top] = ev  # the first table, on both grids (the later rungs' tables add to it)
-            # the later rungs on the N grid alone where their refinement's counted error, predicted from this
-            # table's residual (the refinement's expected size), leaves room for theirs
+            # the later rungs on the N grid alone only if their predicted counted error leaves room
             if REFINEMENT_MARGIN * ev["n_relative"] * ev["residual"] > COARSE_ROOM * (rtol - ev["grids"]):
                 state["coarse"] = False
         top *= 2
@@ -367,9 +321,8 @@ def _aggregated(x: np.ndarray) -> np.ndarray:
 
 
 def _split_to_finer(x: np.ndarray) -> np.ndarray:
-    """Masses ``[zero weight, cells]`` of a grid onto the grid twice as fine (its cells halved in the monitor
-    coordinate): each cell's mass shared by its two halves as a density linear across the cell would share it, the
-    slope from the neighbours (one-sided at the ends); the zero weight as it is.  ``agg`` of the result is ``x``."""
+    """Masses ``[zero weight, cells]`` onto the grid twice as fine: each cell shared by its halves as a density linear
+    across the cell (slope from the neighbours); ``_aggregated`` of the result is ``x``."""
     cells = x[1:]
     slope = np.zeros_like(cells)  # the left half's deficit = the right half's excess
     if cells.size >= 2:
@@ -384,18 +337,13 @@ def _split_to_finer(x: np.ndarray) -> np.ndarray:
 
 
 def _correction_in_space(c_coarse: np.ndarray, c_fine: np.ndarray, own: list) -> tuple:
-    """``(correction, its L1 error estimate, the second-order estimate, extrapolated)``: the shells' correction
-    ``c`` of the ``N`` and ``2N`` grids (``[zero weight, cells]`` each) extrapolated in space onto the ``2N`` grid.
+    """``(correction, its L1 error estimate, the second-order estimate, extrapolated)``: the shells' correction of
+    the ``N`` and ``2N`` grids extrapolated in space onto the ``2N`` grid.
 
-    ``c`` converges at second order in the cell width, so ``R = (4 agg(c_2N) - c_N)/3`` is the fourth-order
-    correction on the ``N`` grid.  On the ``2N`` grid: ``c_2N + split(agg(c_2N) - c_N)/3``
-    (:func:`_split_to_finer`), which aggregates to ``R``.  Its error is not observed (that needs the ``4N``
-    grids); it is taken as the second-order estimate ``s = |agg(c_2N) - c_N|/3`` times
-    ``max(SPLIT_MARGIN rho, SPLIT_FLOOR)``, with ``rho`` the same extrapolation's observed error on the
-    ``n``-shell problem's own masses ``own = [P_N, P_2N, P_4N]`` (against ``(4 agg(P_4N) - P_2N)/3``) over its
-    ``s``.  Where that factor is not below 1, or ``P_4N`` is missing, ``c_2N`` with ``s`` (second order).  The
-    caller counts ``s`` in the answer's estimate either way (docs/closures.md "The correction extrapolated in
-    space")."""
+    ``c_2N + split(agg(c_2N) - c_N)/3`` aggregates to the fourth-order ``(4 agg(c_2N) - c_N)/3``.  Its error is the
+    second-order estimate ``s = |agg(c_2N) - c_N|/3`` times ``max(SPLIT_MARGIN rho, SPLIT_FLOOR)``, ``rho`` the same
+    extrapolation's observed relative error on ``own = [P_N, P_2N, P_4N]``; where that factor is >= 1 or ``P_4N`` is
+    missing, ``c_2N`` with ``s`` (docs/closures.md "The correction extrapolated in space")."""
     l1, agg = _l1, _aggregated
     second = l1(agg(c_fine) - c_coarse) / 3.0
     p_n, p_2n, p_4n = own
@@ -414,34 +362,16 @@ def _correction_in_space(c_coarse: np.ndarray, c_fine: np.ndarray, own: list) ->
 def _shell_table(ladder: list, thin: bool = False, start: bool = False) -> tuple:
     """``(continuum, residual, diagnostics)`` from the masses ``[P(n), P(n/2), P(n/4)(, P(n/8))]`` of one grid.
 
-    The exponential midpoint rule with exact ``tau``-midpoints is symmetric: its error is even in the shell width,
-    ``a h^2 + b h^4 + c h^6 + ...`` where the coefficients are smooth (``R(n/2, n) = (4 P(n) - P(n/2))/3`` then
-    falls about 16x per doubling).  Near ``p* = zeta q E*/2`` at small ``zeta`` the order is lower.  The observed ratio of ``R``'s successive differences decides, with ``P(n/8)``:
+    The midpoint rule's error is ``a h^2 + b h^4 + ...``, so ``R(n/2, n) = (4 P(n) - P(n/2))/3``.  With ``P(n/8)``
+    the observed ratio of ``R``'s successive differences decides (docs/closures.md):
 
-    * above :data:`ROMBERG_MAX_RATIO`: the order is not observed (the coarse end of the ladder is pre-asymptotic and
-      a finer ``R`` may lie near the continuum by a crossing of its terms, docs/closures.md "Pre-asymptotic shell
-      ladders and thin starts"): ``R(n/2, n)`` with its last difference, undivided, as the residual;
-    * at least :data:`ROMBERG_RATIO` (fourth order asymptotic): Romberg's next column,
-      ``(16 R(n/2, n) - R(n/4, n/2))/15``, with its difference from the same at half the shells over 15 as the
-      residual (that assumes a fourth order only; the sixth it has gives /63, so the estimate is about 4x safe);
-    * below: ``R(n/2, n)`` with its difference from ``R(n/4, n/2)`` over ``rho - 1`` (``rho`` that ratio,
-      ``rho - 1`` at most 15), never less than :func:`_shell_residual` says from the ``P`` alone; where the ``P``
-      differences fall slower than :data:`SECOND_ORDER_CLEAR` (no clear second order), ``rho`` is at most their
-      ratio: a term below second order remains in ``R`` and need not fall faster than they do.
+    * above :data:`ROMBERG_MAX_RATIO` (pre-asymptotic): ``R(n/2, n)``, its last difference undivided as residual;
+    * at least :data:`ROMBERG_RATIO`: Romberg's ``(16 R(n/2, n) - R(n/4, n/2))/15``, residual its difference over 15;
+    * below: ``R(n/2, n)``, residual its difference over ``min(rho - 1, 15)``, at least :func:`_shell_residual`'s;
+      ``rho`` is capped by the ``P`` ratio where that is below :data:`SECOND_ORDER_CLEAR`.
 
-    Without ``P(n/8)`` (a balance with no root on 6 shells, or ``n`` not divisible by 8), ``R(n/2, n)`` with
-    :func:`_shell_residual`.  ``diagnostics["shell_weights"]``: the continuum as weights of ``P(n) ... P(n/8)``
-    (for the first moments and the spatial errors of full solves, :func:`_shell_combined`).
-
-    With ``P(n/8)``, these rules decide on the zero weight (the probability below the
-    floor) and on the cells apart (:func:`_uniform_table` on each): each part takes its own branch, continuum and
-    residual, and the residuals add (the zero weight converges on its own, and in the L1 sums the cells' larger
-    differences would hide it).  The diagnostics keep the whole ladder's ratios; ``shell_extrapolation_order`` and
-    ``shell_weights`` are the cells', ``zero_weight_extrapolation_order`` and ``zero_weight_order_ratios`` the zero
-    weight's, ``grid_weights`` the larger of the two parts' weights.
-
-    With ``thin`` (graded shells: the wall's layer is thin, :func:`shell_grading`) :func:`_thin_layer_table`;
-    ``start``: the shells are graded at both ends ("ends")."""
+    Without ``P(n/8)``: ``R(n/2, n)`` with :func:`_shell_residual`.  The zero weight and the cells take their
+    branches apart and the residuals add.  ``thin`` (graded shells): :func:`_thin_layer_table`."""
     if thin:
         return _thin_layer_table(ladder, start)
     if len(ladder) < 4:
@@ -481,27 +411,18 @@ def _uniform_table(ladder: list) -> tuple:
         info["shell_extrapolation_order"] = 6
         info["shell_weights"] = (64 / 45, -20 / 45, 1 / 45, 0.0)  # x_n in the P's
         return x_n, float(np.sum(np.abs(x_n - x_h))) / 15.0, info
-    # where the P differences fall clearly slower than second order, a term below second order is in the ladder: R
-    # keeps part of it, and its remainder need not fall faster than the P differences do
+    # below second order in P, R keeps part of that term, which need not fall faster than the P differences
     rho = rho_r if rho_p >= SECOND_ORDER_CLEAR else min(rho_r, rho_p)
     return r_n, max(residual, d_top / min(15.0, max(rho - 1.0, 1.0))), info
 
 
 def _thin_layer_table(ladder: list, start: bool = False) -> tuple:
-    """``(continuum, residual, diagnostics)`` of :func:`_shell_table` where the wall's layer is thin.
+    """:func:`_shell_table` where the wall's layer is thin (graded shells; docs/closures.md "The thin layer's table").
 
-    There the shells' error after one Richardson step is not of fourth order: the ratios of successive
-    ``R(n/2, n)`` differences run 5-9 per doubling (the frozen layer), with single ratios of 13-16 between them
-    that the next doubling does not follow; and the zero weight, the probability below the floor, converges on
-    its own, at first order on the coarse shells of some scenes, hidden in the L1 sums by the cells' larger
-    differences.  So ``R(n/2, n)`` is the continuum (never Romberg), and its residual is summed over the zero weight
-    and the cells, each ``|R(n/2, n) - R(n/4, n/2)|`` over ``min(rho_R, THIN_LAYER_RATIO) - 1`` (``rho_R`` its own
-    observed ratio), or over ``max(rho_P - 1, 1)`` where its ``P`` differences fall slower than
-    :data:`SHELL_ORDER_RATIO` (not yet second order); docs/closures.md "The thin layer's table".
-
-    ``start`` (shells graded at both ends, "ends"): an ``R`` ratio above :data:`ROMBERG_MAX_RATIO` is taken for a
-    crossing of terms on a pre-asymptotic ladder, and that entry's last ``R`` difference counts undivided, as the
-    uniform table counts it (docs/closures.md "A ladder below second order on uniform shells")."""
+    ``R(n/2, n)`` is the continuum (never Romberg); the residual sums, over the zero weight and the cells,
+    ``|R(n/2, n) - R(n/4, n/2)|`` over ``min(rho_R, THIN_LAYER_RATIO) - 1``, or :func:`_shell_residual`'s estimate
+    where ``rho_P < SHELL_ORDER_RATIO``.  ``start`` (both ends graded): a ratio above :data:`ROMBERG_MAX_RATIO`
+    counts the last difference undivided."""
     p_n, p_h, p_q = ladder[:3]
     r_n, r_h = (4.0 * p_n - p_h) / 3.0, (4.0 * p_h - p_q) / 3.0
     r_q = (4.0 * p_q - ladder[3]) / 3.0 if len(ladder) > 3 else None
@@ -540,10 +461,9 @@ def _masses(r: Any) -> np.ndarray:
 def _rebuilt(sol: Any, scene: tuple, rtol: float, options: dict, *, masses: np.ndarray,
              moments: Optional[np.ndarray], estimate: float, extra: dict, extra_time: float = 0.0,
              failure: Optional[str] = None) -> Any:
-    """A result on the grid of ``sol`` (the ``n``-shell solution) made by the engine's one builder
-    (:func:`~diffusion_pr.fokker_planck.engine.build_result`, with its one meaning of ``success``): the masses
-    ``[zero weight, cells]``, the cells' first ``moments``, the L1 ``estimate``, ``failure`` (a reason it is no
-    answer, or None) and ``extra`` diagnostics over the ``n``-shell solve's."""
+    """A result on the grid of ``sol`` from the engine's builder
+    (:func:`~diffusion_pr.fokker_planck.engine.build_result`): masses ``[zero weight, cells]``, first ``moments``,
+    L1 ``estimate``, ``failure`` reason or None, ``extra`` diagnostics."""
     from ..fokker_planck.domain import prepare
     from ..fokker_planck.engine import build_result
 
@@ -553,8 +473,7 @@ def _rebuilt(sol: Any, scene: tuple, rtol: float, options: dict, *, masses: np.n
     timings = {**res.diagnostics["timings"], "shells": extra_time}
     timings["total"] = res.wall_time + extra_time
     kept = {k: v for k, v in res.diagnostics.items() if k != "floor_ghosts"}  # (the n-shell solve's floor masses)
-    # the mean checked: every problem of the shells' table conserves p0 where the closure does (a balance, or no
-    # drift), and so does their combination; the n-shell solve's full first moment is the one computed
+    # every problem of the table conserves p0 where the closure does, so does their combination
     mean_full = prep.p0 + float(res.diagnostics["mean_error"])
     return build_result(prep, backend=res.backend, edges=res.edges, y=masses, moments=moments, estimate=estimate,
                         rtol=rtol, timings=timings, extra={**kept, **extra}, mean_full=mean_full, failure=failure)
@@ -572,16 +491,10 @@ def _continuum(sol: Any, scene: tuple, rtol: float, options: dict, masses: np.nd
 
 
 def _shell_combined(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
-    """The continuum closure from the ``n``-shell result ``res`` and full solves of fewer shells on its grids.
+    """The continuum closure from full solves of ``n/2``, ``n/4`` (and ``n/8``) shells on ``sol``'s grids.
 
-    The ``n/2``-, ``n/4``- and (where ``n/8 >= MIN_ROMBERG_SHELLS`` shells solve there) ``n/8``-shell problems
-    are solved on ``res``'s grids (``grid=`` of :func:`~diffusion_pr.fokker_planck.engine.solve_fv_full`),
-    so the cell masses combine cell by cell as :func:`_shell_table` says (Richardson, or Romberg where the
-    observed order allows it), its residual added to the grids' estimate: the solves' own estimates with the
-    table's weights in absolute value (``(4 e(n) + e(n/2))/3`` for Richardson; the spatial errors of the solves
-    are not assumed to cancel).  Where the sum misses ``rtol``, the ``2n``-shell problem is solved on the same
-    grids and the table is made again from the top (one solve per doubling, up to :data:`MAX_CONTINUUM_SHELLS`).
-    Used where the plain grids' correction misses (:func:`shell_extrapolated`) or no plain masses were kept."""
+    Masses combine by :func:`_shell_table`; the grids' estimate is the solves' estimates with the table's weights in
+    absolute value.  Where the sum misses ``rtol``, ``2n`` shells are solved (up to :data:`MAX_CONTINUUM_SHELLS`)."""
     from ..fokker_planck.grid import same_grid
 
     res = sol.result

@@ -72,10 +72,9 @@ class _RowPlan:
 
 
 class _ShellModel:
-    """A shell model of ``p`` that is the constant ``_HARD_WALL`` for the hard wall (``kz = 0``) and one of the
-    compiled formulas of :mod:`diffusion_pr.closures._kernels` otherwise (``p`` clamped at 0; imported on first
-    use), evaluated row-wise for many shells at once.  Each model names its formula (``_MODEL``) and the wall
-    products it takes (``_PRODUCTS``: the attributes multiplied by ``kz`` for ``kq`` and ``kq_part``)."""
+    """A shell model of ``p``: the constant ``_HARD_WALL`` for ``kz = 0``, else the compiled formula ``_MODEL`` of
+    :mod:`diffusion_pr.closures._kernels` (``p`` clamped at 0) on the wall products ``kz x _PRODUCTS``, evaluated
+    row-wise for many shells at once."""
 
     _HARD_WALL = 0.0
 
@@ -87,9 +86,7 @@ class _ShellModel:
 
     @classmethod
     def row_plan(cls, items: tuple) -> Optional[_RowPlan]:
-        """The rows of ``items`` as a reusable evaluator (:class:`_RowPlan`: ``plan(p, out=None)``), or None where
-        they do not share one ``kz > 0``.  The engine makes one per problem and model and evaluates it on every
-        probe and grid."""
+        """The rows of ``items`` as a reusable :class:`_RowPlan`, or None where they do not share one ``kz > 0``."""
         kz = _common_kz(items)
         if kz is None:
             return None
@@ -125,8 +122,7 @@ class _LoadModel(_ShellModel):
 class LocalResponseDiffusivity(_ShellModel):
     """``f_k(p) = g(q_k; p)^2`` (dimensionless): the diffusivity of shell ``k``.
 
-    Declares the model protocol of :mod:`diffusion_pr.models`: ``zero_power`` is 2 for
-    ``zeta > 0`` (``f ~ (2p/(zeta q_k E*))^2``: the wall is never reached, ``ln p``
+    ``zero_power`` (:mod:`diffusion_pr.models`) is 2 for ``zeta > 0`` (the wall is never reached, ``ln p``
     diffuses) and 0 for the hard wall (``f = 1``: absorbing ``p = 0``, Persson).
 
     Parameters
@@ -185,13 +181,10 @@ def closure_problem(shells: Shells, *, zeta: float, E_star: float, mean_pressure
                     partition_q: Optional[float] = None) -> Any:
     """The shell-by-shell closure as a :class:`~diffusion_pr.problem.StagedProblem`.
 
-    One :class:`~diffusion_pr.problem.Stage` per shell ``k`` (duration ``dV0_k/2``,
-    pressure^2) with ``f_k = g(q_k; p)^2``; for ``"local_g1_balanced"`` also
-    ``b_k = (1 - g(q_min; p)) g(q_k; p)^2/p`` and the balance ``w = (1 - g(q_min; p)) p``
-    (total drift ``b_k - A w``, ``A`` keeping ``<p> = p0``).  At the hard wall
-    (``zeta = 0``: ``g = 1``, no drift) every stage holds the same diffusivity
-    object ``f = 1`` (its ``q`` is ``q_min``), which the engine integrates as one
-    exponential of the summed duration.
+    One :class:`~diffusion_pr.problem.Stage` per shell ``k`` (duration ``dV0_k/2``, pressure^2) with
+    ``f_k = g(q_k; p)^2``; for the balanced closures also ``b_k = (1 - g(q_part; p)) g(q_k; p)^2/p`` and the
+    balance ``w = (1 - g(q_part; p)) p`` (total drift ``b_k - A w``, ``A`` keeping ``<p> = p0``).  At the hard wall
+    every stage holds the same ``f = 1``, which the engine integrates as one exponential.
 
     Parameters
     ----------
@@ -203,9 +196,8 @@ def closure_problem(shells: Shells, *, zeta: float, E_star: float, mean_pressure
         ``E*`` and ``p0`` [pressure], > 0.
     closure : {"local_g1", "local_g1_balanced", "local_g1_shell_balanced"}
     partition_q : float or "shell", optional
-        Wavenumber of the partition factor (default ``shells.q_min``; ``"shell"``
-        takes each shell's own ``q_k``, which breaks the ``zeta -> 0`` limit and is
-        there for the tests that show it).
+        Wavenumber of the partition factor (default ``shells.q_min``; ``"shell"`` takes each shell's own ``q_k``,
+        which breaks the ``zeta -> 0`` limit).
     """
     from ..problem import Stage, StagedProblem
 
@@ -218,11 +210,9 @@ def closure_problem(shells: Shells, *, zeta: float, E_star: float, mean_pressure
         partition_q = "shell"
     kz = 0.5 * float(check_nonnegative("zeta", zeta)) * float(check_positive("E_star", E_star))
     stages = []
-    # the hard wall: g = 1 in every shell; one diffusivity object for all (the engine then integrates the
-    # commuting stages as one exponential: Persson's mirror Gaussian in one step)
+    # the hard wall: one diffusivity object for all shells, so the engine integrates them as one exponential
     hard = LocalResponseDiffusivity(float(shells.q_min), 0.0) if kz == 0.0 else None
-    # a partition at one wavenumber: one balance object for every shell (its w is the same function of p; the
-    # engine asks a shared model for its breakpoints once)
+    # a partition at one wavenumber: one balance object shared by every shell
     shared = None
     if closure != "local_g1" and kz > 0.0 and partition_q != "shell":
         shared = RigidApproachBalance(shells.q_min if partition_q is None else float(partition_q), kz)

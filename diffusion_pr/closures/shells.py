@@ -1,13 +1,7 @@
-r"""Magnification shells of a spectrum for the shell-by-shell closures (:mod:`diffusion_pr.closures`).
+"""Magnification shells of a spectrum for the shell-by-shell closures (:mod:`diffusion_pr.closures`).
 
-A shell ``k`` is a wavenumber ``q_k`` with its Persson increment ``dV0_k = (E* q_k/2)^2 x (shell power)``
-[pressure^2]; the diffusion time advances by ``dV0_k/2`` across it.  A
-:class:`~diffusion_pr.spectra.DiscreteSpectrum` has its own shells; a continuum spectrum is cut into shells
-uniform or graded in ``ln q`` (:func:`shell_grading` chooses), each with its exact power and its node at the
-shell's midpoint in diffusion time.
-
-Units: pressures in the unit of ``E_star``; wavenumbers [rad/length] in the unit of the spectrum.
-"""
+A shell ``k`` is a wavenumber ``q_k`` with its Persson increment ``dV0_k`` [pressure^2]; the diffusion time
+advances by ``dV0_k/2`` across it.  Pressures in the unit of ``E_star``; wavenumbers [rad/length]."""
 from __future__ import annotations
 
 import math
@@ -25,30 +19,19 @@ __all__ = ["Shells", "spectrum_shells", "shell_grading", "local_response", "DEFA
 #: the balanced closures and their partition wavenumber ("shell": each shell's own q_k)
 BALANCED = {"local_g1_balanced": None, "local_g1_shell_balanced": "shell"}
 
-#: shells of a continuum spectrum (uniform in ln q, tau-midpoint nodes) of the problem itself
-#: (``shell_extrapolation=False``)
+#: shells of a continuum spectrum without extrapolation (``shell_extrapolation=False``)
 DEFAULT_CONTINUUM_SHELLS = 96
-#: the first solve of the continuum closure (:mod:`diffusion_pr.closures.continuum`): 48 shells, corrected by the
-#: plain grids of 24, 12 and 6 shells
+#: shells of the continuum closure's first solve (:mod:`diffusion_pr.closures.continuum`)
 EXTRAPOLATION_SHELLS = 48
 #: the diffusion-time midpoint of a shell is solved to this fraction of the shell's power (:func:`_tau_midpoints`)
 MIDPOINT_TOL = 1e-12
-#: The shells' gradings (:func:`spectrum_shells`): the edges ``ln q = a + (b - a) x(s)`` with ``s`` uniform and
-#: ``x(s)`` = ``s`` ("uniform"), ``1 - (1 - s)^2`` ("end": the last shell ``~h^2`` wide) or ``s^2 (3 - 2 s)``
-#: ("ends": the first and the last; :func:`shell_grading` chooses, docs/closures.md "Graded shells")
+#: the shells' gradings (:func:`spectrum_shells`, chosen by :func:`shell_grading`)
 SHELL_GRADINGS: tuple[str, ...] = ("uniform", "end", "ends")
-#: ``kappa = p*(q_max)^2 / tau_last`` (the wall's layer ``p* = zeta q_max E*/2`` against the diffusion length of the
-#: last of :data:`EXTRAPOLATION_SHELLS` uniform shells, ``tau_last = dV0_last/2``) below which the shells are graded
-#: towards the end.  On the Fig. 1 scene ``local_g1`` gains from the grading up to ``kappa`` 2 and loses at 7.7;
-#: ``local_g1_balanced`` loses from ``kappa`` 1.3 on and gains at 0.75.  1: where all three closures gain
+#: ``kappa`` below which the shells are graded towards the end (:func:`shell_grading`)
 WALL_LAYER_RATIO = 1.0
-#: ``lambda = p0^2 / tau_first`` (the load's distance from the wall against the diffusion length of the first of
-#: :data:`EXTRAPOLATION_SHELLS` uniform shells) below which a thin wall layer's shells are graded at the start too
-#: ("ends"): "ends" wins at ``lambda = 1.4`` (Fig. 1 spectrum, ``p0 = 1e-3``, ``zeta = 0.01``) and "end" at 22
+#: ``lambda`` below which a thin wall layer's shells are graded at the start too ("ends")
 START_LAYER_RATIO = 4.0
-#: where the start's layer is thin (``lambda <`` :data:`START_LAYER_RATIO`), the ``kappa`` below which the balanced
-#: closures grade both ends although the wall's layer is thick by :data:`WALL_LAYER_RATIO` (on stress scenes with
-#: ``lambda < 4``: "ends" took 0.3-0.9x the time of uniform shells up to ``kappa`` 55, and 1.0-2.4x from 74 on)
+#: where ``lambda <`` :data:`START_LAYER_RATIO`, the ``kappa`` below which the balanced closures grade both ends
 START_WALL_LAYER_RATIO = 60.0
 
 
@@ -61,15 +44,11 @@ class Shells:
     q : ndarray
         Shell wavenumbers ``q_k`` [rad/length], increasing (the order they are applied in).
     dV0 : ndarray
-        Persson increments ``dV0_k = (E* q_k/2)^2 x (shell power)`` [pressure^2];
-        ``sum(dV0) = V0 = (E*/2)^2 gbar^2``.  The diffusion time advances by ``dV0_k/2``
-        across shell ``k``.
+        Persson increments ``dV0_k = (E* q_k/2)^2 x (shell power)`` [pressure^2]; ``sum(dV0) = V0``.
     q_min : float
-        Smallest wavenumber of the spectrum [rad/length] (the partition of the
-        load-balanced closure uses it).
+        Smallest wavenumber of the spectrum [rad/length] (the load-balanced partition uses it).
     exact : bool
-        True for a :class:`~diffusion_pr.spectra.DiscreteSpectrum` (its own modes);
-        False for a continuum quadrature.
+        True for a :class:`~diffusion_pr.spectra.DiscreteSpectrum` (its own modes); False for a continuum.
     """
 
     q: np.ndarray
@@ -155,10 +134,8 @@ def _shell_edges(spectrum: Spectrum, E: float, n: int, grading: str) -> tuple:
 def _tau_midpoints(spectrum: Spectrum, weight: Any, ln_edges: np.ndarray, cum_edges: np.ndarray) -> np.ndarray:
     """``ln q`` of each shell's midpoint in diffusion time: where the cumulative ``V0`` reaches half the shell.
 
-    Solved to :data:`MIDPOINT_TOL` of the shell's power (regula falsi, Illinois variant, on
-    :meth:`~diffusion_pr.spectra.Spectrum.cumulative`), not interpolated: the rule is symmetric (even in the shell
-    width, so that Romberg applies) only with the exact midpoint.
-    Shells without power keep their geometric centre."""
+    Solved to :data:`MIDPOINT_TOL` of the shell's power (Illinois regula falsi), not interpolated: only the exact
+    midpoint keeps the rule even in the shell width.  Shells without power keep their geometric centre."""
     lo, hi = ln_edges[:-1].copy(), ln_edges[1:].copy()
     f_lo = cum_edges[:-1] - 0.5 * (cum_edges[:-1] + cum_edges[1:])  # <= 0
     f_hi = -f_lo
@@ -186,8 +163,7 @@ def _tau_midpoints(spectrum: Spectrum, weight: Any, ln_edges: np.ndarray, cum_ed
         hi[idx[~below]], f_hi[idx[~below]] = xs[idx[~below]], f[~below]
         kept_hi[idx] = below
         started[idx] = True
-        # converged: the residual below 1e-12 of the shell's power (round-off of the cumulative is about
-        # 1e-16 V0), or the bracket at round-off of ln q
+        # converged: the residual below MIDPOINT_TOL of the shell's power, or the bracket at round-off of ln q
         done = (np.abs(f) <= MIDPOINT_TOL * half[live]) | \
                (hi[idx] - lo[idx] <= 4.0 * np.finfo(float).eps * np.maximum(1.0, np.abs(x[idx])))
         live[idx[done]] = False
@@ -203,8 +179,7 @@ _CACHE_SIZE = 64
 
 
 def _remembered(key: tuple, make: Any) -> Any:
-    """``make()``, remembered under ``key`` where the key is hashable (a sweep over ``zeta``, ``p0`` or the
-    closures asks again for every solve; an unhashable spectrum, e.g. one holding arrays, is not cached)."""
+    """``make()``, remembered under ``key`` where the key is hashable (else not cached)."""
     try:
         hit = _CACHE.get(key)
     except TypeError:
@@ -229,8 +204,7 @@ def cached_shells(spectrum: Spectrum, E: float, n_shells: Optional[int], grading
 
 
 def _end_shell_powers(spectrum: Spectrum, E: float) -> tuple[float, float]:
-    """``dV0`` [pressure^2] of the first and last of :data:`EXTRAPOLATION_SHELLS` uniform shells with power (no
-    midpoints needed), remembered for hashable spectra."""
+    """``dV0`` [pressure^2] of the first and last of :data:`EXTRAPOLATION_SHELLS` uniform shells with power."""
     def make() -> tuple[float, float]:
         dv = np.diff(_shell_edges(spectrum, E, EXTRAPOLATION_SHELLS, "uniform")[1])
         dv = dv[dv > 0]
@@ -241,29 +215,22 @@ def _end_shell_powers(spectrum: Spectrum, E: float) -> tuple[float, float]:
 
 def shell_grading(spectrum: Spectrum, *, E_star: float, zeta: float, mean_pressure: float,
                   closure: Optional[str] = None) -> tuple[str, float, float]:
-    r"""``(grading, kappa, lambda)``: the shells' grading of the continuum closure (:func:`spectrum_shells`) and why.
+    """``(grading, kappa, lambda)``: the shells' grading of the continuum closure (:func:`spectrum_shells`) and why.
 
-    The shell sum freezes each shell's operator at its midpoint.  Where the wall's layer is thick, that error is
-    spread over all shells and uniform shells are best.  Where it is thin, the error comes from the ends:
+    The shell sum freezes each shell's operator at its midpoint; where the wall's layer is thin the error comes
+    from the ends (docs/closures.md "Graded shells"):
 
-    * **the end**: ``kappa = p*(q_max)^2 / tau_last`` compares the wall's layer ``p* = zeta q_max E*/2``
-      [pressure] (below it ``g(q; p) ~ p/p*``) with the diffusion length of the last of
-      :data:`EXTRAPOLATION_SHELLS` uniform shells, ``tau_last = dV0_last/2`` [pressure^2].  The error of the
-      last shells' frozen layer is not smoothed by later shells and falls like ``h^1.25`` on uniform shells (the
-      order reduction of a frozen boundary layer); graded towards ``q_max`` ("end", the last shell ``~h^2``
-      wide) the order is two again and Romberg applies (Fig. 1 scene, ``local_g1``, ``zeta = 0.001``: 48 shells
-      leave 4.3e-8 after one Richardson step, against 6.9e-6 uniform).
-    * **the start** (with a thin layer only): ``lambda = p0^2 / tau_first``, the load's distance from the wall
-      against the first uniform shell's diffusion length.  Below :data:`START_LAYER_RATIO` the first shells carry
-      the start from ``delta(p - p0)`` into the wall's layer, and the order falls to one there too unless both
-      ends are graded ("ends").
+    * ``kappa = p*(q_max)^2 / tau_last``: the wall's layer ``p* = zeta q_max E*/2`` [pressure] against the
+      diffusion length of the last of :data:`EXTRAPOLATION_SHELLS` uniform shells, ``tau_last = dV0_last/2``.  The
+      last shells' frozen layer makes uniform shells' error fall like ``h^1.25``; graded towards ``q_max`` ("end")
+      the order is two again.
+    * ``lambda = p0^2 / tau_first``: below :data:`START_LAYER_RATIO` the first shells carry the start into the
+      wall's layer too, and both ends are graded ("ends").
 
-    "uniform" for ``kappa >=`` :data:`WALL_LAYER_RATIO`, else "end", or "ends" where also
-    ``lambda <`` :data:`START_LAYER_RATIO`; the hard wall (``zeta = 0``, its shells commute) "uniform".
-    The balanced closures take "ends" where ``lambda <`` :data:`START_LAYER_RATIO` up to ``kappa <``
-    :data:`START_WALL_LAYER_RATIO` (a load far inside a layer that is thick at ``q_max`` only leaves the uniform
-    shells' table pre-asymptotic).  ``local_g1_shell_balanced`` takes "ends" wherever the layer is thin, whatever
-    ``lambda`` (docs/closures.md "The thin layer's table").
+    "uniform" for ``kappa >=`` :data:`WALL_LAYER_RATIO` or ``zeta = 0``, else "end", or "ends" where also
+    ``lambda <`` :data:`START_LAYER_RATIO`.  The balanced closures take "ends" where ``lambda <``
+    :data:`START_LAYER_RATIO` up to ``kappa <`` :data:`START_WALL_LAYER_RATIO`; ``local_g1_shell_balanced`` takes
+    "ends" wherever the layer is thin.
 
     Parameters
     ----------
@@ -274,7 +241,7 @@ def shell_grading(spectrum: Spectrum, *, E_star: float, zeta: float, mean_pressu
     zeta : float
         Wall range [length], >= 0.
     closure : str, optional
-        The closure the shells are for (``"local_g1_shell_balanced"`` grades thin layers at both ends).
+        The closure the shells are for.
     """
     kz = 0.5 * float(check_nonnegative("zeta", zeta)) * float(check_positive("E_star", E_star))
     p0 = float(check_positive("mean_pressure", mean_pressure))

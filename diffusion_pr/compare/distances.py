@@ -21,18 +21,15 @@ class Comparison:
     Attributes
     ----------
     l1 : float
-        ``sum |m_theory - m_sim|`` over the bin masses, the ``delta(p)``
-        peaks counted in the first bin (0 ... 2, dimensionless); see
-        :func:`compare`.
+        ``sum |m_theory - m_sim|`` over the bin masses, the ``delta(p)`` peaks in the first bin (0 ... 2,
+        dimensionless); see :func:`compare`.
     kolmogorov : float
         ``sup |F_theory - F_sim|`` over ``p >= edges[1]`` (dimensionless).
     moments_theory, moments_sim : dict
         ``mean``, ``variance``, ``third_central`` of both (pressure^k).
     contact_fraction_theory, contact_fraction_sim : float
-        Fraction of the area with ``p > contact_threshold`` on both sides:
-        ``1 - theory.cdf(threshold)`` and
-        :meth:`SimulatedHistogram.fraction_above` (``1 - zero_weight`` each
-        for the default threshold 0).
+        Fraction of the area with ``p > contact_threshold``: ``1 - theory.cdf(threshold)`` and
+        :meth:`SimulatedHistogram.fraction_above`.
     contact_threshold : float
         The threshold (units of pressure).
     """
@@ -49,24 +46,17 @@ class Comparison:
 def compare(theory: Any, hist: SimulatedHistogram, *, contact_threshold: float = 0.0) -> Comparison:
     """Compare a :class:`~diffusion_pr.result.PressureDistribution` with a histogram.
 
-    Both distances are taken at the histogram's resolution: the ``delta(p)``
-    peaks (the theory's ``zero_weight`` and the simulation's exactly-zero
-    pressures) are counted in the first bin ``[0, edges[1])``.  A soft wall
-    has pressures of 1e-300 where a hard wall has 0, and a smooth cutoff
-    piles mass up at ``p -> 0+``; neither is distinguishable from ``p = 0``
-    below one bin width, so a comparison that separated them would measure
-    the convention, not the physics.  The contact fractions are reported
+    Both distances are taken at the histogram's resolution: the ``delta(p)`` peaks (the theory's ``zero_weight``
+    and the simulation's exactly-zero pressures) are counted in the first bin ``[0, edges[1])``, since below one
+    bin width a soft wall's tiny pressures cannot be told from ``p = 0``.  The contact fractions are reported
     separately.
 
-    * ``l1 = sum_i |m_theory,i - m_sim,i|`` over bin masses, plus the theory's
-      mass beyond the last edge and the simulation's pressures outside the bins.
-    * ``kolmogorov = sup |F_theory(p) - F_sim(p)|`` over ``p >= edges[1]``,
-      from the stored quantile function when available (both sides of every
-      empirical jump), else at the bin edges.
-    * contact fractions: the fraction with ``p > contact_threshold`` on both
-      sides (0: hard wall; the main job uses ``0.01 p0`` for exponential
-      walls, the definition of ``gfmd_ref``'s ``contact_fraction``).
-    """
+    * ``l1 = sum_i |m_theory,i - m_sim,i|`` over bin masses, plus the theory's mass beyond the last edge and the
+      simulation's pressures outside the bins.
+    * ``kolmogorov = sup |F_theory(p) - F_sim(p)|`` over ``p >= edges[1]``, from the stored quantile function when
+      available (both sides of every empirical jump), else at the bin edges.
+    * contact fractions: the fraction with ``p > contact_threshold`` on both sides (0: hard wall; ``0.01 p0`` is
+      ``gfmd_ref``'s definition for exponential walls)."""
     threshold = float(contact_threshold)
     if not np.isfinite(threshold) or threshold < 0:
         raise ValueError(f"contact_threshold must be a finite number >= 0; got {contact_threshold!r}")

@@ -148,10 +148,8 @@ def compare_ensemble(theory: Any, records_or_group: Any, *, p_min: Optional[floa
         .group(0.25)`` or the list of its ``records``). Non-converged records are
         excluded and counted.
     p_min : float, optional
-        Lower end of the Kolmogorov supremum. **Convention: K is taken over
-        p >= p0/20** (the default, ``p0`` the records' mean pressure): below it a
-        comparison would weigh how the hard-wall delta peak and the soft walls' tiny
-        pressures are split, a convention rather than physics.
+        Lower end of the Kolmogorov supremum; default ``p0/20`` (``p0`` the records' mean pressure), below which
+        the split between a delta peak and a soft wall's tiny pressures is a convention.
     edges : array, optional
         Bin edges for the L1 of bin masses (default 50 uniform bins on
         ``[0, pooled 99.9 % quantile]``, plus the open bin above).

@@ -89,10 +89,8 @@ def tail_curvatures(theory: Any, hist: SimulatedHistogram, *, decades: float = 2
     return c_sim, c_th, (p_lo, p_hi)
 
 
-#: In least-squares fits on ln Pr the theory density is floored at this fraction
-#: of the histogram's largest density, so that a bin where the theory's
-#: Gaussian tail has underflowed costs about ln(1e6)^2 instead of ln(1e-300)^2
-#: and cannot dominate the objective.
+#: floor of the theory density in fits on ln Pr, relative to the histogram's largest density (an underflowed
+#: Gaussian tail would otherwise dominate the objective)
 LOG_FLOOR = 1e-6
 
 

@@ -1,20 +1,10 @@
 """The paper's Fig. 1: GFMD histograms against the theory, as a reusable job.
 
-:func:`run_fig1` runs the GFMD reference (:mod:`gfmd_ref`) on the Fig. 1
-system of Müser, Phys. Rev. Lett. 100, 055504 (2008),
-doi:10.1103/PhysRevLett.100.055504 (numbers and the paper's sentences in
-:mod:`diffusion_pr.paper`) at a chosen grid resolution (the physical cell stays
-``L = 1024`` grid spacings of the paper's system, so ``zeta`` keeps its
-meaning), draws the theory curves of :func:`theory_curves` for every wall (the
-paper's: :func:`diffusion_pr.jobs.reference_data.paper_theory`, the same function
-the claims tests and the claims benchmark use), and writes a figure, a CSV of
-the curves and histograms and a text report.  It is the package's main job
-(``diffusion-pr fig1``); the docs page ``fig1`` discusses its results.
-
-Every input is checked before any GFMD work: the scalars first, then the
-output folder (created and test-written), then all theory curves (cheap; they
-check cutoff, backend and rtol).
-"""
+:func:`run_fig1` runs the GFMD reference (:mod:`gfmd_ref`) on the Fig. 1 system of Müser, Phys. Rev. Lett.
+100, 055504 (2008), doi:10.1103/PhysRevLett.100.055504 (:mod:`diffusion_pr.paper`) at a chosen resolution (the
+cell stays ``L = 1024`` grid spacings, so ``zeta`` keeps its meaning), draws :func:`theory_curves` for every
+wall, and writes a figure, a CSV of curves and histograms and a text report (``diffusion-pr fig1``; docs page
+``fig1``).  Every input is checked before any GFMD work."""
 from __future__ import annotations
 
 import csv
@@ -48,17 +38,10 @@ def paper_cutoff_pressure(zeta: float) -> float:
 def theory_curves(case: Any, *, cutoff: str, backend: str, rtol: float) -> dict[str, Any]:
     """The theory curves of one wall: ``{label: PressureDistribution}``.
 
-    The one place where the main job's curves are chosen: every entry is
-    compared with the wall's histogram, listed in the report, written to the
-    curves CSV and drawn in the figure.  The first entry, :data:`PAPER`, is
-    the paper's curve (:func:`~diffusion_pr.jobs.reference_data.paper_theory`:
-    Persson's mirror Gaussian for the hard wall, the second-order cumulant
-    theory with the paper's ``p_c`` for exponential walls).  Add another
-    theory curve for the same case as a further entry.  The second entry,
-    :data:`BEST_CLOSURE`, is the best parameter-free closure
-    (:func:`diffusion_pr.pressure_distribution` with ``closure=BEST_CLOSURE``, no
-    fitted number), solved by the finite-volume engine on the same spectrum.
-    """
+    The one place where the main job's curves are chosen: every entry is compared with the wall's histogram,
+    reported, written and drawn.  :data:`PAPER` is the paper's curve
+    (:func:`~diffusion_pr.jobs.reference_data.paper_theory`); :data:`BEST_CLOSURE` the best parameter-free closure
+    (:func:`diffusion_pr.pressure_distribution` with ``closure=BEST_CLOSURE``) on the same spectrum."""
     from ..api import pressure_distribution
     from .reference_data import paper_theory
 
@@ -195,8 +178,7 @@ def run_fig1(*, n: int = 512, zetas: Sequence[float] = DEFAULT_ZETAS, hard_wall:
     Parameters
     ----------
     n : int
-        Grid points per side (the paper: 1024; the default 512 takes about
-        10 s on 2 cores).
+        Grid points per side (the paper: 1024).
     zetas : sequence of float
         Exponential-wall decay lengths, in grid spacings of the paper's
         1024^2 Fig. 1 system (the cell is ``L = 1024`` of them at every ``n``).

@@ -1,21 +1,12 @@
 """Bundled GFMD reference data for the paper's Fig. 1 system, and its generator.
 
-The Fig. 1 system of Müser, PRL 100, 055504 (2008) (its numbers and the
-paper's words they come from are in :mod:`diffusion_pr.paper`): a
-``1024 x 1024`` grid with period ``L = 1024`` (the grid spacing is the length
-unit), roughness on wavelengths ``32 <= lambda <= 1024``, Hurst exponent
-``H = 0.3``, rms slope ``0.031``, contact modulus ``E* = 8/3`` and mean pressure
-``p0 = 0.004``, with exponential repulsion at several ``zeta`` and with the hard
-wall.
-
-Each bundled case is a small compressed ``.npz`` in ``diffusion_pr/data/``
-holding the pressure histogram (:class:`~diffusion_pr.compare.SimulatedHistogram`),
-the surface's own discrete spectrum (:class:`~diffusion_pr.spectra.DiscreteSpectrum`,
-shells of equal ``|q|``), and the provenance: parameters, seed, solver,
-tolerance, residual, iterations, code version and the command that regenerates
-it (:func:`generate_reference`, ``diffusion-pr make-reference``).  Loading
-needs only numpy; generating needs :mod:`gfmd_ref`.
-"""
+The Fig. 1 system of Müser, PRL 100, 055504 (2008) (numbers in :mod:`diffusion_pr.paper`): a ``1024 x 1024``
+grid of period ``L = 1024`` (the grid spacing is the length unit), exponential repulsion at several ``zeta``
+and the hard wall.  Each case is a compressed ``.npz`` in ``diffusion_pr/data/`` holding the pressure histogram
+(:class:`~diffusion_pr.compare.SimulatedHistogram`), the surface's
+:class:`~diffusion_pr.spectra.DiscreteSpectrum` and the provenance, including the command that regenerates it
+(:func:`generate_reference`, ``diffusion-pr make-reference``).  Loading needs only numpy; generating needs
+:mod:`gfmd_ref`."""
 from __future__ import annotations
 
 import json
@@ -81,17 +72,11 @@ class ReferenceCase:
 
 def paper_theory(case: Any, *, cutoff: str = "muser", p_c: Optional[float] = None, backend: str = "auto",
                  rtol: float = 1e-5) -> Any:
-    """The paper's theory curve for one case: the one definition used everywhere.
+    """The paper's theory curve for one case: the one definition the main job and the claims tests use.
 
-    The main job (:func:`diffusion_pr.jobs.fig1.run_fig1`), the Fig. 1 claims
-    tests and the claims benchmark all call this function, so they draw the
-    same curve for the same case.
-
-    Hard wall (``case.zeta`` is None): Persson's mirror Gaussian (sharp
-    cutoff, ``zeta = 0``).  Exponential wall: the second-order cumulant theory
-    (the paper's Eq. 10 for ``G1`` inside the stress variance) with ``G1``
-    computed from the case's own spectrum, the given cutoff, and ``p_c``
-    defaulting to the paper's value (:func:`diffusion_pr.paper.cutoff_pressure`).
+    Hard wall (``case.zeta`` is None): Persson's mirror Gaussian.  Exponential wall: the second-order cumulant
+    theory with ``G1`` (Eq. 10) from the case's own spectrum, the given cutoff, and ``p_c`` defaulting to the
+    paper's value (:func:`diffusion_pr.paper.cutoff_pressure`).
 
     Parameters
     ----------
@@ -256,10 +241,8 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
 def skewed_surface(heights: np.ndarray, *, length: float, rms_slope: float, skew: float = 1.0) -> np.ndarray:
     """A non-Gaussian surface made from a coloured-noise one.
 
-    ``h' = exp(skew * h / h_rms)``, centred and rescaled to the requested rms
-    slope (computed spectrally).  The map keeps the phases' structure but
-    correlates the Fourier modes (it is no longer coloured noise) and gives
-    the heights a positive skewness: sharper peaks, flatter valleys.
+    ``h' = exp(skew * h / h_rms)``, centred and rescaled to the requested rms slope (computed spectrally): positive
+    skewness (sharper peaks, flatter valleys), Fourier modes correlated.
 
     Parameters
     ----------
