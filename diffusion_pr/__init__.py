@@ -70,7 +70,7 @@ _LAZY = {
     "BackendUnavailableError": "fokker_planck.backends",
     "backend_names": "fokker_planck.backends",
     "is_available": "fokker_planck.backends",
-    "warm_up": "fokker_planck.backends",
+    "warm_up": "api",
 }
 
 __all__ = sorted(_LAZY) + ["__version__"]

@@ -19,7 +19,8 @@ from .models import PressureFactor, make_cutoff, make_tail
 from .problem import FokkerPlanckProblem, StagedProblem
 from .result import PressureDistribution
 
-__all__ = ["propagate", "pressure_distribution", "pressure_distributions", "solve_problem", "choose_backend", "BACKENDS"]
+__all__ = ["warm_up", "propagate", "pressure_distribution", "pressure_distributions", "solve_problem",
+           "choose_backend", "BACKENDS"]
 
 #: names accepted by ``backend=`` (besides any registered later)
 BACKENDS = ("auto", "closed_form", "native", "pypde", "fipy")
@@ -423,3 +424,22 @@ def _sweep_start(result: PressureDistribution, sol: Any, previous_needed: Option
         grown = start.n_start * min(max(needed / previous_needed, 1.0), SWEEP_TREND_MAX)
         start = replace(start, n_start=int(min(math.ceil(grown), cap)))
     return start, needed
+
+
+def warm_up(backend: str = "native") -> float:
+    """Do the one-time work of ``backend`` now (imports; for ``"native"`` the compiled kernels of the engine and
+    of the closures, from numba's cache or compiled on the first run after installing); return the seconds spent.
+
+    Call it before timing solves: the first solve of a process otherwise carries this work.
+    """
+    import time
+
+    from .fokker_planck.backends import warm_up as backend_warm_up
+
+    t0 = time.perf_counter()
+    backend_warm_up(_check_backend(backend) if backend != "auto" else "native")
+    if backend in ("native", "auto"):
+        from .closures._kernels import DIFFUSIVITY, model_rows
+
+        model_rows(np.ones(1), np.ones(1), np.ones(1), DIFFUSIVITY, np.empty((1, 1)))
+    return time.perf_counter() - t0

@@ -366,3 +366,14 @@ def test_a_sweep_keeps_the_wall_grading_within_its_range():
                                    closure="local_g1_balanced", rtol=1e-6, shell_extrapolation=False)
     assert all(r.success for r in rs)
     assert max(r.diagnostics["wall_grading"] for r in rs) <= 10.0
+
+
+def test_warm_up_compiles_the_engine_and_closure_kernels_and_checks_its_backend():
+    """In a fresh interpreter ``warm_up()`` leaves the closures' row kernel and the staged kernels compiled
+    (loaded), and an unknown backend is an error naming the parameter."""
+    code = ("import diffusion_pr as dp; from diffusion_pr.closures._kernels import model_rows; "
+            "from diffusion_pr.fokker_planck import _kernels; assert dp.warm_up() >= 0.0; "
+            "assert model_rows.signatures and _kernels.staged_run_rows.signatures")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=600)
+    with pytest.raises(ValueError, match="backend"):
+        dp.warm_up("nope")

@@ -19,13 +19,10 @@ __all__ = ["solve", "solve_full", "warm_up"]
 
 
 def warm_up() -> float:
-    """Compile or load from numba's cache the staged kernels and the closures' rows; return the seconds spent.
+    """Compile or load from numba's cache the staged kernels; return the seconds spent.
 
     Single-stage problems (the paper's theory) need no warm-up.
     """
-    import numpy as np
-
-    from ...closures._kernels import DIFFUSIVITY, model_rows
     from ...problem import Stage, StagedProblem
 
     t0 = time.perf_counter()
@@ -36,7 +33,6 @@ def warm_up() -> float:
                             balance=lambda p: p * 0.002 / (p + 0.002)))
     solve_fv(StagedProblem(0.004, tuple(stages), balance_per_stage=True), rtol=1e-3, backend="native",
              assemble=native_assemble, n_cells=48)  # on 16 cells its drift is unstable, which the engine refuses
-    model_rows(np.ones(1), np.ones(1), np.ones(1), DIFFUSIVITY, np.empty((1, 1)))
     return time.perf_counter() - t0
 
 
