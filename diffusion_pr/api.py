@@ -7,7 +7,6 @@ an optional drift, and the solve.  ``backend="auto"`` takes the closed form wher
 ``"native"`` (docs/backends.md); every backend returns the same ``zero_weight`` and density within ``rtol``."""
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import replace
 from typing import Any, Callable, Optional
@@ -71,18 +70,9 @@ def choose_backend(problem: Any, options: Optional[dict] = None) -> str:
 
 def _accepted_options(name: str) -> set:
     """Keyword options of backend ``name``'s ``solve`` (besides ``rtol``)."""
-    from .fokker_planck.backends import get_backend
+    from .fokker_planck.backends import get_backend, keyword_options
 
-    return set(_keyword_options(get_backend(name)))
-
-
-@functools.lru_cache(maxsize=None)
-def _keyword_options(solve: Callable) -> frozenset:
-    """Keyword options of a backend's ``solve`` function (besides ``rtol``), read once per function."""
-    import inspect
-
-    params = inspect.signature(solve).parameters
-    return frozenset(k for k, v in params.items() if v.kind == v.KEYWORD_ONLY and k != "rtol")
+    return set(keyword_options(get_backend(name)))
 
 
 def _solve(problem: Any, backend: str, rtol: float, options: dict) -> PressureDistribution:
@@ -95,17 +85,17 @@ def _solve_full(problem: Any, backend: str, rtol: float, options: dict, **engine
     ``grid``, ``plain``, ``warm_start``); a closed form gives a solution holding its result alone."""
     import sys
 
-    from .fokker_planck.backends import get_backend
+    from .fokker_planck.backends import get_backend, keyword_options
     from .fokker_planck.engine import FVSolution
 
     backend = _check_backend(backend)
     rtol = _check_rtol(rtol)
     chosen = choose_backend(problem, options) if backend == "auto" else backend
     solver = get_backend(chosen)
-    unknown = set(options) - _keyword_options(solver)
+    unknown = set(options) - keyword_options(solver)
     if unknown:
         raise ValueError(f"unknown option(s) {sorted(unknown)} for backend {chosen!r}; it accepts "
-                         f"{sorted(_keyword_options(solver))}")
+                         f"{sorted(keyword_options(solver))}")
     full = getattr(sys.modules[solver.__module__], "solve_full", None)
     engine = {k: v for k, v in engine.items() if v is not None}
     if full is None:  # (a warm start is a hint: a closed form needs none)

@@ -25,7 +25,6 @@ Submodules: :mod:`~diffusion_pr.closures.shells`, :mod:`~diffusion_pr.closures.m
 spectrum; ``tau`` in pressure^2."""
 from __future__ import annotations
 
-import functools
 from dataclasses import replace
 from typing import Any, Optional
 
@@ -121,7 +120,7 @@ def _check_fv_options(backend: str, options: dict) -> str:
     that it takes ``options``."""
     import sys
 
-    from ..fokker_planck.backends import backend_names, get_backend
+    from ..fokker_planck.backends import backend_names, get_backend, keyword_options
 
     chosen = "native" if backend == "auto" else backend
     if chosen not in backend_names():
@@ -131,20 +130,11 @@ def _check_fv_options(backend: str, options: dict) -> str:
     if full is None:
         raise ValueError(f"the shell closures are staged problems for a finite-volume backend; backend {chosen!r} "
                          "is not one (use 'auto', 'native', 'pypde' or 'fipy')")
-    accepted = _keyword_options(solver)
+    accepted = keyword_options(solver)
     unknown = set(options) - accepted
     if unknown:
         raise ValueError(f"unknown option(s) {sorted(unknown)} for backend {chosen!r}; it accepts {sorted(accepted)}")
     return chosen
-
-
-@functools.lru_cache(maxsize=None)
-def _keyword_options(solve: Any) -> frozenset:
-    """Keyword options of a backend's ``solve`` function (besides ``rtol``), read once per function."""
-    import inspect
-
-    params = inspect.signature(solve).parameters
-    return frozenset(k for k, v in params.items() if v.kind == v.KEYWORD_ONLY and k != "rtol")
 
 
 def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: float, zeta: float = 0.0,

@@ -5,6 +5,7 @@ Every backend module exposes ``solve(problem, *, rtol, **options) -> PressureDis
 """
 from __future__ import annotations
 
+import functools
 import importlib
 from typing import Callable, Dict, Tuple
 
@@ -101,3 +102,12 @@ def warm_up(name: str) -> float:
     module = importlib.import_module(_REGISTRY[name][0])
     fn = getattr(module, "warm_up", None)
     return float(fn()) if fn is not None else 0.0
+
+
+@functools.lru_cache(maxsize=None)
+def keyword_options(solve: Callable) -> frozenset:
+    """Keyword options of a backend's ``solve`` function (besides ``rtol``), read once per function."""
+    import inspect
+
+    params = inspect.signature(solve).parameters
+    return frozenset(k for k, v in params.items() if v.kind == v.KEYWORD_ONLY and k != "rtol")
