@@ -23,6 +23,7 @@ __all__ = [
     "check_callable",
     "check_int",
     "check_seed",
+    "check_writable",
     "check_writable_dir",
 ]
 
@@ -32,9 +33,9 @@ class InputTypeError(TypeError, ValueError):
 
 
 def _as_float(name: str, value: Any) -> float | np.ndarray:
-    """Convert ``value`` to float (scalar) or float array; reject non-numbers."""
-    if isinstance(value, (str, bytes)) or value is None:
-        raise InputTypeError(f"{name} must be a real number; got {value!r}")
+    """Convert ``value`` to float (scalar) or float array; reject non-numbers and complex numbers."""
+    if isinstance(value, (str, bytes, complex)) or value is None or np.iscomplexobj(value):
+        raise InputTypeError(f"{name} must be a real number or array of real numbers; got {value!r}")
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -99,8 +100,6 @@ def check_finite_array(
     min_size : int, default 1
         Minimum number of elements.
     """
-    if np.iscomplexobj(arr):
-        raise ValueError(f"{name} must be real-valued; got a complex array")
     a = np.asarray(_as_float(name, arr), dtype=float)
     if ndim is not None and a.ndim != ndim:
         raise ValueError(f"{name} must be a {ndim}-d array; got shape {a.shape}")
@@ -147,39 +146,47 @@ def check_callable(name: str, obj: Any) -> Callable[..., Any]:
 
 def check_int(name: str, value: Any, minimum: int = 1) -> int:
     """Require an integer (not a bool or float) >= ``minimum``; return it as ``int``."""
-    import numbers
-
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}; got {value!r}")
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}; got {name}={value!r}")
     return int(value)
 
 
 def check_seed(name: str, value: Any) -> Any:
-    """Require an integer >= 0 or a :class:`numpy.random.SeedSequence` (what ``default_rng`` accepts
-    reproducibly)."""
-    import numbers
-
+    """Require an integer >= 0 or a :class:`numpy.random.SeedSequence` (what ``default_rng`` takes reproducibly)."""
     if isinstance(value, np.random.SeedSequence):
         return value
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral) or value < 0:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 0:
         raise ValueError(f"{name} must be an integer >= 0 or a numpy SeedSequence; got {name}={value!r}")
     return int(value)
 
 
-def check_writable_dir(name: str, path: Any) -> str:
-    """Create the folder ``path`` if needed and check that a file can be written in it (before any expensive
-    work, so an unwritable output folder is an immediate ``ValueError`` naming the parameter)."""
+def check_writable(name: str, path: Any, *, folder: bool = True) -> str:
+    """``path`` as a string once a file can be written there: a folder (created if needed) or, with
+    ``folder=False``, a file (its folder must exist; the file is left as it was).  Called before any expensive
+    work, so an unwritable output is an immediate ``ValueError`` naming the parameter."""
     import os
     import tempfile
 
     try:
-        folder = os.fspath(path)
+        target = os.fspath(path)
     except TypeError:
         raise ValueError(f"{name} must be a path; got {name}={path!r}") from None
     try:
-        os.makedirs(folder, exist_ok=True)
-        with tempfile.TemporaryFile(dir=folder):
-            pass
+        if folder:
+            os.makedirs(target, exist_ok=True)
+            tempfile.TemporaryFile(dir=target).close()
+        elif os.path.isdir(target):
+            raise IsADirectoryError(21, "a folder")
+        else:
+            existed = os.path.exists(target)
+            open(target, "a").close()
+            if not existed:
+                os.remove(target)
     except OSError as exc:
-        raise ValueError(f"{name}={folder!r} is not a writable folder: {exc.strerror or exc}") from None
-    return folder
+        raise ValueError(f"{name}={target!r} is not a writable {'folder' if folder else 'file'}: "
+                         f"{exc.strerror or exc}") from None
+    return target
+
+
+#: :func:`check_writable` for a folder (created if needed)
+check_writable_dir = check_writable

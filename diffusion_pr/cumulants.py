@@ -135,6 +135,10 @@ def stress_variance(
         np.reciprocal(g, out=g)
         g *= g
         v[i : i + step] = g @ base
+    if np.isinf(v).any():
+        raise ValueError(f"E_star={E!r} with this spectrum's rms slope {spectrum.rms_slope:.4g} overflows the stress "
+                         "variance (E*/2)^2 gbar^2 (float64 ends at 1.8e308): give pressures in a unit where E_star "
+                         "is of order 1")
     return float(v[0]) if z.ndim == 0 else v.reshape(z.shape)
 
 

@@ -86,6 +86,15 @@ class FokkerPlanckProblem:
             )
         if self.drift is not None and not callable(self.drift):
             raise ValueError(f"drift must be a vectorized callable a(p, tau) or None; got {type(self.drift).__name__}")
+        if not self.time_dependent:  # a negative f is refused here (the solvers would fail obscurely on it)
+            probe = self.mean_pressure * np.geomspace(1e-6, 1e2, 25)
+            try:
+                values = np.asarray(self.diffusivity(probe), dtype=float)
+            except Exception:  # (a failing callable is reported, with its error, by the solver)
+                return
+            if values.shape == probe.shape and np.any(values < 0.0):
+                raise ValueError(f"diffusivity must be >= 0 (a diffusion coefficient); it is negative at "
+                                 f"p={probe[values < 0.0][0]:.6g}: f={values[values < 0.0][0]:.6g}")
 
     # ------------------------------------------------------------------ helpers
     @property
