@@ -19,7 +19,7 @@ from typing import Any, Iterable, Optional, Sequence
 import numpy as np
 
 from ..compare import SimulatedHistogram
-from ..paper import FIG1_SCENE, LARGE_ZETA, cutoff_pressure  # noqa: F401  (FIG1_SCENE re-exported)
+from ..paper import FIG1_SCENE, LARGE_ZETA, N_WAVES, cutoff_pressure  # noqa: F401  (FIG1_SCENE re-exported)
 
 DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 
@@ -190,12 +190,17 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
     if surface not in ("fig1", "fig1-skewed"):
         raise ValueError(f"surface must be 'fig1' or 'fig1-skewed'; got surface={surface!r}")
     n = check_int("n", n, minimum=2)
+    if n < 2 * N_WAVES:
+        raise ValueError(f"n must be >= {2 * N_WAVES}: the roughness's shortest wavelength L/{N_WAVES} needs 2 grid "
+                         f"points (Nyquist); got n={n}")
     check_positive("tol", tol)
-    zetas = list(zetas)
+    zetas, seeds = list(zetas), [check_seed("seeds", seed) for seed in seeds]
+    for name, items in (("zetas", zetas), ("seeds", seeds)):
+        if not items:
+            raise ValueError(f"{name} must hold at least one entry; got {name}={items!r}")
     for zeta in zetas:
         if zeta is not None:
             gfmd_ref.ExponentialRepulsion(check_positive("zeta", zeta))
-    seeds = [check_seed("seeds", seed) for seed in seeds]
     if out_dir is None:
         raise ValueError("out_dir must be a folder (the package's data folder only when given explicitly)")
     folder = Path(check_writable_dir("out_dir", out_dir))
@@ -221,7 +226,7 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
             wall = time.perf_counter() - t0
             name = case_name(zeta, seed, n, surface)
             cmd = (f"diffusion-pr make-reference --n {n} --seeds {seed} --tol {tol:g} --surface {surface} "
-                   f"--zetas {'hard' if zeta is None else f'{zeta:g}'}")
+                   f"--length-unit paper --zetas {'hard' if zeta is None else f'{zeta:g}'}")
             prov = {
                 **scene, "n": n, "zeta": zeta, "interaction": "hard" if zeta is None else "exponential",
                 "seed": int(seed), "surface": surface, "tol": tol, "method": res.method,
