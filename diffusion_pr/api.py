@@ -162,7 +162,7 @@ def solve_problem(problem: Any, *, backend: str = "auto", rtol: float = 1e-6,
     Warns
     -----
     ConvergenceWarning
-        When the result has ``success=False`` (as every entry point here).
+        When the result has ``success=False``.
     """
     if not isinstance(problem, (FokkerPlanckProblem, StagedProblem)):
         raise ValueError(f"problem must be a FokkerPlanckProblem or StagedProblem; got {type(problem).__name__}")
@@ -209,16 +209,13 @@ def propagate(
     Returns
     -------
     PressureDistribution
-        ``p``, ``density``, ``weights``, ``zero_weight``, ``mass``, ``mean``, ``success``, ``error_estimate``,
-        ``wall_time``, ``backend``, ``plot()``; a :class:`ConvergenceWarning` when ``success`` is False.
+        With a :class:`ConvergenceWarning` when ``success`` is False.
 
     Raises
     ------
     ValueError
-        Bad ``mean_pressure``/``variance``/``rtol`` (NaN, <= 0, complex), a non-callable or negative
-        ``diffusivity``, a non-callable ``drift``, an unknown backend or option.
-    BackendUnavailableError
-        Optional backend not installed.
+        Bad ``mean_pressure``/``variance`` (NaN, <= 0, complex), a non-callable or negative ``diffusivity``, a
+        non-callable ``drift``; otherwise as :func:`solve_problem`.
 
     Examples
     --------
@@ -263,9 +260,8 @@ def pressure_distribution(
     :mod:`diffusion_pr.closures` on a finite-volume backend; on a continuum spectrum extrapolated to the continuum
     limit in the number of shells).  ``diagnostics["closure"]`` names the closure in every result.
 
-    Steps: ``V = stress_variance(spectrum, E_star, p0, zeta)`` (Eqs. 9-10); ``f(p) = c(p) t(p)``; one solve of
-    ``dPr/dtau = d^2(f Pr)/dp^2`` to ``tau = V/2``; with a drift ``A(p, eta)`` the problem is mapped onto ``tau``
-    through ``V(eta)`` (:func:`~diffusion_pr.cumulants.variance_vs_magnification`, ``eta = q/q_min``).
+    Steps: ``V = stress_variance(...)`` (Eqs. 9-10); ``f(p) = c(p) t(p)``; one solve of ``dPr/dtau = d^2(f Pr)/dp^2``
+    to ``tau = V/2``; a drift ``A(p, eta)`` is mapped onto ``tau`` through ``V(eta)`` (``eta = q/q_min``).
 
     Parameters
     ----------
@@ -307,9 +303,9 @@ def pressure_distribution(
     Raises
     ------
     ValueError
-        Bad numbers (NaN, out of range, complex) naming the parameter, NaN spectra, an overflowing ``E_star``,
-        ``p_c`` without a smooth cutoff or without one, unknown cutoff/tail/backend names, a backend or option
-        the closure does not use.
+        Bad numbers (NaN, out of range, complex) naming the parameter, NaN spectra, an overflowing ``E_star``, a
+        ``p_c``/``p_t`` missing or one the cutoff/tail would ignore, unknown names, a backend or option the
+        closure does not use.
     """
     result = _pressure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta, cutoff=cutoff,
                                     p_c=p_c, tail=tail, p_t=p_t, drift=drift, backend=backend, rtol=rtol,

@@ -1,29 +1,18 @@
-"""Pressure dependence of the diffusivity: cutoffs ``c(p)`` and tails ``t(p)``.
+"""Pressure dependence of the diffusivity ``D(p, eta) = D(eta) c(p) t(p)`` (docs/theory.md).
 
-The magnification-dependent diffusivity of the Fokker-Planck equation
-(docs/theory.md) is ``D(p, eta) = D(eta) * c(p) * t(p)``.  The pressure factors
-are small frozen dataclasses, vectorized callables of a pressure array (same
-units as ``mean_pressure`` and ``E_star``):
+Cutoffs ``c(p)`` switch ``D`` off at and below ``p = 0``: :class:`SharpCutoff` (Persson's mirror Gaussian),
+:class:`MuserCutoff` (the seed paper's printed factor; Müser, PRL 100, 055504 (2008),
+doi:10.1103/PhysRevLett.100.055504), :class:`RaisedCosineCutoff` (C1), :class:`SmoothstepCutoff` (C2, the paper's
+"D, D' and D'' continuous").  Tails ``t(p)`` for large pressures: :class:`GaussianTail` (``t = 1``), and
+:class:`LinearTail`, :class:`MaxLinearTail`, whose ``D ∝ p`` gives exponential tails.  All are frozen dataclasses,
+vectorized callables of a pressure array (the unit of ``mean_pressure``); any vectorized callable of ``p`` is accepted
+wherever a cutoff or tail is.
 
-* cutoffs, which switch ``D`` off at and below ``p = 0``: :class:`SharpCutoff`
-  (``theta(p)``: Persson's mirror Gaussian), :class:`MuserCutoff` (the seed
-  paper's printed factor, discontinuous at ``p_c``; Müser, PRL 100, 055504
-  (2008), doi:10.1103/PhysRevLett.100.055504), :class:`RaisedCosineCutoff` (C1)
-  and :class:`SmoothstepCutoff` (C2, the paper's "D, D' and D'' continuous");
-* tails, for large pressures: :class:`GaussianTail` (``t = 1``, the default),
-  :class:`LinearTail` and :class:`MaxLinearTail`, whose ``D ∝ p`` at large
-  ``p`` gives exponential tails (the paper's "D proportional to sigma").
-
-Any vectorized callable of ``p`` is accepted wherever a cutoff or tail is.
-
-The model protocol (:class:`PressureModel`): a diffusivity, drift or balance
-callable may declare ``zero_power``, the ``k`` of ``f(p) ~ C p^k`` as ``p -> 0+``
-(by Feller's classification, W. Feller, Ann. Math. 55, 468 (1952),
-doi:10.2307/1969644, mass reaches the absorbing wall ``p = 0`` in finite time
-iff ``k < 2``; for ``k >= 2`` the solvers resolve it on a logarithmic grid down
-to a floor), and ``breakpoints()``, the pressures where ``f``, ``f'`` or ``f''``
-jump (cell edges go there).  Every class here declares both; for a plain
-callable :func:`zero_power_of` and :func:`breakpoints_of` probe them.
+The model protocol (:class:`PressureModel`): a coefficient may declare ``zero_power``, the ``k`` of
+``f(p) ~ C p^k`` as ``p -> 0+`` (Feller, Ann. Math. 55, 468 (1952), doi:10.2307/1969644: mass reaches the absorbing
+wall in finite time iff ``k < 2``; for ``k >= 2`` the solvers resolve it on a logarithmic grid down to a floor), and
+``breakpoints()``, the pressures where ``f``, ``f'`` or ``f''`` jump (cell edges go there).  Every class here
+declares both; for a plain callable :func:`zero_power_of` and :func:`breakpoints_of` probe them.
 """
 from __future__ import annotations
 

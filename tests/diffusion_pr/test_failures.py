@@ -95,7 +95,8 @@ def test_complex_inputs_are_refused(call, name):
 
 
 def test_negative_diffusivity_names_the_diffusivity():
-    _fast_error(lambda: dp.propagate(1.0, 1.0, diffusivity=lambda p: -np.ones_like(p)), "diffusivity", "negative")
+    _fast_error(lambda: dp.propagate(1.0, 1.0, diffusivity=lambda p: -np.ones_like(p)), "diffusivity", ">= 0",
+                "-1.0")
 
 
 def test_too_many_cells_is_a_limit_error_not_a_memory_error():
