@@ -13,19 +13,8 @@ from typing import Any, Callable
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = [
-    "InputTypeError",
-    "check_positive",
-    "check_nonnegative",
-    "check_finite",
-    "check_finite_array",
-    "check_in_range",
-    "check_callable",
-    "check_int",
-    "check_seed",
-    "check_writable",
-    "check_writable_dir",
-]
+__all__ = ["InputTypeError", "check_positive", "check_nonnegative", "check_finite", "check_finite_array",
+           "check_in_range", "check_callable", "check_int", "check_seed", "check_writable", "check_writable_dir"]
 
 
 class InputTypeError(TypeError, ValueError):
@@ -85,21 +74,8 @@ def check_finite_array(
     shape: tuple[int | None, ...] | None = None,
     min_size: int = 1,
 ) -> np.ndarray:
-    """``arr`` as a finite real float array of the expected shape.
-
-    Parameters
-    ----------
-    name : str
-        Parameter name used in the error message.
-    arr : array_like
-        Values to check.
-    ndim : int, optional
-        Required number of dimensions.
-    shape : tuple of int or None, optional
-        Required shape; ``None`` entries match any length.
-    min_size : int, default 1
-        Minimum number of elements.
-    """
+    """``arr`` as a finite real float array with ``ndim`` dimensions, of ``shape`` (``None`` entries match any
+    length) and at least ``min_size`` elements, each where given; the errors name ``name``."""
     a = np.asarray(_as_float(name, arr), dtype=float)
     if ndim is not None and a.ndim != ndim:
         raise ValueError(f"{name} must be a {ndim}-d array; got shape {a.shape}")
@@ -125,11 +101,8 @@ def check_in_range(
     lo_inclusive: bool = True,
     hi_inclusive: bool = True,
 ) -> float | np.ndarray:
-    """``value`` (scalar or every array entry) as float, required in ``[lo, hi]`` (NaN rejected).
-
-    ``lo_inclusive`` / ``hi_inclusive`` (default True) say whether the bounds
-    themselves are allowed; use ``-inf`` / ``inf`` for one-sided ranges.
-    """
+    """``value`` (scalar or every array entry) as float, required in ``[lo, hi]`` (NaN rejected); ``lo_inclusive``,
+    ``hi_inclusive`` say whether the bounds are allowed; ``-inf`` / ``inf`` for one-sided ranges."""
     def ok(v: np.ndarray) -> np.ndarray:
         return (v >= lo if lo_inclusive else v > lo) & (v <= hi if hi_inclusive else v < hi) & ~np.isnan(v)
 
