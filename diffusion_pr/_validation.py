@@ -23,12 +23,16 @@ class InputTypeError(TypeError, ValueError):
 
 def _as_float(name: str, value: Any) -> float | np.ndarray:
     """Convert ``value`` to float (scalar) or float array; reject non-numbers and complex numbers."""
+    def refuse() -> InputTypeError:
+        shown = repr(value) if len(repr(value)) <= 80 else repr(value)[:76] + " ..."
+        return InputTypeError(f"{name} must be a real number or array of real numbers; got {shown}")
+
     if isinstance(value, (str, bytes, complex)) or value is None or np.iscomplexobj(value):
-        raise InputTypeError(f"{name} must be a real number or array of real numbers; got {value!r}")
+        raise refuse()
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as exc:
-        raise InputTypeError(f"{name} must be a real number or array of real numbers; got {value!r}") from exc
+        raise refuse() from exc
     return float(arr) if arr.ndim == 0 else arr
 
 

@@ -88,6 +88,7 @@ def test_p_floor_where_the_wall_is_reached_is_refused():
     (lambda: dp.pressure_distribution(S, E_star=np.complex128(8 / 3 + 1j), mean_pressure=0.004), "E_star"),
     (lambda: dp.pressure_distributions(S, **SCENE, zetas=np.array([0.25 + 1j])), "zetas"),
     (lambda: dp.stress_variance(S, E_star=8 / 3, mean_pressure=0.004, zeta=np.array([0.1 + 0.1j])), "zeta"),
+    (lambda: dp.DiscreteSpectrum.from_heights(np.ones((64, 64)) * (1 + 1j), 1.0), "heights"),
 ])
 def test_complex_inputs_are_refused(call, name):
     err = _fast_error(call, name, "real", error=dp.InputTypeError)
