@@ -389,23 +389,10 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
     meets ``rtol`` on its own; it may differ from a single call's (another grid) by less than ``rtol``.  Sort
     ``zetas`` for the best effect.
 
-    Parameters
-    ----------
-    spectrum : Spectrum
-        As in :func:`pressure_distribution`.
-    zetas : array_like
-        Wall ranges (the spectrum's length unit), one-dimensional, each >= 0.
-    backend : str
-        As in :func:`pressure_distribution`; the chaining applies to ``"native"`` results.
-    progress : bool
-        Show a tqdm progress bar.
-    **kwargs
-        Everything else :func:`pressure_distribution` takes, except ``zeta``.
-
-    Returns
-    -------
-    list of PressureDistribution
-        One per entry of ``zetas`` (a :class:`ConvergenceWarning` for each failed one).
+    ``zetas``: the wall ranges (the spectrum's length unit), one-dimensional, each >= 0; ``progress``: a tqdm
+    progress bar; everything else as :func:`pressure_distribution` (the chaining applies to ``"native"`` results).
+    Returns one :class:`PressureDistribution` per entry of ``zetas`` (a :class:`ConvergenceWarning` for each failed
+    one).
     """
     from .fokker_planck.engine import MAX_CELLS
 
