@@ -333,8 +333,8 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
                                  f"cutoff, tail or drift (got {name}={value!r})")
         given = sorted(k for k, v in options.items() if v is not None)
         if closure == "lognormal_gap" and (backend not in ("auto", "closed_form") or given):
-            raise ValueError(f"closure='lognormal_gap' is a closed form: it takes backend 'auto' or 'closed_form' "
-                             f"and no solver options; got backend={backend!r}" + (f", {given}" if given else ""))
+            raise ValueError(f"closure='lognormal_gap' is a closed form: backend must be 'auto' or 'closed_form' "
+                             f"(got backend={backend!r}) and solver options do not apply (got {given})")
         return _closure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
                                      closure=closure, backend=backend, rtol=rtol, warm_start=warm_start, **options)
     for name in ("n_shells", "shell_extrapolation"):
