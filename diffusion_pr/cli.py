@@ -85,6 +85,7 @@ def _grid_options(sub: argparse.ArgumentParser, *, n: int, zetas: str, walls: st
 
 
 def _parser() -> argparse.ArgumentParser:
+    from . import paper
     from .closures import CLOSURES
 
     parser = argparse.ArgumentParser(
@@ -121,17 +122,18 @@ def _parser() -> argparse.ArgumentParser:
     th.add_argument("--zeta", type=float, default=0.0,
                     help="decay length of the exponential wall, in the unit of --length; 0 is the hard wall "
                          "(default: 0)")
-    th.add_argument("--length", type=float, default=1024.0,
-                    help=f"the surface's side L = 2 pi/q_min, the unit of every length (default: 1024, i.e. "
-                         f"lengths in {ZETA_UNIT})")
-    th.add_argument("--n-waves", type=float, default=32.0,
-                    help="q_max/q_min: the shortest wavelength is L/n_waves (default: 32)")
-    th.add_argument("--hurst", type=float, default=0.3, help="Hurst exponent, in (0, 1) (default: 0.3)")
-    th.add_argument("--rms-slope", type=float, default=0.031,
-                    help="amplitude: the surface's rms slope (dimensionless; default: 0.031)")
-    th.add_argument("--E-star", type=float, default=8.0 / 3.0, help="contact modulus E* (default: 8/3)")
-    th.add_argument("--mean-pressure", type=float, default=0.004,
-                    help="mean pressure p0, in the unit of E* (default: 0.004)")
+    th.add_argument("--length", type=float, default=paper.LENGTH,
+                    help=f"the surface's side L = 2 pi/q_min, the unit of every length (default: {paper.LENGTH:g}, "
+                         f"i.e. lengths in {ZETA_UNIT})")
+    th.add_argument("--n-waves", type=float, default=paper.N_WAVES,
+                    help=f"q_max/q_min: the shortest wavelength is L/n_waves (default: {paper.N_WAVES})")
+    th.add_argument("--hurst", type=float, default=paper.HURST,
+                    help=f"Hurst exponent, in (0, 1) (default: {paper.HURST})")
+    th.add_argument("--rms-slope", type=float, default=paper.RMS_SLOPE,
+                    help=f"amplitude: the surface's rms slope (dimensionless; default: {paper.RMS_SLOPE})")
+    th.add_argument("--E-star", type=float, default=paper.E_STAR, help="contact modulus E* (default: 8/3)")
+    th.add_argument("--mean-pressure", type=float, default=paper.MEAN_PRESSURE,
+                    help=f"mean pressure p0, in the unit of E* (default: {paper.MEAN_PRESSURE})")
     th.add_argument("--cutoff", default="sharp", choices=["sharp", "muser", "raised_cosine", "smoothstep"],
                     help="second_order: cutoff of the diffusivity at small p (default: sharp, Persson's)")
     th.add_argument("--p-c", type=float, default=None,
