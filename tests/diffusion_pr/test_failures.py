@@ -50,6 +50,13 @@ def test_a_failed_solve_warns_at_every_public_entry_point():
         assert dp.propagate(1.0, 1.0, backend="native", rtol=1e-4).success  # a success does not warn
 
 
+def test_the_reported_pypde_failure_warns():
+    """The reported case: py-pde returned success=False without a word (2 s here)."""
+    pytest.importorskip("pde")
+    with pytest.warns(dp.ConvergenceWarning, match="backend 'pypde'"):
+        assert not dp.propagate(1.0, 1.0, backend="pypde", rtol=1e-12, max_cells=200).success
+
+
 # ----------------------------------------------------------------------------- options a solve would ignore
 def test_closed_form_backend_for_a_closure_is_a_clear_error():
     for closure in ("local_g1", "local_g1_balanced", "local_g1_shell_balanced"):
