@@ -71,6 +71,8 @@ _LAZY = {
     "backend_names": "fokker_planck.backends",
     "is_available": "fokker_planck.backends",
     "warm_up": "api",
+    "ConvergenceWarning": "api",
+    "InputTypeError": "_validation",
 }
 
 __all__ = sorted(_LAZY) + ["__version__"]

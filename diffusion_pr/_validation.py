@@ -13,18 +13,8 @@ from typing import Any, Callable
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = [
-    "InputTypeError",
-    "check_positive",
-    "check_nonnegative",
-    "check_finite",
-    "check_finite_array",
-    "check_in_range",
-    "check_callable",
-    "check_int",
-    "check_seed",
-    "check_writable_dir",
-]
+__all__ = ["InputTypeError", "check_positive", "check_nonnegative", "check_finite", "check_finite_array",
+           "check_in_range", "check_callable", "check_int", "check_seed", "check_writable", "check_writable_dir"]
 
 
 class InputTypeError(TypeError, ValueError):
@@ -32,13 +22,17 @@ class InputTypeError(TypeError, ValueError):
 
 
 def _as_float(name: str, value: Any) -> float | np.ndarray:
-    """Convert ``value`` to float (scalar) or float array; reject non-numbers."""
-    if isinstance(value, (str, bytes)) or value is None:
-        raise InputTypeError(f"{name} must be a real number; got {value!r}")
+    """Convert ``value`` to float (scalar) or float array; reject non-numbers and complex numbers."""
+    def refuse() -> InputTypeError:
+        shown = repr(value) if len(repr(value)) <= 80 else repr(value)[:76] + " ..."
+        return InputTypeError(f"{name} must be a real number or array of real numbers; got {shown}")
+
+    if isinstance(value, (str, bytes, complex)) or value is None or np.iscomplexobj(value):
+        raise refuse()
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as exc:
-        raise InputTypeError(f"{name} must be a real number or array of real numbers; got {value!r}") from exc
+        raise refuse() from exc
     return float(arr) if arr.ndim == 0 else arr
 
 
@@ -84,23 +78,8 @@ def check_finite_array(
     shape: tuple[int | None, ...] | None = None,
     min_size: int = 1,
 ) -> np.ndarray:
-    """``arr`` as a finite real float array of the expected shape.
-
-    Parameters
-    ----------
-    name : str
-        Parameter name used in the error message.
-    arr : array_like
-        Values to check.
-    ndim : int, optional
-        Required number of dimensions.
-    shape : tuple of int or None, optional
-        Required shape; ``None`` entries match any length.
-    min_size : int, default 1
-        Minimum number of elements.
-    """
-    if np.iscomplexobj(arr):
-        raise ValueError(f"{name} must be real-valued; got a complex array")
+    """``arr`` as a finite real float array with ``ndim`` dimensions, of ``shape`` (``None`` entries match any
+    length) and at least ``min_size`` elements, each where given; the errors name ``name``."""
     a = np.asarray(_as_float(name, arr), dtype=float)
     if ndim is not None and a.ndim != ndim:
         raise ValueError(f"{name} must be a {ndim}-d array; got shape {a.shape}")
@@ -126,11 +105,8 @@ def check_in_range(
     lo_inclusive: bool = True,
     hi_inclusive: bool = True,
 ) -> float | np.ndarray:
-    """``value`` (scalar or every array entry) as float, required in ``[lo, hi]`` (NaN rejected).
-
-    ``lo_inclusive`` / ``hi_inclusive`` (default True) say whether the bounds
-    themselves are allowed; use ``-inf`` / ``inf`` for one-sided ranges.
-    """
+    """``value`` (scalar or every array entry) as float, required in ``[lo, hi]`` (NaN rejected); ``lo_inclusive``,
+    ``hi_inclusive`` say whether the bounds are allowed; ``-inf`` / ``inf`` for one-sided ranges."""
     def ok(v: np.ndarray) -> np.ndarray:
         return (v >= lo if lo_inclusive else v > lo) & (v <= hi if hi_inclusive else v < hi) & ~np.isnan(v)
 
@@ -147,39 +123,47 @@ def check_callable(name: str, obj: Any) -> Callable[..., Any]:
 
 def check_int(name: str, value: Any, minimum: int = 1) -> int:
     """Require an integer (not a bool or float) >= ``minimum``; return it as ``int``."""
-    import numbers
-
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}; got {value!r}")
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}; got {name}={value!r}")
     return int(value)
 
 
 def check_seed(name: str, value: Any) -> Any:
-    """Require an integer >= 0 or a :class:`numpy.random.SeedSequence` (what ``default_rng`` accepts
-    reproducibly)."""
-    import numbers
-
+    """Require an integer >= 0 or a :class:`numpy.random.SeedSequence` (what ``default_rng`` takes reproducibly)."""
     if isinstance(value, np.random.SeedSequence):
         return value
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral) or value < 0:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 0:
         raise ValueError(f"{name} must be an integer >= 0 or a numpy SeedSequence; got {name}={value!r}")
     return int(value)
 
 
-def check_writable_dir(name: str, path: Any) -> str:
-    """Create the folder ``path`` if needed and check that a file can be written in it (before any expensive
-    work, so an unwritable output folder is an immediate ``ValueError`` naming the parameter)."""
+def check_writable(name: str, path: Any, *, folder: bool = True) -> str:
+    """``path`` as a string once a file can be written there: a folder (created if needed) or, with
+    ``folder=False``, a file (its folder must exist; the file is left as it was).  Called before any expensive
+    work, so an unwritable output is an immediate ``ValueError`` naming the parameter."""
     import os
     import tempfile
 
     try:
-        folder = os.fspath(path)
+        target = os.fspath(path)
     except TypeError:
         raise ValueError(f"{name} must be a path; got {name}={path!r}") from None
     try:
-        os.makedirs(folder, exist_ok=True)
-        with tempfile.TemporaryFile(dir=folder):
-            pass
+        if folder:
+            os.makedirs(target, exist_ok=True)
+            tempfile.TemporaryFile(dir=target).close()
+        elif os.path.isdir(target):
+            raise IsADirectoryError(21, "a folder")
+        else:
+            existed = os.path.exists(target)
+            open(target, "a").close()
+            if not existed:
+                os.remove(target)
     except OSError as exc:
-        raise ValueError(f"{name}={folder!r} is not a writable folder: {exc.strerror or exc}") from None
-    return folder
+        raise ValueError(f"{name}={target!r} is not a writable {'folder' if folder else 'file'}: "
+                         f"{exc.strerror or exc}") from None
+    return target
+
+
+#: :func:`check_writable` for a folder (created if needed)
+check_writable_dir = check_writable

@@ -4,28 +4,46 @@
 ``pressure_distribution`` does the whole scene of Müser, PRL 100, 055504 (2008),
 doi:10.1103/PhysRevLett.100.055504: the stress variance of the spectrum, the pressure factor ``f(p) = c(p) t(p)``,
 an optional drift, and the solve.  ``backend="auto"`` takes the closed form wherever it is exact, else
-``"native"`` (docs/backends.md); every backend returns the same ``zero_weight`` and density within ``rtol``."""
+``"native"`` (docs/backends.md); every backend returns the same ``zero_weight`` and density within ``rtol``.
+A result with ``success=False`` is returned with a :class:`ConvergenceWarning` carrying its message."""
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import replace
 from typing import Any, Callable, Optional
 
 import numpy as np
 
-from ._validation import InputTypeError, check_callable, check_nonnegative, check_positive
+from ._validation import check_callable, check_finite_array, check_int, check_nonnegative, check_positive
 from .models import PressureFactor, make_cutoff, make_tail
 from .problem import FokkerPlanckProblem, StagedProblem
 from .result import PressureDistribution
 
 __all__ = ["warm_up", "propagate", "pressure_distribution", "pressure_distributions", "solve_problem",
-           "choose_backend", "BACKENDS"]
+           "choose_backend", "BACKENDS", "ConvergenceWarning"]
 
 #: names accepted by ``backend=`` (besides any registered later)
 BACKENDS = ("auto", "closed_form", "native", "pypde", "fipy")
 
 #: magnification nodes for a drift A(p, eta) (log-spaced from 1 to q_max/q_min)
 N_ETA = 513
+
+#: the most cells ``max_cells`` may allow (about 1 GB of the engine's float64 work arrays)
+MAX_CELLS_LIMIT = 1 << 22
+
+
+class ConvergenceWarning(UserWarning):
+    """A solve returned ``success=False`` (its ``message`` says why); filter it with
+    ``warnings.simplefilter("ignore", diffusion_pr.ConvergenceWarning)``."""
+
+
+def _checked(result: PressureDistribution) -> PressureDistribution:
+    """``result``, with a :class:`ConvergenceWarning` (pointing at the user's call) when it failed."""
+    if not result.success:
+        warnings.warn(f"backend {result.backend!r} returned success=False: {result.message}", ConvergenceWarning,
+                      stacklevel=3)
+    return result
 
 
 def _exact_schedule(spectrum: Any, E_star: float, mean_pressure: float, zeta: float) -> dict:
@@ -59,37 +77,46 @@ def _check_rtol(rtol: object) -> float:
 
 def choose_backend(problem: Any, options: Optional[dict] = None) -> str:
     """The ``"auto"`` choice: ``"closed_form"`` if exact (and no finite-volume option given), else ``"native"``."""
+    from .fokker_planck.backends import get_backend, keyword_options
     from .fokker_planck.backends.closed_form import exact_kind
 
     if not isinstance(problem, FokkerPlanckProblem) or exact_kind(problem) is None:
         return "native"
-    if options and set(options) - _accepted_options("closed_form"):
-        return "native"
-    return "closed_form"
+    return "native" if set(options or ()) - set(keyword_options(get_backend("closed_form"))) else "closed_form"
 
 
-def _accepted_options(name: str) -> set:
-    """Keyword options of backend ``name``'s ``solve`` (besides ``rtol``)."""
-    from .fokker_planck.backends import get_backend, keyword_options
+def _check_cells(problem: Any, options: dict) -> None:
+    """``max_cells``, ``n_cells`` (the coarsest of three nested grids, the finest 4x as fine) within the limits,
+    and ``p_floor`` only where the wall is not reached (Feller: ``f ~ p^k`` with ``k >= 2``)."""
+    from .fokker_planck.engine import MAX_CELLS
+    from .models import breakpoints_of, wall_reached, zero_power_of
 
-    return set(keyword_options(get_backend(name)))
-
-
-def _solve(problem: Any, backend: str, rtol: float, options: dict) -> PressureDistribution:
-    """Solve with inputs already validated (``backend`` checked, ``rtol`` a float in range)."""
-    return _solve_full(problem, backend, rtol, options).result
+    cap = check_int("max_cells", options.get("max_cells", MAX_CELLS), minimum=32)
+    if cap > MAX_CELLS_LIMIT:
+        raise ValueError(f"max_cells must be an integer in [32, {MAX_CELLS_LIMIT}] (memory); got max_cells={cap}")
+    n = options.get("n_cells")
+    if n is not None and check_int("n_cells", n, minimum=8) > cap // 4:
+        raise ValueError(f"n_cells must be an integer in [8, max_cells/4 = {cap // 4}] (its finest grid has "
+                         f"4 n_cells cells, at most max_cells={cap}); got n_cells={n}")
+    if options.get("p_floor") is None or getattr(problem, "time_dependent", False):
+        return
+    p0 = problem.mean_pressure
+    fs = [s.diffusivity for s in problem.stages] if isinstance(problem, StagedProblem) else [problem.diffusivity]
+    k = min(zero_power_of(f, min([p0, *breakpoints_of(f, 0.0, p0)])) for f in fs)
+    if wall_reached(k):
+        raise ValueError(f"p_floor applies where no mass reaches p = 0 (f ~ p^k with k >= 2); this diffusivity has "
+                         f"k = {k:g}: p = 0 absorbs and has no floor; got p_floor={options['p_floor']!r}")
 
 
 def _solve_full(problem: Any, backend: str, rtol: float, options: dict, **engine: Any) -> Any:
-    """:func:`_solve` with the engine's :class:`~diffusion_pr.fokker_planck.engine.FVSolution` (``engine``: its
+    """The solve, with the engine's :class:`~diffusion_pr.fokker_planck.engine.FVSolution` (``engine``: its
     ``grid``, ``plain``, ``warm_start``); a closed form gives a solution holding its result alone."""
     import sys
 
     from .fokker_planck.backends import get_backend, keyword_options
     from .fokker_planck.engine import FVSolution
 
-    backend = _check_backend(backend)
-    rtol = _check_rtol(rtol)
+    backend, rtol = _check_backend(backend), _check_rtol(rtol)
     chosen = choose_backend(problem, options) if backend == "auto" else backend
     solver = get_backend(chosen)
     unknown = set(options) - keyword_options(solver)
@@ -103,6 +130,7 @@ def _solve_full(problem: Any, backend: str, rtol: float, options: dict, **engine
             raise ValueError(f"backend {chosen!r} is not a finite-volume backend: it takes no {sorted(engine)}")
         sol = FVSolution(result=solver(problem, rtol=rtol, **options))
     else:
+        _check_cells(problem, options)
         sol = full(problem, rtol=rtol, **options, **engine)
     return replace(sol, result=replace(sol.result, diagnostics={**sol.result.diagnostics,
                                                                 "backend_requested": backend}))
@@ -121,8 +149,8 @@ def solve_problem(problem: Any, *, backend: str = "auto", rtol: float = 1e-6,
     rtol : float
         Target L1 error of ``Pr`` (dimensionless), in [1e-14, 1).
     **options
-        The backend's own options (e.g. ``n_cells``, ``max_cells``, ``p_floor``; ``method="cram"|"loop"`` for
-        py-pde and FiPy); an unknown name is an error.
+        The backend's own options (e.g. ``n_cells`` <= ``max_cells/4``, ``max_cells`` <= 2^22, ``p_floor`` where
+        the wall is not reached; ``method="cram"|"loop"`` for py-pde and FiPy); an unknown name is an error.
 
     Raises
     ------
@@ -130,12 +158,15 @@ def solve_problem(problem: Any, *, backend: str = "auto", rtol: float = 1e-6,
         Unknown backend or option, bad ``rtol``, or ``closed_form`` asked for a problem without a closed form.
     BackendUnavailableError
         The backend's optional dependency is missing (the message names the pip extra).
+
+    Warns
+    -----
+    ConvergenceWarning
+        When the result has ``success=False``.
     """
     if not isinstance(problem, (FokkerPlanckProblem, StagedProblem)):
         raise ValueError(f"problem must be a FokkerPlanckProblem or StagedProblem; got {type(problem).__name__}")
-    backend = _check_backend(backend)
-    rtol = _check_rtol(rtol)
-    return _solve(problem, backend, rtol, options)
+    return _checked(_solve_full(problem, backend, rtol, options).result)
 
 
 def propagate(
@@ -173,21 +204,18 @@ def propagate(
     rtol : float
         Target L1 error (density integral plus zero weight), in [1e-14, 1).
     **options
-        Backend options (e.g. ``n_cells``, ``max_cells`` for ``"native"``).
+        Backend options, as in :func:`solve_problem`.
 
     Returns
     -------
     PressureDistribution
-        ``p``, ``density``, ``weights``, ``zero_weight``, ``mass``, ``mean``, ``success``, ``error_estimate``,
-        ``wall_time``, ``backend``, ``plot()``.
+        With a :class:`ConvergenceWarning` when ``success`` is False.
 
     Raises
     ------
     ValueError
-        Bad ``mean_pressure``/``variance``/``rtol`` (NaN, <= 0), a non-callable ``diffusivity`` or ``drift``, an
-        unknown backend.
-    BackendUnavailableError
-        Optional backend not installed.
+        Bad ``mean_pressure``/``variance`` (NaN, <= 0, complex), a non-callable or negative ``diffusivity``, a
+        non-callable ``drift``; otherwise as :func:`solve_problem`.
 
     Examples
     --------
@@ -199,14 +227,11 @@ def propagate(
     var = check_positive("variance", variance)
     if np.ndim(p0) or np.ndim(var):
         raise ValueError("mean_pressure and variance must be scalars")
-    if diffusivity is not None:
-        check_callable("diffusivity", diffusivity)
-    if drift is not None:
-        check_callable("drift", drift)
-    backend = _check_backend(backend)
-    rtol = _check_rtol(rtol)
+    for name, fn in (("diffusivity", diffusivity), ("drift", drift)):
+        if fn is not None:
+            check_callable(name, fn)
     problem = FokkerPlanckProblem(float(p0), float(var), diffusivity, drift=drift)
-    return _solve(problem, backend, rtol, options)
+    return _checked(_solve_full(problem, backend, rtol, options).result)
 
 
 def pressure_distribution(
@@ -228,29 +253,31 @@ def pressure_distribution(
     """Pressure distribution of a rough contact (Müser 2008, Eqs. 2, 9, 10; docs/theory.md).
 
     ``closure`` picks the theory (docs/closures.md, :data:`diffusion_pr.closures.CLOSURES`): ``"second_order"``
-    (the paper, default; everything below), or the parameter-free ``"lognormal_gap"`` (closed form),
+    (the paper, default; everything below), or the parameter-free ``"lognormal_gap"`` (a closed form:
+    ``backend`` ``"auto"``/``"closed_form"`` only, no solver options; defined for exponential walls ``zeta > 0``
+    and meaningful where the gap's linear response holds, i.e. ``V/p0^2`` small, large ``zeta``),
     ``"local_g1"``, ``"local_g1_balanced"``, ``"local_g1_shell_balanced"`` (no cutoff, tail or drift; solved by
-    :mod:`diffusion_pr.closures`; on a continuum spectrum extrapolated to the continuum limit in the number of
-    shells).  ``diagnostics["closure"]`` names the closure in every result.
+    :mod:`diffusion_pr.closures` on a finite-volume backend; on a continuum spectrum extrapolated to the continuum
+    limit in the number of shells).  ``diagnostics["closure"]`` names the closure in every result.
 
-    Steps: ``V = stress_variance(spectrum, E_star, p0, zeta)`` (Eqs. 9-10); ``f(p) = c(p) t(p)``; one solve of
-    ``dPr/dtau = d^2(f Pr)/dp^2`` to ``tau = V/2``; with a drift ``A(p, eta)`` the problem is mapped onto ``tau``
-    through ``V(eta)`` (:func:`~diffusion_pr.cumulants.variance_vs_magnification`, ``eta = q/q_min``).
+    Steps: ``V = stress_variance(...)`` (Eqs. 9-10); ``f(p) = c(p) t(p)``; one solve of ``dPr/dtau = d^2(f Pr)/dp^2``
+    to ``tau = V/2``; a drift ``A(p, eta)`` is mapped onto ``tau`` through ``V(eta)`` (``eta = q/q_min``).
 
     Parameters
     ----------
     spectrum : Spectrum
-        :class:`~diffusion_pr.spectra.SelfAffineSpectrum` or :class:`~diffusion_pr.spectra.DiscreteSpectrum`
-        (lengths in the unit of ``zeta``).
+        :class:`~diffusion_pr.spectra.SelfAffineSpectrum` or :class:`~diffusion_pr.spectra.DiscreteSpectrum`.
     E_star : float
         Contact modulus (pressure), > 0.
     mean_pressure : float
         ``p0`` (pressure), > 0.
     zeta : float
-        Range of the exponential repulsion (length), >= 0; 0 = hard wall.
+        Range of the exponential repulsion, >= 0 (0 = hard wall), in the length unit of the spectrum (that of its
+        ``L = 2 pi / q_min``).
     cutoff : str or callable
-        ``"sharp"`` (default; exact mirror Gaussian), ``"muser"``/``"seed"`` (the paper's printed factor,
-        discontinuous at ``p_c``), ``"raised_cosine"`` (C1), ``"smoothstep"`` (C2), or a callable ``c(p)``.
+        ``"sharp"`` (default; exact mirror Gaussian, takes no ``p_c``), ``"muser"``/``"seed"`` (the paper's
+        printed factor, discontinuous at ``p_c``), ``"raised_cosine"`` (C1), ``"smoothstep"`` (C2), or a callable
+        ``c(p)``.
     p_c : float, optional
         Cutoff pressure (pressure) for the smooth cutoffs, > 0.
     tail : str or callable, optional
@@ -261,28 +288,29 @@ def pressure_distribution(
     drift : callable, optional
         ``A(p, eta)`` (pressure per unit magnification).
     backend, rtol, **options
-        As in :func:`propagate`.  The shell closures take a finite-volume backend (``"auto"`` is ``"native"``) and
-        two more options: ``n_shells`` (the number of shells, default 96; with the extrapolation its first
-        solve's, default 48) and ``shell_extrapolation`` (default None: True for a continuum spectrum without
-        ``n_shells``; True: the continuum closure, its ``error_estimate`` the grids' estimate plus the shells'
-        residual; False: the ``n_shells`` problem itself, exact for a
-        :class:`~diffusion_pr.spectra.DiscreteSpectrum`'s own shells).
+        As in :func:`propagate`.  The shell closures take two more options: ``n_shells`` (the number of shells,
+        default 96; with the extrapolation its first solve's, default 48) and ``shell_extrapolation`` (default
+        None: True for a continuum spectrum without ``n_shells``; True: the continuum closure, its
+        ``error_estimate`` the grids' estimate plus the shells' residual; False: the ``n_shells`` problem itself,
+        exact for a :class:`~diffusion_pr.spectra.DiscreteSpectrum`'s own shells).
 
     Returns
     -------
     PressureDistribution
         With ``diagnostics["stress_variance"]`` (``V``, pressure squared), ``diagnostics["zeta"]`` and, with a
-        drift, the ``eta`` grid used.
+        drift, the ``eta`` grid used; a :class:`ConvergenceWarning` when ``success`` is False.
 
     Raises
     ------
     ValueError
-        Bad numbers (NaN, out of range) naming the parameter, NaN spectra, ``p_c <= 0``, unknown
-        cutoff/tail/backend names.
+        Bad numbers (NaN, out of range, complex) naming the parameter, NaN spectra, an overflowing ``E_star``, a
+        ``p_c``/``p_t`` missing or one the cutoff/tail would ignore, unknown names, a backend or option the
+        closure does not use.
     """
-    return _pressure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta, cutoff=cutoff,
-                                  p_c=p_c, tail=tail, p_t=p_t, drift=drift, backend=backend, rtol=rtol,
-                                  closure=closure, **options)[0]
+    result = _pressure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta, cutoff=cutoff,
+                                    p_c=p_c, tail=tail, p_t=p_t, drift=drift, backend=backend, rtol=rtol,
+                                    closure=closure, **options)[0]
+    return _checked(result)
 
 
 def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float, zeta: float = 0.0,
@@ -293,6 +321,7 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
     """``(result, solution)``: :func:`pressure_distribution`'s result and the finite-volume solution it came from
     (:class:`~diffusion_pr.fokker_planck.engine.FVSolution`, None where there is none), started from ``warm_start``
     (a sweep's :class:`~diffusion_pr.fokker_planck.engine.WarmStart`)."""
+    backend, rtol = _check_backend(backend), _check_rtol(rtol)
     if closure != "second_order":
         from .closures import _closure_distribution, check_closure
 
@@ -302,13 +331,15 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
             if value is not None:
                 raise ValueError(f"{name} applies to closure='second_order' only; closure={closure!r} has no fitted "
                                  f"cutoff, tail or drift (got {name}={value!r})")
+        given = sorted(k for k, v in options.items() if v is not None)
+        if closure == "lognormal_gap" and (backend not in ("auto", "closed_form") or given):
+            raise ValueError(f"closure='lognormal_gap' is a closed form: backend must be 'auto' or 'closed_form' "
+                             f"(got backend={backend!r}) and solver options do not apply (got {given})")
         return _closure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
-                                     closure=closure, backend=_check_backend(backend), rtol=_check_rtol(rtol),
-                                     warm_start=warm_start, **options)
+                                     closure=closure, backend=backend, rtol=rtol, warm_start=warm_start, **options)
     for name in ("n_shells", "shell_extrapolation"):
-        if options.get(name) is not None:
+        if options.pop(name, None) is not None:
             raise ValueError(f"{name} applies to the shell closures, not to 'second_order'")
-        options.pop(name, None)
     from .cumulants import stress_variance, variance_vs_magnification
 
     E = check_positive("E_star", E_star)
@@ -316,15 +347,12 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
     z = check_nonnegative("zeta", zeta)
     if np.ndim(z) or np.ndim(p0) or np.ndim(E):
         raise ValueError("E_star, mean_pressure and zeta must be scalars here "
-                         "(stress_variance is vectorized over zeta; loop for several distributions)")
+                         "(stress_variance is vectorized over zeta; pressure_distributions sweeps zetas)")
     for name, value in (("p_c", p_c), ("p_t", p_t)):
         if value is not None and np.ndim(check_positive(name, value)) != 0:
-            raise ValueError(f"{name} must be one number > 0 (units of pressure); got {name}={value!r} "
-                             "(loop over values for several distributions)")
-    if drift is not None and not callable(drift):
-        raise InputTypeError(f"drift must be None or a vectorized callable A(p, eta); got {type(drift).__name__}")
-    backend = _check_backend(backend)
-    rtol = _check_rtol(rtol)
+            raise ValueError(f"{name} must be one number > 0 (units of pressure); got {name}={value!r}")
+    if drift is not None:
+        check_callable("drift", drift)
     factor = PressureFactor(make_cutoff(cutoff, p_c), make_tail(tail, p_t))
     V = float(stress_variance(spectrum, E_star=E, mean_pressure=p0, zeta=z))
     if not np.isfinite(V) or V <= 0.0:
@@ -335,8 +363,7 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
     if drift is None:
         problem = FokkerPlanckProblem(float(p0), V, factor, label="pressure_distribution")
     else:
-        eta_max = float(spectrum.q_max / spectrum.q_min)
-        eta = np.geomspace(1.0, eta_max, N_ETA)
+        eta = np.geomspace(1.0, float(spectrum.q_max / spectrum.q_min), N_ETA)
         v_eta = np.asarray(variance_vs_magnification(spectrum, eta, E_star=E, mean_pressure=p0, zeta=z), dtype=float)
         if not np.all(np.isfinite(v_eta)):
             raise ValueError("variance_vs_magnification returned non-finite values; check the spectrum")
@@ -349,71 +376,50 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
     return replace(sol.result, diagnostics={**sol.result.diagnostics, **extra}), sol
 
 
+#: the largest growth of a sweep's start from one entry to the next (an upward trend of the cells is followed)
+SWEEP_TREND_MAX = 1.5
+
+
 def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", progress: bool = False,
                            **kwargs: Any) -> list:
     """:func:`pressure_distribution` for every wall range of ``zetas``, in the given order (a sweep).
 
-    Each native solve starts from the grid the previous one's estimate predicts (docs/backends.md).  Every answer
+    Each native solve starts from the grid the previous one's estimate predicts, its cells grown with the trend of
+    the need (at most :data:`SWEEP_TREND_MAX` per entry, at most ``max_cells/4``; docs/backends.md).  Every answer
     meets ``rtol`` on its own; it may differ from a single call's (another grid) by less than ``rtol``.  Sort
     ``zetas`` for the best effect.
 
-    Parameters
-    ----------
-    spectrum : Spectrum
-        As in :func:`pressure_distribution`.
-    zetas : array_like
-        Wall ranges (length), one-dimensional, each >= 0.
-    backend : str
-        As in :func:`pressure_distribution`; the chaining applies to ``"native"`` results.
-    progress : bool
-        Show a tqdm progress bar.
-    **kwargs
-        Everything else :func:`pressure_distribution` takes, except ``zeta``.
-
-    Returns
-    -------
-    list of PressureDistribution
-        One per entry of ``zetas``.
+    ``zetas``: the wall ranges (the spectrum's length unit), one-dimensional, each >= 0; ``progress``: a tqdm
+    progress bar; everything else as :func:`pressure_distribution` (the chaining applies to ``"native"`` results).
+    Returns one :class:`PressureDistribution` per entry of ``zetas`` (a :class:`ConvergenceWarning` for each failed
+    one).
     """
-    z = np.asarray(zetas, dtype=float)
-    if z.ndim != 1 or z.size == 0:
+    from .fokker_planck.engine import MAX_CELLS
+
+    if np.ndim(zetas) != 1 or np.size(zetas) == 0:
         raise ValueError(f"zetas must be a non-empty one-dimensional sequence of wall ranges; got zetas={zetas!r}")
+    z = check_finite_array("zetas", zetas, ndim=1)
     if "zeta" in kwargs:
         raise ValueError(f"zeta is set by the sweep (each entry of zetas); remove zeta={kwargs['zeta']!r}")
-    items = z
     if progress:
         from tqdm.auto import tqdm
 
-        items = tqdm(z, desc="zeta sweep", unit="wall")
-    from .fokker_planck.engine import MAX_CELLS
-
-    # the engine's bound on a first level's cells: its finest grid within max_cells
-    cap = int(kwargs.get("max_cells", MAX_CELLS)) // 4
-    out = []
+        z = tqdm(z, desc="zeta sweep", unit="wall")
+    cap = int(kwargs.get("max_cells", MAX_CELLS)) // 4  # the engine's bound on a first level's cells
+    out: list = []
     start = needed = None
-    for zeta in items:
+    for zeta in z:
         result, sol = _pressure_distribution(spectrum, zeta=float(zeta), backend=backend, warm_start=start, **kwargs)
-        out.append(result)
-        start, needed = _sweep_start(result, sol, needed, cap)
+        out.append(_checked(result))
+        start = None
+        if sol is not None and result.backend == "native" and result.success and sol.next_start is not None:
+            start, grow = sol.next_start, min(max(sol.cells_needed / (needed or sol.cells_needed), 1.0),
+                                              SWEEP_TREND_MAX)
+            start = replace(start, n_start=int(min(math.ceil(start.n_start * grow), cap)))
+            needed = sol.cells_needed
+        else:
+            needed = None
     return out
-
-
-#: the largest growth of the start from one sweep entry to the next (an upward trend of the cells is followed)
-SWEEP_TREND_MAX = 1.5
-
-
-def _sweep_start(result: PressureDistribution, sol: Any, previous_needed: Optional[int], cap: int) -> tuple:
-    """``(warm start, cells_needed)`` for the next solve of a sweep after ``result``: ``sol.next_start``, its cells
-    grown with the need since ``previous_needed`` (at most SWEEP_TREND_MAX), at most ``cap``; None after another
-    backend's or a failed result."""
-    if sol is None or result.backend != "native" or not result.success or sol.next_start is None:
-        return None, None
-    needed = sol.cells_needed
-    start = sol.next_start
-    if previous_needed:  # where the need grows from entry to entry, start ahead of it
-        grown = start.n_start * min(max(needed / previous_needed, 1.0), SWEEP_TREND_MAX)
-        start = replace(start, n_start=int(min(math.ceil(grown), cap)))
-    return start, needed
 
 
 def warm_up(backend: str = "native") -> float:

@@ -1,7 +1,10 @@
 r"""Closed-form pressure distributions of the cumulant / diffusion theory.
 
-All pressures share one unit (that of ``mean_pressure``); variances are in pressure^2, densities in
-1/pressure, ``tau`` in pressure^2 (the integrated diffusivity ``\int D deta``) and ``slope`` in 1/pressure.
+Units throughout: pressures ``p`` and ``mean_pressure`` (``p0``, > 0 unless said otherwise) in one unit; the
+variance ``V`` of the unrestricted Gaussian and ``tau`` (the integrated diffusivity ``\int D deta``, ``V = 2 tau``)
+in pressure^2, both > 0; ``slope`` ``a`` (of ``f(p) = a p``) in 1/pressure, > 0; densities in 1/pressure with the
+shape of ``p`` (any shape; 0 for ``p < 0`` where the wall absorbs).  Every ``*_density`` is the continuous part; the
+``delta(p)`` weight is the matching ``*_zero_weight``.
 
 * Gaussian, the soft wall at leading order (Müser, Phys. Rev. Lett. 100, 055504 (2008),
   doi:10.1103/PhysRevLett.100.055504): :func:`gaussian_density`.
@@ -49,17 +52,8 @@ _SQRT2PI = math.sqrt(2.0 * math.pi)
 
 
 class Moments(NamedTuple):
-    """Moments of a full distribution (continuous part plus the ``delta(p)`` peak).
-
-    Attributes
-    ----------
-    mean : float
-        ``<p>`` [pressure].
-    variance : float
-        ``<p^2> - <p>^2`` [pressure^2].
-    zero_weight : float
-        Probability in the ``delta(p)`` non-contact peak [dimensionless].
-    """
+    """Moments of a full distribution (continuous part plus the ``delta(p)`` peak): ``mean`` ``<p>`` [pressure],
+    ``variance`` ``<p^2> - <p>^2`` [pressure^2], ``zero_weight`` the probability of the peak."""
 
     mean: float
     variance: float
@@ -68,6 +62,15 @@ class Moments(NamedTuple):
 
 def _out(x: np.ndarray) -> np.ndarray | float:
     return float(x) if np.ndim(x) == 0 else x
+
+
+def _positive(**values: float) -> tuple[float, ...]:
+    """The keyword values as floats, each checked finite and > 0 (the error names it)."""
+    return tuple(float(check_positive(name, v)) for name, v in values.items())
+
+
+def _pressures(p: ArrayLike) -> np.ndarray:
+    return check_finite_array("p", p, min_size=0)
 
 
 def _phi(p: np.ndarray, m: float, var: float) -> np.ndarray:
@@ -82,33 +85,15 @@ def _mirrored(p: np.ndarray, p0: float, var: float, centre: float) -> np.ndarray
 
 
 def gaussian_density(p: ArrayLike, mean_pressure: float, variance: float) -> np.ndarray | float:
-    """Normal density ``phi(p; p0, V)`` [1/pressure] (Müser 2008, Eq. 2).
-
-    Parameters
-    ----------
-    p : float or array_like
-        Pressure(s), any sign, any shape.
-    mean_pressure : float
-        Mean ``p0`` [pressure] (finite; any sign allowed here).
-    variance : float
-        ``V`` [pressure^2], > 0.
-
-    Returns
-    -------
-    float or numpy.ndarray
-        Density, shape of ``p``.
-    """
-    pa = check_finite_array("p", p, min_size=0)
+    """Normal density ``phi(p; p0, V)`` [1/pressure] (Müser 2008, Eq. 2); ``p`` and ``p0`` of any sign."""
+    pa = _pressures(p)
     m = float(check_finite_array("mean_pressure", mean_pressure))
-    v = check_positive("variance", variance)
-    return _out(_phi(pa, m, v))
+    return _out(_phi(pa, m, *_positive(variance=variance)))
 
 
 def gaussian_moments(mean_pressure: float, variance: float) -> Moments:
     """Mean ``p0``, variance ``V`` and zero weight 0 of the Gaussian."""
-    m = float(check_finite_array("mean_pressure", mean_pressure))
-    v = check_positive("variance", variance)
-    return Moments(m, v, 0.0)
+    return Moments(float(check_finite_array("mean_pressure", mean_pressure)), *_positive(variance=variance), 0.0)
 
 
 def mirror_gaussian_density(p: ArrayLike, mean_pressure: float, variance: float) -> np.ndarray | float:
@@ -116,58 +101,22 @@ def mirror_gaussian_density(p: ArrayLike, mean_pressure: float, variance: float)
 
     The continuous part of the solution of ``dPr/dtau = d^2 Pr/dp^2`` absorbed at ``p = 0`` (``V = 2 tau``); the
     ``delta(p)`` weight is :func:`persson_zero_weight`.  Computed as ``phi(p; p0, V) (1 - exp(-2 p p0 / V))``
-    (``-expm1``), accurate for small ``p p0 / V``.
-
-    Parameters
-    ----------
-    p : float or array_like
-        Pressure(s) [pressure], any shape.
-    mean_pressure : float
-        ``p0`` [pressure], > 0.
-    variance : float
-        ``V`` [pressure^2] of the unrestricted Gaussian, > 0.
-
-    Returns
-    -------
-    float or numpy.ndarray
-        Density [1/pressure], shape of ``p``.
-    """
-    pa = check_finite_array("p", p, min_size=0)
-    p0 = check_positive("mean_pressure", mean_pressure)
-    v = check_positive("variance", variance)
+    (``-expm1``), accurate for small ``p p0 / V``."""
+    pa = _pressures(p)
+    p0, v = _positive(mean_pressure=mean_pressure, variance=variance)
     return _out(_mirrored(pa, p0, v, p0))
 
 
 def persson_zero_weight(mean_pressure: float, variance: float) -> float:
-    """Non-contact weight ``1 - a_r = erfc(p0 / sqrt(2 V))`` [dimensionless] (Persson 2001).
-
-    Uses ``erfc`` so that small weights (``p0 >> sqrt(V)``) keep full
-    relative accuracy.
-
-    Parameters
-    ----------
-    mean_pressure : float
-        ``p0`` [pressure], > 0.
-    variance : float
-        ``V`` [pressure^2], > 0.
-    """
-    p0 = check_positive("mean_pressure", mean_pressure)
-    v = check_positive("variance", variance)
+    """Non-contact weight ``1 - a_r = erfc(p0 / sqrt(2 V))`` (Persson 2001); ``erfc`` keeps small weights
+    (``p0 >> sqrt(V)``) to full relative accuracy."""
+    p0, v = _positive(mean_pressure=mean_pressure, variance=variance)
     return float(special.erfc(p0 / math.sqrt(2.0 * v)))
 
 
 def persson_contact_fraction(mean_pressure: float, variance: float) -> float:
-    """Relative contact area ``a_r = erf(p0 / sqrt(2 V))`` [dimensionless] (Persson 2001).
-
-    Parameters
-    ----------
-    mean_pressure : float
-        ``p0`` [pressure], > 0.
-    variance : float
-        ``V`` [pressure^2], > 0.
-    """
-    p0 = check_positive("mean_pressure", mean_pressure)
-    v = check_positive("variance", variance)
+    """Relative contact area ``a_r = erf(p0 / sqrt(2 V))`` (Persson 2001)."""
+    p0, v = _positive(mean_pressure=mean_pressure, variance=variance)
     return float(special.erf(p0 / math.sqrt(2.0 * v)))
 
 
@@ -175,24 +124,9 @@ def mirror_gaussian_moments(mean_pressure: float, variance: float) -> Moments:
     r"""Moments of the mirror Gaussian including its ``delta(p)`` peak.
 
     With ``s = p0/sqrt(V)``: mean ``p0`` exactly (force balance);
-    ``<p^2> = (p0^2 + V) erf(s/sqrt 2) + 2 p0 sqrt(V) phi(s)`` with
-    ``phi`` the standard normal density, so the variance is
-    ``<p^2> - p0^2``; zero weight ``erfc(s/sqrt 2)``.
-
-    Parameters
-    ----------
-    mean_pressure : float
-        ``p0`` [pressure], > 0.
-    variance : float
-        ``V`` [pressure^2], > 0.
-
-    Returns
-    -------
-    Moments
-        ``(mean [pressure], variance [pressure^2], zero_weight)``.
-    """
-    p0 = check_positive("mean_pressure", mean_pressure)
-    v = check_positive("variance", variance)
+    ``<p^2> = (p0^2 + V) erf(s/sqrt 2) + 2 p0 sqrt(V) phi(s)`` with ``phi`` the standard normal density;
+    zero weight ``erfc(s/sqrt 2)``."""
+    p0, v = _positive(mean_pressure=mean_pressure, variance=variance)
     sd = math.sqrt(v)
     s = p0 / sd
     m2 = (p0 * p0 + v) * math.erf(s / math.sqrt(2.0)) + 2.0 * p0 * sd * math.exp(-0.5 * s * s) / _SQRT2PI
@@ -202,34 +136,11 @@ def mirror_gaussian_moments(mean_pressure: float, variance: float) -> Moments:
 def feller_density(p: ArrayLike, mean_pressure: float, tau: float, slope: float) -> np.ndarray | float:
     r"""Feller's density for ``dPr/dtau = d^2(a p Pr)/dp^2`` from ``delta(p - p0)``.
 
-    ``Pr = (1/(a tau)) sqrt(p0/p) exp(-(p+p0)/(a tau)) I1(2 sqrt(p p0)/(a tau))``
-    for ``p > 0``; at ``p = 0`` the finite limit ``p -> 0+``,
-    ``p0 exp(-p0/(a tau)) / (a tau)^2``, and 0 for ``p < 0``. Evaluated overflow-free as
-    ``(2 p0/(a tau)^2) exp(-(sqrt p - sqrt p0)^2/(a tau)) ive(1, x)/x`` with
-    ``x = 2 sqrt(p p0)/(a tau)``. The ``delta(p)`` weight is
-    :func:`feller_zero_weight`.
-
-    Parameters
-    ----------
-    p : float or array_like
-        Pressure(s) [pressure], any shape.
-    mean_pressure : float
-        ``p0`` [pressure], > 0.
-    tau : float
-        Integrated diffusivity ``\int D deta`` [pressure^2], > 0 (a Gaussian
-        would have variance ``2 tau``).
-    slope : float
-        ``a = 1/p1`` in ``f(p) = a p`` [1/pressure], > 0.
-
-    Returns
-    -------
-    float or numpy.ndarray
-        Density [1/pressure], shape of ``p``.
-    """
-    pa = check_finite_array("p", p, min_size=0)
-    p0 = check_positive("mean_pressure", mean_pressure)
-    t = check_positive("tau", tau)
-    a = check_positive("slope", slope)
+    ``Pr = (1/(a tau)) sqrt(p0/p) exp(-(p+p0)/(a tau)) I1(2 sqrt(p p0)/(a tau))`` for ``p > 0``; at ``p = 0`` the
+    finite limit ``p -> 0+``, ``p0 exp(-p0/(a tau)) / (a tau)^2``, and 0 for ``p < 0``.  Evaluated overflow-free as
+    ``(2 p0/(a tau)^2) exp(-(sqrt p - sqrt p0)^2/(a tau)) ive(1, x)/x`` with ``x = 2 sqrt(p p0)/(a tau)``."""
+    pa = _pressures(p)
+    p0, t, a = _positive(mean_pressure=mean_pressure, tau=tau, slope=slope)
     at = a * t
     pp = np.maximum(pa, 0.0)
     x = 2.0 * np.sqrt(pp * p0) / at
@@ -240,20 +151,8 @@ def feller_density(p: ArrayLike, mean_pressure: float, tau: float, slope: float)
 
 
 def feller_zero_weight(mean_pressure: float, tau: float, slope: float) -> float:
-    """Mass absorbed at ``p = 0`` by the Feller diffusion: ``exp(-p0/(a tau))`` [dimensionless].
-
-    Parameters
-    ----------
-    mean_pressure : float
-        ``p0`` [pressure], > 0.
-    tau : float
-        Integrated diffusivity [pressure^2], > 0.
-    slope : float
-        ``a`` [1/pressure], > 0.
-    """
-    p0 = check_positive("mean_pressure", mean_pressure)
-    t = check_positive("tau", tau)
-    a = check_positive("slope", slope)
+    """Mass absorbed at ``p = 0`` by the Feller diffusion: ``exp(-p0/(a tau))``."""
+    p0, t, a = _positive(mean_pressure=mean_pressure, tau=tau, slope=slope)
     return math.exp(-p0 / (a * t))
 
 
@@ -262,9 +161,7 @@ def feller_moments(mean_pressure: float, tau: float, slope: float) -> Moments:
 
     ``p`` is the martingale ``dp = sqrt(2 a p) dW`` stopped at 0: ``<p> = p0``, variance ``2 a p0 tau``
     [pressure^2], zero weight ``exp(-p0/(a tau))``."""
-    p0 = check_positive("mean_pressure", mean_pressure)
-    t = check_positive("tau", tau)
-    a = check_positive("slope", slope)
+    p0, t, a = _positive(mean_pressure=mean_pressure, tau=tau, slope=slope)
     return Moments(p0, 2.0 * a * p0 * t, math.exp(-p0 / (a * t)))
 
 
@@ -276,9 +173,7 @@ def _cir_clock(tau: float, slope: float, drift_at_wall: float, restoring_rate: f
 
 
 def _cir_args(mean_pressure, tau, slope, drift_at_wall, restoring_rate) -> tuple:
-    p0 = check_positive("mean_pressure", mean_pressure)
-    t = check_positive("tau", tau)
-    a = check_positive("slope", slope)
+    p0, t, a = _positive(mean_pressure=mean_pressure, tau=tau, slope=slope)
     alpha = float(check_finite("drift_at_wall", drift_at_wall))
     beta = float(check_finite("restoring_rate", restoring_rate))
     if abs(beta * t) > 700.0:
@@ -302,31 +197,12 @@ def cir_density(p: ArrayLike, mean_pressure: float, tau: float, slope: float, dr
     then ``2 k p`` is noncentral chi-square with ``delta`` degrees of freedom and noncentrality
     ``2 k p0 exp(-beta tau)``, ``k = beta/(a (1 - exp(-beta tau)))``; Cox, Ingersoll and Ross 1985,
     doi:10.2307/1911242).  ``alpha = beta = 0`` is :func:`feller_density`.  Evaluated overflow-free with
-    ``ive`` and in logarithms; at ``p = 0`` the limit ``p -> 0+``.  The ``delta(p)`` weight is
-    :func:`cir_zero_weight`.
+    ``ive`` and in logarithms; at ``p = 0`` the limit ``p -> 0+``.
 
-    Parameters
-    ----------
-    p : float or array_like
-        Pressure(s) [pressure], any shape; 0 for ``p < 0``.
-    mean_pressure : float
-        ``p0`` [pressure], > 0.
-    tau : float
-        Integrated diffusivity ``\int D deta`` [pressure^2], > 0.
-    slope : float
-        ``a = 1/p1`` in ``f(p) = a p`` [1/pressure], > 0.
-    drift_at_wall : float
-        ``alpha`` [1/pressure: pressure per unit ``tau``], the drift at ``p = 0``; any sign (``alpha >= a`` makes
-        ``p = 0`` an entrance boundary, never reached).
-    restoring_rate : float
-        ``beta`` [1/pressure^2], any sign; ``|beta tau| <= 700``.
-
-    Returns
-    -------
-    float or numpy.ndarray
-        Density [1/pressure], shape of ``p``.
-    """
-    pa = check_finite_array("p", p, min_size=0)
+    ``drift_at_wall`` ``alpha`` [pressure per unit ``tau``] is the drift at ``p = 0``, any sign (``alpha >= a``
+    makes ``p = 0`` an entrance boundary, never reached); ``restoring_rate`` ``beta`` [1/pressure^2], any sign,
+    ``|beta tau| <= 700``."""
+    pa = _pressures(p)
     p0, t, a, alpha, beta = _cir_args(mean_pressure, tau, slope, drift_at_wall, restoring_rate)
     delta, s, scale = _cir_clock(t, a, alpha, beta)
     nu = delta / 2.0 - 1.0
@@ -349,12 +225,12 @@ def cir_density(p: ArrayLike, mean_pressure: float, tau: float, slope: float, dr
 
 def cir_zero_weight(mean_pressure: float, tau: float, slope: float, drift_at_wall: float = 0.0,
                     restoring_rate: float = 0.0) -> float:
-    """Mass absorbed at ``p = 0`` by the process of :func:`cir_density` [dimensionless].
+    """Mass absorbed at ``p = 0`` by the process of :func:`cir_density`.
 
     ``Q(1 - delta/2, z0/2s)`` for ``delta = 2 alpha/a < 2`` (the time a squared Bessel process of dimension
     ``delta < 2`` takes from ``z0`` to 0 is ``z0/(2 G)``, ``G ~ Gamma(1 - delta/2)``; Goeing-Jaeschke and Yor 2003,
     doi:10.3150/bj/1068128980), 0 for ``delta >= 2`` (entrance boundary).  ``alpha = beta = 0``:
-    ``exp(-p0/(a tau))``, :func:`feller_zero_weight`.  Parameters as :func:`cir_density`.
+    ``exp(-p0/(a tau))``, :func:`feller_zero_weight`.
     """
     p0, t, a, alpha, beta = _cir_args(mean_pressure, tau, slope, drift_at_wall, restoring_rate)
     delta, s, _ = _cir_clock(t, a, alpha, beta)
@@ -368,51 +244,20 @@ def drifted_mirror_gaussian_density(p: ArrayLike, mean_pressure: float, variance
     """The mirror Gaussian carried by a constant drift: ``phi(p; p0 + S, V) (1 - exp(-2 p p0 / V))`` for ``p > 0``.
 
     The continuous part of the solution of ``dPr/dtau = d^2 Pr/dp^2 - a dPr/dp`` from ``delta(p - p0)``, absorbed
-    at ``p = 0``, with ``V = 2 tau`` and ``S = a tau``; the ``delta(p)`` weight is
-    :func:`drifted_mirror_gaussian_zero_weight`.  ``S = 0`` is :func:`mirror_gaussian_density`.
-
-    Parameters
-    ----------
-    p : float or array_like
-        Pressure(s) [pressure], any shape.
-    mean_pressure : float
-        ``p0`` [pressure], the start, > 0.
-    variance : float
-        ``V = 2 tau`` [pressure^2] of the unrestricted Gaussian, > 0.
-    drift_shift : float
-        ``S = a tau`` [pressure], the displacement the drift alone makes (any sign, finite).
-
-    Returns
-    -------
-    float or numpy.ndarray
-        Density [1/pressure], shape of ``p``.
-    """
-    pa = check_finite_array("p", p, min_size=0)
-    p0 = check_positive("mean_pressure", mean_pressure)
-    v = check_positive("variance", variance)
-    shift = check_finite("drift_shift", drift_shift)
-    return _out(_mirrored(pa, p0, v, p0 + shift))
+    at ``p = 0``, with ``V = 2 tau`` and ``drift_shift`` ``S = a tau`` [pressure] the displacement the drift alone
+    makes (any sign, finite).  ``S = 0`` is :func:`mirror_gaussian_density`."""
+    pa = _pressures(p)
+    p0, v = _positive(mean_pressure=mean_pressure, variance=variance)
+    return _out(_mirrored(pa, p0, v, p0 + check_finite("drift_shift", drift_shift)))
 
 
 def drifted_mirror_gaussian_zero_weight(mean_pressure: float, variance: float, drift_shift: float) -> float:
-    """Non-contact weight of :func:`drifted_mirror_gaussian_density` [dimensionless].
+    """Non-contact weight of :func:`drifted_mirror_gaussian_density`.
 
-    ``Phi(-(p0 + S)/sqrt V) + exp(-2 S p0 / V) Phi((S - p0)/sqrt V)``, the
-    probability that Brownian motion with drift has hit 0 (the second term in
-    logarithms: ``log_ndtr``, no overflow for a strong drift towards the wall).
-    ``S = 0`` is :func:`persson_zero_weight`.
-
-    Parameters
-    ----------
-    mean_pressure : float
-        ``p0`` [pressure], > 0.
-    variance : float
-        ``V = 2 tau`` [pressure^2], > 0.
-    drift_shift : float
-        ``S = a tau`` [pressure], any sign, finite.
-    """
-    p0 = check_positive("mean_pressure", mean_pressure)
-    v = check_positive("variance", variance)
+    ``Phi(-(p0 + S)/sqrt V) + exp(-2 S p0 / V) Phi((S - p0)/sqrt V)``, the probability that Brownian motion with
+    drift has hit 0 (the second term in logarithms: ``log_ndtr``, no overflow for a strong drift towards the wall).
+    ``S = 0`` is :func:`persson_zero_weight`."""
+    p0, v = _positive(mean_pressure=mean_pressure, variance=variance)
     shift = check_finite("drift_shift", drift_shift)
     sd = math.sqrt(v)
     first = float(special.log_ndtr(-(p0 + shift) / sd))

@@ -56,24 +56,10 @@ def _check_magnification_inputs(spectrum: Spectrum, eta: ArrayLike, E_star: floa
 
 
 def G1(q: ArrayLike, *, zeta: ArrayLike, E_star: float, mean_pressure: float) -> np.ndarray | float:
-    """Leading response coefficient ``G1(q) = 1 / (1 + zeta q E* / (2 p0))`` (Müser 2008, Eq. 10).
+    """Leading response coefficient ``G1(q) = 1 / (1 + zeta q E* / (2 p0))`` (Müser 2008, Eq. 10), in (0, 1].
 
-    Parameters
-    ----------
-    q : float or array_like
-        Wavenumber ``|q|`` [rad/length], >= 0.
-    zeta : float or array_like
-        Range of the exponential repulsion [length], >= 0; broadcasts with ``q``.
-    E_star : float
-        Contact modulus ``E* = E/(1 - nu^2)`` [pressure], > 0.
-    mean_pressure : float
-        ``p0`` [pressure], > 0.
-
-    Returns
-    -------
-    float or numpy.ndarray
-        Dimensionless, in (0, 1]; broadcast shape of ``q`` and ``zeta``.
-    """
+    ``q`` [rad/length] >= 0 and ``zeta`` [length] >= 0 broadcast together; ``E_star`` (``E/(1 - nu^2)``) and
+    ``mean_pressure`` [pressure] > 0."""
     qa = check_nonnegative("q", q)
     za = check_nonnegative("zeta", zeta)
     E = check_positive("E_star", E_star)
@@ -98,23 +84,9 @@ def stress_variance(
     Persson's ``V0 = (E*/2)^2 gbar^2``; ``V`` decreases monotonically with
     ``zeta`` and behaves as ``p0^2 h_rms^2 / zeta^2`` for ``zeta q_max E* >> p0``.
 
-    Parameters
-    ----------
-    spectrum : Spectrum
-        Continuum or discrete height spectrum (lengths in the unit of ``zeta``).
-    E_star : float
-        Contact modulus [pressure], > 0.
-    mean_pressure : float or array_like
-        ``p0`` [pressure], > 0; broadcast against ``zeta``.
-    zeta : float or array_like, default 0
-        Repulsion range(s) [length], >= 0, any shape (vectorized: one matrix
-        product over all values).
-
-    Returns
-    -------
-    float or numpy.ndarray
-        ``V`` [pressure^2], the broadcast shape of ``zeta`` and
-        ``mean_pressure`` (float when both are scalars).
+    ``E_star`` [pressure] > 0; ``mean_pressure`` [pressure] > 0 and ``zeta`` [the spectrum's length unit] >= 0
+    broadcast together (one matrix product over all values); ``V`` has their broadcast shape (a float for
+    scalars).  An ``E_star`` so large that ``V`` overflows is a ``ValueError`` naming it.
     """
     _check_spectrum(spectrum)
     E = check_positive("E_star", E_star)
@@ -135,6 +107,10 @@ def stress_variance(
         np.reciprocal(g, out=g)
         g *= g
         v[i : i + step] = g @ base
+    if np.isinf(v).any():
+        raise ValueError(f"E_star={E!r} with this spectrum's rms slope {spectrum.rms_slope:.4g} overflows the stress "
+                         "variance (E*/2)^2 gbar^2 (float64 ends at 1.8e308): give pressures in a unit where E_star "
+                         "is of order 1")
     return float(v[0]) if z.ndim == 0 else v.reshape(z.shape)
 
 
@@ -153,21 +129,8 @@ def variance_vs_magnification(
     ``|q| <= eta q_min`` (inclusive; ``V(1)`` already holds the lowest shell).
     ``V(eta_max = q_max/q_min)`` equals :func:`stress_variance`.
 
-    Parameters
-    ----------
-    spectrum : Spectrum
-        Height spectrum; ``q_min`` defines ``eta = q / q_min``.
-    eta : float or array_like
-        Magnification(s) [dimensionless], any shape.
-    E_star, mean_pressure : float
-        ``E*`` and ``p0`` [pressure], > 0.
-    zeta : float, default 0
-        Repulsion range [length], >= 0 (scalar).
-
-    Returns
-    -------
-    float or numpy.ndarray
-        Same shape as ``eta``.
+    ``eta`` (``q / q_min``, dimensionless) of any shape, the result of its shape; ``E_star`` and ``mean_pressure``
+    [pressure] > 0; ``zeta`` [length] >= 0, a scalar.
     """
     ea, E, p0, z = _check_magnification_inputs(spectrum, eta, E_star, mean_pressure, zeta)
     k = z * E / (2.0 * p0)
@@ -207,23 +170,8 @@ def diffusivity_vs_magnification(
     average; with ``q_min = 2 pi/L`` no lattice shell lies on an edge). The
     staircase itself is :func:`variance_vs_magnification`.
 
-    Parameters
-    ----------
-    spectrum : Spectrum
-        Continuum or discrete height spectrum.
-    eta : float or array_like
-        Magnification(s) [dimensionless], any shape.
-    E_star, mean_pressure : float
-        ``E*`` and ``p0`` [pressure], > 0.
-    zeta : float, default 0
-        Repulsion range [length], >= 0 (scalar).
-    bins : array_like, optional
-        Strictly increasing bin edges in ``eta`` (discrete spectra only).
-
-    Returns
-    -------
-    float or numpy.ndarray
-        ``D`` [pressure^2 per unit magnification], same shape as ``eta``.
+    Arguments as :func:`variance_vs_magnification`; ``bins``: strictly increasing edges in ``eta`` (discrete
+    spectra only).  ``D`` [pressure^2 per unit magnification] has the shape of ``eta``.
     """
     ea, E, p0, z = _check_magnification_inputs(spectrum, eta, E_star, mean_pressure, zeta)
     qmin = spectrum.q_min

@@ -1,34 +1,23 @@
-"""Pressure dependence of the diffusivity: cutoffs ``c(p)`` and tails ``t(p)``.
+"""Pressure dependence of the diffusivity ``D(p, eta) = D(eta) c(p) t(p)`` (docs/theory.md).
 
-The magnification-dependent diffusivity of the Fokker-Planck equation
-(docs/theory.md) is ``D(p, eta) = D(eta) * c(p) * t(p)``.  The pressure factors
-are small frozen dataclasses, vectorized callables of a pressure array (same
-units as ``mean_pressure`` and ``E_star``):
+Cutoffs ``c(p)`` switch ``D`` off at and below ``p = 0``: :class:`SharpCutoff` (Persson's mirror Gaussian),
+:class:`MuserCutoff` (the seed paper's printed factor; Müser, PRL 100, 055504 (2008),
+doi:10.1103/PhysRevLett.100.055504), :class:`RaisedCosineCutoff` (C1), :class:`SmoothstepCutoff` (C2, the paper's
+"D, D' and D'' continuous").  Tails ``t(p)`` for large pressures: :class:`GaussianTail` (``t = 1``), and
+:class:`LinearTail`, :class:`MaxLinearTail`, whose ``D ∝ p`` gives exponential tails.  All are frozen dataclasses,
+vectorized callables of a pressure array (the unit of ``mean_pressure``); any vectorized callable of ``p`` is accepted
+wherever a cutoff or tail is.
 
-* cutoffs, which switch ``D`` off at and below ``p = 0``: :class:`SharpCutoff`
-  (``theta(p)``: Persson's mirror Gaussian), :class:`MuserCutoff` (the seed
-  paper's printed factor, discontinuous at ``p_c``; Müser, PRL 100, 055504
-  (2008), doi:10.1103/PhysRevLett.100.055504), :class:`RaisedCosineCutoff` (C1)
-  and :class:`SmoothstepCutoff` (C2, the paper's "D, D' and D'' continuous");
-* tails, for large pressures: :class:`GaussianTail` (``t = 1``, the default),
-  :class:`LinearTail` and :class:`MaxLinearTail`, whose ``D ∝ p`` at large
-  ``p`` gives exponential tails (the paper's "D proportional to sigma").
-
-Any vectorized callable of ``p`` is accepted wherever a cutoff or tail is.
-
-The model protocol (:class:`PressureModel`): a diffusivity, drift or balance
-callable may declare ``zero_power``, the ``k`` of ``f(p) ~ C p^k`` as ``p -> 0+``
-(by Feller's classification, W. Feller, Ann. Math. 55, 468 (1952),
-doi:10.2307/1969644, mass reaches the absorbing wall ``p = 0`` in finite time
-iff ``k < 2``; for ``k >= 2`` the solvers resolve it on a logarithmic grid down
-to a floor), and ``breakpoints()``, the pressures where ``f``, ``f'`` or ``f''``
-jump (cell edges go there).  Every class here declares both; for a plain
-callable :func:`zero_power_of` and :func:`breakpoints_of` probe them.
+The model protocol (:class:`PressureModel`): a coefficient may declare ``zero_power``, the ``k`` of
+``f(p) ~ C p^k`` as ``p -> 0+`` (Feller, Ann. Math. 55, 468 (1952), doi:10.2307/1969644: mass reaches the absorbing
+wall in finite time iff ``k < 2``; for ``k >= 2`` the solvers resolve it on a logarithmic grid down to a floor), and
+``breakpoints()``, the pressures where ``f``, ``f'`` or ``f''`` jump (cell edges go there).  Every class here
+declares both; for a plain callable :func:`zero_power_of` and :func:`breakpoints_of` probe them.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Callable, ClassVar, Optional, Protocol, Union, runtime_checkable
 
 import numpy as np
@@ -154,8 +143,21 @@ def breakpoints_of(f: Callable, p_lo: float, p_hi: float) -> tuple[float, ...]:
     return tuple(out)
 
 
+class _Model:
+    """Base of the pressure factors below: every dataclass field is a pressure (checked finite and > 0), and
+    no breakpoint unless a subclass names one."""
+
+    def __post_init__(self) -> None:
+        for f in fields(self):  # type: ignore[arg-type]
+            object.__setattr__(self, f.name, check_positive(f.name, getattr(self, f.name)))
+
+    def breakpoints(self) -> tuple[float, ...]:
+        """Pressures (units of pressure) inside ``p > 0`` where ``f``, ``f'`` or ``f''`` jump: none."""
+        return ()
+
+
 @dataclass(frozen=True)
-class SharpCutoff:
+class SharpCutoff(_Model):
     """Sharp cutoff ``c(p) = theta(p)`` (1 for ``p > 0``, 0 otherwise).
 
     Discontinuous at ``p = 0`` (``continuity = -1``); mass that diffuses to
@@ -165,16 +167,12 @@ class SharpCutoff:
     continuity: ClassVar[int] = -1  # -1: the function itself jumps somewhere
     zero_power: ClassVar[float] = 0.0  # f(0+) = 1: the wall is reached (Feller)
 
-    def breakpoints(self) -> tuple[float, ...]:
-        """No non-smooth point inside ``p > 0``."""
-        return ()
-
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         return np.where(np.asarray(p, dtype=float) > 0.0, 1.0, 0.0)
 
 
 @dataclass(frozen=True)
-class _Cutoff:
+class _Cutoff(_Model):
     """A switch from 0 at ``p <= 0`` to its plateau, ending at the cutoff pressure ``p_c`` (> 0, units of pressure).
 
     Subclasses set ``continuity`` (the highest continuous derivative, -1 for a
@@ -182,11 +180,6 @@ class _Cutoff:
     """
 
     p_c: float
-    continuity: ClassVar[int]
-    zero_power: ClassVar[float]
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "p_c", check_positive("p_c", self.p_c))
 
     def breakpoints(self) -> tuple[float, ...]:
         """``p_c`` (units of pressure), where the switch ends."""
@@ -248,45 +241,32 @@ class SmoothstepCutoff(_Cutoff):
 
 
 @dataclass(frozen=True)
-class GaussianTail:
+class GaussianTail(_Model):
     """Tail factor ``t(p) = 1``: pressure-independent diffusivity, Gaussian tails."""
 
     zero_power: ClassVar[float] = 0.0
-
-    def breakpoints(self) -> tuple[float, ...]:
-        """Smooth everywhere."""
-        return ()
 
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         return np.ones_like(np.asarray(p, dtype=float))
 
 
 @dataclass(frozen=True)
-class _LinearTailBase:
-    """A tail growing as ``p / p_t`` at large ``p``; ``p_t`` > 0 is the crossover pressure (units of pressure)."""
+class LinearTail(_Model):
+    """Tail factor ``t(p) = 1 + p / p_t`` (exponential tail of ``Pr``); ``p_t`` > 0 (units of pressure)."""
 
     p_t: float
     zero_power: ClassVar[float] = 0.0
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "p_t", check_positive("p_t", self.p_t))
-
-
-@dataclass(frozen=True)
-class LinearTail(_LinearTailBase):
-    """Tail factor ``t(p) = 1 + p / p_t`` (exponential tail of ``Pr``); ``p_t`` > 0 (units of pressure)."""
-
-    def breakpoints(self) -> tuple[float, ...]:
-        """Smooth for ``p > 0``."""
-        return ()
 
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         return 1.0 + np.maximum(np.asarray(p, dtype=float), 0.0) / self.p_t
 
 
 @dataclass(frozen=True)
-class MaxLinearTail(_LinearTailBase):
+class MaxLinearTail(_Model):
     """Tail factor ``t(p) = max(1, p / p_t)`` (exponential tail above ``p_t`` > 0, units of pressure)."""
+
+    p_t: float
+    zero_power: ClassVar[float] = 0.0
 
     def breakpoints(self) -> tuple[float, ...]:
         """The kink at ``p_t`` (units of pressure)."""
@@ -299,13 +279,31 @@ class MaxLinearTail(_LinearTailBase):
 Cutoff = Union[SharpCutoff, MuserCutoff, RaisedCosineCutoff, SmoothstepCutoff, PressureFunction]
 Tail = Union[GaussianTail, LinearTail, MaxLinearTail, PressureFunction]
 
-_CUTOFFS = {
-    "sharp": SharpCutoff,
-    "muser": MuserCutoff,
-    "seed": MuserCutoff,
-    "raised_cosine": RaisedCosineCutoff,
-    "smoothstep": SmoothstepCutoff,
-}
+_CUTOFFS = {"sharp": SharpCutoff, "muser": MuserCutoff, "seed": MuserCutoff, "raised_cosine": RaisedCosineCutoff,
+            "smoothstep": SmoothstepCutoff}
+_TAILS = {"gaussian": GaussianTail, "linear": LinearTail, "max_linear": MaxLinearTail}
+
+
+def _make(kind: str, spec: object, pname: str, value: float | None, table: dict) -> PressureFunction:
+    """The factor named ``spec`` in ``table`` (None: the first entry), given ``pname=value`` exactly where it takes
+    one, or the callable ``spec`` itself (without ``pname``)."""
+    if spec is None:
+        spec = next(iter(table))
+    if isinstance(spec, str):
+        cls = table.get(spec.lower())
+        if cls is None:
+            raise ValueError(f"{kind} must be one of {sorted(table)} or a callable; got {kind}={spec!r}")
+        takes = bool(fields(cls))
+    elif callable(spec):
+        cls, takes = None, False
+    else:
+        raise ValueError(f"{kind} must be a name or a vectorized callable of p; got {type(spec).__name__}")
+    if takes and value is None:
+        raise ValueError(f"{kind}={spec!r} needs a pressure {pname} > 0; got {pname}=None")
+    if not takes and value is not None:
+        raise ValueError(f"{pname} applies to the {kind}s {[k for k, c in table.items() if fields(c)]} only; "
+                         f"{kind}={spec!r} would ignore {pname}={value!r}")
+    return spec if cls is None else (cls(value) if takes else cls())  # type: ignore[return-value]
 
 
 def make_cutoff(cutoff: object, p_c: float | None = None) -> PressureFunction:
@@ -314,31 +312,17 @@ def make_cutoff(cutoff: object, p_c: float | None = None) -> PressureFunction:
     Parameters
     ----------
     cutoff : str, callable or None
-        ``None`` means the sharp cutoff (the domain is ``p >= 0`` in any
-        case, so ``c = 1`` on it *is* the sharp cutoff); a name from ``"sharp"``, ``"muser"`` (alias ``"seed"``),
-        ``"raised_cosine"``, ``"smoothstep"``; or any vectorized callable.
+        ``None`` or ``"sharp"`` (the domain is ``p >= 0`` in any case, so ``c = 1`` on it *is* the sharp cutoff); a
+        name from ``"muser"`` (alias ``"seed"``), ``"raised_cosine"``, ``"smoothstep"``; or any vectorized callable.
     p_c : float, optional
-        Cutoff pressure (units of pressure) for the named smooth cutoffs.
+        Cutoff pressure (units of pressure) of the named smooth cutoffs, > 0; given for any other, an error.
 
     Raises
     ------
     ValueError
-        Unknown name, missing or non-positive ``p_c``, or a non-callable object.
+        Unknown name, ``p_c`` missing or non-positive for a smooth cutoff or given for another, a non-callable.
     """
-    if cutoff is None:
-        return SharpCutoff()
-    if isinstance(cutoff, str):
-        cls = _CUTOFFS.get(cutoff.lower())
-        if cls is None:
-            raise ValueError(f"cutoff must be one of {sorted(_CUTOFFS)} or a callable; got cutoff={cutoff!r}")
-        if cls is SharpCutoff:
-            return SharpCutoff()
-        if p_c is None:
-            raise ValueError(f"cutoff={cutoff!r} needs a cutoff pressure p_c > 0; got p_c=None")
-        return cls(p_c)
-    if not callable(cutoff):
-        raise ValueError(f"cutoff must be a name or a vectorized callable c(p); got {type(cutoff).__name__}")
-    return cutoff  # type: ignore[return-value]
+    return _make("cutoff", cutoff, "p_c", p_c, _CUTOFFS)
 
 
 def make_tail(tail: object, p_t: float | None = None) -> PressureFunction:
@@ -350,20 +334,9 @@ def make_tail(tail: object, p_t: float | None = None) -> PressureFunction:
         ``None`` or ``"gaussian"`` (``t = 1``), ``"linear"`` (``1 + p/p_t``),
         ``"max_linear"`` (``max(1, p/p_t)``), or any vectorized callable.
     p_t : float, optional
-        Crossover pressure (units of pressure) for the linear tails.
+        Crossover pressure (units of pressure) of the linear tails, > 0; given for any other, an error.
     """
-    if tail is None or (isinstance(tail, str) and tail.lower() == "gaussian"):
-        return GaussianTail()
-    if isinstance(tail, str):
-        cls = {"linear": LinearTail, "max_linear": MaxLinearTail}.get(tail.lower())
-        if cls is None:
-            raise ValueError(f"tail must be 'gaussian', 'linear', 'max_linear' or a callable; got tail={tail!r}")
-        if p_t is None:
-            raise ValueError(f"tail={tail!r} needs a crossover pressure p_t > 0; got p_t=None")
-        return cls(p_t)
-    if not callable(tail):
-        raise ValueError(f"tail must be a name or a vectorized callable t(p); got {type(tail).__name__}")
-    return tail  # type: ignore[return-value]
+    return _make("tail", tail, "p_t", p_t, _TAILS)
 
 
 @dataclass(frozen=True)
@@ -413,31 +386,19 @@ class PressureFactor:
 
 
 @dataclass(frozen=True)
-class ProportionalDiffusivity:
-    """Pure linear pressure factor ``f(p) = p / p_1`` (0 for ``p <= 0``).
+class ProportionalDiffusivity(_Model):
+    """Pure linear pressure factor ``f(p) = p / p_1`` (0 for ``p <= 0``), ``p_1`` > 0 (units of pressure).
 
     The diffusivity ``D ∝ p`` of the paper's exponential-tail argument taken
     literally down to ``p = 0``.  From ``delta(p - p0)`` the exact solution is
     Feller's (W. Feller, Ann. Math. 54, 173 (1951)): see
     :func:`diffusion_pr.closed_forms.feller_density` with ``slope = 1/p_1``.
     ``p = 0`` is an exit boundary: mass ``exp(-p0 p_1 / tau)`` is absorbed.
-
-    Parameters
-    ----------
-    p_1 : float
-        Pressure (units of pressure), > 0, at which ``f = 1``.
     """
 
     p_1: float
     continuity: ClassVar[int] = 0  # continuous, kink at p = 0
     zero_power: ClassVar[float] = 1.0  # f ∝ p: Feller's exit boundary, the wall is reached
-
-    def breakpoints(self) -> tuple[float, ...]:
-        """No non-smooth point inside ``p > 0``."""
-        return ()
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "p_1", check_positive("p_1", self.p_1))
 
     @property
     def slope(self) -> float:

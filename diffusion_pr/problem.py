@@ -48,6 +48,15 @@ def _number(name: str, value: object, unit: str, *, zero_ok: bool = False) -> fl
     return v
 
 
+def _check_f(p: Array, f: Array) -> Array:
+    """``f``, required finite and >= 0 at the pressures ``p`` (else a ``ValueError`` naming the first bad one)."""
+    bad = ~(np.isfinite(f) & (f >= 0.0))
+    if bad.any():
+        raise ValueError(f"diffusivity must be finite and >= 0 (a diffusion coefficient); it is {f[bad][0]!r} at "
+                         f"p={p[bad][0]!r}")
+    return f
+
+
 @dataclass(frozen=True)
 class FokkerPlanckProblem:
     """Drift-diffusion problem in the diffusion time ``tau``.
@@ -86,8 +95,15 @@ class FokkerPlanckProblem:
             )
         if self.drift is not None and not callable(self.drift):
             raise ValueError(f"drift must be a vectorized callable a(p, tau) or None; got {type(self.drift).__name__}")
+        if not self.time_dependent:  # a negative or non-finite f is refused here (the solvers would fail obscurely)
+            probe = self.mean_pressure * np.geomspace(1e-6, 1e2, 25)
+            try:
+                values = np.asarray(self.diffusivity(probe), dtype=float)
+            except Exception:  # (a failing callable is reported, with its error, by the solver)
+                return
+            if values.shape == probe.shape:
+                _check_f(probe, values)
 
-    # ------------------------------------------------------------------ helpers
     @property
     def tau_end(self) -> float:
         """Final diffusion time ``variance / 2`` (pressure squared)."""
@@ -99,35 +115,11 @@ class FokkerPlanckProblem:
         return self.drift is None and not self.time_dependent
 
     def f(self, p: Array, tau: float = 0.0) -> Array:
-        """Evaluate the pressure factor ``f`` on ``p`` (and ``tau``), checked.
-
-        Raises
-        ------
-        ValueError
-            If ``f`` returns a wrong shape, a NaN/inf, or a negative value.
-        """
+        """The pressure factor ``f`` on ``p`` (and ``tau``), broadcast to the shape of ``p``; a ``ValueError`` where
+        it is negative or not finite."""
         p = np.asarray(p, dtype=float)
-        out = self.diffusivity(p, tau) if self.time_dependent else self.diffusivity(p)
-        out = np.asarray(out, dtype=float)
-        if out.shape != p.shape:
-            out = np.broadcast_to(out, p.shape).astype(float)
-        if not np.all(np.isfinite(out)):
-            bad = p[~np.isfinite(out)][0]
-            raise ValueError(f"diffusivity returned a non-finite value at p={bad!r}; f(p) must be finite and >= 0")
-        if np.any(out < 0.0):
-            bad = p[out < 0.0][0]
-            raise ValueError(f"diffusivity returned a negative value at p={bad!r}; f(p) must be >= 0")
-        return out
-
-    def a(self, p: Array, tau: float = 0.0) -> Array:
-        """Evaluate the drift ``a(p, tau)`` (0 when there is none), checked finite."""
-        p = np.asarray(p, dtype=float)
-        if self.drift is None:
-            return np.zeros_like(p)
-        out = np.broadcast_to(np.asarray(self.drift(p, tau), dtype=float), p.shape)
-        if not np.all(np.isfinite(out)):
-            raise ValueError("drift returned a non-finite value; a(p, tau) must be finite")
-        return np.array(out)
+        out = np.asarray(self.diffusivity(p, tau) if self.time_dependent else self.diffusivity(p), dtype=float)
+        return _check_f(p, np.broadcast_to(out, p.shape).astype(float))
 
     @classmethod
     def from_magnification(

@@ -19,7 +19,7 @@ from typing import Any, Iterable, Optional, Sequence
 import numpy as np
 
 from ..compare import SimulatedHistogram
-from ..paper import FIG1_SCENE, LARGE_ZETA, cutoff_pressure  # noqa: F401  (FIG1_SCENE re-exported)
+from ..paper import FIG1_SCENE, LARGE_ZETA, N_WAVES, cutoff_pressure  # noqa: F401  (FIG1_SCENE re-exported)
 
 DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 
@@ -40,18 +40,8 @@ def case_name(zeta: Optional[float], seed: int, n: int = 1024, surface: str = "f
 
 @dataclass(frozen=True)
 class ReferenceCase:
-    """One bundled GFMD result.
-
-    Attributes
-    ----------
-    name : str
-    zeta : float or None
-        Range of the exponential wall (units of length); ``None`` for the hard wall.
-    histogram : SimulatedHistogram
-    spectrum : DiscreteSpectrum
-        The surface's own spectrum (use it for the theory curve).
-    provenance : dict
-    """
+    """One bundled GFMD result: its ``histogram``, the surface's own ``spectrum`` (for the theory curve), the wall
+    range ``zeta`` (the spectrum's length unit, the paper's; ``None`` for the hard wall) and the ``provenance``."""
 
     name: str
     zeta: Optional[float]
@@ -72,27 +62,13 @@ class ReferenceCase:
 
 def paper_theory(case: Any, *, cutoff: str = "muser", p_c: Optional[float] = None, backend: str = "auto",
                  rtol: float = 1e-5) -> Any:
-    """The paper's theory curve for one case: the one definition the main job and the claims tests use.
+    """The paper's theory curve for one case (a :class:`ReferenceCase` or any object with ``zeta``, ``spectrum``,
+    ``E_star``, ``mean_pressure``): the one definition the main job and the claims tests use.
 
     Hard wall (``case.zeta`` is None): Persson's mirror Gaussian.  Exponential wall: the second-order cumulant
-    theory with ``G1`` (Eq. 10) from the case's own spectrum, the given cutoff, and ``p_c`` defaulting to the
-    paper's value (:func:`diffusion_pr.paper.cutoff_pressure`).
-
-    Parameters
-    ----------
-    case : ReferenceCase or any object with ``zeta``, ``spectrum``, ``E_star``, ``mean_pressure``
-        A bundled case (:func:`load_reference`) or one the main job just simulated.
-    cutoff : str
-        Cutoff variant for exponential walls (``"muser"`` = the paper's literal one).
-    p_c : float, optional
-        Cutoff pressure (units of pressure); default: the paper's.
-    backend, rtol
-        Passed to :func:`diffusion_pr.pressure_distribution` (exponential walls).
-
-    Returns
-    -------
-    PressureDistribution
-    """
+    theory with ``G1`` (Eq. 10) from the case's own spectrum, ``cutoff`` (``"muser"``: the paper's literal one),
+    and ``p_c`` (pressure) defaulting to the paper's value (:func:`diffusion_pr.paper.cutoff_pressure`);
+    ``backend`` and ``rtol`` go to :func:`diffusion_pr.pressure_distribution`."""
     from ..api import pressure_distribution
     from ..paper import cutoff_pressure
 
@@ -163,25 +139,11 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
                        surface: str = "fig1", progress: bool = True, log: Any = print) -> list[Path]:
     """Run GFMD on the Fig. 1 system and write the bundled cases.
 
-    Parameters
-    ----------
-    zetas : iterable of float or None
-        Wall ranges (units of the grid spacing of the 1024^2 system); ``None``
-        is the hard wall.
-    seeds : sequence of int
-        Surface seeds (``gfmd_ref.self_affine_surface(..., seed=seed)``).
-    n : int
-        Grid points per side (the physical cell stays ``L = 1024``).
-    tol : float
-        GFMD tolerance relative to ``p0``.
-    out_dir : path
-        Output folder (default: ``reference_out`` in the working directory;
-        the bundled cases live in :data:`DATA_DIR`, pass it explicitly to
-        replace them).  Checked for writability before any work.
-    surface : str
-        ``"fig1"`` (Gaussian coloured noise) or ``"fig1-skewed"`` (the same
-        spectrum mapped through a non-Gaussian height transform, see
-        :func:`skewed_surface`).
+    ``zetas``: wall ranges in grid spacings of the paper's 1024^2 system (the cell stays ``L = 1024`` at every
+    ``n``), ``None`` the hard wall; ``seeds``: surface seeds; ``n`` >= 64 grid points per side (the shortest
+    wavelength needs 2); ``tol``: GFMD tolerance relative to ``p0``; ``out_dir``: checked for writability before
+    any work (the bundled cases live in :data:`DATA_DIR`: pass it explicitly to replace them); ``surface``:
+    ``"fig1"`` (Gaussian coloured noise) or ``"fig1-skewed"`` (:func:`skewed_surface` of it).
     """
 
     import gfmd_ref
@@ -190,12 +152,17 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
     if surface not in ("fig1", "fig1-skewed"):
         raise ValueError(f"surface must be 'fig1' or 'fig1-skewed'; got surface={surface!r}")
     n = check_int("n", n, minimum=2)
+    if n < 2 * N_WAVES:
+        raise ValueError(f"n must be >= {2 * N_WAVES}: the roughness's shortest wavelength L/{N_WAVES} needs 2 grid "
+                         f"points (Nyquist); got n={n}")
     check_positive("tol", tol)
-    zetas = list(zetas)
+    zetas, seeds = list(zetas), [check_seed("seeds", seed) for seed in seeds]
+    for name, items in (("zetas", zetas), ("seeds", seeds)):
+        if not items:
+            raise ValueError(f"{name} must hold at least one entry; got {name}={items!r}")
     for zeta in zetas:
         if zeta is not None:
             gfmd_ref.ExponentialRepulsion(check_positive("zeta", zeta))
-    seeds = [check_seed("seeds", seed) for seed in seeds]
     if out_dir is None:
         raise ValueError("out_dir must be a folder (the package's data folder only when given explicitly)")
     folder = Path(check_writable_dir("out_dir", out_dir))
@@ -221,7 +188,7 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
             wall = time.perf_counter() - t0
             name = case_name(zeta, seed, n, surface)
             cmd = (f"diffusion-pr make-reference --n {n} --seeds {seed} --tol {tol:g} --surface {surface} "
-                   f"--zetas {'hard' if zeta is None else f'{zeta:g}'}")
+                   f"--length-unit paper --zetas {'hard' if zeta is None else f'{zeta:g}'}")
             prov = {
                 **scene, "n": n, "zeta": zeta, "interaction": "hard" if zeta is None else "exponential",
                 "seed": int(seed), "surface": surface, "tol": tol, "method": res.method,
@@ -239,22 +206,10 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
 
 
 def skewed_surface(heights: np.ndarray, *, length: float, rms_slope: float, skew: float = 1.0) -> np.ndarray:
-    """A non-Gaussian surface made from a coloured-noise one.
+    """A non-Gaussian surface made from a coloured-noise ``(n, n)`` height map of period ``length``.
 
-    ``h' = exp(skew * h / h_rms)``, centred and rescaled to the requested rms slope (computed spectrally): positive
-    skewness (sharper peaks, flatter valleys), Fourier modes correlated.
-
-    Parameters
-    ----------
-    heights : (n, n) array
-        A coloured-noise height map (units of length).
-    length : float
-        Period (units of length).
-    rms_slope : float
-        Target rms slope of the result (dimensionless).
-    skew : float
-        Strength of the exponential map (dimensionless, > 0).
-    """
+    ``h' = exp(skew * h / h_rms)`` (``skew`` > 0), centred and rescaled to ``rms_slope`` (computed spectrally):
+    positive skewness (sharper peaks, flatter valleys), Fourier modes correlated."""
     h = np.asarray(heights, dtype=float)
     out = np.exp(skew * (h - h.mean()) / h.std())
     out -= out.mean()

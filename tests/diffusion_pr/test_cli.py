@@ -19,7 +19,8 @@ def test_bad_input_is_a_clear_error_not_a_traceback(capsys):
 
 
 def test_fig1_job_writes_its_files(tmp_path, capsys):
-    code = main(["fig1", "--n", "64", "--zetas", "0.25", "--out", str(tmp_path), "--rtol", "1e-4"])
+    code = main(["fig1", "--n", "64", "--length-unit", "paper", "--zetas", "0.25", "--out", str(tmp_path),
+                 "--rtol", "1e-4"])
     assert code == 0
     for name in ("fig1.png", "fig1_curves.csv", "fig1_histograms.csv", "fig1_report.txt"):
         assert (tmp_path / name).stat().st_size > 0
@@ -93,14 +94,32 @@ def test_every_flag_states_its_default():
 
 
 def test_zeta_unit_is_worded_identically_in_both_clis():
-    from diffusion_pr.cli import ZETA_UNIT
-    from gfmd_ref.cli import ZETA_UNIT as GFMD_ZETA_UNIT
+    """One convention: zeta in the unit of the cell's side L; on a grid --length-unit grid (default, L = n) or
+    paper (L = 1024), worded identically in both commands; theory's unit is that of --length."""
+    from diffusion_pr.cli import LENGTH_UNITS, ZETA_UNIT
+    from gfmd_ref.cli import LENGTH_UNITS as GFMD_LENGTH_UNITS, ZETA_UNIT as GFMD_ZETA_UNIT
 
     assert ZETA_UNIT == GFMD_ZETA_UNIT == "grid spacings of the paper's 1024^2 Fig. 1 system"
+    assert LENGTH_UNITS == GFMD_LENGTH_UNITS
     subs = _subparsers(_parser())
-    helps = [a.help for p in subs.values() for a in p._actions if "zeta" in a.dest]
-    helps += [a.help for a in _gfmd_parser()._actions if a.dest == "zeta"]
-    assert len(helps) == 4 and all(ZETA_UNIT in h for h in helps)
+    for name in ("fig1", "make-reference"):
+        acts = {a.dest: a for a in subs[name]._actions}
+        assert acts["length_unit"].default == "grid" == next(a for a in _gfmd_parser()._actions
+                                                             if a.dest == "length_unit").default
+        assert all(unit in acts["length_unit"].help for unit in LENGTH_UNITS.values())
+        assert "--length-unit" in acts["zetas"].help and ZETA_UNIT in acts["zetas"].help
+    theory = {a.dest: a for a in subs["theory"]._actions}
+    assert "--length" in theory["zeta"].help and ZETA_UNIT in theory["length"].help
+
+
+def test_grid_zetas_are_converted_to_the_jobs_paper_unit():
+    """--length-unit grid: zeta in spacings of the n^2 grid, i.e. zeta * 1024/n in the paper's unit (the jobs')."""
+    from diffusion_pr.cli import _paper_zetas
+
+    parse = _subparsers(_parser())["fig1"].parse_args
+    assert _paper_zetas(parse(["--n", "256", "--zetas", "0.25,1"]), "") == [1.0, 4.0]
+    assert _paper_zetas(parse(["--n", "256", "--zetas", "0.25", "--length-unit", "paper"]), "") == [0.25]
+    assert _paper_zetas(parse(["--n", "256"]), "0.01,4") == [0.01, 4.0]  # the defaults: the paper's walls
 
 
 def test_gfmd_ref_zeta_is_the_same_wall_as_diffusion_pr_fig1():
@@ -121,7 +140,7 @@ def test_gfmd_ref_zeta_is_the_same_wall_as_diffusion_pr_fig1():
     np.testing.assert_allclose(res.pressure, ref.pressure, rtol=1e-6, atol=1e-9)
 
 
-@pytest.mark.parametrize("argv", [["fig1", "--n", "16"], ["make-reference", "--n", "16", "--zetas", "hard"]])
+@pytest.mark.parametrize("argv", [["fig1", "--n", "64"], ["make-reference", "--n", "64", "--zetas", "hard"]])
 def test_unwritable_out_fails_before_any_work(tmp_path, capsys, monkeypatch, argv):
     monkeypatch.setattr(gfmd_ref, "solve_contact", lambda *a, **k: (_ for _ in ()).throw(AssertionError("ran")))
     blocker = tmp_path / "file"
@@ -148,11 +167,12 @@ def test_fig1_bad_zetas_fail_before_any_gfmd(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(gfmd_ref, "solve_contact", lambda *a, **k: (_ for _ in ()).throw(AssertionError("ran")))
     for bad in ("0.25,-1", "0.25,abc", "nan", "hard"):
         with pytest.raises(SystemExit) as exc:
-            main(["fig1", "--n", "16", "--zetas", bad, "--out", str(tmp_path)])
+            main(["fig1", "--n", "64", "--zetas", bad, "--out", str(tmp_path)])
         assert exc.value.code == 2
         assert "--zetas" in capsys.readouterr().err
-    assert main(["fig1", "--n", "64", "--cutoff", "muser", "--backend", "nope", "--out", str(tmp_path)]) == 2
-    assert "backend" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        main(["fig1", "--n", "64", "--cutoff", "muser", "--backend", "nope", "--out", str(tmp_path)])
+    assert exc.value.code == 2 and "--backend" in capsys.readouterr().err
 
 
 def test_make_reference_never_writes_into_the_package_by_default(tmp_path, monkeypatch):
@@ -188,3 +208,23 @@ def test_theory_writes_its_curve_as_csv(tmp_path, capsys):
     np.testing.assert_allclose(cdf, r.cdf(r.p), rtol=1e-11)
     assert np.all(np.diff(cdf) >= -1e-15) and cdf[-1] <= r.mass * (1 + 1e-11)  # 12 digits in the file
     assert main(["theory", "--out", str(tmp_path / "missing" / "c.csv")]) == 2
+
+
+def test_theory_takes_a_users_surface_load_and_closure_and_prints_the_contact_area(capsys):
+    """Oracles: at the hard wall Persson's a_r = erf(p0/sqrt(2 V0)) with V0 = (E*/2)^2 gbar^2 exactly; the
+    log-normal gap closure's a_r = P(p > 0.01 p0) = Phi((ln p0 - s^2/2 - ln(0.01 p0))/s), s^2 = V/p0^2."""
+    from math import erf, log, pi, sqrt
+
+    from scipy.special import ndtr
+
+    surface = ["--hurst", "0.7", "--rms-slope", "0.05", "--length", "1", "--n-waves", "100"]
+    assert main(["theory", *surface, "--E-star", "2", "--mean-pressure", "0.01"]) == 0
+    a_r = float(re.search(r"contact area a_r = ([0-9.e+-]+)", capsys.readouterr().out).group(1))
+    assert a_r == pytest.approx(erf(0.01 / sqrt(2 * 0.05**2)), rel=1e-5)  # 6 digits printed
+    assert main(["theory", *surface, "--mean-pressure", "0.01", "--zeta", "0.002", "--closure",
+                 "lognormal_gap"]) == 0
+    a_r = float(re.search(r"contact area a_r = ([0-9.e+-]+)", capsys.readouterr().out).group(1))
+    spec = diffusion_pr.SelfAffineSpectrum(0.7, 2 * pi, 200 * pi, rms_slope=0.05)
+    s = sqrt(diffusion_pr.stress_variance(spec, E_star=8 / 3, mean_pressure=0.01, zeta=0.002)) / 0.01
+    assert a_r == pytest.approx(float(ndtr((-s * s / 2 - log(0.01)) / s)), rel=1e-5)
+    assert main(["theory", "--closure", "lognormal_gap", "--zeta", "1", "--cutoff", "muser", "--p-c", "0.001"]) == 2

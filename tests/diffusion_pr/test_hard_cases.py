@@ -153,7 +153,8 @@ def test_extreme_but_valid_inputs_give_correct_results():
     assert r.success and r.zero_weight == pytest.approx(cf.persson_zero_weight(1e-8, 1.0), abs=1e-6)
     r = dp.propagate(1e6, 1.0)  # the closed form far from the wall: cost independent of p0/sqrt(V)
     assert r.success and r.zero_weight == 0.0 and r.p.size < 2000
-    r = dp.propagate(1.0, 1.0, backend="native", rtol=1e-14)  # unreachable: a clear failure, not a hang
+    with pytest.warns(dp.ConvergenceWarning, match="misses rtol"):  # unreachable: a clear failure, not a hang
+        r = dp.propagate(1.0, 1.0, backend="native", rtol=1e-14)
     assert not r.success and "misses rtol" in r.message
 
 
@@ -193,7 +194,8 @@ def test_a_diverging_refinement_stops_and_says_so():
     p0, c = 0.272, 0.39
     f = dp.PressureFactor(dp.MuserCutoff(0.00252))
     drift = lambda p, tau: -c * (p - p0) / 2.0  # noqa: E731
-    r = dp.propagate(p0, 1.0, diffusivity=f, drift=drift, rtol=1e-9, backend="native")
+    with pytest.warns(dp.ConvergenceWarning, match="refinement diverges"):
+        r = dp.propagate(p0, 1.0, diffusivity=f, drift=drift, rtol=1e-9, backend="native")
     est = [e for _, e in r.diagnostics["history"]]
     assert not r.success and "refinement diverges" in r.message
     assert abs(r.diagnostics["mass_error"]) < 1e-12  # the flux form: 4.4e-16
@@ -260,7 +262,8 @@ def test_an_unstable_grid_fails_clearly(monkeypatch):
     from diffusion_pr.fokker_planck import stages
 
     monkeypatch.setattr(stages, "_fitted_stages", lambda prep, coef: np.zeros(coef["has_b"].size, dtype=bool))
-    bad = _seed7_problem_122()(1e-8)
+    with pytest.warns(dp.ConvergenceWarning, match="unstable"):
+        bad = _seed7_problem_122()(1e-8)
     assert not bad.success and "exponential integration is unstable on the 5760-cell grid" in bad.message
     assert np.all(np.isfinite(bad.density)) and np.isfinite(bad.error_estimate)
 
