@@ -9,14 +9,16 @@ Two factorized problems have exact solutions (Müser 2008, Eq. 2 and docs/theory
 * ``f = slope * p``: Feller's solution (W. Feller, Ann. Math. 54, 173
   (1951)) with ``tau = V/2`` and zero weight ``exp(-p0 / (slope tau))``.
 
-The density is evaluated on Gauss-Legendre panels (16 nodes each) following the solution's scales, so that
-``sum(weights * density) + zero_weight = 1`` to about 1e-13 (``error_estimate``: that defect); smooth moments
+The result's ``pdf`` and ``cdf`` are the exact functions (:class:`ExactSolution`); ``p``, ``density`` and
+``weights`` are Gauss-Legendre panels (16 nodes each) following the solution's scales, on which
+``sum(weights * density) + zero_weight = 1`` to about 1e-13 (``error_estimate``: that defect) and the moments
 integrate to the same accuracy.  :func:`exact_kind` recognizes these problems (used by ``backend="auto"``).
 """
 from __future__ import annotations
 
 import time
-from typing import Optional, Tuple
+from dataclasses import dataclass
+from typing import Any, Optional, Tuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,6 +30,41 @@ from ...result import PressureDistribution
 Array = NDArray[np.float64]
 
 NODES_PER_PANEL = 16
+
+
+@dataclass(frozen=True)
+class ExactSolution:
+    """The continuous part of a closed form: ``kind`` ``"mirror"`` (``f = coefficient``) or ``"feller"``
+    (``f = coefficient * p``) at diffusion time ``tau`` from ``p0`` (pressure units)."""
+
+    kind: str
+    p0: float
+    tau: float
+    coefficient: float
+
+    def pdf(self, p: Any) -> Array:
+        """Density at ``p >= 0`` (1 / pressure)."""
+        from ... import closed_forms as cf
+
+        if self.kind == "mirror":
+            return cf.mirror_gaussian_density(p, self.p0, 2.0 * self.coefficient * self.tau)
+        return cf.feller_density(p, self.p0, self.tau, self.coefficient)
+
+    def cdf(self, p: Any) -> Array:
+        """Probability in ``(0, p]`` (``p >= 0``): Gaussian cdfs, or Feller's as a noncentral chi-square with 0
+        degrees of freedom, ``X = (c tau / 2) chi'^2_0(2 p0 / (c tau))``, whose survival is Marcum's
+        ``Q_0(a, b) = Q_1(a, b) - exp(-(a^2 + b^2) / 2) I_0(a b)`` (``Q_1``: 2 degrees of freedom)."""
+        from scipy import special, stats
+
+        p = np.asarray(p, dtype=float)
+        if self.kind == "mirror":
+            s = np.sqrt(2.0 * self.coefficient * self.tau)
+            return (special.ndtr((p - self.p0) / s) - special.ndtr(-self.p0 / s)
+                    - special.ndtr((p + self.p0) / s) + special.ndtr(self.p0 / s))
+        theta = self.coefficient * self.tau
+        x, nc = 2.0 * p / theta, 2.0 * self.p0 / theta
+        return (stats.ncx2.cdf(x, 2.0, nc) + special.i0e(np.sqrt(nc * x)) * np.exp(-0.5 * (np.sqrt(nc) - np.sqrt(x)) ** 2)
+                - np.exp(-self.p0 / theta))
 
 
 def _probe_points(problem: FokkerPlanckProblem) -> Array:
@@ -108,7 +145,7 @@ def gauss_legendre_grid(panel_edges: Array, n: int = NODES_PER_PANEL) -> Tuple[A
 
 
 def solve(problem: FokkerPlanckProblem, *, rtol: float = 1e-6, tail_mass: float = 1e-16) -> PressureDistribution:
-    """Evaluate the exact solution of ``problem`` on a Gauss-Legendre grid.
+    """The exact solution of ``problem`` (its ``pdf`` and ``cdf``), tabulated on a Gauss-Legendre grid.
 
     Parameters
     ----------
@@ -176,6 +213,6 @@ def solve(problem: FokkerPlanckProblem, *, rtol: float = 1e-6, tail_mass: float 
                      "negative_mass": 0.0, "min_density": float(dens.min()), "tail_mass": float(tail_mass),
                      "time_integration": "exact", "n_stages": 1, "substeps": 0,
                      "timings": {"setup": 0.0, "solve": wall, "total": wall},
-                     "kind": name, "coefficient": coef, "panels": panels, "quadrature_mass_defect": mass - 1.0},
-        edges=None, contact_threshold=0.0,
+                     "kind": name, "coefficient": coef, "quadrature_mass_defect": mass - 1.0},
+        edges=None, contact_threshold=0.0, analytic=ExactSolution(name, p0, tau, coef),
     )
