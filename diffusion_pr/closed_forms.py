@@ -515,4 +515,5 @@ def lognormal_gap_distribution(spectrum: Any, *, E_star: float, mean_pressure: f
                                 variance=V, backend="closed_form", success=True,
                                 message=f"exact: log-normal gap closure on {points.size} cells uniform in ln p",
                                 error_estimate=abs(total - 1.0), wall_time=wall, diagnostics=diag, edges=edges,
-                                contact_threshold=contact_threshold(z, p0), analytic=stats.lognorm(s, scale=math.exp(mu)))
+                                contact_threshold=contact_threshold(z, p0),
+                                analytic=stats.lognorm(s, scale=math.exp(mu)))

@@ -13,23 +13,20 @@ DECADES = 6.0
 QUANTILE = 1e-4
 
 
-def _axes(ax: Any) -> Any:
+def _axes(ax: Any, units: Optional[str]) -> Any:
+    """``ax`` (a new figure in constrained layout, whose labels survive savefig, if None), labelled in ``units``."""
     if ax is None:
         import matplotlib.pyplot as plt
 
-        _, ax = plt.subplots(figsize=(5.0, 3.6), layout="constrained")  # (labels survive savefig)
+        _, ax = plt.subplots(figsize=(5.0, 3.6), layout="constrained")
+    ax.set_xlabel(f"pressure p [{units or 'units of p0'}]")
+    ax.set_ylabel(f"Pr(p) [1 / ({units or 'units of p0'})]")
     return ax
 
 
-def _label_axes(ax: Any, units: Optional[str]) -> None:
-    unit = units or "units of p0"
-    ax.set_xlabel(f"pressure p [{unit}]")
-    ax.set_ylabel(f"Pr(p) [1 / ({unit})]")
-
-
 def body_range(result: Any, quantile: float = QUANTILE) -> tuple[float, float]:
-    """The pressures (units of ``p``) between which the continuous part holds all but ``2 quantile`` of its mass:
-    its ``quantile`` and ``1 - quantile`` quantiles, read off the cdf at the result's edges or nodes."""
+    """The continuous part's ``quantile`` and ``1 - quantile`` quantiles (pressure), from the cdf at the edges or
+    nodes."""
     x = np.asarray(result.edges if result.edges is not None else result.p, dtype=float)
     x = np.unique(np.concatenate(([0.0], x[x > 0])))
     share = np.asarray(result.cdf(x), dtype=float) - float(result.zero_weight)
@@ -50,25 +47,21 @@ def plot_distribution(result: Any, ax: Optional[Any] = None, *, log: bool = True
     ax : matplotlib Axes, optional
         Axes to draw on; a new figure (constrained layout) is made when omitted.
     log : bool
-        Logarithmic density axis (the paper's Fig. 1 style): ``decades`` below the peak.
+        Logarithmic density axis (the paper's Fig. 1 style), ``decades`` below the peak.
     label : str, optional
         Legend label; defaults to the closure, the backend and the contact area at the result's threshold.
-    decades : float
-        With ``log``, the density axis spans this many decades below the peak.
     logp : bool, optional
-        Logarithmic pressure axis; default where the body (:func:`body_range`) spans more than 3 decades.
+        Logarithmic pressure axis; default where :func:`body_range` spans more than 3 decades.  The axis spans
+        :func:`body_range` (from 0 where that is near); on axes holding curves it is widened, never narrowed.
     units : str, optional
-        The pressure unit for the labels (default "units of p0": those ``p0`` and ``E*`` were given in).
-
-    The pressure axis spans :func:`body_range` (the 1e-4 and 1 - 1e-4 quantiles of the continuous part, from 0
-    where that is near); on axes that already hold curves it is widened, never narrowed.
+        The pressure unit of the labels (default "units of p0": those ``p0`` and ``E*`` were given in).
 
     Returns
     -------
     matplotlib Axes
     """
     fresh = ax is None or not ax.get_lines()
-    ax = _axes(ax)
+    ax = _axes(ax, units)
     if label is None:
         label = f"{result.diagnostics.get('closure', 'second_order')}, {result.backend}"
         if result.contact_threshold is not None:
@@ -91,12 +84,8 @@ def plot_distribution(result: Any, ax: Optional[Any] = None, *, log: bool = True
     if log:
         ax.set_yscale("log")
         top = 2.0 * float(np.nanmax(density))
-        bottom = top * 0.5 * 10.0 ** (-float(decades))
-        if not fresh:
-            y0, y1 = ax.get_ylim()
-            bottom, top = min(bottom, y0), max(top, y1)
-        ax.set_ylim(bottom, top)
-    _label_axes(ax, units)
+        y0, y1 = (top * 0.5 * 10.0 ** -float(decades), top) if fresh else ax.get_ylim()
+        ax.set_ylim(min(y0, top * 0.5 * 10.0 ** -float(decades)), max(y1, top))
     return ax
 
 
@@ -104,15 +93,10 @@ def plot_histogram(centers: Any, density: Any, ax: Optional[Any] = None, *, log:
                    label: Optional[str] = None, units: Optional[str] = None, **kwargs: Any) -> Any:
     """Plot a simulated pressure histogram as symbols (``ax`` in, ``ax`` out; ``units`` as
     :func:`plot_distribution`)."""
-    ax = _axes(ax)
+    ax = _axes(ax, units)
     density = np.asarray(density, dtype=float)
-    if log:
-        density = np.where(density > 0.0, density, np.nan)
-    kwargs.setdefault("marker", "o")
-    kwargs.setdefault("linestyle", "none")
-    kwargs.setdefault("markersize", 3)
-    ax.plot(centers, density, label=label, **kwargs)
+    ax.plot(centers, np.where(density > 0.0, density, np.nan) if log else density, label=label,
+            **{"marker": "o", "linestyle": "none", "markersize": 3, **kwargs})
     if log:
         ax.set_yscale("log")
-    _label_axes(ax, units)
     return ax

@@ -56,9 +56,9 @@ class PressureDistribution:
     ``p * density * weights`` and ``zero_weight``; :meth:`cdf` is one monotone piecewise polynomial of the cumulative
     masses, exact at the edges (:func:`cumulative_interpolant`, in the grid's monitor coordinate ``Phi`` where the
     result records its grid, else in ``p``), :meth:`pdf` its derivative, :meth:`moment` the masses and first moments.
-    Cells under a breakpoint found within :data:`~diffusion_pr.fokker_planck.engine.UNRESOLVED` of the domain above
-    its bottom (a jump at ``p = 0``, resolved to 1e-21) have given their mass to the first cell above it.  Closed forms carry the exact
-    solution (``analytic``) that :meth:`pdf` and :meth:`cdf` evaluate.
+    Cells under a breakpoint found within :data:`~diffusion_pr.fokker_planck.engine.UNRESOLVED` of the bottom (a
+    jump at ``p = 0``, found at 1e-21) have given their mass to the first cell above it.  Closed forms carry the
+    exact solution (``analytic``) that :meth:`pdf` and :meth:`cdf` evaluate.
 
     Attributes
     ----------
@@ -161,17 +161,15 @@ class PressureDistribution:
             below the floor ``diagnostics["p_floor"]`` of a result whose wall is never reached (there
             ``zero_weight`` is the probability below a numerical floor, not a non-contact area).
         """
-        t = self.contact_threshold if threshold is None else threshold
+        t, floor = self.contact_threshold if threshold is None else threshold, self.diagnostics.get("p_floor", 0.0)
         if t is None:
             raise ValueError("this result has no default contact threshold (its wall is never reached and no wall "
                              "law was given): pass threshold= (pressure units; GFMD counts p > 0.01 p0)")
         if not (np.ndim(t) == 0 and np.isreal(t) and float(t) >= 0.0):
             raise ValueError(f"threshold must be a number >= 0 (pressure units); got threshold={threshold!r}")
-        floor = float(self.diagnostics.get("p_floor", 0.0))
         if float(t) < floor:
-            raise ValueError(f"threshold={float(t):.3g} lies below this result's floor p_floor={floor:.3g}: the "
-                             "probability below the floor (zero_weight) depends on where the floor sits, it is not "
-                             "a contact area; pass threshold >= p_floor (GFMD counts p > 0.01 p0)")
+            raise ValueError(f"threshold={float(t):.3g} lies below this result's floor p_floor={floor:.3g}, under "
+                             "which zero_weight is a numerical choice, not a contact area: pass threshold >= p_floor")
         return 1.0 - float(self.zero_weight) if float(t) == 0.0 else 1.0 - float(self.cdf(float(t)))
 
     @property

@@ -81,14 +81,8 @@ def compare(theory: Any, hist: SimulatedHistogram, *, contact_threshold: Optiona
         "variance": theory.moment(2, central=True),
         "third_central": theory.moment(3, central=True),
     }
-    a_theory = contact_area(theory, threshold)
-    return Comparison(l1, ks, moments_theory, dict(hist.moments), a_theory, hist.fraction_above(threshold), threshold)
-
-
-def contact_area(theory: Any, threshold: float) -> float:
-    """``P(p > threshold)`` of a theory: its ``contact_area`` where it has one, else ``1 - cdf(threshold)``."""
-    area = getattr(theory, "contact_area", None)
-    return float(area(threshold)) if area is not None else 1.0 - float(theory.cdf(threshold))
+    return Comparison(l1, ks, moments_theory, dict(hist.moments), theory.contact_area(threshold),
+                      hist.fraction_above(threshold), threshold)
 
 
 def kolmogorov_distance(cdf: Callable, quantiles: Array, levels: Array, *, p_floor: float = 0.0,

@@ -527,8 +527,7 @@ def _plain_solution(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple
                       plain_failure=broken[0] if broken else None)
 
 
-#: a breakpoint within this fraction of the domain above its bottom is below what the grid resolves: the cells
-#: under it give their mass to the first cell above it (:func:`build_result`)
+#: a breakpoint within this fraction of the domain above its bottom is not resolved (:func:`build_result`)
 UNRESOLVED = 1e-15
 
 
@@ -538,16 +537,16 @@ def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarr
     """The one place a finite-volume result is made (one meaning of ``success``).
 
     ``p`` holds each cell's barycentre ``moments / masses`` (clipped into the cell), so ``sum(weights * p *
-    density)`` is the solver's first moment; the cells below a breakpoint within :data:`UNRESOLVED` of the domain
-    above its bottom (densities of 1e5 and more on cells below 1e-21 where a jump at ``p = 0`` was found) give
-    their mass and moment to the first cell above it (they keep their edges, so grids stay nested).  ``success`` requires: the estimate <= rtol, total probability
-    within rtol of 1, the mean within ``rtol p0`` of ``p0`` (where conserved), negative probability (never
+    density)`` is the solver's first moment; the cells under a breakpoint within :data:`UNRESOLVED` of the bottom
+    (densities of 1e5 and more below 1e-21 where a jump at ``p = 0`` was found) give their mass and moment to the
+    first cell above it (keeping their edges: grids stay nested).  ``success`` requires: the estimate <= rtol, total
+    probability within rtol of 1, the mean within ``rtol p0`` of ``p0`` (where conserved), negative probability (never
     clipped), the top cell's probability and what left through a truncated bottom all below rtol.
     """
     knots = density_knots(prep)
     tiny = [k for k in knots if edges[0] < k <= edges[0] + UNRESOLVED * (edges[-1] - edges[0])]
     low = int(np.argmin(np.abs(edges - max(tiny)))) if tiny else 0
-    if low:  # cells below what the grid resolves (a breakpoint found at p = 0): their mass to the first resolved one
+    if low:
         y = np.r_[y[0], np.zeros(low), np.sum(y[1:low + 2]), y[low + 2:]]
         moments = None if moments is None else np.r_[np.zeros(low), np.sum(moments[:low + 1]), moments[low + 1:]]
     h = edges[1:] - edges[:-1]
