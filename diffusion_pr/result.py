@@ -211,7 +211,7 @@ class PressureDistribution:
         if self.edges is None:
             raise ValueError("a point-wise result needs its exact solution (analytic=) or cell edges for pdf and cdf")
         spec = (self.diagnostics.get("grid") or (None,))[0]
-        phi, dphi = (spec.phi, spec.dphi) if callable(getattr(spec, "dphi", None)) else (lambda q: q, np.ones_like)
+        phi, dphi = (spec.phi, spec.dphi) if callable(getattr(spec, "dphi", None)) else (np.asarray, np.ones_like)
         edges = np.asarray(self.edges, dtype=float)
         cum = np.concatenate(([0.0], np.cumsum(self.weights * self.density)))
         ghosts = self.diagnostics.get("floor_ghosts")  # cells below the floor: the spline runs on through it
