@@ -123,7 +123,7 @@ class Fig1Report:
                else f", contact area a_r = {self.persson.contact_area():.5f}"),
             "",
         ]
-        width = max([6] + [len(label) for c in self.cases for label in c.comparisons])
+        width = max([6] + [len(" = ".join(c.comparisons)) for c in self.cases])
         lines.append(f"{'wall':>12} {'theory':>{width}} {'p_c':>8} {'L1':>8} {'Kolmog.':>8} {'a_sim':>8} "
                      f"{'a_theory':>8} {'sd_sim':>9} {'sd_theory':>9} {'GFMD it':>8} {'resid':>8} {'GFMD s':>7} "
                      f"{'theory s':>8}")

@@ -54,7 +54,7 @@ def test_a_floor_is_not_a_contact_area():
     assert floor > 0 and r.contact_threshold is None
     with pytest.raises(ValueError, match="no default contact threshold"):
         r.contact_area()
-    with pytest.raises(ValueError, match="below this result's floor"):
+    with pytest.raises(ValueError, match="below this result.s floor"):
         r.contact_area(0.0)
     assert r.contact_area(0.01) == pytest.approx(1.0 - float(r.cdf(0.01)), abs=1e-15)
     with pytest.raises(ValueError, match="threshold"):
