@@ -17,6 +17,7 @@ import numpy as np
 
 from ._validation import check_callable, check_finite_array, check_int, check_nonnegative, check_positive
 from .models import PressureFactor, make_cutoff, make_tail
+from .paper import contact_threshold
 from .problem import FokkerPlanckProblem, StagedProblem
 from .result import PressureDistribution
 
@@ -298,7 +299,8 @@ def pressure_distribution(
     -------
     PressureDistribution
         With ``diagnostics["stress_variance"]`` (``V``, pressure squared), ``diagnostics["zeta"]`` and, with a
-        drift, the ``eta`` grid used; a :class:`ConvergenceWarning` when ``success`` is False.
+        drift, the ``eta`` grid used; a :class:`ConvergenceWarning` when ``success`` is False.  ``contact_area()``
+        counts ``p > 0`` at ``zeta = 0``, ``p > 0.01 p0`` (GFMD's threshold) at ``zeta > 0``.
 
     Raises
     ------
@@ -335,8 +337,10 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
         if closure == "lognormal_gap" and (backend not in ("auto", "closed_form") or given):
             raise ValueError(f"closure='lognormal_gap' is a closed form: backend must be 'auto' or 'closed_form' "
                              f"(got backend={backend!r}) and solver options do not apply (got {given})")
-        return _closure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
-                                     closure=closure, backend=backend, rtol=rtol, warm_start=warm_start, **options)
+        result, sol = _closure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
+                                            closure=closure, backend=backend, rtol=rtol, warm_start=warm_start,
+                                            **options)
+        return replace(result, contact_threshold=contact_threshold(zeta, mean_pressure)), sol
     for name in ("n_shells", "shell_extrapolation"):
         if options.pop(name, None) is not None:
             raise ValueError(f"{name} applies to the shell closures, not to 'second_order'")
@@ -373,7 +377,8 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
             drift_of_eta=drift, label="pressure_distribution", **_exact_schedule(spectrum, E, float(p0), float(z)))
         extra.update({"eta": eta, "variance_of_eta": v_eta})
     sol = _solve_full(problem, backend, rtol, options, warm_start=warm_start)
-    return replace(sol.result, diagnostics={**sol.result.diagnostics, **extra}), sol
+    return replace(sol.result, diagnostics={**sol.result.diagnostics, **extra},
+                   contact_threshold=contact_threshold(z, p0)), sol
 
 
 #: the largest growth of a sweep's start from one entry to the next (an upward trend of the cells is followed)

@@ -276,7 +276,8 @@ def lognormal_gap_distribution(spectrum: Any, *, E_star: float, mean_pressure: f
     (``V``: :func:`~diffusion_pr.cumulants.stress_variance`), and force balance fixes the mean to ``p0``:
     ``<ln p> = ln p0 - s^2/2``.
 
-    Given on ``n_cells`` cells uniform in ``ln p`` over ``[<ln p> - 9.5 s, <ln p> + s^2 + 9.5 s]`` (plus
+    ``pdf`` and ``cdf`` are the exact log-normal's (``analytic``); ``p``, ``density`` and ``weights`` are
+    ``n_cells`` cells uniform in ``ln p`` over ``[<ln p> - 9.5 s, <ln p> + s^2 + 9.5 s]`` (plus
     ``[0, p_lo]``) with the exact cell masses and, as each cell's point, the exact conditional mean of ``p`` in
     the cell: mass and mean are exact to round-off (the mass dropped beyond ``9.5 s`` is below 1e-20).
 
@@ -300,7 +301,10 @@ def lognormal_gap_distribution(spectrum: Any, *, E_star: float, mean_pressure: f
         the same diagnostics keys), plus ``diagnostics["closure"] = "lognormal_gap"`` and
         ``diagnostics["ln_variance"] = s^2``.
     """
+    from scipy import stats
+
     from .cumulants import stress_variance
+    from .paper import contact_threshold
     from .result import PressureDistribution
 
     z = float(check_nonnegative("zeta", zeta))
@@ -355,4 +359,6 @@ def lognormal_gap_distribution(spectrum: Any, *, E_star: float, mean_pressure: f
     return PressureDistribution(p=points, density=density, weights=widths, zero_weight=0.0, mean_pressure=p0,
                                 variance=V, backend="closed_form", success=True,
                                 message=f"exact: log-normal gap closure on {points.size} cells uniform in ln p",
-                                error_estimate=abs(total - 1.0), wall_time=wall, diagnostics=diag, edges=edges)
+                                error_estimate=abs(total - 1.0), wall_time=wall, diagnostics=diag, edges=edges,
+                                contact_threshold=contact_threshold(z, p0),
+                                analytic=stats.lognorm(s, scale=math.exp(mu)))

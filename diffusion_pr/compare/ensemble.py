@@ -221,7 +221,7 @@ def compare_ensemble(theory: Any, records_or_group: Any, *, p_min: Optional[floa
     l1_noise = float(np.median([np.sum(np.abs(Me[i].mean(0) - Mp)) for i in boot_idx]))
     # contact fraction, sd, skewness
     thr = float(getattr(recs[0], "contact_threshold", 0.0))
-    cf_t = float(1.0 - np.asarray(theory.cdf(thr)))
+    cf_t = float(theory.contact_area(thr) if hasattr(theory, "contact_area") else 1.0 - theory.cdf(thr))
     cf = np.array([float(r.contact_fraction) for r in recs])
     mean_s = np.array([float(r.mean) for r in recs])
     var_s = np.array([float(r.variance) for r in recs])

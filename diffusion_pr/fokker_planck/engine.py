@@ -527,16 +527,28 @@ def _plain_solution(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple
                       plain_failure=broken[0] if broken else None)
 
 
+#: a breakpoint within this fraction of the domain above its bottom is not resolved (:func:`build_result`)
+UNRESOLVED = 1e-15
+
+
 def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarray, estimate: float, rtol: float,
                  timings: dict, extra: dict, moments: Optional[np.ndarray] = None,
                  mean_full: Optional[float] = None, failure: Optional[str] = None) -> PressureDistribution:
     """The one place a finite-volume result is made (one meaning of ``success``).
 
     ``p`` holds each cell's barycentre ``moments / masses`` (clipped into the cell), so ``sum(weights * p *
-    density)`` is the solver's first moment.  ``success`` requires: the estimate <= rtol, total probability
-    within rtol of 1, the mean within ``rtol p0`` of ``p0`` (where conserved), negative probability (never
+    density)`` is the solver's first moment; the cells under a breakpoint within :data:`UNRESOLVED` of the bottom
+    (densities of 1e5 and more below 1e-21 where a jump at ``p = 0`` was found) give their mass and moment to the
+    first cell above it (keeping their edges: grids stay nested).  ``success`` requires: the estimate <= rtol, total
+    probability within rtol of 1, the mean within ``rtol p0`` of ``p0`` (where conserved), negative probability (never
     clipped), the top cell's probability and what left through a truncated bottom all below rtol.
     """
+    knots = density_knots(prep)
+    tiny = [k for k in knots if edges[0] < k <= edges[0] + UNRESOLVED * (edges[-1] - edges[0])]
+    low = int(np.argmin(np.abs(edges - max(tiny)))) if tiny else 0
+    if low:
+        y = np.r_[y[0], np.zeros(low), np.sum(y[1:low + 2]), y[low + 2:]]
+        moments = None if moments is None else np.r_[np.zeros(low), np.sum(moments[:low + 1]), moments[low + 1:]]
     h = edges[1:] - edges[:-1]
     m = np.asarray(y[1:], dtype=float)
     c = centres(edges)
@@ -588,7 +600,7 @@ def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarr
         "time_integration": extra.get("time_integration", "cram16"), "n_stages": len(prep.pieces),
         "substeps": int(extra.get("substeps", 0)), "timings": dict(timings),
     }
-    diagnostics["knots"] = density_knots(prep)
+    diagnostics["knots"] = knots
     diagnostics["domain_bottom"] = float(prep.spec.p_wall)  # the absorbing lower end of the grids (pressure)
     diagnostics.update({k: v for k, v in extra.items() if k not in diagnostics})
     if prep.label:
@@ -596,4 +608,4 @@ def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarr
     return PressureDistribution(p=c, density=density, weights=h, zero_weight=z, mean_pressure=prep.p0,
                                 variance=2.0 * prep.tau_end, backend=backend, success=bool(success), message=message,
                                 error_estimate=float(estimate), wall_time=float(timings["total"]),
-                                diagnostics=diagnostics, edges=edges)
+                                diagnostics=diagnostics, edges=edges, contact_threshold=0.0 if prep.reached else None)

@@ -118,29 +118,32 @@ class Fig1Report:
             "and the best parameter-free closure",
             "scene: " + ", ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}"
                                   for k, v in self.scene.items()),
-            f"Persson (zeta -> 0): sqrt(V0) = {np.sqrt(self.variance_persson):.6f}, "
-            f"contact fraction a_r = {self.persson.contact_fraction:.5f}",
+            f"Persson (zeta -> 0): sqrt(V0) = {np.sqrt(self.variance_persson):.6f}"
+            + ("" if any(c.zeta is None for c in self.cases)  # (the hard wall's row has it)
+               else f", contact area a_r = {self.persson.contact_area():.5f}"),
             "",
         ]
-        width = max([6] + [len(label) for c in self.cases for label in c.comparisons])
+        width = max([6] + [len(" = ".join(c.comparisons)) for c in self.cases])
         lines.append(f"{'wall':>12} {'theory':>{width}} {'p_c':>8} {'L1':>8} {'Kolmog.':>8} {'a_sim':>8} "
                      f"{'a_theory':>8} {'sd_sim':>9} {'sd_theory':>9} {'GFMD it':>8} {'resid':>8} {'GFMD s':>7} "
                      f"{'theory s':>8}")
         for c in self.cases:
-            p_c = c.gfmd_info.get("p_c")
+            p_c, rows = c.gfmd_info.get("p_c"), {}
             for label, cmp in c.comparisons.items():
                 # p_c is the paper's fitted cutoff: it belongs to the paper's curve only
                 p_c_text = "-" if (p_c is None or label != PAPER) else f"{p_c:.4f}"
-                lines.append(
-                    f"{c.wall:>12} {label:>{width}} {p_c_text:>8} {cmp.l1:8.4f} "
-                    f"{cmp.kolmogorov:8.4f} {cmp.contact_fraction_sim:8.4f} {cmp.contact_fraction_theory:8.4f} "
-                    f"{np.sqrt(cmp.moments_sim['variance']):9.5f} {np.sqrt(cmp.moments_theory['variance']):9.5f} "
-                    f"{c.gfmd_info.get('iterations', 0):8d} {c.gfmd_info.get('residual', np.nan):8.1e} "
-                    f"{c.gfmd_time:7.2f} {c.theory_time:8.3f}")
+                row = (f"{p_c_text:>8} {cmp.l1:8.4f} "
+                       f"{cmp.kolmogorov:8.4f} {cmp.contact_fraction_sim:8.4f} {cmp.contact_fraction_theory:8.4f} "
+                       f"{np.sqrt(cmp.moments_sim['variance']):9.5f} {np.sqrt(cmp.moments_theory['variance']):9.5f} "
+                       f"{c.gfmd_info.get('iterations', 0):8d} {c.gfmd_info.get('residual', np.nan):8.1e} "
+                       f"{c.gfmd_time:7.2f} {c.theory_time:8.3f}")
+                rows.setdefault(row.replace(p_c_text, "-", 1), []).append((label, row))
+            for same in rows.values():  # curves equal to the digits shown (the closures at the hard wall): one row
+                lines.append(f"{c.wall:>12} {' = '.join(label for label, _ in same):>{width}} {same[0][1]}")
         lines.append("")
         lines.append("a_sim, a_theory: fraction of the area with p above the contact threshold, the same on both "
                      "sides: p > 0 for the hard wall, p > 0.01 p0 for exponential walls (gfmd_ref's definition; "
-                     "for the theory 1 - cdf(threshold)). p_c: the paper's fitted cutoff pressure (paper curve "
+                     "for the theory contact_area()). p_c: the paper's fitted cutoff pressure (paper curve "
                      "only; the closures have no fitted parameter). theory s: all theory curves of that wall.")
         return "\n".join(lines)
 
@@ -248,7 +251,7 @@ def run_fig1(*, n: int = 512, zetas: Sequence[float] = DEFAULT_ZETAS, hard_wall:
         edges = np.arange(int(np.ceil(float(pressure.max()) / bin_width)) + 1) * bin_width
         threshold = contact_threshold(zeta, p0)
         hist = SimulatedHistogram.from_pressures(pressure, bins=edges, contact_threshold=threshold)
-        comparisons = {label: compare(th, hist, contact_threshold=threshold) for label, th in curves.items()}
+        comparisons = {label: compare(th, hist) for label, th in curves.items()}  # (th.contact_threshold)
         info = {"iterations": int(res.iterations), "residual": float(res.residual), "converged": bool(res.converged),
                 "contact_fraction": float(res.contact_fraction), "method": res.method,
                 "p_c": None if zeta is None else cutoff_pressure(zeta)}
@@ -301,63 +304,66 @@ def write_outputs(report: Fig1Report, out_dir: Path) -> dict:
     files["report"] = path
     import matplotlib.pyplot as plt
 
-    ax = plot_fig1(report)
-    ax.figure.tight_layout()
+    fig = plot_fig1(report)
     files["figure"] = out_dir / "fig1.png"
-    ax.figure.savefig(files["figure"], dpi=130)
-    plt.close(ax.figure)
+    fig.savefig(files["figure"], dpi=130)
+    plt.close(fig)
     return files
 
 
-def plot_fig1(report: Fig1Report, ax: Any = None) -> Any:
-    """Log density against pressure: GFMD symbols, theory lines, Persson dashed.
+def plot_fig1(report: Fig1Report) -> Any:
+    """One panel per wall, log density against pressure: GFMD symbols, the theory curves, Persson dashed (on the
+    hard wall's panel, else the first); x up to the field's and the curves' 1 - 1e-4 quantile; the paper's
+    Kolmogorov distance to GFMD in each title and its largest in the figure's.
 
-    Every line carries a ``gid``: ``"gfmd:<wall>"`` (the histogram merged
-    two bins at a time), ``"theory:<wall>:<label>"`` and ``"persson"``.
-
-    Parameters
-    ----------
-    report : Fig1Report
-    ax : matplotlib Axes, optional
-        Axes to draw on (a new figure when omitted).
+    Every line carries a ``gid``: ``"gfmd:<wall>"`` (the histogram merged two bins at a time),
+    ``"theory:<wall>:<label>"`` and ``"persson"``.  Pressures in the scene's units (those of ``E*`` and ``p0``).
 
     Returns
     -------
-    matplotlib Axes
+    matplotlib Figure
     """
     import matplotlib.pyplot as plt
 
-    from ..plotting import plot_histogram
+    from ..plotting import QUANTILE, body_range, plot_histogram
 
-    if ax is None:
-        _, ax = plt.subplots(figsize=(6.4, 4.6))
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    n = max(len(report.cases), 1)
+    cols = min(3, n)
+    rows = -(-n // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 3.0 * rows), layout="constrained", squeeze=False)
     styles = ["-", "-.", ":", (0, (5, 1))]
-    p_hi = 0.0
-    for i, c in enumerate(report.cases):
-        color = colors[i % len(colors)]
-        label = "hard wall" if c.zeta is None else f"zeta = {c.zeta:g}"
+    units = "scene units"
+    persson_at = next((i for i, c in enumerate(report.cases) if c.zeta is None), 0)
+    for i, (ax, c) in enumerate(zip(axes.flat, report.cases)):
         hist = c.histogram.rebinned(2)
-        plot_histogram(hist.centers, hist.density, ax=ax, color=color, label=f"GFMD {label}",
-                       gid=f"gfmd:{c.wall}")
-        if c.zeta is not None:  # the hard wall's paper curve is Persson's, drawn below
-            q = np.linspace(0.0, float(hist.edges[-1]), 600)
-            for j, (name, th) in enumerate(c.theories.items()):
-                dens = th.pdf(q)
-                ax.plot(q, np.where(dens > 0, dens, np.nan), color=color, lw=1.2, ls=styles[j % len(styles)],
-                        gid=f"theory:{c.wall}:{name}", label=None if name == PAPER else f"{name}, {label}")
-        p_hi = max(p_hi, float(hist.edges[-1]))
-    q = np.linspace(1e-6, p_hi if p_hi > 0 else 0.2, 600)
-    dens = report.persson.pdf(q)
-    ax.plot(q, np.where(dens > 0, dens, np.nan), "k--", lw=1.2, label="Persson (mirror Gaussian)", gid="persson")
-    ax.set_yscale("log")
-    ax.set_xlabel("pressure p (units of E*)")
-    ax.set_ylabel("Pr(p) (1 / pressure)")
-    d_max = max([float(np.max(c.histogram.density)) for c in report.cases if np.size(c.histogram.density)] or [1.0])
-    ax.set_ylim(bottom=1e-2, top=max(3.0 * d_max, 1.0))  # the data's decades, not a tall theory spike
-    ax.legend(fontsize=7)
-    names = [n for c in report.cases for n in c.theories if n != PAPER]
-    other = f"; dash-dot: {names[0]}" if names else ""
-    ax.set_title(f"Fig. 1 scene, {report.scene.get('n')}^2 grid, seed {report.scene.get('seed')}\n"
-                 f"solid: the paper's second order (fitted p_c){other}", fontsize=8)
-    return ax
+        plot_histogram(hist.centers, hist.density, ax=ax, color="0.3", label="GFMD", gid=f"gfmd:{c.wall}",
+                       units=units)
+        mass = np.cumsum(c.histogram.density * c.histogram.widths)
+        p_hi = float(np.interp((1.0 - QUANTILE) * mass[-1], mass, c.histogram.edges[1:]))
+        q = np.linspace(0.0, float(hist.edges[-1]), 600)
+        for j, (name, th) in enumerate(c.theories.items()):
+            p_hi = max(p_hi, body_range(th)[1])
+            if c.zeta is None and name == PAPER:
+                continue  # the hard wall's paper curve is Persson's, drawn below
+            dens = th.pdf(q)
+            label = f"paper: second order, p_c = {c.gfmd_info['p_c']:g}" if name == PAPER else name
+            ax.plot(q, np.where(dens > 0, dens, np.nan), lw=1.2, ls=styles[j % len(styles)], color=f"C{j}",
+                    gid=f"theory:{c.wall}:{name}", label=label)
+        if i == persson_at:
+            dens = report.persson.pdf(q)
+            ax.plot(q, np.where(dens > 0, dens, np.nan), "k--", lw=1.2, label="Persson (mirror Gaussian)",
+                    gid="persson")
+        counts = hist.density[hist.density > 0]  # (a field with p0 > 0 has some)
+        ax.set_ylim(0.5 * float(counts.min()), 3.0 * float(counts.max()))
+        ax.set_xlim(0.0, min(p_hi, float(hist.edges[-1])))
+        ax.set_title(f"{'hard wall' if c.zeta is None else f'zeta = {c.zeta:g}'}: K(paper, GFMD) = "
+                     f"{c.comparison.kolmogorov:.3f}", fontsize=8)
+        ax.legend(fontsize=6)
+    for ax in axes.flat[len(report.cases):]:
+        ax.set_visible(False)
+    worst = max(report.cases, key=lambda c: c.comparison.kolmogorov, default=None)
+    misfit = "" if worst is None else (f"; the paper's curve misses GFMD by up to K = "
+                                       f"{worst.comparison.kolmogorov:.3f} ({worst.wall})")
+    fig.suptitle(f"Fig. 1 scene, {report.scene.get('n')}^2 grid, seed {report.scene.get('seed')}: GFMD (symbols) "
+                 f"against the paper's second order with its fitted p_c (solid){misfit}", fontsize=8)
+    return fig

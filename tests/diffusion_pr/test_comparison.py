@@ -11,11 +11,12 @@ from diffusion_pr.compare import (
     compare,
     log_density_curvature,
 )
+from diffusion_pr.fokker_planck.backends.closed_form import ExactSolution
 from diffusion_pr.result import PressureDistribution
 
 
 def mirror_theory(p0: float, variance: float, n: int = 20001) -> PressureDistribution:
-    """Mirror Gaussian on a fine grid, with Simpson weights (error ~1e-12)."""
+    """Mirror Gaussian on a fine grid, with Simpson weights (error ~1e-12); pdf and cdf the exact ones."""
     p_max = p0 + 12.0 * np.sqrt(variance)
     p = np.linspace(0.0, p_max, n)
     h = p[1] - p[0]
@@ -24,7 +25,8 @@ def mirror_theory(p0: float, variance: float, n: int = 20001) -> PressureDistrib
     w[0] = w[-1] = 1.0
     w *= h / 3.0
     return PressureDistribution(p, mirror_gaussian_density(p, p0, variance), w,
-                                persson_zero_weight(p0, variance), p0, variance, "closed_form")
+                                persson_zero_weight(p0, variance), p0, variance, "closed_form", contact_threshold=0.0,
+                                analytic=ExactSolution("mirror", p0, 0.5 * variance, 1.0))
 
 
 def sample_mirror(rng: np.random.Generator, p0: float, variance: float, size: int) -> np.ndarray:

@@ -122,8 +122,8 @@ def test_contact_fractions_compare_like_with_like(job):
             assert above - 1e-12 <= a_th <= above + straddle + 1e-12
             # the bracket is tight enough to tell GFMD's threshold 0.01 p0 from, e.g., 0.1 p0
             assert straddle < 0.5 * abs(a_th - (1.0 - float(c.theory.cdf(0.1 * P0))))
-            # the old, unlike comparison (1 - zero_weight) is a different number here
-            assert abs(c.theory.contact_fraction - a_th) > 1e-3
+            # the theory's own default is the same threshold; 1 - zero_weight is a different number here
+            assert c.theory.contact_area() == a_th and abs(1 - c.theory.zero_weight - a_th) > 1e-3
 
 
 def test_histograms_against_the_field(job):
@@ -163,16 +163,22 @@ def test_written_files_hold_the_reports_numbers(job):
 
 
 def test_plot_draws_the_reports_arrays(job):
+    """One panel per wall with the report's arrays; every line in its panel's legend; each panel's x-axis holds
+    its field's 1 - 1e-3 quantile (the walls with zeta >= 0.25 were once squeezed into p < 0.03 of one axis)."""
     import matplotlib.pyplot as plt
 
     report, _ = job
-    ax = fig1.plot_fig1(report)
-    lines = {line.get_gid(): line for line in ax.get_lines()}
-    for c in report.cases:
+    fig = fig1.plot_fig1(report)
+    assert len([ax for ax in fig.axes if ax.get_visible()]) == len(report.cases)
+    lines = {line.get_gid(): line for ax in fig.axes for line in ax.get_lines()}
+    for ax, c in zip(fig.axes, report.cases):
         hist = c.histogram.rebinned(2)
         sym = lines[f"gfmd:{c.wall}"]
         np.testing.assert_array_equal(sym.get_xdata(), hist.centers)
         np.testing.assert_array_equal(sym.get_ydata(), np.where(hist.density > 0, hist.density, np.nan))
+        assert ax.get_xlim()[1] >= np.quantile(c.pressure, 0.999) and ax.get_yscale() == "log"
+        legend = [t.get_text() for t in ax.get_legend().get_texts()]
+        assert len(legend) == len(ax.get_lines()) and all(not t.startswith("_") for t in legend)
         if c.zeta is not None:
             th = lines[f"theory:{c.wall}:paper"]
             x = np.asarray(th.get_xdata())
@@ -182,8 +188,8 @@ def test_plot_draws_the_reports_arrays(job):
     per = lines["persson"]
     dens = report.persson.pdf(per.get_xdata())
     np.testing.assert_allclose(per.get_ydata(), np.where(dens > 0, dens, np.nan), rtol=1e-12)
-    assert ax.get_yscale() == "log" and ax.get_ylim()[0] == 1e-2
-    plt.close(ax.figure)
+    assert "K = " in fig._suptitle.get_text()
+    plt.close(fig)
 
 
 def test_another_theory_curve_goes_through_theory_curves(monkeypatch, tmp_path):

@@ -9,14 +9,16 @@ Two factorized problems have exact solutions (Müser 2008, Eq. 2 and docs/theory
 * ``f = slope * p``: Feller's solution (W. Feller, Ann. Math. 54, 173
   (1951)) with ``tau = V/2`` and zero weight ``exp(-p0 / (slope tau))``.
 
-The density is evaluated on Gauss-Legendre panels (16 nodes each) following the solution's scales, so that
-``sum(weights * density) + zero_weight = 1`` to about 1e-13 (``error_estimate``: that defect); smooth moments
+The result's ``pdf`` and ``cdf`` are the exact functions (:class:`ExactSolution`); ``p``, ``density`` and
+``weights`` are Gauss-Legendre panels (16 nodes each) following the solution's scales, on which
+``sum(weights * density) + zero_weight = 1`` to about 1e-13 (``error_estimate``: that defect) and the moments
 integrate to the same accuracy.  :func:`exact_kind` recognizes these problems (used by ``backend="auto"``).
 """
 from __future__ import annotations
 
 import time
-from typing import Optional, Tuple
+from dataclasses import dataclass
+from typing import Any, Optional, Tuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,6 +30,39 @@ from ...result import PressureDistribution
 Array = NDArray[np.float64]
 
 NODES_PER_PANEL = 16
+
+
+@dataclass(frozen=True)
+class ExactSolution:
+    """The continuous part of a closed form at diffusion time ``tau`` from ``p0`` (pressure units): ``kind``
+    ``"mirror"`` (``f = coefficient``) or ``"feller"`` (``f = coefficient * p``)."""
+
+    kind: str
+    p0: float
+    tau: float
+    coefficient: float
+
+    def pdf(self, p: Any) -> Array:
+        """Density at ``p >= 0`` (1 / pressure)."""
+        from ... import closed_forms as cf
+
+        c, p0, tau = self.coefficient, self.p0, self.tau
+        return cf.mirror_gaussian_density(p, p0, 2 * c * tau) if self.kind == "mirror" else cf.feller_density(
+            p, p0, tau, c)
+
+    def cdf(self, p: Any) -> Array:
+        """Probability in ``(0, p]``: Gaussian cdfs, or Feller's ``X = (c tau / 2) chi'^2_0(2 p0 / (c tau))`` with
+        Marcum's ``Q_0(a, b) = Q_1(a, b) - exp(-(a^2 + b^2) / 2) I_0(a b)`` (``Q_1``: 2 degrees of freedom)."""
+        from scipy.special import i0e, ndtr
+        from scipy.stats import ncx2
+
+        p, p0, scale = np.asarray(p, dtype=float), self.p0, self.coefficient * self.tau
+        if self.kind == "mirror":
+            s = np.sqrt(2.0 * scale)
+            return ndtr((p - p0) / s) - ndtr(-p0 / s) - ndtr((p + p0) / s) + ndtr(p0 / s)
+        x, nc = 2.0 * p / scale, 2.0 * p0 / scale
+        return ncx2.cdf(x, 2.0, nc) + i0e(np.sqrt(nc * x)) * np.exp(-0.5 * (np.sqrt(nc) - np.sqrt(x)) ** 2) - np.exp(
+            -p0 / scale)
 
 
 def _probe_points(problem: FokkerPlanckProblem) -> Array:
@@ -79,36 +114,23 @@ def exact_kind(problem: FokkerPlanckProblem) -> Optional[Tuple[str, float]]:
     return None
 
 
-def _panel_edges(p0: float, width: float, far: float, p_max: float, p_lo: float = 0.0) -> Array:
-    """Panel edges on ``[p_lo, p_max]`` of width ``clip(|p - p0| / 4, width / 4, far)`` (pressure)."""
-    edges = [float(p_lo)]
-    p = float(p_lo)
-    lo_w = width / 4.0
+def _panels(p0: float, width: float, far: float, p_max: float, p_lo: float = 0.0) -> Tuple[Array, Array]:
+    """Gauss-Legendre nodes and weights (pressure), :data:`NODES_PER_PANEL` on each panel of ``[p_lo, p_max]``, of
+    width ``clip(|p - p0| / 4, width / 4, far)``, with an edge on ``p0``."""
+    edges, p = [float(p_lo)], float(p_lo)
     while p < p_max:
-        w = float(np.clip(abs(p - p0) / 4.0, lo_w, far))
-        # never step over p0: put an edge on it
-        if p < p0 < p + w:
-            w = p0 - p
-        p = min(p + w, p_max)
+        w = float(np.clip(abs(p - p0) / 4.0, width / 4.0, far))
+        p = min(p0 if p < p0 < p + w else p + w, p_max)
         edges.append(p)
-    # guard against a sliver at the end
-    if len(edges) > 2 and edges[-1] - edges[-2] < 1e-3 * lo_w:
+    if len(edges) > 2 and edges[-1] - edges[-2] < 1e-3 * width / 4.0:  # (no sliver at the end)
         edges.pop(-2)
-    return np.asarray(edges)
-
-
-def gauss_legendre_grid(panel_edges: Array, n: int = NODES_PER_PANEL) -> Tuple[Array, Array]:
-    """Nodes and weights of ``n``-point Gauss-Legendre on each panel (units of pressure)."""
-    x, w = np.polynomial.legendre.leggauss(n)
-    a, b = panel_edges[:-1], panel_edges[1:]
-    half = 0.5 * (b - a)
-    nodes = (half[:, None] * x[None, :] + 0.5 * (a + b)[:, None]).ravel()
-    weights = (half[:, None] * w[None, :]).ravel()
-    return nodes, weights
+    x, w = np.polynomial.legendre.leggauss(NODES_PER_PANEL)
+    a, b = np.asarray(edges[:-1])[:, None], np.asarray(edges[1:])[:, None]
+    return (0.5 * (b - a) * x + 0.5 * (a + b)).ravel(), (0.5 * (b - a) * w).ravel()
 
 
 def solve(problem: FokkerPlanckProblem, *, rtol: float = 1e-6, tail_mass: float = 1e-16) -> PressureDistribution:
-    """Evaluate the exact solution of ``problem`` on a Gauss-Legendre grid.
+    """The exact solution of ``problem`` (its ``pdf`` and ``cdf``), tabulated on a Gauss-Legendre grid.
 
     Parameters
     ----------
@@ -140,15 +162,12 @@ def solve(problem: FokkerPlanckProblem, *, rtol: float = 1e-6, tail_mass: float 
     if not p0 / spread <= MAX_RATIO:
         raise ValueError(f"mean_pressure/sqrt(variance) = {p0 / spread:.3g} exceeds {MAX_RATIO:.0e}: the distribution "
                          "is narrower than double precision resolves at p0 (it is the Gaussian limit, zero_weight 0)")
+    law = ExactSolution(name, p0, tau, coef)
     if name == "mirror":
-        var = 2.0 * coef * tau
-        sd = np.sqrt(var)
+        sd = np.sqrt(2.0 * coef * tau)
         p_max = p0 + 10.0 * sd  # Gaussian tail beyond 10 sd: 7.6e-24
-        panels = _panel_edges(p0, sd, sd / 2.0, p_max, p_lo=max(0.0, p0 - 12.0 * sd))
-        p, w = gauss_legendre_grid(panels)
-        dens = np.asarray(cf.mirror_gaussian_density(p, p0, var), dtype=float)
-        zero = cf.persson_zero_weight(p0, var)
-        label = f"mirror Gaussian (f = {coef:g})"
+        p, w = _panels(p0, sd, sd / 2.0, p_max, p_lo=max(0.0, p0 - 12.0 * sd))
+        zero, label = cf.persson_zero_weight(p0, 2.0 * coef * tau), f"mirror Gaussian (f = {coef:g})"
     else:
         scale = coef * tau  # exponential tail scale of the Feller solution
         sd = np.sqrt(2.0 * coef * p0 * tau)
@@ -156,11 +175,9 @@ def solve(problem: FokkerPlanckProblem, *, rtol: float = 1e-6, tail_mass: float 
         z = np.sqrt(-np.log(max(tail_mass, 1e-300)))
         p_max = (np.sqrt(p0) + z * np.sqrt(scale)) ** 2 + 4.0 * scale
         p_lo = max(0.0, np.sqrt(p0) - z * np.sqrt(scale)) ** 2
-        panels = _panel_edges(p0, min(sd, scale) if p0 < scale else sd, max(sd, scale) / 2.0, p_max, p_lo=p_lo)
-        p, w = gauss_legendre_grid(panels)
-        dens = np.asarray(cf.feller_density(p, p0, tau, coef), dtype=float)
-        zero = cf.feller_zero_weight(p0, tau, coef)
-        label = f"Feller (f = {coef:g} p)"
+        p, w = _panels(p0, min(sd, scale) if p0 < scale else sd, max(sd, scale) / 2.0, p_max, p_lo=p_lo)
+        zero, label = cf.feller_zero_weight(p0, tau, coef), f"Feller (f = {coef:g} p)"
+    dens = np.asarray(law.pdf(p), dtype=float)
     mass = float(np.sum(w * dens) + zero)
     mean = float(np.sum(w * p * dens))
     defect = abs(mass - 1.0)
@@ -168,14 +185,14 @@ def solve(problem: FokkerPlanckProblem, *, rtol: float = 1e-6, tail_mass: float 
     return PressureDistribution(
         p=p, density=dens, weights=w, zero_weight=float(zero), mean_pressure=p0,
         variance=problem.variance, backend="closed_form", success=True,
-        message=f"exact: {label} on {panels.size - 1} Gauss-Legendre panels x {NODES_PER_PANEL} nodes",
+        message=f"exact: {label} on {p.size // NODES_PER_PANEL} Gauss-Legendre panels x {NODES_PER_PANEL} nodes",
         error_estimate=float(defect), wall_time=wall,
         diagnostics={"backend": "closed_form", "rtol": float(rtol), "n_cells": int(p.size), "levels": None,
-                     "zero_power": 0.0 if name == "mirror" else 1.0, "wall": "absorbing at p = 0", "p_floor": 0.0, "p_min": float(panels[0]),
+                     "zero_power": 0.0 if name == "mirror" else 1.0, "wall": "absorbing at p = 0", "p_floor": 0.0, "p_min": float(p[0]),
                      "p_max": float(p_max), "mass_error": mass - 1.0, "mean_error": mean - p0,
                      "negative_mass": 0.0, "min_density": float(dens.min()), "tail_mass": float(tail_mass),
                      "time_integration": "exact", "n_stages": 1, "substeps": 0,
                      "timings": {"setup": 0.0, "solve": wall, "total": wall},
-                     "kind": name, "coefficient": coef, "panels": panels, "quadrature_mass_defect": mass - 1.0},
-        edges=None,
+                     "kind": name, "coefficient": coef, "quadrature_mass_defect": mass - 1.0},
+        edges=None, contact_threshold=0.0, analytic=law,
     )
