@@ -151,7 +151,7 @@ class Fig1Report:
 def _check_inputs(n: Any, zetas: Any, hard_wall: Any, seed: Any, tol: Any, progress: Any,
                   log: Any) -> tuple[int, list[float]]:
     """Validate the scalar inputs of :func:`run_fig1` (ValueError naming the parameter)."""
-    from .._validation import check_int, check_positive, check_seed
+    from .._validation import check_in_range, check_int, check_seed
 
     n = check_int("n", n, minimum=2)
     if isinstance(zetas, (str, bytes)) or not hasattr(zetas, "__iter__"):
@@ -166,7 +166,7 @@ def _check_inputs(n: Any, zetas: Any, hard_wall: Any, seed: Any, tol: Any, progr
     if not walls and not hard_wall:
         raise ValueError("nothing to compare: zetas is empty and hard_wall=False")
     check_seed("seed", seed)
-    check_positive("tol", tol)
+    check_in_range("tol", tol, 0.0, 0.1, lo_inclusive=False)  # GFMD's own range, checked before any work
     if not callable(log):
         raise ValueError(f"log must be callable (e.g. print); got log={log!r}")
     return n, walls

@@ -153,3 +153,13 @@ def test_generate_reference_refuses_empty_or_undersampled_work(tmp_path):
     _fast_error(lambda: generate_reference(zetas=(), out_dir=tmp_path), "zetas")
     _fast_error(lambda: generate_reference(zetas=(None,), seeds=(), out_dir=tmp_path), "seeds")
     _fast_error(lambda: generate_reference(zetas=(None,), n=32, out_dir=tmp_path), "n", "64")
+
+
+def test_run_fig1_refuses_a_gfmd_tolerance_before_any_work():
+    """tol=10 would let GFMD stop after 0 iterations; refused before the theory curves (well under a second)."""
+    from diffusion_pr.jobs.fig1 import run_fig1
+
+    t0 = time.perf_counter()
+    with pytest.raises(ValueError, match=r"tol must lie in \(0.0, 0.1\]"):
+        run_fig1(n=64, tol=10, out_dir=None)
+    assert time.perf_counter() - t0 < 1.0
