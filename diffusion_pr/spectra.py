@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike
 
 from ._validation import check_finite_array, check_in_range, check_positive
 
-__all__ = ["Spectrum", "SelfAffineSpectrum", "DiscreteSpectrum"]
+__all__ = ["Spectrum", "SegmentedSpectrum", "SelfAffineSpectrum", "DiscreteSpectrum"]
 
 Weight = Callable[[np.ndarray], ArrayLike]
 
@@ -43,6 +43,16 @@ def _lattice_k2(n: int) -> np.ndarray:
     """``m^2 + k^2`` of every mode of the full ``n x n`` FFT lattice, flattened (integers)."""
     k = np.fft.fftfreq(n, d=1.0 / n).astype(np.int64)
     return (k[:, None] ** 2 + k[None, :] ** 2).ravel()
+
+
+def _periods(length: float | tuple[float, float], nx: int, ny: int) -> tuple[float, float]:
+    """``(Lx, Ly)`` [length] of an ``(nx, ny)`` map from ``L`` (square pixels ``L/nx``) or ``(Lx, Ly)``."""
+    if np.ndim(length) == 0:
+        Lx = check_positive("length", length)
+        return float(Lx), float(Lx) * ny / nx
+    if np.shape(length) != (2,):
+        raise ValueError(f"length must be a number or a pair (Lx, Ly) [length]; got length={length!r}")
+    return tuple(float(check_positive("length", v)) for v in length)  # type: ignore[return-value]
 
 
 def _merge_shells(key: np.ndarray, power: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -150,8 +160,72 @@ class Spectrum(abc.ABC):
         return math.sqrt(self.mean_square_gradient)
 
 
+class SegmentedSpectrum(Spectrum):
+    """A continuum spectrum whose ``C(q)`` [length^4] is smooth on each of the segments ``_segments()``
+    (``(lo, hi)`` pairs in rad/length): Gauss-Legendre in ``ln q`` on each, ``_n_nodes(ln(hi/lo))`` nodes."""
+
+    _n_nodes = staticmethod(_n_nodes)
+
+    @abc.abstractmethod
+    def _segments(self) -> list[tuple[float, float]]:
+        """Segments ``(lo, hi)`` [rad/length] of the support, on each of which ``C(q)`` is smooth."""
+
+    @cached_property
+    def _rule(self) -> tuple[np.ndarray, np.ndarray]:
+        qs, ws = [], []
+        for lo, hi in self._segments():
+            a, b = math.log(lo), math.log(hi)
+            x, w = _leggauss(self._n_nodes(b - a))
+            s = 0.5 * (a + b) + 0.5 * (b - a) * x
+            q = np.exp(s)
+            # dq = q ds  ->  2 pi q C(q) dq = 2 pi q^2 C(q) ds
+            qs.append(q)
+            ws.append(0.5 * (b - a) * w * 2 * math.pi * q * q * self.psd(q))
+        q = np.concatenate(qs)
+        w = np.concatenate(ws)
+        q.setflags(write=False)
+        w.setflags(write=False)
+        return q, w
+
+    def quadrature(self) -> tuple[np.ndarray, np.ndarray]:
+        r"""Gauss-Legendre nodes ``q`` [rad/length] in ``ln q`` on each power-law segment, weights [length^2].
+
+        ``sum w f(q) ~= 2 pi \int q C f dq``, exact to round-off for weights
+        analytic in a strip around the real ``ln q`` axis (powers of ``q``,
+        ``G1(q)^2``).
+        """
+        return self._rule
+
+    def cumulative(self, weight: Weight | None, q: ArrayLike) -> np.ndarray | float:
+        r"""``2 pi \int_{q_min}^{min(q, q_max)} q' C(q') weight(q') dq'``, vectorized over ``q``.
+
+        Gauss-Legendre in ``ln q'`` on each (truncated) power-law segment; 0
+        for ``q <= q_min``, the full integral for ``q >= q_max``.  ``weight`` is
+        called with a 2-d array of ``q``.
+        """
+        qa = check_finite_array("q", q, min_size=0)
+        flat = qa.ravel()
+        out = np.zeros(flat.shape)
+        for lo, hi in self._segments():
+            a = math.log(lo)
+            upper = np.clip(flat, lo, hi)
+            b = np.log(upper)
+            active = b > a
+            if not np.any(active):
+                continue
+            x, w = _leggauss(self._n_nodes(math.log(hi / lo)))
+            ba = b[active][:, None]
+            s = 0.5 * (a + ba) + 0.5 * (ba - a) * x[None, :]
+            qq = np.exp(s)
+            vals = 2 * math.pi * qq * qq * self.psd(qq) * _eval_weight(weight, qq)
+            out[active] += (0.5 * (ba[:, 0] - a)) * (vals @ w)
+        out = out.reshape(qa.shape)
+        return float(out) if out.ndim == 0 else out
+
+
+
 @dataclass(frozen=True, init=False)
-class SelfAffineSpectrum(Spectrum):
+class SelfAffineSpectrum(SegmentedSpectrum):
     r"""Continuum self-affine (power-law) PSD with optional roll-off.
 
     ``C(q) = C0 (q / q_r)^(-2 (1 + H))`` for ``q_r <= q <= q_max``,
@@ -283,32 +357,6 @@ class SelfAffineSpectrum(Spectrum):
             segs.append((self.q_roll, self.q_max))
         return segs
 
-    @cached_property
-    def _rule(self) -> tuple[np.ndarray, np.ndarray]:
-        qs, ws = [], []
-        for lo, hi in self._segments():
-            a, b = math.log(lo), math.log(hi)
-            x, w = _leggauss(_n_nodes(b - a))
-            s = 0.5 * (a + b) + 0.5 * (b - a) * x
-            q = np.exp(s)
-            # dq = q ds  ->  2 pi q C(q) dq = 2 pi q^2 C(q) ds
-            qs.append(q)
-            ws.append(0.5 * (b - a) * w * 2 * math.pi * q * q * self.psd(q))
-        q = np.concatenate(qs)
-        w = np.concatenate(ws)
-        q.setflags(write=False)
-        w.setflags(write=False)
-        return q, w
-
-    def quadrature(self) -> tuple[np.ndarray, np.ndarray]:
-        r"""Gauss-Legendre nodes ``q`` [rad/length] in ``ln q`` on each power-law segment, weights [length^2].
-
-        ``sum w f(q) ~= 2 pi \int q C f dq``, exact to round-off for weights
-        analytic in a strip around the real ``ln q`` axis (powers of ``q``,
-        ``G1(q)^2``).
-        """
-        return self._rule
-
     def integrate(self, weight: Weight | None = None, *, method: Literal["gauss", "quad"] = "gauss") -> float:
         r"""``2 pi \int_{q_min}^{q_max} q C(q) weight(q) dq`` [length^2 x units of ``weight``].
 
@@ -336,33 +384,6 @@ class SelfAffineSpectrum(Spectrum):
             )
             total += val
         return total
-
-    def cumulative(self, weight: Weight | None, q: ArrayLike) -> np.ndarray | float:
-        r"""``2 pi \int_{q_min}^{min(q, q_max)} q' C(q') weight(q') dq'``, vectorized over ``q``.
-
-        Gauss-Legendre in ``ln q'`` on each (truncated) power-law segment; 0
-        for ``q <= q_min``, the full integral for ``q >= q_max``.  ``weight`` is
-        called with a 2-d array of ``q``.
-        """
-        qa = check_finite_array("q", q, min_size=0)
-        flat = qa.ravel()
-        out = np.zeros(flat.shape)
-        for lo, hi in self._segments():
-            a = math.log(lo)
-            upper = np.clip(flat, lo, hi)
-            b = np.log(upper)
-            active = b > a
-            if not np.any(active):
-                continue
-            x, w = _leggauss(_n_nodes(math.log(hi / lo)))
-            ba = b[active][:, None]
-            s = 0.5 * (a + ba) + 0.5 * (ba - a) * x[None, :]
-            qq = np.exp(s)
-            vals = 2 * math.pi * qq * qq * self.psd(qq) * _eval_weight(weight, qq)
-            out[active] += (0.5 * (ba[:, 0] - a)) * (vals @ w)
-        out = out.reshape(qa.shape)
-        return float(out) if out.ndim == 0 else out
-
 
 @dataclass(frozen=True, eq=False)
 class DiscreteSpectrum(Spectrum):
@@ -512,23 +533,23 @@ class DiscreteSpectrum(Spectrum):
         return cls(q, power, mult, L)
 
     @classmethod
-    def from_heights(cls, heights: ArrayLike, length: float, *, empty_tol: float = 1e-24) -> "DiscreteSpectrum":
-        r"""Spectrum of one periodic ``(n, n)`` height map of period ``length``.
+    def from_heights(cls, heights: ArrayLike, length: float | tuple[float, float], *,
+                     empty_tol: float = 1e-24) -> "DiscreteSpectrum":
+        r"""Spectrum of one periodic ``(nx, ny)`` height map (square or rectangular).
 
-        ``h~(q) = (1/n^2) sum_r h(r) exp(i q.r)`` (the paper's transform on the
-        grid) on all ``n^2 - 1`` non-zero lattice modes ``q = 2 pi (m, k)/L``
-        of the full FFT; modes are merged exactly by the integer ``m^2 + k^2``.
+        ``h~(q) = (1/(nx ny)) sum_r h(r) exp(i q.r)`` (the paper's transform on the grid) on all non-zero lattice
+        modes ``q = 2 pi (m/Lx, k/Ly)`` of the full FFT; modes of equal ``|q|`` are merged (exactly, by an integer
+        key, for square pixels).  Non-periodic data: :func:`diffusion_pr.topography.spectrum_from_map`.
 
         Parameters
         ----------
-        heights : array_like, shape (n, n)
-            Heights [length] on a periodic square grid of spacing ``L/n``.
-            The mean is irrelevant (the ``q = 0`` mode is excluded).
-        length : float
-            Period ``L`` [length].
+        heights : array_like, shape (nx, ny)
+            Heights [length] on a periodic grid; the mean is irrelevant (``q = 0`` is excluded).
+        length : float or (float, float)
+            Period ``Lx`` [length] along the first axis with the same spacing ``Lx/nx`` along the second, or
+            ``(Lx, Ly)``.  Stored as :attr:`length`: ``Lx``.
         empty_tol : float, default 1e-24
-            Relative power below which a mode counts as empty (see
-            :meth:`from_modes`).
+            Relative power below which a mode counts as empty (see :meth:`from_modes`).
 
         Returns
         -------
@@ -536,22 +557,33 @@ class DiscreteSpectrum(Spectrum):
             With ``integrate(1) == heights.var()`` to round-off.
         """
         h = check_finite_array("heights", heights, ndim=2)
-        n = h.shape[0]
-        if h.shape != (n, n) or n < 2:
-            raise ValueError(f"heights must be a square (n, n) array with n >= 2; got shape {h.shape}")
-        L = check_positive("length", length)
+        nx, ny = h.shape
+        if min(nx, ny) < 2:
+            raise ValueError(f"heights must be an (nx, ny) array with nx, ny >= 2; got shape {h.shape}")
+        Lx, Ly = _periods(length, nx, ny)
         check_in_range("empty_tol", empty_tol, 0.0, 1.0, hi_inclusive=False)
-        ht = np.fft.fft2(h) / (n * n)
-        pw = ht.real**2 + ht.imag**2
-        pw[0, 0] = 0.0
-        k2 = _lattice_k2(n)
-        pw = pw.ravel()
+        ht = np.fft.fft2(h) / h.size
+        pw = (ht.real**2 + ht.imag**2).ravel()
+        pw[0] = 0.0
+        mx, my = (np.fft.fftfreq(n, d=1.0 / n).astype(np.int64) for n in (nx, ny))
+        if math.isclose(Lx * ny, Ly * nx, rel_tol=1e-12):  # square pixels: q = unit sqrt(integer key)
+            g = math.gcd(nx, ny)
+            key, unit = ((mx * (ny // g))[:, None] ** 2 + (my * (nx // g))[None, :] ** 2).ravel(), 2 * math.pi * g / (ny * Lx)
+        else:
+            key, unit = ((mx / Lx)[:, None] ** 2 + (my / Ly)[None, :] ** 2).ravel(), 2 * math.pi
         total = pw.sum()
         if not total > 0:
             raise ValueError("heights are constant: a flat surface has no spectrum")
-        keep = (pw > empty_tol * total) & (k2 > 0)
-        uk2, shell_power, mult = _merge_shells(k2[keep], pw[keep])
-        return cls(2 * math.pi / L * np.sqrt(uk2.astype(float)), shell_power, mult, float(L))
+        keep = (pw > empty_tol * total) & (key > 0)
+        uk, shell_power, mult = _merge_shells(key[keep], pw[keep])
+        return cls(unit * np.sqrt(uk.astype(float)), shell_power, mult, float(Lx))
+
+    def truncated(self, q_max: float) -> "DiscreteSpectrum":
+        """The shells with ``|q| <= q_max`` [rad/length] (e.g. a measurement's short reliability cutoff)."""
+        keep = self.q <= check_positive("q_max", q_max)
+        if not np.any(keep):
+            raise ValueError(f"q_max={q_max!r} is below every shell of this spectrum (q_min = {self.q_min:.6g})")
+        return DiscreteSpectrum(self.q[keep], self.power[keep], self.multiplicity[keep], self.length)
 
     @property
     def q_min(self) -> float:  # type: ignore[override]
