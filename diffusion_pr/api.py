@@ -15,6 +15,7 @@ import numpy as np
 
 from ._validation import InputTypeError, check_callable, check_nonnegative, check_positive
 from .models import PressureFactor, make_cutoff, make_tail
+from .paper import contact_threshold
 from .problem import FokkerPlanckProblem, StagedProblem
 from .result import PressureDistribution
 
@@ -272,7 +273,8 @@ def pressure_distribution(
     -------
     PressureDistribution
         With ``diagnostics["stress_variance"]`` (``V``, pressure squared), ``diagnostics["zeta"]`` and, with a
-        drift, the ``eta`` grid used.
+        drift, the ``eta`` grid used; ``contact_area()`` counts ``p > 0`` at ``zeta = 0``, ``p > 0.01 p0``
+        (GFMD's threshold) at ``zeta > 0``.
 
     Raises
     ------
@@ -302,9 +304,10 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
             if value is not None:
                 raise ValueError(f"{name} applies to closure='second_order' only; closure={closure!r} has no fitted "
                                  f"cutoff, tail or drift (got {name}={value!r})")
-        return _closure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
-                                     closure=closure, backend=_check_backend(backend), rtol=_check_rtol(rtol),
-                                     warm_start=warm_start, **options)
+        result, sol = _closure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
+                                            closure=closure, backend=_check_backend(backend), rtol=_check_rtol(rtol),
+                                            warm_start=warm_start, **options)
+        return replace(result, contact_threshold=contact_threshold(zeta, mean_pressure)), sol
     for name in ("n_shells", "shell_extrapolation"):
         if options.get(name) is not None:
             raise ValueError(f"{name} applies to the shell closures, not to 'second_order'")
@@ -346,7 +349,8 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
             drift_of_eta=drift, label="pressure_distribution", **_exact_schedule(spectrum, E, float(p0), float(z)))
         extra.update({"eta": eta, "variance_of_eta": v_eta})
     sol = _solve_full(problem, backend, rtol, options, warm_start=warm_start)
-    return replace(sol.result, diagnostics={**sol.result.diagnostics, **extra}), sol
+    return replace(sol.result, diagnostics={**sol.result.diagnostics, **extra},
+                   contact_threshold=contact_threshold(z, p0)), sol
 
 
 def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", progress: bool = False,

@@ -456,6 +456,7 @@ def lognormal_gap_distribution(spectrum: Any, *, E_star: float, mean_pressure: f
         ``diagnostics["ln_variance"] = s^2``.
     """
     from .cumulants import stress_variance
+    from .paper import contact_threshold
     from .result import PressureDistribution
 
     z = float(check_nonnegative("zeta", zeta))
@@ -510,4 +511,5 @@ def lognormal_gap_distribution(spectrum: Any, *, E_star: float, mean_pressure: f
     return PressureDistribution(p=points, density=density, weights=widths, zero_weight=0.0, mean_pressure=p0,
                                 variance=V, backend="closed_form", success=True,
                                 message=f"exact: log-normal gap closure on {points.size} cells uniform in ln p",
-                                error_estimate=abs(total - 1.0), wall_time=wall, diagnostics=diag, edges=edges)
+                                error_estimate=abs(total - 1.0), wall_time=wall, diagnostics=diag, edges=edges,
+                                contact_threshold=contact_threshold(z, p0))

@@ -65,7 +65,9 @@ def plot_distribution(result: Any, ax: Optional[Any] = None, *, log: bool = True
     ax = _axes(ax)
     if label is None:
         closure = result.diagnostics.get("closure", "second_order")
-        label = f"{closure}, {result.backend} (a_r = {result.contact_fraction:.4f})"
+        label = f"{closure}, {result.backend}"
+        if result.contact_threshold is not None:
+            label += f" (a_r = {result.contact_area():.4f}, p > {result.contact_threshold:.3g})"
     density = np.asarray(result.density, dtype=float)
     if log:
         density = np.where(density > 0.0, density, np.nan)

@@ -128,6 +128,10 @@ class PressureDistribution:
         timings``) plus backend-specific extras.  Never mutated after the result is returned.
     edges : ndarray, optional
         Cell edges (length ``len(p) + 1``) for finite-volume results.
+    contact_threshold : float, optional
+        The default threshold of :meth:`contact_area` (pressure), set by whoever built the result so that it
+        means what GFMD means: 0 where the wall is reached (the hard wall), ``0.01 p0`` for an exponential wall
+        (``zeta > 0``, ``gfmd_ref``'s threshold); None where neither applies (a floor, no wall law given).
     """
 
     p: Array
@@ -143,6 +147,7 @@ class PressureDistribution:
     wall_time: float = 0.0
     diagnostics: dict = field(default_factory=dict)
     edges: Optional[Array] = None
+    contact_threshold: Optional[float] = None
 
     @property
     def mass(self) -> float:
@@ -174,10 +179,34 @@ class PressureDistribution:
             total += float(np.sum(0.5 * wi * m * (1.0 + slope * (q - c)) * (q - shift) ** order))
         return total
 
+    def contact_area(self, threshold: Optional[float] = None) -> float:
+        """Relative contact area: the probability that ``p > threshold`` (pressure; default
+        :attr:`contact_threshold`: ``1 - zero_weight`` on a hard wall, ``P(p > 0.01 p0)`` on an exponential wall).
+
+        Raises
+        ------
+        ValueError
+            If ``threshold`` is not a number >= 0; if it is None and the result has no default; or if it lies
+            below the floor ``diagnostics["p_floor"]`` of a result whose wall is never reached (there
+            ``zero_weight`` is the probability below a numerical floor, not a non-contact area).
+        """
+        t = self.contact_threshold if threshold is None else threshold
+        if t is None:
+            raise ValueError("this result has no default contact threshold (its wall is never reached and no wall "
+                             "law was given): pass threshold= (pressure units; GFMD counts p > 0.01 p0)")
+        if not (np.ndim(t) == 0 and np.isreal(t) and float(t) >= 0.0):
+            raise ValueError(f"threshold must be a number >= 0 (pressure units); got threshold={threshold!r}")
+        floor = float(self.diagnostics.get("p_floor", 0.0))
+        if float(t) < floor:
+            raise ValueError(f"threshold={float(t):.3g} lies below this result's floor p_floor={floor:.3g}: the "
+                             "probability below the floor (zero_weight) depends on where the floor sits, it is not "
+                             "a contact area; pass threshold >= p_floor (GFMD counts p > 0.01 p0)")
+        return 1.0 - float(self.zero_weight) if float(t) == 0.0 else 1.0 - float(self.cdf(float(t)))
+
     @property
     def contact_fraction(self) -> float:
-        """Relative contact area ``1 - zero_weight``."""
-        return 1.0 - float(self.zero_weight)
+        """:meth:`contact_area` at its default threshold (an alias)."""
+        return self.contact_area()
 
     def moment(self, order: int, central: bool = False) -> float:
         """Moment ``<p^k>`` (or ``<(p - mean)^k>`` if ``central``) of the full ``Pr``, including the ``delta(p)`` peak.

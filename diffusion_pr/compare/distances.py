@@ -7,7 +7,7 @@ Distances dimensionless; pressures in any unit shared by both sides.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Optional
 
 import numpy as np
 
@@ -28,7 +28,7 @@ class Comparison:
     moments_theory, moments_sim : dict
         ``mean``, ``variance``, ``third_central`` of both (pressure^k).
     contact_fraction_theory, contact_fraction_sim : float
-        Fraction of the area with ``p > contact_threshold``: ``1 - theory.cdf(threshold)`` and
+        Fraction of the area with ``p > contact_threshold``: the theory's ``contact_area(threshold)`` and
         :meth:`SimulatedHistogram.fraction_above`.
     contact_threshold : float
         The threshold (units of pressure).
@@ -43,7 +43,7 @@ class Comparison:
     contact_threshold: float = 0.0
 
 
-def compare(theory: Any, hist: SimulatedHistogram, *, contact_threshold: float = 0.0) -> Comparison:
+def compare(theory: Any, hist: SimulatedHistogram, *, contact_threshold: Optional[float] = None) -> Comparison:
     """Compare a :class:`~diffusion_pr.result.PressureDistribution` with a histogram.
 
     Both distances are taken at the histogram's resolution: the ``delta(p)`` peaks (the theory's ``zero_weight``
@@ -55,9 +55,11 @@ def compare(theory: Any, hist: SimulatedHistogram, *, contact_threshold: float =
       simulation's pressures outside the bins.
     * ``kolmogorov = sup |F_theory(p) - F_sim(p)|`` over ``p >= edges[1]``, from the stored quantile function when
       available (both sides of every empirical jump), else at the bin edges.
-    * contact fractions: the fraction with ``p > contact_threshold`` on both sides (0: hard wall; ``0.01 p0`` is
-      ``gfmd_ref``'s definition for exponential walls)."""
-    threshold = float(contact_threshold)
+    * contact fractions: the fraction with ``p > contact_threshold`` on both sides; default the theory's
+      ``contact_threshold`` (0 on a hard wall, GFMD's ``0.01 p0`` on an exponential wall), else the histogram's."""
+    if contact_threshold is None:
+        contact_threshold = getattr(theory, "contact_threshold", None)
+    threshold = float(hist.contact_threshold if contact_threshold is None else contact_threshold)
     if not np.isfinite(threshold) or threshold < 0:
         raise ValueError(f"contact_threshold must be a finite number >= 0; got {contact_threshold!r}")
     widths = hist.widths
@@ -79,8 +81,14 @@ def compare(theory: Any, hist: SimulatedHistogram, *, contact_threshold: float =
         "variance": theory.moment(2, central=True),
         "third_central": theory.moment(3, central=True),
     }
-    a_theory = 1.0 - float(theory.cdf(threshold))
+    a_theory = contact_area(theory, threshold)
     return Comparison(l1, ks, moments_theory, dict(hist.moments), a_theory, hist.fraction_above(threshold), threshold)
+
+
+def contact_area(theory: Any, threshold: float) -> float:
+    """``P(p > threshold)`` of a theory: its ``contact_area`` where it has one, else ``1 - cdf(threshold)``."""
+    area = getattr(theory, "contact_area", None)
+    return float(area(threshold)) if area is not None else 1.0 - float(theory.cdf(threshold))
 
 
 def kolmogorov_distance(cdf: Callable, quantiles: Array, levels: Array, *, p_floor: float = 0.0,

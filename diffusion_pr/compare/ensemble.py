@@ -13,6 +13,7 @@ from typing import Any, Optional
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .distances import contact_area
 from .histograms import Array
 
 
@@ -221,7 +222,7 @@ def compare_ensemble(theory: Any, records_or_group: Any, *, p_min: Optional[floa
     l1_noise = float(np.median([np.sum(np.abs(Me[i].mean(0) - Mp)) for i in boot_idx]))
     # contact fraction, sd, skewness
     thr = float(getattr(recs[0], "contact_threshold", 0.0))
-    cf_t = float(1.0 - np.asarray(theory.cdf(thr)))
+    cf_t = contact_area(theory, thr)
     cf = np.array([float(r.contact_fraction) for r in recs])
     mean_s = np.array([float(r.mean) for r in recs])
     var_s = np.array([float(r.variance) for r in recs])

@@ -596,4 +596,4 @@ def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarr
     return PressureDistribution(p=c, density=density, weights=h, zero_weight=z, mean_pressure=prep.p0,
                                 variance=2.0 * prep.tau_end, backend=backend, success=bool(success), message=message,
                                 error_estimate=float(estimate), wall_time=float(timings["total"]),
-                                diagnostics=diagnostics, edges=edges)
+                                diagnostics=diagnostics, edges=edges, contact_threshold=0.0 if prep.reached else None)

@@ -118,10 +118,11 @@ class Fig1Report:
             "and the best parameter-free closure",
             "scene: " + ", ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}"
                                   for k, v in self.scene.items()),
-            f"Persson (zeta -> 0): sqrt(V0) = {np.sqrt(self.variance_persson):.6f}, "
-            f"contact fraction a_r = {self.persson.contact_fraction:.5f}",
-            "",
         ]
+        if not any(c.zeta is None for c in self.cases):  # (else the hard wall's row says it)
+            lines.append(f"Persson (zeta -> 0): sqrt(V0) = {np.sqrt(self.variance_persson):.6f}, "
+                         f"contact area a_r = {self.persson.contact_area():.5f}")
+        lines.append("")
         width = max([6] + [len(label) for c in self.cases for label in c.comparisons])
         lines.append(f"{'wall':>12} {'theory':>{width}} {'p_c':>8} {'L1':>8} {'Kolmog.':>8} {'a_sim':>8} "
                      f"{'a_theory':>8} {'sd_sim':>9} {'sd_theory':>9} {'GFMD it':>8} {'resid':>8} {'GFMD s':>7} "
@@ -140,7 +141,7 @@ class Fig1Report:
         lines.append("")
         lines.append("a_sim, a_theory: fraction of the area with p above the contact threshold, the same on both "
                      "sides: p > 0 for the hard wall, p > 0.01 p0 for exponential walls (gfmd_ref's definition; "
-                     "for the theory 1 - cdf(threshold)). p_c: the paper's fitted cutoff pressure (paper curve "
+                     "for the theory contact_area()). p_c: the paper's fitted cutoff pressure (paper curve "
                      "only; the closures have no fitted parameter). theory s: all theory curves of that wall.")
         return "\n".join(lines)
 
@@ -248,7 +249,7 @@ def run_fig1(*, n: int = 512, zetas: Sequence[float] = DEFAULT_ZETAS, hard_wall:
         edges = np.arange(int(np.ceil(float(pressure.max()) / bin_width)) + 1) * bin_width
         threshold = contact_threshold(zeta, p0)
         hist = SimulatedHistogram.from_pressures(pressure, bins=edges, contact_threshold=threshold)
-        comparisons = {label: compare(th, hist, contact_threshold=threshold) for label, th in curves.items()}
+        comparisons = {label: compare(th, hist) for label, th in curves.items()}  # (th.contact_threshold)
         info = {"iterations": int(res.iterations), "residual": float(res.residual), "converged": bool(res.converged),
                 "contact_fraction": float(res.contact_fraction), "method": res.method,
                 "p_c": None if zeta is None else cutoff_pressure(zeta)}

@@ -24,7 +24,7 @@ def mirror_theory(p0: float, variance: float, n: int = 20001) -> PressureDistrib
     w[0] = w[-1] = 1.0
     w *= h / 3.0
     return PressureDistribution(p, mirror_gaussian_density(p, p0, variance), w,
-                                persson_zero_weight(p0, variance), p0, variance, "closed_form")
+                                persson_zero_weight(p0, variance), p0, variance, "closed_form", contact_threshold=0.0)
 
 
 def sample_mirror(rng: np.random.Generator, p0: float, variance: float, size: int) -> np.ndarray:

@@ -122,8 +122,8 @@ def test_contact_fractions_compare_like_with_like(job):
             assert above - 1e-12 <= a_th <= above + straddle + 1e-12
             # the bracket is tight enough to tell GFMD's threshold 0.01 p0 from, e.g., 0.1 p0
             assert straddle < 0.5 * abs(a_th - (1.0 - float(c.theory.cdf(0.1 * P0))))
-            # the old, unlike comparison (1 - zero_weight) is a different number here
-            assert abs(c.theory.contact_fraction - a_th) > 1e-3
+            # the theory's own default is the same threshold; 1 - zero_weight is a different number here
+            assert c.theory.contact_area() == a_th and abs(1 - c.theory.zero_weight - a_th) > 1e-3
 
 
 def test_histograms_against_the_field(job):

@@ -51,7 +51,7 @@ def test_mass_mean_and_moments_of_mirror_gaussian():
     second = (p0**2 + var) * erf(s / np.sqrt(2)) + 2 * p0 * np.sqrt(var) * norm.pdf(s)
     assert r.moment(2) == pytest.approx(second, rel=1e-12)
     assert r.moment(2, central=True) == pytest.approx(second - p0**2, rel=1e-12)
-    assert r.contact_fraction == pytest.approx(1 - persson_zero_weight(p0, var), abs=1e-15)
+    assert r.contact_area(0.0) == pytest.approx(1 - persson_zero_weight(p0, var), abs=1e-15)
 
 
 def test_finite_volume_cdf_is_exact_on_edges():

@@ -177,5 +177,5 @@ def solve(problem: FokkerPlanckProblem, *, rtol: float = 1e-6, tail_mass: float 
                      "time_integration": "exact", "n_stages": 1, "substeps": 0,
                      "timings": {"setup": 0.0, "solve": wall, "total": wall},
                      "kind": name, "coefficient": coef, "panels": panels, "quadrature_mass_defect": mass - 1.0},
-        edges=None,
+        edges=None, contact_threshold=0.0,
     )
