@@ -54,7 +54,7 @@ def _parser() -> argparse.ArgumentParser:
                     "doi:10.1103/PhysRevLett.100.055504). Pressures are in units of E* (the paper's E'), "
                     f"lengths in {ZETA_UNIT}.")
     parser.add_argument("--version", action="version", version=f"diffusion-pr {_version()}")
-    sub = parser.add_subparsers(dest="command", metavar="{fig1,theory,make-reference}")
+    sub = parser.add_subparsers(dest="command", metavar="{fig1,theory,make-reference,load-curve}")
 
     fig = sub.add_parser("fig1", help="GFMD against theory on the paper's Fig. 1 scene (the main job)",
                          description="GFMD against the paper's theory on the Fig. 1 scene; all inputs are "
@@ -114,6 +114,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="Gaussian surface or its skewed transform (default: fig1)")
     ref.add_argument("--out", default="reference_out",
                      help="output folder, checked for writability before any work (default: reference_out)")
+    from .load_curve import add_cli
+
+    add_cli(sub, ZETA_UNIT)
     return parser
 
 
@@ -185,6 +188,10 @@ def _main(argv: Optional[Sequence[str]] = None) -> int:
         generate_reference(zetas=args.zetas, seeds=args.seeds, n=args.n, tol=args.tol, out_dir=args.out,
                            surface=args.surface)
         return 0
+    if args.command == "load-curve":
+        from .load_curve import run_cli
+
+        return run_cli(args)
     raise AssertionError(args.command)  # argparse rejects unknown commands
 
 

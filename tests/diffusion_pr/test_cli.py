@@ -100,7 +100,7 @@ def test_zeta_unit_is_worded_identically_in_both_clis():
     subs = _subparsers(_parser())
     helps = [a.help for p in subs.values() for a in p._actions if "zeta" in a.dest]
     helps += [a.help for a in _gfmd_parser()._actions if a.dest == "zeta"]
-    assert len(helps) == 4 and all(ZETA_UNIT in h for h in helps)
+    assert len(helps) == 5 and all(ZETA_UNIT in h for h in helps)
 
 
 def test_gfmd_ref_zeta_is_the_same_wall_as_diffusion_pr_fig1():
