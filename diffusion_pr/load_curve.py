@@ -22,25 +22,11 @@ COLUMNS = ("p0", "contact_area", "threshold", "mean", "sd", "error_estimate", "s
 
 @dataclass(frozen=True)
 class LoadCurve:
-    """Pressure distributions along a load path.
-
-    Attributes
-    ----------
-    results : tuple of PressureDistribution
-        One per load, in the order of the loads given.
-    table : numpy.ndarray
-        Structured array with the fields of :data:`COLUMNS`: ``p0`` (pressure), ``contact_area`` (a_r at
-        ``threshold``), ``threshold`` (pressure), ``mean`` and ``sd`` of ``Pr`` (pressure), the solver's
-        ``error_estimate`` and ``success``.
-    closure, zeta : str, float
-        The theory and the wall range (length; 0 = hard wall).
-    monotone : bool
-        ``a_r`` non-decreasing in ``p0`` (within the solvers' error estimates).
-    note : str
-        Why the curve is not monotone, empty when it is.
-    wall_time : float
-        Seconds for the whole curve.
-    """
+    """Pressure distributions along a load path: ``results`` (one per load, in the order given), ``table`` (a
+    structured array of :data:`COLUMNS`: ``p0``, ``contact_area`` a_r at ``threshold``, ``mean`` and ``sd`` of
+    ``Pr``, in pressure units, the solver's ``error_estimate`` and ``success``), the ``closure`` and ``zeta``
+    (length), ``monotone`` (a_r non-decreasing in p0 within the error estimates), the ``note`` saying why not, and
+    the ``wall_time`` [s]."""
 
     results: tuple
     table: np.ndarray
@@ -54,8 +40,7 @@ class LoadCurve:
         """``a_r`` against ``p0`` on log-log axes (a new figure when ``ax`` is None); returns the axes."""
         import matplotlib.pyplot as plt
 
-        if ax is None:
-            ax = plt.figure(layout="constrained").gca()
+        ax = plt.figure(layout="constrained").gca() if ax is None else ax
         order = np.argsort(self.table["p0"])
         ax.loglog(self.table["p0"][order], self.table["contact_area"][order], "o-", ms=3,
                   label=f"{self.closure}, zeta = {self.zeta:g}")
@@ -82,16 +67,10 @@ def load_curve(spectrum: Any, *, E_star: float, mean_pressures: Any, zeta: float
 
     Parameters
     ----------
-    spectrum : Spectrum
-        The surface (lengths in the unit of ``zeta``).
-    E_star : float
-        Contact modulus (pressure), > 0.
+    spectrum, E_star, zeta, closure, backend, rtol, **options
+        As in :func:`~diffusion_pr.pressure_distribution` (e.g. ``cutoff``, ``p_c`` of the second order).
     mean_pressures : array_like
         Loads ``p0`` (pressure), one-dimensional, each > 0.
-    zeta : float
-        Range of the exponential wall (length), >= 0; 0 = hard wall.
-    closure, backend, rtol, **options
-        As in :func:`~diffusion_pr.pressure_distribution` (e.g. ``cutoff``, ``p_c`` of the second order).
     p_c_ratio : float, optional
         Second order only: ``p_c = p_c_ratio * p0`` at every load (the paper's Fig. 1 fit: 0.0027/0.004 = 0.675).
         A fixed ``p_c`` (in ``options``) is a pressure fitted at one load: at loads ``p0 << p_c`` the cutoff stops
@@ -103,7 +82,7 @@ def load_curve(spectrum: Any, *, E_star: float, mean_pressures: Any, zeta: float
     Returns
     -------
     LoadCurve
-        A non-monotone curve also warns (``UserWarning``) with :attr:`LoadCurve.note`.
+        A non-monotone curve also warns (``UserWarning``) with its ``note``.
     """
     from .api import pressure_distribution
 
@@ -114,17 +93,13 @@ def load_curve(spectrum: Any, *, E_star: float, mean_pressures: Any, zeta: float
         if closure != "second_order" or options.get("p_c") is not None:
             raise ValueError(f"p_c_ratio={p_c_ratio!r} sets the second order's p_c per load: it needs "
                              f"closure='second_order' and no p_c (got closure={closure!r}, p_c={options.get('p_c')!r})")
-    loads = p0s
     if progress:
         from tqdm.auto import tqdm
-
-        loads = tqdm(p0s, desc="load curve", unit="load")
     t0 = time.perf_counter()
-    results = []
-    for p0 in loads:
-        extra = {} if p_c_ratio is None else {"p_c": p_c_ratio * float(p0)}
-        results.append(pressure_distribution(spectrum, E_star=E_star, mean_pressure=float(p0), zeta=zeta,
-                                             closure=closure, backend=backend, rtol=rtol, **options, **extra))
+    results = [pressure_distribution(spectrum, E_star=E_star, mean_pressure=float(p0), zeta=zeta, closure=closure,
+                                     backend=backend, rtol=rtol, **options,
+                                     **({} if p_c_ratio is None else {"p_c": p_c_ratio * float(p0)}))
+               for p0 in (tqdm(p0s, desc="load curve", unit="load") if progress else p0s)]
     table = np.array([(r.mean_pressure, r.contact_area(), r.contact_threshold, r.mean,
                        np.sqrt(max(r.moment(2, central=True), 0.0)), r.error_estimate, r.success)
                       for r in results], dtype=[(c, bool if c == "success" else float) for c in COLUMNS])
@@ -167,9 +142,9 @@ def add_cli(sub: Any, zeta_unit: str) -> None:
                     help="smallest and largest mean pressure, units of E* (default: 5e-5 0.07)")
     lc.add_argument("--n-loads", type=int, default=50, help="loads, log-spaced (default: 50)")
     lc.add_argument("--E-star", type=float, default=8 / 3, help="contact modulus (default: 8/3, the paper's)")
-    lc.add_argument("--heights", default=None, help="periodic height map as a .npy file (default: none, the Fig. 1 spectrum)")
-    lc.add_argument("--length", type=float, default=None, help="side of --heights along its first axis, in its length unit (default: none; needed "
-                    "with --heights)")
+    lc.add_argument("--heights", default=None, help="periodic height map, .npy (default: the Fig. 1 spectrum)")
+    lc.add_argument("--length", type=float, default=None,
+                    help="side of --heights along its first axis, in its length unit (default: none)")
     lc.add_argument("--cutoff", default="sharp", choices=["sharp", "muser", "raised_cosine", "smoothstep"],
                     help="second order: cutoff of the diffusivity (default: sharp)")
     lc.add_argument("--p-c-ratio", type=float, default=None,

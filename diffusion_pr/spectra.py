@@ -1,25 +1,20 @@
 r"""Isotropic height spectra of randomly rough surfaces.
 
-Conventions (docs/theory.md; M. H. Müser, Phys. Rev. Lett. 100, 055504 (2008),
-doi:10.1103/PhysRevLett.100.055504; B. N. J. Persson, J. Chem. Phys. 115, 3840
-(2001), doi:10.1063/1.1388626):
+Conventions (docs/theory.md; M. H. Müser, Phys. Rev. Lett. 100, 055504 (2008), doi:10.1103/PhysRevLett.100.055504;
+B. N. J. Persson, J. Chem. Phys. 115, 3840 (2001), doi:10.1063/1.1388626):
 
 * Fourier transform of a periodic ``L x L`` height field ``h(r)`` (``A = L^2``)::
 
       h~(q) = (1/A) \int d^2r exp(i q.r) h(r),      q = 2 pi (m, n) / L
 
   so ``h~`` has the units of length.
-* Isotropic power spectral density ``C(q)`` [length^4] with
-  ``<|h~(q)|^2> = C(|q|) (2 pi / L)^2``; in the continuum limit::
+* Isotropic power spectral density ``C(q)`` [length^4] with ``<|h~(q)|^2> = C(|q|) (2 pi / L)^2``; in the continuum::
 
       h_rms^2 = 2 pi \int q C(q) dq,        gbar^2 = <|grad h|^2> = 2 pi \int q^3 C(q) dq.
 
-Two kinds of spectra share one interface (:class:`Spectrum`): the continuum
-power law :class:`SelfAffineSpectrum` (integrals by Gauss-Legendre quadrature in
-``ln q``) and :class:`DiscreteSpectrum`, the non-zero modes of one realization
-(integrals are exact sums over them).
-
-Wavevectors are angular (rad / length), in the length unit of ``L``.
+Two kinds of spectra share one interface (:class:`Spectrum`): continuum ones (:class:`SelfAffineSpectrum`, tabulated
+data in :mod:`diffusion_pr.topography`; Gauss-Legendre quadrature in ``ln q``) and :class:`DiscreteSpectrum`, the
+non-zero modes of one realization (exact sums).  Wavevectors are angular (rad / length), in the length unit of ``L``.
 """
 from __future__ import annotations
 
@@ -37,12 +32,6 @@ from ._validation import check_finite_array, check_in_range, check_positive
 __all__ = ["Spectrum", "SegmentedSpectrum", "SelfAffineSpectrum", "DiscreteSpectrum"]
 
 Weight = Callable[[np.ndarray], ArrayLike]
-
-
-def _lattice_k2(n: int) -> np.ndarray:
-    """``m^2 + k^2`` of every mode of the full ``n x n`` FFT lattice, flattened (integers)."""
-    k = np.fft.fftfreq(n, d=1.0 / n).astype(np.int64)
-    return (k[:, None] ** 2 + k[None, :] ** 2).ravel()
 
 
 def _periods(length: float | tuple[float, float], nx: int, ny: int) -> tuple[float, float]:
@@ -64,20 +53,19 @@ def _merge_shells(key: np.ndarray, power: np.ndarray) -> tuple[np.ndarray, np.nd
 @lru_cache(maxsize=64)
 def _leggauss(n: int) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Legendre nodes and weights on [-1, 1] (cached, read-only)."""
-    x, w = np.polynomial.legendre.leggauss(n)
-    x.setflags(write=False)
-    w.setflags(write=False)
-    return x, w
+    return _read_only(*np.polynomial.legendre.leggauss(n))
+
+
+def _read_only(*arrays: np.ndarray) -> tuple:
+    for a in arrays:
+        a.setflags(write=False)
+    return arrays
 
 
 def _n_nodes(log_span: float) -> int:
-    """Number of Gauss-Legendre nodes for a segment of length ``log_span`` in ln q.
-
-    Weights built from ``G1(q)^2 = (1 + q/q*)^-2`` and powers of ``q`` are
-    analytic in ``s = ln q`` within a strip of half-width pi, so Gauss-Legendre
-    converges geometrically; 40 + 16 nodes per unit of ``ln q`` gives
-    round-off-level accuracy for such weights.
-    """
+    """Gauss-Legendre nodes for a segment of length ``log_span`` in ln q: weights built from
+    ``G1(q)^2 = (1 + q/q*)^-2`` and powers of ``q`` are analytic in ``ln q`` within a strip of half-width pi, so
+    40 + 16 nodes per unit of ``ln q`` reach round-off."""
     return int(min(2048, 40 + 16 * math.ceil(max(log_span, 0.0))))
 
 
@@ -87,58 +75,34 @@ def _eval_weight(weight: Weight | None, q: np.ndarray) -> np.ndarray:
         return np.ones_like(q)
     if not callable(weight):
         raise ValueError(f"weight must be a vectorized callable of q (rad/length) or None; got {weight!r}")
-    val = np.asarray(weight(q), dtype=float)
-    return np.broadcast_to(val, q.shape)
+    return np.broadcast_to(np.asarray(weight(q), dtype=float), q.shape)
 
 
 class Spectrum(abc.ABC):
-    """Common interface of isotropic height spectra.
-
-    ``q_min`` and ``q_max`` [rad/length] are the smallest and largest
-    wavenumbers carrying roughness (attributes or properties of a subclass).
-    """
+    """Common interface of isotropic height spectra; ``q_min``, ``q_max`` [rad/length]: the smallest and largest
+    wavenumbers carrying roughness."""
 
     q_min: float
     q_max: float
 
     @abc.abstractmethod
     def quadrature(self) -> tuple[np.ndarray, np.ndarray]:
-        r"""Nodes ``q_i`` [rad/length] and weights ``w_i`` [length^2].
-
-        ``sum_i w_i f(q_i)`` approximates ``2 pi \int q C(q) f(q) dq`` for
-        smooth ``f`` (continuum) or equals ``sum_q |h~(q)|^2 f(|q|)`` exactly
-        (discrete). Arrays are read-only.
-        """
+        r"""Nodes ``q_i`` [rad/length] and weights ``w_i`` [length^2] (read-only): ``sum_i w_i f(q_i)`` approximates
+        ``2 pi \int q C(q) f(q) dq`` for smooth ``f`` (continuum) or equals ``sum_q |h~(q)|^2 f(|q|)`` (discrete)."""
 
     @abc.abstractmethod
     def cumulative(self, weight: Weight | None, q: ArrayLike) -> np.ndarray | float:
-        r"""``2 pi \int_{q' <= q} q' C(q') weight(q') dq'`` (or the discrete sum).
-
-        Parameters
-        ----------
-        weight : callable or None
-            Vectorized function of ``q`` [rad/length]; ``None`` means 1.
-        q : float or array_like
-            Upper limit(s) [rad/length]; any shape.
-
-        Returns
-        -------
-        float or numpy.ndarray
-            Same shape as ``q``; units length^2 x units of ``weight``.
-        """
+        r"""``2 pi \int_{q' <= q} q' C(q') weight(q') dq'`` (or the discrete sum) [length^2 x units of ``weight``]
+        for upper limits ``q`` [rad/length] of any shape; ``weight``: a vectorized function of ``q`` or None (1)."""
 
     def psd(self, q: ArrayLike) -> np.ndarray | float:
         """Continuum PSD ``C(q)`` [length^4]; not defined for every spectrum."""
         raise NotImplementedError(f"{type(self).__name__} has no continuum PSD C(q)")
 
     def integrate(self, weight: Weight | None = None, *, method: Literal["gauss", "quad"] = "gauss") -> float:
-        r"""``2 pi \int q C(q) weight(q) dq`` (continuum) or ``sum |h~|^2 weight`` (discrete).
-
-        ``weight``: a vectorized function of ``q`` [rad/length], ``None`` for 1
-        (giving ``h_rms^2``); the result is in length^2 x units of ``weight``.
-        ``method`` chooses the quadrature of a continuum spectrum (see
-        :meth:`SelfAffineSpectrum.integrate`); discrete sums are exact and ignore it.
-        """
+        r"""``2 pi \int q C(q) weight(q) dq`` (continuum) or ``sum |h~|^2 weight`` (discrete) [length^2 x units of
+        ``weight``]; ``weight``: a vectorized function of ``q`` [rad/length], None for 1 (``h_rms^2``).  ``method``:
+        the quadrature of a continuum spectrum (:meth:`SelfAffineSpectrum.integrate`); discrete sums ignore it."""
         if method not in ("gauss", "quad"):
             raise ValueError(f"method must be 'gauss' or 'quad'; got {method!r}")
         q, w = self.quadrature()
@@ -176,61 +140,42 @@ class SegmentedSpectrum(Spectrum):
         for lo, hi in self._segments():
             a, b = math.log(lo), math.log(hi)
             x, w = _leggauss(self._n_nodes(b - a))
-            s = 0.5 * (a + b) + 0.5 * (b - a) * x
-            q = np.exp(s)
-            # dq = q ds  ->  2 pi q C(q) dq = 2 pi q^2 C(q) ds
-            qs.append(q)
+            q = np.exp(0.5 * (a + b) + 0.5 * (b - a) * x)
+            qs.append(q)  # dq = q ds: 2 pi q C(q) dq = 2 pi q^2 C(q) ds
             ws.append(0.5 * (b - a) * w * 2 * math.pi * q * q * self.psd(q))
-        q = np.concatenate(qs)
-        w = np.concatenate(ws)
-        q.setflags(write=False)
-        w.setflags(write=False)
-        return q, w
+        return _read_only(np.concatenate(qs), np.concatenate(ws))
 
     def quadrature(self) -> tuple[np.ndarray, np.ndarray]:
-        r"""Gauss-Legendre nodes ``q`` [rad/length] in ``ln q`` on each power-law segment, weights [length^2].
-
-        ``sum w f(q) ~= 2 pi \int q C f dq``, exact to round-off for weights
-        analytic in a strip around the real ``ln q`` axis (powers of ``q``,
-        ``G1(q)^2``).
-        """
+        r"""Gauss-Legendre nodes ``q`` [rad/length] in ``ln q`` on each segment, weights [length^2]: ``sum w f(q)``
+        is ``2 pi \int q C f dq`` to round-off for ``f`` analytic near the real ``ln q`` axis (powers of q, G1^2)."""
         return self._rule
 
     def cumulative(self, weight: Weight | None, q: ArrayLike) -> np.ndarray | float:
-        r"""``2 pi \int_{q_min}^{min(q, q_max)} q' C(q') weight(q') dq'``, vectorized over ``q``.
-
-        Gauss-Legendre in ``ln q'`` on each (truncated) power-law segment; 0
-        for ``q <= q_min``, the full integral for ``q >= q_max``.  ``weight`` is
-        called with a 2-d array of ``q``.
-        """
+        r"""``2 pi \int_{q_min}^{min(q, q_max)} q' C(q') weight(q') dq'``, vectorized over ``q``: Gauss-Legendre in
+        ``ln q'`` on each (truncated) segment; ``weight`` is called with a 2-d array of ``q``."""
         qa = check_finite_array("q", q, min_size=0)
         flat = qa.ravel()
         out = np.zeros(flat.shape)
         for lo, hi in self._segments():
-            a = math.log(lo)
-            upper = np.clip(flat, lo, hi)
-            b = np.log(upper)
+            a, b = math.log(lo), np.log(np.clip(flat, lo, hi))
             active = b > a
             if not np.any(active):
                 continue
             x, w = _leggauss(self._n_nodes(math.log(hi / lo)))
             ba = b[active][:, None]
-            s = 0.5 * (a + ba) + 0.5 * (ba - a) * x[None, :]
-            qq = np.exp(s)
+            qq = np.exp(0.5 * (a + ba) + 0.5 * (ba - a) * x[None, :])
             vals = 2 * math.pi * qq * qq * self.psd(qq) * _eval_weight(weight, qq)
             out[active] += (0.5 * (ba[:, 0] - a)) * (vals @ w)
         out = out.reshape(qa.shape)
         return float(out) if out.ndim == 0 else out
 
 
-
 @dataclass(frozen=True, init=False)
 class SelfAffineSpectrum(SegmentedSpectrum):
     r"""Continuum self-affine (power-law) PSD with optional roll-off.
 
-    ``C(q) = C0 (q / q_r)^(-2 (1 + H))`` for ``q_r <= q <= q_max``,
-    ``C(q) = C0`` for ``q_min <= q < q_r`` (roll-off), ``0`` elsewhere, with
-    ``q_r = q_roll`` (default ``q_min``: no roll-off). Persson, J. Chem. Phys.
+    ``C(q) = C0 (q / q_r)^(-2 (1 + H))`` for ``q_r <= q <= q_max``, ``C(q) = C0`` for ``q_min <= q < q_r``
+    (roll-off), ``0`` elsewhere, with ``q_r = q_roll`` (default ``q_min``: no roll-off). Persson, J. Chem. Phys.
     115, 3840 (2001), doi:10.1063/1.1388626; Müser, PRL 100, 055504 (2008).
 
     Parameters
@@ -250,10 +195,8 @@ class SelfAffineSpectrum(SegmentedSpectrum):
     q_roll : float, optional
         Roll-off wavenumber ``q_r`` [rad/length] in ``[q_min, q_max]``.
 
-    Exactly one of ``rms_slope``, ``h_rms``, ``C0`` must be given. The object
-    stores the canonical ``C0`` and ``q_roll`` (resolved); ``h_rms`` and
-    ``rms_slope`` are computed in closed form. ``dataclasses.replace`` keeps
-    ``C0`` fixed.
+    Exactly one of ``rms_slope``, ``h_rms``, ``C0`` must be given. The object stores the canonical ``C0`` and
+    ``q_roll``; ``h_rms`` and ``rms_slope`` are closed forms. ``dataclasses.replace`` keeps ``C0`` fixed.
 
     Examples
     --------
@@ -270,31 +213,18 @@ class SelfAffineSpectrum(SegmentedSpectrum):
     C0: float
     q_roll: float
 
-    def __init__(
-        self,
-        hurst: float,
-        q_min: float,
-        q_max: float,
-        *,
-        rms_slope: float | None = None,
-        h_rms: float | None = None,
-        C0: float | None = None,
-        q_roll: float | None = None,
-    ) -> None:
+    def __init__(self, hurst: float, q_min: float, q_max: float, *, rms_slope: float | None = None,
+                 h_rms: float | None = None, C0: float | None = None, q_roll: float | None = None) -> None:
         hurst = check_in_range("hurst", hurst, 0.0, 1.0, lo_inclusive=False, hi_inclusive=False)
         q_min = check_positive("q_min", q_min)
         q_max = check_positive("q_max", q_max)
         if not q_max > q_min:
             raise ValueError(f"q_max must be > q_min; got q_min={q_min!r}, q_max={q_max!r}")
-        if q_roll is None:
-            q_roll = q_min
-        q_roll = check_in_range("q_roll", q_roll, q_min, q_max)
+        q_roll = check_in_range("q_roll", q_min if q_roll is None else q_roll, q_min, q_max)
         given = {k: v for k, v in (("rms_slope", rms_slope), ("h_rms", h_rms), ("C0", C0)) if v is not None}
         if len(given) != 1:
-            raise ValueError(
-                "exactly one amplitude of rms_slope, h_rms, C0 must be given; got "
-                + (", ".join(f"{k}={v!r}" for k, v in given.items()) if given else "none")
-            )
+            raise ValueError("exactly one amplitude of rms_slope, h_rms, C0 must be given; got "
+                             + (", ".join(f"{k}={v!r}" for k, v in given.items()) if given else "none"))
         (name, value), = given.items()
         value = check_positive(name, value)
         for attr, v in (("hurst", hurst), ("q_min", q_min), ("q_max", q_max), ("q_roll", q_roll), ("C0", 1.0)):
@@ -334,37 +264,23 @@ class SelfAffineSpectrum(SegmentedSpectrum):
         return 2 * math.pi * self.C0 * self._moment_unit(3)
 
     def psd(self, q: ArrayLike) -> np.ndarray | float:
-        """``C(q)`` [length^4] for ``q`` [rad/length]; 0 outside ``[q_min, q_max]``.
-
-        Vectorized: any shape in, same shape out (float for scalar input).
-        """
+        """``C(q)`` [length^4] for ``q`` [rad/length] of any shape; 0 outside ``[q_min, q_max]``."""
         qa = np.asarray(q, dtype=float)
         with np.errstate(divide="ignore", invalid="ignore"):
-            c = np.where(
-                qa < self.q_roll,
-                self.C0,
-                self.C0 * (np.maximum(qa, self.q_roll) / self.q_roll) ** (-2.0 * (1.0 + self.hurst)),
-            )
+            c = np.where(qa < self.q_roll, self.C0,
+                         self.C0 * (np.maximum(qa, self.q_roll) / self.q_roll) ** (-2.0 * (1.0 + self.hurst)))
         c = np.where((qa >= self.q_min) & (qa <= self.q_max), c, 0.0)
         return float(c) if c.ndim == 0 else c
 
     def _segments(self) -> list[tuple[float, float]]:
         """Power-law segments ``(lo, hi)`` [rad/length] of the support."""
-        segs = []
-        if self.q_roll > self.q_min:
-            segs.append((self.q_min, self.q_roll))
-        if self.q_max > self.q_roll:
-            segs.append((self.q_roll, self.q_max))
-        return segs
+        return [(lo, hi) for lo, hi in ((self.q_min, self.q_roll), (self.q_roll, self.q_max)) if hi > lo]
 
     def integrate(self, weight: Weight | None = None, *, method: Literal["gauss", "quad"] = "gauss") -> float:
         r"""``2 pi \int_{q_min}^{q_max} q C(q) weight(q) dq`` [length^2 x units of ``weight``].
 
-        ``method="gauss"``: fixed high-order Gauss-Legendre in ``ln q`` per
-        segment (a vectorized ``weight``; smooth weights).  ``"quad"``: adaptive
-        :func:`scipy.integrate.quad` per segment in ``ln q`` (scalar calls; for
-        weights with kinks inside a segment).
-        """
+        ``method="gauss"``: fixed high-order Gauss-Legendre in ``ln q`` per segment (a vectorized, smooth
+        ``weight``).  ``"quad"``: adaptive :func:`scipy.integrate.quad` in ``ln q`` (for weights with kinks)."""
         if method == "gauss":
             return super().integrate(weight)
         if method != "quad":
@@ -374,24 +290,18 @@ class SelfAffineSpectrum(SegmentedSpectrum):
         f = (lambda q: 1.0) if weight is None else weight
         total = 0.0
         for lo, hi in self._segments():
-            val, _ = _integrate.quad(
+            total += _integrate.quad(
                 lambda s: 2 * math.pi * math.exp(2 * s) * float(self.psd(math.exp(s))) * float(f(math.exp(s))),
-                math.log(lo),
-                math.log(hi),
-                epsabs=0.0,
-                epsrel=1e-12,
-                limit=200,
-            )
-            total += val
+                math.log(lo), math.log(hi), epsabs=0.0, epsrel=1e-12, limit=200)[0]
         return total
+
 
 @dataclass(frozen=True, eq=False)
 class DiscreteSpectrum(Spectrum):
     r"""The spectrum of one periodic realization: its non-zero modes.
 
-    Modes of equal ``|q|`` are merged into one shell (their powers summed);
-    all sums over modes are exact. Build with :meth:`from_heights` or
-    :meth:`from_modes`.
+    Modes of equal ``|q|`` are merged into one shell (their powers summed); all sums over modes are exact. Build
+    with :meth:`from_heights` or :meth:`from_modes`.
 
     Parameters
     ----------
@@ -406,12 +316,10 @@ class DiscreteSpectrum(Spectrum):
 
     Notes
     -----
-    ``integrate(f) = sum_q |h~(q)|^2 f(|q|)`` over all modes ``q != 0`` of the
-    full (two-sided) lattice, so ``integrate(1)`` is the variance of the
-    heights (Parseval) and ``integrate(q^2)`` the mean of ``|grad h|^2`` of the
-    trigonometric interpolant. For an even grid the Nyquist modes enter with
-    their lattice ``|q|`` (``q_x = -pi n / L``); a band-limited surface has no
-    power there.
+    ``integrate(f) = sum_q |h~(q)|^2 f(|q|)`` over all modes ``q != 0`` of the full (two-sided) lattice, so
+    ``integrate(1)`` is the variance of the heights (Parseval) and ``integrate(q^2)`` the mean of ``|grad h|^2`` of
+    the trigonometric interpolant. For an even grid the Nyquist modes enter with their lattice ``|q|``
+    (``q_x = -pi n / L``); a band-limited surface has no power there.
     """
 
     q: np.ndarray  # type: ignore[assignment]
@@ -431,35 +339,25 @@ class DiscreteSpectrum(Spectrum):
             raise ValueError("power must be > 0 for every stored shell; use DiscreteSpectrum.from_modes")
         if self.length is not None:
             object.__setattr__(self, "length", check_positive("length", self.length))
-        for name, arr in (("q", q), ("power", p), ("multiplicity", m.astype(np.int64))):
-            arr = np.array(arr, copy=True)
-            arr.setflags(write=False)
+        for name, arr in zip(("q", "power", "multiplicity"), _read_only(q.copy(), p.copy(), m.astype(np.int64))):
             object.__setattr__(self, name, arr)
 
     @classmethod
-    def from_modes(
-        cls,
-        q: ArrayLike,
-        power: ArrayLike,
-        *,
-        length: float | None = None,
-        empty_tol: float = 1e-24,
-    ) -> "DiscreteSpectrum":
+    def from_modes(cls, q: ArrayLike, power: ArrayLike, *, length: float | None = None,
+                   empty_tol: float = 1e-24) -> "DiscreteSpectrum":
         """Spectrum from a list of modes ``|q|`` and their ``|h~(q)|^2``.
 
         Parameters
         ----------
         q : array_like
-            Wavenumbers ``|q|`` [rad/length] of the modes, > 0 (leave out the
-            mean mode ``q = 0``). Any shape; must match ``power``.
+            Wavenumbers ``|q|`` [rad/length] of the modes, > 0 (leave out ``q = 0``); the shape of ``power``.
         power : array_like
             ``|h~(q)|^2`` [length^2] of each mode, >= 0.
         length : float, optional
             Period ``L`` [length], stored for information.
         empty_tol : float, default 1e-24
-            Modes with ``power <= empty_tol * sum(power)`` count as empty
-            (FFT round-off of a band-limited surface) and are dropped; they
-            do not set ``q_min``/``q_max``.
+            Modes with ``power <= empty_tol * sum(power)`` count as empty (FFT round-off of a band-limited
+            surface) and are dropped; they do not set ``q_min``/``q_max``.
 
         Returns
         -------
@@ -486,14 +384,11 @@ class DiscreteSpectrum(Spectrum):
                    rms_slope: float | None = None) -> "DiscreteSpectrum":
         r"""The expected spectrum of ``spectrum`` on the modes of an ``n x n`` periodic cell.
 
-        Every lattice mode ``q = 2 pi (m, k)/L`` (``-n/2 <= m, k < n/2``, ``q != 0``)
-        gets its expected power ``<|h~(q)|^2> = C(|q|) (2 pi/L)^2`` (the Fourier
-        convention of the theory page); modes of equal ``|q|`` are merged into
-        shells.  This is what the mean of :meth:`from_heights` over many
-        random realizations converges to, and the spectrum to use when a theory is
-        compared with simulations of such cells: the continuum integral spreads the
-        power of the few lowest shells (4 modes at exactly ``q_min``, 4 at
-        ``sqrt(2) q_min``, ...) over ``[q_min, 1.5 q_min]``, which matters where
+        Every lattice mode ``q = 2 pi (m, k)/L`` (``-n/2 <= m, k < n/2``, ``q != 0``) gets its expected power
+        ``<|h~(q)|^2> = C(|q|) (2 pi/L)^2``; modes of equal ``|q|`` are merged into shells.  The mean of
+        :meth:`from_heights` over many realizations converges to it, and it is the spectrum to use when a theory is
+        compared with simulations of such cells: the continuum integral spreads the power of the few lowest shells
+        (4 modes at exactly ``q_min``, 4 at ``sqrt(2) q_min``, ...) over ``[q_min, 1.5 q_min]``, which matters where
         ``G1`` leaves only the lowest shells (large ``zeta``; docs/fig1.md).
 
         Parameters
@@ -505,10 +400,8 @@ class DiscreteSpectrum(Spectrum):
         length : float
             Period ``L`` [length] (> 0).
         rms_slope : float, optional
-            If given, the powers are rescaled so that the lattice sum
-            ``sum q^2 |h~|^2`` equals ``rms_slope^2`` (dimensionless), as
-            ``gfmd_ref.self_affine_surface`` normalizes each realization; by default
-            the continuum spectrum's own amplitude is kept.
+            If given, the powers are rescaled so that ``sum q^2 |h~|^2 = rms_slope^2`` (dimensionless), as
+            ``gfmd_ref.self_affine_surface`` normalizes each realization; by default the continuum's amplitude.
 
         Returns
         -------
@@ -518,9 +411,9 @@ class DiscreteSpectrum(Spectrum):
             raise ValueError(f"n must be an integer >= 2 (grid points per side); got n={n!r}")
         L = check_positive("length", length)
         unit = 2.0 * np.pi / L
-        k2 = _lattice_k2(int(n))
-        k2 = k2[k2 > 0]
-        uk2, mult = np.unique(k2, return_counts=True)
+        k = np.fft.fftfreq(int(n), d=1.0 / n).astype(np.int64)
+        k2 = (k[:, None] ** 2 + k[None, :] ** 2).ravel()
+        uk2, mult = np.unique(k2[k2 > 0], return_counts=True)
         q = unit * np.sqrt(uk2.astype(float))
         power = np.asarray(spectrum.psd(q), dtype=float) * unit**2 * mult
         keep = power > 0
@@ -528,8 +421,7 @@ class DiscreteSpectrum(Spectrum):
             raise ValueError(f"no lattice mode of an n={n}, length={length!r} cell carries power of this spectrum")
         q, power, mult = q[keep], power[keep], mult[keep]
         if rms_slope is not None:
-            target = check_positive("rms_slope", rms_slope)
-            power = power * (target**2 / float(np.sum(q**2 * power)))
+            power = power * (check_positive("rms_slope", rms_slope) ** 2 / float(np.sum(q**2 * power)))
         return cls(q, power, mult, L)
 
     @classmethod
@@ -568,7 +460,8 @@ class DiscreteSpectrum(Spectrum):
         mx, my = (np.fft.fftfreq(n, d=1.0 / n).astype(np.int64) for n in (nx, ny))
         if math.isclose(Lx * ny, Ly * nx, rel_tol=1e-12):  # square pixels: q = unit sqrt(integer key)
             g = math.gcd(nx, ny)
-            key, unit = ((mx * (ny // g))[:, None] ** 2 + (my * (nx // g))[None, :] ** 2).ravel(), 2 * math.pi * g / (ny * Lx)
+            key = ((mx * (ny // g))[:, None] ** 2 + (my * (nx // g))[None, :] ** 2).ravel()
+            unit = 2 * math.pi * g / (ny * Lx)
         else:
             key, unit = ((mx / Lx)[:, None] ** 2 + (my / Ly)[None, :] ** 2).ravel(), 2 * math.pi
         total = pw.sum()

@@ -20,6 +20,7 @@ underestimates the noise of a correlated field; prefer the field)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Any, Optional
 
 import numpy as np
@@ -33,29 +34,16 @@ __all__ = ["assert_matches_gfmd", "gfmd_comparison", "SeededSurface", "seeded_su
 BLOCKS = 4
 
 
-@dataclass(frozen=True)
-class _Record:
-    """One pseudo-seed in the shape :func:`~diffusion_pr.compare.compare_ensemble` reads."""
-
-    levels: np.ndarray
-    quantiles: np.ndarray
-    seed: int
-    mean_pressure: float
-    contact_threshold: float
-    contact_fraction: float
-    mean: float
-    variance: float
-    third_central: float
-
-
 def _records(groups: list, p0: float, threshold: float) -> list:
+    """Each group of pressures as a pseudo-seed in the shape :func:`~diffusion_pr.compare.compare_ensemble` reads."""
     levels = np.linspace(0.0, 1.0, 1025)
     out = []
-    for k, v in enumerate(groups):
-        v = np.asarray(v, dtype=float).ravel()
+    for k, v in enumerate(np.asarray(g, dtype=float).ravel() for g in groups):
         c = v - v.mean()
-        out.append(_Record(levels, np.quantile(v, levels), k, p0, threshold, float(np.mean(v > threshold)),
-                           float(v.mean()), float(np.mean(c * c)), float(np.mean(c**3))))
+        out.append(SimpleNamespace(levels=levels, quantiles=np.quantile(v, levels), seed=k, mean_pressure=p0,
+                                   contact_threshold=threshold, contact_fraction=float(np.mean(v > threshold)),
+                                   mean=float(v.mean()), variance=float(np.mean(c * c)),
+                                   third_central=float(np.mean(c**3))))
     return out
 
 

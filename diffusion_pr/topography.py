@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ._validation import check_finite_array, check_in_range, check_positive
-from .spectra import DiscreteSpectrum, SegmentedSpectrum, Spectrum, _periods
+from .spectra import DiscreteSpectrum, SegmentedSpectrum, Spectrum, _periods, _read_only
 
 __all__ = ["TabulatedSpectrum", "ResolutionWarning", "spectrum_from_map", "spectrum_from_psd",
            "spectrum_from_topography"]
@@ -41,16 +41,8 @@ def _check_resolution(spectrum: Spectrum, q_top: float) -> Spectrum:
 
 @dataclass(frozen=True, eq=False)
 class TabulatedSpectrum(SegmentedSpectrum):
-    """An isotropic PSD given at points: ``C(q)`` interpolated linearly in ``log C`` against ``log q`` (a power law
-    between the points), 0 outside ``[q[0], q[-1]]``.
-
-    Parameters
-    ----------
-    q_points : numpy.ndarray
-        Strictly increasing wavenumbers [rad/length], > 0 (at least 2).
-    C_points : numpy.ndarray
-        ``C(q)`` [length^4] in the package's convention, > 0.
-    """
+    """An isotropic PSD ``C_points`` [length^4, > 0, the package's convention] given at strictly increasing
+    ``q_points`` [rad/length, > 0]: a power law between the points, 0 outside them."""
 
     q_points: np.ndarray
     C_points: np.ndarray
@@ -62,22 +54,12 @@ class TabulatedSpectrum(SegmentedSpectrum):
             raise ValueError("q_points must be strictly increasing wavenumbers > 0 (rad/length)")
         if np.any(c <= 0):
             raise ValueError(f"C_points must be > 0 (length^4); got minimum {c.min()!r}: drop empty points")
-        for name, arr in (("q_points", q), ("C_points", c)):
-            arr = np.array(arr, dtype=float)
-            arr.setflags(write=False)
-            object.__setattr__(self, name, arr)
+        for name, value in zip(("q_points", "C_points", "q_min", "q_max"), (*_read_only(q, c), q[0], q[-1])):
+            object.__setattr__(self, name, value if np.ndim(value) else float(value))
 
     @staticmethod
     def _n_nodes(log_span: float) -> int:  # a power law times a smooth weight per segment
         return int(8 + 16 * math.ceil(log_span))
-
-    @property
-    def q_min(self) -> float:  # type: ignore[override]
-        return float(self.q_points[0])
-
-    @property
-    def q_max(self) -> float:  # type: ignore[override]
-        return float(self.q_points[-1])
 
     def _segments(self) -> list[tuple[float, float]]:
         return list(zip(self.q_points[:-1].tolist(), self.q_points[1:].tolist()))
@@ -99,25 +81,13 @@ def spectrum_from_psd(q: ArrayLike, C: ArrayLike, *, kind: str = "isotropic", co
                       hurst: Optional[float] = None) -> TabulatedSpectrum:
     r"""A tabulated PSD as a spectrum for :func:`~diffusion_pr.pressure_distribution`.
 
-    Parameters
-    ----------
-    q : array_like
-        Wavenumbers [rad/length], increasing, > 0; points with ``C <= 0`` or NaN (masked bins) are dropped.
-    C : array_like
-        ``kind="isotropic"``: ``C(q)`` [length^4]; ``kind="profile"``: the 1D PSD ``C_1D(q)`` [length^3] of line
-        scans (Jacobs et al. 2017's convention).
-    convention : {"persson", "jacobs"}
-        Of an isotropic ``C``: the package's (``h_rms^2 = 2 pi int q C dq``) or SurfaceTopography's / Jacobs et
-        al.'s (``(2 pi)^2`` larger).
-    hurst : float, optional
-        Profile PSDs: the Hurst exponent for the exact conversion of a power law,
-        ``C_iso = C_1D / q * 2 sqrt(pi) Gamma(H + 1) / Gamma(H + 1/2)`` (Jacobs' convention).  Without it the
-        standard ``C_iso = pi C_1D / q``, exact for ``H = 1/2``; it overestimates ``C`` by
-        ``sqrt(pi) Gamma(H + 1/2) / (2 Gamma(H + 1))`` (1.15 at ``H = 0.3``, 0.91 at ``H = 0.8``).
-
-    Returns
-    -------
-    TabulatedSpectrum
+    ``q`` [rad/length]: increasing, > 0; points with ``C <= 0`` or NaN (masked bins) are dropped.  ``C``: with
+    ``kind="isotropic"`` ``C(q)`` [length^4] in the package's ``convention="persson"`` (``h_rms^2 = 2 pi int q C
+    dq``) or Jacobs et al.'s / SurfaceTopography's ``"jacobs"`` (``(2 pi)^2`` larger); with ``kind="profile"`` the
+    1D PSD ``C_1D(q)`` [length^3] of line scans (Jacobs' convention), converted with the Hurst exponent ``hurst``
+    exactly for a power law, ``C_iso = C_1D / q * 2 sqrt(pi) Gamma(H + 1) / Gamma(H + 1/2)``, or without it by the
+    standard ``C_iso = pi C_1D / q``, exact at ``H = 1/2``, which overestimates ``C`` by
+    ``sqrt(pi) Gamma(H + 1/2) / (2 Gamma(H + 1))`` (1.15 at ``H = 0.3``, 0.91 at ``H = 0.8``).
     """
     qa = check_finite_array("q", q, ndim=1)
     ca = np.asarray(np.ma.filled(np.ma.asarray(C, dtype=float), np.nan), dtype=float)
@@ -129,16 +99,12 @@ def spectrum_from_psd(q: ArrayLike, C: ArrayLike, *, kind: str = "isotropic", co
     keep = np.isfinite(ca) & (ca > 0) & (qa > 0)
     qa, ca = qa[keep], ca[keep]
     if kind == "profile":
-        if hurst is None:
-            factor = math.pi
-        else:
-            H = check_in_range("hurst", hurst, 0.0, 1.0, lo_inclusive=False)
-            factor = 2.0 * math.sqrt(math.pi) * math.gamma(H + 1.0) / math.gamma(H + 0.5)
+        H = None if hurst is None else check_in_range("hurst", hurst, 0.0, 1.0, lo_inclusive=False)
+        factor = math.pi if H is None else 2.0 * math.sqrt(math.pi) * math.gamma(H + 1.0) / math.gamma(H + 0.5)
         ca, convention = factor * ca / qa, "jacobs"
     if convention == "jacobs":
         ca = ca / (2.0 * math.pi) ** 2
-    spectrum = TabulatedSpectrum(qa, ca)
-    return _check_resolution(spectrum, spectrum.q_max / 2.0)
+    return _check_resolution(TabulatedSpectrum(qa, ca), qa[-1] / 2.0)
 
 
 def _window(shape: tuple[int, int], window: Optional[str]) -> np.ndarray:
@@ -184,24 +150,10 @@ def spectrum_from_map(heights: ArrayLike, length: float | tuple[float, float], *
     * the plane also removes the tilt a finite cut of a self-affine surface carries: ``h_rms`` -13 +- 12 %
       (-5 +- 17 % with only the mean removed).
 
-    Parameters
-    ----------
-    heights : array_like, shape (nx, ny)
-        Heights [length].
-    length : float or (float, float)
-        Size ``Lx`` [length] along the first axis (square pixels) or ``(Lx, Ly)``.
-    periodic : bool
-        True: the map is one period of a periodic surface.
-    detrend : {"default", None, "mean", "plane"}
-        Default: None for periodic maps, ``"plane"`` otherwise.
-    window : {"default", None, "hann"}
-        Default: None for periodic maps, ``"hann"`` otherwise.
-    q_max : float, optional
-        Keep the shells with ``|q| <= q_max`` [rad/length] (the data's short reliability cutoff).
-
-    Returns
-    -------
-    DiscreteSpectrum
+    ``heights`` [length], shape ``(nx, ny)``; ``length``: ``Lx`` [length] along the first axis (square pixels) or
+    ``(Lx, Ly)``; ``periodic``: the map is one period of a periodic surface; ``detrend`` (None, ``"mean"``,
+    ``"plane"``) and ``window`` (None, ``"hann"``) default to None for periodic maps, else ``"plane"`` and
+    ``"hann"``; ``q_max`` [rad/length]: keep ``|q| <= q_max`` (the data's short reliability cutoff).
     """
     h = check_finite_array("heights", heights, ndim=2)
     detrend = (None if periodic else "plane") if detrend == "default" else detrend
@@ -222,12 +174,8 @@ def spectrum_from_topography(topography: Any, *, physical_sizes: Any = None, **k
     ``window``, ``q_max``); line scans through their profile PSD (``power_spectrum_from_profile``) and
     :func:`spectrum_from_psd` (``kwargs``: ``hurst``).  Heights and sizes in the topography's unit.
 
-    Parameters
-    ----------
-    topography : SurfaceTopography topography or line scan, or str or path
-        A path is read with ``SurfaceTopography.read_topography`` (about 40 formats).
-    physical_sizes : float or tuple, optional
-        Size(s) [length] for files that do not store them.
+    ``topography``: a SurfaceTopography topography or line scan, or a file path read by
+    ``SurfaceTopography.read_topography`` (about 40 formats) with ``physical_sizes`` [length] where the file has none.
     """
     if isinstance(topography, (str, bytes)) or hasattr(topography, "__fspath__"):
         try:

@@ -130,8 +130,8 @@ def test_jacobs_convention():
     assert T.h_rms == pytest.approx(1.0, rel=1e-10)
 
 
-@pytest.mark.parametrize("hurst, factor", [(0.3, 1.0), (None, math.sqrt(math.pi) * math.gamma(0.8) / (2 * math.gamma(1.3))),
-                                           (0.8, 1.0)])
+@pytest.mark.parametrize("hurst, factor", [
+    (0.3, 1.0), (0.8, 1.0), (None, math.sqrt(math.pi) * math.gamma(0.8) / (2 * math.gamma(1.3)))])
 def test_profile_psd_conversion(hurst, factor):
     """The 1D PSD of profiles through an isotropic power law (Jacobs et al. 2017: ``C_1D(q_x) = (1/2 pi) int
     dq_y C_iso``, by quad) converted back: exact with the Hurst exponent, the documented factor without it."""
