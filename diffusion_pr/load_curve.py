@@ -61,9 +61,9 @@ def load_curve(spectrum: Any, *, E_star: float, mean_pressures: Any, zeta: float
                p_c_ratio: Optional[float] = None, progress: bool = False, **options: Any) -> LoadCurve:
     """:func:`~diffusion_pr.pressure_distribution` at every load of ``mean_pressures``, with a table of ``a_r``.
 
-    Every load is an independent solve to ``rtol`` (the default 1e-4 is ample for a contact area and makes 50
-    loads of a shell closure take 1-2 s on the Fig. 1 spectrum; a sweep's warm start gained 0.85-1.3x and is not
-    used).
+    Every load is an independent solve to ``rtol`` (the default 1e-4 is ample for a contact area: 50 loads on the
+    Fig. 1 spectrum take 0.14 s at the hard wall, 1.7-2.4 s for a shell closure at zeta = 0.25; starting each solve
+    from the previous one's grid, as :func:`~diffusion_pr.pressure_distributions` does, gained 0.97-1.32x).
 
     Parameters
     ----------
