@@ -244,6 +244,10 @@ class SelfAffineSpectrum(SegmentedSpectrum):
             raise ValueError(f"derived C0 is not a positive finite number ({c0!r}); check {name}={value!r}")
         object.__setattr__(self, "C0", float(c0))
 
+    def __repr__(self) -> str:
+        return (f"SelfAffineSpectrum(hurst={self.hurst!r}, q_min={self.q_min:.6g}, q_max={self.q_max:.6g}, "
+                f"q_roll={self.q_roll:.6g}, C0={self.C0:.6g}, h_rms={self.h_rms:.6g}, rms_slope={self.rms_slope:.6g})")
+
     def _moment_unit(self, n: int) -> float:
         r"""``\int q^n C(q) dq / C0`` over the support, in closed form [rad^(n+1) / length^(n+1)]."""
         m, r, M, H = self.q_min, self.q_roll, self.q_max, self.hurst

@@ -180,3 +180,15 @@ def test_surface_topography_missing(monkeypatch, tmp_path):
         spectrum_from_topography(str(tmp_path / "map.npy"))
     with pytest.raises(ValueError, match="SurfaceTopography topography"):
         spectrum_from_topography(np.eye(4))
+
+
+def test_every_spectrum_reports_h_rms_slope_and_q_range():
+    S = SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
+    q = np.geomspace(S.q_min, S.q_max, 5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ResolutionWarning)
+        spectra = (S, DiscreteSpectrum.on_lattice(S, 64, 1024.0), spectrum_from_psd(q, S.psd(q)))
+    for s in spectra:
+        text = repr(s)
+        assert all(f"{k}={v:.6g}" in text for k, v in (("h_rms", s.h_rms), ("rms_slope", s.rms_slope),
+                                                         ("q_min", s.q_min), ("q_max", s.q_max)))
