@@ -116,14 +116,15 @@ class SeededSurface:
 
 @pytest.fixture
 def seeded_surface() -> Any:
-    """Factory ``seeded_surface(n=64, seed=1, hurst=0.3, rms_slope=0.031, lambda_min=None)``: a
-    :class:`SeededSurface` with ``length = n`` (grid spacings) and roughness from ``n`` down to ``lambda_min``
-    (default ``n/8``), from :func:`gfmd_ref.self_affine_surface` (same seed, same surface)."""
+    """Factory ``seeded_surface(n=64, seed=1, hurst=0.3, rms_slope=0.031, lambda_min=None)`` (the paper's H and
+    slope): a :class:`SeededSurface` with ``length = n`` (grid spacings) and roughness from ``n`` down to
+    ``lambda_min`` (default ``n/8``), from :func:`gfmd_ref.self_affine_surface` (same seed, same surface)."""
     from gfmd_ref import self_affine_surface
 
+    from .paper import HURST, RMS_SLOPE
     from .spectra import DiscreteSpectrum
 
-    def make(n: int = 64, seed: int = 1, hurst: float = 0.3, rms_slope: float = 0.031,
+    def make(n: int = 64, seed: int = 1, hurst: float = HURST, rms_slope: float = RMS_SLOPE,
              lambda_min: Optional[float] = None) -> SeededSurface:
         length = float(n)
         h = self_affine_surface(n, length=length, hurst=hurst, q_min=2 * np.pi / length,
