@@ -168,6 +168,11 @@ def test_surface_topography_file(tmp_path):
     s = spectrum_from_topography(str(path), physical_sizes=(128.0, 96.0))  # npy: not periodic
     ref = spectrum_from_map(h, (128.0, 96.0), periodic=False)
     assert (s.h_rms, s.rms_slope, s.n_modes) == pytest.approx((ref.h_rms, ref.rms_slope, ref.n_modes), rel=1e-12)
+    square = h[:, :96][:96]  # a second format: a plain-text matrix (square: the reader's axis order is moot)
+    np.savetxt(tmp_path / "map.txt", square)
+    s_txt = spectrum_from_topography(str(tmp_path / "map.txt"), physical_sizes=(96.0, 96.0))
+    ref = spectrum_from_map(square, 96.0, periodic=False)
+    assert (s_txt.h_rms, s_txt.rms_slope) == pytest.approx((ref.h_rms, ref.rms_slope), rel=1e-9)
     # its PSD (Jacobs' convention, log bins) against the map's own spectrum: the slope within 5 % (measured -2 %)
     periodic = self_affine_surface(256, length=256.0, hurst=0.3, q_min=2 * np.pi / 256, q_max=2 * np.pi / 8,
                                    rms_slope=0.031, seed=1)
