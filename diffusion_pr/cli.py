@@ -94,7 +94,7 @@ def _parser() -> argparse.ArgumentParser:
                     "doi:10.1103/PhysRevLett.100.055504). Pressures are in the unit of E* (the paper's E'), "
                     "lengths in the unit of the surface's side L (--length-unit, --length).")
     parser.add_argument("--version", action="version", version=f"diffusion-pr {_version()}")
-    sub = parser.add_subparsers(dest="command", metavar="{fig1,theory,make-reference}")
+    sub = parser.add_subparsers(dest="command", metavar="{fig1,theory,make-reference,load-curve}")
 
     fig = sub.add_parser("fig1", help="GFMD against theory on the paper's Fig. 1 scene (the main job)",
                          description="GFMD against the paper's theory on the Fig. 1 scene; all inputs are "
@@ -156,6 +156,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="Gaussian surface or its skewed transform (default: fig1)")
     ref.add_argument("--out", default="reference_out",
                      help="output folder, checked for writability before any work (default: reference_out)")
+    from .load_curve import add_cli
+
+    add_cli(sub, ZETA_UNIT)
     return parser
 
 
@@ -209,7 +212,7 @@ def _theory(args: argparse.Namespace) -> int:
                                 rtol=args.rtol)
     threshold = contact_threshold(args.zeta, args.mean_pressure)
     print(res)
-    print(f"contact area a_r = {1.0 - float(res.cdf(threshold)):.6g} (fraction with p > {threshold:g}: "
+    print(f"contact area a_r = {res.contact_area():.6g} (fraction with p > {threshold:g}: "
           f"{'p > 0 at the hard wall' if threshold == 0 else '0.01 p0 at an exponential wall, as GFMD counts'})")
     if args.out is not None:
         _write_curve(res, args.out)
@@ -237,6 +240,10 @@ def _main(argv: Optional[Sequence[str]] = None) -> int:
             print(f"wrote {kind}: {path}")
         print(f"total {time.perf_counter() - t0:.1f} s")
         return 0
+    if args.command == "load-curve":
+        from .load_curve import run_cli
+
+        return run_cli(args)
     from .jobs.reference_data import generate_reference
 
     generate_reference(zetas=_paper_zetas(args, REFERENCE_WALLS), seeds=args.seeds, n=args.n, tol=args.tol,

@@ -227,7 +227,7 @@ def compare_ensemble(theory: Any, records_or_group: Any, *, p_min: Optional[floa
     var_s = np.array([float(r.variance) for r in recs])
     th_s = np.array([float(r.third_central) for r in recs])
     sd_s = np.sqrt(var_s)
-    sk_s = th_s / np.maximum(sd_s, 1e-300) ** 3
+    sk_s = np.divide(th_s, sd_s**3, out=np.zeros_like(th_s), where=sd_s > 0)  # (a seed or block out of contact: 0)
     m = mean_s.mean()
     var_p = float(np.mean(var_s + (mean_s - m) ** 2))
     th_p = float(np.mean(th_s + 3 * var_s * (mean_s - m) + (mean_s - m) ** 3))

@@ -110,6 +110,8 @@ def test_zeta_unit_is_worded_identically_in_both_clis():
         assert "--length-unit" in acts["zetas"].help and ZETA_UNIT in acts["zetas"].help
     theory = {a.dest: a for a in subs["theory"]._actions}
     assert "--length" in theory["zeta"].help and ZETA_UNIT in theory["length"].help
+    load = {a.dest: a for a in subs["load-curve"]._actions}
+    assert ZETA_UNIT in load["zeta"].help and "--length" in load["zeta"].help
 
 
 def test_grid_zetas_are_converted_to_the_jobs_paper_unit():

@@ -266,8 +266,10 @@ def test_bad_discrete_input():
     h[1, 2] = np.nan
     with pytest.raises(ValueError, match="heights"):
         DiscreteSpectrum.from_heights(h, 8.0)
-    with pytest.raises(ValueError, match="square"):
-        DiscreteSpectrum.from_heights(np.ones((8, 4)), 8.0)
+    with pytest.raises(ValueError, match="nx, ny >= 2"):
+        DiscreteSpectrum.from_heights(np.ones((8, 1)), 8.0)
+    with pytest.raises(ValueError, match="length"):
+        DiscreteSpectrum.from_heights(np.eye(8), (8.0, 1.0, 2.0))
     with pytest.raises(ValueError, match="heights"):
         DiscreteSpectrum.from_heights(np.ones(8), 8.0)
     with pytest.raises(ValueError, match="length"):
