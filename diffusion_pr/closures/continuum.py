@@ -482,7 +482,19 @@ def _rebuilt(sol: Any, scene: tuple, rtol: float, options: dict, *, masses: np.n
 def _continuum(sol: Any, scene: tuple, rtol: float, options: dict, masses: np.ndarray, moments: np.ndarray, *,
                grids: float, residual: float, shell_error: float, n: int, extra_time: float, extra: dict) -> Any:
     """The continuum closure's result: the extrapolated ``masses`` and first ``moments`` on the grid of ``sol``, its
-    estimate the grids' ``grids`` plus the shells' ``residual`` (:func:`_rebuilt`)."""
+    estimate the grids' ``grids`` plus the shells' ``residual`` (:func:`_rebuilt`).
+
+    Where the extrapolation in the number of shells turns a mass negative (a tail cell or the zero weight far from
+    the asymptotic regime, where the table's differences are round-off of masses near 0) the cell keeps the
+    ``n``-shell solve's own mass (>= 0), and the change is added to the residual: the same rule as the engine's
+    Richardson extrapolation in space."""
+    neg = masses < 0.0
+    if neg.any():
+        own = _masses(sol.result)
+        residual += float(np.abs(masses[neg] - own[neg]).sum())
+        masses, moments = masses.copy(), moments.copy()
+        masses[neg] = own[neg]
+        moments[neg[1:]] = (sol.result.p * own[1:])[neg[1:]]
     return _rebuilt(sol, scene, rtol, options, masses=masses, moments=moments, estimate=grids + residual,
                     extra_time=extra_time,
                     extra={"shell_extrapolation": True, "shell_error": shell_error,
