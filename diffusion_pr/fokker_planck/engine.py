@@ -1,7 +1,7 @@
 """The shared finite-volume engine: nested grids, Richardson extrapolation, the one result builder.
 
 Every finite-volume backend goes through :func:`solve_fv`, contributing only its operator (``assemble``
-returning the tridiagonal bands of :mod:`.operator`) and optionally its own time loop.  :mod:`.domain` prepares
+returning the tridiagonal bands of :mod:`.operator`).  :mod:`.domain` prepares
 the problem, :mod:`.stages` integrates one grid; this module owns the three nested grids ``N, 2N, 4N``, the
 Richardson extrapolation with the error estimate ``||R(2N,4N) - R(N,2N)||_1 / 7`` of the reported ``R(2N,4N)``,
 refined until it meets ``rtol``, the non-contact weight (absorbed at ``p = 0``, else the mass below
@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field, replace
-from typing import Callable, Optional, Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -148,20 +148,14 @@ def _pairs(x: np.ndarray) -> np.ndarray:
     return x[0::2] + x[1::2]
 
 
-def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_assemble, n_cells: Optional[int] = None,
-             max_cells: int = MAX_CELLS, p_floor: Optional[float] = None,
-             time_integration: str = "cram16", loop: Optional[Callable] = None,
-             extra: Optional[dict] = None) -> PressureDistribution:
-    """Solve ``problem`` to ``rtol`` on nested grids: the result of :func:`solve_fv_full`."""
-    return solve_fv_full(problem, rtol=rtol, backend=backend, assemble=assemble, n_cells=n_cells,
-                         max_cells=max_cells, p_floor=p_floor, time_integration=time_integration, loop=loop,
-                         extra=extra).result
+def solve_fv(problem, **options) -> PressureDistribution:
+    """Solve ``problem`` to ``rtol`` on nested grids: the result of :func:`solve_fv_full` (same options)."""
+    return solve_fv_full(problem, **options).result
 
 
 def solve_fv_full(problem, *, rtol: float, backend: str, assemble: Assemble = native_assemble,
                   n_cells: Optional[int] = None, max_cells: int = MAX_CELLS, p_floor: Optional[float] = None,
-                  time_integration: str = "cram16", loop: Optional[Callable] = None, extra: Optional[dict] = None,
-                  grid: Optional[GridFamily] = None, plain: Optional[str] = None,
+                  extra: Optional[dict] = None, grid: Optional[GridFamily] = None, plain: Optional[str] = None,
                   warm_start: Optional[WarmStart] = None) -> FVSolution:
     """Solve ``problem`` to ``rtol`` on nested grids (the engine's entry point).
 
@@ -185,10 +179,6 @@ def solve_fv_full(problem, *, rtol: float, backend: str, assemble: Assemble = na
         Cap on the cells of the finest grid.
     p_floor : float, optional
         Floor (pressure) where the wall is not reached; default ``FLOOR * p0``.
-    time_integration : str
-        Label of the integrator stored in the diagnostics.
-    loop : callable, optional
-        ``loop(prep, edges, n_base, refine) -> (y, counters)``: a library's own time loop instead of CRAM.
     extra : dict, optional
         Backend-specific diagnostics added to the common ones.
     grid : GridFamily, optional
@@ -220,7 +210,7 @@ def solve_fv_full(problem, *, rtol: float, backend: str, assemble: Assemble = na
     if warm_start is not None and (n_cells is not None or grid is not None):
         raise ValueError("warm_start and n_cells or grid exclude each other (n_cells and grid fix the grids)")
     options = dict(rtol=rtol, backend=backend, assemble=assemble, n_cells=n_cells, max_cells=int(max_cells),
-                   p_floor=p_floor, time_integration=time_integration, loop=loop, extra=extra, grid=grid,
+                   p_floor=p_floor, extra=extra, grid=grid,
                    plain=plain, warm_start=warm_start, t_start=t_start)
     retried: dict = {}  # diagnostics key -> why the solve was repeated
     lamperti = regrade = True
@@ -242,8 +232,7 @@ def solve_fv_full(problem, *, rtol: float, backend: str, assemble: Assemble = na
 
 
 def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_cells: Optional[int],
-                  max_cells: int, p_floor: Optional[float], time_integration: str, loop: Optional[Callable],
-                  extra: Optional[dict], grid: Optional[GridFamily], plain: Optional[str],
+                  max_cells: int, p_floor: Optional[float], extra: Optional[dict], grid: Optional[GridFamily], plain: Optional[str],
                   warm_start: Optional[WarmStart], lamperti: bool, regrade: bool, t_start: float):
     """One attempt of :func:`solve_fv_full`: an :class:`FVSolution`, or ``(key, why)`` where the solve is to be
     repeated with ``lamperti`` (key ``"domain"``) or ``regrade`` (key ``"regrade"``) off."""
@@ -257,10 +246,10 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
             prep = replace(prep, spec=replace(prep.spec, c_wall=float(warm_start.wall_grading)))
         prep = replace(prep, spec=replace(prep.spec, wall_depth=_wall_depth(prep.spec, float(warm_start.wall_depth))))
     # coefficients constant within each stage: a grid's integration does not depend on its level (reusable)
-    stage_constant = (loop is None and assemble is native_assemble and not prep.time_dependent
+    stage_constant = (assemble is native_assemble and not prep.time_dependent
                       and (prep.balance_per_stage or not prep.has_balance))
     t_prep = time.perf_counter() - t_start
-    integrate = loop if loop is not None else _integrator(assemble, rtol)
+    integrate = _integrator(assemble, rtol)
     cap = max_cells // 4  # the most cells of a coarsest grid (its finest grid has 4x as many)
     if grid is not None:
         n = grid.n_cells
@@ -308,7 +297,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
         if reuse is not None:
             coef3 = _coefficients(prep.pieces, [es[-1]], centre_drift=centre_drift, plans=prep.row_plans)[0]
             ys = [reuse[3], reuse[4], integrate(prep, es[-1], n_base, 4, coef3)]
-        elif loop is None and not prep.time_dependent:  # each coefficient evaluated once for all the grids
+        elif not prep.time_dependent:  # each coefficient evaluated once for all the grids
             coefs = _coefficients(prep.pieces, es, centre_drift=centre_drift, plans=prep.row_plans)
             ys = [integrate(prep, e, n_base, 1 << k, coefs[g]) for g, (k, e) in enumerate(zip(ks, es))]
         else:
@@ -369,8 +358,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
             out_y[neg] = repl
         # where the exact mean is p0, the L1 error is at least |mean - p0| / p_max: a level missing it is refined
         mean_miss = abs(mean_full - prep.p0) if prep.mean_conserved else 0.0
-        if (prep.lamperti_bounded and assemble is native_assemble and loop is None
-                and mean_miss > SAFETY * rtol * prep.p0):
+        if (prep.lamperti_bounded and assemble is native_assemble and mean_miss > SAFETY * rtol * prep.p0):
             # the native operator conserves the mean to round-off: a miss is the domain's top cut
             return "domain", (f"conservative: on the Lamperti-bounded domain (p_max = {out_edges[-1]:.4g}) the mean "
                               f"missed p0 by {mean_miss / prep.p0:.2e} p0")
@@ -417,8 +405,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
             n = int(min(max(math.ceil(n_base * min(need, MAX_GROWTH) * ratio), 16), cap))
             continue
         # the remap only under the native operator (py-pde's on a remapped grid can underestimate its error)
-        remap = assemble is native_assemble and loop is None
-        regraded = _regraded(prep, e1, diff, j1, remap=remap) if (
+        regraded = _regraded(prep, e1, diff, j1, remap=assemble is native_assemble) if (
             regrade and len(history) == 1 and _regradable(prep)) else None
         if regraded is not None:  # the same domain, its cells moved to where the first level's error was
             spec_new, factor = regraded
@@ -458,7 +445,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
                "total": time.perf_counter() - t_start}
     result = build_result(prep, backend=backend, edges=edges, y=y, moments=moments, estimate=est, rtol=rtol,
                           timings=timings, mean_full=mean_full,
-                          extra={"levels": cells, "history": history, "time_integration": time_integration,
+                          extra={"levels": cells, "history": history,
                                  "cram_applications": cnt["cram_applications"], "substeps": cnt["substeps"],
                                  "grids_integrated": grids_integrated,
                                  "cells_needed": cells_needed, "remap_factor": remap_factor,
