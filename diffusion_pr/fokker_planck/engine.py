@@ -29,21 +29,18 @@ __all__ = ["FLOOR", "MAX_CELLS", "RICHARDSON_DIVISOR", "solve_fv", "solve_fv_ful
 
 #: default cap on the cells of the finest grid
 MAX_CELLS = 65536
-#: ||R(2N,4N) - R(N,2N)|| / RICHARDSON_DIVISOR estimates the error of R(2N,4N): 2^p - 1 for order p = 3
-#: (the extrapolated values converge at order 3-4)
+#: ||R(2N,4N) - R(N,2N)|| / RICHARDSON_DIVISOR estimates the error of R(2N,4N): 2^3 - 1 (order 3-4)
 RICHARDSON_DIVISOR = 7.0
 #: the same, 2^2 - 1, for an exit wall (``f ~ p^k``, ``0 < k < 2``) on an ungraded grid family: second order there
 EXIT_RICHARDSON_DIVISOR = 3.0
-#: the grids a solve with ``plain=`` integrates alone, by mode (refinement exponents: 0 the N grid, 1 the 2N grid,
-#: 2 the 4N grid)
+#: the grids (0: N, 1: 2N, 2: 4N) a solve with ``plain=`` integrates alone, by mode
 PLAIN_GRIDS = {"only": (0, 1), "finest": (2,), "coarsest": (0,), "answer": (1,)}
 
 
 @dataclass(frozen=True)
 class GridFamily:
-    """The nested grids of a solve's last level: the family ``spec``, the coarsest grid's knot indices ``knots``
-    (``knots[-1]`` its cells) and the finest grid's ``edges``.  Passed as ``grid=`` to :func:`solve_fv_full`,
-    another problem is solved on the same grids, edge for edge."""
+    """The nested grids of a solve's last level (``grid=`` of :func:`solve_fv_full`): the family ``spec``, the
+    coarsest grid's knot indices ``knots`` (``knots[-1]`` its cells) and the finest grid's ``edges``."""
 
     spec: GridSpec
     knots: tuple
@@ -57,11 +54,9 @@ class GridFamily:
 
 @dataclass(frozen=True)
 class WarmStart:
-    """Where a solve of a neighbouring problem starts (a sweep over the wall range).
-
-    ``n_start``: cells of the first level's coarsest grid.  ``wall_grading``: ``c_wall`` (None: the default) and
-    ``wall_depth`` where the grading ends, as the fraction in [0, 1) of the way from the floor to ``p0`` in
-    ``ln p``; both only where the grading may change."""
+    """Where a solve of a neighbouring problem starts (a sweep over the wall range): ``n_start`` cells of the first
+    level's coarsest grid; ``wall_grading`` (``c_wall``, None: the default) and ``wall_depth`` (the fraction of
+    the way from the floor to ``p0`` in ``ln p`` where the grading ends), where the grading may change."""
 
     n_start: int
     wall_grading: Optional[float] = None
@@ -70,12 +65,10 @@ class WarmStart:
 
 @dataclass(frozen=True)
 class FVSolution:
-    """What :func:`solve_fv_full` returns: the ``result`` and what a caller needs to solve related problems.
-
-    ``grid``: the last level's grids.  ``plain``: with ``plain=``, the plain cell masses ``[z, m...]`` of the N,
-    2N and 4N grids, lumped below the floor (None where not integrated), and ``plain_failure`` why they are no
-    result, or None.  ``cells_needed``: the coarsest cells predicted for ``rtol``; ``next_start``: the
-    :class:`WarmStart` for a neighbouring problem (None where the solve failed or was plain)."""
+    """What :func:`solve_fv_full` returns: the ``result``, the last level's ``grid``, with ``plain=`` the plain cell
+    masses ``[z, m...]`` of the N, 2N and 4N grids lumped below the floor (None where not integrated) and
+    ``plain_failure`` why they are no result; ``cells_needed`` the coarsest cells predicted for ``rtol`` and
+    ``next_start`` the :class:`WarmStart` of a neighbouring problem (None where failed or plain)."""
 
     result: PressureDistribution
     grid: Optional[GridFamily] = None
@@ -120,8 +113,8 @@ FLOOR_GHOSTS = 3
 
 
 def _floor_ghosts(edges: np.ndarray, y: np.ndarray, j: int) -> Optional[tuple]:
-    """``(edges, cumulative)`` of the last :data:`FLOOR_GHOSTS` cells below the floor ``edges[j]`` (cumulative from
-    the floor, negative), so the cdf's spline runs on across the floor; None where fewer cells lie below."""
+    """``(edges, cumulative from the floor)`` of the last :data:`FLOOR_GHOSTS` cells below the floor ``edges[j]``,
+    so the cdf's spline runs on across it; None where fewer cells lie below."""
     if j < FLOOR_GHOSTS:
         return None
     below = y[1 + j - FLOOR_GHOSTS:1 + j]
@@ -138,13 +131,12 @@ def _aggregate(y_fine: np.ndarray) -> np.ndarray:
 
 
 def _extrapolate(fine: np.ndarray, coarse: np.ndarray, ratio: float) -> np.ndarray:
-    """Richardson on a coarse grid: ``(ratio fine - coarse)/(ratio - 1)``, ``fine`` already summed onto the
-    coarse cells; ``ratio`` 4 removes the ``h^2`` term, 16 then the ``h^4`` term."""
+    """Richardson on a coarse grid, ``(ratio fine - coarse)/(ratio - 1)``, ``fine`` summed onto the coarse cells."""
     return (ratio * fine - coarse) / (ratio - 1.0)
 
 
 def _pairs(x: np.ndarray) -> np.ndarray:
-    """Sum per-cell quantities without a zero-weight entry (moments) over each coarse cell's two halves."""
+    """Per-cell quantities without a zero-weight entry (moments) summed over each coarse cell's two halves."""
     return x[0::2] + x[1::2]
 
 
@@ -159,35 +151,33 @@ def solve_fv_full(problem, *, rtol: float, backend: str, assemble: Assemble = na
                   warm_start: Optional[WarmStart] = None) -> FVSolution:
     """Solve ``problem`` to ``rtol`` on nested grids (the engine's entry point).
 
-    Where the Lamperti-bounded domain proves too short (tail mass or mean miss above tolerance, or a failed
-    refinement), the solve is repeated once on the conservative domain (``diagnostics["domain"]``); where the
-    regraded grid family diverges, once on the first level's family (``diagnostics["regrade"]``).
+    Repeated once on the conservative domain where the Lamperti-bounded one proves too short
+    (``diagnostics["domain"]``), once on the first level's grid family where the regraded one diverges
+    (``diagnostics["regrade"]``).
 
     Parameters
     ----------
     problem : FokkerPlanckProblem or StagedProblem
     rtol : float
-        Target L1 error (already validated by the caller, in [1e-14, 1)).
+        Target L1 error (validated by the caller, in [1e-14, 1)).
     backend : str
         Name stored in the result.
     assemble : callable
-        ``assemble(edges, f_centres, a_faces, a_centres) -> (lower, diag, upper)``: the
-        backend's operator on the state ``[z, m_0..m_{n-1}]``.
+        ``assemble(edges, f_centres, a_faces, a_centres) -> (lower, diag, upper)``: the backend's operator on
+        the state ``[z, m_0..m_{n-1}]``.
     n_cells : int, optional
-        Cells of the coarsest grid (fixed: no refinement).  Default: chosen from ``rtol`` and refined.
+        Cells of the coarsest grid, fixed (no refinement); default chosen from ``rtol`` and refined.
     max_cells : int
         Cap on the cells of the finest grid.
     p_floor : float, optional
         Floor (pressure) where the wall is not reached; default ``FLOOR * p0``.
     extra : dict, optional
-        Backend-specific diagnostics added to the common ones.
+        Backend-specific diagnostics.
     grid : GridFamily, optional
-        Solve on these grids (a previous solution's ``grid``: its family, domain, grading and depth), edge for
-        edge, without refinement (its coarsest grid's cells are ``n_cells``).
+        Solve on a previous solution's grids, edge for edge, without refinement.
     plain : {"keep", "only", "finest", "coarsest", "answer"}, optional
-        ``"keep"``: also return the plain cell masses of the last level's three grids (``FVSolution.plain``).
-        The others (with ``grid``) integrate only the grids :data:`PLAIN_GRIDS` names, without Richardson or
-        estimate; the result is then failed by construction.
+        ``"keep"``: also return the last level's plain cell masses (``FVSolution.plain``); the others (with
+        ``grid``) integrate only the grids :data:`PLAIN_GRIDS` names, and the result is failed by construction.
     warm_start : WarmStart, optional
         Where the refinement starts (a neighbouring problem's ``next_start``).
 
@@ -474,9 +464,9 @@ UNSTABLE_L1 = 2.0
 
 
 def _unstable_grid(es: Sequence[np.ndarray], ys: Sequence[tuple]) -> Optional[str]:
-    """Why a level's integration is no result, or None: a grid's state ``ys[i]`` (on ``es[i]``) not finite, or its
-    absolute sum above :data:`UNSTABLE_L1`.  A central-flux drift dominating the diffusion (cell Peclet number
-    above 2) gives complex eigenvalues, which the rational approximation can amplify."""
+    """Why a level's integration is no result, or None: a grid's state not finite or its absolute sum above
+    :data:`UNSTABLE_L1` (a central-flux drift dominating the diffusion gives complex eigenvalues, which the
+    rational approximation can amplify)."""
     for edges, (y, _) in zip(es, ys):
         total = float(np.abs(y).sum())
         if not math.isfinite(total) or total > UNSTABLE_L1:
@@ -494,8 +484,8 @@ def _cells_below_floor(prep: Prepared, edges: np.ndarray) -> int:
 def _plain_solution(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple], idx: np.ndarray,
                     ks: Sequence[int], finest: np.ndarray, *, backend: str, rtol: float, t_start: float,
                     t_prep: float) -> FVSolution:
-    """The :class:`FVSolution` of a plain solve: the grids' own masses (``ks`` their refinement exponents), lumped
-    below the floor; the result is the finest integrated grid's, failed by construction."""
+    """The :class:`FVSolution` of a plain solve: the grids' own masses lumped below the floor (``ks`` their
+    refinement exponents); the result is the finest integrated grid's, failed by construction."""
     j1 = _cells_below_floor(prep, es[0][::1 << ks[0]])  # the N grid's (every 2^k-th edge) cells below the floor
     broken = [cc["balance_failure"] for _, cc in ys if "balance_failure" in cc]
     unstable = _unstable_grid(es, ys)
