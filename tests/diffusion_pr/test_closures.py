@@ -252,9 +252,9 @@ def test_rows_are_the_model_formulas(fig1):
         "b": (kq_part / (pp + kq_part)) * pp / ((pp + kz * q) * (pp + kz * q)),
         "w": kq_part * pp / (pp + kq_part),
     }
-    f = LocalResponseDiffusivity.rows(tuple(LocalResponseDiffusivity(float(x), kz) for x in sh.q), p)
-    b = LoadExcessDrift.rows(tuple(LoadExcessDrift(float(x), float(sh.q_min), kz) for x in sh.q), p)
-    w = RigidApproachBalance.rows(tuple(RigidApproachBalance(float(sh.q_min), kz) for _ in sh.q), p)
+    f = np.array([LocalResponseDiffusivity(float(x), kz)(p) for x in sh.q])
+    b = np.array([LoadExcessDrift(float(x), float(sh.q_min), kz)(p) for x in sh.q])
+    w = np.array([RigidApproachBalance(float(sh.q_min), kz)(p) for _ in sh.q])
     for got, key in ((f, "f"), (b, "b"), (w, "w")):
         assert got.shape == expect[key].shape
         np.testing.assert_array_equal(got, expect[key])  # NaN in the same places, every other value bit for bit
