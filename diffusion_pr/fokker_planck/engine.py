@@ -68,7 +68,8 @@ class FVSolution:
     """What :func:`solve_fv_full` returns: the ``result``, the last level's ``grid``, with ``plain=`` the plain cell
     masses ``[z, m...]`` of the N, 2N and 4N grids lumped below the floor (None where not integrated) and
     ``plain_failure`` why they are no result; ``cells_needed`` the coarsest cells predicted for ``rtol`` and
-    ``next_start`` the :class:`WarmStart` of a neighbouring problem (None where failed or plain)."""
+    ``next_start`` the :class:`WarmStart` of a neighbouring problem (None where failed or plain); ``prep`` the
+    problem as prepared on ``grid`` (results on the same grid are built from it)."""
 
     result: PressureDistribution
     grid: Optional[GridFamily] = None
@@ -76,6 +77,7 @@ class FVSolution:
     plain_failure: Optional[str] = None
     cells_needed: Optional[int] = None
     next_start: Optional[WarmStart] = None
+    prep: Optional[Prepared] = field(default=None, repr=False, compare=False)
 
 #: refinement stops when the estimate is below SAFETY * rtol (margin for the estimate's own error)
 SAFETY = 0.5
@@ -456,7 +458,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
         next_start = WarmStart(n_start=start, wall_grading=grading_needed if grading_needed > 0.0 else None,
                                wall_depth=depth_needed if grading_needed > 0.0 and depth_needed > 0.0 else 0.0)
     return FVSolution(result=result, grid=best_grid, plain=best_plain, cells_needed=cells_needed,
-                      next_start=next_start)
+                      next_start=next_start, prep=prep)
 
 
 #: a grid whose states sum in absolute value to more than this is unstable (docs/backends.md "An unstable grid")
@@ -501,7 +503,7 @@ def _plain_solution(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple
                           rtol=rtol, timings=timings, failure="plain masses only (no extrapolation, no estimate)",
                           extra={"levels": [int(idx[-1]) << k for k in ks], "grid": (prep.spec, tuple(idx.tolist()))})
     return FVSolution(result=result, grid=GridFamily(prep.spec, tuple(idx.tolist()), finest), plain=tuple(plain),
-                      plain_failure=broken[0] if broken else None)
+                      plain_failure=broken[0] if broken else None, prep=prep)
 
 
 def build_result(prep: Prepared, *, backend: str, edges: np.ndarray, y: np.ndarray, estimate: float, rtol: float,
