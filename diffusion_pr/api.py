@@ -121,8 +121,7 @@ def solve_problem(problem: Any, *, backend: str = "auto", rtol: float = 1e-6,
     rtol : float
         Target L1 error of ``Pr`` (dimensionless), in [1e-14, 1).
     **options
-        The backend's own options (e.g. ``n_cells``, ``max_cells``, ``p_floor``; ``method="cram"|"loop"`` for
-        py-pde and FiPy); an unknown name is an error.
+        The backend's own options (e.g. ``n_cells``, ``max_cells``, ``p_floor``); an unknown name is an error.
 
     Raises
     ------
