@@ -151,7 +151,7 @@ def solve_problem(problem: Any, *, backend: str = "auto", rtol: float = 1e-6,
         Target L1 error of ``Pr`` (dimensionless), in [1e-14, 1).
     **options
         The backend's own options (e.g. ``n_cells`` <= ``max_cells/4``, ``max_cells`` <= 2^22, ``p_floor`` where
-        the wall is not reached; ``method="cram"|"loop"`` for py-pde and FiPy); an unknown name is an error.
+        the wall is not reached); an unknown name is an error.
 
     Raises
     ------

@@ -58,12 +58,9 @@ def solve_full(problem: Any, backend: str, rtol: float, options: dict, **engine:
 
 
 def _shell_residual(m_n: np.ndarray, m_h: np.ndarray, m_q: np.ndarray) -> tuple:
-    """``(estimate, rho, difference)``: the L1 error of ``R(n/2, n) = (4 m(n) - m(n/2))/3`` from the masses of
-    ``n``, ``n/2``, ``n/4`` shells, the observed ratio ``rho = |m(n/2) - m(n/4)| / |m(n) - m(n/2)|`` and
-    ``|R(n/2, n) - R(n/4, n/2)|``.
-
-    With an error ``a n^-p``, ``R(n/2, n) - R(n/4, n/2)`` is the error of ``R(n/2, n)`` times ``1 - 2^p``: the
-    estimate is that difference over ``rho - 1``; over 15 (fourth order) where ``rho >= SHELL_ORDER_RATIO``."""
+    """``(estimate, rho, difference)`` from the masses of ``n``, ``n/2``, ``n/4`` shells: the L1 error of ``R(n/2, n)
+    = (4 m(n) - m(n/2))/3``, the ratio ``rho = |m(n/2) - m(n/4)| / |m(n) - m(n/2)|`` and ``|R(n/2, n) - R(n/4,
+    n/2)|``; the estimate is that difference over ``rho - 1``, over 15 where ``rho >= SHELL_ORDER_RATIO``."""
     d_top = float(np.sum(np.abs(m_n - m_h)))
     d_half = float(np.sum(np.abs(m_h - m_q)))
     rho = d_half / d_top if d_top > 0.0 else math.inf
@@ -310,7 +307,6 @@ def _shell_corrected(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
 
 
 def _l1(x: np.ndarray) -> float:
-    """The L1 norm of masses ``[zero weight, cells]``."""
     return float(np.sum(np.abs(x)))
 
 
@@ -464,12 +460,9 @@ def _rebuilt(sol: Any, scene: tuple, rtol: float, options: dict, *, masses: np.n
     """A result on the grid of ``sol`` from the engine's builder
     (:func:`~diffusion_pr.fokker_planck.engine.build_result`): masses ``[zero weight, cells]``, first ``moments``,
     L1 ``estimate``, ``failure`` reason or None, ``extra`` diagnostics."""
-    from ..fokker_planck.domain import prepare
     from ..fokker_planck.engine import build_result
 
-    res = sol.result
-    problem, _ = shell_problem(scene, int(res.diagnostics["n_shells"]))
-    prep = prepare(problem, rtol=rtol, p_floor=options.get("p_floor"), on_grid=sol.grid.spec)
+    res, prep = sol.result, sol.prep
     timings = {**res.diagnostics["timings"], "shells": extra_time}
     timings["total"] = res.wall_time + extra_time
     kept = {k: v for k, v in res.diagnostics.items() if k != "floor_ghosts"}  # (the n-shell solve's floor masses)
@@ -482,7 +475,19 @@ def _rebuilt(sol: Any, scene: tuple, rtol: float, options: dict, *, masses: np.n
 def _continuum(sol: Any, scene: tuple, rtol: float, options: dict, masses: np.ndarray, moments: np.ndarray, *,
                grids: float, residual: float, shell_error: float, n: int, extra_time: float, extra: dict) -> Any:
     """The continuum closure's result: the extrapolated ``masses`` and first ``moments`` on the grid of ``sol``, its
-    estimate the grids' ``grids`` plus the shells' ``residual`` (:func:`_rebuilt`)."""
+    estimate the grids' ``grids`` plus the shells' ``residual`` (:func:`_rebuilt`).
+
+    Where the extrapolation in the number of shells turns a mass negative (a tail cell or the zero weight far from
+    the asymptotic regime, where the table's differences are round-off of masses near 0) the cell keeps the
+    ``n``-shell solve's own mass (>= 0), and the change is added to the residual: the same rule as the engine's
+    Richardson extrapolation in space."""
+    neg = masses < 0.0
+    if neg.any():
+        own = _masses(sol.result)
+        residual += float(np.abs(masses[neg] - own[neg]).sum())
+        masses, moments = masses.copy(), moments.copy()
+        masses[neg] = own[neg]
+        moments[neg[1:]] = (sol.result.p * own[1:])[neg[1:]]
     return _rebuilt(sol, scene, rtol, options, masses=masses, moments=moments, estimate=grids + residual,
                     extra_time=extra_time,
                     extra={"shell_extrapolation": True, "shell_error": shell_error,

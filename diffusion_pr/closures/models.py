@@ -82,7 +82,12 @@ class _ShellModel:
         p = np.asarray(p, dtype=float)
         if self.kz == 0.0:
             return np.full_like(p, self._HARD_WALL)
-        return type(self).rows((self,), p.reshape(-1))[0].reshape(p.shape)
+        from ._kernels import model_rows
+
+        plan = type(self).row_plan((self,))
+        out = np.empty((1, p.size))
+        model_rows(plan.kq, plan.kq_part, np.ascontiguousarray(p).reshape(-1), plan.model, out)
+        return out[0].reshape(p.shape)
 
     @classmethod
     def row_plan(cls, items: tuple) -> Optional[_RowPlan]:
@@ -91,19 +96,6 @@ class _ShellModel:
         if kz is None:
             return None
         return _RowPlan(_products(kz, items, cls._PRODUCTS[0]), _products(kz, items, cls._PRODUCTS[1]), cls._MODEL)
-
-    @classmethod
-    def rows(cls, items: tuple, p: np.ndarray) -> np.ndarray:
-        """``[m(p) for m in items]`` as a 2-D array in one vectorized pass (same values as calling each)."""
-        plan = cls.row_plan(items)
-        if plan is None:
-            return np.array([it(p) for it in items])
-        from ._kernels import model_rows
-
-        p = np.ascontiguousarray(p, dtype=float).reshape(-1)
-        out = np.empty((len(plan), p.size))
-        model_rows(plan.kq, plan.kq_part, p, plan.model, out)  # (a plan's call says None where one is not finite)
-        return out
 
 
 class _LoadModel(_ShellModel):

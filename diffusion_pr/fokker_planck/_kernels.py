@@ -1,28 +1,11 @@
-"""Numba kernels of the engine's staged integration (CRAM-16 and the balance substeps).
+"""Numba kernels of the engine's staged integration: every stage of one grid in one compiled call.
 
-A staged problem (a closure: about a hundred shells, each one or more
-exponentials, a balance multiplier per substep) makes hundreds of small
-CRAM applications per grid; through LAPACK from Python each costs ~3x its
-arithmetic in call overhead and copies.  These kernels do the same arithmetic
-in one compiled call per grid:
-
-* :func:`~._pfd.cram_pfd` -- ``exp(t L) y`` in partial fractions (:mod:`._pfd`);
-* :func:`gttrf` / :func:`gttrs` -- the complex tridiagonal LU with partial
-  pivoting, row for row LAPACK's ``zgttrf`` / ``zgttrs``, keeping the reciprocal
-  pivots so that a second solve with the same matrix (the derivative of
-  :func:`cram_apply_d`) costs no division;
-* :func:`cram_apply` -- ``exp(t L) y`` in the incomplete partial factorization
-  form of :mod:`.cram` (same coefficients, same order of operations);
-* :func:`balanced_stage` -- the balance substeps of
-  :func:`~diffusion_pr.fokker_planck.engine.solve_on_grid`;
-* :func:`staged_run` / :func:`staged_run_rows` -- every stage of one grid in one
-  call (the bands of all stages as rows of 2-D arrays, or made stage by stage
-  from the coefficient rows).
-
-Plain ``numba.njit(cache=True)``, no fastmath (the results agree with the LAPACK
-path to round-off; ``tests/diffusion_pr/test_fv_kernels.py``), numba's numpy error
-model (IEEE division: no ZeroDivisionError branch per division).  Imported lazily
-by the engine: a single-stage problem never loads numba.
+A closure makes hundreds of small CRAM applications per grid (about a hundred shells, a balance multiplier per
+substep); through LAPACK from Python each costs about 3x its arithmetic in call overhead.  Here: CRAM-16 in
+partial fractions (:func:`~._pfd.cram_pfd`) or in the IPF form (:func:`cram_apply`: below ``PFD_MIN_RTOL``, and
+where the partial fractions' elimination would interchange rows) on LAPACK's tridiagonal LU (:func:`gttrf` / :func:`gttrs`), the balance substeps (:func:`balanced_stage`) and the
+stage loop (:func:`staged_run` / :func:`staged_run_rows`).  Plain ``njit(cache=True)``, no fastmath, numba's
+numpy error model; the results agree with the LAPACK path to round-off (``tests/diffusion_pr/test_fv_kernels.py``).
 """
 from __future__ import annotations
 
@@ -46,13 +29,10 @@ def cram_apply(lower, diag, upper, t, y, alpha, theta, alpha0):  # pragma: no co
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def gttrf(dl, d, du, du2, ipiv):  # pragma: no cover - numba
-    """LU factorization with partial pivoting of the tridiagonal ``(dl, d, du)``, in place; LAPACK ``zgttrf``.
+    """LU factorization of the tridiagonal ``(dl, d, du)`` in place, LAPACK ``zgttrf``'s pivoting row for row.
 
-    The pivoting of LAPACK ``zgttrf`` row for row; on return ``dl`` holds the
-    multipliers, ``du``, ``du2`` the superdiagonals of ``U`` (``du2`` made by
-    interchanges), ``ipiv[i]`` the row interchanged with row ``i`` (``i`` or
-    ``i + 1``, 0-based) and ``d`` the *reciprocals* of ``U``'s diagonal (one
-    division per row, shared by every solve of :func:`gttrs`).
+    On return ``dl`` holds the multipliers, ``du``, ``du2`` the superdiagonals of ``U``, ``ipiv[i]`` the row
+    interchanged with row ``i`` and ``d`` the *reciprocals* of ``U``'s diagonal (shared by every :func:`gttrs`).
     Returns ``info``: 0, or the 1-based index of a zero pivot.
     """
     n = d.size
@@ -107,15 +87,9 @@ def gttrs(dl, d, du, du2, ipiv, b):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def cram_apply_d(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0):  # pragma: no cover - numba
-    """``exp(t (L - A W)) y`` (CRAM-16, IPF form, as :func:`cram_apply`) and its derivative in ``A``.
-
-    The bands ``(lower, diag, upper)`` are ``L - A W`` at the current ``A``. With
-    ``M_j = t (L - A W) - theta_j`` the IPF step is ``x <- x + 2 Re(alpha_j M_j^-1 x)``;
-    since ``dM_j/dA = -t W`` its derivative is
-    ``dx <- dx + 2 Re(alpha_j M_j^-1 (dx + t W M_j^-1 x))``: one factorization
-    (:func:`gttrf`) and two solves per pole, the exact derivative of the
-    computed map.  Returns ``(x, dx, info)``.
-    """
+    """``exp(t (L - A W)) y`` (IPF form, the bands given at the current ``A``) and its exact derivative in ``A``:
+    with ``M_j = t (L - A W) - theta_j``, ``dx <- dx + 2 Re(alpha_j M_j^-1 (dx + t W M_j^-1 x))``, one factorization
+    and two solves per pole.  Returns ``(x, dx, info)``."""
     return _ipf(lower, diag, upper, wl, wd, wu, t, y, alpha, theta, alpha0, True)
 
 
@@ -200,14 +174,9 @@ def _fitted_weight(shift, f_min):  # pragma: no cover - numba
 @njit(cache=True, nogil=True, error_model="numpy")
 def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusion, fitted, reached,
               lower, diag, upper):  # pragma: no cover - numba
-    """One operator's bands (:func:`.operator.bands`'s formula) into ``lower, diag, upper`` (overwritten).
-
-    ``reached``: the wall is ``p = 0`` (a drift away from it carries back what diffusion takes out, at most:
-    :func:`.operator.wall_drift`); else the domain's bottom, which absorbs.
-
-    ``fitted``: the drift takes the upwinding weight of :func:`.operator.fitted_weight` (``f_row`` its
-    diffusivity), as ``operator.bands(..., fitted=True)``; else the central value.
-    """
+    """One operator's bands, :func:`.operator.bands`'s formula, into ``lower, diag, upper`` (overwritten).
+    ``reached``: the wall is ``p = 0`` (:func:`.operator.wall_drift`), else an absorbing bottom; ``fitted``: the
+    drift takes :func:`.operator.fitted_weight`."""
     n = h.size
     for i in range(n):
         lower[i] = 0.0
@@ -253,8 +222,6 @@ def _fill_row(h, k_int, wall, half_inv_h, f_row, a_row, with_drift, with_diffusi
             upper[0] -= back
 
 
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def _matvec(lower, diag, upper, y, out):  # pragma: no cover - numba
     n = diag.size
@@ -285,9 +252,12 @@ def _dot(a, b):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _expm(lo, di, up, wl, wd, wu, t, y, pfd, want_d, alpha, theta, alpha0, c):  # pragma: no cover - numba
-    """One CRAM application, partial fractions (``pfd``) or IPF, with its ``A``-derivative if ``want_d``."""
+    """One CRAM application with its ``A``-derivative if ``want_d``: partial fractions (``pfd``) where their
+    elimination needs no row interchange, else the IPF form (pivoting, round-off 1e-15 against 1e-13)."""
     if pfd:
-        return cram_pfd(lo, di, up, wl, wd, wu, t, y, c, theta, alpha0, want_d)
+        x, dx, done = cram_pfd(lo, di, up, wl, wd, wu, t, y, c, theta, alpha0, want_d)
+        if done:
+            return x, dx, 0
     if want_d:
         return cram_apply_d(lo, di, up, wl, wd, wu, t, y, alpha, theta, alpha0)
     x, info = cram_apply(lo, di, up, t, y, alpha, theta, alpha0)
@@ -302,22 +272,19 @@ def _expm_at(lower, diag, upper, wl, wd, wu, A, lo, di, up, dt, y, pfd, want_d, 
     return _expm(lo, di, up, wl, wd, wu, dt, y, pfd, want_d, alpha, theta, alpha0, c)
 
 
-#: entries of the predictor state carried from substep to substep (:func:`balanced_stage`): the number of
-#: stored ratios, the last three ratios (newest first), the ratio of the mean's slope in ``A`` to its
-#: linearization ``-dt <c, Lw u>``, and the fourth-last ratio
+#: the predictor state of :func:`balanced_stage`: the number of stored ratios, the last three ratios ``A/A_mid``
+#: (newest first), the ratio of the mean's slope in ``A`` to its linearization, and the fourth-last ratio
 PREDICTOR_SIZE = 6
-#: a substep's ratio ``A / A_midpoint`` outside (1/RATIO_RANGE, RATIO_RANGE) restarts the ratio history
+#: a ratio ``A / A_mid`` outside (1/RATIO_RANGE, RATIO_RANGE) restarts the ratio history
 RATIO_RANGE = 4.0
-#: a predicted ``A`` whose mean misses ``p0`` by more than BAD_PREDICTION ``p0`` is not a start for Newton: the
-#: start state's own balance ``A0`` is tried too (the explicit midpoint can be meaningless on a substep much
-#: wider than the distribution, e.g. the first shell of a steep spectrum at ``p0`` far below its spread)
+#: a predicted ``A`` whose mean misses ``p0`` by more than BAD_PREDICTION ``p0``: the start state's own balance
+#: ``A0`` is tried too (the explicit midpoint is meaningless on a substep much wider than the distribution)
 BAD_PREDICTION = 0.5
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _predicted_ratio(hist):  # pragma: no cover - numba
-    """The next ratio ``A / A_midpoint``: the last four extrapolated by a cubic (fewer: a parabola, a line, a
-    constant); on the Fig. 1 closures the cubic misses the root 5-60x less than a parabola."""
+    """The next ratio ``A / A_mid``: the last four extrapolated by a cubic (fewer: a parabola, a line, a constant)."""
     k = int(hist[0])
     if k >= 4:
         r = 4.0 * hist[1] - 6.0 * hist[2] + 4.0 * hist[3] - hist[5]
@@ -349,48 +316,23 @@ def _push_ratio(hist, r):  # pragma: no cover - numba
 @njit(cache=True, nogil=True, error_model="numpy")
 def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol, lin_tol, max_iter, hist,
                    pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
-    """``m`` balance substeps of length ``dt`` on ``dy/dtau = (L0 - A Lw) y``, one ``A`` per substep.
+    """``m`` balance substeps of length ``dt`` on ``dy/dtau = (L0 - A Lw) y``, one ``A`` per substep, each ending
+    with the mean within ``mean_tol p0`` of ``p0``.
 
-    Per substep, ``A`` is predicted and tried with one plain CRAM application:
+    ``A`` is predicted from the balance ``<c, (L0 - A Lw) u> = 0`` at the explicit midpoint ``u`` (``A_mid``) times
+    the ratio ``A/A_mid`` of the last four substeps extrapolated by a cubic, less the start's own miss of the mean
+    over the carried slope ``d<c, y_end>/dA``, and tried with one plain CRAM application.  A miss below
+    ``lin_tol p0`` takes one secant step with the carried slope; larger misses take Newton steps with the exact
+    derivative of the CRAM map (regula falsi where a step leaves the root's bracket), the last one to first order
+    on the state (``y <- y + dA dy/dA``) once the miss is below ``lin_tol p0``.  Far from the root (a miss above
+    :data:`BAD_PREDICTION` ``p0``, where the computed mean saturates at 0 or at the domain's top) the start
+    state's balance ``A0`` is tried too, and Newton runs on ``ln(<p>/p0)`` with steps of at most
+    ``max(|A|, |A0|, 1)`` and bisection.  ``hist`` (:data:`PREDICTOR_SIZE` floats) is the predictor state, carried
+    over substeps and stages.
 
-    * ``A_mid`` from ``<c, (L0 - A Lw) u> = 0`` at the midpoint state
-      ``u = y + dt/2 (L0 - A0 Lw) y`` (``A0`` the same condition at ``y``), times
-      the ratio ``A/A_mid`` of the last four substeps extrapolated by a cubic
-      (it varies smoothly from shell to shell), minus ``(<c, y> - p0)/s``: the
-      start's own miss of the mean, removed with the slope ``s = d<c, y_end>/dA``
-      predicted as its linearization ``-dt <c, Lw u>`` times their ratio at the last
-      substep where the slope was measured (the ratio varies slowly; the slope
-      itself changed 5x over the shells at zeta = 4, and a stale slope made the
-      ratio history oscillate and grow).
-    * Where the mean then misses ``p0`` by more than ``mean_tol p0`` but less than
-      ``lin_tol p0``: one secant step on ``A`` with the carried slope (a second
-      plain application; its two points measure the slope afresh).
-    * Where it still misses (or no slope is known yet): Newton on ``A`` with the
-      exact derivative of the CRAM map (:func:`cram_apply_d`; regula falsi where
-      a step leaves the bracket of the root); once the miss is below
-      ``lin_tol p0`` the last step is taken on the state to first order,
-      ``y <- y + dA dy/dA`` (mean exact, state error ``O(dA^2)``, about
-      ``(lin_tol)^2``) instead of another application.
-
-    * A prediction that misses by more than ``BAD_PREDICTION p0`` (the explicit
-      midpoint is meaningless on a substep much wider than the distribution: the
-      first shell of a steep spectrum at ``p0`` far below its spread) is compared
-      with the start state's balance ``A0``, and the search goes on from the better
-      one.  Wherever the miss is that large (at the start or after a step): Newton
-      on ``ln(<p>/p0)`` (far from the root the computed mean saturates, at 0 and at
-      the top of the domain, and Newton on the mean jumps from one saturation into
-      the other), steps at most ``max(|A|, |A0|, 1)``, and bisection where a step
-      leaves the bracket.
-
-    Every substep ends with the mean within ``mean_tol p0`` of ``p0``; how it got
-    there (prediction, secant, Newton) changes the state only within that
-    tolerance.  ``hist`` (:data:`PREDICTOR_SIZE` floats, zeros at the start) is
-    the predictor state, updated in place and carried over substeps and stages.
-
-    Returns ``(y, n_cram, n_newton, info, residual)``: ``info`` 0, or ``> 0`` a
-    singular shifted system, or ``-1`` the mean still missing after ``max_iter``
-    corrections (``residual`` the relative miss; ``y`` not advanced past that
-    substep).  ``n_newton`` counts the corrections (secant and Newton steps).
+    Returns ``(y, n_cram, n_newton, info, residual)``: ``info`` 0, ``> 0`` a singular shifted system, or ``-1`` the
+    mean still missing after ``max_iter`` corrections (``residual`` the relative miss, ``y`` not advanced past that
+    substep); ``n_newton`` counts the secant and Newton steps.
     """
     n = diag.size
     l0y = np.empty(n)
@@ -467,12 +409,7 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
                         return y, n_cram, n_newton, info, 0.0
                     have_d = True
                 slope = _dot(cvec, dtrial)
-                if abs(err) > BAD_PREDICTION * p0:
-                    # far from the root: Newton on ln(<p>/p0) (the computed mean saturates there, at 0 where the
-                    # inward drift wins and at the top of the domain where the outward one does, and Newton on the
-                    # mean jumps from one saturation into the other), steps of at most max(|A|, |A0|, 1), and
-                    # bisection where a step leaves the bracket (regula falsi between two saturated ends creeps
-                    # from one of them: 26 steps in a stress scene)
+                if abs(err) > BAD_PREDICTION * p0:  # far from the root: Newton on ln(<p>/p0), bounded, bisection
                     radius = max(abs(A), abs(a_0), 1.0)
                     if slope < 0.0 and err + p0 > 0.0:
                         step = -math.log((err + p0) / p0) * (err + p0) / slope
@@ -521,17 +458,12 @@ def balanced_stage(lower, diag, upper, wl, wd, wu, cvec, y, dt, m, p0, mean_tol,
 @njit(cache=True, nogil=True, error_model="numpy")
 def staged_run(lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, mean_tol, lin_tol, max_iter,
                pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
-    """All stages of one grid in one call: row ``k`` of the band arrays is stage ``k``'s operator.
-
-    Stage ``k`` applies ``reps[k]`` steps of length ``dt[k]``: plain exponentials
-    ``exp(dt L_k)``, or (``balanced[k]``) balance substeps of :func:`balanced_stage`
-    with the balance operator in row ``k`` of ``wl, wd, wu``.
-
-    Returns ``(y, n_cram, n_newton, info, stage, residual)``; on ``info != 0``
-    ``stage`` is the failing stage and ``y`` the state before it.
+    """All stages of one grid in one call, row ``k`` of the band arrays stage ``k``'s operator: ``reps[k]`` steps
+    of ``dt[k]``, plain exponentials or (``balanced[k]``) :func:`balanced_stage` with the balance bands in row
+    ``k`` of ``wl, wd, wu``.  Returns ``(y, n_cram, n_newton, info, stage, residual)``; on ``info != 0`` ``stage``
+    is the failing stage and ``y`` the state before it.
     """
-    empty = np.zeros((1, 1))
-    # bands given: no drift weight is chosen here (the ``fitted`` argument, ``balanced`` in its place, is not read)
+    empty = np.zeros((1, 1))  # (bands given: the ``fitted`` argument, ``balanced`` in its place, is not read)
     return _run(lower, diag, upper, wl, wd, wu, empty[0], empty, empty, empty, False, balanced, balanced, dt, reps,
                 cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c)
 
@@ -539,12 +471,8 @@ def staged_run(lower, diag, upper, wl, wd, wu, balanced, dt, reps, cvec, y, p0, 
 @njit(cache=True, nogil=True, error_model="numpy")
 def staged_run_rows(edges, f_rows, b_rows, w_rows, any_b, balanced, fitted, dt, reps, cvec, y, p0, mean_tol,
                     lin_tol, max_iter, pfd, alpha, theta, alpha0, c):  # pragma: no cover - numba
-    """:func:`staged_run` for the native operator, its bands made stage by stage from the coefficient rows.
-
-    ``f_rows`` (centres), ``b_rows`` and ``w_rows`` (faces) hold every stage's
-    diffusivity, drift and balance; no band array of all stages is formed.
-    ``fitted[k]``: stage ``k``'s drift takes its upwinding weight (:func:`_fill_row`).
-    """
+    """:func:`staged_run` for the native operator, each stage's bands made from the rows ``f_rows`` (centres),
+    ``b_rows`` and ``w_rows`` (faces); ``fitted[k]``: stage ``k``'s drift takes its upwinding weight."""
     empty = np.zeros((1, 1))
     return _run(empty, empty, empty, empty, empty, empty, edges, f_rows, b_rows, w_rows, any_b, balanced, fitted, dt,
                 reps, cvec, y, p0, mean_tol, lin_tol, max_iter, pfd, alpha, theta, alpha0, c)

@@ -150,22 +150,12 @@ def _check_f(f: Callable, p: np.ndarray, name: str) -> np.ndarray:
 
 def _rows(funcs: Sequence, p: np.ndarray, name: str, out: Optional[np.ndarray] = None,
           plan: Optional[Callable] = None) -> np.ndarray:
-    """``[g(p) for g in funcs]`` as rows, checked like :func:`_check_f`.
-
-    ``plan`` (:func:`row_plans`) is tried first, then a type's ``rows(items, p)`` (one vectorized pass).
-    """
+    """``[g(p) for g in funcs]`` as rows, checked like :func:`_check_f`; ``plan`` (:func:`row_plans`, one compiled
+    pass, None where a value is not finite) first."""
     if plan is not None:
         block = plan(p, out)
         if block is not None:
             return block
-    kinds = {type(g) for g in funcs}
-    if len(kinds) == 1 and callable(getattr(next(iter(kinds)), "rows", None)):
-        block = np.asarray(next(iter(kinds)).rows(tuple(funcs), p), dtype=float)
-        if block.shape == (len(funcs), p.size) and np.isfinite(block).all():
-            if out is None:
-                return block
-            out[...] = block
-            return out
     if out is None:
         out = np.empty((len(funcs), p.size))
     for k, g in enumerate(funcs):
@@ -401,7 +391,7 @@ def _prepare_probed(problem, rtol: float, p_floor: Optional[float], lamperti: bo
     durations_b = np.array([pc.duration for pc in with_b], dtype=float)
     z = _tail_quantile(TAIL_FRACTION * max(rtol, 1e-15))
     for _ in range(60):
-        probe = _probe_points(p_hi, points)
+        probe = np.linspace(0.0, p_hi, points + 1)[1:]
         f_rows = _rows([pc.f for pc in pieces], probe, "the diffusivity", plan=_plan(plans, "f"))
         f_max = f_rows.max(axis=1)
         # only a drift away from the wall moves the upper tail up (comparison with the drift max(a, 0))
@@ -510,18 +500,8 @@ def _prepare_probed(problem, rtol: float, p_floor: Optional[float], lamperti: bo
 
 
 def _ordered_sum(terms: np.ndarray) -> float:
-    """``terms[0] + terms[1] + ...`` added left to right (the bits of a loop of ``+=``), 0 where empty."""
-    if terms.size == 1:
-        return float(terms[0])
+    """``terms[0] + terms[1] + ...`` added left to right, 0 where empty."""
     return float(np.cumsum(terms)[-1]) if terms.size else 0.0
-
-
-def _probe_points(p_hi: float, points: int) -> np.ndarray:
-    """The values of ``np.linspace(0, p_hi, points + 1)[1:]``, without its overhead."""
-    probe = np.arange(1, points + 1, dtype=float)
-    probe *= p_hi / points
-    probe[-1] = p_hi
-    return probe
 
 
 def _wall_of(pieces: Sequence, time_dependent: bool, p0: float, p_max: float, p_floor: Optional[float]) -> tuple:

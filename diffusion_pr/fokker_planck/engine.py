@@ -1,7 +1,7 @@
 """The shared finite-volume engine: nested grids, Richardson extrapolation, the one result builder.
 
 Every finite-volume backend goes through :func:`solve_fv`, contributing only its operator (``assemble``
-returning the tridiagonal bands of :mod:`.operator`) and optionally its own time loop.  :mod:`.domain` prepares
+returning the tridiagonal bands of :mod:`.operator`).  :mod:`.domain` prepares
 the problem, :mod:`.stages` integrates one grid; this module owns the three nested grids ``N, 2N, 4N``, the
 Richardson extrapolation with the error estimate ``||R(2N,4N) - R(N,2N)||_1 / 7`` of the reported ``R(2N,4N)``,
 refined until it meets ``rtol``, the non-contact weight (absorbed at ``p = 0``, else the mass below
@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field, replace
-from typing import Callable, Optional, Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -29,21 +29,18 @@ __all__ = ["FLOOR", "MAX_CELLS", "RICHARDSON_DIVISOR", "solve_fv", "solve_fv_ful
 
 #: default cap on the cells of the finest grid
 MAX_CELLS = 65536
-#: ||R(2N,4N) - R(N,2N)|| / RICHARDSON_DIVISOR estimates the error of R(2N,4N): 2^p - 1 for order p = 3
-#: (the extrapolated values converge at order 3-4)
+#: ||R(2N,4N) - R(N,2N)|| / RICHARDSON_DIVISOR estimates the error of R(2N,4N): 2^3 - 1 (order 3-4)
 RICHARDSON_DIVISOR = 7.0
 #: the same, 2^2 - 1, for an exit wall (``f ~ p^k``, ``0 < k < 2``) on an ungraded grid family: second order there
 EXIT_RICHARDSON_DIVISOR = 3.0
-#: the grids a solve with ``plain=`` integrates alone, by mode (refinement exponents: 0 the N grid, 1 the 2N grid,
-#: 2 the 4N grid)
+#: the grids (0: N, 1: 2N, 2: 4N) a solve with ``plain=`` integrates alone, by mode
 PLAIN_GRIDS = {"only": (0, 1), "finest": (2,), "coarsest": (0,), "answer": (1,)}
 
 
 @dataclass(frozen=True)
 class GridFamily:
-    """The nested grids of a solve's last level: the family ``spec``, the coarsest grid's knot indices ``knots``
-    (``knots[-1]`` its cells) and the finest grid's ``edges``.  Passed as ``grid=`` to :func:`solve_fv_full`,
-    another problem is solved on the same grids, edge for edge."""
+    """The nested grids of a solve's last level (``grid=`` of :func:`solve_fv_full`): the family ``spec``, the
+    coarsest grid's knot indices ``knots`` (``knots[-1]`` its cells) and the finest grid's ``edges``."""
 
     spec: GridSpec
     knots: tuple
@@ -57,11 +54,9 @@ class GridFamily:
 
 @dataclass(frozen=True)
 class WarmStart:
-    """Where a solve of a neighbouring problem starts (a sweep over the wall range).
-
-    ``n_start``: cells of the first level's coarsest grid.  ``wall_grading``: ``c_wall`` (None: the default) and
-    ``wall_depth`` where the grading ends, as the fraction in [0, 1) of the way from the floor to ``p0`` in
-    ``ln p``; both only where the grading may change."""
+    """Where a solve of a neighbouring problem starts (a sweep over the wall range): ``n_start`` cells of the first
+    level's coarsest grid; ``wall_grading`` (``c_wall``, None: the default) and ``wall_depth`` (the fraction of
+    the way from the floor to ``p0`` in ``ln p`` where the grading ends), where the grading may change."""
 
     n_start: int
     wall_grading: Optional[float] = None
@@ -70,12 +65,11 @@ class WarmStart:
 
 @dataclass(frozen=True)
 class FVSolution:
-    """What :func:`solve_fv_full` returns: the ``result`` and what a caller needs to solve related problems.
-
-    ``grid``: the last level's grids.  ``plain``: with ``plain=``, the plain cell masses ``[z, m...]`` of the N,
-    2N and 4N grids, lumped below the floor (None where not integrated), and ``plain_failure`` why they are no
-    result, or None.  ``cells_needed``: the coarsest cells predicted for ``rtol``; ``next_start``: the
-    :class:`WarmStart` for a neighbouring problem (None where the solve failed or was plain)."""
+    """What :func:`solve_fv_full` returns: the ``result``, the last level's ``grid``, with ``plain=`` the plain cell
+    masses ``[z, m...]`` of the N, 2N and 4N grids lumped below the floor (None where not integrated) and
+    ``plain_failure`` why they are no result; ``cells_needed`` the coarsest cells predicted for ``rtol`` and
+    ``next_start`` the :class:`WarmStart` of a neighbouring problem (None where failed or plain); ``prep`` the
+    problem as prepared on ``grid`` (results on the same grid are built from it)."""
 
     result: PressureDistribution
     grid: Optional[GridFamily] = None
@@ -83,6 +77,7 @@ class FVSolution:
     plain_failure: Optional[str] = None
     cells_needed: Optional[int] = None
     next_start: Optional[WarmStart] = None
+    prep: Optional[Prepared] = field(default=None, repr=False, compare=False)
 
 #: refinement stops when the estimate is below SAFETY * rtol (margin for the estimate's own error)
 SAFETY = 0.5
@@ -120,8 +115,8 @@ FLOOR_GHOSTS = 3
 
 
 def _floor_ghosts(edges: np.ndarray, y: np.ndarray, j: int) -> Optional[tuple]:
-    """``(edges, cumulative)`` of the last :data:`FLOOR_GHOSTS` cells below the floor ``edges[j]`` (cumulative from
-    the floor, negative), so the cdf's spline runs on across the floor; None where fewer cells lie below."""
+    """``(edges, cumulative from the floor)`` of the last :data:`FLOOR_GHOSTS` cells below the floor ``edges[j]``,
+    so the cdf's spline runs on across it; None where fewer cells lie below."""
     if j < FLOOR_GHOSTS:
         return None
     below = y[1 + j - FLOOR_GHOSTS:1 + j]
@@ -138,66 +133,53 @@ def _aggregate(y_fine: np.ndarray) -> np.ndarray:
 
 
 def _extrapolate(fine: np.ndarray, coarse: np.ndarray, ratio: float) -> np.ndarray:
-    """Richardson on a coarse grid: ``(ratio fine - coarse)/(ratio - 1)``, ``fine`` already summed onto the
-    coarse cells; ``ratio`` 4 removes the ``h^2`` term, 16 then the ``h^4`` term."""
+    """Richardson on a coarse grid, ``(ratio fine - coarse)/(ratio - 1)``, ``fine`` summed onto the coarse cells."""
     return (ratio * fine - coarse) / (ratio - 1.0)
 
 
 def _pairs(x: np.ndarray) -> np.ndarray:
-    """Sum per-cell quantities without a zero-weight entry (moments) over each coarse cell's two halves."""
+    """Per-cell quantities without a zero-weight entry (moments) summed over each coarse cell's two halves."""
     return x[0::2] + x[1::2]
 
 
-def solve_fv(problem, *, rtol: float, backend: str, assemble: Assemble = native_assemble, n_cells: Optional[int] = None,
-             max_cells: int = MAX_CELLS, p_floor: Optional[float] = None,
-             time_integration: str = "cram16", loop: Optional[Callable] = None,
-             extra: Optional[dict] = None) -> PressureDistribution:
-    """Solve ``problem`` to ``rtol`` on nested grids: the result of :func:`solve_fv_full`."""
-    return solve_fv_full(problem, rtol=rtol, backend=backend, assemble=assemble, n_cells=n_cells,
-                         max_cells=max_cells, p_floor=p_floor, time_integration=time_integration, loop=loop,
-                         extra=extra).result
+def solve_fv(problem, **options) -> PressureDistribution:
+    """Solve ``problem`` to ``rtol`` on nested grids: the result of :func:`solve_fv_full` (same options)."""
+    return solve_fv_full(problem, **options).result
 
 
 def solve_fv_full(problem, *, rtol: float, backend: str, assemble: Assemble = native_assemble,
                   n_cells: Optional[int] = None, max_cells: int = MAX_CELLS, p_floor: Optional[float] = None,
-                  time_integration: str = "cram16", loop: Optional[Callable] = None, extra: Optional[dict] = None,
-                  grid: Optional[GridFamily] = None, plain: Optional[str] = None,
+                  extra: Optional[dict] = None, grid: Optional[GridFamily] = None, plain: Optional[str] = None,
                   warm_start: Optional[WarmStart] = None) -> FVSolution:
     """Solve ``problem`` to ``rtol`` on nested grids (the engine's entry point).
 
-    Where the Lamperti-bounded domain proves too short (tail mass or mean miss above tolerance, or a failed
-    refinement), the solve is repeated once on the conservative domain (``diagnostics["domain"]``); where the
-    regraded grid family diverges, once on the first level's family (``diagnostics["regrade"]``).
+    Repeated once on the conservative domain where the Lamperti-bounded one proves too short
+    (``diagnostics["domain"]``), once on the first level's grid family where the regraded one diverges
+    (``diagnostics["regrade"]``).
 
     Parameters
     ----------
     problem : FokkerPlanckProblem or StagedProblem
     rtol : float
-        Target L1 error (already validated by the caller, in [1e-14, 1)).
+        Target L1 error (validated by the caller, in [1e-14, 1)).
     backend : str
         Name stored in the result.
     assemble : callable
-        ``assemble(edges, f_centres, a_faces, a_centres) -> (lower, diag, upper)``: the
-        backend's operator on the state ``[z, m_0..m_{n-1}]``.
+        ``assemble(edges, f_centres, a_faces, a_centres) -> (lower, diag, upper)``: the backend's operator on
+        the state ``[z, m_0..m_{n-1}]``.
     n_cells : int, optional
-        Cells of the coarsest grid (fixed: no refinement).  Default: chosen from ``rtol`` and refined.
+        Cells of the coarsest grid, fixed (no refinement); default chosen from ``rtol`` and refined.
     max_cells : int
         Cap on the cells of the finest grid.
     p_floor : float, optional
         Floor (pressure) where the wall is not reached; default ``FLOOR * p0``.
-    time_integration : str
-        Label of the integrator stored in the diagnostics.
-    loop : callable, optional
-        ``loop(prep, edges, n_base, refine) -> (y, counters)``: a library's own time loop instead of CRAM.
     extra : dict, optional
-        Backend-specific diagnostics added to the common ones.
+        Backend-specific diagnostics.
     grid : GridFamily, optional
-        Solve on these grids (a previous solution's ``grid``: its family, domain, grading and depth), edge for
-        edge, without refinement (its coarsest grid's cells are ``n_cells``).
+        Solve on a previous solution's grids, edge for edge, without refinement.
     plain : {"keep", "only", "finest", "coarsest", "answer"}, optional
-        ``"keep"``: also return the plain cell masses of the last level's three grids (``FVSolution.plain``).
-        The others (with ``grid``) integrate only the grids :data:`PLAIN_GRIDS` names, without Richardson or
-        estimate; the result is then failed by construction.
+        ``"keep"``: also return the last level's plain cell masses (``FVSolution.plain``); the others (with
+        ``grid``) integrate only the grids :data:`PLAIN_GRIDS` names, and the result is failed by construction.
     warm_start : WarmStart, optional
         Where the refinement starts (a neighbouring problem's ``next_start``).
 
@@ -220,7 +202,7 @@ def solve_fv_full(problem, *, rtol: float, backend: str, assemble: Assemble = na
     if warm_start is not None and (n_cells is not None or grid is not None):
         raise ValueError("warm_start and n_cells or grid exclude each other (n_cells and grid fix the grids)")
     options = dict(rtol=rtol, backend=backend, assemble=assemble, n_cells=n_cells, max_cells=int(max_cells),
-                   p_floor=p_floor, time_integration=time_integration, loop=loop, extra=extra, grid=grid,
+                   p_floor=p_floor, extra=extra, grid=grid,
                    plain=plain, warm_start=warm_start, t_start=t_start)
     retried: dict = {}  # diagnostics key -> why the solve was repeated
     lamperti = regrade = True
@@ -242,8 +224,7 @@ def solve_fv_full(problem, *, rtol: float, backend: str, assemble: Assemble = na
 
 
 def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_cells: Optional[int],
-                  max_cells: int, p_floor: Optional[float], time_integration: str, loop: Optional[Callable],
-                  extra: Optional[dict], grid: Optional[GridFamily], plain: Optional[str],
+                  max_cells: int, p_floor: Optional[float], extra: Optional[dict], grid: Optional[GridFamily], plain: Optional[str],
                   warm_start: Optional[WarmStart], lamperti: bool, regrade: bool, t_start: float):
     """One attempt of :func:`solve_fv_full`: an :class:`FVSolution`, or ``(key, why)`` where the solve is to be
     repeated with ``lamperti`` (key ``"domain"``) or ``regrade`` (key ``"regrade"``) off."""
@@ -257,10 +238,10 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
             prep = replace(prep, spec=replace(prep.spec, c_wall=float(warm_start.wall_grading)))
         prep = replace(prep, spec=replace(prep.spec, wall_depth=_wall_depth(prep.spec, float(warm_start.wall_depth))))
     # coefficients constant within each stage: a grid's integration does not depend on its level (reusable)
-    stage_constant = (loop is None and assemble is native_assemble and not prep.time_dependent
+    stage_constant = (assemble is native_assemble and not prep.time_dependent
                       and (prep.balance_per_stage or not prep.has_balance))
     t_prep = time.perf_counter() - t_start
-    integrate = loop if loop is not None else _integrator(assemble, rtol)
+    integrate = _integrator(assemble, rtol)
     cap = max_cells // 4  # the most cells of a coarsest grid (its finest grid has 4x as many)
     if grid is not None:
         n = grid.n_cells
@@ -308,7 +289,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
         if reuse is not None:
             coef3 = _coefficients(prep.pieces, [es[-1]], centre_drift=centre_drift, plans=prep.row_plans)[0]
             ys = [reuse[3], reuse[4], integrate(prep, es[-1], n_base, 4, coef3)]
-        elif loop is None and not prep.time_dependent:  # each coefficient evaluated once for all the grids
+        elif not prep.time_dependent:  # each coefficient evaluated once for all the grids
             coefs = _coefficients(prep.pieces, es, centre_drift=centre_drift, plans=prep.row_plans)
             ys = [integrate(prep, e, n_base, 1 << k, coefs[g]) for g, (k, e) in enumerate(zip(ks, es))]
         else:
@@ -369,8 +350,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
             out_y[neg] = repl
         # where the exact mean is p0, the L1 error is at least |mean - p0| / p_max: a level missing it is refined
         mean_miss = abs(mean_full - prep.p0) if prep.mean_conserved else 0.0
-        if (prep.lamperti_bounded and assemble is native_assemble and loop is None
-                and mean_miss > SAFETY * rtol * prep.p0):
+        if (prep.lamperti_bounded and assemble is native_assemble and mean_miss > SAFETY * rtol * prep.p0):
             # the native operator conserves the mean to round-off: a miss is the domain's top cut
             return "domain", (f"conservative: on the Lamperti-bounded domain (p_max = {out_edges[-1]:.4g}) the mean "
                               f"missed p0 by {mean_miss / prep.p0:.2e} p0")
@@ -417,8 +397,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
             n = int(min(max(math.ceil(n_base * min(need, MAX_GROWTH) * ratio), 16), cap))
             continue
         # the remap only under the native operator (py-pde's on a remapped grid can underestimate its error)
-        remap = assemble is native_assemble and loop is None
-        regraded = _regraded(prep, e1, diff, j1, remap=remap) if (
+        regraded = _regraded(prep, e1, diff, j1, remap=assemble is native_assemble) if (
             regrade and len(history) == 1 and _regradable(prep)) else None
         if regraded is not None:  # the same domain, its cells moved to where the first level's error was
             spec_new, factor = regraded
@@ -458,7 +437,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
                "total": time.perf_counter() - t_start}
     result = build_result(prep, backend=backend, edges=edges, y=y, moments=moments, estimate=est, rtol=rtol,
                           timings=timings, mean_full=mean_full,
-                          extra={"levels": cells, "history": history, "time_integration": time_integration,
+                          extra={"levels": cells, "history": history,
                                  "cram_applications": cnt["cram_applications"], "substeps": cnt["substeps"],
                                  "grids_integrated": grids_integrated,
                                  "cells_needed": cells_needed, "remap_factor": remap_factor,
@@ -479,7 +458,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
         next_start = WarmStart(n_start=start, wall_grading=grading_needed if grading_needed > 0.0 else None,
                                wall_depth=depth_needed if grading_needed > 0.0 and depth_needed > 0.0 else 0.0)
     return FVSolution(result=result, grid=best_grid, plain=best_plain, cells_needed=cells_needed,
-                      next_start=next_start)
+                      next_start=next_start, prep=prep)
 
 
 #: a grid whose states sum in absolute value to more than this is unstable (docs/backends.md "An unstable grid")
@@ -487,9 +466,9 @@ UNSTABLE_L1 = 2.0
 
 
 def _unstable_grid(es: Sequence[np.ndarray], ys: Sequence[tuple]) -> Optional[str]:
-    """Why a level's integration is no result, or None: a grid's state ``ys[i]`` (on ``es[i]``) not finite, or its
-    absolute sum above :data:`UNSTABLE_L1`.  A central-flux drift dominating the diffusion (cell Peclet number
-    above 2) gives complex eigenvalues, which the rational approximation can amplify."""
+    """Why a level's integration is no result, or None: a grid's state not finite or its absolute sum above
+    :data:`UNSTABLE_L1` (a central-flux drift dominating the diffusion gives complex eigenvalues, which the
+    rational approximation can amplify)."""
     for edges, (y, _) in zip(es, ys):
         total = float(np.abs(y).sum())
         if not math.isfinite(total) or total > UNSTABLE_L1:
@@ -507,8 +486,8 @@ def _cells_below_floor(prep: Prepared, edges: np.ndarray) -> int:
 def _plain_solution(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple], idx: np.ndarray,
                     ks: Sequence[int], finest: np.ndarray, *, backend: str, rtol: float, t_start: float,
                     t_prep: float) -> FVSolution:
-    """The :class:`FVSolution` of a plain solve: the grids' own masses (``ks`` their refinement exponents), lumped
-    below the floor; the result is the finest integrated grid's, failed by construction."""
+    """The :class:`FVSolution` of a plain solve: the grids' own masses lumped below the floor (``ks`` their
+    refinement exponents); the result is the finest integrated grid's, failed by construction."""
     j1 = _cells_below_floor(prep, es[0][::1 << ks[0]])  # the N grid's (every 2^k-th edge) cells below the floor
     broken = [cc["balance_failure"] for _, cc in ys if "balance_failure" in cc]
     unstable = _unstable_grid(es, ys)
@@ -524,7 +503,7 @@ def _plain_solution(prep: Prepared, es: Sequence[np.ndarray], ys: Sequence[tuple
                           rtol=rtol, timings=timings, failure="plain masses only (no extrapolation, no estimate)",
                           extra={"levels": [int(idx[-1]) << k for k in ks], "grid": (prep.spec, tuple(idx.tolist()))})
     return FVSolution(result=result, grid=GridFamily(prep.spec, tuple(idx.tolist()), finest), plain=tuple(plain),
-                      plain_failure=broken[0] if broken else None)
+                      plain_failure=broken[0] if broken else None, prep=prep)
 
 
 #: a breakpoint within this fraction of the domain above its bottom is not resolved (:func:`build_result`)

@@ -43,11 +43,9 @@ ERROR_BOUND = 3.2e-16
 
 
 def _partial_fraction_residues() -> np.ndarray:
-    """Residues ``c_j`` of the same rational function in partial fractions (~2e-15 relative).
-
-    ``c_j = alpha0 alpha_j prod_{k != j} [1 + alpha_k/(theta_j - theta_k) + conj(alpha_k)/(theta_j - conj(theta_k))]``,
-    so ``r(z) = alpha0 + 2 Re sum_j c_j/(z - theta_j)``.
-    """
+    """Residues ``c_j`` of the same rational function in partial fractions, ``r(z) = alpha0 + 2 Re sum_j c_j/(z -
+    theta_j)``: ``c_j = alpha0 alpha_j prod_{k != j} [1 + alpha_k/(theta_j - theta_k) + conj(alpha_k)/(theta_j -
+    conj(theta_k))]``."""
     out = np.empty(THETA.size, dtype=complex)
     for j, th in enumerate(THETA):
         others = [1.0 + a / (th - t) + np.conj(a) / (th - np.conj(t)) for k, (a, t) in enumerate(zip(ALPHA, THETA))
@@ -71,35 +69,11 @@ def _gtsv():
 
 def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: float, y: np.ndarray, *,
                      flux_form: bool = False) -> np.ndarray:
-    """``exp(t L) y`` for the tridiagonal ``L = (lower, diag, upper)``: CRAM-16 in the IPF form, eight LAPACK
-    ``zgtsv`` solves (round-off about 1e-15 of ``max |y|``).
-
-    With ``flux_form`` (``L``'s columns summing to 0) each factor is written as ``r y + t L w`` with ``t L w`` as
-    differences of face fluxes, so ``sum y`` is conserved to round-off even where ``|t L_ii|`` is huge
-    (docs/backends.md "Probability conserved in stiff cells").
-
-    Parameters
-    ----------
-    lower, upper : ndarray, shape (n-1,)
-        Sub- and super-diagonal of ``L`` [1/time].
-    diag : ndarray, shape (n,)
-        Diagonal of ``L`` [1/time].
-    t : float
-        Time (the units of ``1/L``), >= 0.
-    y : ndarray, shape (n,)
-        Start vector.
-    flux_form : bool
-        See above.
-
-    Returns
-    -------
-    ndarray, shape (n,)
-        ``exp(t L) y``.
-
-    Raises
-    ------
-    FloatingPointError
-        When a shifted system is singular (LAPACK ``info > 0``).
+    """``exp(t L) y`` for the tridiagonal ``L = (lower, diag, upper)`` [1/time], ``t >= 0``: CRAM-16 in the IPF
+    form, eight LAPACK ``zgtsv`` solves (round-off about 1e-15 of ``max |y|``).  With ``flux_form`` (``L``'s
+    columns summing to 0) each factor is ``r y + t L w`` with ``t L w`` as differences of face fluxes, so ``sum y``
+    is conserved to round-off even where ``|t L_ii|`` is huge (docs/backends.md).  Raises ``FloatingPointError``
+    where a shifted system is singular.
     """
     y = np.array(y, dtype=float)
     if t == 0.0:

@@ -1,5 +1,5 @@
-"""The grid family adapted after the first level: the logarithmic grading towards the wall regraded
-(:func:`_regraded`) or the monitor remapped (:func:`_remapped`) by the first level's Richardson differences."""
+"""The grid family adapted after the first level's Richardson differences: the logarithmic grading towards the
+wall regraded (:func:`_regraded`) or the monitor remapped (:func:`_remapped`)."""
 from __future__ import annotations
 
 import math
@@ -11,8 +11,7 @@ import numpy as np
 from .domain import Prepared
 from .grid import GridSpec, Remap
 
-#: the largest weight of the logarithmic grading towards the wall (the ``wall_grading`` option's range, and the
-#: regrading's candidates)
+#: the largest weight of the logarithmic grading towards the wall (the regrading's candidates)
 WALL_GRADING_MAX = 10.0
 #: regrade only where the predicted cells fall by at least this fraction
 REGRADE_GAIN = 0.15
@@ -32,13 +31,6 @@ def _regradable(prep: Prepared) -> bool:
     """Whether the grading towards the wall may change: ``c_wall > 0``, the depth below the floor fixed, no exit
     wall."""
     return prep.spec.c_wall > 0.0 and not prep.depth_adaptive and not prep.reached
-
-
-def _delta_of(spec: GridSpec, wall_depth: float) -> float:
-    """``replace(spec, wall_depth=wall_depth)._delta`` without making the family."""
-    if wall_depth > 0.0:
-        return wall_depth
-    return spec.p_wall if spec.p_wall > 0.0 else 1e-12 * spec.p_max
 
 
 def _wall_depth(spec: GridSpec, fraction: float) -> float:
@@ -117,7 +109,7 @@ def _regraded(prep: Prepared, edges: np.ndarray, diff: np.ndarray, j: int, remap
     phi_tot = float(spec.phi(knots[-1]) - spec.phi(knots[0]))
     dphi = spec.dphi(pts)
     fractions = (0.0,) + (REGRADE_DEPTHS if spec.p_wall > 0.0 else ())
-    deltas = np.array([_delta_of(spec, _wall_depth(spec, k)) for k in fractions])
+    deltas = np.array([replace(spec, wall_depth=_wall_depth(spec, k))._delta for k in fractions])
     weights = spec.c_wall * np.array((1.0,) + REGRADE_FACTORS)
     x = pts - spec.p_wall
     span = knots[-1] - spec.p_wall

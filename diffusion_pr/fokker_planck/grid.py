@@ -156,21 +156,11 @@ class GridSpec:
         if self.remap is not None:
             return self.remap.forward(self._base_value(p))
         p = np.asarray(p, dtype=float)
-        rel = np.subtract(p, self.p_wall, out=np.empty(p.shape))  # an array also for a 0-d p
-        out = rel / self.scale
-        if self.c_wall > 0.0:  # in place
-            delta = self._delta
-            rel += delta
-            rel /= delta
-            term = np.log(rel, out=rel)
-            term *= self.c_wall
-            out += term
+        out = (p - self.p_wall) / self.scale
+        if self.c_wall > 0.0:
+            out = out + np.log((p - self.p_wall + self._delta) / self._delta) * self.c_wall
         if self.c_0 > 0.0:
-            z = np.subtract(p, self.p0, out=np.empty(p.shape))
-            z /= self.w0
-            term = np.arcsinh(z, out=z)
-            term *= self.c_0
-            out += term
+            out = out + np.arcsinh((p - self.p0) / self.w0) * self.c_0
         return out
 
     def dphi(self, p: np.ndarray) -> np.ndarray:
@@ -179,16 +169,10 @@ class GridSpec:
             return self.remap.density(self._base_value(p)) * self.base.dphi(p)
         p = np.asarray(p, dtype=float)
         out = np.full(p.shape, 1.0 / self.scale)
-        if self.c_wall > 0.0:  # in place
-            w = np.subtract(p, self.p_wall, out=np.empty(p.shape))
-            w += self._delta
-            out += np.divide(self.c_wall, w, out=w)
+        if self.c_wall > 0.0:
+            out += self.c_wall / (p - self.p_wall + self._delta)
         if self.c_0 > 0.0:
-            z = np.subtract(p, self.p0, out=np.empty(p.shape))
-            z *= z
-            z += self.w0**2
-            w = np.sqrt(z, out=z)
-            out += np.divide(self.c_0, w, out=w)
+            out += self.c_0 / np.sqrt((p - self.p0) ** 2 + self.w0**2)
         return out
 
     @functools.cached_property
@@ -251,22 +235,13 @@ def _invert(spec: GridSpec, targets: np.ndarray, a: float, b: float) -> np.ndarr
     return _invert_safe(spec, targets, x0, a, b, tol)
 
 
-def _sorted_unique(x: np.ndarray) -> np.ndarray:
-    """``np.unique`` of a finite 1-D array (without numpy 2's import of ``numpy.ma`` on first call)."""
-    x = np.sort(x)
-    keep = np.empty(x.size, dtype=bool)
-    keep[:1] = True
-    np.not_equal(x[1:], x[:-1], out=keep[1:])
-    return x[keep]
-
-
 def _table(spec: GridSpec, a: float, b: float) -> tuple:
     """Points of ``[a, b]`` (geometric towards ``a``, uniform) and ``Phi`` there: the start of :func:`_invert`."""
     key = (spec, a, b)
     hit = _TABLES.get(key)
     if hit is None:
         lo_t = a - spec.p_wall + spec._delta
-        table = _sorted_unique(np.concatenate((spec.p_wall + np.geomspace(lo_t, b - spec.p_wall + spec._delta, 400)
+        table = np.unique(np.concatenate((spec.p_wall + np.geomspace(lo_t, b - spec.p_wall + spec._delta, 400)
                                                - spec._delta, np.linspace(a, b, 400))))
         table = table[(table >= a) & (table <= b)]
         hit = (table, spec.phi(table))
@@ -312,10 +287,6 @@ class _NaturalSpline:
     def __init__(self, x: np.ndarray, y: np.ndarray) -> None:
         n = x.size
         h = x[1:] - x[:-1]
-        if n == 3:  # one interior knot: the 3x3 system solved directly
-            m1 = 6.0 * ((y[2] - y[1]) / h[1] - (y[1] - y[0]) / h[0]) / (2.0 * (h[0] + h[1]))
-            self.x, self.y, self.h, self.m = x, y, h, np.array([0.0, m1, 0.0])
-            return
         a = np.zeros((n, n))
         b = np.zeros(n)
         a[0, 0] = a[-1, -1] = 1.0

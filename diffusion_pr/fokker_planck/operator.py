@@ -25,24 +25,12 @@ def centres(edges: np.ndarray) -> np.ndarray:
 
 
 def fitted_weight(shift: np.ndarray, f_min: np.ndarray) -> np.ndarray:
-    """The drift's upwinding weight ``s = sign(Pe) max(0, 1/2 - 1/|Pe|)`` of ``Pe = shift / f_min``.
+    """The drift's upwinding weight ``s = sign(Pe) max(0, 1/2 - 1/|Pe|)`` in ``[-1/2, 1/2]`` of ``Pe = shift /
+    f_min``: the smallest that keeps a face's off-diagonal entries non-negative (the hybrid scheme of D. B.
+    Spalding, Int. J. Numer. Meth. Eng. 4, 551 (1972)).
 
-    The smallest weight that keeps a face's off-diagonal entries non-negative (the hybrid scheme of
-    D. B. Spalding, Int. J. Numer. Meth. Eng. 4, 551 (1972)): 0 (central) for ``|Pe| <= 2``, approaching upwind
-    (``sign(Pe)/2``) as ``|Pe|`` grows.
-
-    Parameters
-    ----------
-    shift : ndarray
-        Drift times centre distance at the face, ``a (c_{i+1} - c_i)`` (pressure^2 per unit tau).
-    f_min : ndarray
-        The smaller ``f`` of the face's two cells (pressure^2 per unit tau, like ``shift``), >= 0;
-        0 gives the upwind weight ``sign(shift)/2``.
-
-    Returns
-    -------
-    ndarray
-        ``s`` in ``[-1/2, 1/2]``, odd in ``shift``, with ``|s| >= 1/2 - 1/|Pe|``.
+    ``shift``: drift times centre distance at the face, ``a (c_{i+1} - c_i)``; ``f_min``: the smaller ``f`` of the
+    face's two cells, >= 0 (both pressure^2 per unit tau).
     """
     shift, f_min = np.broadcast_arrays(np.asarray(shift, dtype=float), np.asarray(f_min, dtype=float))
     x = np.abs(shift)

@@ -9,6 +9,7 @@ A ``tau``-dependent coefficient is sampled at segment midpoints (exponential mid
 """
 from __future__ import annotations
 
+import functools
 import math
 from typing import Callable, Optional, Sequence
 
@@ -258,14 +259,9 @@ def _as_python(y, n_cram, n_newton, info, stage, res) -> tuple:
     return y, int(n_cram), int(n_newton), int(info), int(stage), float(res)
 
 
-_KERNELS: Optional[_Kernels] = None
-
-
+@functools.cache
 def _staged_kernels() -> _Kernels:
-    global _KERNELS
-    if _KERNELS is None:
-        _KERNELS = _Kernels()
-    return _KERNELS
+    return _Kernels()
 
 
 def _integrator(assemble: Assemble, rtol: float) -> Callable:

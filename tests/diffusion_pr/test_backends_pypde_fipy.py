@@ -10,9 +10,7 @@ Oracles and tolerances:
   2 rtol: the finer run's cumulative is transferred by a cubic spline) on
   the issue's 27-scene grid (3 cutoffs x 3 sqrt(V) x 3 p_c, p0 = 0.004; a
   diagonal subset by default, all 27 as slow), on the Fig. 1 scenes, and on a
-  staged problem with drift and the balance multiplier;
-* the plain library time loops (FiPy's ``eq.solve`` Crank-Nicolson, py-pde's
-  own solver) against the closed form at a loose rtol.
+  staged problem with drift and the balance multiplier.
 """
 from __future__ import annotations
 
@@ -127,21 +125,6 @@ def test_staged_problem_with_drift_and_balance_agrees(name, closure_like_problem
     assert abs(b.mean + b.diagnostics["p_min"] * b.zero_weight - P0) <= 1e-4 * P0  # the balance holds the mean
 
 
-@pytest.mark.parametrize("name", BACKENDS)
-def test_plain_library_loop_against_closed_form(name):
-    solve = _solver(name)
-    r = solve(FokkerPlanckProblem(1.0, 1.0), rtol=1e-3, method="loop", n_cells=16)
-    assert r.diagnostics["time_integration"] != "cram16"
-    err = true_error(r, lambda p: cf.mirror_gaussian_density(p, 1.0, 1.0), cf.persson_zero_weight(1.0, 1.0))
-    assert err < 1e-3 and err < 10 * r.error_estimate + 1e-6
-
-
-@pytest.mark.parametrize("name", BACKENDS)
-def test_loop_refuses_balance(name, closure_like_problem):
-    with pytest.raises(ValueError, match="balance"):
-        _solver(name)(closure_like_problem(4, P0), rtol=1e-3, method="loop", n_cells=16)
-
-
 @pytest.mark.parametrize("name,module,extra", [("pypde", "pde", "pypde"), ("fipy", "fipy", "fipy")])
 def test_missing_dependency_names_the_extra(monkeypatch: pytest.MonkeyPatch, name: str, module: str,
                                             extra: str) -> None:
@@ -220,18 +203,3 @@ def test_a_drift_away_from_the_wall_gives_the_native_answer(name, besq_case):
     assert abs(native.zero_weight - r.zero_weight) <= 2e-6
     x = np.linspace(0.0, 4.0, 400)
     assert np.max(np.abs(native.cdf(x) - r.cdf(x))) <= 2e-6
-
-
-@pytest.mark.parametrize("name", BACKENDS)
-def test_plain_library_loop_with_a_drift_at_the_wall(name, besq_case):
-    """The plain loops carry the wall's drift too (py-pde: added to cell 0's rate; FiPy: the wall face's diffusion
-    coefficient carries the net outflow, implicit like the rest of its matrix).  At rtol 1e-3 from 64 cells both
-    meet the closed form (measured 6.9e-4 and 7.1e-4 against estimates of 3.6e-4 and 3.7e-4).  With the wall's
-    drift as an ImplicitSourceTerm instead, which FiPy treats explicitly where it is a source, FiPy's loop failed
-    (8.1e-3 against an estimate of 1.5e-3)."""
-    solve = _solver(name)
-    problem, dens, zw = besq_case(1.0, 0.5, 1.0, 0.5)
-    r = solve(problem, rtol=1e-3, method="loop", n_cells=64)
-    assert r.success, r.message
-    err = true_error(r, dens, zw)
-    assert err <= 1e-3 and err <= 10 * r.error_estimate

@@ -35,15 +35,15 @@ def _models(fig1, kz):
 
 
 def test_row_plans_are_the_models_rows_bit_for_bit(fig1):
-    """A plan (made once per problem) gives the bits of its type's ``rows`` (which test_closures checks against
-    the numpy formulas), into a given C-contiguous ``out`` in place and into any other ``out`` by a copy; a
+    """A plan (made once per problem) gives the bits of its models called one by one (which test_closures checks
+    against the numpy formulas), into a given C-contiguous ``out`` in place and into any other ``out`` by a copy; a
     non-finite value gives None (the engine's checked path then says where); no plan where the shells do not
     share one wall product (the hard wall, mixed ``kz``)."""
     kz = 0.5 * 0.25 * E
     p = np.r_[-1.0, 0.0, np.geomspace(1e-300, 10.0, 501)]
     for key, items in _models(fig1, kz).items():
         plan = type(items[0]).row_plan(items)
-        expect = type(items[0]).rows(items, p)
+        expect = np.array([it(p) for it in items])
         assert len(plan) == len(items)
         np.testing.assert_array_equal(plan(p), expect)
         out = np.empty(expect.shape)
@@ -70,7 +70,7 @@ def test_row_plans_follow_the_pieces_that_have_each_coefficient(fig1):
     assert plans["f"].every and not plans["b"].every and plans["w"].stages == () and plans["w"].plan is None
     assert len(plans["f"].plan) == len(stages) and len(plans["b"].plan) == len(with_b)
     p = np.linspace(0.0, 0.02, 33)
-    np.testing.assert_array_equal(plans["b"].plan(p), LoadExcessDrift.rows(with_b, p))
+    np.testing.assert_array_equal(plans["b"].plan(p), np.array([m(p) for m in with_b]))
     user = tuple(Stage(0.1, lambda p: np.ones_like(p)) for _ in range(3))
     assert all(v.plan is None for v in domain.row_plans(domain._pieces_of(StagedProblem(1.0, user))[1]).values())
 
@@ -115,13 +115,3 @@ def test_two_user_threads_solving_at_once_get_the_serial_bits(fig1):
     for k in range(2):
         for answer in got[k]:
             np.testing.assert_array_equal(answer, serial[k])
-
-
-def test_probe_points_are_linspace_bit_for_bit(rng):
-    """The domain probe's points without np.linspace's overhead: its values, bit for bit, over 12 decades of
-    p_hi and both probe sizes (the domain, and so every answer, depends on them)."""
-    from diffusion_pr.fokker_planck.domain import PROBE_POINTS, PROBE_POINTS_COARSE, _probe_points
-
-    for p_hi in [*10.0 ** rng.uniform(-9, 9, 400), 4.0, 0.016]:
-        for n in (PROBE_POINTS_COARSE, PROBE_POINTS):
-            assert np.array_equal(_probe_points(float(p_hi), n), np.linspace(0.0, p_hi, n + 1)[1:])

@@ -194,16 +194,3 @@ def test_remap_inverse_bisects_from_a_poor_start(rng):
         t = rng.uniform(0.0, remap.total, 2000)
         plain = remap.inverse(t)
         assert np.max(np.abs(remap.forward(plain) - t)) <= 1e-15 * max(remap.total, 1.0)  # converged
-
-
-def test_sorted_unique_is_numpys_unique():
-    """The grid table's ``np.unique`` without numpy 2's import of ``numpy.ma`` (oracle: ``np.unique``): the same
-    values and dtype on random finite arrays with repeats, empty and single-element ones."""
-    from diffusion_pr.fokker_planck.grid import _sorted_unique
-
-    rng = np.random.default_rng(7)
-    for _ in range(500):
-        x = np.concatenate((rng.random(rng.integers(0, 40)), rng.choice(rng.random(4), rng.integers(0, 20))))
-        got = _sorted_unique(x)
-        assert got.dtype == np.unique(x).dtype and np.array_equal(got, np.unique(x))
-    assert _sorted_unique(np.array([2.0])).tolist() == [2.0]

@@ -47,16 +47,9 @@ def get_backend(name: str) -> Callable:
     """
     if name not in _REGISTRY:
         raise ValueError(f"backend must be one of {backend_names()} or 'auto'; got backend={name!r}")
-    module, function, extra = _REGISTRY[name]
-    dep = _REQUIRES.get(name)
-    if dep is not None:
-        try:
-            importlib.import_module(dep)
-        except ImportError as exc:
-            raise BackendUnavailableError(
-                f"backend {name!r} needs the package {dep!r}, which is not installed; "
-                f"install it with: pip install 'diffusion-pr[{extra}]'"
-            ) from exc
+    module, function, _ = _REGISTRY[name]
+    if name in _REQUIRES:
+        timed_import(_REQUIRES[name], name, _REQUIRES[name])
     return getattr(importlib.import_module(module), function)
 
 

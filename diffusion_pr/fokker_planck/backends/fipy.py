@@ -8,9 +8,7 @@ expresses it, ``d/dp(f dP/dp) + d/dp((f' - a) P)``::
 on a non-uniform :class:`fipy.Grid1D` with the engine's cells, ``P = 0`` on the wall face (docs/backends.md):
 the native operator to round-off, except where that leans a user's drift upwind.
 
-``method="cram"`` (default): one ``sweep`` with ``dt = 1`` gives the matrix, integrated by CRAM-16.
-``method="loop"``: FiPy's own Crank-Nicolson loop (Rannacher start; steps double with the cells, so
-Richardson removes the O(dtau^2) error with the O(h^2) one); slow, no balance.
+One ``sweep`` with ``dt = 1`` gives the matrix, integrated by CRAM-16 on the engine's nested grids.
 """
 from __future__ import annotations
 
@@ -21,17 +19,12 @@ import numpy as np
 
 from ...result import PressureDistribution
 from . import timed_import
-from ..domain import Prepared
 from ..engine import MAX_CELLS, FVSolution, solve_fv_full
 from ..operator import centres, state_bands, wall_drift_rate
 
 __all__ = ["solve", "warm_up", "assemble"]
 
-#: CN steps per coarsest-grid cell in the plain FiPy loop (doubled with the cells)
-LOOP_STEPS_PER_CELL = 1.0
-
-
-def _terms(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray], value: Optional[np.ndarray] = None):
+def _terms(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray]):
     """FiPy's equation, its variable and the cell widths."""
     from fipy import CellVariable, CentralDifferenceConvectionTerm, DiffusionTerm, FaceVariable, Grid1D, TransientTerm
 
@@ -39,7 +32,7 @@ def _terms(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray], va
     c = centres(edges)
     n = h.size
     mesh = Grid1D(dx=h)
-    var = CellVariable(mesh=mesh, value=np.zeros(n) if value is None else value, name="P")
+    var = CellVariable(mesh=mesh, value=np.zeros(n), name="P")
     var.constrain(0.0, mesh.facesLeft)
     gamma = np.empty(n + 1)
     gamma[1:-1] = 0.5 * (f_c[:-1] + f_c[1:])
@@ -78,48 +71,6 @@ def assemble(edges: np.ndarray, f_c: np.ndarray, a_faces: Optional[np.ndarray],
     return state_bands(lo_u * h[1:] / h[:-1], dg_u, up_u * h[:-1] / h[1:])
 
 
-def _loop(prep: Prepared, edges: np.ndarray, n_base: int, refine: int) -> tuple[np.ndarray, dict]:
-    """FiPy's own Crank-Nicolson loop (``eq.solve``) on one grid."""
-    from fipy.solvers.scipy import LinearLUSolver
-
-    if prep.has_balance:
-        raise ValueError("method='loop' cannot hold the mean with a balance multiplier; use method='cram'")
-    c = centres(edges)
-    n = c.size
-    m0 = np.zeros(n)
-    j = int(np.searchsorted(edges, prep.p0))
-    m0[j - 1] = (c[j] - prep.p0) / (c[j] - c[j - 1])
-    m0[j] = (prep.p0 - c[j - 1]) / (c[j] - c[j - 1])
-    h = np.diff(edges)
-    dens = m0 / h
-    pieces = prep.segment_fn(refine * max(4, n_base // 8)) if prep.time_dependent else prep.pieces
-    steps_total = refine * max(8, int(LOOP_STEPS_PER_CELL * n_base))
-    solver = LinearLUSolver()
-    solves = 0
-    first = True
-    for pc in pieces:
-        f_c = np.maximum(np.asarray(pc.f(c), dtype=float), 0.0)
-        a = None if pc.b is None else np.asarray(pc.b(edges[:-1]), dtype=float)
-        eq, var, _ = _terms(edges, f_c, a, dens)
-        k = max(refine, int(round(steps_total * pc.duration / prep.tau_end)))
-        dt = pc.duration / k
-        for step in range(k):
-            if first and step < max(4, int(np.sqrt(k))):  # Rannacher start: backward-Euler pairs
-                for _ in range(2):
-                    eq.solve(var=var, dt=0.5 * dt, solver=solver)
-                    solves += 1
-                continue
-            old = np.array(var.value, dtype=float)
-            eq.solve(var=var, dt=0.5 * dt, solver=solver)
-            solves += 1
-            var.setValue(2.0 * np.array(var.value, dtype=float) - old)
-        first = False
-        dens = np.array(var.value, dtype=float)
-    m = dens * h
-    y = np.r_[1.0 - m.sum(), m]  # FiPy does not track the outflow: the absorbed mass is the deficit
-    return y, {"cram_applications": 0, "substeps": solves}
-
-
 def warm_up() -> float:
     """Import FiPy and assemble one tiny operator; return the seconds spent."""
     t0 = time.perf_counter()
@@ -129,37 +80,23 @@ def warm_up() -> float:
     return time.perf_counter() - t0
 
 
-def solve(problem, *, rtol: float = 1e-6, method: str = "cram", n_cells: Optional[int] = None,
-          max_cells: int = MAX_CELLS, p_floor: Optional[float] = None) -> PressureDistribution:
-    """Solve with the operator written in FiPy's terms (see the module docstring).
-
-    Parameters
-    ----------
-    problem : FokkerPlanckProblem or StagedProblem
-    method : {"cram", "loop"}
-        CRAM-16 on FiPy's operator, or FiPy's own Crank-Nicolson loop.
-    rtol, n_cells, max_cells, p_floor
-        As for :func:`~diffusion_pr.fokker_planck.backends.native.solve`.
+def solve(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cells: int = MAX_CELLS,
+          p_floor: Optional[float] = None) -> PressureDistribution:
+    """Solve with the operator written in FiPy's terms (see the module docstring); the options as for
+    :func:`~diffusion_pr.fokker_planck.backends.native.solve`.
 
     Raises
     ------
     BackendUnavailableError
         FiPy is not installed.
-    ValueError
-        Unknown ``method``.
     """
-    return solve_full(problem, rtol=rtol, method=method, n_cells=n_cells, max_cells=max_cells,
-                      p_floor=p_floor).result
+    return solve_full(problem, rtol=rtol, n_cells=n_cells, max_cells=max_cells, p_floor=p_floor).result
 
 
-def solve_full(problem, *, rtol: float = 1e-6, method: str = "cram", n_cells: Optional[int] = None,
-               max_cells: int = MAX_CELLS, p_floor: Optional[float] = None, **engine) -> FVSolution:
-    """:func:`solve` with the engine's :class:`~diffusion_pr.fokker_planck.engine.FVSolution` (``engine``: ``grid``, ``plain``,
-    ``warm_start`` of :func:`~diffusion_pr.fokker_planck.engine.solve_fv_full`)."""
+def solve_full(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cells: int = MAX_CELLS,
+               p_floor: Optional[float] = None, **engine) -> FVSolution:
+    """:func:`solve` with the engine's :class:`~diffusion_pr.fokker_planck.engine.FVSolution` (``engine``: ``grid``,
+    ``plain``, ``warm_start`` of :func:`~diffusion_pr.fokker_planck.engine.solve_fv_full`)."""
     _, import_time = timed_import("fipy", "fipy", "FiPy")
-    if method not in ("cram", "loop"):
-        raise ValueError(f"method must be 'cram' or 'loop'; got method={method!r}")
     return solve_fv_full(problem, rtol=rtol, backend="fipy", assemble=assemble, n_cells=n_cells,
-                         max_cells=max_cells, p_floor=p_floor,
-                         time_integration="cram16" if method == "cram" else "fipy-cn-loop",
-                         loop=_loop if method == "loop" else None, extra={"import_time": import_time}, **engine)
+                         max_cells=max_cells, p_floor=p_floor, extra={"import_time": import_time}, **engine)
