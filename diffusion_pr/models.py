@@ -8,7 +8,7 @@ doi:10.1103/PhysRevLett.100.055504), :class:`RaisedCosineCutoff` (C1), :class:`S
 vectorized callables of a pressure array (the unit of ``mean_pressure``); any vectorized callable of ``p`` is accepted
 wherever a cutoff or tail is.
 
-The model protocol (:class:`PressureModel`): a coefficient may declare ``zero_power``, the ``k`` of
+The model protocol: a coefficient may declare ``zero_power``, the ``k`` of
 ``f(p) ~ C p^k`` as ``p -> 0+`` (Feller, Ann. Math. 55, 468 (1952), doi:10.2307/1969644: mass reaches the absorbing
 wall in finite time iff ``k < 2``; for ``k >= 2`` the solvers resolve it on a logarithmic grid down to a floor), and
 ``breakpoints()``, the pressures where ``f``, ``f'`` or ``f''`` jump (cell edges go there).  Every class here
@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Callable, ClassVar, Optional, Protocol, Union, runtime_checkable
+from typing import Callable, ClassVar, Optional
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -29,26 +29,6 @@ PressureFunction = Callable[[NDArray[np.float64]], NDArray[np.float64]]
 
 #: Feller's threshold: the wall p = 0 is reached in finite tau iff f ~ p^k with k < WALL_POWER
 WALL_POWER = 2.0
-
-
-@runtime_checkable
-class PressureModel(Protocol):
-    """What a pressure-dependent coefficient may declare to the solvers.
-
-    Attributes
-    ----------
-    zero_power : float
-        ``k`` in ``f(p) ~ C p^k`` as ``p -> 0+`` (dimensionless; 0 when
-        ``f(0+) > 0``, ``math.inf`` when ``f`` vanishes on a neighbourhood of 0).
-    """
-
-    zero_power: float
-
-    def __call__(self, p: NDArray[np.float64]) -> NDArray[np.float64]: ...
-
-    def breakpoints(self) -> tuple[float, ...]:
-        """Pressures (units of pressure) where ``f``, ``f'`` or ``f''`` jump."""
-        ...
 
 
 def wall_reached(k: float) -> bool:
@@ -275,9 +255,6 @@ class MaxLinearTail(_Model):
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         return np.maximum(1.0, np.asarray(p, dtype=float) / self.p_t)
 
-
-Cutoff = Union[SharpCutoff, MuserCutoff, RaisedCosineCutoff, SmoothstepCutoff, PressureFunction]
-Tail = Union[GaussianTail, LinearTail, MaxLinearTail, PressureFunction]
 
 _CUTOFFS = {"sharp": SharpCutoff, "muser": MuserCutoff, "seed": MuserCutoff, "raised_cosine": RaisedCosineCutoff,
             "smoothstep": SmoothstepCutoff}

@@ -1,29 +1,18 @@
-"""The Fokker-Planck problem every backend solves.
+"""The Fokker-Planck problem every backend solves (docs/theory.md).
 
-In the diffusion "time" ``tau = integral D(eta) d eta`` (units of pressure
-squared) the magnification-dependent equation of docs/theory.md reads
+In the diffusion time ``tau = integral D(eta) d eta`` (pressure squared)::
 
-    d Pr / d tau = - d/dp [ a(p, tau) Pr ] + d^2/dp^2 [ f(p, tau) Pr ],
-    Pr(p, tau = 0) = delta(p - mean_pressure),
+    d Pr / d tau = - d/dp [ a(p, tau) Pr ] + d^2/dp^2 [ f(p, tau) Pr ],   Pr(p, 0) = delta(p - mean_pressure),
 
-on ``0 <= p < infinity``.  Where ``f ~ p^k`` with ``k < 2`` probability reaches
-``p = 0`` (Feller) and what arrives is the non-contact weight ``zero_weight``;
-where ``k >= 2`` it only creeps towards 0 and ``zero_weight`` is the probability
-below a floor fixed by the problem (see ``docs/theory.md``).  Mean pressure is
-conserved with the drift ``a = 0``.
-``tau`` runs to ``tau_end = variance / 2`` so that ``f = 1`` without the wall
-gives a Gaussian of variance ``variance``.
-
-When ``D(p, eta) = D(eta) f(p)`` factorizes (no drift, ``f`` independent of
-``eta``) the problem is autonomous and one solve in ``tau`` is all a scene
-needs.  A magnification-dependent drift ``A(p, eta)`` becomes
-``a(p, tau) = A(p, eta(tau)) / D(eta(tau))``; see
-:func:`FokkerPlanckProblem.from_magnification`.
+on ``p >= 0``, to ``tau_end = variance / 2`` (``f = 1`` without the wall gives a Gaussian of variance ``variance``).
+Where ``f ~ p^k`` with ``k < 2`` probability reaches ``p = 0`` (Feller) and is the non-contact weight
+``zero_weight``; for ``k >= 2`` ``zero_weight`` is the probability below a floor.  A magnification-dependent drift
+``A(p, eta)`` becomes ``a(p, tau) = A(p, eta(tau)) / D(eta(tau))`` (:meth:`FokkerPlanckProblem.from_magnification`).
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Optional
 
 import numpy as np
@@ -82,7 +71,6 @@ class FokkerPlanckProblem:
     drift: Optional[Callable[[Array, float], Array]] = None
     time_dependent: bool = False
     label: str = ""
-    metadata: dict = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "mean_pressure", _number("mean_pressure", self.mean_pressure, "pressure"))
@@ -198,9 +186,7 @@ class FokkerPlanckProblem:
         if variance_function is not None:
             drift.prefetch_times = magnification.solve  # type: ignore[attr-defined]
 
-        return cls(mean_pressure, variance, pressure_factor, drift=drift, label=label,
-                   metadata={"eta": eta, "variance_of_eta": v,
-                             "magnification_map": "linear" if variance_function is None else "exact"})
+        return cls(mean_pressure, variance, pressure_factor, drift=drift, label=label)
 
 
 #: Newton steps of the exact ``eta(tau)`` map before it gives up on round-off (a bisection step each where the
@@ -354,16 +340,3 @@ class StagedProblem:
     def variance(self) -> float:
         """``2 tau_end`` (pressure squared): the variance ``f = 1`` would give."""
         return 2.0 * self.tau_end
-
-    @classmethod
-    def from_problem(cls, problem: "FokkerPlanckProblem") -> "StagedProblem":
-        """One stage holding an autonomous :class:`FokkerPlanckProblem`.
-
-        Raises
-        ------
-        ValueError
-            For a time-dependent diffusivity or drift (those need explicit stages).
-        """
-        if not problem.autonomous:
-            raise ValueError("only autonomous problems (no drift, f independent of tau) convert to one stage")
-        return cls(problem.mean_pressure, (Stage(problem.tau_end, problem.diffusivity),), label=problem.label)
