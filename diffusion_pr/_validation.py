@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 __all__ = ["InputTypeError", "check_positive", "check_nonnegative", "check_finite", "check_finite_array",
-           "check_in_range", "check_callable", "check_int", "check_seed", "check_writable", "check_writable_dir"]
+           "check_in_range", "check_callable", "check_int", "check_seed", "check_writable"]
 
 
 class InputTypeError(TypeError, ValueError):
@@ -163,7 +163,3 @@ def check_writable(name: str, path: Any, *, folder: bool = True) -> str:
         raise ValueError(f"{name}={target!r} is not a writable {'folder' if folder else 'file'}: "
                          f"{exc.strerror or exc}") from None
     return target
-
-
-#: :func:`check_writable` for a folder (created if needed)
-check_writable_dir = check_writable

@@ -209,22 +209,19 @@ def run_fig1(*, n: int = 512, zetas: Sequence[float] = DEFAULT_ZETAS, hard_wall:
     ValueError
         For any bad input, before any GFMD work.
     """
-    import gfmd_ref
-    from .._validation import check_writable_dir
-
+    from .._validation import check_writable
     from ..compare import SimulatedHistogram, compare
     from ..cumulants import stress_variance
-    from .reference_data import ReferenceCase
     from ..spectra import DiscreteSpectrum
+    from .reference_data import ReferenceCase, fig1_heights, paper_theory, solve_fig1_wall
 
     n, walls = _check_inputs(n, zetas, hard_wall, seed, tol, progress, log)
     if out_dir is not None:
-        out_dir = Path(check_writable_dir("out_dir", out_dir))
+        out_dir = Path(check_writable("out_dir", out_dir))
     scene = dict(FIG1_SCENE)
-    E_star, p0, length = scene["E_star"], scene["mean_pressure"], scene["length"]
-    heights = gfmd_ref.self_affine_surface(n, length=length, hurst=scene["hurst"], q_min=scene["q_min"],
-                                           q_max=scene["q_max"], rms_slope=scene["rms_slope"], seed=seed)
-    spectrum = DiscreteSpectrum.from_heights(heights, length)
+    E_star, p0 = scene["E_star"], scene["mean_pressure"]
+    heights = fig1_heights(n, seed)
+    spectrum = DiscreteSpectrum.from_heights(heights, scene["length"])
     v0 = float(stress_variance(spectrum, E_star=E_star, mean_pressure=p0, zeta=0.0))
 
     def case_of(zeta: Optional[float]) -> Any:
@@ -232,7 +229,7 @@ def run_fig1(*, n: int = 512, zetas: Sequence[float] = DEFAULT_ZETAS, hard_wall:
                              spectrum, {**scene, "n": n, "seed": seed, "zeta": zeta})
 
     # all theory curves first: cheap, and they validate cutoff, backend and rtol before any GFMD
-    persson = theory_curves(case_of(None), cutoff=cutoff, backend=backend, rtol=rtol)[PAPER]
+    persson = paper_theory(case_of(None))
     planned = []
     for zeta in ([None] if hard_wall else []) + walls:
         t0 = time.perf_counter()
@@ -242,11 +239,7 @@ def run_fig1(*, n: int = 512, zetas: Sequence[float] = DEFAULT_ZETAS, hard_wall:
     bin_width = BIN_WIDTH_P0 * p0
     cases = []
     for zeta, curves, t_theory in planned:
-        interaction = gfmd_ref.HardWall() if zeta is None else gfmd_ref.ExponentialRepulsion(zeta)
-        t0 = time.perf_counter()
-        res = gfmd_ref.solve_contact(heights, length=length, E_star=E_star, mean_pressure=p0,
-                                     interaction=interaction, tol=tol, progress=progress)
-        t_gfmd = time.perf_counter() - t0
+        res, t_gfmd = solve_fig1_wall(heights, zeta, tol=tol, progress=progress)
         pressure = np.asarray(res.pressure)
         edges = np.arange(int(np.ceil(float(pressure.max()) / bin_width)) + 1) * bin_width
         threshold = contact_threshold(zeta, p0)

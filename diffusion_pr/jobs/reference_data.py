@@ -38,6 +38,30 @@ def case_name(zeta: Optional[float], seed: int, n: int = 1024, surface: str = "f
     return f"{surface}_n{n}_{wall}_s{seed}"
 
 
+def fig1_heights(n: int, seed: Any, surface: str = "fig1") -> np.ndarray:
+    """The Fig. 1 surface on an ``n x n`` grid of the paper's period ``L = 1024`` (lengths in grid spacings of
+    the 1024^2 system): Gaussian coloured noise (``"fig1"``) or its :func:`skewed_surface` (``"fig1-skewed"``)."""
+    import gfmd_ref
+
+    s = FIG1_SCENE
+    heights = gfmd_ref.self_affine_surface(n, length=s["length"], hurst=s["hurst"], q_min=s["q_min"],
+                                           q_max=s["q_max"], rms_slope=s["rms_slope"], seed=seed)
+    if surface == "fig1-skewed":
+        heights = skewed_surface(heights, length=s["length"], rms_slope=s["rms_slope"])
+    return heights
+
+
+def solve_fig1_wall(heights: np.ndarray, zeta: Optional[float], *, tol: float, progress: bool) -> tuple[Any, float]:
+    """GFMD on the Fig. 1 scene at the wall range ``zeta`` (None: the hard wall): ``(ContactResult, seconds)``."""
+    import gfmd_ref
+
+    s, t0 = FIG1_SCENE, time.perf_counter()
+    wall = gfmd_ref.HardWall() if zeta is None else gfmd_ref.ExponentialRepulsion(zeta)
+    res = gfmd_ref.solve_contact(heights, length=s["length"], E_star=s["E_star"], mean_pressure=s["mean_pressure"],
+                                 interaction=wall, tol=tol, progress=progress)
+    return res, time.perf_counter() - t0
+
+
 @dataclass(frozen=True)
 class ReferenceCase:
     """One bundled GFMD result: its ``histogram``, the surface's own ``spectrum`` (for the theory curve), the wall
@@ -145,9 +169,10 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
     any work (the bundled cases live in :data:`DATA_DIR`: pass it explicitly to replace them); ``surface``:
     ``"fig1"`` (Gaussian coloured noise) or ``"fig1-skewed"`` (:func:`skewed_surface` of it).
     """
-
     import gfmd_ref
-    from .._validation import check_int, check_positive, check_seed, check_writable_dir
+    from gfmd_ref.ensemble import code_version
+
+    from .._validation import check_int, check_positive, check_seed, check_writable
 
     if surface not in ("fig1", "fig1-skewed"):
         raise ValueError(f"surface must be 'fig1' or 'fig1-skewed'; got surface={surface!r}")
@@ -165,40 +190,28 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
             gfmd_ref.ExponentialRepulsion(check_positive("zeta", zeta))
     if out_dir is None:
         raise ValueError("out_dir must be a folder (the package's data folder only when given explicitly)")
-    folder = Path(check_writable_dir("out_dir", out_dir))
-    from gfmd_ref.ensemble import code_version as gfmd_code_version
+    folder = Path(check_writable("out_dir", out_dir))
+    made_by = code_version()  # package version and git revision (+dirty), as the ensemble records
 
-    made_by = gfmd_code_version()  # package version and git revision (+dirty), as the ensemble records
-    code_version = f"{made_by['version']} (git {made_by['git']})"
-
-    scene = FIG1_SCENE
     written = []
     for seed in seeds:
-        heights = gfmd_ref.self_affine_surface(
-            n, length=scene["length"], hurst=scene["hurst"], q_min=scene["q_min"], q_max=scene["q_max"],
-            rms_slope=scene["rms_slope"], seed=seed)
-        if surface == "fig1-skewed":
-            heights = skewed_surface(heights, length=scene["length"], rms_slope=scene["rms_slope"])
+        heights = fig1_heights(n, seed, surface)
         for zeta in zetas:
-            interaction = gfmd_ref.HardWall() if zeta is None else gfmd_ref.ExponentialRepulsion(zeta)
-            t0 = time.perf_counter()
-            res = gfmd_ref.solve_contact(heights, length=scene["length"], E_star=scene["E_star"],
-                                         mean_pressure=scene["mean_pressure"], interaction=interaction,
-                                         tol=tol, progress=progress)
-            wall = time.perf_counter() - t0
+            res, wall = solve_fig1_wall(heights, zeta, tol=tol, progress=progress)
             name = case_name(zeta, seed, n, surface)
             cmd = (f"diffusion-pr make-reference --n {n} --seeds {seed} --tol {tol:g} --surface {surface} "
                    f"--length-unit paper --zetas {'hard' if zeta is None else f'{zeta:g}'}")
             prov = {
-                **scene, "n": n, "zeta": zeta, "interaction": "hard" if zeta is None else "exponential",
+                **FIG1_SCENE, "n": n, "zeta": zeta, "interaction": "hard" if zeta is None else "exponential",
                 "seed": int(seed), "surface": surface, "tol": tol, "method": res.method,
                 "converged": bool(res.converged), "residual": float(res.residual),
                 "iterations": int(res.iterations), "wall_time_s": round(wall, 3),
-                "contact_fraction": float(res.contact_fraction), "code_version": code_version,
+                "contact_fraction": float(res.contact_fraction),
+                "code_version": f"{made_by['version']} (git {made_by['git']})",
                 "command": cmd,
             }
             save_case(folder / f"{name}.npz", np.asarray(res.pressure), np.asarray(heights), prov,
-                      bin_width=scene["mean_pressure"] / 20.0)
+                      bin_width=FIG1_SCENE["mean_pressure"] / 20.0)
             log(f"{name}: converged={res.converged} residual={res.residual:.2e} it={res.iterations} "
                 f"a={res.contact_fraction:.5f} {wall:.1f} s")
             written.append(folder / f"{name}.npz")
