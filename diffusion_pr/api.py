@@ -276,9 +276,8 @@ def pressure_distribution(
         Range of the exponential repulsion, >= 0 (0 = hard wall), in the length unit of the spectrum (that of its
         ``L = 2 pi / q_min``).
     cutoff : str or callable
-        ``"sharp"`` (default; exact mirror Gaussian, takes no ``p_c``), ``"muser"``/``"seed"`` (the paper's
-        printed factor, discontinuous at ``p_c``), ``"raised_cosine"`` (C1), ``"smoothstep"`` (C2), or a callable
-        ``c(p)``.
+        ``"sharp"`` (default; exact mirror Gaussian, takes no ``p_c``), ``"muser"``/``"seed"`` (the paper's printed
+        factor, discontinuous at ``p_c``), ``"raised_cosine"`` (C1), ``"smoothstep"`` (C2), or a callable ``c(p)``.
     p_c : float, optional
         Cutoff pressure (pressure) for the smooth cutoffs, > 0.
     tail : str or callable, optional

@@ -192,12 +192,11 @@ def cir_density(p: ArrayLike, mean_pressure: float, tau: float, slope: float, dr
 
         Pr(p) = (2/a) exp(beta tau) (1/2s) (y/z0)^(nu/2) exp(-(y + z0)/2s) I_|nu|(sqrt(y z0)/s),
 
-    the squared Bessel process's transition density on the clock ``s``; ``I_|nu|`` (not ``I_nu``) is the
-    process killed at 0 where ``delta < 2``, and the same function where ``delta >= 2`` (0 is never reached:
-    then ``2 k p`` is noncentral chi-square with ``delta`` degrees of freedom and noncentrality
-    ``2 k p0 exp(-beta tau)``, ``k = beta/(a (1 - exp(-beta tau)))``; Cox, Ingersoll and Ross 1985,
-    doi:10.2307/1911242).  ``alpha = beta = 0`` is :func:`feller_density`.  Evaluated overflow-free with
-    ``ive`` and in logarithms; at ``p = 0`` the limit ``p -> 0+``.
+    the squared Bessel process's transition density on the clock ``s``; ``I_|nu|`` (not ``I_nu``) is the process killed
+    at 0 where ``delta < 2``, and the same function where ``delta >= 2`` (0 is never reached: then ``2 k p`` is
+    noncentral chi-square with ``delta`` degrees of freedom and noncentrality ``2 k p0 exp(-beta tau)``,
+    ``k = beta/(a (1 - exp(-beta tau)))``; Cox, Ingersoll and Ross 1985, doi:10.2307/1911242).  ``alpha = beta = 0`` is
+    :func:`feller_density`.  Evaluated overflow-free with ``ive`` and in logarithms; at ``p = 0`` the limit ``p -> 0+``.
 
     ``drift_at_wall`` ``alpha`` [pressure per unit ``tau``] is the drift at ``p = 0``, any sign (``alpha >= a``
     makes ``p = 0`` an entrance boundary, never reached); ``restoring_rate`` ``beta`` [1/pressure^2], any sign,

@@ -1,10 +1,9 @@
 r"""Second-order cumulant results: ``G1(q)``, the stress variance and ``D(eta)``.
 
-For a linear-elastic half-space of contact modulus ``E*`` against a rigid rough
-surface with exponential repulsion of range ``zeta`` at mean pressure ``p0``,
-the second-order cumulant expansion gives the linear response
-``u~(q) = G1(q) h~(q)`` with (M. H. Müser, Phys. Rev. Lett. 100, 055504 (2008),
-Eq. 10, doi:10.1103/PhysRevLett.100.055504)::
+For a linear-elastic half-space of contact modulus ``E*`` against a rigid rough surface with exponential repulsion of
+range ``zeta`` at mean pressure ``p0``, the second-order cumulant expansion gives the linear response
+``u~(q) = G1(q) h~(q)`` with (M. H. Müser, Phys. Rev. Lett. 100, 055504 (2008), Eq. 10,
+doi:10.1103/PhysRevLett.100.055504)::
 
     G1(q) = 1 / (1 + zeta q E* / (2 p0)),
 
@@ -16,9 +15,8 @@ and, since ``sigma~(q) = (q E*/2) u~(q)`` (Eq. 3), the stress variance::
 ``zeta = 0`` gives Persson's full-contact variance ``V0 = (E*/2)^2 gbar^2``
 (B. N. J. Persson, J. Chem. Phys. 115, 3840 (2001), doi:10.1063/1.1388626).
 
-Magnification ``eta = q / q_min``: ``V(eta)`` accumulates the modes with
-``|q| <= eta q_min`` and ``D(eta) = (1/2) dV/deta`` is the diffusivity of the
-magnification-dependent Fokker-Planck equation (docs/theory.md).
+Magnification ``eta = q / q_min``: ``V(eta)`` accumulates the modes with ``|q| <= eta q_min`` and
+``D(eta) = (1/2) dV/deta`` is the diffusivity of the magnification-dependent Fokker-Planck equation (docs/theory.md).
 
 Units: ``E_star`` and ``mean_pressure`` in one pressure unit, ``zeta`` and
 wavelengths in one length unit; variances come out in pressure^2.
@@ -77,11 +75,9 @@ def stress_variance(
 ) -> np.ndarray | float:
     r"""Second-order cumulant stress variance ``V = <Delta sigma^2>`` [pressure^2].
 
-    ``V = (E*/2)^2 sum_q q^2 |G1(q)|^2 |h~(q)|^2`` for a
-    :class:`~diffusion_pr.spectra.DiscreteSpectrum` (exact sum over its modes)
-    and ``(E*/2)^2 2 pi \int q^3 C(q) |G1(q)|^2 dq`` for a continuum spectrum
-    (Gauss-Legendre in ``ln q``, relative error ~1e-14). ``zeta = 0`` is
-    Persson's ``V0 = (E*/2)^2 gbar^2``; ``V`` decreases monotonically with
+    ``V = (E*/2)^2 sum_q q^2 |G1(q)|^2 |h~(q)|^2`` for a :class:`~diffusion_pr.spectra.DiscreteSpectrum` (exact sum over
+    its modes) and ``(E*/2)^2 2 pi \int q^3 C(q) |G1(q)|^2 dq`` for a continuum spectrum (Gauss-Legendre in ``ln q``,
+    relative error ~1e-14). ``zeta = 0`` is Persson's ``V0 = (E*/2)^2 gbar^2``; ``V`` decreases monotonically with
     ``zeta`` and behaves as ``p0^2 h_rms^2 / zeta^2`` for ``zeta q_max E* >> p0``.
 
     ``E_star`` [pressure] > 0; ``mean_pressure`` [pressure] > 0 and ``zeta`` [the spectrum's length unit] >= 0
@@ -124,10 +120,9 @@ def variance_vs_magnification(
 ) -> np.ndarray | float:
     r"""Variance ``V(eta)`` [pressure^2] accumulated from modes with ``|q| <= eta q_min``.
 
-    Continuum: ``V(eta) = (E*/2)^2 2 pi \int_{q_min}^{min(eta, eta_max) q_min} q^3 C |G1|^2 dq``,
-    0 for ``eta <= 1``. Discrete: the staircase sum over shells with
-    ``|q| <= eta q_min`` (inclusive; ``V(1)`` already holds the lowest shell).
-    ``V(eta_max = q_max/q_min)`` equals :func:`stress_variance`.
+    Continuum: ``V(eta) = (E*/2)^2 2 pi \int_{q_min}^{min(eta, eta_max) q_min} q^3 C |G1|^2 dq``, 0 for ``eta <= 1``.
+    Discrete: the staircase sum over shells with ``|q| <= eta q_min`` (inclusive; ``V(1)`` already holds the lowest
+    shell). ``V(eta_max = q_max/q_min)`` equals :func:`stress_variance`.
 
     ``eta`` (``q / q_min``, dimensionless) of any shape, the result of its shape; ``E_star`` and ``mean_pressure``
     [pressure] > 0; ``zeta`` [length] >= 0, a scalar.
@@ -153,21 +148,17 @@ def diffusivity_vs_magnification(
 ) -> np.ndarray | float:
     r"""Magnification diffusivity ``D(eta) = (1/2) dV/deta`` [pressure^2].
 
-    Continuum (exact derivative of :func:`variance_vs_magnification`), with
-    ``q = eta q_min``::
+    Continuum (exact derivative of :func:`variance_vs_magnification`), with ``q = eta q_min``::
 
         D(eta) = (1/2) (E*/2)^2 2 pi q^3 C(q) |G1(q)|^2 q_min   for 1 <= eta <= q_max/q_min,
 
     and 0 outside (``C`` vanishes there), so ``\int_1^{eta_max} D deta = V/2``.
 
-    Discrete spectra: ``dV/deta`` is a sum of delta functions at the shells
-    ``eta_k = |q_k|/q_min``. This function then returns the *binned*
-    diffusivity ``D_j = [V(e_{j+1}) - V(e_j)] / (2 (e_{j+1} - e_j))`` on bins
-    ``(e_j, e_{j+1}]`` (right-closed; 0 outside the bins), whose integral
-    over any union of bins is exactly half the variance of the shells in
-    it. Default bins: unit width in ``eta`` centred on the integers,
-    ``e = 0.5, 1.5, 2.5, ...`` (annuli of width ``q_min``, the usual radial
-    average; with ``q_min = 2 pi/L`` no lattice shell lies on an edge). The
+    Discrete spectra: ``dV/deta`` is a sum of delta functions at the shells ``eta_k = |q_k|/q_min``. This function then
+    returns the *binned* diffusivity ``D_j = [V(e_{j+1}) - V(e_j)] / (2 (e_{j+1} - e_j))`` on bins ``(e_j, e_{j+1}]``
+    (right-closed; 0 outside the bins), whose integral over any union of bins is exactly half the variance of the shells
+    in it. Default bins: unit width in ``eta`` centred on the integers, ``e = 0.5, 1.5, 2.5, ...`` (annuli of width
+    ``q_min``, the usual radial average; with ``q_min = 2 pi/L`` no lattice shell lies on an edge). The
     staircase itself is :func:`variance_vs_magnification`.
 
     Arguments as :func:`variance_vs_magnification`; ``bins``: strictly increasing edges in ``eta`` (discrete

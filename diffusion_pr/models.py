@@ -39,9 +39,8 @@ def wall_reached(k: float) -> bool:
 def evaluate_vectorized(f: Callable, p: np.ndarray, name: str | None = None) -> np.ndarray:
     """Evaluate a pressure function ``f`` on ``p``; check it returns one value per pressure.
 
-    A scalar result is broadcast (a constant ``f``); any other shape, or an
-    exception inside ``f``, becomes a ``ValueError`` naming ``name`` (default:
-    the callable's repr) and the shapes.
+    A scalar result is broadcast (a constant ``f``); any other shape, or an exception inside ``f``, becomes a
+    ``ValueError`` naming ``name`` (default: the callable's repr) and the shapes.
     """
     who = f"the callable {f!r}" if name is None else name
     try:
@@ -61,9 +60,8 @@ def evaluate_vectorized(f: Callable, p: np.ndarray, name: str | None = None) -> 
 def zero_power_of(f: Callable, scale: float) -> float:
     """``k`` of ``f ~ p^k`` at ``p -> 0+``: the declared ``zero_power``, else a probe.
 
-    The probe takes the median slope of ``log f`` against ``log p`` between
-    consecutive ``p = scale 10^-j`` (``j = 2..8``) with ``f > 0``, snapped to
-    the nearest integer within 0.02; ``f = 0`` at every probe gives ``inf``.
+    The probe takes the median slope of ``log f`` against ``log p`` between consecutive ``p = scale 10^-j``
+    (``j = 2..8``) with ``f > 0``, snapped to the nearest integer within 0.02; ``f = 0`` at every probe gives ``inf``.
 
     Parameters
     ----------
@@ -155,8 +153,7 @@ class SharpCutoff(_Model):
 class _Cutoff(_Model):
     """A switch from 0 at ``p <= 0`` to its plateau, ending at the cutoff pressure ``p_c`` (> 0, units of pressure).
 
-    Subclasses set ``continuity`` (the highest continuous derivative, -1 for a
-    jump), ``zero_power`` and ``__call__``.
+    Subclasses set ``continuity`` (the highest continuous derivative, -1 for a jump), ``zero_power`` and ``__call__``.
     """
 
     p_c: float
@@ -170,11 +167,10 @@ class _Cutoff(_Model):
 class MuserCutoff(_Cutoff):
     """The seed paper's cutoff, exactly as printed, for a cutoff pressure ``p_c`` > 0 (units of pressure).
 
-    ``c(p) = 1 - theta(p_c - p) cos(pi p / p_c)`` for ``p >= 0`` and 0 for
-    ``p < 0`` (Müser 2008, text below Eq. 10).  Below ``p_c`` it rises from 0 to
-    2; above ``p_c`` it is 1.  It is continuous with zero slope at ``p = 0`` but
-    jumps from 2 to 1 at ``p = p_c`` (``continuity = -1``).  ``c ~ (pi p/p_c)^2/2``
-    near 0, so no mass reaches ``p = 0``: the non-contact peak broadens instead.
+    ``c(p) = 1 - theta(p_c - p) cos(pi p / p_c)`` for ``p >= 0`` and 0 for ``p < 0`` (Müser 2008, text below Eq. 10).
+    Below ``p_c`` it rises from 0 to 2; above ``p_c`` it is 1.  It is continuous with zero slope at ``p = 0`` but jumps
+    from 2 to 1 at ``p = p_c`` (``continuity = -1``).  ``c ~ (pi p/p_c)^2/2`` near 0, so no mass reaches ``p = 0``: the
+    non-contact peak broadens instead.
     """
 
     continuity: ClassVar[int] = -1
@@ -366,11 +362,10 @@ class PressureFactor:
 class ProportionalDiffusivity(_Model):
     """Pure linear pressure factor ``f(p) = p / p_1`` (0 for ``p <= 0``), ``p_1`` > 0 (units of pressure).
 
-    The diffusivity ``D ∝ p`` of the paper's exponential-tail argument taken
-    literally down to ``p = 0``.  From ``delta(p - p0)`` the exact solution is
-    Feller's (W. Feller, Ann. Math. 54, 173 (1951)): see
-    :func:`diffusion_pr.closed_forms.feller_density` with ``slope = 1/p_1``.
-    ``p = 0`` is an exit boundary: mass ``exp(-p0 p_1 / tau)`` is absorbed.
+    The diffusivity ``D ∝ p`` of the paper's exponential-tail argument taken literally down to ``p = 0``.  From
+    ``delta(p - p0)`` the exact solution is Feller's (W. Feller, Ann. Math. 54, 173 (1951)): see
+    :func:`diffusion_pr.closed_forms.feller_density` with ``slope = 1/p_1``. ``p = 0`` is an exit boundary: mass
+    ``exp(-p0 p_1 / tau)`` is absorbed.
     """
 
     p_1: float

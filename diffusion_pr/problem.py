@@ -57,8 +57,7 @@ class FokkerPlanckProblem:
     variance : float
         ``V`` (pressure squared), > 0: the problem runs to ``tau_end = V/2``.
     diffusivity : callable
-        Vectorized ``f(p)`` (dimensionless), ``f >= 0`` and finite on ``p > 0``;
-        ``f(p, tau)`` if ``time_dependent``.
+        Vectorized ``f(p)`` (dimensionless), ``f >= 0`` and finite on ``p > 0``; ``f(p, tau)`` if ``time_dependent``.
     drift : callable, optional
         Vectorized ``a(p, tau)`` (pressure per unit tau); ``None`` means 0.
     time_dependent : bool
@@ -135,21 +134,18 @@ class FokkerPlanckProblem:
         pressure_factor : callable
             ``f(p) = c(p) t(p)``.
         drift_of_eta : callable, optional
-            ``A(p, eta)`` (pressure per unit magnification).  Converted to
-            ``a = A / D(eta)`` with ``D = (1/2) dV/deta``; segments where ``D = 0``
-            are skipped (their drift cannot be represented in ``tau``; the
-            conversion raises if a drift is given there).
+            ``A(p, eta)`` (pressure per unit magnification).  Converted to ``a = A / D(eta)`` with
+            ``D = (1/2) dV/deta``; segments where ``D = 0`` are skipped (their drift cannot be represented in ``tau``;
+            the conversion raises if a drift is given there).
         variance_function, diffusivity_function : callable, optional
-            The exact, vectorized ``V(eta)`` (pressure squared) and
-            ``D(eta) = (1/2) dV/deta`` (pressure squared per unit magnification),
-            consistent with ``variance_of_eta`` at the nodes (a continuum spectrum's
+            The exact, vectorized ``V(eta)`` (pressure squared) and ``D(eta) = (1/2) dV/deta`` (pressure squared per
+            unit magnification), consistent with ``variance_of_eta`` at the nodes (a continuum spectrum's
             :func:`~diffusion_pr.cumulants.variance_vs_magnification` and
-            :func:`~diffusion_pr.cumulants.diffusivity_vs_magnification`).  Given
-            both, ``eta(tau)`` solves ``(V(eta) - V(1))/2 = tau`` to round-off and
-            ``a(p, tau)`` is as smooth in ``tau`` as ``A`` and ``D`` are in ``eta``
-            (second-order convergence of the midpoint time segments).  Without them
-            ``eta(tau)`` and ``D`` are interpolated linearly between the nodes:
-            ``a`` has a kink at every node and a tight ``rtol`` may be out of reach.
+            :func:`~diffusion_pr.cumulants.diffusivity_vs_magnification`).  Given both, ``eta(tau)`` solves
+            ``(V(eta) - V(1))/2 = tau`` to round-off and ``a(p, tau)`` is as smooth in ``tau`` as ``A`` and ``D`` are in
+            ``eta`` (second-order convergence of the midpoint time segments).  Without them ``eta(tau)`` and ``D`` are
+            interpolated linearly between the nodes: ``a`` has a kink at every node and a tight ``rtol`` may be out of
+            reach.
         """
         eta = np.asarray(eta, dtype=float)
         v = np.asarray(variance_of_eta, dtype=float)
@@ -262,11 +258,10 @@ class Stage:
 
         dPr/dtau = d^2/dp^2 [ f(p) Pr ] - d/dp [ (b(p) - A(tau) w(p)) Pr ],   p > 0,
 
-    with the scalar ``A(tau)`` chosen at every instant so that ``d<p>/dtau = 0``
-    when ``balance`` is given (or, for a :class:`StagedProblem` with
-    ``balance_per_stage``, one number ``A`` per stage that brings ``<p>`` back to
-    ``p0`` at the stage's end).  The callables may declare the model protocol of
-    :mod:`diffusion_pr.models` (``zero_power``, ``breakpoints()``).
+    with the scalar ``A(tau)`` chosen at every instant so that ``d<p>/dtau = 0`` when ``balance`` is given (or, for a
+    :class:`StagedProblem` with ``balance_per_stage``, one number ``A`` per stage that brings ``<p>`` back to ``p0`` at
+    the stage's end).  The callables may declare the model protocol of :mod:`diffusion_pr.models` (``zero_power``,
+    ``breakpoints()``).
 
     Attributes
     ----------
@@ -308,11 +303,10 @@ class StagedProblem:
     label : str
         Free text carried into the result's diagnostics.
     balance_per_stage : bool
-        How a stage's balance multiplier ``A`` is defined.  False (default):
-        ``A(tau)`` at every instant, so that ``d<p>/dtau = 0`` throughout (the
-        engine resolves it by substeps refined with the grids).  True: one
-        number ``A`` per stage, the one with ``<p> = p0`` at the stage's end
-        (the closures: the rigid-body approach restores the load shell by shell).
+        How a stage's balance multiplier ``A`` is defined.  False (default): ``A(tau)`` at every instant, so that
+        ``d<p>/dtau = 0`` throughout (the engine resolves it by substeps refined with the grids).  True: one number
+        ``A`` per stage, the one with ``<p> = p0`` at the stage's end (the closures: the rigid-body approach restores
+        the load shell by shell).
     """
 
     mean_pressure: float

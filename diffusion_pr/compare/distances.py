@@ -46,10 +46,9 @@ class Comparison:
 def compare(theory: Any, hist: SimulatedHistogram, *, contact_threshold: Optional[float] = None) -> Comparison:
     """Compare a :class:`~diffusion_pr.result.PressureDistribution` with a histogram.
 
-    Both distances are taken at the histogram's resolution: the ``delta(p)`` peaks (the theory's ``zero_weight``
-    and the simulation's exactly-zero pressures) are counted in the first bin ``[0, edges[1])``, since below one
-    bin width a soft wall's tiny pressures cannot be told from ``p = 0``.  The contact fractions are reported
-    separately.
+    Both distances are taken at the histogram's resolution: the ``delta(p)`` peaks (the theory's ``zero_weight`` and the
+    simulation's exactly-zero pressures) are counted in the first bin ``[0, edges[1])``, since below one bin width a
+    soft wall's tiny pressures cannot be told from ``p = 0``.  The contact fractions are reported separately.
 
     * ``l1 = sum_i |m_theory,i - m_sim,i|`` over bin masses, plus the theory's mass beyond the last edge and the
       simulation's pressures outside the bins.
@@ -90,10 +89,9 @@ def kolmogorov_distance(cdf: Callable, quantiles: Array, levels: Array, *, p_flo
     """``sup |F - F_field|`` over ``p >= p_floor``: a CDF ``cdf`` against a field's empirical CDF given by its
     quantile function (``quantiles`` at ``levels``).
 
-    At each distinct quantile value ``x`` the empirical CDF jumps from about
-    the first to the last level whose quantile is ``x`` (ties: the delta peak
-    at 0); both sides of the jump are compared with ``cdf`` on the same side
-    (``cdf`` includes a weight ``zero_weight`` in a delta peak at ``p = 0``).  Resolution: one level step,
+    At each distinct quantile value ``x`` the empirical CDF jumps from about the first to the last level whose quantile
+    is ``x`` (ties: the delta peak at 0); both sides of the jump are compared with ``cdf`` on the same side (``cdf``
+    includes a weight ``zero_weight`` in a delta peak at ``p = 0``).  Resolution: one level step,
     ``1/(len(levels) - 1)``.
     """
     uniq, first = np.unique(quantiles, return_index=True)
@@ -113,10 +111,9 @@ def kolmogorov_distance(cdf: Callable, quantiles: Array, levels: Array, *, p_flo
 def kolmogorov_between(first: SimulatedHistogram, second: SimulatedHistogram) -> float:
     """Kolmogorov distance between two simulated fields (e.g. two surface seeds).
 
-    ``sup |F_1 - F_2|`` over ``p >= first.edges[1]`` (the same resolution as
-    :func:`compare`): :func:`kolmogorov_distance` of each field's quantiles against the other's empirical CDF
-    (linear between its quantiles), the larger of the two.  Used as the realization scatter a theory can be
-    expected to reach.
+    ``sup |F_1 - F_2|`` over ``p >= first.edges[1]`` (the same resolution as :func:`compare`):
+    :func:`kolmogorov_distance` of each field's quantiles against the other's empirical CDF (linear between its
+    quantiles), the larger of the two.  Used as the realization scatter a theory can be expected to reach.
     """
     if first.quantiles is None or second.quantiles is None:
         raise ValueError("both histograms need stored quantiles (SimulatedHistogram.from_pressures keeps them)")

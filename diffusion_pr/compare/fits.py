@@ -1,6 +1,5 @@
-"""Shapes and fits of a theory against a histogram: the curvature of ``ln Pr`` in the tail
-(:func:`tail_curvatures`) and least-squares fits of the paper's cutoff and tail pressures
-(:func:`fit_cutoff_pressure`, :func:`fit_tail_pressure`).
+"""Shapes and fits of a theory against a histogram: the curvature of ``ln Pr`` in the tail (:func:`tail_curvatures`) and
+least-squares fits of the paper's cutoff and tail pressures (:func:`fit_cutoff_pressure`, :func:`fit_tail_pressure`).
 
 Pressures in any unit shared by theory and simulation.
 """
@@ -20,15 +19,13 @@ def log_density_curvature(p: ArrayLike, density: ArrayLike, *, p_lo: float, p_hi
                           weights: Optional[ArrayLike] = None) -> float:
     """Curvature ``d^2 ln Pr / dp^2`` of a quadratic fit on ``[p_lo, p_hi]``.
 
-    For a Gaussian of variance ``V`` this is ``-1/V`` (1 / pressure^2).  The
-    paper's claim "the curvature of ln Pr(p) is off by about 20 %" is tested
-    with this number (theory and simulation fitted on the same window).
+    For a Gaussian of variance ``V`` this is ``-1/V`` (1 / pressure^2).  The paper's claim "the curvature of ln Pr(p) is
+    off by about 20 %" is tested with this number (theory and simulation fitted on the same window).
 
     Parameters
     ----------
     p, density : array
-        Points (units of pressure) and density (1 / pressure); non-positive
-        densities inside the window are ignored.
+        Points (units of pressure) and density (1 / pressure); non-positive densities inside the window are ignored.
     p_lo, p_hi : float
         Fit window (units of pressure).
     weights : array, optional
@@ -48,12 +45,10 @@ def tail_curvatures(theory: Any, hist: SimulatedHistogram, *, decades: float = 2
                     rebin: Optional[int] = None) -> tuple[float, float, tuple[float, float]]:
     """Curvature of ``ln Pr`` on the high-pressure side, simulation and theory.
 
-    The window starts at the mean pressure ``p0`` (taken from the histogram's
-    moments) and ends where the simulated density has dropped by ``decades``
-    decades below its value at ``p0``: the part of a log plot where the eye
-    judges "the curvature of ln Pr(p)".  Both curvatures come from the same
-    weighted quadratic fit (:func:`log_density_curvature`, weights
-    ``sqrt(simulated bin mass)``) on the same bins, the theory bin-averaged.
+    The window starts at the mean pressure ``p0`` (taken from the histogram's moments) and ends where the simulated
+    density has dropped by ``decades`` decades below its value at ``p0``: the part of a log plot where the eye judges
+    "the curvature of ln Pr(p)".  Both curvatures come from the same weighted quadratic fit
+    (:func:`log_density_curvature`, weights ``sqrt(simulated bin mass)``) on the same bins, the theory bin-averaged.
 
     Parameters
     ----------
@@ -62,8 +57,7 @@ def tail_curvatures(theory: Any, hist: SimulatedHistogram, *, decades: float = 2
     decades : float
         How far (in decades of density) the window reaches down the tail.
     rebin : int, optional
-        Merge this many bins first; default: the coarsest of 4, 2, 1 that
-        leaves at least 8 bins in the window.
+        Merge this many bins first; default: the coarsest of 4, 2, 1 that leaves at least 8 bins in the window.
 
     Returns
     -------
@@ -149,11 +143,10 @@ def fit_cutoff_pressure(hist: SimulatedHistogram, spectrum: Any, *, E_star: floa
     """Fit ``p_c`` of a smoothed cutoff to a simulated histogram by least squares on ``ln Pr`` (the paper's
     Fig. 1 is a log plot).
 
-    The objective is ``sum_i w_i (ln Pr_theory,i - ln Pr_sim,i)^2`` over the bins with a positive simulated
-    density, weights the simulated bin masses, the theory's density floored at :data:`LOG_FLOOR` times the
-    histogram's maximum.  The theory is :func:`diffusion_pr.pressure_distribution` for the given spectrum (use the
-    surface's own :class:`~diffusion_pr.spectra.DiscreteSpectrum`); a bounded Brent search in ``ln p_c`` to
-    ``xatol``.
+    The objective is ``sum_i w_i (ln Pr_theory,i - ln Pr_sim,i)^2`` over the bins with a positive simulated density,
+    weights the simulated bin masses, the theory's density floored at :data:`LOG_FLOOR` times the histogram's maximum.
+    The theory is :func:`diffusion_pr.pressure_distribution` for the given spectrum (use the surface's own
+    :class:`~diffusion_pr.spectra.DiscreteSpectrum`); a bounded Brent search in ``ln p_c`` to ``xatol``.
 
     Parameters
     ----------

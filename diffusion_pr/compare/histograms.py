@@ -22,9 +22,8 @@ SimulatedHistogram = PressureHistogram
 def bin_averaged_density(theory: Any, edges: ArrayLike) -> Array:
     """Average of a theory's continuous density over each bin (1 / pressure).
 
-    Uses the theory's cumulative distribution, so narrow features are
-    integrated exactly rather than sampled at bin centres; the ``delta(p)``
-    peak is excluded.
+    Uses the theory's cumulative distribution, so narrow features are integrated exactly rather than sampled at bin
+    centres; the ``delta(p)`` peak is excluded.
     """
     edges = np.asarray(edges, dtype=float)
     cdf = np.asarray(theory.cdf(edges), dtype=float)

@@ -61,8 +61,7 @@ class Fig1Case:
     zeta : float or None
         Wall range (grid spacings of the 1024^2 system); None for the hard wall.
     histogram : SimulatedHistogram
-        GFMD pressure histogram (bin width ``BIN_WIDTH_P0 * p0``, edges from 0
-        past the largest pressure).
+        GFMD pressure histogram (bin width ``BIN_WIDTH_P0 * p0``, edges from 0 past the largest pressure).
     theories : dict
         ``label -> PressureDistribution`` from :func:`theory_curves`.
     comparisons : dict
@@ -196,9 +195,8 @@ def run_fig1(*, n: int = 512, zetas: Sequence[float] = DEFAULT_ZETAS, hard_wall:
     backend, rtol
         Passed to :func:`diffusion_pr.pressure_distribution` (rtol: L1 tolerance).
     out_dir : path or None
-        Where to write ``fig1.png``, ``fig1_curves.csv``, ``fig1_histograms.csv``
-        and ``fig1_report.txt`` (created and checked for writability before
-        any work); ``None`` writes nothing.
+        Where to write ``fig1.png``, ``fig1_curves.csv``, ``fig1_histograms.csv`` and ``fig1_report.txt`` (created and
+        checked for writability before any work); ``None`` writes nothing.
     progress : bool
         GFMD progress bars.
     log : callable

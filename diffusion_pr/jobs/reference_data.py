@@ -1,12 +1,11 @@
 """Bundled GFMD reference data for the paper's Fig. 1 system, and its generator.
 
-The Fig. 1 system of Müser, PRL 100, 055504 (2008) (numbers in :mod:`diffusion_pr.paper`): a ``1024 x 1024``
-grid of period ``L = 1024`` (the grid spacing is the length unit), exponential repulsion at several ``zeta``
-and the hard wall.  Each case is a compressed ``.npz`` in ``diffusion_pr/data/`` holding the pressure histogram
-(:class:`~diffusion_pr.compare.SimulatedHistogram`), the surface's
-:class:`~diffusion_pr.spectra.DiscreteSpectrum` and the provenance, including the command that regenerates it
-(:func:`generate_reference`, ``diffusion-pr make-reference``).  Loading needs only numpy; generating needs
-:mod:`gfmd_ref`."""
+The Fig. 1 system of Müser, PRL 100, 055504 (2008) (numbers in :mod:`diffusion_pr.paper`): a ``1024 x 1024`` grid of
+period ``L = 1024`` (the grid spacing is the length unit), exponential repulsion at several ``zeta`` and the hard wall.
+Each case is a compressed ``.npz`` in ``diffusion_pr/data/`` holding the pressure histogram
+(:class:`~diffusion_pr.compare.SimulatedHistogram`), the surface's :class:`~diffusion_pr.spectra.DiscreteSpectrum` and
+the provenance, including the command that regenerates it (:func:`generate_reference`, ``diffusion-pr make-reference``).
+Loading needs only numpy; generating needs :mod:`gfmd_ref`."""
 from __future__ import annotations
 
 import json
