@@ -30,11 +30,6 @@ BEST_CLOSURE = "local_g1_shell_balanced"
 BIN_WIDTH_P0 = 0.1
 
 
-def paper_cutoff_pressure(zeta: float) -> float:
-    """The paper's fitted ``p_c`` for ``zeta`` (see :func:`diffusion_pr.paper.cutoff_pressure`)."""
-    return cutoff_pressure(zeta)
-
-
 def theory_curves(case: Any, *, cutoff: str, backend: str, rtol: float) -> dict[str, Any]:
     """The theory curves of one wall: ``{label: PressureDistribution}``.
 

@@ -93,15 +93,11 @@ def paper_theory(case: Any, *, cutoff: str = "muser", p_c: Optional[float] = Non
     and ``p_c`` (pressure) defaulting to the paper's value (:func:`diffusion_pr.paper.cutoff_pressure`);
     ``backend`` and ``rtol`` go to :func:`diffusion_pr.pressure_distribution`."""
     from ..api import pressure_distribution
-    from ..paper import cutoff_pressure
 
-    if case.zeta is None:
-        return pressure_distribution(case.spectrum, E_star=case.E_star, mean_pressure=case.mean_pressure,
-                                     zeta=0.0, cutoff="sharp")
-    return pressure_distribution(case.spectrum, E_star=case.E_star, mean_pressure=case.mean_pressure,
-                                 zeta=case.zeta, cutoff=cutoff,
-                                 p_c=cutoff_pressure(case.zeta) if p_c is None else p_c, backend=backend,
-                                 rtol=rtol)
+    kw = {"zeta": 0.0, "cutoff": "sharp"} if case.zeta is None else {
+        "zeta": case.zeta, "cutoff": cutoff, "p_c": cutoff_pressure(case.zeta) if p_c is None else p_c,
+        "backend": backend, "rtol": rtol}
+    return pressure_distribution(case.spectrum, E_star=case.E_star, mean_pressure=case.mean_pressure, **kw)
 
 
 def available_references(data_dir: Path | str | None = None) -> list[str]:
