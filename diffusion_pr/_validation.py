@@ -70,14 +70,8 @@ def check_nonnegative(name: str, value: ArrayLike) -> float | np.ndarray:
     return _check(name, value, lambda v: np.isfinite(v) & (v >= 0), "be >= 0 and finite")
 
 
-def check_finite_array(
-    name: str,
-    arr: ArrayLike,
-    *,
-    ndim: int | None = None,
-    shape: tuple[int | None, ...] | None = None,
-    min_size: int = 1,
-) -> np.ndarray:
+def check_finite_array(name: str, arr: ArrayLike, *, ndim: int | None = None,
+                       shape: tuple[int | None, ...] | None = None, min_size: int = 1) -> np.ndarray:
     """``arr`` as a finite real float array with ``ndim`` dimensions, of ``shape`` (``None`` entries match any
     length) and at least ``min_size`` elements, each where given; the errors name ``name``."""
     a = np.asarray(_as_float(name, arr), dtype=float)
@@ -96,15 +90,8 @@ def check_finite_array(
     return a
 
 
-def check_in_range(
-    name: str,
-    value: ArrayLike,
-    lo: float,
-    hi: float,
-    *,
-    lo_inclusive: bool = True,
-    hi_inclusive: bool = True,
-) -> float | np.ndarray:
+def check_in_range(name: str, value: ArrayLike, lo: float, hi: float, *, lo_inclusive: bool = True,
+                   hi_inclusive: bool = True) -> float | np.ndarray:
     """``value`` (scalar or every array entry) as float, required in ``[lo, hi]`` (NaN rejected); ``lo_inclusive``,
     ``hi_inclusive`` say whether the bounds are allowed; ``-inf`` / ``inf`` for one-sided ranges."""
     def ok(v: np.ndarray) -> np.ndarray:

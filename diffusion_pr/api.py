@@ -170,16 +170,10 @@ def solve_problem(problem: Any, *, backend: str = "auto", rtol: float = 1e-6,
     return _checked(_solve_full(problem, backend, rtol, options).result)
 
 
-def propagate(
-    mean_pressure: float,
-    variance: float,
-    *,
-    diffusivity: Optional[Callable[[np.ndarray], np.ndarray]] = None,
-    drift: Optional[Callable[[np.ndarray, float], np.ndarray]] = None,
-    backend: str = "auto",
-    rtol: float = 1e-6,
-    **options: Any,
-) -> PressureDistribution:
+def propagate(mean_pressure: float, variance: float, *,
+              diffusivity: Optional[Callable[[np.ndarray], np.ndarray]] = None,
+              drift: Optional[Callable[[np.ndarray, float], np.ndarray]] = None, backend: str = "auto",
+              rtol: float = 1e-6, **options: Any) -> PressureDistribution:
     """Solve ``dPr/dtau = -d/dp[a Pr] + d^2/dp^2[f(p) Pr]`` from ``delta(p - p0)`` to ``tau = V/2``.
 
     ``p = 0`` absorbs: what reaches it is ``zero_weight`` (the non-contact peak).  With ``f = 1`` the answer is
@@ -235,22 +229,11 @@ def propagate(
     return _checked(_solve_full(problem, backend, rtol, options).result)
 
 
-def pressure_distribution(
-    spectrum: Any,
-    *,
-    E_star: float,
-    mean_pressure: float,
-    zeta: float = 0.0,
-    cutoff: Any = "sharp",
-    p_c: Optional[float] = None,
-    tail: Any = None,
-    p_t: Optional[float] = None,
-    drift: Optional[Callable[[np.ndarray, float], np.ndarray]] = None,
-    backend: str = "auto",
-    rtol: float = 1e-6,
-    closure: str = "second_order",
-    **options: Any,
-) -> PressureDistribution:
+def pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float, zeta: float = 0.0,
+                          cutoff: Any = "sharp", p_c: Optional[float] = None, tail: Any = None,
+                          p_t: Optional[float] = None,
+                          drift: Optional[Callable[[np.ndarray, float], np.ndarray]] = None, backend: str = "auto",
+                          rtol: float = 1e-6, closure: str = "second_order", **options: Any) -> PressureDistribution:
     """Pressure distribution of a rough contact (Müser 2008, Eqs. 2, 9, 10; docs/theory.md).
 
     ``closure`` picks the theory (docs/closures.md, :data:`diffusion_pr.closures.CLOSURES`): ``"second_order"``

@@ -30,23 +30,10 @@ from scipy import special
 
 from ._validation import check_finite, check_finite_array, check_nonnegative, check_positive
 
-__all__ = [
-    "Moments",
-    "gaussian_density",
-    "gaussian_moments",
-    "mirror_gaussian_density",
-    "mirror_gaussian_moments",
-    "persson_zero_weight",
-    "persson_contact_fraction",
-    "feller_density",
-    "feller_zero_weight",
-    "feller_moments",
-    "cir_density",
-    "cir_zero_weight",
-    "drifted_mirror_gaussian_density",
-    "drifted_mirror_gaussian_zero_weight",
-    "lognormal_gap_distribution",
-]
+__all__ = ["Moments", "gaussian_density", "gaussian_moments", "mirror_gaussian_density", "mirror_gaussian_moments",
+           "persson_zero_weight", "persson_contact_fraction", "feller_density", "feller_zero_weight",
+           "feller_moments", "cir_density", "cir_zero_weight", "drifted_mirror_gaussian_density",
+           "drifted_mirror_gaussian_zero_weight", "lognormal_gap_distribution"]
 
 _SQRT2PI = math.sqrt(2.0 * math.pi)
 

@@ -66,13 +66,8 @@ def G1(q: ArrayLike, *, zeta: ArrayLike, E_star: float, mean_pressure: float) ->
     return float(g) if np.ndim(g) == 0 else g
 
 
-def stress_variance(
-    spectrum: Spectrum,
-    *,
-    E_star: float,
-    mean_pressure: float,
-    zeta: ArrayLike = 0.0,
-) -> np.ndarray | float:
+def stress_variance(spectrum: Spectrum, *, E_star: float, mean_pressure: float,
+                    zeta: ArrayLike = 0.0) -> np.ndarray | float:
     r"""Second-order cumulant stress variance ``V = <Delta sigma^2>`` [pressure^2].
 
     ``V = (E*/2)^2 sum_q q^2 |G1(q)|^2 |h~(q)|^2`` for a :class:`~diffusion_pr.spectra.DiscreteSpectrum` (exact sum over
@@ -110,14 +105,8 @@ def stress_variance(
     return float(v[0]) if z.ndim == 0 else v.reshape(z.shape)
 
 
-def variance_vs_magnification(
-    spectrum: Spectrum,
-    eta: ArrayLike,
-    *,
-    E_star: float,
-    mean_pressure: float,
-    zeta: float = 0.0,
-) -> np.ndarray | float:
+def variance_vs_magnification(spectrum: Spectrum, eta: ArrayLike, *, E_star: float, mean_pressure: float,
+                              zeta: float = 0.0) -> np.ndarray | float:
     r"""Variance ``V(eta)`` [pressure^2] accumulated from modes with ``|q| <= eta q_min``.
 
     Continuum: ``V(eta) = (E*/2)^2 2 pi \int_{q_min}^{min(eta, eta_max) q_min} q^3 C |G1|^2 dq``, 0 for ``eta <= 1``.
@@ -137,15 +126,8 @@ def variance_vs_magnification(
     return spectrum.cumulative(weight, ea * spectrum.q_min)
 
 
-def diffusivity_vs_magnification(
-    spectrum: Spectrum,
-    eta: ArrayLike,
-    *,
-    E_star: float,
-    mean_pressure: float,
-    zeta: float = 0.0,
-    bins: ArrayLike | None = None,
-) -> np.ndarray | float:
+def diffusivity_vs_magnification(spectrum: Spectrum, eta: ArrayLike, *, E_star: float, mean_pressure: float,
+                                 zeta: float = 0.0, bins: ArrayLike | None = None) -> np.ndarray | float:
     r"""Magnification diffusivity ``D(eta) = (1/2) dV/deta`` [pressure^2].
 
     Continuum (exact derivative of :func:`variance_vs_magnification`), with ``q = eta q_min``::

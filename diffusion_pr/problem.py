@@ -109,18 +109,12 @@ class FokkerPlanckProblem:
         return _check_f(p, np.broadcast_to(out, p.shape).astype(float))
 
     @classmethod
-    def from_magnification(
-        cls,
-        *,
-        mean_pressure: float,
-        eta: Array,
-        variance_of_eta: Array,
-        pressure_factor: Callable[[Array], Array],
-        drift_of_eta: Optional[Callable[[Array, float], Array]] = None,
-        variance_function: Optional[Callable[[Array], Array]] = None,
-        diffusivity_function: Optional[Callable[[Array], Array]] = None,
-        label: str = "",
-    ) -> "FokkerPlanckProblem":
+    def from_magnification(cls, *, mean_pressure: float, eta: Array, variance_of_eta: Array,
+                           pressure_factor: Callable[[Array], Array],
+                           drift_of_eta: Optional[Callable[[Array, float], Array]] = None,
+                           variance_function: Optional[Callable[[Array], Array]] = None,
+                           diffusivity_function: Optional[Callable[[Array], Array]] = None,
+                           label: str = "") -> "FokkerPlanckProblem":
         """Build the ``tau`` problem from a magnification schedule.
 
         Parameters
