@@ -4,8 +4,7 @@ Every check raises :class:`ValueError` (for a wrong kind of object its
 subclass :class:`InputTypeError`, also a :class:`TypeError`) whose message
 names the parameter, shows the offending value and states the allowed range,
 e.g. ``ValueError: variance must be > 0 and finite; got -1.0``.  Scalars are
-returned as ``float``, array-likes as a float ``numpy.ndarray``.
-"""
+returned as ``float``, array-likes as a float ``numpy.ndarray``."""
 from __future__ import annotations
 
 from typing import Any, Callable

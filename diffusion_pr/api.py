@@ -379,8 +379,7 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
     ``zetas``: the wall ranges (the spectrum's length unit), one-dimensional, each >= 0; ``progress``: a tqdm
     progress bar; everything else as :func:`pressure_distribution` (the chaining applies to ``"native"`` results).
     Returns one :class:`PressureDistribution` per entry of ``zetas`` (a :class:`ConvergenceWarning` for each failed
-    one).
-    """
+    one)."""
     from .fokker_planck.engine import MAX_CELLS
 
     if np.ndim(zetas) != 1 or np.size(zetas) == 0:
@@ -413,8 +412,7 @@ def warm_up(backend: str = "native") -> float:
     """Do the one-time work of ``backend`` now (imports; for ``"native"`` the compiled kernels of the engine and
     of the closures, from numba's cache or compiled on the first run after installing); return the seconds spent.
 
-    Call it before timing solves: the first solve of a process otherwise carries this work.
-    """
+    Call it before timing solves: the first solve of a process otherwise carries this work."""
     import time
 
     from .fokker_planck.backends import warm_up as backend_warm_up

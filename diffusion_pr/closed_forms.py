@@ -216,8 +216,7 @@ def cir_zero_weight(mean_pressure: float, tau: float, slope: float, drift_at_wal
     ``Q(1 - delta/2, z0/2s)`` for ``delta = 2 alpha/a < 2`` (the time a squared Bessel process of dimension
     ``delta < 2`` takes from ``z0`` to 0 is ``z0/(2 G)``, ``G ~ Gamma(1 - delta/2)``; Goeing-Jaeschke and Yor 2003,
     doi:10.3150/bj/1068128980), 0 for ``delta >= 2`` (entrance boundary).  ``alpha = beta = 0``:
-    ``exp(-p0/(a tau))``, :func:`feller_zero_weight`.
-    """
+    ``exp(-p0/(a tau))``, :func:`feller_zero_weight`."""
     p0, t, a, alpha, beta = _cir_args(mean_pressure, tau, slope, drift_at_wall, restoring_rate)
     delta, s, _ = _cir_clock(t, a, alpha, beta)
     if delta >= 2.0:

@@ -19,8 +19,7 @@ Magnification ``eta = q / q_min``: ``V(eta)`` accumulates the modes with ``|q| <
 ``D(eta) = (1/2) dV/deta`` is the diffusivity of the magnification-dependent Fokker-Planck equation (docs/theory.md).
 
 Units: ``E_star`` and ``mean_pressure`` in one pressure unit, ``zeta`` and
-wavelengths in one length unit; variances come out in pressure^2.
-"""
+wavelengths in one length unit; variances come out in pressure^2."""
 from __future__ import annotations
 
 import math
@@ -77,8 +76,7 @@ def stress_variance(spectrum: Spectrum, *, E_star: float, mean_pressure: float,
 
     ``E_star`` [pressure] > 0; ``mean_pressure`` [pressure] > 0 and ``zeta`` [the spectrum's length unit] >= 0
     broadcast together (one matrix product over all values); ``V`` has their broadcast shape (a float for
-    scalars).  An ``E_star`` so large that ``V`` overflows is a ``ValueError`` naming it.
-    """
+    scalars).  An ``E_star`` so large that ``V`` overflows is a ``ValueError`` naming it."""
     _check_spectrum(spectrum)
     E = check_positive("E_star", E_star)
     p0 = check_positive("mean_pressure", mean_pressure)
@@ -114,8 +112,7 @@ def variance_vs_magnification(spectrum: Spectrum, eta: ArrayLike, *, E_star: flo
     shell). ``V(eta_max = q_max/q_min)`` equals :func:`stress_variance`.
 
     ``eta`` (``q / q_min``, dimensionless) of any shape, the result of its shape; ``E_star`` and ``mean_pressure``
-    [pressure] > 0; ``zeta`` [length] >= 0, a scalar.
-    """
+    [pressure] > 0; ``zeta`` [length] >= 0, a scalar."""
     ea, E, p0, z = _check_magnification_inputs(spectrum, eta, E_star, mean_pressure, zeta)
     k = z * E / (2.0 * p0)
 
@@ -144,8 +141,7 @@ def diffusivity_vs_magnification(spectrum: Spectrum, eta: ArrayLike, *, E_star: 
     staircase itself is :func:`variance_vs_magnification`.
 
     Arguments as :func:`variance_vs_magnification`; ``bins``: strictly increasing edges in ``eta`` (discrete
-    spectra only).  ``D`` [pressure^2 per unit magnification] has the shape of ``eta``.
-    """
+    spectra only).  ``D`` [pressure^2 per unit magnification] has the shape of ``eta``."""
     ea, E, p0, z = _check_magnification_inputs(spectrum, eta, E_star, mean_pressure, zeta)
     qmin = spectrum.q_min
     if isinstance(spectrum, DiscreteSpectrum):

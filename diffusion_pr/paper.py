@@ -24,8 +24,7 @@ point as in contact when ``p > 0.01 p0`` (the definition of :attr:`gfmd_ref.Cont
 so it keeps its own copy; a test checks that the two agree.
 
 Units are the paper's: lengths in grid spacings of the ``1024 x 1024`` system,
-pressures in the units of ``E'`` (= ``E*``, the contact modulus).
-"""
+pressures in the units of ``E'`` (= ``E*``, the contact modulus)."""
 from __future__ import annotations
 
 import math
@@ -124,8 +123,7 @@ def contact_threshold(zeta: float | None, mean_pressure: float = MEAN_PRESSURE) 
     """Pressure above which a point counts as in contact (units of pressure).
 
     ``0`` for the hard wall (``zeta`` None or 0: contact means ``p > 0``),
-    ``EXP_CONTACT_THRESHOLD * mean_pressure`` for an exponential wall.
-    """
+    ``EXP_CONTACT_THRESHOLD * mean_pressure`` for an exponential wall."""
     if zeta is None or zeta == 0:
         return 0.0
     return EXP_CONTACT_THRESHOLD * float(mean_pressure)

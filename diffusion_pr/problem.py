@@ -7,8 +7,7 @@ In the diffusion time ``tau = integral D(eta) d eta`` (pressure squared)::
 on ``p >= 0``, to ``tau_end = variance / 2`` (``f = 1`` without the wall gives a Gaussian of variance ``variance``).
 Where ``f ~ p^k`` with ``k < 2`` probability reaches ``p = 0`` (Feller) and is the non-contact weight
 ``zero_weight``; for ``k >= 2`` ``zero_weight`` is the probability below a floor.  A magnification-dependent drift
-``A(p, eta)`` becomes ``a(p, tau) = A(p, eta(tau)) / D(eta(tau))`` (:meth:`FokkerPlanckProblem.from_magnification`).
-"""
+``A(p, eta)`` becomes ``a(p, tau) = A(p, eta(tau)) / D(eta(tau))`` (:meth:`FokkerPlanckProblem.from_magnification`)."""
 from __future__ import annotations
 
 import math
@@ -189,8 +188,7 @@ class _ExactMagnification:
 
     Safeguarded Newton (bisection where a step leaves the bracket), vectorized over
     the times of :meth:`solve`; memoized per ``tau`` (the engine announces each
-    grid's segment midpoints at once through the drift's ``prefetch_times``).
-    """
+    grid's segment midpoints at once through the drift's ``prefetch_times``)."""
 
     def __init__(self, eta: Array, tau_nodes: Array, v_start: float, variance_function: Callable,
                  diffusivity_function: Callable) -> None:

@@ -4,8 +4,7 @@ A simulated pressure field (from :mod:`gfmd_ref` or any other contact solver)
 enters as a :class:`SimulatedHistogram` (:mod:`~diffusion_pr.compare.histograms`); distances in
 :mod:`~diffusion_pr.compare.distances`, curvatures and fits in :mod:`~diffusion_pr.compare.fits`, ensembles of
 seeds in :mod:`~diffusion_pr.compare.ensemble`.  Everything here is numpy/scipy only: :mod:`diffusion_pr` does not
-need :mod:`gfmd_ref`.
-"""
+need :mod:`gfmd_ref`."""
 from .distances import Comparison, compare, kolmogorov_between, kolmogorov_distance
 from .ensemble import EnsembleComparison, compare_ensemble
 from .fits import LOG_FLOOR, CutoffFit, fit_cutoff_pressure, fit_tail_pressure, log_density_curvature, tail_curvatures

@@ -2,8 +2,7 @@
 moments, contact fractions) and the one Kolmogorov distance from a field's quantile function
 (:func:`kolmogorov_distance`, also between two fields: :func:`kolmogorov_between`).
 
-Distances dimensionless; pressures in any unit shared by both sides.
-"""
+Distances dimensionless; pressures in any unit shared by both sides."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -92,8 +91,7 @@ def kolmogorov_distance(cdf: Callable, quantiles: Array, levels: Array, *, p_flo
     At each distinct quantile value ``x`` the empirical CDF jumps from about the first to the last level whose quantile
     is ``x`` (ties: the delta peak at 0); both sides of the jump are compared with ``cdf`` on the same side (``cdf``
     includes a weight ``zero_weight`` in a delta peak at ``p = 0``).  Resolution: one level step,
-    ``1/(len(levels) - 1)``.
-    """
+    ``1/(len(levels) - 1)``."""
     uniq, first = np.unique(quantiles, return_index=True)
     last = np.searchsorted(quantiles, uniq, side="right") - 1
     keep = uniq >= p_floor
@@ -113,8 +111,7 @@ def kolmogorov_between(first: SimulatedHistogram, second: SimulatedHistogram) ->
 
     ``sup |F_1 - F_2|`` over ``p >= first.edges[1]`` (the same resolution as :func:`compare`):
     :func:`kolmogorov_distance` of each field's quantiles against the other's empirical CDF (linear between its
-    quantiles), the larger of the two.  Used as the realization scatter a theory can be expected to reach.
-    """
+    quantiles), the larger of the two.  Used as the realization scatter a theory can be expected to reach."""
     if first.quantiles is None or second.quantiles is None:
         raise ValueError("both histograms need stored quantiles (SimulatedHistogram.from_pressures keeps them)")
     p_floor = float(first.edges[1])

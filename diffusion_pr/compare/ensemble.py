@@ -2,8 +2,7 @@
 
 Records are duck-typed: anything with ``levels``, ``quantiles`` (pressures at ``levels``), ``seed``, ``mean_pressure``,
 ``contact_fraction``, ``contact_threshold``, ``mean``, ``variance``, ``third_central``, ``converged``
-(:class:`gfmd_ref.ensemble_store.EnsembleRecord` has them); :mod:`diffusion_pr` does not import :mod:`gfmd_ref`.
-"""
+(:class:`gfmd_ref.ensemble_store.EnsembleRecord` has them); :mod:`diffusion_pr` does not import :mod:`gfmd_ref`."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field

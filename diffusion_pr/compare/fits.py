@@ -1,8 +1,7 @@
 """Shapes and fits of a theory against a histogram: the curvature of ``ln Pr`` in the tail (:func:`tail_curvatures`) and
 least-squares fits of the paper's cutoff and tail pressures (:func:`fit_cutoff_pressure`, :func:`fit_tail_pressure`).
 
-Pressures in any unit shared by theory and simulation.
-"""
+Pressures in any unit shared by theory and simulation."""
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -162,8 +162,7 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
     ``n``), ``None`` the hard wall; ``seeds``: surface seeds; ``n`` >= 64 grid points per side (the shortest
     wavelength needs 2); ``tol``: GFMD tolerance relative to ``p0``; ``out_dir``: checked for writability before
     any work (the bundled cases live in :data:`DATA_DIR`: pass it explicitly to replace them); ``surface``:
-    ``"fig1"`` (Gaussian coloured noise) or ``"fig1-skewed"`` (:func:`skewed_surface` of it).
-    """
+    ``"fig1"`` (Gaussian coloured noise) or ``"fig1-skewed"`` (:func:`skewed_surface` of it)."""
     import gfmd_ref
     from gfmd_ref.ensemble import code_version
 
