@@ -109,9 +109,10 @@ def _check_cells(problem: Any, options: dict) -> None:
                          f"k = {k:g}: p = 0 absorbs and has no floor; got p_floor={options['p_floor']!r}")
 
 
-def _solve_full(problem: Any, backend: str, rtol: float, options: dict, **engine: Any) -> Any:
-    """The solve, with the engine's :class:`~diffusion_pr.fokker_planck.engine.FVSolution` (``engine``: its
-    ``grid``, ``plain``, ``warm_start``); a closed form gives a solution holding its result alone."""
+def _solve_full(problem: Any, backend: str, rtol: float, options: dict, warm_start: Any = None) -> Any:
+    """The solve, with the engine's :class:`~diffusion_pr.fokker_planck.engine.FVSolution`, started from
+    ``warm_start`` (a sweep's :class:`~diffusion_pr.fokker_planck.engine.WarmStart`); a closed form needs no start
+    and gives a solution holding its result alone."""
     import sys
 
     from .fokker_planck.backends import get_backend, keyword_options
@@ -125,14 +126,11 @@ def _solve_full(problem: Any, backend: str, rtol: float, options: dict, **engine
         raise ValueError(f"unknown option(s) {sorted(unknown)} for backend {chosen!r}; it accepts "
                          f"{sorted(keyword_options(solver))}")
     full = getattr(sys.modules[solver.__module__], "solve_full", None)
-    engine = {k: v for k, v in engine.items() if v is not None}
-    if full is None:  # (a warm start is a hint: a closed form needs none)
-        if set(engine) - {"warm_start"}:
-            raise ValueError(f"backend {chosen!r} is not a finite-volume backend: it takes no {sorted(engine)}")
+    if full is None:
         sol = FVSolution(result=solver(problem, rtol=rtol, **options))
     else:
         _check_cells(problem, options)
-        sol = full(problem, rtol=rtol, **options, **engine)
+        sol = full(problem, rtol=rtol, warm_start=warm_start, **options)
     return replace(sol, result=replace(sol.result, diagnostics={**sol.result.diagnostics,
                                                                 "backend_requested": backend}))
 

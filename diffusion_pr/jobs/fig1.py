@@ -60,11 +60,9 @@ class Fig1Case:
     theories : dict
         ``label -> PressureDistribution`` from :func:`theory_curves`.
     comparisons : dict
-        ``label -> Comparison`` (:func:`diffusion_pr.compare.compare`, contact
-        fractions at :attr:`contact_threshold` on both sides).
+        ``label -> Comparison`` (:func:`diffusion_pr.compare.compare`, contact fractions at :attr:`contact_threshold`).
     contact_threshold : float
-        Pressure above which a point counts as in contact: 0 (hard wall) or
-        ``0.01 p0`` (exponential wall, :func:`diffusion_pr.paper.contact_threshold`).
+        Pressure above which a point counts as in contact: :func:`diffusion_pr.paper.contact_threshold`.
     pressure : ndarray
         The GFMD pressure field (units of E*).
     """
@@ -177,8 +175,7 @@ def run_fig1(*, n: int = 512, zetas: Sequence[float] = DEFAULT_ZETAS, hard_wall:
     n : int
         Grid points per side (the paper: 1024).
     zetas : sequence of float
-        Exponential-wall decay lengths, in grid spacings of the paper's
-        1024^2 Fig. 1 system (the cell is ``L = 1024`` of them at every ``n``).
+        Exponential-wall decay lengths, in grid spacings of the paper's 1024^2 system (``L = 1024`` at every ``n``).
     hard_wall : bool
         Also run the hard wall and compare it with Persson's mirror Gaussian.
     seed : int
@@ -257,41 +254,31 @@ def _column(case: Fig1Case, label: str) -> str:
     return f"theory_zeta{case.zeta:g}" if label == PAPER else f"{label}_zeta{case.zeta:g}"
 
 
+def _write_csv(path: Path, header: list, rows: Any) -> Path:
+    with path.open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(header)
+        writer.writerows(rows)
+    return path
+
+
 def write_outputs(report: Fig1Report, out_dir: Path) -> dict:
-    """Write the figure, the curves/histograms CSVs and the text report."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    files = {}
-    # curves on a common grid
-    p_max = max(float(c.histogram.edges[-1]) for c in report.cases) if report.cases else 0.2
-    p = np.linspace(0.0, p_max, 801)
-    header = ["p", "persson"]
-    columns = [p, report.persson.pdf(p)]
-    for c in report.cases:
-        for label, th in c.theories.items():
-            header.append(_column(c, label))
-            columns.append(th.pdf(p))
-    path = out_dir / "fig1_curves.csv"
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        w.writerows(np.column_stack(columns).tolist())
-    files["curves"] = path
-    path = out_dir / "fig1_histograms.csv"
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["wall", "p_lo", "p_hi", "density", "zero_weight"])
-        for c in report.cases:
-            for lo, hi, d in zip(c.histogram.edges[:-1], c.histogram.edges[1:], c.histogram.density):
-                w.writerow([c.wall, f"{lo:.8g}", f"{hi:.8g}", f"{d:.8g}", f"{c.histogram.zero_weight:.8g}"])
-    files["histograms"] = path
-    path = out_dir / "fig1_report.txt"
-    path.write_text(report.text() + "\n")
-    files["report"] = path
+    """Write the figure, the curves/histograms CSVs and the text report; return their paths by kind."""
     import matplotlib.pyplot as plt
 
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    p = np.linspace(0.0, max((float(c.histogram.edges[-1]) for c in report.cases), default=0.2), 801)
+    header = ["p", "persson", *(_column(c, label) for c in report.cases for label in c.theories)]
+    columns = [p, report.persson.pdf(p), *(th.pdf(p) for c in report.cases for th in c.theories.values())]
+    bins = [[c.wall, f"{lo:.8g}", f"{hi:.8g}", f"{d:.8g}", f"{c.histogram.zero_weight:.8g}"] for c in report.cases
+            for lo, hi, d in zip(c.histogram.edges[:-1], c.histogram.edges[1:], c.histogram.density)]
+    files = {"curves": _write_csv(out_dir / "fig1_curves.csv", header, np.column_stack(columns).tolist()),
+             "histograms": _write_csv(out_dir / "fig1_histograms.csv",
+                                      ["wall", "p_lo", "p_hi", "density", "zero_weight"], bins),
+             "report": out_dir / "fig1_report.txt", "figure": out_dir / "fig1.png"}
+    files["report"].write_text(report.text() + "\n")
     fig = plot_fig1(report)
-    files["figure"] = out_dir / "fig1.png"
     fig.savefig(files["figure"], dpi=130)
     plt.close(fig)
     return files
