@@ -1,10 +1,8 @@
 """Shared input checks for :mod:`diffusion_pr`.
 
-Every check raises :class:`ValueError` (for a wrong kind of object its
-subclass :class:`InputTypeError`, also a :class:`TypeError`) whose message
-names the parameter, shows the offending value and states the allowed range,
-e.g. ``ValueError: variance must be > 0 and finite; got -1.0``.  Scalars are
-returned as ``float``, array-likes as a float ``numpy.ndarray``."""
+Every check raises :class:`ValueError` (for a wrong kind of object its subclass :class:`InputTypeError`, also a
+:class:`TypeError`) whose message names the parameter, shows the offending value and states the allowed range, e.g.
+``ValueError: variance must be > 0 and finite; got -1.0``.  Scalars come back as ``float``, arrays as float arrays."""
 from __future__ import annotations
 
 from typing import Any, Callable

@@ -83,28 +83,15 @@ EXP_CONTACT_THRESHOLD: float = 0.01
 
 #: The Fig. 1 scene as keyword arguments (lengths in grid spacings of the 1024^2 system,
 #: ``q = 2 pi / lambda``).
-FIG1_SCENE: dict[str, float] = {
-    "length": LENGTH,
-    "hurst": HURST,
-    "q_min": 2.0 * math.pi / LENGTH,
-    "q_max": 2.0 * math.pi / LAMBDA_MIN,
-    "rms_slope": RMS_SLOPE,
-    "E_star": E_STAR,
-    "mean_pressure": MEAN_PRESSURE,
-}
+FIG1_SCENE: dict[str, float] = {"length": LENGTH, "hurst": HURST, "q_min": 2.0 * math.pi / LENGTH,
+                                 "q_max": 2.0 * math.pi / LAMBDA_MIN, "rms_slope": RMS_SLOPE, "E_star": E_STAR,
+                                 "mean_pressure": MEAN_PRESSURE}
 
 
 def cutoff_pressure(zeta: float) -> float:
-    """The paper's cutoff pressure ``p_c`` for a wall range ``zeta`` (units of E*).
-
-    0.0027 for ``zeta >= 0.25``, 0.0082 at ``zeta = 0.01`` and 0.0068 at ``zeta = 0.001``.  For a ``zeta`` the paper
-    does not name (e.g. 0.1) the value of the nearest named ``zeta`` on a log scale is returned.
-
-    Parameters
-    ----------
-    zeta : float
-        Decay length of the exponential wall (grid spacings), ``> 0``.
-    """
+    """The paper's cutoff pressure ``p_c`` (units of E*) for the decay length ``zeta`` > 0 (grid spacings) of the
+    exponential wall: 0.0027 for ``zeta >= 0.25``, 0.0082 at ``zeta = 0.01`` and 0.0068 at ``zeta = 0.001``; for a
+    ``zeta`` the paper does not name (e.g. 0.1), the value of the nearest named ``zeta`` on a log scale."""
     try:
         if isinstance(zeta, (str, bytes, bool)):
             raise TypeError

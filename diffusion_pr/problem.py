@@ -250,10 +250,9 @@ class Stage:
 
         dPr/dtau = d^2/dp^2 [ f(p) Pr ] - d/dp [ (b(p) - A(tau) w(p)) Pr ],   p > 0,
 
-    with the scalar ``A(tau)`` chosen at every instant so that ``d<p>/dtau = 0`` when ``balance`` is given (or, for a
-    :class:`StagedProblem` with ``balance_per_stage``, one number ``A`` per stage that brings ``<p>`` back to ``p0`` at
-    the stage's end).  The callables may declare the model protocol of :mod:`diffusion_pr.models` (``zero_power``,
-    ``breakpoints()``).
+    with the scalar ``A`` chosen to keep ``<p>`` at ``p0`` when ``balance`` is given (how:
+    :class:`StagedProblem`'s ``balance_per_stage``).  The callables may declare the model protocol of
+    :mod:`diffusion_pr.models` (``zero_power``, ``breakpoints()``).
 
     Attributes
     ----------
@@ -264,8 +263,7 @@ class Stage:
     drift : callable or None
         ``b(p)`` (pressure per unit tau), vectorized; ``None`` means 0.
     balance : callable or None
-        ``w(p)`` (pressure per unit tau per unit ``A``); the total drift is
-        ``b(p) - A(tau) w(p)``; ``None`` means no balance (``A = 0``).
+        ``w(p)`` (pressure per unit tau per unit ``A``), vectorized; ``None`` means no balance (``A = 0``).
     """
 
     duration: float

@@ -89,22 +89,9 @@ LOG_FLOOR = 1e-6
 
 @dataclass(frozen=True)
 class CutoffFit:
-    """Least-squares fit of the cutoff pressure ``p_c``.
-
-    Attributes
-    ----------
-    p_c : float
-        Best cutoff pressure (units of pressure).
-    objective : float
-        Least-squares objective at the optimum (see :func:`fit_cutoff_pressure`).
-    l1 : float
-        L1 distance between theory and histogram at the optimum.
-    evaluations : int
-        Number of theory solves.
-    success : bool
-        Whether the bounded optimiser converged inside the bracket.
-    message : str
-    """
+    """Least-squares fit of the cutoff pressure: the best ``p_c`` (units of pressure), the ``objective`` there
+    (:func:`fit_cutoff_pressure`), the ``l1`` distance of theory and histogram there, the number of theory solves
+    (``evaluations``), ``success`` (the bounded optimiser converged inside the bracket) and its ``message``."""
 
     p_c: float
     objective: float
