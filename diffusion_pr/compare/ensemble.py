@@ -215,9 +215,8 @@ def compare_ensemble(theory: Any, records_or_group: Any, *, p_min: Optional[floa
     thr = float(getattr(recs[0], "contact_threshold", 0.0))
     cf_t = float(theory.contact_area(thr) if hasattr(theory, "contact_area") else 1.0 - theory.cdf(thr))
     cf = np.array([float(r.contact_fraction) for r in recs])
-    mean_s = np.array([float(r.mean) for r in recs])
-    var_s = np.array([float(r.variance) for r in recs])
-    th_s = np.array([float(r.third_central) for r in recs])
+    mean_s, var_s, th_s = (np.array([float(getattr(r, key)) for r in recs])
+                           for key in ("mean", "variance", "third_central"))
     sd_s = np.sqrt(var_s)
     sk_s = th_s / np.maximum(sd_s, 1e-300) ** 3
     m = mean_s.mean()

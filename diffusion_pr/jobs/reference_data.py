@@ -18,7 +18,8 @@ from typing import Any, Iterable, Optional, Sequence
 import numpy as np
 
 from ..compare import SimulatedHistogram
-from ..paper import FIG1_SCENE, LARGE_ZETA, N_WAVES, cutoff_pressure  # noqa: F401  (FIG1_SCENE re-exported)
+from ..paper import FIG1_SCENE, LARGE_ZETA, N_WAVES, cutoff_pressure
+from ..spectra import DiscreteSpectrum
 
 DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 
@@ -114,19 +115,15 @@ def load_reference(name: str, data_dir: Path | str | None = None) -> ReferenceCa
     ValueError
         If no such case is bundled (the message lists the available ones).
     """
-    from ..spectra import DiscreteSpectrum
-
     folder = Path(data_dir) if data_dir is not None else DATA_DIR
     path = folder / f"{name}.npz"
     if not path.exists():
         raise ValueError(f"no reference case {name!r}; available: {available_references(folder)}")
     with np.load(path, allow_pickle=False) as data:
         prov = json.loads(str(data["provenance"]))
-        hist = SimulatedHistogram(
-            edges=data["edges"], density=data["density"], zero_weight=float(data["zero_weight"]),
-            moments=json.loads(str(data["moments"])), quantile_levels=data["quantile_levels"],
-            quantiles=data["quantiles"], metadata=prov,
-        )
+        hist = SimulatedHistogram(edges=data["edges"], density=data["density"], zero_weight=float(data["zero_weight"]),
+                                  moments=json.loads(str(data["moments"])), quantile_levels=data["quantile_levels"],
+                                  quantiles=data["quantiles"], metadata=prov)
         spectrum = DiscreteSpectrum(data["spectrum_q"], data["spectrum_power"], data["spectrum_multiplicity"],
                                     float(prov["length"]))
     zeta = prov.get("zeta")
@@ -136,20 +133,14 @@ def load_reference(name: str, data_dir: Path | str | None = None) -> ReferenceCa
 def save_case(path: Path, pressure: np.ndarray, heights: np.ndarray, provenance: dict,
               bin_width: float) -> SimulatedHistogram:
     """Histogram a pressure field and write one ``.npz`` case (compressed)."""
-    top = float(pressure.max())
-    n_bins = max(10, int(math.ceil(top / bin_width)))
-    edges = np.arange(n_bins + 1) * bin_width
+    edges = np.arange(max(10, int(math.ceil(float(pressure.max()) / bin_width))) + 1) * bin_width
     hist = SimulatedHistogram.from_pressures(pressure, bins=edges, metadata=provenance)
-    from ..spectra import DiscreteSpectrum
-
     spectrum = DiscreteSpectrum.from_heights(heights, float(provenance["length"]))
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(
-        path, edges=hist.edges, density=hist.density, zero_weight=hist.zero_weight,
-        moments=json.dumps(hist.moments), quantile_levels=hist.quantile_levels, quantiles=hist.quantiles,
-        spectrum_q=spectrum.q, spectrum_power=spectrum.power, spectrum_multiplicity=spectrum.multiplicity,
-        provenance=json.dumps(provenance, sort_keys=True),
-    )
+    np.savez_compressed(path, edges=hist.edges, density=hist.density, zero_weight=hist.zero_weight,
+                        moments=json.dumps(hist.moments), quantile_levels=hist.quantile_levels,
+                        quantiles=hist.quantiles, spectrum_q=spectrum.q, spectrum_power=spectrum.power,
+                        spectrum_multiplicity=spectrum.multiplicity, provenance=json.dumps(provenance, sort_keys=True))
     return hist
 
 
