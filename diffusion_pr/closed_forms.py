@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy import special
 
-from ._validation import check_finite, check_finite_array, check_nonnegative, check_positive
+from ._validation import check_finite, check_finite_array, check_int, check_nonnegative, check_positive
 
 __all__ = ["Moments", "gaussian_density", "gaussian_moments", "mirror_gaussian_density", "mirror_gaussian_moments",
            "persson_zero_weight", "persson_contact_fraction", "feller_density", "feller_zero_weight",
@@ -298,8 +298,7 @@ def lognormal_gap_distribution(spectrum: Any, *, E_star: float, mean_pressure: f
                          "where no wall law maps gaps to pressures. Use 'second_order' (Persson) or 'local_g1_balanced'.")
     E = float(check_positive("E_star", E_star))
     p0 = float(check_positive("mean_pressure", mean_pressure))
-    if not isinstance(n_cells, (int, np.integer)) or n_cells < 100:
-        raise ValueError(f"n_cells must be an integer >= 100; got n_cells={n_cells!r}")
+    check_int("n_cells", n_cells, minimum=100)
     t0 = time.perf_counter()
     V = float(stress_variance(spectrum, E_star=E, mean_pressure=p0, zeta=z))
     s2 = V / (p0 * p0)

@@ -89,9 +89,14 @@ FIG1_SCENE: dict[str, float] = {"length": LENGTH, "hurst": HURST, "q_min": 2.0 *
 
 
 def cutoff_pressure(zeta: float) -> float:
-    """The paper's cutoff pressure ``p_c`` (units of E*) for the decay length ``zeta`` > 0 (grid spacings) of the
-    exponential wall: 0.0027 for ``zeta >= 0.25``, 0.0082 at ``zeta = 0.01`` and 0.0068 at ``zeta = 0.001``; for a
-    ``zeta`` the paper does not name (e.g. 0.1), the value of the nearest named ``zeta`` on a log scale."""
+    """The paper's cutoff pressure ``p_c`` (units of E*): 0.0027 for ``zeta >= 0.25``, 0.0082 at ``zeta = 0.01``,
+    0.0068 at ``zeta = 0.001``; for a ``zeta`` the paper does not name (e.g. 0.1), the log-nearest named one's.
+
+    Parameters
+    ----------
+    zeta : float
+        Decay length of the exponential wall (grid spacings), ``> 0``.
+    """
     try:
         if isinstance(zeta, (str, bytes, bool)):
             raise TypeError

@@ -235,9 +235,7 @@ class PressureDistribution:
         return plot_distribution(self, ax=ax, log=log, **kwargs)
 
     def __repr__(self) -> str:  # a short, useful summary instead of the arrays
-        return (
-            f"PressureDistribution(backend={self.backend!r}, success={self.success}, cells={self.p.size}, "
-            f"mass={self.mass:.10g}, mean={self.mean:.6g} (p0={self.mean_pressure:.6g}), "
-            f"zero_weight={self.zero_weight:.6g}, error_estimate={self.error_estimate:.2e}, "
-            f"wall_time={self.wall_time:.3g} s, message={self.message!r})"
-        )
+        return (f"PressureDistribution(backend={self.backend!r}, success={self.success}, cells={self.p.size}, "
+                f"mass={self.mass:.10g}, mean={self.mean:.6g} (p0={self.mean_pressure:.6g}), "
+                f"zero_weight={self.zero_weight:.6g}, error_estimate={self.error_estimate:.2e}, "
+                f"wall_time={self.wall_time:.3g} s, message={self.message!r})")
