@@ -1,16 +1,34 @@
-"""Distances between a theory and a simulated histogram: :func:`compare` (L1 of bin masses, Kolmogorov,
-moments, contact fractions) and the one Kolmogorov distance from a field's quantile function
-(:func:`kolmogorov_distance`, also between two fields: :func:`kolmogorov_between`).
+"""Distances between a theory and a simulated histogram (:data:`SimulatedHistogram`): :func:`compare` (L1 of bin
+masses, Kolmogorov, moments, contact fractions) from a theory's bin averages (:func:`bin_averaged_density`), and the one
+Kolmogorov distance from a field's quantile function (:func:`kolmogorov_distance`, also between two fields:
+:func:`kolmogorov_between`).
 
-Distances dimensionless; pressures in any unit shared by both sides."""
+Distances dimensionless; pressures in any unit shared by both sides, densities in 1/pressure."""
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Any, Callable, Optional
 
 import numpy as np
+from gfmd_ref.histogram import PressureHistogram
+from numpy.typing import ArrayLike, NDArray
 
-from .histograms import Array, SimulatedHistogram, bin_averaged_density
+Array = NDArray[np.float64]
+
+#: the one histogram type of a simulated pressure field, shared with the GFMD reference (which never imports
+#: diffusion_pr): :class:`gfmd_ref.PressureHistogram`
+SimulatedHistogram = PressureHistogram
+
+
+def bin_averaged_density(theory: Any, edges: ArrayLike) -> Array:
+    """Average of a theory's continuous density over each bin (1 / pressure).
+
+    Uses the theory's cumulative distribution, so narrow features are integrated exactly rather than sampled at bin
+    centres; the ``delta(p)`` peak is excluded."""
+    edges = np.asarray(edges, dtype=float)
+    cdf = np.asarray(theory.cdf(edges), dtype=float)
+    # (theory.cdf includes zero_weight for p >= 0: differences cancel it, no bin straddling p = 0 as edges[0] >= 0)
+    return np.diff(cdf) / np.diff(edges)
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ from typing import Any, Optional
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .histograms import Array
+from .distances import Array
 
 
 def _record_cdf(rec: Any, p: Array) -> Array:

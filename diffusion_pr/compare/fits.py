@@ -10,8 +10,7 @@ from typing import Any, Optional
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .distances import compare
-from .histograms import SimulatedHistogram, bin_averaged_density
+from .distances import SimulatedHistogram, bin_averaged_density, compare
 
 
 def log_density_curvature(p: ArrayLike, density: ArrayLike, *, p_lo: float, p_hi: float,
