@@ -108,11 +108,9 @@ def persson_contact_fraction(mean_pressure: float, variance: float) -> float:
 
 
 def mirror_gaussian_moments(mean_pressure: float, variance: float) -> Moments:
-    r"""Moments of the mirror Gaussian including its ``delta(p)`` peak.
-
-    With ``s = p0/sqrt(V)``: mean ``p0`` exactly (force balance);
-    ``<p^2> = (p0^2 + V) erf(s/sqrt 2) + 2 p0 sqrt(V) phi(s)`` with ``phi`` the standard normal density;
-    zero weight ``erfc(s/sqrt 2)``."""
+    r"""Moments of the mirror Gaussian including its ``delta(p)`` peak. With ``s = p0/sqrt(V)``: mean ``p0`` exactly
+    (force balance); ``<p^2> = (p0^2 + V) erf(s/sqrt 2) + 2 p0 sqrt(V) phi(s)`` with ``phi`` the standard normal
+    density; zero weight ``erfc(s/sqrt 2)``."""
     p0, v = _positive(mean_pressure=mean_pressure, variance=variance)
     sd = math.sqrt(v)
     s = p0 / sd
@@ -144,10 +142,8 @@ def feller_zero_weight(mean_pressure: float, tau: float, slope: float) -> float:
 
 
 def feller_moments(mean_pressure: float, tau: float, slope: float) -> Moments:
-    """Moments of the Feller solution including its ``delta(p)`` peak.
-
-    ``p`` is the martingale ``dp = sqrt(2 a p) dW`` stopped at 0: ``<p> = p0``, variance ``2 a p0 tau``
-    [pressure^2], zero weight ``exp(-p0/(a tau))``."""
+    """Moments of the Feller solution including its ``delta(p)`` peak. ``p`` is the martingale ``dp = sqrt(2 a p) dW``
+    stopped at 0: ``<p> = p0``, variance ``2 a p0 tau`` [pressure^2], zero weight ``exp(-p0/(a tau))``."""
     p0, t, a = _positive(mean_pressure=mean_pressure, tau=tau, slope=slope)
     return Moments(p0, 2.0 * a * p0 * t, math.exp(-p0 / (a * t)))
 
@@ -211,12 +207,10 @@ def cir_density(p: ArrayLike, mean_pressure: float, tau: float, slope: float, dr
 
 def cir_zero_weight(mean_pressure: float, tau: float, slope: float, drift_at_wall: float = 0.0,
                     restoring_rate: float = 0.0) -> float:
-    """Mass absorbed at ``p = 0`` by the process of :func:`cir_density`.
-
-    ``Q(1 - delta/2, z0/2s)`` for ``delta = 2 alpha/a < 2`` (the time a squared Bessel process of dimension
-    ``delta < 2`` takes from ``z0`` to 0 is ``z0/(2 G)``, ``G ~ Gamma(1 - delta/2)``; Goeing-Jaeschke and Yor 2003,
-    doi:10.3150/bj/1068128980), 0 for ``delta >= 2`` (entrance boundary).  ``alpha = beta = 0``:
-    ``exp(-p0/(a tau))``, :func:`feller_zero_weight`."""
+    """Mass absorbed at ``p = 0`` by the process of :func:`cir_density`. ``Q(1 - delta/2, z0/2s)`` for
+    ``delta = 2 alpha/a < 2`` (the time a squared Bessel process of dimension ``delta < 2`` takes from ``z0`` to 0 is
+    ``z0/(2 G)``, ``G ~ Gamma(1 - delta/2)``; Goeing-Jaeschke and Yor 2003, doi:10.3150/bj/1068128980), 0 for
+    ``delta >= 2`` (entrance boundary).  ``alpha = beta = 0``: ``exp(-p0/(a tau))``, :func:`feller_zero_weight`."""
     p0, t, a, alpha, beta = _cir_args(mean_pressure, tau, slope, drift_at_wall, restoring_rate)
     delta, s, _ = _cir_clock(t, a, alpha, beta)
     if delta >= 2.0:

@@ -184,11 +184,9 @@ MAGNIFICATION_NEWTON_STEPS = 60
 
 
 class _ExactMagnification:
-    """``tau -> (eta(tau), D(eta(tau)))`` solving ``(V(eta) - V(1))/2 = tau`` inside the table's bracket.
-
-    Safeguarded Newton (bisection where a step leaves the bracket), vectorized over
-    the times of :meth:`solve`; memoized per ``tau`` (the engine announces each
-    grid's segment midpoints at once through the drift's ``prefetch_times``)."""
+    """``tau -> (eta(tau), D(eta(tau)))`` solving ``(V(eta) - V(1))/2 = tau`` inside the table's bracket. Safeguarded
+    Newton (bisection where a step leaves the bracket), vectorized over the times of :meth:`solve`; memoized per ``tau``
+    (the engine announces each grid's segment midpoints at once through the drift's ``prefetch_times``)."""
 
     def __init__(self, eta: Array, tau_nodes: Array, v_start: float, variance_function: Callable,
                  diffusivity_function: Callable) -> None:

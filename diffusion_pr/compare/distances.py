@@ -21,10 +21,8 @@ SimulatedHistogram = PressureHistogram
 
 
 def bin_averaged_density(theory: Any, edges: ArrayLike) -> Array:
-    """Average of a theory's continuous density over each bin (1 / pressure).
-
-    Uses the theory's cumulative distribution, so narrow features are integrated exactly rather than sampled at bin
-    centres; the ``delta(p)`` peak is excluded."""
+    """Average of a theory's continuous density over each bin (1 / pressure). Uses the theory's cumulative distribution,
+    so narrow features are integrated exactly rather than sampled at bin centres; the ``delta(p)`` peak is excluded."""
     edges = np.asarray(edges, dtype=float)
     cdf = np.asarray(theory.cdf(edges), dtype=float)
     # (theory.cdf includes zero_weight for p >= 0: differences cancel it, no bin straddling p = 0 as edges[0] >= 0)
@@ -100,13 +98,11 @@ def compare(theory: Any, hist: SimulatedHistogram, *, contact_threshold: Optiona
 
 def kolmogorov_distance(cdf: Callable, quantiles: Array, levels: Array, *, p_floor: float = 0.0,
                         zero_weight: float = 0.0) -> float:
-    """``sup |F - F_field|`` over ``p >= p_floor``: a CDF ``cdf`` against a field's empirical CDF given by its
-    quantile function (``quantiles`` at ``levels``).
-
-    At each distinct quantile value ``x`` the empirical CDF jumps from about the first to the last level whose quantile
-    is ``x`` (ties: the delta peak at 0); both sides of the jump are compared with ``cdf`` on the same side (``cdf``
-    includes a weight ``zero_weight`` in a delta peak at ``p = 0``).  Resolution: one level step,
-    ``1/(len(levels) - 1)``."""
+    """``sup |F - F_field|`` over ``p >= p_floor``: a CDF ``cdf`` against a field's empirical CDF given by its quantile
+    function (``quantiles`` at ``levels``). At each distinct quantile value ``x`` the empirical CDF jumps from about the
+    first to the last level whose quantile is ``x`` (ties: the delta peak at 0); both sides of the jump are compared
+    with ``cdf`` on the same side (``cdf`` includes a weight ``zero_weight`` in a delta peak at ``p = 0``).  Resolution:
+    one level step, ``1/(len(levels) - 1)``."""
     uniq, first = np.unique(quantiles, return_index=True)
     last = np.searchsorted(quantiles, uniq, side="right") - 1
     keep = uniq >= p_floor

@@ -31,12 +31,10 @@ BIN_WIDTH_P0 = 0.1
 
 
 def theory_curves(case: Any, *, cutoff: str, backend: str, rtol: float) -> dict[str, Any]:
-    """The theory curves of one wall: ``{label: PressureDistribution}``.
-
-    The one place where the main job's curves are chosen: every entry is compared with the wall's histogram,
-    reported, written and drawn.  :data:`PAPER` is the paper's curve
-    (:func:`~diffusion_pr.jobs.reference_data.paper_theory`); :data:`BEST_CLOSURE` the best parameter-free closure
-    (:func:`diffusion_pr.pressure_distribution` with ``closure=BEST_CLOSURE``) on the same spectrum."""
+    """The theory curves of one wall: ``{label: PressureDistribution}``. The one place where the main job's curves are
+    chosen: every entry is compared with the wall's histogram, reported, written and drawn.  :data:`PAPER` is the
+    paper's curve (:func:`~diffusion_pr.jobs.reference_data.paper_theory`); :data:`BEST_CLOSURE` the best parameter-free
+    closure (:func:`diffusion_pr.pressure_distribution` with ``closure=BEST_CLOSURE``) on the same spectrum."""
     from ..api import pressure_distribution
     from .reference_data import paper_theory
 
