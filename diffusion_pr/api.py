@@ -289,10 +289,9 @@ def pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float,
         ``p_c``/``p_t`` missing or one the cutoff/tail would ignore, unknown names, a backend or option the
         closure does not use.
     """
-    result = _pressure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta, cutoff=cutoff,
-                                    p_c=p_c, tail=tail, p_t=p_t, drift=drift, backend=backend, rtol=rtol,
-                                    closure=closure, **options)[0]
-    return _checked(result)
+    return _checked(_pressure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
+                                           cutoff=cutoff, p_c=p_c, tail=tail, p_t=p_t, drift=drift, backend=backend,
+                                           rtol=rtol, closure=closure, **options)[0])
 
 
 def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float, zeta: float = 0.0,

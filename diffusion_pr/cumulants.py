@@ -12,14 +12,14 @@ and, since ``sigma~(q) = (q E*/2) u~(q)`` (Eq. 3), the stress variance::
     V(zeta) = sum_q (q E*/2)^2 |G1(q)|^2 <|h~(q)|^2>
             -> (E*/2)^2 2 pi \int q^3 C(q) |G1(q)|^2 dq       (continuum).
 
-``zeta = 0`` gives Persson's full-contact variance ``V0 = (E*/2)^2 gbar^2``
-(B. N. J. Persson, J. Chem. Phys. 115, 3840 (2001), doi:10.1063/1.1388626).
+``zeta = 0`` gives Persson's full-contact variance ``V0 = (E*/2)^2 gbar^2`` (B. N. J. Persson, J. Chem. Phys. 115,
+3840 (2001), doi:10.1063/1.1388626).
 
 Magnification ``eta = q / q_min``: ``V(eta)`` accumulates the modes with ``|q| <= eta q_min`` and
 ``D(eta) = (1/2) dV/deta`` is the diffusivity of the magnification-dependent Fokker-Planck equation (docs/theory.md).
 
-Units: ``E_star`` and ``mean_pressure`` in one pressure unit, ``zeta`` and
-wavelengths in one length unit; variances come out in pressure^2."""
+Units: ``E_star`` and ``mean_pressure`` in one pressure unit, ``zeta`` and wavelengths in one length unit;
+variances come out in pressure^2."""
 from __future__ import annotations
 
 import math

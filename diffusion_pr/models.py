@@ -311,12 +311,8 @@ class PressureFactor:
 
     def breakpoints(self) -> tuple[float, ...]:
         """Union of the parts' breakpoints (parts without ``breakpoints()`` are probed by the solver)."""
-        pts: list[float] = []
-        for part in (self.cutoff, self.tail):
-            method = getattr(part, "breakpoints", None)
-            if callable(method):
-                pts.extend(float(b) for b in method())
-        return tuple(sorted(set(pts)))
+        return tuple(sorted({float(b) for part in (self.cutoff, self.tail)
+                             if callable(getattr(part, "breakpoints", None)) for b in part.breakpoints()}))
 
     def declared(self) -> bool:
         """Whether both parts declare the protocol (else the solver probes the product)."""

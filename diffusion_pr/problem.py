@@ -76,9 +76,8 @@ class FokkerPlanckProblem:
         if self.diffusivity is None:
             object.__setattr__(self, "diffusivity", _unit)
         if not callable(self.diffusivity):
-            raise ValueError(
-                f"diffusivity must be a vectorized callable f(p) of the pressure; got {type(self.diffusivity).__name__}"
-            )
+            raise ValueError("diffusivity must be a vectorized callable f(p) of the pressure; got "
+                             f"{type(self.diffusivity).__name__}")
         if self.drift is not None and not callable(self.drift):
             raise ValueError(f"drift must be a vectorized callable a(p, tau) or None; got {type(self.drift).__name__}")
         if not self.time_dependent:  # a negative or non-finite f is refused here (the solvers would fail obscurely)

@@ -120,7 +120,8 @@ class EnsembleComparison:
             f"L1 of bin masses: {self.l1:.4f} (noise {self.l1_noise:.4f})",
             f"contact fraction (p > {self.threshold:.3g}): theory {self.contact_fraction_theory:.4f}, "
             f"GFMD {self.contact_fraction_gfmd:.4f} +- {self.contact_fraction_gfmd_sd:.4f} (seed sd)",
-            f"sd: theory {self.sd_theory:.4g}, GFMD {self.sd_gfmd:.4g} +- {self.sd_gfmd_sd:.2g} (pool {self.sd_pool:.4g})",
+            f"sd: theory {self.sd_theory:.4g}, GFMD {self.sd_gfmd:.4g} +- {self.sd_gfmd_sd:.2g} "
+            f"(pool {self.sd_pool:.4g})",
             f"skewness: theory {self.skewness_theory:.3f}, GFMD {self.skewness_gfmd:.3f} +- "
             f"{self.skewness_gfmd_sd:.3f} (pool {self.skewness_pool:.3f})",
         ])
@@ -190,10 +191,8 @@ def compare_ensemble(theory: Any, records_or_group: Any, *, p_min: Optional[floa
     sub = np.unique(np.linspace(0, x.size - 1, min(2000, x.size)).astype(int))
     band = np.percentile(pools[:, sub], [2.5, 97.5], axis=0)
     h = S // 2
-    splits = []
-    for _ in range(n_split):
-        perm = rng.permutation(S)
-        splits.append(np.max(np.abs(C[perm[:h]].mean(0) - C[perm[h:2 * h]].mean(0))) / 2.0)
+    splits = [np.max(np.abs(C[perm[:h]].mean(0) - C[perm[h:2 * h]].mean(0))) / 2.0
+              for perm in (rng.permutation(S) for _ in range(n_split))]
     # bins
     if edges is None:
         top = float(np.mean([np.interp(0.999, r.levels, r.quantiles) for r in recs]))

@@ -38,11 +38,10 @@ def theory_curves(case: Any, *, cutoff: str, backend: str, rtol: float) -> dict[
     from ..api import pressure_distribution
     from .reference_data import paper_theory
 
-    curves = {PAPER: paper_theory(case, cutoff=cutoff, backend=backend, rtol=rtol)}
-    curves[BEST_CLOSURE] = pressure_distribution(case.spectrum, E_star=case.E_star, mean_pressure=case.mean_pressure,
-                                                 zeta=0.0 if case.zeta is None else case.zeta, closure=BEST_CLOSURE,
-                                                 backend=backend, rtol=rtol)
-    return curves
+    paper = paper_theory(case, cutoff=cutoff, backend=backend, rtol=rtol)  # (first: its refusals come first)
+    return {PAPER: paper, BEST_CLOSURE: pressure_distribution(case.spectrum, E_star=case.E_star, zeta=case.zeta or 0.0,
+                                                              mean_pressure=case.mean_pressure, closure=BEST_CLOSURE,
+                                                              backend=backend, rtol=rtol)}
 
 
 @dataclass
