@@ -114,6 +114,4 @@ def cutoff_pressure(zeta: float) -> float:
 def contact_threshold(zeta: float | None, mean_pressure: float = MEAN_PRESSURE) -> float:
     """Pressure above which a point counts as in contact (units of pressure). ``0`` for the hard wall (``zeta`` None or
     0: contact means ``p > 0``), ``EXP_CONTACT_THRESHOLD * mean_pressure`` for an exponential wall."""
-    if zeta is None or zeta == 0:
-        return 0.0
-    return EXP_CONTACT_THRESHOLD * float(mean_pressure)
+    return 0.0 if zeta is None or zeta == 0 else EXP_CONTACT_THRESHOLD * float(mean_pressure)

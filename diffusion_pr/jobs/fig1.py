@@ -129,11 +129,10 @@ class Fig1Report:
                 rows.setdefault(row.replace(p_c_text, "-", 1), []).append((label, row))
             for same in rows.values():  # curves equal to the digits shown (the closures at the hard wall): one row
                 lines.append(f"{c.wall:>12} {' = '.join(label for label, _ in same):>{width}} {same[0][1]}")
-        lines.append("")
-        lines.append("a_sim, a_theory: fraction of the area with p above the contact threshold, the same on both "
-                     "sides: p > 0 for the hard wall, p > 0.01 p0 for exponential walls (gfmd_ref's definition; "
-                     "for the theory contact_area()). p_c: the paper's fitted cutoff pressure (paper curve "
-                     "only; the closures have no fitted parameter). theory s: all theory curves of that wall.")
+        lines += ["", "a_sim, a_theory: fraction of the area with p above the contact threshold, the same on both "
+                      "sides: p > 0 for the hard wall, p > 0.01 p0 for exponential walls (gfmd_ref's definition; "
+                      "for the theory contact_area()). p_c: the paper's fitted cutoff pressure (paper curve "
+                      "only; the closures have no fitted parameter). theory s: all theory curves of that wall."]
         return "\n".join(lines)
 
 
@@ -145,10 +144,7 @@ def _check_inputs(n: Any, zetas: Any, hard_wall: Any, seed: Any, tol: Any, progr
     n = check_int("n", n, minimum=2)
     if isinstance(zetas, (str, bytes)) or not hasattr(zetas, "__iter__"):
         raise ValueError(f"zetas must be a sequence of numbers > 0; got zetas={zetas!r}")
-    walls = []
-    for z in zetas:
-        cutoff_pressure(z)  # raises ValueError naming zeta for non-numbers, NaN, inf, <= 0
-        walls.append(float(z))
+    walls = [float(z) for z in zetas if cutoff_pressure(z)]  # (which refuses non-numbers, NaN, inf, <= 0 by name)
     for name, flag in (("hard_wall", hard_wall), ("progress", progress)):
         if not isinstance(flag, (bool, np.bool_)):
             raise ValueError(f"{name} must be True or False; got {name}={flag!r}")
