@@ -74,10 +74,9 @@ def check_finite_array(name: str, arr: ArrayLike, *, ndim: int | None = None,
     a = np.asarray(_as_float(name, arr), dtype=float)
     if ndim is not None and a.ndim != ndim:
         raise ValueError(f"{name} must be a {ndim}-d array; got shape {a.shape}")
-    if shape is not None:
-        if a.ndim != len(shape) or any(s is not None and s != t for s, t in zip(shape, a.shape)):
-            want = tuple("any" if s is None else s for s in shape)
-            raise ValueError(f"{name} must have shape {want}; got shape {a.shape}")
+    if shape is not None and (a.ndim != len(shape) or any(s is not None and s != t for s, t in zip(shape, a.shape))):
+        want = tuple("any" if s is None else s for s in shape)
+        raise ValueError(f"{name} must have shape {want}; got shape {a.shape}")
     if a.size < min_size:
         raise ValueError(f"{name} must have at least {min_size} element(s); got {a.size}")
     n_bad = int(np.count_nonzero(~np.isfinite(a)))
@@ -101,7 +100,8 @@ def check_in_range(name: str, value: ArrayLike, lo: float, hi: float, *, lo_incl
 def check_callable(name: str, obj: Any) -> Callable[..., Any]:
     """``obj``, required callable (else :class:`InputTypeError` naming ``name``)."""
     if not callable(obj):
-        raise InputTypeError(f"{name} must be callable (a vectorized function of p); got {obj!r} of type {type(obj).__name__}")
+        raise InputTypeError(f"{name} must be callable (a vectorized function of p); got {obj!r} of type "
+                             f"{type(obj).__name__}")
     return obj
 
 

@@ -88,8 +88,7 @@ def compare(theory: Any, hist: SimulatedHistogram, *, contact_threshold: Optiona
         ks = kolmogorov_distance(theory.cdf, hist.quantiles, hist.quantile_levels, p_floor=p_floor,
                                  zero_weight=float(theory.zero_weight))
     else:
-        f_sim = np.cumsum(m_sim)
-        ks = float(np.max(np.abs(np.asarray(theory.cdf(hist.edges[1:])) - f_sim)))
+        ks = float(np.max(np.abs(np.asarray(theory.cdf(hist.edges[1:])) - np.cumsum(m_sim))))
     moments_theory = {"mean": theory.mean, "variance": theory.moment(2, central=True),
                       "third_central": theory.moment(3, central=True)}
     return Comparison(l1, ks, moments_theory, dict(hist.moments), theory.contact_area(threshold),

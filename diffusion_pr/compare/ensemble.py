@@ -193,7 +193,6 @@ def compare_ensemble(theory: Any, records_or_group: Any, *, p_min: Optional[floa
     h = S // 2
     splits = [np.max(np.abs(C[perm[:h]].mean(0) - C[perm[h:2 * h]].mean(0))) / 2.0
               for perm in (rng.permutation(S) for _ in range(n_split))]
-    # bins
     if edges is None:
         top = float(np.mean([np.interp(0.999, r.levels, r.quantiles) for r in recs]))
         edges_arr = np.linspace(0.0, top, 51)
@@ -210,7 +209,6 @@ def compare_ensemble(theory: Any, records_or_group: Any, *, p_min: Optional[floa
     Mp = Me.mean(0)
     l1 = float(np.sum(np.abs(Mt - Mp)))
     l1_noise = float(np.median([np.sum(np.abs(Me[i].mean(0) - Mp)) for i in boot_idx]))
-    # contact fraction, sd, skewness
     thr = float(getattr(recs[0], "contact_threshold", 0.0))
     cf_t = float(theory.contact_area(thr) if hasattr(theory, "contact_area") else 1.0 - theory.cdf(thr))
     cf = np.array([float(r.contact_fraction) for r in recs])
