@@ -76,9 +76,7 @@ def compare(theory: Any, hist: SimulatedHistogram, *, contact_threshold: Optiona
     threshold = float(hist.contact_threshold if contact_threshold is None else contact_threshold)
     if not np.isfinite(threshold) or threshold < 0:
         raise ValueError(f"contact_threshold must be a finite number >= 0; got {contact_threshold!r}")
-    widths = hist.widths
-    m_theory = bin_averaged_density(theory, hist.edges) * widths
-    m_sim = hist.density * widths
+    m_theory, m_sim = bin_averaged_density(theory, hist.edges) * hist.widths, hist.density * hist.widths
     m_theory[0] += float(theory.zero_weight)
     m_sim[0] += float(hist.zero_weight)
     beyond = max(0.0, 1.0 - float(theory.cdf(hist.edges[-1])))
