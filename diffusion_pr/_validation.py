@@ -1,11 +1,8 @@
 """Shared input checks for :mod:`diffusion_pr`.
 
-Every check raises :class:`ValueError` (for a wrong kind of object its
-subclass :class:`InputTypeError`, also a :class:`TypeError`) whose message
-names the parameter, shows the offending value and states the allowed range,
-e.g. ``ValueError: variance must be > 0 and finite; got -1.0``.  Scalars are
-returned as ``float``, array-likes as a float ``numpy.ndarray``.
-"""
+Every check raises :class:`ValueError` (for a wrong kind of object its subclass :class:`InputTypeError`, also a
+:class:`TypeError`) whose message names the parameter, shows the offending value and states the allowed range, e.g.
+``ValueError: variance must be > 0 and finite; got -1.0``.  Scalars come back as ``float``, arrays as float arrays."""
 from __future__ import annotations
 
 from typing import Any, Callable
@@ -14,7 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 __all__ = ["InputTypeError", "check_positive", "check_nonnegative", "check_finite", "check_finite_array",
-           "check_in_range", "check_callable", "check_int", "check_seed", "check_writable", "check_writable_dir"]
+           "check_in_range", "check_callable", "check_int", "check_seed", "check_writable"]
 
 
 class InputTypeError(TypeError, ValueError):
@@ -70,23 +67,16 @@ def check_nonnegative(name: str, value: ArrayLike) -> float | np.ndarray:
     return _check(name, value, lambda v: np.isfinite(v) & (v >= 0), "be >= 0 and finite")
 
 
-def check_finite_array(
-    name: str,
-    arr: ArrayLike,
-    *,
-    ndim: int | None = None,
-    shape: tuple[int | None, ...] | None = None,
-    min_size: int = 1,
-) -> np.ndarray:
+def check_finite_array(name: str, arr: ArrayLike, *, ndim: int | None = None,
+                       shape: tuple[int | None, ...] | None = None, min_size: int = 1) -> np.ndarray:
     """``arr`` as a finite real float array with ``ndim`` dimensions, of ``shape`` (``None`` entries match any
     length) and at least ``min_size`` elements, each where given; the errors name ``name``."""
     a = np.asarray(_as_float(name, arr), dtype=float)
     if ndim is not None and a.ndim != ndim:
         raise ValueError(f"{name} must be a {ndim}-d array; got shape {a.shape}")
-    if shape is not None:
-        if a.ndim != len(shape) or any(s is not None and s != t for s, t in zip(shape, a.shape)):
-            want = tuple("any" if s is None else s for s in shape)
-            raise ValueError(f"{name} must have shape {want}; got shape {a.shape}")
+    if shape is not None and (a.ndim != len(shape) or any(s is not None and s != t for s, t in zip(shape, a.shape))):
+        want = tuple("any" if s is None else s for s in shape)
+        raise ValueError(f"{name} must have shape {want}; got shape {a.shape}")
     if a.size < min_size:
         raise ValueError(f"{name} must have at least {min_size} element(s); got {a.size}")
     n_bad = int(np.count_nonzero(~np.isfinite(a)))
@@ -96,15 +86,8 @@ def check_finite_array(
     return a
 
 
-def check_in_range(
-    name: str,
-    value: ArrayLike,
-    lo: float,
-    hi: float,
-    *,
-    lo_inclusive: bool = True,
-    hi_inclusive: bool = True,
-) -> float | np.ndarray:
+def check_in_range(name: str, value: ArrayLike, lo: float, hi: float, *, lo_inclusive: bool = True,
+                   hi_inclusive: bool = True) -> float | np.ndarray:
     """``value`` (scalar or every array entry) as float, required in ``[lo, hi]`` (NaN rejected); ``lo_inclusive``,
     ``hi_inclusive`` say whether the bounds are allowed; ``-inf`` / ``inf`` for one-sided ranges."""
     def ok(v: np.ndarray) -> np.ndarray:
@@ -117,7 +100,8 @@ def check_in_range(
 def check_callable(name: str, obj: Any) -> Callable[..., Any]:
     """``obj``, required callable (else :class:`InputTypeError` naming ``name``)."""
     if not callable(obj):
-        raise InputTypeError(f"{name} must be callable (a vectorized function of p); got {obj!r} of type {type(obj).__name__}")
+        raise InputTypeError(f"{name} must be callable (a vectorized function of p); got {obj!r} of type "
+                             f"{type(obj).__name__}")
     return obj
 
 
@@ -163,7 +147,3 @@ def check_writable(name: str, path: Any, *, folder: bool = True) -> str:
         raise ValueError(f"{name}={target!r} is not a writable {'folder' if folder else 'file'}: "
                          f"{exc.strerror or exc}") from None
     return target
-
-
-#: :func:`check_writable` for a folder (created if needed)
-check_writable_dir = check_writable

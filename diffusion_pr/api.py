@@ -109,9 +109,10 @@ def _check_cells(problem: Any, options: dict) -> None:
                          f"k = {k:g}: p = 0 absorbs and has no floor; got p_floor={options['p_floor']!r}")
 
 
-def _solve_full(problem: Any, backend: str, rtol: float, options: dict, **engine: Any) -> Any:
-    """The solve, with the engine's :class:`~diffusion_pr.fokker_planck.engine.FVSolution` (``engine``: its
-    ``grid``, ``plain``, ``warm_start``); a closed form gives a solution holding its result alone."""
+def _solve_full(problem: Any, backend: str, rtol: float, options: dict, warm_start: Any = None) -> Any:
+    """The solve, with the engine's :class:`~diffusion_pr.fokker_planck.engine.FVSolution`, started from
+    ``warm_start`` (a sweep's :class:`~diffusion_pr.fokker_planck.engine.WarmStart`); a closed form needs no start
+    and gives a solution holding its result alone."""
     import sys
 
     from .fokker_planck.backends import get_backend, keyword_options
@@ -125,14 +126,11 @@ def _solve_full(problem: Any, backend: str, rtol: float, options: dict, **engine
         raise ValueError(f"unknown option(s) {sorted(unknown)} for backend {chosen!r}; it accepts "
                          f"{sorted(keyword_options(solver))}")
     full = getattr(sys.modules[solver.__module__], "solve_full", None)
-    engine = {k: v for k, v in engine.items() if v is not None}
-    if full is None:  # (a warm start is a hint: a closed form needs none)
-        if set(engine) - {"warm_start"}:
-            raise ValueError(f"backend {chosen!r} is not a finite-volume backend: it takes no {sorted(engine)}")
+    if full is None:
         sol = FVSolution(result=solver(problem, rtol=rtol, **options))
     else:
         _check_cells(problem, options)
-        sol = full(problem, rtol=rtol, **options, **engine)
+        sol = full(problem, rtol=rtol, warm_start=warm_start, **options)
     return replace(sol, result=replace(sol.result, diagnostics={**sol.result.diagnostics,
                                                                 "backend_requested": backend}))
 
@@ -170,16 +168,10 @@ def solve_problem(problem: Any, *, backend: str = "auto", rtol: float = 1e-6,
     return _checked(_solve_full(problem, backend, rtol, options).result)
 
 
-def propagate(
-    mean_pressure: float,
-    variance: float,
-    *,
-    diffusivity: Optional[Callable[[np.ndarray], np.ndarray]] = None,
-    drift: Optional[Callable[[np.ndarray, float], np.ndarray]] = None,
-    backend: str = "auto",
-    rtol: float = 1e-6,
-    **options: Any,
-) -> PressureDistribution:
+def propagate(mean_pressure: float, variance: float, *,
+              diffusivity: Optional[Callable[[np.ndarray], np.ndarray]] = None,
+              drift: Optional[Callable[[np.ndarray, float], np.ndarray]] = None, backend: str = "auto",
+              rtol: float = 1e-6, **options: Any) -> PressureDistribution:
     """Solve ``dPr/dtau = -d/dp[a Pr] + d^2/dp^2[f(p) Pr]`` from ``delta(p - p0)`` to ``tau = V/2``.
 
     ``p = 0`` absorbs: what reaches it is ``zero_weight`` (the non-contact peak).  With ``f = 1`` the answer is
@@ -235,22 +227,11 @@ def propagate(
     return _checked(_solve_full(problem, backend, rtol, options).result)
 
 
-def pressure_distribution(
-    spectrum: Any,
-    *,
-    E_star: float,
-    mean_pressure: float,
-    zeta: float = 0.0,
-    cutoff: Any = "sharp",
-    p_c: Optional[float] = None,
-    tail: Any = None,
-    p_t: Optional[float] = None,
-    drift: Optional[Callable[[np.ndarray, float], np.ndarray]] = None,
-    backend: str = "auto",
-    rtol: float = 1e-6,
-    closure: str = "second_order",
-    **options: Any,
-) -> PressureDistribution:
+def pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float, zeta: float = 0.0,
+                          cutoff: Any = "sharp", p_c: Optional[float] = None, tail: Any = None,
+                          p_t: Optional[float] = None,
+                          drift: Optional[Callable[[np.ndarray, float], np.ndarray]] = None, backend: str = "auto",
+                          rtol: float = 1e-6, closure: str = "second_order", **options: Any) -> PressureDistribution:
     """Pressure distribution of a rough contact (Müser 2008, Eqs. 2, 9, 10; docs/theory.md).
 
     ``closure`` picks the theory (docs/closures.md, :data:`diffusion_pr.closures.CLOSURES`): ``"second_order"``
@@ -276,9 +257,8 @@ def pressure_distribution(
         Range of the exponential repulsion, >= 0 (0 = hard wall), in the length unit of the spectrum (that of its
         ``L = 2 pi / q_min``).
     cutoff : str or callable
-        ``"sharp"`` (default; exact mirror Gaussian, takes no ``p_c``), ``"muser"``/``"seed"`` (the paper's
-        printed factor, discontinuous at ``p_c``), ``"raised_cosine"`` (C1), ``"smoothstep"`` (C2), or a callable
-        ``c(p)``.
+        ``"sharp"`` (default; exact mirror Gaussian, takes no ``p_c``), ``"muser"``/``"seed"`` (the paper's printed
+        factor, discontinuous at ``p_c``), ``"raised_cosine"`` (C1), ``"smoothstep"`` (C2), or a callable ``c(p)``.
     p_c : float, optional
         Cutoff pressure (pressure) for the smooth cutoffs, > 0.
     tail : str or callable, optional
@@ -309,10 +289,9 @@ def pressure_distribution(
         ``p_c``/``p_t`` missing or one the cutoff/tail would ignore, unknown names, a backend or option the
         closure does not use.
     """
-    result = _pressure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta, cutoff=cutoff,
-                                    p_c=p_c, tail=tail, p_t=p_t, drift=drift, backend=backend, rtol=rtol,
-                                    closure=closure, **options)[0]
-    return _checked(result)
+    return _checked(_pressure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
+                                           cutoff=cutoff, p_c=p_c, tail=tail, p_t=p_t, drift=drift, backend=backend,
+                                           rtol=rtol, closure=closure, **options)[0])
 
 
 def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float, zeta: float = 0.0,
@@ -397,8 +376,7 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
     ``zetas``: the wall ranges (the spectrum's length unit), one-dimensional, each >= 0; ``progress``: a tqdm
     progress bar; everything else as :func:`pressure_distribution` (the chaining applies to ``"native"`` results).
     Returns one :class:`PressureDistribution` per entry of ``zetas`` (a :class:`ConvergenceWarning` for each failed
-    one).
-    """
+    one)."""
     from .fokker_planck.engine import MAX_CELLS
 
     if np.ndim(zetas) != 1 or np.size(zetas) == 0:
@@ -431,8 +409,7 @@ def warm_up(backend: str = "native") -> float:
     """Do the one-time work of ``backend`` now (imports; for ``"native"`` the compiled kernels of the engine and
     of the closures, from numba's cache or compiled on the first run after installing); return the seconds spent.
 
-    Call it before timing solves: the first solve of a process otherwise carries this work.
-    """
+    Call it before timing solves: the first solve of a process otherwise carries this work."""
     import time
 
     from .fokker_planck.backends import warm_up as backend_warm_up

@@ -28,25 +28,12 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy import special
 
-from ._validation import check_finite, check_finite_array, check_nonnegative, check_positive
+from ._validation import check_finite, check_finite_array, check_int, check_nonnegative, check_positive
 
-__all__ = [
-    "Moments",
-    "gaussian_density",
-    "gaussian_moments",
-    "mirror_gaussian_density",
-    "mirror_gaussian_moments",
-    "persson_zero_weight",
-    "persson_contact_fraction",
-    "feller_density",
-    "feller_zero_weight",
-    "feller_moments",
-    "cir_density",
-    "cir_zero_weight",
-    "drifted_mirror_gaussian_density",
-    "drifted_mirror_gaussian_zero_weight",
-    "lognormal_gap_distribution",
-]
+__all__ = ["Moments", "gaussian_density", "gaussian_moments", "mirror_gaussian_density", "mirror_gaussian_moments",
+           "persson_zero_weight", "persson_contact_fraction", "feller_density", "feller_zero_weight",
+           "feller_moments", "cir_density", "cir_zero_weight", "drifted_mirror_gaussian_density",
+           "drifted_mirror_gaussian_zero_weight", "lognormal_gap_distribution"]
 
 _SQRT2PI = math.sqrt(2.0 * math.pi)
 
@@ -121,11 +108,9 @@ def persson_contact_fraction(mean_pressure: float, variance: float) -> float:
 
 
 def mirror_gaussian_moments(mean_pressure: float, variance: float) -> Moments:
-    r"""Moments of the mirror Gaussian including its ``delta(p)`` peak.
-
-    With ``s = p0/sqrt(V)``: mean ``p0`` exactly (force balance);
-    ``<p^2> = (p0^2 + V) erf(s/sqrt 2) + 2 p0 sqrt(V) phi(s)`` with ``phi`` the standard normal density;
-    zero weight ``erfc(s/sqrt 2)``."""
+    r"""Moments of the mirror Gaussian including its ``delta(p)`` peak. With ``s = p0/sqrt(V)``: mean ``p0`` exactly
+    (force balance); ``<p^2> = (p0^2 + V) erf(s/sqrt 2) + 2 p0 sqrt(V) phi(s)`` with ``phi`` the standard normal
+    density; zero weight ``erfc(s/sqrt 2)``."""
     p0, v = _positive(mean_pressure=mean_pressure, variance=variance)
     sd = math.sqrt(v)
     s = p0 / sd
@@ -157,10 +142,8 @@ def feller_zero_weight(mean_pressure: float, tau: float, slope: float) -> float:
 
 
 def feller_moments(mean_pressure: float, tau: float, slope: float) -> Moments:
-    """Moments of the Feller solution including its ``delta(p)`` peak.
-
-    ``p`` is the martingale ``dp = sqrt(2 a p) dW`` stopped at 0: ``<p> = p0``, variance ``2 a p0 tau``
-    [pressure^2], zero weight ``exp(-p0/(a tau))``."""
+    """Moments of the Feller solution including its ``delta(p)`` peak. ``p`` is the martingale ``dp = sqrt(2 a p) dW``
+    stopped at 0: ``<p> = p0``, variance ``2 a p0 tau`` [pressure^2], zero weight ``exp(-p0/(a tau))``."""
     p0, t, a = _positive(mean_pressure=mean_pressure, tau=tau, slope=slope)
     return Moments(p0, 2.0 * a * p0 * t, math.exp(-p0 / (a * t)))
 
@@ -192,12 +175,11 @@ def cir_density(p: ArrayLike, mean_pressure: float, tau: float, slope: float, dr
 
         Pr(p) = (2/a) exp(beta tau) (1/2s) (y/z0)^(nu/2) exp(-(y + z0)/2s) I_|nu|(sqrt(y z0)/s),
 
-    the squared Bessel process's transition density on the clock ``s``; ``I_|nu|`` (not ``I_nu``) is the
-    process killed at 0 where ``delta < 2``, and the same function where ``delta >= 2`` (0 is never reached:
-    then ``2 k p`` is noncentral chi-square with ``delta`` degrees of freedom and noncentrality
-    ``2 k p0 exp(-beta tau)``, ``k = beta/(a (1 - exp(-beta tau)))``; Cox, Ingersoll and Ross 1985,
-    doi:10.2307/1911242).  ``alpha = beta = 0`` is :func:`feller_density`.  Evaluated overflow-free with
-    ``ive`` and in logarithms; at ``p = 0`` the limit ``p -> 0+``.
+    the squared Bessel process's transition density on the clock ``s``; ``I_|nu|`` (not ``I_nu``) is the process killed
+    at 0 where ``delta < 2``, and the same function where ``delta >= 2`` (0 is never reached: then ``2 k p`` is
+    noncentral chi-square with ``delta`` degrees of freedom and noncentrality ``2 k p0 exp(-beta tau)``,
+    ``k = beta/(a (1 - exp(-beta tau)))``; Cox, Ingersoll and Ross 1985, doi:10.2307/1911242).  ``alpha = beta = 0`` is
+    :func:`feller_density`.  Evaluated overflow-free with ``ive`` and in logarithms; at ``p = 0`` the limit ``p -> 0+``.
 
     ``drift_at_wall`` ``alpha`` [pressure per unit ``tau``] is the drift at ``p = 0``, any sign (``alpha >= a``
     makes ``p = 0`` an entrance boundary, never reached); ``restoring_rate`` ``beta`` [1/pressure^2], any sign,
@@ -225,13 +207,10 @@ def cir_density(p: ArrayLike, mean_pressure: float, tau: float, slope: float, dr
 
 def cir_zero_weight(mean_pressure: float, tau: float, slope: float, drift_at_wall: float = 0.0,
                     restoring_rate: float = 0.0) -> float:
-    """Mass absorbed at ``p = 0`` by the process of :func:`cir_density`.
-
-    ``Q(1 - delta/2, z0/2s)`` for ``delta = 2 alpha/a < 2`` (the time a squared Bessel process of dimension
-    ``delta < 2`` takes from ``z0`` to 0 is ``z0/(2 G)``, ``G ~ Gamma(1 - delta/2)``; Goeing-Jaeschke and Yor 2003,
-    doi:10.3150/bj/1068128980), 0 for ``delta >= 2`` (entrance boundary).  ``alpha = beta = 0``:
-    ``exp(-p0/(a tau))``, :func:`feller_zero_weight`.
-    """
+    """Mass absorbed at ``p = 0`` by the process of :func:`cir_density`. ``Q(1 - delta/2, z0/2s)`` for
+    ``delta = 2 alpha/a < 2`` (the time a squared Bessel process of dimension ``delta < 2`` takes from ``z0`` to 0 is
+    ``z0/(2 G)``, ``G ~ Gamma(1 - delta/2)``; Goeing-Jaeschke and Yor 2003, doi:10.3150/bj/1068128980), 0 for
+    ``delta >= 2`` (entrance boundary).  ``alpha = beta = 0``: ``exp(-p0/(a tau))``, :func:`feller_zero_weight`."""
     p0, t, a, alpha, beta = _cir_args(mean_pressure, tau, slope, drift_at_wall, restoring_rate)
     delta, s, _ = _cir_clock(t, a, alpha, beta)
     if delta >= 2.0:
@@ -313,8 +292,7 @@ def lognormal_gap_distribution(spectrum: Any, *, E_star: float, mean_pressure: f
                          "where no wall law maps gaps to pressures. Use 'second_order' (Persson) or 'local_g1_balanced'.")
     E = float(check_positive("E_star", E_star))
     p0 = float(check_positive("mean_pressure", mean_pressure))
-    if not isinstance(n_cells, (int, np.integer)) or n_cells < 100:
-        raise ValueError(f"n_cells must be an integer >= 100; got n_cells={n_cells!r}")
+    check_int("n_cells", n_cells, minimum=100)
     t0 = time.perf_counter()
     V = float(stress_variance(spectrum, E_star=E, mean_pressure=p0, zeta=z))
     s2 = V / (p0 * p0)

@@ -8,17 +8,16 @@ doi:10.1103/PhysRevLett.100.055504), :class:`RaisedCosineCutoff` (C1), :class:`S
 vectorized callables of a pressure array (the unit of ``mean_pressure``); any vectorized callable of ``p`` is accepted
 wherever a cutoff or tail is.
 
-The model protocol (:class:`PressureModel`): a coefficient may declare ``zero_power``, the ``k`` of
+The model protocol: a coefficient may declare ``zero_power``, the ``k`` of
 ``f(p) ~ C p^k`` as ``p -> 0+`` (Feller, Ann. Math. 55, 468 (1952), doi:10.2307/1969644: mass reaches the absorbing
 wall in finite time iff ``k < 2``; for ``k >= 2`` the solvers resolve it on a logarithmic grid down to a floor), and
 ``breakpoints()``, the pressures where ``f``, ``f'`` or ``f''`` jump (cell edges go there).  Every class here
-declares both; for a plain callable :func:`zero_power_of` and :func:`breakpoints_of` probe them.
-"""
+declares both; for a plain callable :func:`zero_power_of` and :func:`breakpoints_of` probe them."""
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Callable, ClassVar, Optional, Protocol, Union, runtime_checkable
+from typing import Callable, ClassVar, Optional
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -31,38 +30,14 @@ PressureFunction = Callable[[NDArray[np.float64]], NDArray[np.float64]]
 WALL_POWER = 2.0
 
 
-@runtime_checkable
-class PressureModel(Protocol):
-    """What a pressure-dependent coefficient may declare to the solvers.
-
-    Attributes
-    ----------
-    zero_power : float
-        ``k`` in ``f(p) ~ C p^k`` as ``p -> 0+`` (dimensionless; 0 when
-        ``f(0+) > 0``, ``math.inf`` when ``f`` vanishes on a neighbourhood of 0).
-    """
-
-    zero_power: float
-
-    def __call__(self, p: NDArray[np.float64]) -> NDArray[np.float64]: ...
-
-    def breakpoints(self) -> tuple[float, ...]:
-        """Pressures (units of pressure) where ``f``, ``f'`` or ``f''`` jump."""
-        ...
-
-
 def wall_reached(k: float) -> bool:
     """Feller's criterion: ``f ~ p^k`` reaches ``p = 0`` in finite tau iff ``k < 2``."""
     return bool(k < WALL_POWER)
 
 
 def evaluate_vectorized(f: Callable, p: np.ndarray, name: str | None = None) -> np.ndarray:
-    """Evaluate a pressure function ``f`` on ``p``; check it returns one value per pressure.
-
-    A scalar result is broadcast (a constant ``f``); any other shape, or an
-    exception inside ``f``, becomes a ``ValueError`` naming ``name`` (default:
-    the callable's repr) and the shapes.
-    """
+    """``f(p)``, one value per pressure: a scalar result is broadcast (a constant ``f``); any other shape, or an
+    exception inside ``f``, is a ``ValueError`` naming ``name`` (default: the callable's repr) and the shapes."""
     who = f"the callable {f!r}" if name is None else name
     try:
         out = np.asarray(f(p), dtype=float)
@@ -79,19 +54,11 @@ def evaluate_vectorized(f: Callable, p: np.ndarray, name: str | None = None) -> 
 
 
 def zero_power_of(f: Callable, scale: float) -> float:
-    """``k`` of ``f ~ p^k`` at ``p -> 0+``: the declared ``zero_power``, else a probe.
+    """``k`` of ``f ~ p^k`` at ``p -> 0+`` for a vectorized ``f``: its declared ``zero_power``, else a probe.
 
-    The probe takes the median slope of ``log f`` against ``log p`` between
-    consecutive ``p = scale 10^-j`` (``j = 2..8``) with ``f > 0``, snapped to
-    the nearest integer within 0.02; ``f = 0`` at every probe gives ``inf``.
-
-    Parameters
-    ----------
-    f : callable
-        Vectorized ``f(p)``.
-    scale : float
-        Pressure scale of the problem (units of pressure), e.g. ``min(p0, p_c)``.
-    """
+    The probe takes the median slope of ``log f`` against ``log p`` between consecutive ``p = scale 10^-j``
+    (``j = 2..8``; ``scale`` the problem's pressure scale, e.g. ``min(p0, p_c)``) with ``f > 0``, snapped to the
+    nearest integer within 0.02; ``f = 0`` at every probe gives ``inf``."""
     declared = getattr(f, "zero_power", None)
     if declared is not None:
         return float(declared)
@@ -110,11 +77,8 @@ def zero_power_of(f: Callable, scale: float) -> float:
 
 
 def breakpoints_of(f: Callable, p_lo: float, p_hi: float) -> tuple[float, ...]:
-    """Non-smooth points of ``f`` in ``(p_lo, p_hi)`` (units of pressure).
-
-    Declared by ``f.breakpoints()`` when present; otherwise the jumps of ``f``
-    found on a 4096-point probe and bisected to 1e-13 relative.
-    """
+    """Non-smooth points of ``f`` in ``(p_lo, p_hi)`` (units of pressure): ``f.breakpoints()`` where declared, else
+    the jumps of ``f`` found on a 4096-point probe and bisected to 1e-13 relative."""
     method = getattr(f, "breakpoints", None)
     declared = getattr(f, "declared", None)
     if callable(method) and (not callable(declared) or declared()):
@@ -158,11 +122,8 @@ class _Model:
 
 @dataclass(frozen=True)
 class SharpCutoff(_Model):
-    """Sharp cutoff ``c(p) = theta(p)`` (1 for ``p > 0``, 0 otherwise).
-
-    Discontinuous at ``p = 0`` (``continuity = -1``); mass that diffuses to
-    ``p = 0`` is absorbed there and becomes the non-contact weight.
-    """
+    """Sharp cutoff ``c(p) = theta(p)`` (1 for ``p > 0``, 0 otherwise), discontinuous at ``p = 0``
+    (``continuity = -1``): mass that diffuses to ``p = 0`` is absorbed there, the non-contact weight."""
 
     continuity: ClassVar[int] = -1  # -1: the function itself jumps somewhere
     zero_power: ClassVar[float] = 0.0  # f(0+) = 1: the wall is reached (Feller)
@@ -173,11 +134,8 @@ class SharpCutoff(_Model):
 
 @dataclass(frozen=True)
 class _Cutoff(_Model):
-    """A switch from 0 at ``p <= 0`` to its plateau, ending at the cutoff pressure ``p_c`` (> 0, units of pressure).
-
-    Subclasses set ``continuity`` (the highest continuous derivative, -1 for a
-    jump), ``zero_power`` and ``__call__``.
-    """
+    """A switch from 0 at ``p <= 0`` to its plateau, ending at the cutoff pressure ``p_c`` (> 0, units of pressure);
+    subclasses set ``continuity`` (the highest continuous derivative, -1 for a jump), ``zero_power``, ``__call__``."""
 
     p_c: float
 
@@ -190,12 +148,10 @@ class _Cutoff(_Model):
 class MuserCutoff(_Cutoff):
     """The seed paper's cutoff, exactly as printed, for a cutoff pressure ``p_c`` > 0 (units of pressure).
 
-    ``c(p) = 1 - theta(p_c - p) cos(pi p / p_c)`` for ``p >= 0`` and 0 for
-    ``p < 0`` (Müser 2008, text below Eq. 10).  Below ``p_c`` it rises from 0 to
-    2; above ``p_c`` it is 1.  It is continuous with zero slope at ``p = 0`` but
-    jumps from 2 to 1 at ``p = p_c`` (``continuity = -1``).  ``c ~ (pi p/p_c)^2/2``
-    near 0, so no mass reaches ``p = 0``: the non-contact peak broadens instead.
-    """
+    ``c(p) = 1 - theta(p_c - p) cos(pi p / p_c)`` for ``p >= 0`` and 0 for ``p < 0`` (Müser 2008, text below Eq. 10).
+    Below ``p_c`` it rises from 0 to 2; above ``p_c`` it is 1.  It is continuous with zero slope at ``p = 0`` but jumps
+    from 2 to 1 at ``p = p_c`` (``continuity = -1``).  ``c ~ (pi p/p_c)^2/2`` near 0, so no mass reaches ``p = 0``: the
+    non-contact peak broadens instead."""
 
     continuity: ClassVar[int] = -1
     zero_power: ClassVar[float] = 2.0  # f ~ p^2 at 0: the wall is not reached
@@ -209,11 +165,8 @@ class MuserCutoff(_Cutoff):
 
 @dataclass(frozen=True)
 class RaisedCosineCutoff(_Cutoff):
-    """C1 raised-cosine switch ``(1 - cos(pi p/p_c)) / 2`` on ``[0, p_c]`` (``p_c`` > 0, units of pressure).
-
-    0 for ``p <= 0``, 1 for ``p >= p_c``.  Value and first derivative are
-    continuous; the second derivative jumps at 0 and ``p_c`` (``continuity = 1``).
-    """
+    """C1 raised-cosine switch ``(1 - cos(pi p/p_c)) / 2`` on ``[0, p_c]`` (``p_c`` > 0, units of pressure), 0 for
+    ``p <= 0``, 1 for ``p >= p_c``; the second derivative jumps at 0 and ``p_c`` (``continuity = 1``)."""
 
     continuity: ClassVar[int] = 1
     zero_power: ClassVar[float] = 2.0  # f ~ p^2 at 0: the wall is not reached
@@ -225,12 +178,9 @@ class RaisedCosineCutoff(_Cutoff):
 
 @dataclass(frozen=True)
 class SmoothstepCutoff(_Cutoff):
-    """C2 quintic smoothstep ``6x^5 - 15x^4 + 10x^3``, ``x = p / p_c`` (``p_c`` > 0, units of pressure).
-
-    0 for ``p <= 0``, 1 for ``p >= p_c``; value, first and second derivatives
-    are continuous everywhere (``continuity = 2``): the switch the paper's text
-    describes.  ``c ~ 10 (p/p_c)^3`` near 0, so no mass reaches ``p = 0``.
-    """
+    """C2 quintic smoothstep ``6x^5 - 15x^4 + 10x^3``, ``x = p / p_c`` (``p_c`` > 0, units of pressure), 0 for
+    ``p <= 0``, 1 for ``p >= p_c`` (``continuity = 2``: the switch the paper's text describes); ``c ~ 10 (p/p_c)^3``
+    near 0, so no mass reaches ``p = 0``."""
 
     continuity: ClassVar[int] = 2
     zero_power: ClassVar[float] = 3.0  # f ~ p^3 at 0: the wall is not reached
@@ -275,9 +225,6 @@ class MaxLinearTail(_Model):
     def __call__(self, p: ArrayLike) -> NDArray[np.float64]:
         return np.maximum(1.0, np.asarray(p, dtype=float) / self.p_t)
 
-
-Cutoff = Union[SharpCutoff, MuserCutoff, RaisedCosineCutoff, SmoothstepCutoff, PressureFunction]
-Tail = Union[GaussianTail, LinearTail, MaxLinearTail, PressureFunction]
 
 _CUTOFFS = {"sharp": SharpCutoff, "muser": MuserCutoff, "seed": MuserCutoff, "raised_cosine": RaisedCosineCutoff,
             "smoothstep": SmoothstepCutoff}
@@ -331,8 +278,8 @@ def make_tail(tail: object, p_t: float | None = None) -> PressureFunction:
     Parameters
     ----------
     tail : str, callable or None
-        ``None`` or ``"gaussian"`` (``t = 1``), ``"linear"`` (``1 + p/p_t``),
-        ``"max_linear"`` (``max(1, p/p_t)``), or any vectorized callable.
+        ``None`` or ``"gaussian"`` (``t = 1``), ``"linear"`` (``1 + p/p_t``), ``"max_linear"`` (``max(1, p/p_t)``), or
+        any vectorized callable.
     p_t : float, optional
         Crossover pressure (units of pressure) of the linear tails, > 0; given for any other, an error.
     """
@@ -341,17 +288,13 @@ def make_tail(tail: object, p_t: float | None = None) -> PressureFunction:
 
 @dataclass(frozen=True)
 class PressureFactor:
-    """Product ``f(p) = c(p) * t(p)``: the pressure factor of ``D(p, eta)``.
-
-    This is the ``diffusivity`` that :func:`diffusion_pr.propagate` takes.
-    Dimensionless.  ``tail=None`` (the default) is the Gaussian tail ``t = 1``.
-    """
+    """Product ``f(p) = c(p) * t(p)`` (dimensionless): the pressure factor of ``D(p, eta)``, the ``diffusivity``
+    :func:`diffusion_pr.propagate` takes; ``tail=None`` is the Gaussian tail ``t = 1``."""
 
     cutoff: PressureFunction
     tail: Optional[PressureFunction] = None
 
     def __post_init__(self) -> None:
-        # ``tail=None`` is the Gaussian tail ``t = 1``, as in :func:`make_tail`
         if self.tail is None:
             object.__setattr__(self, "tail", GaussianTail())
         for name in ("cutoff", "tail"):
@@ -368,12 +311,8 @@ class PressureFactor:
 
     def breakpoints(self) -> tuple[float, ...]:
         """Union of the parts' breakpoints (parts without ``breakpoints()`` are probed by the solver)."""
-        pts: list[float] = []
-        for part in (self.cutoff, self.tail):
-            method = getattr(part, "breakpoints", None)
-            if callable(method):
-                pts.extend(float(b) for b in method())
-        return tuple(sorted(set(pts)))
+        return tuple(sorted({float(b) for part in (self.cutoff, self.tail)
+                             if callable(getattr(part, "breakpoints", None)) for b in part.breakpoints()}))
 
     def declared(self) -> bool:
         """Whether both parts declare the protocol (else the solver probes the product)."""
@@ -389,12 +328,10 @@ class PressureFactor:
 class ProportionalDiffusivity(_Model):
     """Pure linear pressure factor ``f(p) = p / p_1`` (0 for ``p <= 0``), ``p_1`` > 0 (units of pressure).
 
-    The diffusivity ``D ∝ p`` of the paper's exponential-tail argument taken
-    literally down to ``p = 0``.  From ``delta(p - p0)`` the exact solution is
-    Feller's (W. Feller, Ann. Math. 54, 173 (1951)): see
-    :func:`diffusion_pr.closed_forms.feller_density` with ``slope = 1/p_1``.
-    ``p = 0`` is an exit boundary: mass ``exp(-p0 p_1 / tau)`` is absorbed.
-    """
+    The diffusivity ``D ∝ p`` of the paper's exponential-tail argument taken literally down to ``p = 0``.  From
+    ``delta(p - p0)`` the exact solution is Feller's (W. Feller, Ann. Math. 54, 173 (1951)): see
+    :func:`diffusion_pr.closed_forms.feller_density` with ``slope = 1/p_1``. ``p = 0`` is an exit boundary: mass
+    ``exp(-p0 p_1 / tau)`` is absorbed."""
 
     p_1: float
     continuity: ClassVar[int] = 0  # continuous, kink at p = 0

@@ -1,37 +1,30 @@
 """The paper's numbers, in one place, pinned to the paper's own words.
 
-Source: M. H. Müser, *A rigorous, field-theoretical approach to the contact
-mechanics of rough elastic solids*, Phys. Rev. Lett. 100, 055504 (2008),
-doi:10.1103/PhysRevLett.100.055504.  The Fig. 1 paragraph reads (quoted
-verbatim, LaTeX as in the text the project works from):
+Source: M. H. Müser, *A rigorous, field-theoretical approach to the contact mechanics of rough elastic solids*, Phys.
+Rev. Lett. 100, 055504 (2008), doi:10.1103/PhysRevLett.100.055504.  The Fig. 1 paragraph reads (quoted verbatim, LaTeX
+as in the text the project works from):
 
-    "The system that was investigated has roughness on wavelengths
-    $32 \\leq \\lambda \\leq 1024$, the Hurst roughness exponent is $H = 0.3$,
-    and the root-mean-square slope is 0.031. Furthermore, $E' = 8/3$ and
-    $p_0 = 0.004$ in the same units. ζ is varied between 0.001 and 4. The unit
-    for length scale is defined by the distance between two grid points in the
-    numerical solution."
+    "The system that was investigated has roughness on wavelengths $32 \\leq \\lambda \\leq 1024$, the Hurst roughness
+    exponent is $H = 0.3$, and the root-mean-square slope is 0.031. Furthermore, $E' = 8/3$ and $p_0 = 0.004$ in the
+    same units. ζ is varied between 0.001 and 4. The unit for length scale is defined by the distance between two grid
+    points in the numerical solution."
 
-    "Values of p_c used for our calculations were $p_c = 0.0027$ for all curves
-    with $\\zeta \\geq 0.25$ and $p_c = 0.0082$ [0.0068] for $\\zeta = 0.01$
-    [0.001]. These three values for p_c are the only adjustable coefficients
-    used in Fig. 1."
+    "Values of p_c used for our calculations were $p_c = 0.0027$ for all curves with $\\zeta \\geq 0.25$ and $p_c =
+    0.0082$ [0.0068] for $\\zeta = 0.01$ [0.001]. These three values for p_c are the only adjustable coefficients used
+    in Fig. 1."
 
 The same sentences are kept as strings in :data:`QUOTES`; the test suite
 (``tests/diffusion_pr/test_paper.py``) parses every constant below back out of
 them, so a constant cannot drift from the paper without a failing test.
 
-One number here is **not** the paper's: :data:`EXP_CONTACT_THRESHOLD`.  The
-paper shows pressure histograms only; to compare "contact fractions" of an
-exponential (soft) wall, whose pressure is never exactly zero, this project
-counts a point as in contact when ``p > 0.01 p0`` (the definition of
-:attr:`gfmd_ref.ContactResult.contact_fraction`, ``gfmd_ref.EXP_CONTACT_THRESHOLD``;
-see the docs page ``gfmd``).  :mod:`gfmd_ref` does not import
-:mod:`diffusion_pr`, so it keeps its own copy; a test checks that the two agree.
+One number here is **not** the paper's: :data:`EXP_CONTACT_THRESHOLD`.  The paper shows pressure histograms only; to
+compare "contact fractions" of an exponential (soft) wall, whose pressure is never exactly zero, this project counts a
+point as in contact when ``p > 0.01 p0`` (the definition of :attr:`gfmd_ref.ContactResult.contact_fraction`,
+``gfmd_ref.EXP_CONTACT_THRESHOLD``; see the docs page ``gfmd``).  :mod:`gfmd_ref` does not import :mod:`diffusion_pr`,
+so it keeps its own copy; a test checks that the two agree.
 
 Units are the paper's: lengths in grid spacings of the ``1024 x 1024`` system,
-pressures in the units of ``E'`` (= ``E*``, the contact modulus).
-"""
+pressures in the units of ``E'`` (= ``E*``, the contact modulus)."""
 from __future__ import annotations
 
 import math
@@ -90,23 +83,14 @@ EXP_CONTACT_THRESHOLD: float = 0.01
 
 #: The Fig. 1 scene as keyword arguments (lengths in grid spacings of the 1024^2 system,
 #: ``q = 2 pi / lambda``).
-FIG1_SCENE: dict[str, float] = {
-    "length": LENGTH,
-    "hurst": HURST,
-    "q_min": 2.0 * math.pi / LENGTH,
-    "q_max": 2.0 * math.pi / LAMBDA_MIN,
-    "rms_slope": RMS_SLOPE,
-    "E_star": E_STAR,
-    "mean_pressure": MEAN_PRESSURE,
-}
+FIG1_SCENE: dict[str, float] = {"length": LENGTH, "hurst": HURST, "q_min": 2.0 * math.pi / LENGTH,
+                                 "q_max": 2.0 * math.pi / LAMBDA_MIN, "rms_slope": RMS_SLOPE, "E_star": E_STAR,
+                                 "mean_pressure": MEAN_PRESSURE}
 
 
 def cutoff_pressure(zeta: float) -> float:
-    """The paper's cutoff pressure ``p_c`` for a wall range ``zeta`` (units of E*).
-
-    0.0027 for ``zeta >= 0.25``, 0.0082 at ``zeta = 0.01`` and 0.0068 at
-    ``zeta = 0.001``.  For a ``zeta`` the paper does not name (e.g. 0.1) the
-    value of the nearest named ``zeta`` on a log scale is returned.
+    """The paper's cutoff pressure ``p_c`` (units of E*): 0.0027 for ``zeta >= 0.25``, 0.0082 at ``zeta = 0.01``,
+    0.0068 at ``zeta = 0.001``; for a ``zeta`` the paper does not name (e.g. 0.1), the log-nearest named one's.
 
     Parameters
     ----------
@@ -128,11 +112,6 @@ def cutoff_pressure(zeta: float) -> float:
 
 
 def contact_threshold(zeta: float | None, mean_pressure: float = MEAN_PRESSURE) -> float:
-    """Pressure above which a point counts as in contact (units of pressure).
-
-    ``0`` for the hard wall (``zeta`` None or 0: contact means ``p > 0``),
-    ``EXP_CONTACT_THRESHOLD * mean_pressure`` for an exponential wall.
-    """
-    if zeta is None or zeta == 0:
-        return 0.0
-    return EXP_CONTACT_THRESHOLD * float(mean_pressure)
+    """Pressure above which a point counts as in contact (units of pressure). ``0`` for the hard wall (``zeta`` None or
+    0: contact means ``p > 0``), ``EXP_CONTACT_THRESHOLD * mean_pressure`` for an exponential wall."""
+    return 0.0 if zeta is None or zeta == 0 else EXP_CONTACT_THRESHOLD * float(mean_pressure)

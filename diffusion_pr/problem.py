@@ -1,29 +1,17 @@
-"""The Fokker-Planck problem every backend solves.
+"""The Fokker-Planck problem every backend solves (docs/theory.md).
 
-In the diffusion "time" ``tau = integral D(eta) d eta`` (units of pressure
-squared) the magnification-dependent equation of docs/theory.md reads
+In the diffusion time ``tau = integral D(eta) d eta`` (pressure squared)::
 
-    d Pr / d tau = - d/dp [ a(p, tau) Pr ] + d^2/dp^2 [ f(p, tau) Pr ],
-    Pr(p, tau = 0) = delta(p - mean_pressure),
+    d Pr / d tau = - d/dp [ a(p, tau) Pr ] + d^2/dp^2 [ f(p, tau) Pr ],   Pr(p, 0) = delta(p - mean_pressure),
 
-on ``0 <= p < infinity``.  Where ``f ~ p^k`` with ``k < 2`` probability reaches
-``p = 0`` (Feller) and what arrives is the non-contact weight ``zero_weight``;
-where ``k >= 2`` it only creeps towards 0 and ``zero_weight`` is the probability
-below a floor fixed by the problem (see ``docs/theory.md``).  Mean pressure is
-conserved with the drift ``a = 0``.
-``tau`` runs to ``tau_end = variance / 2`` so that ``f = 1`` without the wall
-gives a Gaussian of variance ``variance``.
-
-When ``D(p, eta) = D(eta) f(p)`` factorizes (no drift, ``f`` independent of
-``eta``) the problem is autonomous and one solve in ``tau`` is all a scene
-needs.  A magnification-dependent drift ``A(p, eta)`` becomes
-``a(p, tau) = A(p, eta(tau)) / D(eta(tau))``; see
-:func:`FokkerPlanckProblem.from_magnification`.
-"""
+on ``p >= 0``, to ``tau_end = variance / 2`` (``f = 1`` without the wall gives a Gaussian of variance ``variance``).
+Where ``f ~ p^k`` with ``k < 2`` probability reaches ``p = 0`` (Feller) and is the non-contact weight
+``zero_weight``; for ``k >= 2`` ``zero_weight`` is the probability below a floor.  A magnification-dependent drift
+``A(p, eta)`` becomes ``a(p, tau) = A(p, eta(tau)) / D(eta(tau))`` (:meth:`FokkerPlanckProblem.from_magnification`)."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Optional
 
 import numpy as np
@@ -68,8 +56,7 @@ class FokkerPlanckProblem:
     variance : float
         ``V`` (pressure squared), > 0: the problem runs to ``tau_end = V/2``.
     diffusivity : callable
-        Vectorized ``f(p)`` (dimensionless), ``f >= 0`` and finite on ``p > 0``;
-        ``f(p, tau)`` if ``time_dependent``.
+        Vectorized ``f(p)`` (dimensionless), ``f >= 0`` and finite on ``p > 0``; ``f(p, tau)`` if ``time_dependent``.
     drift : callable, optional
         Vectorized ``a(p, tau)`` (pressure per unit tau); ``None`` means 0.
     time_dependent : bool
@@ -82,7 +69,6 @@ class FokkerPlanckProblem:
     drift: Optional[Callable[[Array, float], Array]] = None
     time_dependent: bool = False
     label: str = ""
-    metadata: dict = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "mean_pressure", _number("mean_pressure", self.mean_pressure, "pressure"))
@@ -90,9 +76,8 @@ class FokkerPlanckProblem:
         if self.diffusivity is None:
             object.__setattr__(self, "diffusivity", _unit)
         if not callable(self.diffusivity):
-            raise ValueError(
-                f"diffusivity must be a vectorized callable f(p) of the pressure; got {type(self.diffusivity).__name__}"
-            )
+            raise ValueError("diffusivity must be a vectorized callable f(p) of the pressure; got "
+                             f"{type(self.diffusivity).__name__}")
         if self.drift is not None and not callable(self.drift):
             raise ValueError(f"drift must be a vectorized callable a(p, tau) or None; got {type(self.drift).__name__}")
         if not self.time_dependent:  # a negative or non-finite f is refused here (the solvers would fail obscurely)
@@ -122,18 +107,12 @@ class FokkerPlanckProblem:
         return _check_f(p, np.broadcast_to(out, p.shape).astype(float))
 
     @classmethod
-    def from_magnification(
-        cls,
-        *,
-        mean_pressure: float,
-        eta: Array,
-        variance_of_eta: Array,
-        pressure_factor: Callable[[Array], Array],
-        drift_of_eta: Optional[Callable[[Array, float], Array]] = None,
-        variance_function: Optional[Callable[[Array], Array]] = None,
-        diffusivity_function: Optional[Callable[[Array], Array]] = None,
-        label: str = "",
-    ) -> "FokkerPlanckProblem":
+    def from_magnification(cls, *, mean_pressure: float, eta: Array, variance_of_eta: Array,
+                           pressure_factor: Callable[[Array], Array],
+                           drift_of_eta: Optional[Callable[[Array, float], Array]] = None,
+                           variance_function: Optional[Callable[[Array], Array]] = None,
+                           diffusivity_function: Optional[Callable[[Array], Array]] = None,
+                           label: str = "") -> "FokkerPlanckProblem":
         """Build the ``tau`` problem from a magnification schedule.
 
         Parameters
@@ -147,21 +126,18 @@ class FokkerPlanckProblem:
         pressure_factor : callable
             ``f(p) = c(p) t(p)``.
         drift_of_eta : callable, optional
-            ``A(p, eta)`` (pressure per unit magnification).  Converted to
-            ``a = A / D(eta)`` with ``D = (1/2) dV/deta``; segments where ``D = 0``
-            are skipped (their drift cannot be represented in ``tau``; the
-            conversion raises if a drift is given there).
+            ``A(p, eta)`` (pressure per unit magnification).  Converted to ``a = A / D(eta)`` with
+            ``D = (1/2) dV/deta``; segments where ``D = 0`` are skipped (their drift cannot be represented in ``tau``;
+            the conversion raises if a drift is given there).
         variance_function, diffusivity_function : callable, optional
-            The exact, vectorized ``V(eta)`` (pressure squared) and
-            ``D(eta) = (1/2) dV/deta`` (pressure squared per unit magnification),
-            consistent with ``variance_of_eta`` at the nodes (a continuum spectrum's
+            The exact, vectorized ``V(eta)`` (pressure squared) and ``D(eta) = (1/2) dV/deta`` (pressure squared per
+            unit magnification), consistent with ``variance_of_eta`` at the nodes (a continuum spectrum's
             :func:`~diffusion_pr.cumulants.variance_vs_magnification` and
-            :func:`~diffusion_pr.cumulants.diffusivity_vs_magnification`).  Given
-            both, ``eta(tau)`` solves ``(V(eta) - V(1))/2 = tau`` to round-off and
-            ``a(p, tau)`` is as smooth in ``tau`` as ``A`` and ``D`` are in ``eta``
-            (second-order convergence of the midpoint time segments).  Without them
-            ``eta(tau)`` and ``D`` are interpolated linearly between the nodes:
-            ``a`` has a kink at every node and a tight ``rtol`` may be out of reach.
+            :func:`~diffusion_pr.cumulants.diffusivity_vs_magnification`).  Given both, ``eta(tau)`` solves
+            ``(V(eta) - V(1))/2 = tau`` to round-off and ``a(p, tau)`` is as smooth in ``tau`` as ``A`` and ``D`` are in
+            ``eta`` (second-order convergence of the midpoint time segments).  Without them ``eta(tau)`` and ``D`` are
+            interpolated linearly between the nodes: ``a`` has a kink at every node and a tight ``rtol`` may be out of
+            reach.
         """
         eta = np.asarray(eta, dtype=float)
         v = np.asarray(variance_of_eta, dtype=float)
@@ -198,9 +174,7 @@ class FokkerPlanckProblem:
         if variance_function is not None:
             drift.prefetch_times = magnification.solve  # type: ignore[attr-defined]
 
-        return cls(mean_pressure, variance, pressure_factor, drift=drift, label=label,
-                   metadata={"eta": eta, "variance_of_eta": v,
-                             "magnification_map": "linear" if variance_function is None else "exact"})
+        return cls(mean_pressure, variance, pressure_factor, drift=drift, label=label)
 
 
 #: Newton steps of the exact ``eta(tau)`` map before it gives up on round-off (a bisection step each where the
@@ -209,12 +183,9 @@ MAGNIFICATION_NEWTON_STEPS = 60
 
 
 class _ExactMagnification:
-    """``tau -> (eta(tau), D(eta(tau)))`` solving ``(V(eta) - V(1))/2 = tau`` inside the table's bracket.
-
-    Safeguarded Newton (bisection where a step leaves the bracket), vectorized over
-    the times of :meth:`solve`; memoized per ``tau`` (the engine announces each
-    grid's segment midpoints at once through the drift's ``prefetch_times``).
-    """
+    """``tau -> (eta(tau), D(eta(tau)))`` solving ``(V(eta) - V(1))/2 = tau`` inside the table's bracket. Safeguarded
+    Newton (bisection where a step leaves the bracket), vectorized over the times of :meth:`solve`; memoized per ``tau``
+    (the engine announces each grid's segment midpoints at once through the drift's ``prefetch_times``)."""
 
     def __init__(self, eta: Array, tau_nodes: Array, v_start: float, variance_function: Callable,
                  diffusivity_function: Callable) -> None:
@@ -276,10 +247,8 @@ class Stage:
 
         dPr/dtau = d^2/dp^2 [ f(p) Pr ] - d/dp [ (b(p) - A(tau) w(p)) Pr ],   p > 0,
 
-    with the scalar ``A(tau)`` chosen at every instant so that ``d<p>/dtau = 0``
-    when ``balance`` is given (or, for a :class:`StagedProblem` with
-    ``balance_per_stage``, one number ``A`` per stage that brings ``<p>`` back to
-    ``p0`` at the stage's end).  The callables may declare the model protocol of
+    with the scalar ``A`` chosen to keep ``<p>`` at ``p0`` when ``balance`` is given (how:
+    :class:`StagedProblem`'s ``balance_per_stage``).  The callables may declare the model protocol of
     :mod:`diffusion_pr.models` (``zero_power``, ``breakpoints()``).
 
     Attributes
@@ -291,8 +260,7 @@ class Stage:
     drift : callable or None
         ``b(p)`` (pressure per unit tau), vectorized; ``None`` means 0.
     balance : callable or None
-        ``w(p)`` (pressure per unit tau per unit ``A``); the total drift is
-        ``b(p) - A(tau) w(p)``; ``None`` means no balance (``A = 0``).
+        ``w(p)`` (pressure per unit tau per unit ``A``), vectorized; ``None`` means no balance (``A = 0``).
     """
 
     duration: float
@@ -322,11 +290,10 @@ class StagedProblem:
     label : str
         Free text carried into the result's diagnostics.
     balance_per_stage : bool
-        How a stage's balance multiplier ``A`` is defined.  False (default):
-        ``A(tau)`` at every instant, so that ``d<p>/dtau = 0`` throughout (the
-        engine resolves it by substeps refined with the grids).  True: one
-        number ``A`` per stage, the one with ``<p> = p0`` at the stage's end
-        (the closures: the rigid-body approach restores the load shell by shell).
+        How a stage's balance multiplier ``A`` is defined.  False (default): ``A(tau)`` at every instant, so that
+        ``d<p>/dtau = 0`` throughout (the engine resolves it by substeps refined with the grids).  True: one number
+        ``A`` per stage, the one with ``<p> = p0`` at the stage's end (the closures: the rigid-body approach restores
+        the load shell by shell).
     """
 
     mean_pressure: float
@@ -354,16 +321,3 @@ class StagedProblem:
     def variance(self) -> float:
         """``2 tau_end`` (pressure squared): the variance ``f = 1`` would give."""
         return 2.0 * self.tau_end
-
-    @classmethod
-    def from_problem(cls, problem: "FokkerPlanckProblem") -> "StagedProblem":
-        """One stage holding an autonomous :class:`FokkerPlanckProblem`.
-
-        Raises
-        ------
-        ValueError
-            For a time-dependent diffusivity or drift (those need explicit stages).
-        """
-        if not problem.autonomous:
-            raise ValueError("only autonomous problems (no drift, f independent of tau) convert to one stage")
-        return cls(problem.mean_pressure, (Stage(problem.tau_end, problem.diffusivity),), label=problem.label)

@@ -17,12 +17,10 @@ DEGREE = 5
 
 
 def cumulative_interpolant(u: Array, cum: Array, breaks: Any = ()) -> Any:
-    """One :class:`scipy.interpolate.PPoly` in ``u`` through ``(u, cum)``, a piece per interval, monotone where
-    ``cum`` is.
-
-    Between the indices ``breaks`` of ``u`` (where the density may jump or kink) the interpolating spline of
-    degree :data:`DEGREE` (3, then 1, on segments of fewer than 6, 4 points); in every interval where its
-    derivative dips below 0, the segment's PCHIP cubic (monotone, exact at the points as well)."""
+    """One :class:`scipy.interpolate.PPoly` in ``u`` through ``(u, cum)``, a piece per interval, monotone where ``cum``
+    is. Between the indices ``breaks`` of ``u`` (where the density may jump or kink) the interpolating spline of degree
+    :data:`DEGREE` (3, then 1, on segments of fewer than 6, 4 points); in every interval where its derivative dips below
+    0, the segment's PCHIP cubic (monotone, exact at the points as well)."""
     from math import factorial
 
     from scipy.interpolate import PchipInterpolator, PPoly, make_interp_spline
@@ -190,11 +188,9 @@ class PressureDistribution:
         return np.where(inside, slope(phi(q)) * dphi(q), np.where(np.isnan(p), np.nan, 0.0))
 
     def cdf(self, p: Any) -> Array:
-        """Cumulative probability ``P(pressure <= p)`` including the delta at 0.
-
-        Finite volumes: the cumulative masses at the edges exactly, between them :func:`cumulative_interpolant`
-        (fifth-order accurate for a piecewise smooth density, docs/backends.md); 0 below the edges (a floor's mass
-        is ``zero_weight``).  Closed forms: exact."""
+        """Cumulative probability ``P(pressure <= p)`` including the delta at 0. Finite volumes: the cumulative masses
+        at the edges exactly, between them :func:`cumulative_interpolant` (fifth-order accurate for a piecewise smooth
+        density, docs/backends.md); 0 below the edges (a floor's mass is ``zero_weight``).  Closed forms: exact."""
         p = np.asarray(p, dtype=float)
         if self.analytic is not None:
             out = self.analytic.cdf(np.maximum(p, 0.0))
@@ -235,9 +231,7 @@ class PressureDistribution:
         return plot_distribution(self, ax=ax, log=log, **kwargs)
 
     def __repr__(self) -> str:  # a short, useful summary instead of the arrays
-        return (
-            f"PressureDistribution(backend={self.backend!r}, success={self.success}, cells={self.p.size}, "
-            f"mass={self.mass:.10g}, mean={self.mean:.6g} (p0={self.mean_pressure:.6g}), "
-            f"zero_weight={self.zero_weight:.6g}, error_estimate={self.error_estimate:.2e}, "
-            f"wall_time={self.wall_time:.3g} s, message={self.message!r})"
-        )
+        return (f"PressureDistribution(backend={self.backend!r}, success={self.success}, cells={self.p.size}, "
+                f"mass={self.mass:.10g}, mean={self.mean:.6g} (p0={self.mean_pressure:.6g}), "
+                f"zero_weight={self.zero_weight:.6g}, error_estimate={self.error_estimate:.2e}, "
+                f"wall_time={self.wall_time:.3g} s, message={self.message!r})")

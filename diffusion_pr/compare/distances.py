@@ -1,17 +1,32 @@
-"""Distances between a theory and a simulated histogram: :func:`compare` (L1 of bin masses, Kolmogorov,
-moments, contact fractions) and the one Kolmogorov distance from a field's quantile function
-(:func:`kolmogorov_distance`, also between two fields: :func:`kolmogorov_between`).
+"""Distances between a theory and a simulated histogram (:data:`SimulatedHistogram`): :func:`compare` (L1 of bin
+masses, Kolmogorov, moments, contact fractions) from a theory's bin averages (:func:`bin_averaged_density`), and the one
+Kolmogorov distance from a field's quantile function (:func:`kolmogorov_distance`, also between two fields:
+:func:`kolmogorov_between`).
 
-Distances dimensionless; pressures in any unit shared by both sides.
-"""
+Distances dimensionless; pressures in any unit shared by both sides, densities in 1/pressure."""
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Any, Callable, Optional
 
 import numpy as np
+from gfmd_ref.histogram import PressureHistogram
+from numpy.typing import ArrayLike, NDArray
 
-from .histograms import Array, SimulatedHistogram, bin_averaged_density
+Array = NDArray[np.float64]
+
+#: the one histogram type of a simulated pressure field, shared with the GFMD reference (which never imports
+#: diffusion_pr): :class:`gfmd_ref.PressureHistogram`
+SimulatedHistogram = PressureHistogram
+
+
+def bin_averaged_density(theory: Any, edges: ArrayLike) -> Array:
+    """Average of a theory's continuous density over each bin (1 / pressure). Uses the theory's cumulative distribution,
+    so narrow features are integrated exactly rather than sampled at bin centres; the ``delta(p)`` peak is excluded."""
+    edges = np.asarray(edges, dtype=float)
+    cdf = np.asarray(theory.cdf(edges), dtype=float)
+    # (theory.cdf includes zero_weight for p >= 0: differences cancel it, no bin straddling p = 0 as edges[0] >= 0)
+    return np.diff(cdf) / np.diff(edges)
 
 
 @dataclass(frozen=True)
@@ -46,10 +61,9 @@ class Comparison:
 def compare(theory: Any, hist: SimulatedHistogram, *, contact_threshold: Optional[float] = None) -> Comparison:
     """Compare a :class:`~diffusion_pr.result.PressureDistribution` with a histogram.
 
-    Both distances are taken at the histogram's resolution: the ``delta(p)`` peaks (the theory's ``zero_weight``
-    and the simulation's exactly-zero pressures) are counted in the first bin ``[0, edges[1])``, since below one
-    bin width a soft wall's tiny pressures cannot be told from ``p = 0``.  The contact fractions are reported
-    separately.
+    Both distances are taken at the histogram's resolution: the ``delta(p)`` peaks (the theory's ``zero_weight`` and the
+    simulation's exactly-zero pressures) are counted in the first bin ``[0, edges[1])``, since below one bin width a
+    soft wall's tiny pressures cannot be told from ``p = 0``.  The contact fractions are reported separately.
 
     * ``l1 = sum_i |m_theory,i - m_sim,i|`` over bin masses, plus the theory's mass beyond the last edge and the
       simulation's pressures outside the bins.
@@ -62,9 +76,7 @@ def compare(theory: Any, hist: SimulatedHistogram, *, contact_threshold: Optiona
     threshold = float(hist.contact_threshold if contact_threshold is None else contact_threshold)
     if not np.isfinite(threshold) or threshold < 0:
         raise ValueError(f"contact_threshold must be a finite number >= 0; got {contact_threshold!r}")
-    widths = hist.widths
-    m_theory = bin_averaged_density(theory, hist.edges) * widths
-    m_sim = hist.density * widths
+    m_theory, m_sim = bin_averaged_density(theory, hist.edges) * hist.widths, hist.density * hist.widths
     m_theory[0] += float(theory.zero_weight)
     m_sim[0] += float(hist.zero_weight)
     beyond = max(0.0, 1.0 - float(theory.cdf(hist.edges[-1])))
@@ -74,28 +86,20 @@ def compare(theory: Any, hist: SimulatedHistogram, *, contact_threshold: Optiona
         ks = kolmogorov_distance(theory.cdf, hist.quantiles, hist.quantile_levels, p_floor=p_floor,
                                  zero_weight=float(theory.zero_weight))
     else:
-        f_sim = np.cumsum(m_sim)
-        ks = float(np.max(np.abs(np.asarray(theory.cdf(hist.edges[1:])) - f_sim)))
-    moments_theory = {
-        "mean": theory.mean,
-        "variance": theory.moment(2, central=True),
-        "third_central": theory.moment(3, central=True),
-    }
+        ks = float(np.max(np.abs(np.asarray(theory.cdf(hist.edges[1:])) - np.cumsum(m_sim))))
+    moments_theory = {"mean": theory.mean, "variance": theory.moment(2, central=True),
+                      "third_central": theory.moment(3, central=True)}
     return Comparison(l1, ks, moments_theory, dict(hist.moments), theory.contact_area(threshold),
                       hist.fraction_above(threshold), threshold)
 
 
 def kolmogorov_distance(cdf: Callable, quantiles: Array, levels: Array, *, p_floor: float = 0.0,
                         zero_weight: float = 0.0) -> float:
-    """``sup |F - F_field|`` over ``p >= p_floor``: a CDF ``cdf`` against a field's empirical CDF given by its
-    quantile function (``quantiles`` at ``levels``).
-
-    At each distinct quantile value ``x`` the empirical CDF jumps from about
-    the first to the last level whose quantile is ``x`` (ties: the delta peak
-    at 0); both sides of the jump are compared with ``cdf`` on the same side
-    (``cdf`` includes a weight ``zero_weight`` in a delta peak at ``p = 0``).  Resolution: one level step,
-    ``1/(len(levels) - 1)``.
-    """
+    """``sup |F - F_field|`` over ``p >= p_floor``: a CDF ``cdf`` against a field's empirical CDF given by its quantile
+    function (``quantiles`` at ``levels``). At each distinct quantile value ``x`` the empirical CDF jumps from about the
+    first to the last level whose quantile is ``x`` (ties: the delta peak at 0); both sides of the jump are compared
+    with ``cdf`` on the same side (``cdf`` includes a weight ``zero_weight`` in a delta peak at ``p = 0``).  Resolution:
+    one level step, ``1/(len(levels) - 1)``."""
     uniq, first = np.unique(quantiles, return_index=True)
     last = np.searchsorted(quantiles, uniq, side="right") - 1
     keep = uniq >= p_floor
@@ -113,11 +117,9 @@ def kolmogorov_distance(cdf: Callable, quantiles: Array, levels: Array, *, p_flo
 def kolmogorov_between(first: SimulatedHistogram, second: SimulatedHistogram) -> float:
     """Kolmogorov distance between two simulated fields (e.g. two surface seeds).
 
-    ``sup |F_1 - F_2|`` over ``p >= first.edges[1]`` (the same resolution as
-    :func:`compare`): :func:`kolmogorov_distance` of each field's quantiles against the other's empirical CDF
-    (linear between its quantiles), the larger of the two.  Used as the realization scatter a theory can be
-    expected to reach.
-    """
+    ``sup |F_1 - F_2|`` over ``p >= first.edges[1]`` (the same resolution as :func:`compare`):
+    :func:`kolmogorov_distance` of each field's quantiles against the other's empirical CDF (linear between its
+    quantiles), the larger of the two.  Used as the realization scatter a theory can be expected to reach."""
     if first.quantiles is None or second.quantiles is None:
         raise ValueError("both histograms need stored quantiles (SimulatedHistogram.from_pressures keeps them)")
     p_floor = float(first.edges[1])

@@ -1,10 +1,8 @@
 """Theory against a GFMD ensemble (many seeds): :func:`compare_ensemble`.
 
-Records are duck-typed: anything with ``levels``, ``quantiles`` (pressures at ``levels``), ``seed``,
-``mean_pressure``, ``contact_fraction``, ``contact_threshold``, ``mean``, ``variance``, ``third_central``,
-``converged`` (:class:`gfmd_ref.ensemble_store.EnsembleRecord` has them); :mod:`diffusion_pr` does not import
-:mod:`gfmd_ref`.
-"""
+Records are duck-typed: anything with ``levels``, ``quantiles`` (pressures at ``levels``), ``seed``, ``mean_pressure``,
+``contact_fraction``, ``contact_threshold``, ``mean``, ``variance``, ``third_central``, ``converged``
+(:class:`gfmd_ref.ensemble_store.EnsembleRecord` has them); :mod:`diffusion_pr` does not import :mod:`gfmd_ref`."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -13,7 +11,7 @@ from typing import Any, Optional
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .histograms import Array
+from .distances import Array
 
 
 def _record_cdf(rec: Any, p: Array) -> Array:
@@ -53,31 +51,26 @@ class EnsembleComparison:
     Attributes
     ----------
     kolmogorov : float
-        ``K = sup |F_theory - F_pool|`` over ``p >= p_min`` (dimensionless); the pool
-        gives every seed the same area.
+        ``K = sup |F_theory - F_pool|`` over ``p >= p_min`` (dimensionless); the pool gives every seed the same area.
     kolmogorov_ci : (float, float)
         2.5 and 97.5 percentiles of ``K`` against bootstrap pools (seeds resampled).
     noise_bootstrap : float
-        Median of ``sup |F_boot - F_pool|`` over bootstrap pools: the typical distance
-        of the pool from the infinite-ensemble distribution. A theory with ``K`` at or
-        below this is as close as the ensemble can tell.
+        Median of ``sup |F_boot - F_pool|`` over bootstrap pools: the typical distance of the pool from the
+        infinite-ensemble distribution. A theory with ``K`` at or below this is as close as the ensemble can tell.
     noise_split : float
-        Mean over random splits of ``sup |F_A - F_B| / 2`` for two disjoint halves
-        (each half has the noise of the pool times ``sqrt 2``; their distance adds
-        the two in quadrature: ``2 x`` the pool's noise).
+        Mean over random splits of ``sup |F_A - F_B| / 2`` for two disjoint halves (each half has the noise of the pool
+        times ``sqrt 2``; their distance adds the two in quadrature: ``2 x`` the pool's noise).
     kolmogorov_per_seed : ndarray
         ``K`` of the theory against each seed alone (the realization scatter).
     l1, l1_noise : float
         ``sum |m_theory - m_pool|`` over the bin masses of ``edges`` (first bin from 0
         with the delta peaks, last bin open to infinity) and its bootstrap median noise.
     contact_fraction_theory, contact_fraction_gfmd, contact_fraction_gfmd_sd : float
-        One definition for both: ``P(p > threshold)`` with GFMD's ``threshold``
-        (0 for the hard wall, ``0.01 p0`` for exponential walls); the GFMD value is
-        the mean over seeds, ``_sd`` the seed-to-seed standard deviation.
+        One definition for both: ``P(p > threshold)`` with GFMD's ``threshold`` (0 for the hard wall, ``0.01 p0`` for
+        exponential walls); the GFMD value is the mean over seeds, ``_sd`` the seed-to-seed standard deviation.
     sd_theory, sd_gfmd, sd_gfmd_sd, skewness_theory, skewness_gfmd, skewness_gfmd_sd : float
-        Standard deviation (pressure units) and skewness; GFMD: mean and
-        seed-to-seed sd of the per-seed values. ``sd_pool``/``skewness_pool`` are
-        those of the pooled distribution.
+        Standard deviation (pressure units) and skewness; GFMD: mean and seed-to-seed sd of the per-seed values.
+        ``sd_pool``/``skewness_pool`` are those of the pooled distribution.
     p, cdf_theory, cdf_pool, cdf_lo, cdf_hi : ndarray
         For plots: pressures ``>= p_min`` (at most 2000), the theory's and the pooled
         CDF there, and the pool's 95 % bootstrap band.
@@ -127,7 +120,8 @@ class EnsembleComparison:
             f"L1 of bin masses: {self.l1:.4f} (noise {self.l1_noise:.4f})",
             f"contact fraction (p > {self.threshold:.3g}): theory {self.contact_fraction_theory:.4f}, "
             f"GFMD {self.contact_fraction_gfmd:.4f} +- {self.contact_fraction_gfmd_sd:.4f} (seed sd)",
-            f"sd: theory {self.sd_theory:.4g}, GFMD {self.sd_gfmd:.4g} +- {self.sd_gfmd_sd:.2g} (pool {self.sd_pool:.4g})",
+            f"sd: theory {self.sd_theory:.4g}, GFMD {self.sd_gfmd:.4g} +- {self.sd_gfmd_sd:.2g} "
+            f"(pool {self.sd_pool:.4g})",
             f"skewness: theory {self.skewness_theory:.3f}, GFMD {self.skewness_gfmd:.3f} +- "
             f"{self.skewness_gfmd_sd:.3f} (pool {self.skewness_pool:.3f})",
         ])
@@ -144,9 +138,8 @@ def compare_ensemble(theory: Any, records_or_group: Any, *, p_min: Optional[floa
         ``cdf`` includes the delta peak at ``p = 0``. Moments come from
         ``theory.moment`` when present, else from the CDF.
     records_or_group : group or sequence of records
-        One pool: one wall, load and grid (e.g. ``bundled_ensemble("fig1_n1024")
-        .group(0.25)`` or the list of its ``records``). Non-converged records are
-        excluded and counted.
+        One pool: one wall, load and grid (e.g. ``bundled_ensemble("fig1_n1024").group(0.25)`` or the list of its
+        ``records``). Non-converged records are excluded and counted.
     p_min : float, optional
         Lower end of the Kolmogorov supremum; default ``p0/20`` (``p0`` the records' mean pressure), below which
         the split between a delta peak and a soft wall's tiny pressures is a convention.
@@ -198,11 +191,8 @@ def compare_ensemble(theory: Any, records_or_group: Any, *, p_min: Optional[floa
     sub = np.unique(np.linspace(0, x.size - 1, min(2000, x.size)).astype(int))
     band = np.percentile(pools[:, sub], [2.5, 97.5], axis=0)
     h = S // 2
-    splits = []
-    for _ in range(n_split):
-        perm = rng.permutation(S)
-        splits.append(np.max(np.abs(C[perm[:h]].mean(0) - C[perm[h:2 * h]].mean(0))) / 2.0)
-    # bins
+    splits = [np.max(np.abs(C[perm[:h]].mean(0) - C[perm[h:2 * h]].mean(0))) / 2.0
+              for perm in (rng.permutation(S) for _ in range(n_split))]
     if edges is None:
         top = float(np.mean([np.interp(0.999, r.levels, r.quantiles) for r in recs]))
         edges_arr = np.linspace(0.0, top, 51)
@@ -219,13 +209,11 @@ def compare_ensemble(theory: Any, records_or_group: Any, *, p_min: Optional[floa
     Mp = Me.mean(0)
     l1 = float(np.sum(np.abs(Mt - Mp)))
     l1_noise = float(np.median([np.sum(np.abs(Me[i].mean(0) - Mp)) for i in boot_idx]))
-    # contact fraction, sd, skewness
     thr = float(getattr(recs[0], "contact_threshold", 0.0))
     cf_t = float(theory.contact_area(thr) if hasattr(theory, "contact_area") else 1.0 - theory.cdf(thr))
     cf = np.array([float(r.contact_fraction) for r in recs])
-    mean_s = np.array([float(r.mean) for r in recs])
-    var_s = np.array([float(r.variance) for r in recs])
-    th_s = np.array([float(r.third_central) for r in recs])
+    mean_s, var_s, th_s = (np.array([float(getattr(r, key)) for r in recs])
+                           for key in ("mean", "variance", "third_central"))
     sd_s = np.sqrt(var_s)
     sk_s = np.divide(th_s, sd_s**3, out=np.zeros_like(th_s), where=sd_s > 0)  # (a seed or block out of contact: 0)
     m = mean_s.mean()

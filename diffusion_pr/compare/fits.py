@@ -1,9 +1,7 @@
-"""Shapes and fits of a theory against a histogram: the curvature of ``ln Pr`` in the tail
-(:func:`tail_curvatures`) and least-squares fits of the paper's cutoff and tail pressures
-(:func:`fit_cutoff_pressure`, :func:`fit_tail_pressure`).
+"""Shapes and fits of a theory against a histogram: the curvature of ``ln Pr`` in the tail (:func:`tail_curvatures`) and
+least-squares fits of the paper's cutoff and tail pressures (:func:`fit_cutoff_pressure`, :func:`fit_tail_pressure`).
 
-Pressures in any unit shared by theory and simulation.
-"""
+Pressures in any unit shared by theory and simulation."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -12,23 +10,20 @@ from typing import Any, Optional
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .distances import compare
-from .histograms import SimulatedHistogram, bin_averaged_density
+from .distances import SimulatedHistogram, bin_averaged_density, compare
 
 
 def log_density_curvature(p: ArrayLike, density: ArrayLike, *, p_lo: float, p_hi: float,
                           weights: Optional[ArrayLike] = None) -> float:
     """Curvature ``d^2 ln Pr / dp^2`` of a quadratic fit on ``[p_lo, p_hi]``.
 
-    For a Gaussian of variance ``V`` this is ``-1/V`` (1 / pressure^2).  The
-    paper's claim "the curvature of ln Pr(p) is off by about 20 %" is tested
-    with this number (theory and simulation fitted on the same window).
+    For a Gaussian of variance ``V`` this is ``-1/V`` (1 / pressure^2).  The paper's claim "the curvature of ln Pr(p) is
+    off by about 20 %" is tested with this number (theory and simulation fitted on the same window).
 
     Parameters
     ----------
     p, density : array
-        Points (units of pressure) and density (1 / pressure); non-positive
-        densities inside the window are ignored.
+        Points (units of pressure) and density (1 / pressure); non-positive densities inside the window are ignored.
     p_lo, p_hi : float
         Fit window (units of pressure).
     weights : array, optional
@@ -48,12 +43,10 @@ def tail_curvatures(theory: Any, hist: SimulatedHistogram, *, decades: float = 2
                     rebin: Optional[int] = None) -> tuple[float, float, tuple[float, float]]:
     """Curvature of ``ln Pr`` on the high-pressure side, simulation and theory.
 
-    The window starts at the mean pressure ``p0`` (taken from the histogram's
-    moments) and ends where the simulated density has dropped by ``decades``
-    decades below its value at ``p0``: the part of a log plot where the eye
-    judges "the curvature of ln Pr(p)".  Both curvatures come from the same
-    weighted quadratic fit (:func:`log_density_curvature`, weights
-    ``sqrt(simulated bin mass)``) on the same bins, the theory bin-averaged.
+    The window starts at the mean pressure ``p0`` (taken from the histogram's moments) and ends where the simulated
+    density has dropped by ``decades`` decades below its value at ``p0``: the part of a log plot where the eye judges
+    "the curvature of ln Pr(p)".  Both curvatures come from the same weighted quadratic fit
+    (:func:`log_density_curvature`, weights ``sqrt(simulated bin mass)``) on the same bins, the theory bin-averaged.
 
     Parameters
     ----------
@@ -62,8 +55,7 @@ def tail_curvatures(theory: Any, hist: SimulatedHistogram, *, decades: float = 2
     decades : float
         How far (in decades of density) the window reaches down the tail.
     rebin : int, optional
-        Merge this many bins first; default: the coarsest of 4, 2, 1 that
-        leaves at least 8 bins in the window.
+        Merge this many bins first; default: the coarsest of 4, 2, 1 that leaves at least 8 bins in the window.
 
     Returns
     -------
@@ -96,22 +88,9 @@ LOG_FLOOR = 1e-6
 
 @dataclass(frozen=True)
 class CutoffFit:
-    """Least-squares fit of the cutoff pressure ``p_c``.
-
-    Attributes
-    ----------
-    p_c : float
-        Best cutoff pressure (units of pressure).
-    objective : float
-        Least-squares objective at the optimum (see :func:`fit_cutoff_pressure`).
-    l1 : float
-        L1 distance between theory and histogram at the optimum.
-    evaluations : int
-        Number of theory solves.
-    success : bool
-        Whether the bounded optimiser converged inside the bracket.
-    message : str
-    """
+    """Least-squares fit of the cutoff pressure: the best ``p_c`` (units of pressure), the ``objective`` there
+    (:func:`fit_cutoff_pressure`), the ``l1`` distance of theory and histogram there, the number of theory solves
+    (``evaluations``), ``success`` (the bounded optimiser converged inside the bracket) and its ``message``."""
 
     p_c: float
     objective: float
@@ -121,44 +100,53 @@ class CutoffFit:
     message: str
 
 
+def _fit_log_density(hist: SimulatedHistogram, theory_at: Any, bounds: tuple[float, float], xatol: float) -> Any:
+    """Bounded Brent search in ``ln x`` over ``bounds`` (pressure) for the least squares
+    ``sum_i w_i (ln Pr_theory,i - ln Pr_sim,i)^2`` over the bins with a positive simulated density, weights the
+    simulated bin masses, the bin-averaged density of ``theory_at(x)`` floored at :data:`LOG_FLOOR` times the
+    histogram's largest density; returns scipy's ``OptimizeResult``."""
+    from scipy.optimize import minimize_scalar
+
+    lo, hi = bounds
+    if not (0 < lo < hi):
+        raise ValueError(f"bounds must satisfy 0 < lo < hi; got bounds={(lo, hi)!r}")
+    mask = hist.density > 0
+    w, y_sim = hist.density[mask] * hist.widths[mask], np.log(hist.density[mask])
+    floor = LOG_FLOOR * float(hist.density.max())
+
+    def objective(log_x: float) -> float:
+        avg = bin_averaged_density(theory_at(float(np.exp(log_x))), hist.edges)
+        return float(np.sum(w * (np.log(np.maximum(avg[mask], floor)) - y_sim) ** 2))
+
+    return minimize_scalar(objective, bounds=(np.log(lo), np.log(hi)), method="bounded", options={"xatol": xatol})
+
+
 def fit_cutoff_pressure(hist: SimulatedHistogram, spectrum: Any, *, E_star: float, mean_pressure: float,
                         zeta: float, cutoff: str = "muser", tail: Any = None, p_t: Optional[float] = None,
-                        bounds: tuple[float, float] | None = None, log_density: bool = True,
-                        backend: str = "native", rtol: float = 1e-5, xatol: float = 1e-3) -> CutoffFit:
-    """Fit ``p_c`` of a smoothed cutoff to a simulated histogram by least squares.
+                        bounds: tuple[float, float] | None = None, backend: str = "native", rtol: float = 1e-5,
+                        xatol: float = 1e-3) -> CutoffFit:
+    """Fit ``p_c`` of a smoothed cutoff to a simulated histogram by least squares on ``ln Pr`` (the paper's
+    Fig. 1 is a log plot).
 
-    The objective is ``sum_i w_i (y_theory,i - y_sim,i)^2`` over bins with a
-    positive simulated density, where ``y`` is ``ln Pr`` (``log_density=True``,
-    the paper's Fig. 1 is a log plot, weights ``w_i = counts``-like
-    ``Pr_sim * width``) or ``Pr`` itself (weights ``width``).  The theory is
-    the second-order cumulant theory of :func:`diffusion_pr.pressure_distribution`
-    for the given spectrum (use the surface's own
-    :class:`~diffusion_pr.spectra.DiscreteSpectrum`).  The 1-D minimisation is
-    a bounded Brent search in ``ln p_c``.  With ``log_density`` the theory's
-    density is floored at ``LOG_FLOOR`` times the histogram's maximum.
+    The objective is ``sum_i w_i (ln Pr_theory,i - ln Pr_sim,i)^2`` over the bins with a positive simulated density,
+    weights the simulated bin masses, the theory's density floored at :data:`LOG_FLOOR` times the histogram's maximum.
+    The theory is :func:`diffusion_pr.pressure_distribution` for the given spectrum (use the surface's own
+    :class:`~diffusion_pr.spectra.DiscreteSpectrum`); a bounded Brent search in ``ln p_c`` to ``xatol``.
 
     Parameters
     ----------
     hist : SimulatedHistogram
-    spectrum : spectrum object
+    spectrum : Spectrum
     E_star, mean_pressure, zeta : float
-        Contact modulus, mean pressure (units of pressure), wall range
-        (units of length).
+        Contact modulus, mean pressure (units of pressure), wall range (units of length).
     cutoff : str
-        ``"muser"``, ``"raised_cosine"`` or ``"smoothstep"``.
+        ``"muser"``, ``"raised_cosine"`` or ``"smoothstep"``; ``tail``, ``p_t``, ``backend``, ``rtol`` go to
+        :func:`~diffusion_pr.pressure_distribution`.
     bounds : (float, float), optional
         Bracket for ``p_c`` (default ``(0.02, 5) * mean_pressure``).
     """
-    from scipy.optimize import minimize_scalar
-
     from ..api import pressure_distribution
 
-    lo, hi = bounds if bounds is not None else (0.02 * mean_pressure, 5.0 * mean_pressure)
-    if not (0 < lo < hi):
-        raise ValueError(f"bounds must satisfy 0 < lo < hi; got bounds={(lo, hi)!r}")
-    mask = hist.density > 0
-    width = hist.widths
-    floor = LOG_FLOOR * float(hist.density.max())
     calls = {"n": 0}
 
     def theory_for(p_c: float) -> Any:
@@ -166,18 +154,8 @@ def fit_cutoff_pressure(hist: SimulatedHistogram, spectrum: Any, *, E_star: floa
         return pressure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
                                      cutoff=cutoff, p_c=p_c, tail=tail, p_t=p_t, backend=backend, rtol=rtol)
 
-    def objective(log_pc: float) -> float:
-        avg = bin_averaged_density(theory_for(float(np.exp(log_pc))), hist.edges)
-        if log_density:
-            y_t = np.log(np.maximum(avg[mask], floor))
-            y_s = np.log(hist.density[mask])
-            w = hist.density[mask] * width[mask]
-        else:
-            y_t, y_s, w = avg[mask], hist.density[mask], width[mask]
-        return float(np.sum(w * (y_t - y_s) ** 2))
-
-    res = minimize_scalar(objective, bounds=(np.log(lo), np.log(hi)), method="bounded",
-                          options={"xatol": xatol})
+    lo, hi = bounds if bounds is not None else (0.02 * mean_pressure, 5.0 * mean_pressure)
+    res = _fit_log_density(hist, theory_for, (lo, hi), xatol)
     p_c = float(np.exp(res.x))
     at_edge = min(abs(res.x - np.log(lo)), abs(res.x - np.log(hi))) < 10 * xatol
     l1 = compare(theory_for(p_c), hist).l1
@@ -189,26 +167,13 @@ def fit_tail_pressure(hist: SimulatedHistogram, spectrum: Any, *, E_star: float,
                       zeta: float = 0.0, cutoff: str = "sharp", p_c: Optional[float] = None,
                       tail: str = "linear", bounds: tuple[float, float] | None = None,
                       backend: str = "native", rtol: float = 1e-5) -> tuple[float, float]:
-    """Fit the crossover pressure ``p_t`` of an exponential-tail variant.
-
-    Least squares on ``ln Pr`` over bins with positive simulated density,
-    weighted by the simulated bin mass. Returns ``(p_t, objective)``.
-    """
-    from scipy.optimize import minimize_scalar
-
+    """Fit the crossover pressure ``p_t`` of an exponential-tail variant by the least squares of
+    :func:`fit_cutoff_pressure` (bracket default ``(0.05, 1000) * mean_pressure``); returns ``(p_t, objective)``."""
     from ..api import pressure_distribution
 
-    lo, hi = bounds if bounds is not None else (0.05 * mean_pressure, 1e3 * mean_pressure)
-    mask = hist.density > 0
-    w = hist.density[mask] * hist.widths[mask]
-    floor = LOG_FLOOR * float(hist.density.max())
+    def theory_for(p_t: float) -> Any:
+        return pressure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta, cutoff=cutoff,
+                                     p_c=p_c, tail=tail, p_t=p_t, backend=backend, rtol=rtol)
 
-    def objective(log_pt: float) -> float:
-        th = pressure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
-                                   cutoff=cutoff, p_c=p_c, tail=tail, p_t=float(np.exp(log_pt)),
-                                   backend=backend, rtol=rtol)
-        avg = bin_averaged_density(th, hist.edges)
-        return float(np.sum(w * (np.log(np.maximum(avg[mask], floor)) - np.log(hist.density[mask])) ** 2))
-
-    res = minimize_scalar(objective, bounds=(np.log(lo), np.log(hi)), method="bounded", options={"xatol": 1e-3})
+    res = _fit_log_density(hist, theory_for, bounds or (0.05 * mean_pressure, 1e3 * mean_pressure), 1e-3)
     return float(np.exp(res.x)), float(res.fun)

@@ -30,26 +30,18 @@ BEST_CLOSURE = "local_g1_shell_balanced"
 BIN_WIDTH_P0 = 0.1
 
 
-def paper_cutoff_pressure(zeta: float) -> float:
-    """The paper's fitted ``p_c`` for ``zeta`` (see :func:`diffusion_pr.paper.cutoff_pressure`)."""
-    return cutoff_pressure(zeta)
-
-
 def theory_curves(case: Any, *, cutoff: str, backend: str, rtol: float) -> dict[str, Any]:
-    """The theory curves of one wall: ``{label: PressureDistribution}``.
-
-    The one place where the main job's curves are chosen: every entry is compared with the wall's histogram,
-    reported, written and drawn.  :data:`PAPER` is the paper's curve
-    (:func:`~diffusion_pr.jobs.reference_data.paper_theory`); :data:`BEST_CLOSURE` the best parameter-free closure
-    (:func:`diffusion_pr.pressure_distribution` with ``closure=BEST_CLOSURE``) on the same spectrum."""
+    """The theory curves of one wall: ``{label: PressureDistribution}``. The one place where the main job's curves are
+    chosen: every entry is compared with the wall's histogram, reported, written and drawn.  :data:`PAPER` is the
+    paper's curve (:func:`~diffusion_pr.jobs.reference_data.paper_theory`); :data:`BEST_CLOSURE` the best parameter-free
+    closure (:func:`diffusion_pr.pressure_distribution` with ``closure=BEST_CLOSURE``) on the same spectrum."""
     from ..api import pressure_distribution
     from .reference_data import paper_theory
 
-    curves = {PAPER: paper_theory(case, cutoff=cutoff, backend=backend, rtol=rtol)}
-    curves[BEST_CLOSURE] = pressure_distribution(case.spectrum, E_star=case.E_star, mean_pressure=case.mean_pressure,
-                                                 zeta=0.0 if case.zeta is None else case.zeta, closure=BEST_CLOSURE,
-                                                 backend=backend, rtol=rtol)
-    return curves
+    paper = paper_theory(case, cutoff=cutoff, backend=backend, rtol=rtol)  # (first: its refusals come first)
+    return {PAPER: paper, BEST_CLOSURE: pressure_distribution(case.spectrum, E_star=case.E_star, zeta=case.zeta or 0.0,
+                                                              mean_pressure=case.mean_pressure, closure=BEST_CLOSURE,
+                                                              backend=backend, rtol=rtol)}
 
 
 @dataclass
@@ -61,16 +53,13 @@ class Fig1Case:
     zeta : float or None
         Wall range (grid spacings of the 1024^2 system); None for the hard wall.
     histogram : SimulatedHistogram
-        GFMD pressure histogram (bin width ``BIN_WIDTH_P0 * p0``, edges from 0
-        past the largest pressure).
+        GFMD pressure histogram (bin width ``BIN_WIDTH_P0 * p0``, edges from 0 past the largest pressure).
     theories : dict
         ``label -> PressureDistribution`` from :func:`theory_curves`.
     comparisons : dict
-        ``label -> Comparison`` (:func:`diffusion_pr.compare.compare`, contact
-        fractions at :attr:`contact_threshold` on both sides).
+        ``label -> Comparison`` (:func:`diffusion_pr.compare.compare`, contact fractions at :attr:`contact_threshold`).
     contact_threshold : float
-        Pressure above which a point counts as in contact: 0 (hard wall) or
-        ``0.01 p0`` (exponential wall, :func:`diffusion_pr.paper.contact_threshold`).
+        Pressure above which a point counts as in contact: :func:`diffusion_pr.paper.contact_threshold`.
     pressure : ndarray
         The GFMD pressure field (units of E*).
     """
@@ -140,11 +129,10 @@ class Fig1Report:
                 rows.setdefault(row.replace(p_c_text, "-", 1), []).append((label, row))
             for same in rows.values():  # curves equal to the digits shown (the closures at the hard wall): one row
                 lines.append(f"{c.wall:>12} {' = '.join(label for label, _ in same):>{width}} {same[0][1]}")
-        lines.append("")
-        lines.append("a_sim, a_theory: fraction of the area with p above the contact threshold, the same on both "
-                     "sides: p > 0 for the hard wall, p > 0.01 p0 for exponential walls (gfmd_ref's definition; "
-                     "for the theory contact_area()). p_c: the paper's fitted cutoff pressure (paper curve "
-                     "only; the closures have no fitted parameter). theory s: all theory curves of that wall.")
+        lines += ["", "a_sim, a_theory: fraction of the area with p above the contact threshold, the same on both "
+                      "sides: p > 0 for the hard wall, p > 0.01 p0 for exponential walls (gfmd_ref's definition; "
+                      "for the theory contact_area()). p_c: the paper's fitted cutoff pressure (paper curve "
+                      "only; the closures have no fitted parameter). theory s: all theory curves of that wall."]
         return "\n".join(lines)
 
 
@@ -156,10 +144,7 @@ def _check_inputs(n: Any, zetas: Any, hard_wall: Any, seed: Any, tol: Any, progr
     n = check_int("n", n, minimum=2)
     if isinstance(zetas, (str, bytes)) or not hasattr(zetas, "__iter__"):
         raise ValueError(f"zetas must be a sequence of numbers > 0; got zetas={zetas!r}")
-    walls = []
-    for z in zetas:
-        cutoff_pressure(z)  # raises ValueError naming zeta for non-numbers, NaN, inf, <= 0
-        walls.append(float(z))
+    walls = [float(z) for z in zetas if cutoff_pressure(z)]  # (which refuses non-numbers, NaN, inf, <= 0 by name)
     for name, flag in (("hard_wall", hard_wall), ("progress", progress)):
         if not isinstance(flag, (bool, np.bool_)):
             raise ValueError(f"{name} must be True or False; got {name}={flag!r}")
@@ -183,8 +168,7 @@ def run_fig1(*, n: int = 512, zetas: Sequence[float] = DEFAULT_ZETAS, hard_wall:
     n : int
         Grid points per side (the paper: 1024).
     zetas : sequence of float
-        Exponential-wall decay lengths, in grid spacings of the paper's
-        1024^2 Fig. 1 system (the cell is ``L = 1024`` of them at every ``n``).
+        Exponential-wall decay lengths, in grid spacings of the paper's 1024^2 system (``L = 1024`` at every ``n``).
     hard_wall : bool
         Also run the hard wall and compare it with Persson's mirror Gaussian.
     seed : int
@@ -196,9 +180,8 @@ def run_fig1(*, n: int = 512, zetas: Sequence[float] = DEFAULT_ZETAS, hard_wall:
     backend, rtol
         Passed to :func:`diffusion_pr.pressure_distribution` (rtol: L1 tolerance).
     out_dir : path or None
-        Where to write ``fig1.png``, ``fig1_curves.csv``, ``fig1_histograms.csv``
-        and ``fig1_report.txt`` (created and checked for writability before
-        any work); ``None`` writes nothing.
+        Where to write ``fig1.png``, ``fig1_curves.csv``, ``fig1_histograms.csv`` and ``fig1_report.txt`` (created and
+        checked for writability before any work); ``None`` writes nothing.
     progress : bool
         GFMD progress bars.
     log : callable
@@ -209,22 +192,19 @@ def run_fig1(*, n: int = 512, zetas: Sequence[float] = DEFAULT_ZETAS, hard_wall:
     ValueError
         For any bad input, before any GFMD work.
     """
-    import gfmd_ref
-    from .._validation import check_writable_dir
-
+    from .._validation import check_writable
     from ..compare import SimulatedHistogram, compare
     from ..cumulants import stress_variance
-    from .reference_data import ReferenceCase
     from ..spectra import DiscreteSpectrum
+    from .reference_data import ReferenceCase, fig1_heights, paper_theory, solve_fig1_wall
 
     n, walls = _check_inputs(n, zetas, hard_wall, seed, tol, progress, log)
     if out_dir is not None:
-        out_dir = Path(check_writable_dir("out_dir", out_dir))
+        out_dir = Path(check_writable("out_dir", out_dir))
     scene = dict(FIG1_SCENE)
-    E_star, p0, length = scene["E_star"], scene["mean_pressure"], scene["length"]
-    heights = gfmd_ref.self_affine_surface(n, length=length, hurst=scene["hurst"], q_min=scene["q_min"],
-                                           q_max=scene["q_max"], rms_slope=scene["rms_slope"], seed=seed)
-    spectrum = DiscreteSpectrum.from_heights(heights, length)
+    E_star, p0 = scene["E_star"], scene["mean_pressure"]
+    heights = fig1_heights(n, seed)
+    spectrum = DiscreteSpectrum.from_heights(heights, scene["length"])
     v0 = float(stress_variance(spectrum, E_star=E_star, mean_pressure=p0, zeta=0.0))
 
     def case_of(zeta: Optional[float]) -> Any:
@@ -232,7 +212,7 @@ def run_fig1(*, n: int = 512, zetas: Sequence[float] = DEFAULT_ZETAS, hard_wall:
                              spectrum, {**scene, "n": n, "seed": seed, "zeta": zeta})
 
     # all theory curves first: cheap, and they validate cutoff, backend and rtol before any GFMD
-    persson = theory_curves(case_of(None), cutoff=cutoff, backend=backend, rtol=rtol)[PAPER]
+    persson = paper_theory(case_of(None))
     planned = []
     for zeta in ([None] if hard_wall else []) + walls:
         t0 = time.perf_counter()
@@ -242,11 +222,7 @@ def run_fig1(*, n: int = 512, zetas: Sequence[float] = DEFAULT_ZETAS, hard_wall:
     bin_width = BIN_WIDTH_P0 * p0
     cases = []
     for zeta, curves, t_theory in planned:
-        interaction = gfmd_ref.HardWall() if zeta is None else gfmd_ref.ExponentialRepulsion(zeta)
-        t0 = time.perf_counter()
-        res = gfmd_ref.solve_contact(heights, length=length, E_star=E_star, mean_pressure=p0,
-                                     interaction=interaction, tol=tol, progress=progress)
-        t_gfmd = time.perf_counter() - t0
+        res, t_gfmd = solve_fig1_wall(heights, zeta, tol=tol, progress=progress)
         pressure = np.asarray(res.pressure)
         edges = np.arange(int(np.ceil(float(pressure.max()) / bin_width)) + 1) * bin_width
         threshold = contact_threshold(zeta, p0)
@@ -271,41 +247,31 @@ def _column(case: Fig1Case, label: str) -> str:
     return f"theory_zeta{case.zeta:g}" if label == PAPER else f"{label}_zeta{case.zeta:g}"
 
 
+def _write_csv(path: Path, header: list, rows: Any) -> Path:
+    with path.open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(header)
+        writer.writerows(rows)
+    return path
+
+
 def write_outputs(report: Fig1Report, out_dir: Path) -> dict:
-    """Write the figure, the curves/histograms CSVs and the text report."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    files = {}
-    # curves on a common grid
-    p_max = max(float(c.histogram.edges[-1]) for c in report.cases) if report.cases else 0.2
-    p = np.linspace(0.0, p_max, 801)
-    header = ["p", "persson"]
-    columns = [p, report.persson.pdf(p)]
-    for c in report.cases:
-        for label, th in c.theories.items():
-            header.append(_column(c, label))
-            columns.append(th.pdf(p))
-    path = out_dir / "fig1_curves.csv"
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        w.writerows(np.column_stack(columns).tolist())
-    files["curves"] = path
-    path = out_dir / "fig1_histograms.csv"
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["wall", "p_lo", "p_hi", "density", "zero_weight"])
-        for c in report.cases:
-            for lo, hi, d in zip(c.histogram.edges[:-1], c.histogram.edges[1:], c.histogram.density):
-                w.writerow([c.wall, f"{lo:.8g}", f"{hi:.8g}", f"{d:.8g}", f"{c.histogram.zero_weight:.8g}"])
-    files["histograms"] = path
-    path = out_dir / "fig1_report.txt"
-    path.write_text(report.text() + "\n")
-    files["report"] = path
+    """Write the figure, the curves/histograms CSVs and the text report; return their paths by kind."""
     import matplotlib.pyplot as plt
 
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    p = np.linspace(0.0, max((float(c.histogram.edges[-1]) for c in report.cases), default=0.2), 801)
+    header = ["p", "persson", *(_column(c, label) for c in report.cases for label in c.theories)]
+    columns = [p, report.persson.pdf(p), *(th.pdf(p) for c in report.cases for th in c.theories.values())]
+    bins = [[c.wall, f"{lo:.8g}", f"{hi:.8g}", f"{d:.8g}", f"{c.histogram.zero_weight:.8g}"] for c in report.cases
+            for lo, hi, d in zip(c.histogram.edges[:-1], c.histogram.edges[1:], c.histogram.density)]
+    files = {"curves": _write_csv(out_dir / "fig1_curves.csv", header, np.column_stack(columns).tolist()),
+             "histograms": _write_csv(out_dir / "fig1_histograms.csv",
+                                      ["wall", "p_lo", "p_hi", "density", "zero_weight"], bins),
+             "report": out_dir / "fig1_report.txt", "figure": out_dir / "fig1.png"}
+    files["report"].write_text(report.text() + "\n")
     fig = plot_fig1(report)
-    files["figure"] = out_dir / "fig1.png"
     fig.savefig(files["figure"], dpi=130)
     plt.close(fig)
     return files

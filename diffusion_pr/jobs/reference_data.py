@@ -1,12 +1,11 @@
 """Bundled GFMD reference data for the paper's Fig. 1 system, and its generator.
 
-The Fig. 1 system of Müser, PRL 100, 055504 (2008) (numbers in :mod:`diffusion_pr.paper`): a ``1024 x 1024``
-grid of period ``L = 1024`` (the grid spacing is the length unit), exponential repulsion at several ``zeta``
-and the hard wall.  Each case is a compressed ``.npz`` in ``diffusion_pr/data/`` holding the pressure histogram
-(:class:`~diffusion_pr.compare.SimulatedHistogram`), the surface's
-:class:`~diffusion_pr.spectra.DiscreteSpectrum` and the provenance, including the command that regenerates it
-(:func:`generate_reference`, ``diffusion-pr make-reference``).  Loading needs only numpy; generating needs
-:mod:`gfmd_ref`."""
+The Fig. 1 system of Müser, PRL 100, 055504 (2008) (numbers in :mod:`diffusion_pr.paper`): a ``1024 x 1024`` grid of
+period ``L = 1024`` (the grid spacing is the length unit), exponential repulsion at several ``zeta`` and the hard wall.
+Each case is a compressed ``.npz`` in ``diffusion_pr/data/`` holding the pressure histogram
+(:class:`~diffusion_pr.compare.SimulatedHistogram`), the surface's :class:`~diffusion_pr.spectra.DiscreteSpectrum` and
+the provenance, including the command that regenerates it (:func:`generate_reference`, ``diffusion-pr make-reference``).
+Loading needs only numpy; generating needs :mod:`gfmd_ref`."""
 from __future__ import annotations
 
 import json
@@ -19,7 +18,8 @@ from typing import Any, Iterable, Optional, Sequence
 import numpy as np
 
 from ..compare import SimulatedHistogram
-from ..paper import FIG1_SCENE, LARGE_ZETA, N_WAVES, cutoff_pressure  # noqa: F401  (FIG1_SCENE re-exported)
+from ..paper import FIG1_SCENE, LARGE_ZETA, N_WAVES, cutoff_pressure
+from ..spectra import DiscreteSpectrum
 
 DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 
@@ -36,6 +36,30 @@ def case_name(zeta: Optional[float], seed: int, n: int = 1024, surface: str = "f
     """File stem of a case: ``fig1_n1024_hard_s1`` or ``fig1_n1024_zeta0.25_s1``."""
     wall = "hard" if zeta is None or zeta == 0 else f"zeta{zeta:g}"
     return f"{surface}_n{n}_{wall}_s{seed}"
+
+
+def fig1_heights(n: int, seed: Any, surface: str = "fig1") -> np.ndarray:
+    """The Fig. 1 surface on an ``n x n`` grid of the paper's period ``L = 1024`` (lengths in grid spacings of
+    the 1024^2 system): Gaussian coloured noise (``"fig1"``) or its :func:`skewed_surface` (``"fig1-skewed"``)."""
+    import gfmd_ref
+
+    s = FIG1_SCENE
+    heights = gfmd_ref.self_affine_surface(n, length=s["length"], hurst=s["hurst"], q_min=s["q_min"],
+                                           q_max=s["q_max"], rms_slope=s["rms_slope"], seed=seed)
+    if surface == "fig1-skewed":
+        heights = skewed_surface(heights, length=s["length"], rms_slope=s["rms_slope"])
+    return heights
+
+
+def solve_fig1_wall(heights: np.ndarray, zeta: Optional[float], *, tol: float, progress: bool) -> tuple[Any, float]:
+    """GFMD on the Fig. 1 scene at the wall range ``zeta`` (None: the hard wall): ``(ContactResult, seconds)``."""
+    import gfmd_ref
+
+    s, t0 = FIG1_SCENE, time.perf_counter()
+    wall = gfmd_ref.HardWall() if zeta is None else gfmd_ref.ExponentialRepulsion(zeta)
+    res = gfmd_ref.solve_contact(heights, length=s["length"], E_star=s["E_star"], mean_pressure=s["mean_pressure"],
+                                 interaction=wall, tol=tol, progress=progress)
+    return res, time.perf_counter() - t0
 
 
 @dataclass(frozen=True)
@@ -70,15 +94,11 @@ def paper_theory(case: Any, *, cutoff: str = "muser", p_c: Optional[float] = Non
     and ``p_c`` (pressure) defaulting to the paper's value (:func:`diffusion_pr.paper.cutoff_pressure`);
     ``backend`` and ``rtol`` go to :func:`diffusion_pr.pressure_distribution`."""
     from ..api import pressure_distribution
-    from ..paper import cutoff_pressure
 
-    if case.zeta is None:
-        return pressure_distribution(case.spectrum, E_star=case.E_star, mean_pressure=case.mean_pressure,
-                                     zeta=0.0, cutoff="sharp")
-    return pressure_distribution(case.spectrum, E_star=case.E_star, mean_pressure=case.mean_pressure,
-                                 zeta=case.zeta, cutoff=cutoff,
-                                 p_c=cutoff_pressure(case.zeta) if p_c is None else p_c, backend=backend,
-                                 rtol=rtol)
+    kw = {"zeta": 0.0, "cutoff": "sharp"} if case.zeta is None else {
+        "zeta": case.zeta, "cutoff": cutoff, "p_c": cutoff_pressure(case.zeta) if p_c is None else p_c,
+        "backend": backend, "rtol": rtol}
+    return pressure_distribution(case.spectrum, E_star=case.E_star, mean_pressure=case.mean_pressure, **kw)
 
 
 def available_references(data_dir: Path | str | None = None) -> list[str]:
@@ -95,19 +115,15 @@ def load_reference(name: str, data_dir: Path | str | None = None) -> ReferenceCa
     ValueError
         If no such case is bundled (the message lists the available ones).
     """
-    from ..spectra import DiscreteSpectrum
-
     folder = Path(data_dir) if data_dir is not None else DATA_DIR
     path = folder / f"{name}.npz"
     if not path.exists():
         raise ValueError(f"no reference case {name!r}; available: {available_references(folder)}")
     with np.load(path, allow_pickle=False) as data:
         prov = json.loads(str(data["provenance"]))
-        hist = SimulatedHistogram(
-            edges=data["edges"], density=data["density"], zero_weight=float(data["zero_weight"]),
-            moments=json.loads(str(data["moments"])), quantile_levels=data["quantile_levels"],
-            quantiles=data["quantiles"], metadata=prov,
-        )
+        hist = SimulatedHistogram(edges=data["edges"], density=data["density"], zero_weight=float(data["zero_weight"]),
+                                  moments=json.loads(str(data["moments"])), quantile_levels=data["quantile_levels"],
+                                  quantiles=data["quantiles"], metadata=prov)
         spectrum = DiscreteSpectrum(data["spectrum_q"], data["spectrum_power"], data["spectrum_multiplicity"],
                                     float(prov["length"]))
     zeta = prov.get("zeta")
@@ -117,20 +133,14 @@ def load_reference(name: str, data_dir: Path | str | None = None) -> ReferenceCa
 def save_case(path: Path, pressure: np.ndarray, heights: np.ndarray, provenance: dict,
               bin_width: float) -> SimulatedHistogram:
     """Histogram a pressure field and write one ``.npz`` case (compressed)."""
-    top = float(pressure.max())
-    n_bins = max(10, int(math.ceil(top / bin_width)))
-    edges = np.arange(n_bins + 1) * bin_width
+    edges = np.arange(max(10, int(math.ceil(float(pressure.max()) / bin_width))) + 1) * bin_width
     hist = SimulatedHistogram.from_pressures(pressure, bins=edges, metadata=provenance)
-    from ..spectra import DiscreteSpectrum
-
     spectrum = DiscreteSpectrum.from_heights(heights, float(provenance["length"]))
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(
-        path, edges=hist.edges, density=hist.density, zero_weight=hist.zero_weight,
-        moments=json.dumps(hist.moments), quantile_levels=hist.quantile_levels, quantiles=hist.quantiles,
-        spectrum_q=spectrum.q, spectrum_power=spectrum.power, spectrum_multiplicity=spectrum.multiplicity,
-        provenance=json.dumps(provenance, sort_keys=True),
-    )
+    np.savez_compressed(path, edges=hist.edges, density=hist.density, zero_weight=hist.zero_weight,
+                        moments=json.dumps(hist.moments), quantile_levels=hist.quantile_levels,
+                        quantiles=hist.quantiles, spectrum_q=spectrum.q, spectrum_power=spectrum.power,
+                        spectrum_multiplicity=spectrum.multiplicity, provenance=json.dumps(provenance, sort_keys=True))
     return hist
 
 
@@ -143,11 +153,11 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
     ``n``), ``None`` the hard wall; ``seeds``: surface seeds; ``n`` >= 64 grid points per side (the shortest
     wavelength needs 2); ``tol``: GFMD tolerance relative to ``p0``; ``out_dir``: checked for writability before
     any work (the bundled cases live in :data:`DATA_DIR`: pass it explicitly to replace them); ``surface``:
-    ``"fig1"`` (Gaussian coloured noise) or ``"fig1-skewed"`` (:func:`skewed_surface` of it).
-    """
-
+    ``"fig1"`` (Gaussian coloured noise) or ``"fig1-skewed"`` (:func:`skewed_surface` of it)."""
     import gfmd_ref
-    from .._validation import check_int, check_positive, check_seed, check_writable_dir
+    from gfmd_ref.ensemble import code_version
+
+    from .._validation import check_int, check_positive, check_seed, check_writable
 
     if surface not in ("fig1", "fig1-skewed"):
         raise ValueError(f"surface must be 'fig1' or 'fig1-skewed'; got surface={surface!r}")
@@ -165,40 +175,28 @@ def generate_reference(*, zetas: Iterable[Optional[float]] = (None, *FIG1_ZETAS)
             gfmd_ref.ExponentialRepulsion(check_positive("zeta", zeta))
     if out_dir is None:
         raise ValueError("out_dir must be a folder (the package's data folder only when given explicitly)")
-    folder = Path(check_writable_dir("out_dir", out_dir))
-    from gfmd_ref.ensemble import code_version as gfmd_code_version
+    folder = Path(check_writable("out_dir", out_dir))
+    made_by = code_version()  # package version and git revision (+dirty), as the ensemble records
 
-    made_by = gfmd_code_version()  # package version and git revision (+dirty), as the ensemble records
-    code_version = f"{made_by['version']} (git {made_by['git']})"
-
-    scene = FIG1_SCENE
     written = []
     for seed in seeds:
-        heights = gfmd_ref.self_affine_surface(
-            n, length=scene["length"], hurst=scene["hurst"], q_min=scene["q_min"], q_max=scene["q_max"],
-            rms_slope=scene["rms_slope"], seed=seed)
-        if surface == "fig1-skewed":
-            heights = skewed_surface(heights, length=scene["length"], rms_slope=scene["rms_slope"])
+        heights = fig1_heights(n, seed, surface)
         for zeta in zetas:
-            interaction = gfmd_ref.HardWall() if zeta is None else gfmd_ref.ExponentialRepulsion(zeta)
-            t0 = time.perf_counter()
-            res = gfmd_ref.solve_contact(heights, length=scene["length"], E_star=scene["E_star"],
-                                         mean_pressure=scene["mean_pressure"], interaction=interaction,
-                                         tol=tol, progress=progress)
-            wall = time.perf_counter() - t0
+            res, wall = solve_fig1_wall(heights, zeta, tol=tol, progress=progress)
             name = case_name(zeta, seed, n, surface)
             cmd = (f"diffusion-pr make-reference --n {n} --seeds {seed} --tol {tol:g} --surface {surface} "
                    f"--length-unit paper --zetas {'hard' if zeta is None else f'{zeta:g}'}")
             prov = {
-                **scene, "n": n, "zeta": zeta, "interaction": "hard" if zeta is None else "exponential",
+                **FIG1_SCENE, "n": n, "zeta": zeta, "interaction": "hard" if zeta is None else "exponential",
                 "seed": int(seed), "surface": surface, "tol": tol, "method": res.method,
                 "converged": bool(res.converged), "residual": float(res.residual),
                 "iterations": int(res.iterations), "wall_time_s": round(wall, 3),
-                "contact_fraction": float(res.contact_fraction), "code_version": code_version,
+                "contact_fraction": float(res.contact_fraction),
+                "code_version": f"{made_by['version']} (git {made_by['git']})",
                 "command": cmd,
             }
             save_case(folder / f"{name}.npz", np.asarray(res.pressure), np.asarray(heights), prov,
-                      bin_width=scene["mean_pressure"] / 20.0)
+                      bin_width=FIG1_SCENE["mean_pressure"] / 20.0)
             log(f"{name}: converged={res.converged} residual={res.residual:.2e} it={res.iterations} "
                 f"a={res.contact_fraction:.5f} {wall:.1f} s")
             written.append(folder / f"{name}.npz")

@@ -206,7 +206,7 @@ def _ensemble_compare(name, zeta, closure, *, paper_pc=False, n_cells=800):
 
     from oracles.closure_reference import reference_distribution
 
-    from diffusion_pr.jobs.fig1 import paper_cutoff_pressure
+    from diffusion_pr.paper import cutoff_pressure
 
     group = bundled_ensemble(name).group(zeta)
     rec = group.records[0]
@@ -216,7 +216,7 @@ def _ensemble_compare(name, zeta, closure, *, paper_pc=False, n_cells=800):
         # reference solver: K error ~5e-4 (800 cells) / 1e-3 (400), far below the targets' margins
         kw = {"n_cells": n_cells, "n_steps": n_cells}
     elif closure == "second_order" and paper_pc and zeta is not None:
-        kw = {"cutoff": "muser", "p_c": paper_cutoff_pressure(zeta), "rtol": 1e-5}
+        kw = {"cutoff": "muser", "p_c": cutoff_pressure(zeta), "rtol": 1e-5}
     solve = reference_distribution if closure.startswith("local") else dp.pressure_distribution
     th = solve(_mean_spectrum(group), E_star=E, mean_pressure=p0, zeta=0.0 if zeta is None else zeta,
                closure=closure, **kw)
