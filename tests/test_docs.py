@@ -15,8 +15,10 @@ PAGES = sorted(DOCS.rglob("*.md"))
 EXECUTED = PAGES + [ROOT / "README.md"]
 
 #: A ```python block whose first line is ``# requires: <module>`` runs only where that module imports (the
-#: cluster example needs dask-jobqueue and a batch system); every other block always runs.
+#: cluster example needs dask-jobqueue and a batch system); one whose first line is ``# file: <name>.py`` is written
+#: to that file (a test module a later block runs with pytest); every other block always runs.
 REQUIRES = re.compile(r"#\s*requires:\s*([\w.]+)")
+FILE = re.compile(r"#\s*file:\s*([\w.]+\.py)\s*$", re.M)
 FENCE = re.compile(r"^```python\s*\n(.*?)^```", re.S | re.M)
 
 
@@ -42,8 +44,10 @@ def test_code_blocks_run(page: Path, tmp_path: Path) -> None:
     """The page's ```python blocks run top to bottom in one fresh interpreter (in a scratch folder)."""
     blocks = []
     for block in python_blocks(page):
-        needed = REQUIRES.match(block)
-        if needed:
+        needed, file = REQUIRES.match(block), FILE.match(block)
+        if file:
+            blocks.append(f"open({file.group(1)!r}, 'w', encoding='utf-8').write({block!r})")
+        elif needed:
             blocks.append(f"import importlib.util\nif importlib.util.find_spec({needed.group(1)!r}):\n"
                           + "".join(f"    {line}\n" for line in block.splitlines()))
         else:
