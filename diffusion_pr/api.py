@@ -8,7 +8,6 @@ an optional drift, and the solve.  ``backend="auto"`` takes the closed form wher
 A result with ``success=False`` is returned with a :class:`ConvergenceWarning` carrying its message."""
 from __future__ import annotations
 
-import math
 import warnings
 from dataclasses import replace
 from typing import Any, Callable, Optional
@@ -109,10 +108,9 @@ def _check_cells(problem: Any, options: dict) -> None:
                          f"k = {k:g}: p = 0 absorbs and has no floor; got p_floor={options['p_floor']!r}")
 
 
-def _solve_full(problem: Any, backend: str, rtol: float, options: dict, warm_start: Any = None) -> Any:
-    """The solve, with the engine's :class:`~diffusion_pr.fokker_planck.engine.FVSolution`, started from
-    ``warm_start`` (a sweep's :class:`~diffusion_pr.fokker_planck.engine.WarmStart`); a closed form needs no start
-    and gives a solution holding its result alone."""
+def _solve_full(problem: Any, backend: str, rtol: float, options: dict) -> Any:
+    """The solve, with the engine's :class:`~diffusion_pr.fokker_planck.engine.FVSolution` (a closed form gives a
+    solution holding its result alone)."""
     import sys
 
     from .fokker_planck.backends import get_backend, keyword_options
@@ -130,7 +128,7 @@ def _solve_full(problem: Any, backend: str, rtol: float, options: dict, warm_sta
         sol = FVSolution(result=solver(problem, rtol=rtol, **options))
     else:
         _check_cells(problem, options)
-        sol = full(problem, rtol=rtol, warm_start=warm_start, **options)
+        sol = full(problem, rtol=rtol, **options)
     return replace(sol, result=replace(sol.result, diagnostics={**sol.result.diagnostics,
                                                                 "backend_requested": backend}))
 
@@ -291,17 +289,15 @@ def pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float,
     """
     return _checked(_pressure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
                                            cutoff=cutoff, p_c=p_c, tail=tail, p_t=p_t, drift=drift, backend=backend,
-                                           rtol=rtol, closure=closure, **options)[0])
+                                           rtol=rtol, closure=closure, **options))
 
 
 def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float, zeta: float = 0.0,
                            cutoff: Any = "sharp", p_c: Optional[float] = None, tail: Any = None,
                            p_t: Optional[float] = None, drift: Optional[Callable] = None, backend: str = "auto",
-                           rtol: float = 1e-6, closure: str = "second_order", warm_start: Any = None,
-                           **options: Any) -> tuple:
-    """``(result, solution)``: :func:`pressure_distribution`'s result and the finite-volume solution it came from
-    (:class:`~diffusion_pr.fokker_planck.engine.FVSolution`, None where there is none), started from ``warm_start``
-    (a sweep's :class:`~diffusion_pr.fokker_planck.engine.WarmStart`)."""
+                           rtol: float = 1e-6, closure: str = "second_order",
+                           **options: Any) -> PressureDistribution:
+    """:func:`pressure_distribution`'s result before the :class:`ConvergenceWarning` check."""
     backend, rtol = _check_backend(backend), _check_rtol(rtol)
     if closure != "second_order":
         from .closures import _closure_distribution, check_closure
@@ -316,10 +312,9 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
         if closure == "lognormal_gap" and (backend not in ("auto", "closed_form") or given):
             raise ValueError(f"closure='lognormal_gap' is a closed form: backend must be 'auto' or 'closed_form' "
                              f"(got backend={backend!r}) and solver options do not apply (got {given})")
-        result, sol = _closure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
-                                            closure=closure, backend=backend, rtol=rtol, warm_start=warm_start,
-                                            **options)
-        return replace(result, contact_threshold=contact_threshold(zeta, mean_pressure)), sol
+        result = _closure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
+                                       closure=closure, backend=backend, rtol=rtol, **options)[0]
+        return replace(result, contact_threshold=contact_threshold(zeta, mean_pressure))
     for name in ("n_shells", "shell_extrapolation"):
         if options.pop(name, None) is not None:
             raise ValueError(f"{name} applies to the shell closures, not to 'second_order'")
@@ -355,30 +350,19 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
             mean_pressure=float(p0), eta=eta, variance_of_eta=v_eta, pressure_factor=factor,
             drift_of_eta=drift, label="pressure_distribution", **_exact_schedule(spectrum, E, float(p0), float(z)))
         extra.update({"eta": eta, "variance_of_eta": v_eta})
-    sol = _solve_full(problem, backend, rtol, options, warm_start=warm_start)
-    return replace(sol.result, diagnostics={**sol.result.diagnostics, **extra},
-                   contact_threshold=contact_threshold(z, p0)), sol
-
-
-#: the largest growth of a sweep's start from one entry to the next (an upward trend of the cells is followed)
-SWEEP_TREND_MAX = 1.5
+    result = _solve_full(problem, backend, rtol, options).result
+    return replace(result, diagnostics={**result.diagnostics, **extra}, contact_threshold=contact_threshold(z, p0))
 
 
 def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", progress: bool = False,
                            **kwargs: Any) -> list:
     """:func:`pressure_distribution` for every wall range of ``zetas``, in the given order (a sweep).
 
-    Each native solve starts from the grid the previous one's estimate predicts, its cells grown with the trend of
-    the need (at most :data:`SWEEP_TREND_MAX` per entry, at most ``max_cells/4``; docs/backends.md).  Every answer
-    meets ``rtol`` on its own; it may differ from a single call's (another grid) by less than ``rtol``.  Sort
-    ``zetas`` for the best effect.
-
-    ``zetas``: the wall ranges (the spectrum's length unit), one-dimensional, each >= 0; ``progress``: a tqdm
-    progress bar; everything else as :func:`pressure_distribution` (the chaining applies to ``"native"`` results).
+    Each entry is solved on its own (equal to a single call's result).  ``zetas``: the wall ranges (the spectrum's
+    length unit), one-dimensional, each >= 0; ``progress``: a tqdm progress bar; everything else as
+    :func:`pressure_distribution`.
     Returns one :class:`PressureDistribution` per entry of ``zetas`` (a :class:`ConvergenceWarning` for each failed
     one)."""
-    from .fokker_planck.engine import MAX_CELLS
-
     if np.ndim(zetas) != 1 or np.size(zetas) == 0:
         raise ValueError(f"zetas must be a non-empty one-dimensional sequence of wall ranges; got zetas={zetas!r}")
     z = check_finite_array("zetas", zetas, ndim=1)
@@ -388,21 +372,7 @@ def pressure_distributions(spectrum: Any, *, zetas: Any, backend: str = "auto", 
         from tqdm.auto import tqdm
 
         z = tqdm(z, desc="zeta sweep", unit="wall")
-    cap = int(kwargs.get("max_cells", MAX_CELLS)) // 4  # the engine's bound on a first level's cells
-    out: list = []
-    start = needed = None
-    for zeta in z:
-        result, sol = _pressure_distribution(spectrum, zeta=float(zeta), backend=backend, warm_start=start, **kwargs)
-        out.append(_checked(result))
-        start = None
-        if sol is not None and result.backend == "native" and result.success and sol.next_start is not None:
-            start, grow = sol.next_start, min(max(sol.cells_needed / (needed or sol.cells_needed), 1.0),
-                                              SWEEP_TREND_MAX)
-            start = replace(start, n_start=int(min(math.ceil(start.n_start * grow), cap)))
-            needed = sol.cells_needed
-        else:
-            needed = None
-    return out
+    return [_checked(_pressure_distribution(spectrum, zeta=float(zeta), backend=backend, **kwargs)) for zeta in z]
 
 
 def warm_up(backend: str = "native") -> float:

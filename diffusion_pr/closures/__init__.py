@@ -139,11 +139,9 @@ def _check_fv_options(backend: str, options: dict) -> str:
 
 def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: float, zeta: float = 0.0,
                           closure: str, backend: str = "auto", rtol: float = 1e-6, n_shells: Optional[int] = None,
-                          shell_extrapolation: Optional[bool] = None, warm_start: Any = None,
-                          **options: Any) -> tuple:
+                          shell_extrapolation: Optional[bool] = None, **options: Any) -> tuple:
     """``(result, solution)``: :func:`closure_distribution`'s result and the finite-volume solution of its (last)
-    ``n``-shell solve (None where there is none), which started from ``warm_start`` (a sweep's
-    :class:`~diffusion_pr.fokker_planck.engine.WarmStart`)."""
+    ``n``-shell solve (None where there is none)."""
     check_closure(closure)
     if closure == "second_order":
         raise ValueError("closure='second_order' is the paper's theory: diffusion_pr.pressure_distribution solves it")
@@ -190,7 +188,7 @@ def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: f
     scene = (spectrum, E, p0, z, closure, grading)
     note = {"backend_requested": backend}
     sol = solve_shells(problem, shells, closure, chosen, rtol, options, keep=shell_extrapolation,
-                       warm_start=warm_start, note=note)
+                       note=note)
     if not shell_extrapolation:
         return sol.result, sol
     first = int(shells.q.size)
@@ -206,7 +204,6 @@ def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: f
             tightened = True
             spent += out.wall_time
             sol = solve_shells(problem, shells, closure, chosen, GRID_RETRY_FRACTION * rtol, options, keep=True,
-                               warm_start=warm_start,
                                note={**note, "grids_tightened": f"the grids' estimate "
                                      f"{out.diagnostics['grid_estimate']:.2e} left no room for the shells' residual "
                                      f"at rtol {rtol:.1e}"})
@@ -219,5 +216,5 @@ def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: f
         # all three with twice the shells, on the grids of the finer first solve
         spent += out.wall_time
         problem, shells = shell_problem(scene, 2 * n)
-        sol = solve_shells(problem, shells, closure, chosen, rtol, options, keep=True, warm_start=warm_start,
+        sol = solve_shells(problem, shells, closure, chosen, rtol, options, keep=True,
                            note={**note, "shells_first_tried": first})

@@ -49,7 +49,7 @@ MIN_ROMBERG_SHELLS = 6
 
 def solve_full(problem: Any, backend: str, rtol: float, options: dict, **engine: Any) -> Any:
     """The :class:`~diffusion_pr.fokker_planck.engine.FVSolution` of a closure's staged problem by the
-    finite-volume backend ``backend``; ``engine``: the ``grid``, ``plain``, ``warm_start`` arguments (None dropped)."""
+    finite-volume backend ``backend``; ``engine``: the ``grid`` and ``plain`` arguments (None dropped)."""
     from ..fokker_planck.backends import get_backend
 
     solver = get_backend(backend)
@@ -83,10 +83,10 @@ def _ladder_below(top: int) -> list:
 
 
 def solve_shells(problem: Any, shells: Shells, closure: str, backend: str, rtol: float, options: dict, *,
-                  keep: bool, warm_start: Any = None, note: Optional[dict] = None) -> Any:
+                  keep: bool, note: Optional[dict] = None) -> Any:
     """The closure's FVSolution with the closure and shell count in its diagnostics (and ``note``); with ``keep``
     the last level's plain masses too."""
-    sol = solve_full(problem, backend, rtol, options, plain="keep" if keep else None, warm_start=warm_start)
+    sol = solve_full(problem, backend, rtol, options, plain="keep" if keep else None)
     res = sol.result
     return replace(sol, result=replace(res, diagnostics={**res.diagnostics, "closure": closure,
                                                          "n_shells": int(shells.q.size), **(note or {})}))

@@ -19,13 +19,13 @@ import numpy as np
 from ..result import PressureDistribution
 from .domain import FLOOR, Prepared, _compiled, _exit_wall, _trimmed_depth, density_knots, prepare
 from .expm import ERROR_BOUND as CRAM_ERROR_BOUND
-from .grading import _depth_fraction, _regradable, _regraded, _wall_depth
+from .grading import _depth_fraction, _regradable, _regraded
 from .grid import GridSpec, edges_for, knot_indices, same_grid
 from .operator import centres
 from .stages import Assemble, _coefficients, _integrator, native_assemble
 
 __all__ = ["FLOOR", "MAX_CELLS", "RICHARDSON_DIVISOR", "solve_fv", "solve_fv_full", "FVSolution", "GridFamily",
-           "WarmStart", "build_result", "DIAGNOSTIC_KEYS"]
+           "build_result", "DIAGNOSTIC_KEYS"]
 
 #: default cap on the cells of the finest grid
 MAX_CELLS = 65536
@@ -53,30 +53,16 @@ class GridFamily:
 
 
 @dataclass(frozen=True)
-class WarmStart:
-    """Where a solve of a neighbouring problem starts (a sweep over the wall range): ``n_start`` cells of the first
-    level's coarsest grid; ``wall_grading`` (``c_wall``, None: the default) and ``wall_depth`` (the fraction of
-    the way from the floor to ``p0`` in ``ln p`` where the grading ends), where the grading may change."""
-
-    n_start: int
-    wall_grading: Optional[float] = None
-    wall_depth: float = 0.0
-
-
-@dataclass(frozen=True)
 class FVSolution:
     """What :func:`solve_fv_full` returns: the ``result``, the last level's ``grid``, with ``plain=`` the plain cell
     masses ``[z, m...]`` of the N, 2N and 4N grids lumped below the floor (None where not integrated) and
-    ``plain_failure`` why they are no result; ``cells_needed`` the coarsest cells predicted for ``rtol`` and
-    ``next_start`` the :class:`WarmStart` of a neighbouring problem (None where failed or plain); ``prep`` the
-    problem as prepared on ``grid`` (results on the same grid are built from it)."""
+    ``plain_failure`` why they are no result; ``prep`` the problem as prepared on ``grid`` (results on the same grid
+    are built from it)."""
 
     result: PressureDistribution
     grid: Optional[GridFamily] = None
     plain: Optional[tuple] = None
     plain_failure: Optional[str] = None
-    cells_needed: Optional[int] = None
-    next_start: Optional[WarmStart] = None
     prep: Optional[Prepared] = field(default=None, repr=False, compare=False)
 
 #: refinement stops when the estimate is below SAFETY * rtol (margin for the estimate's own error)
@@ -149,8 +135,8 @@ def solve_fv(problem, **options) -> PressureDistribution:
 
 def solve_fv_full(problem, *, rtol: float, backend: str, assemble: Assemble = native_assemble,
                   n_cells: Optional[int] = None, max_cells: int = MAX_CELLS, p_floor: Optional[float] = None,
-                  extra: Optional[dict] = None, grid: Optional[GridFamily] = None, plain: Optional[str] = None,
-                  warm_start: Optional[WarmStart] = None) -> FVSolution:
+                  extra: Optional[dict] = None, grid: Optional[GridFamily] = None,
+                  plain: Optional[str] = None) -> FVSolution:
     """Solve ``problem`` to ``rtol`` on nested grids (the engine's entry point).
 
     Repeated once on the conservative domain where the Lamperti-bounded one proves too short
@@ -180,8 +166,6 @@ def solve_fv_full(problem, *, rtol: float, backend: str, assemble: Assemble = na
     plain : {"keep", "only", "finest", "coarsest", "answer"}, optional
         ``"keep"``: also return the last level's plain cell masses (``FVSolution.plain``); the others (with
         ``grid``) integrate only the grids :data:`PLAIN_GRIDS` names, and the result is failed by construction.
-    warm_start : WarmStart, optional
-        Where the refinement starts (a neighbouring problem's ``next_start``).
 
     Returns
     -------
@@ -199,11 +183,9 @@ def solve_fv_full(problem, *, rtol: float, backend: str, assemble: Assemble = na
         raise ValueError(f"plain={plain!r} needs grid= (the grids whose plain masses to integrate)")
     if grid is not None and n_cells is not None and int(n_cells) != grid.n_cells:
         raise ValueError(f"n_cells={n_cells!r} differs from the given grid's coarsest grid ({grid.n_cells} cells)")
-    if warm_start is not None and (n_cells is not None or grid is not None):
-        raise ValueError("warm_start and n_cells or grid exclude each other (n_cells and grid fix the grids)")
     options = dict(rtol=rtol, backend=backend, assemble=assemble, n_cells=n_cells, max_cells=int(max_cells),
                    p_floor=p_floor, extra=extra, grid=grid,
-                   plain=plain, warm_start=warm_start, t_start=t_start)
+                   plain=plain, t_start=t_start)
     retried: dict = {}  # diagnostics key -> why the solve was repeated
     lamperti = regrade = True
     while True:
@@ -225,7 +207,7 @@ def solve_fv_full(problem, *, rtol: float, backend: str, assemble: Assemble = na
 
 def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_cells: Optional[int],
                   max_cells: int, p_floor: Optional[float], extra: Optional[dict], grid: Optional[GridFamily], plain: Optional[str],
-                  warm_start: Optional[WarmStart], lamperti: bool, regrade: bool, t_start: float):
+                  lamperti: bool, regrade: bool, t_start: float):
     """One attempt of :func:`solve_fv_full`: an :class:`FVSolution`, or ``(key, why)`` where the solve is to be
     repeated with ``lamperti`` (key ``"domain"``) or ``regrade`` (key ``"regrade"``) off."""
     plain_only = plain in PLAIN_GRIDS
@@ -233,10 +215,6 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
     prep = prepare(problem, rtol=rtol, p_floor=p_floor, lamperti=lamperti, on_grid=grid.spec if plain_only else None)
     if grid is not None:  # another problem's grids; its domain, grading and depth as they were
         prep = replace(prep, spec=grid.spec)
-    if warm_start is not None and _regradable(prep):
-        if warm_start.wall_grading is not None:
-            prep = replace(prep, spec=replace(prep.spec, c_wall=float(warm_start.wall_grading)))
-        prep = replace(prep, spec=replace(prep.spec, wall_depth=_wall_depth(prep.spec, float(warm_start.wall_depth))))
     # coefficients constant within each stage: a grid's integration does not depend on its level (reusable)
     stage_constant = (assemble is native_assemble and not prep.time_dependent
                       and (prep.balance_per_stage or not prep.has_balance))
@@ -247,8 +225,6 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
         n = grid.n_cells
     elif n_cells is not None:
         n = int(n_cells)
-    elif warm_start is not None:
-        n = min(max(int(warm_start.n_start), 8), cap)
     else:
         n = int(min(max((START_CELLS_STAGED if _compiled(prep) and not prep.has_balance else START_CELLS)
                         * (1e-4 / rtol) ** 0.25, 16), 4096))
@@ -261,7 +237,6 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
     reusable = stage_constant
     reuse = None
     remap_factor = 1.0  # the cell factor of a remapped monitor (:func:`_remapped`)
-    grading_next = None  # (c_wall, depth fraction, cell factor) the converged level's errors favour (:func:`_regraded`)
     moved = False  # the first level's grid family was regraded or remapped for the next levels
     grids_integrated = 0
     centre_drift = assemble is not native_assemble
@@ -368,11 +343,6 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
         best_plain = (_lump(y1, j1), _lump(y2, j2), _lump(y3, 2 * j2)) if plain == "keep" else None
         trimmed = _trimmed_depth(prep, float(out_y[0]) + est, rtol) if len(history) == 1 else None
         if (est <= SAFETY * rtol and mean_miss <= SAFETY * rtol * prep.p0) or fixed:
-            if warm_start is not None and _regradable(prep):
-                # the grading this level's errors favour, for the next problem of a sweep
-                suggested = _regraded(prep, e1, diff, j1)
-                if suggested is not None:
-                    grading_next = (float(suggested[0].c_wall), _depth_fraction(suggested[0]), float(suggested[1]))
             break
         if len(history) > 12:
             failure = "refinement did not converge in 12 levels"
@@ -414,14 +384,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
         # the grid family the first level's errors favoured diverged where the first level's family may
         # converge: once more without (a divergence only: other failures are reported as they are)
         return "regrade", f"the first level's grid family (the regraded one failed: {failure})"
-    edges, y, moments, est, cnt, cells, mean_full, need_last = best
-    # the coarsest grid this problem needs for rtol (where a sweep starts the next problem)
-    grading_needed, depth_needed = float(prep.spec.c_wall), _depth_fraction(prep.spec)
-    if grading_next is not None:  # the cells are then those of the favoured grading
-        grading_needed, depth_needed, factor = grading_next
-        need_last *= factor
-    need_last /= remap_factor  # a sweep starts on the family without the remap (its grading passes on)
-    cells_needed = int(min(max(math.ceil(cells[0] * need_last), 16), max(16, cap)))
+    edges, y, moments, est, cnt, cells, mean_full, _ = best
     # under a balance the top cell's mass counts with its weight p_max / p0 in the mean
     top_weight = max(1.0, float(edges[-1]) / prep.p0) if prep.has_balance else 1.0
     if prep.lamperti_bounded and failure is None and abs(float(y[-1])) * top_weight > rtol:
@@ -440,25 +403,16 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
                           extra={"levels": cells, "history": history,
                                  "cram_applications": cnt["cram_applications"], "substeps": cnt["substeps"],
                                  "grids_integrated": grids_integrated,
-                                 "cells_needed": cells_needed, "remap_factor": remap_factor,
-                                 "wall_grading_needed": grading_needed,
+                                 "remap_factor": remap_factor,
                                  "newton_steps": cnt.get("newton_steps", 0),
                                  "domain": "Lamperti-bounded" if prep.lamperti_bounded else "from the spread",
                                  "wall_grading": float(prep.spec.c_wall), "wall_depth": _depth_fraction(prep.spec),
                                  # (the family of the result's grid: its cdf interpolates in the family's coordinate)
                                  "grid": (best_grid.spec, best_grid.knots),
                                  **({"floor_ghosts": best_ghosts} if best_ghosts is not None else {}),
-                                 "wall_depth_needed": depth_needed,
                                  **(extra or {})},
                           failure=failure)
-    # where a sweep's next problem starts: at most this problem's first grid, without a remap
-    next_start = None
-    if result.success:
-        start = int(min(math.ceil(min(cells[0] / remap_factor, cells_needed)), cap))
-        next_start = WarmStart(n_start=start, wall_grading=grading_needed if grading_needed > 0.0 else None,
-                               wall_depth=depth_needed if grading_needed > 0.0 and depth_needed > 0.0 else 0.0)
-    return FVSolution(result=result, grid=best_grid, plain=best_plain, cells_needed=cells_needed,
-                      next_start=next_start, prep=prep)
+    return FVSolution(result=result, grid=best_grid, plain=best_plain, prep=prep)
 
 
 #: a grid whose states sum in absolute value to more than this is unstable (docs/backends.md "An unstable grid")

@@ -312,23 +312,6 @@ def test_a_doubling_level_reuses_two_grids_and_keeps_the_answer():
     assert math.isclose(float(np.sum(r.density * r.weights)) + r.zero_weight, 1.0, abs_tol=1e-9)
 
 
-def test_n_start_hint_refines_as_usual_and_meets_rtol():
-    """A warm start only moves the first level: a hint that is too small still refines to rtol, a good hint (the
-    neighbour's levels[0]) needs one level; both within rtol of an rtol-1e-10 run (the oracle)."""
-    prob = FokkerPlanckProblem(0.004, 3e-5, PressureFactor(MuserCutoff(0.0027), GaussianTail()))
-    from diffusion_pr.fokker_planck.engine import WarmStart
-
-    ref = native.solve(prob, rtol=1e-10)
-    plain = native.solve(prob, rtol=1e-6)
-    hinted = native.solve_full(prob, rtol=1e-6, warm_start=WarmStart(plain.diagnostics["levels"][0])).result
-    small = native.solve_full(prob, rtol=1e-6, warm_start=WarmStart(8)).result
-    assert len(hinted.diagnostics["history"]) == 1 and len(plain.diagnostics["history"]) >= 2
-    for r in (plain, hinted, small):
-        err = float(np.sum(np.abs(np.diff(ref.cdf(r.edges)) - r.density * r.weights))
-                    + abs(r.zero_weight - ref.zero_weight))
-        assert r.success and r.error_estimate <= 0.5e-6 and err <= 1e-6
-
-
 def test_domain_ends_where_the_gaussian_bound_puts_the_tail_below_its_share_of_rtol():
     """p_max = p0 + z s with erfc(z/sqrt 2) = TAIL_FRACTION rtol; for the mirror Gaussian (f = 1: s is the exact
     spread) the probability beyond p_max, from the closed form, is below TAIL_FRACTION rtol, and the solve meets

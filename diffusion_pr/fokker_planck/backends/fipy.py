@@ -96,7 +96,7 @@ def solve(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cel
 def solve_full(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cells: int = MAX_CELLS,
                p_floor: Optional[float] = None, **engine) -> FVSolution:
     """:func:`solve` with the engine's :class:`~diffusion_pr.fokker_planck.engine.FVSolution` (``engine``: ``grid``,
-    ``plain``, ``warm_start`` of :func:`~diffusion_pr.fokker_planck.engine.solve_fv_full`)."""
+    ``plain`` of :func:`~diffusion_pr.fokker_planck.engine.solve_fv_full`)."""
     _, import_time = timed_import("fipy", "fipy", "FiPy")
     return solve_fv_full(problem, rtol=rtol, backend="fipy", assemble=assemble, n_cells=n_cells,
                          max_cells=max_cells, p_floor=p_floor, extra={"import_time": import_time}, **engine)

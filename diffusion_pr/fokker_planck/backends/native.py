@@ -57,7 +57,7 @@ def solve(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cel
 
 def solve_full(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cells: int = MAX_CELLS,
                p_floor: Optional[float] = None, **engine) -> FVSolution:
-    """:func:`solve` with the engine's :class:`~diffusion_pr.fokker_planck.engine.FVSolution` (``engine``: ``grid``, ``plain``,
-    ``warm_start`` of :func:`~diffusion_pr.fokker_planck.engine.solve_fv_full`)."""
+    """:func:`solve` with the engine's :class:`~diffusion_pr.fokker_planck.engine.FVSolution` (``engine``: ``grid`` and ``plain``
+    of :func:`~diffusion_pr.fokker_planck.engine.solve_fv_full`)."""
     return solve_fv_full(problem, rtol=rtol, backend="native", assemble=native_assemble, n_cells=n_cells,
                          max_cells=max_cells, p_floor=p_floor, **engine)
