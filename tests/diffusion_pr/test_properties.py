@@ -154,6 +154,11 @@ def check_contract(r, p0: float, rtol: float) -> None:
     p_max = float(r.edges[-1]) if r.edges is not None else float(np.max(r.p))
     assert abs(r.mean - p0) <= rtol * p_max
     assert r.backend in ("closed_form", "native", "pypde", "fipy")
+    # what users evaluate: pdf >= 0 and a cdf non-decreasing (to round-off) from 0 below p = 0 to 1 (within rtol)
+    x = np.concatenate(([-1.0], np.geomspace(1e-12 * p_max, 2.0 * p_max, 2000)))
+    assert np.all(r.pdf(x) >= 0.0)
+    cdf = r.cdf(x)
+    assert cdf[0] == 0.0 and np.all(np.diff(cdf) >= -1e-15) and abs(cdf[-1] - 1.0) <= rtol
 
 
 @FAST
