@@ -101,7 +101,7 @@ def ccg(h, p0, el, tol, max_iter, progress, h_scale, precond=True):
             gold = gn
         el.fft.apply_route(Gn32, t32, r32, dot=False)  # r = G t (the step length only)
         n_single += 1
-        rsum, srt = kr.contact_dot(r32, tc, idx, nc)
+        rsum, srt = kr.contact_sums(r32, tc, idx, nc)
         den = srt - (rsum / nc if nc > 0 else 0.0) * st  # sum_c (r - rbar) t
         tau = sgt / den if den != 0 else 0.0
         # increment u by G dv unless its rounding bound nears the residual, the residual stalls, or REFRESH ran

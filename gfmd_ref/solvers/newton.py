@@ -41,14 +41,13 @@ def z0_residual(u: np.ndarray, h: np.ndarray, p: np.ndarray, p0: float, zeta: fl
     return zeta * (m + math.log(s / h.size)), res
 
 
-def newton(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0):
+def newton(h, p0, zeta, el, tol, max_iter, progress):
     """Newton-CG on the dual (pressure) energy of the exponential wall.
 
     ``Phi(p) = mean(p u/2 - p h + zeta p log(p/p0))``, ``u = G p``, ``mean(p) = p0``; its
     minimiser is the equilibrium pressure. Projected PCG, multiplicative steps and the line
     search are described in docs/gfmd.md ("Methods"). ``G d`` runs in single precision
-    where the forcing asks for no more than :data:`SINGLE_CG_MIN_FORCING`. ``p_init``
-    (optional) is the start pressure, ``iters0`` the iterations already spent on it.
+    where the forcing asks for no more than :data:`SINGLE_CG_MIN_FORCING`. Start: uniform ``p0``.
     """
     n2 = h.size
     pmin = max(p0 * 1e-300, 1e-300)
@@ -58,20 +57,17 @@ def newton(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0):
     p, u, d, gd = (np.zeros(shape) for _ in range(4))
     d32, gd32 = np.zeros(shape, dtype=np.float32), np.zeros(shape, dtype=np.float32)
     Gn32 = el.Gn.astype(np.float32)
-    if p_init is None:
-        p[...] = p0
-    else:
-        np.maximum(p_init, pmin, out=p)
+    p[...] = p0
     p *= p0 / p.mean()
     el.fft.apply_route(el.Gn, p, u, dot=False)
     grad, minv, wdiag, x, r, scratch, lp = (np.empty(shape) for _ in range(7))
     keep = np.empty(shape, dtype=np.bool_)  # where the wall's exponentials are not +0
-    it = iters0
+    it = 0
     n_newton = cg_total = n_single = 0
     mon = Monitor("newton", tol, max_iter, NEWTON_STALL_STEPS, progress, step="Newton step")
     log_ratio(p, p0, lp)  # then kept by every accepted step: its trial's energy leaves log(ptry/p0) in lp
     while True:
-        E, E_scale = kr.dual_gradient(u, h, p, lp, zeta, grad)
+        E, E_scale = kr.dual_energy(u, h, p, lp, zeta, grad)
         z0, res = z0_residual(u, h, p, p0, zeta, scratch, keep)
         if mon.check(res, it, n_newton):
             break
