@@ -18,25 +18,15 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-__all__ = [
-    "group_records",
-    "cdf_grid",
-    "cdf_matrix",
-    "pooled_cdf",
-    "bootstrap_cdf_band",
-    "bootstrap_density_band",
-    "kolmogorov",
-    "NoiseFloor",
-    "noise_floor",
-    "scatter",
-    "finite_size_table",
-]
+from .store import parse_wall
+
+__all__ = ["group_records", "cdf_grid", "cdf_matrix", "pooled_cdf", "bootstrap_cdf_band", "bootstrap_density_band",
+           "kolmogorov", "NoiseFloor", "noise_floor", "scatter", "finite_size_table"]
 
 
 def group_records(group_or_records) -> list:
     """Converged records of a group or list (non-converged ones are dropped)."""
-    recs = list(getattr(group_or_records, "records", group_or_records))
-    recs = [r for r in recs if getattr(r, "converged", True)]
+    recs = [r for r in getattr(group_or_records, "records", group_or_records) if getattr(r, "converged", True)]
     if not recs:
         raise ValueError("no converged record to reduce")
     return recs
@@ -49,9 +39,8 @@ def _default_p_min(recs) -> float:
 def cdf_grid(recs, p_min: Optional[float] = None, max_points: int = 40000) -> np.ndarray:
     """Sorted union of the records' quantile knots ``>= p_min`` (and ``p_min``).
 
-    If there are more than ``max_points`` knots, an evenly thinned subset plus the
-    pooled quantiles at every level step is used (the supremum is then exact to
-    about one level step)."""
+    Above ``max_points`` knots an evenly thinned subset is used (the supremum is then
+    exact to about one level step)."""
     recs = group_records(recs)
     p_min = _default_p_min(recs) if p_min is None else float(p_min)
     x = np.unique(np.concatenate([r.quantiles for r in recs] + [[p_min]]))
@@ -63,8 +52,7 @@ def cdf_grid(recs, p_min: Optional[float] = None, max_points: int = 40000) -> np
 
 def cdf_matrix(recs, x) -> np.ndarray:
     """``C[s, j] = F_s(x_j)`` for every record ``s``."""
-    recs = group_records(recs)
-    return np.array([r.cdf(x) for r in recs])
+    return np.array([r.cdf(x) for r in group_records(recs)])
 
 
 def pooled_cdf(recs, p) -> np.ndarray:
@@ -72,30 +60,29 @@ def pooled_cdf(recs, p) -> np.ndarray:
     return cdf_matrix(recs, np.asarray(p, dtype=float)).mean(axis=0)
 
 
+def _bootstrap(M, n_boot: int, level: float, seed: int):
+    """Mean over the rows (seeds) of ``M`` and the ``(1 -+ level)/2`` percentiles of the
+    means of ``n_boot`` resamples of the rows (with replacement)."""
+    rng = np.random.default_rng(seed)
+    S = M.shape[0]
+    boot = np.array([M[rng.integers(0, S, S)].mean(axis=0) for _ in range(n_boot)])
+    a = 100 * (1 - level) / 2
+    return M.mean(axis=0), np.percentile(boot, a, axis=0), np.percentile(boot, 100 - a, axis=0)
+
+
 def bootstrap_cdf_band(recs, p, *, n_boot: int = 400, level: float = 0.95, seed: int = 0):
     """Pooled CDF at ``p`` and its bootstrap band over seeds (resampled with replacement).
 
     Returns ``(F, lo, hi)``: the pooled CDF and the ``(1 - level)/2``,
     ``(1 + level)/2`` percentiles of the resampled pooled CDF at each ``p``."""
-    C = cdf_matrix(recs, np.asarray(p, dtype=float))
-    rng = np.random.default_rng(seed)
-    S = C.shape[0]
-    boot = np.array([C[rng.integers(0, S, S)].mean(axis=0) for _ in range(n_boot)])
-    a = 100 * (1 - level) / 2
-    return C.mean(axis=0), np.percentile(boot, a, axis=0), np.percentile(boot, 100 - a, axis=0)
+    return _bootstrap(cdf_matrix(recs, np.asarray(p, dtype=float)), n_boot, level, seed)
 
 
 def bootstrap_density_band(recs, edges, *, n_boot: int = 400, level: float = 0.95, seed: int = 0):
     """Pooled density of the bins ``edges`` (mass / width, the delta peak at 0 is
     not in it) and its bootstrap band. Returns ``(density, lo, hi)``."""
     edges = np.asarray(edges, dtype=float)
-    C = cdf_matrix(recs, edges)
-    M = np.diff(C, axis=1) / np.diff(edges)
-    rng = np.random.default_rng(seed)
-    S = M.shape[0]
-    boot = np.array([M[rng.integers(0, S, S)].mean(axis=0) for _ in range(n_boot)])
-    a = 100 * (1 - level) / 2
-    return M.mean(axis=0), np.percentile(boot, a, axis=0), np.percentile(boot, 100 - a, axis=0)
+    return _bootstrap(np.diff(cdf_matrix(recs, edges), axis=1) / np.diff(edges), n_boot, level, seed)
 
 
 def kolmogorov(first, second, p_min: Optional[float] = None) -> float:
@@ -174,20 +161,11 @@ def finite_size_table(ensemble, wall, *, n_ref: int = 1024, mean_pressure=None, 
     noise of those two pools (the quadrature sum of their split-half noise
     estimates; 0 when a pool has fewer than 2 seeds).
     """
-    from .store import _parse_wall
-
-    z_ref = _parse_wall(wall)
-    recs = []
-    for r in ensemble.records:
-        if not r.converged:
-            continue
-        if mean_pressure is not None and not np.isclose(r.mean_pressure, mean_pressure, rtol=1e-12):
-            continue
-        if z_ref is None:
-            if r.zeta is None:
-                recs.append(r)
-        elif r.zeta is not None and np.isclose(r.zeta, z_ref * r.n / n_ref, rtol=1e-9):
-            recs.append(r)
+    z_ref = parse_wall(wall)
+    recs = [r for r in ensemble.records if r.converged
+            and (mean_pressure is None or np.isclose(r.mean_pressure, mean_pressure, rtol=1e-12))
+            and ((r.zeta is None and z_ref is None)
+                 or (None not in (r.zeta, z_ref) and np.isclose(r.zeta, z_ref * r.n / n_ref, rtol=1e-9)))]
     ns = sorted({r.n for r in recs})
     if not ns:
         raise ValueError(f"no converged records for wall={wall!r} (zeta scaled as n/{n_ref})")
