@@ -41,13 +41,11 @@ def write_bundle(stores: Sequence[os.PathLike | str] | os.PathLike | str, out: o
                  command: str = "", regenerate: str = "", seeds=None) -> tuple:
     """Write the records of ``stores`` (only ``seeds`` if given) as a compact bundle;
     returns ``(path, bytes)``."""
-    if isinstance(stores, (str, os.PathLike)):
-        stores = [stores]
-    recs = []
-    infos = []
+    stores = [stores] if isinstance(stores, (str, os.PathLike)) else stores
+    recs, infos = [], []
     for s in stores:
         e = load_ensemble(s)
-        recs.extend(e.records if seeds is None else [r for r in e.records if r.seed in set(seeds)])
+        recs.extend(r for r in e.records if seeds is None or r.seed in set(seeds))
         infos.append(dict(store=str(s), runs=e.info.get("runs", [])))
     if not recs:
         raise ValueError(f"no record to bundle (stores {list(map(str, stores))}, seeds {seeds})")
@@ -55,21 +53,17 @@ def write_bundle(stores: Sequence[os.PathLike | str] | os.PathLike | str, out: o
     for r in recs:
         if not np.allclose(r.levels[::step], BUNDLE_LEVELS, rtol=0, atol=1e-15):
             raise ValueError(f"record {r.key}: its levels do not contain the bundle levels i/1024")
-    keys = [r.key for r in recs]
-    if len(set(keys)) != len(keys):
+    if len({r.key for r in recs}) != len(recs):
         raise ValueError("the stores share cases: a bundle must not hold a case twice")
-    surf_of = {}
-    spec_q, spec_p, spec_m, spec_off = [], [], [], [0]
-    rec_spec = []
+    surf_of, spectra, spec_off, rec_spec = {}, [], [0], []  # one spectrum per surface (n, seed, family, L)
     for r in recs:
         sk = (r.n, r.seed, json.dumps(r.params["surface"], sort_keys=True), r.length)
         if sk not in surf_of and r.spectrum_q is not None:
-            surf_of[sk] = len(spec_off) - 1
-            spec_q.append(r.spectrum_q)
-            spec_p.append(r.spectrum_power)
-            spec_m.append(r.spectrum_multiplicity)
+            surf_of[sk] = len(spectra)
+            spectra.append((r.spectrum_q, r.spectrum_power, r.spectrum_multiplicity))
             spec_off.append(spec_off[-1] + r.spectrum_q.size)
         rec_spec.append(surf_of.get(sk, -1))
+    spec_q, spec_p, spec_m = (list(x) for x in zip(*spectra)) if spectra else ([], [], [])
     arrays = dict(
         levels=BUNDLE_LEVELS,
         quantiles=np.array([r.quantiles[::step] for r in recs], dtype=np.float32),
