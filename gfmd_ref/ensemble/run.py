@@ -96,11 +96,10 @@ def _code_version() -> tuple:
         return out.stdout.strip() if out.returncode == 0 else None
 
     try:
-        rev = git("rev-parse", "--short=12", "HEAD") or "unknown"
-        rev += "+dirty" if rev != "unknown" and git("status", "--porcelain", "--", ".") else ""
+        rev = git("rev-parse", "--short=12", "HEAD")
+        return ver, rev + ("+dirty" if git("status", "--porcelain", "--", ".") else "") if rev else "unknown"
     except Exception:  # pragma: no cover - no git
-        rev = "unknown"
-    return ver, rev
+        return ver, "unknown"
 
 
 def code_version() -> dict:
@@ -221,7 +220,7 @@ def _store_case(store, params: dict, pressure: np.ndarray, heights: np.ndarray, 
 
 def solve_case(params: dict, store: str, provenance: Optional[dict] = None, threads: int = 1) -> dict:
     """Solve, reduce and store one case with ``threads`` FFT threads (runs on a worker).
-    Returns a small summary."""
+    Returns its provenance and ``path``."""
     import warnings
 
     from ..interactions import ExponentialRepulsion, HardWall
@@ -239,9 +238,7 @@ def solve_case(params: dict, store: str, provenance: Optional[dict] = None, thre
                 iterations=int(res.iterations), wall_time=res.wall_time, method=res.method, message=res.message,
                 fft_threads=threads, host=host(), pid=os.getpid(), created=now_iso())
     prov.setdefault("code", code_version())
-    path = _store_case(store, params, res.pressure, h, prov)
-    return dict(key=case_key(params), label=case_label(params), converged=bool(res.converged),
-                wall_time=res.wall_time, path=str(path), residual=float(res.residual), iterations=int(res.iterations))
+    return dict(prov, path=str(_store_case(store, params, res.pressure, h, prov)))
 
 
 @dataclass(frozen=True)
@@ -343,19 +340,16 @@ def _local_cluster(workers: Optional[int], threads: int):
 
 def _probe_scheduler(address: str, timeout: float = 2.0) -> None:
     """ValueError naming ``address`` unless a TCP connection to it opens within ``timeout`` s
-    (other transports, tls:// or inproc://, are left to Dask)."""
+    (other transports, tls:// or inproc://, and malformed addresses are left to Dask)."""
     import socket
     from urllib.parse import urlsplit
 
+    url = urlsplit(address if "://" in address else "tcp://" + address)
     try:
-        url = urlsplit(address if "://" in address else "tcp://" + address)
-        host_, port = url.hostname, url.port
-    except ValueError:
+        if url.scheme == "tcp" and url.hostname and url.port is not None:
+            socket.create_connection((url.hostname, url.port), timeout=timeout).close()
+    except ValueError:  # a port out of range
         return
-    if url.scheme != "tcp" or not host_ or port is None:
-        return
-    try:
-        socket.create_connection((host_, port), timeout=timeout).close()
     except OSError as exc:
         raise ValueError(f"scheduler={address!r}: no Dask scheduler accepts connections there "
                          f"({exc.strerror or exc}); start one (dask scheduler) or omit --scheduler") from None

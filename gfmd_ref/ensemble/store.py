@@ -63,15 +63,23 @@ def parse_wall(wall) -> Optional[float]:
     return float(wall)
 
 
-def _canonical(params: dict) -> str:
-    def norm(v):
+def _jsonable(d: dict) -> str:
+    def conv(v):
         if isinstance(v, dict):
-            return {k: norm(v[k]) for k in sorted(v)}
-        if isinstance(v, (float, np.floating)):
-            return repr(float(v))
-        return int(v) if isinstance(v, np.integer) else v
+            return {k: conv(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [conv(x) for x in v]
+        return v.item() if isinstance(v, np.generic) else v
 
-    return json.dumps(norm(params), sort_keys=True, separators=(",", ":"))
+    return json.dumps(conv(d), sort_keys=True)
+
+
+def _canonical(params: dict) -> str:
+    """Sorted compact JSON with every float written as its repr (the key's text)."""
+    def norm(v):
+        return {k: norm(x) for k, x in v.items()} if isinstance(v, dict) else repr(v) if isinstance(v, float) else v
+
+    return json.dumps(norm(json.loads(_jsonable(params))), sort_keys=True, separators=(",", ":"))
 
 
 def case_key(params: dict) -> str:
@@ -212,17 +220,6 @@ class EnsembleRecord:
             t = np.where(qh > ql, (p - ql) / np.where(qh > ql, qh - ql, 1.0), 0.0)
         out = ll + np.clip(t, 0.0, 1.0) * (lh - ll)
         return np.where(p < q[0], 0.0, np.where(p >= q[-1], 1.0, out))
-
-
-def _jsonable(d: dict) -> str:
-    def conv(v):
-        if isinstance(v, dict):
-            return {k: conv(x) for k, x in v.items()}
-        if isinstance(v, (list, tuple)):
-            return [conv(x) for x in v]
-        return v.item() if isinstance(v, np.generic) else v
-
-    return json.dumps(conv(d), sort_keys=True)
 
 
 _ARRAYS = ("levels", "quantiles", "hist_edges", "hist_counts", "spectrum_q", "spectrum_power",

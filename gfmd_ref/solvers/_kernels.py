@@ -57,18 +57,11 @@ def pk_gap(u, h, pc, c, idx, nc, masked, want_masked, gcon, ol, olg, gv, a, scal
     mf = masked.ravel()
     gf = gv.ravel()
     s = 0.0
-    if fold:
-        for k in range(nc):
-            i = idx[k]
-            d = scale * (uf[i] + a * float(gf[i])) - hf[i]
-            gcon[k] = d
-            s += d
-    else:
-        for k in range(nc):
-            i = idx[k]
-            d = uf[i] - hf[i]
-            gcon[k] = d
-            s += d
+    for k in range(nc):
+        i = idx[k]
+        d = (scale * (uf[i] + a * float(gf[i])) if fold else uf[i]) - hf[i]
+        gcon[k] = d
+        s += d
     gbar = s / nc if nc > 0 else 0.0
     sg = 0.0
     gn = 0.0

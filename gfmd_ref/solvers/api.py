@@ -92,13 +92,6 @@ def _full_contact_hard(h, p0, el):
     return p
 
 
-def default_max_iter(n: int, interaction, method: str) -> int:
-    """The default cap on operator applications of ``method`` on an ``(n, n)`` grid."""
-    if method == "fire":
-        return 100000 if isinstance(interaction, ExponentialRepulsion) else 20000
-    return 5000 + 20 * n
-
-
 def solve_contact(
     heights,
     *,
@@ -200,9 +193,10 @@ def solve_contact(
     if not isinstance(method, str) or method not in allowed:
         raise ValueError(f"method must be one of {allowed} for {kind}; got {method!r}")
     method = METHODS[kind][0] if method == "auto" else method
-    max_iter = check_int("max_iter", default_max_iter(max(h.shape), interaction, method) if max_iter is None
-                         else max_iter)
     zeta = getattr(interaction, "zeta", None)
+    if max_iter is None:  # FIRE's steps are cheap and many; CG's grow with the grid
+        max_iter = (20000 if zeta is None else 100000) if method == "fire" else 5000 + 20 * max(h.shape)
+    max_iter = check_int("max_iter", max_iter)
     if zeta is not None:
         # u = G p has absolute error ~ eps p0/(E* q1): a residual floor eps p0/(E* q1 zeta).
         # Refuse a floor above 1e-3; below it an unreachable tol ends by stall detection.
