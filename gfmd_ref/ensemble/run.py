@@ -272,11 +272,14 @@ class EnsembleRun:
 class _Tally:
     """The cases of one run as they finish: counts, failures, a tqdm bar on stderr, the report."""
 
-    def __init__(self, store: Path, n_cases: int, todo: int, entry: dict, progress: bool, verbose: bool, stream,
-                 **bar):
-        self.store, self.n_cases, self.skipped, self.verbose = store, n_cases, n_cases - todo, verbose
+    def __init__(self, what: str, store: Path, n_cases: int, todo: int, entry: dict, progress: bool, verbose: bool,
+                 stream, unit: str, **bar):
+        self.what, self.store, self.n_cases, self.skipped, self.verbose = what, store, n_cases, n_cases - todo, verbose
         self.out = sys.stdout if stream is None else stream
         self.t0, self.failed, self.computed, self.not_conv, self.bar = time.perf_counter(), {}, 0, 0, None
+        if verbose:
+            print(f"{what}: {n_cases} {unit}s; {self.skipped} already in {store}, {todo} to run", file=self.out,
+                  flush=True)
         store.mkdir(parents=True, exist_ok=True)
         if todo:  # the run's entry in the store's manifest
             man = store / "ensemble.json"
@@ -289,7 +292,7 @@ class _Tally:
             if progress:
                 from tqdm.auto import tqdm
 
-                self.bar = tqdm(total=todo, file=sys.stderr, **bar)
+                self.bar = tqdm(total=todo, file=sys.stderr, unit=unit, **bar)
 
     def add(self, label: str, get) -> None:
         """Count the case ``label`` whose summary (a dict with ``converged``) ``get()`` returns."""
@@ -308,9 +311,9 @@ class _Tally:
         if self.bar is not None:
             self.bar.close()
 
-    def finish(self, what: str, sched: str) -> EnsembleRun:
+    def finish(self, sched: str) -> EnsembleRun:
         t = time.perf_counter() - self.t0
-        msg = (f"{what}: {self.computed} computed now ({self.not_conv} not converged: kept in the store, excluded "
+        msg = (f"{self.what}: {self.computed} computed now ({self.not_conv} not converged: kept in the store, excluded "
                f"from reductions), {self.skipped} skipped, {len(self.failed)} failed; "
                f"{self.n_cases - self.skipped - self.computed} of {self.n_cases} remain; {t:.1f} s, {sched}")
         if self.verbose:
@@ -432,14 +435,11 @@ def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), length_unit: st
         command = (f"gfmd_ref.run_ensemble({str(store)!r}, n={n!r}, seeds={seeds!r}, walls={walls!r}, "
                    f"mean_pressures={mean_pressures!r}, surface={surface!r}, E_star={E_star!r}, tol={tol!r}, "
                    f"method={method!r})")
-    if verbose:
-        print(f"ensemble: {len(cases)} cases; {len(cases) - len(todo)} already in {store}, {len(todo)} to run",
-              file=sys.stdout if stream is None else stream, flush=True)
     prov = dict(command=command, code=code_version(), run_started=now_iso())
-    tally = _Tally(store, len(cases), len(todo), dict(command=command, started=prov["run_started"], code=prov["code"],
-                                                       length_unit=length_unit,
-                                                       zeta_unit="grid spacings of each record's grid (L = n)"),
-                   progress, verbose, stream, unit="case", smoothing=0.0, desc="gfmd ensemble")
+    tally = _Tally("ensemble", store, len(cases), len(todo),
+                   dict(command=command, started=prov["run_started"], code=prov["code"], length_unit=length_unit,
+                        zeta_unit="grid spacings of each record's grid (L = n)"),
+                   progress, verbose, stream, "case", smoothing=0.0, desc="gfmd ensemble")
     sched, own = "serial (this process)", ()
     try:
         if serial or not todo:
@@ -468,7 +468,7 @@ def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), length_unit: st
         tally.close()
         for obj in own:
             obj.close()
-    return tally.finish("ensemble", sched)
+    return tally.finish(sched)
 
 
 def ingest_fields(field_dir, store, *, surface: Optional[EnsembleSurface] = None, method: str = "auto",
@@ -508,9 +508,6 @@ def ingest_fields(field_dir, store, *, surface: Optional[EnsembleSurface] = None
             raise ValueError(f"{f.name}: length {float(meta['length'])} != n {params['n']} (ensembles use L = n)")
         if case_key(params) not in done:
             todo.append((f, meta, params))
-    if verbose:
-        print(f"ingest: {len(files)} fields; {len(files) - len(todo)} already in {store}, {len(todo)} to reduce",
-              file=sys.stdout if stream is None else stream, flush=True)
 
     def ingest(f, meta, params) -> dict:
         with np.load(f, allow_pickle=False) as z:
@@ -524,10 +521,10 @@ def ingest_fields(field_dir, store, *, surface: Optional[EnsembleSurface] = None
         _store_case(store, params, pressure, case_surface(params), prov)
         return prov
 
-    tally = _Tally(store, len(files), len(todo), dict(command=command, started=base["run_started"], code=base["code"],
-                                                      ingested_from=str(field_dir), field_command=field_command),
-                   progress, verbose, stream, unit="field", desc="ingest")
+    tally = _Tally("ingest", store, len(files), len(todo),
+                   dict(command=command, started=base["run_started"], code=base["code"], ingested_from=str(field_dir),
+                        field_command=field_command), progress, verbose, stream, "field", desc="ingest")
     for f, meta, params in todo:
         tally.add(f.name, lambda: ingest(f, meta, params))
     tally.close()
-    return tally.finish("ingest", "ingest (this process)")
+    return tally.finish("ingest (this process)")

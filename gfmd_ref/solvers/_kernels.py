@@ -34,8 +34,7 @@ def contact_sums(z, w, idx, nc):
     """``(sum_c z, sum_c w z)`` over the contact set ``idx[:nc]``, one pass (``w[k]`` packed:
     the value at ``idx[k]``; ``z`` may be single precision, sums in double)."""
     zf = z.ravel()
-    s = 0.0
-    d = 0.0
+    s = d = 0.0
     for k in range(nc):
         v = float(zf[idx[k]])
         s += v
@@ -51,10 +50,7 @@ def pk_gap(u, h, pc, c, idx, nc, masked, want_masked, gcon, ol, olg, gv, a, scal
     elsewhere; the overlaps (``g < 0`` off the set) go to ``ol[:n_overlap]`` and ``olg``.
     With ``fold``, ``u = scale (u + a gv)`` first (the last step's increment), ``gv`` zeroed.
     Returns ``(sum_c g, sum_c g^2, max_c |p g|, max(-g) off the set, n_overlap, max |gv|)``."""
-    uf = u.ravel()
-    hf = h.ravel()
-    cf = c.ravel()
-    mf = masked.ravel()
+    uf, hf, cf, mf = u.ravel(), h.ravel(), c.ravel(), masked.ravel()
     gf = gv.ravel()
     s = 0.0
     for k in range(nc):
@@ -63,9 +59,7 @@ def pk_gap(u, h, pc, c, idx, nc, masked, want_masked, gcon, ol, olg, gv, a, scal
         gcon[k] = d
         s += d
     gbar = s / nc if nc > 0 else 0.0
-    sg = 0.0
-    gn = 0.0
-    comp = 0.0
+    sg = gn = comp = 0.0
     for k in range(nc):
         gi = gcon[k] - gbar
         gcon[k] = gi
@@ -107,10 +101,8 @@ def pk_direction(z, from_gap, gcon, idx, nc, tc, shift, beta, t2):
     (``from_gap``, plain CG) or ``t = z - shift + beta t`` with ``z = K (masked g)`` and
     ``shift = mean_c z`` (a step along ``t`` keeps the load). ``t2`` (full grid) receives
     ``t`` for the step length's FFT. Returns ``(sum t, sum g t)``."""
-    zf = z.ravel()
-    t2f = t2.ravel()
-    st = 0.0
-    sgt = 0.0
+    zf, t2f = z.ravel(), t2.ravel()
+    st = sgt = 0.0
     for k in range(nc):
         x = gcon[k] if from_gap else zf[idx[k]] - shift
         v = x + beta * tc[k]
@@ -129,14 +121,10 @@ def pk_step(pc, c, tc, idx, nc, ol, olg, n_overlap, tau, idx_new, pc_new, tc_new
     (with ``t = 0``). One merge pass over both sorted lists writes the new set to
     ``idx_new``, ``pc_new``, ``tc_new``; with ``want_dv``, ``dv = p_new - p_old`` (float32)
     at every visited node. Returns ``(n_projected, sum p, new nc)``."""
-    cf = c.ravel()
-    t2f = t2.ravel()
-    vf = dv.ravel()
+    cf, t2f, vf = c.ravel(), t2.ravel(), dv.ravel()
     nproj = 0
     s = 0.0
-    k = 0
-    m = 0
-    n = 0
+    k = m = n = 0
     while k < nc or m < n_overlap:
         if m >= n_overlap or (k < nc and idx[k] < ol[m]):
             i = idx[k]
@@ -211,10 +199,7 @@ def exp_exponents(u, h, zeta, e, keep):
     """``e = x - m`` with the wall's exponents ``x = -(u - h)/zeta`` and their largest ``m``
     (returned). Below :data:`EXP_ZERO` ``e = 0`` and ``keep`` False, so numpy's
     ``exp(where=keep)`` skips libm's slow underflow path."""
-    uf = u.ravel()
-    hf = h.ravel()
-    ef = e.ravel()
-    kf = keep.ravel()
+    uf, hf, ef, kf = u.ravel(), h.ravel(), e.ravel(), keep.ravel()
     m = -np.inf
     for i in range(uf.size):
         x = -(uf[i] - hf[i]) / zeta
@@ -236,8 +221,7 @@ def exp_sum_residual(e, p, p0):
     """From ``e = exp(x - m)`` (:func:`exp_exponents`): ``(s, residual)``, ``s = sum e`` and
     the force residual ``max |sigma - p| / p0`` with the wall pressure ``sigma = p0 exp(-(z0
     + u - h)/zeta) = p0 e n / s`` (never overflows: ``e <= 1``, ``n/s <= n``)."""
-    ef = e.ravel()
-    pf = p.ravel()
+    ef, pf = e.ravel(), p.ravel()
     n = ef.size
     s = 0.0
     for i in range(n):
@@ -254,9 +238,7 @@ def exp_sum_residual(e, p, p0):
 @njit(cache=True, error_model="numpy")
 def exp_pressure(z, h, p0, zeta, out):
     """``out = p0 exp(-(z - h)/zeta)`` with the exponent clamped (see module doc)."""
-    zf = z.ravel()
-    hf = h.ravel()
-    of = out.ravel()
+    zf, hf, of = z.ravel(), h.ravel(), out.ravel()
     for i in range(zf.size):
         of[i] = p0 * _clamp_exp(-(zf[i] - hf[i]) / zeta)
 
@@ -267,14 +249,10 @@ def dual_energy(u, h, p, lp, zeta, grad=None):
     mean magnitude of its terms: near the solution the energy is a small difference of
     those terms, so its round-off scales with the magnitude. With ``grad``, also writes the
     gradient ``u - h + zeta (lp + 1)`` there."""
-    uf = u.ravel()
-    hf = h.ravel()
-    pf = p.ravel()
-    lf = lp.ravel()
+    uf, hf, pf, lf = u.ravel(), h.ravel(), p.ravel(), lp.ravel()
     if grad is not None:
         gf = grad.ravel()
-    e = 0.0
-    a = 0.0
+    e = a = 0.0
     for i in range(uf.size):
         if grad is not None:
             gf[i] = uf[i] - hf[i] + zeta * (lf[i] + 1.0)
@@ -291,9 +269,7 @@ def dual_step(p, dp, alpha, p0, pmin, out):
     """Trial point along a Newton direction: linear where ``dp >= 0``, multiplicative
     ``p exp(alpha dp / p)`` where ``dp < 0`` (stays positive), floored at ``pmin``,
     rescaled to mean ``p0``."""
-    pf = p.ravel()
-    df = dp.ravel()
-    of = out.ravel()
+    pf, df, of = p.ravel(), dp.ravel(), out.ravel()
     n = pf.size
     s = 0.0
     for i in range(n):
@@ -317,15 +293,9 @@ def dual_step(p, dp, alpha, p0, pmin, out):
 def ncg_update(x, r, d, gd, wdiag, minv, p, a):
     """One projected-CG update, one pass: ``x += a d``, ``r -= a (gd + wdiag d)`` (``gd = G d``).
     Returns ``(sum minv r, sum p r)`` of the new ``r`` (the shifts of :func:`ncg_shift`)."""
-    xf = x.ravel()
-    rf = r.ravel()
-    df = d.ravel()
-    gf = gd.ravel()
-    wf = wdiag.ravel()
-    mf = minv.ravel()
-    pf = p.ravel()
-    sm = 0.0
-    sp = 0.0
+    xf, rf, df, gf = x.ravel(), r.ravel(), d.ravel(), gd.ravel()
+    wf, mf, pf = wdiag.ravel(), minv.ravel(), p.ravel()
+    sm = sp = 0.0
     for i in range(xf.size):
         di = df[i]
         xf[i] += a * di
@@ -343,11 +313,8 @@ def ncg_shift(r, minv, p, c, cp):
     ``c = (minv.r)/sum minv`` makes ``z = minv r`` sum to 0. Returns ``(r.z, max |p (r -
     cp)|)``, ``cp = sum p r / sum p`` before the shift: the preconditioned norm and the
     predicted force residual times ``zeta p0``."""
-    rf = r.ravel()
-    mf = minv.ravel()
-    pf = p.ravel()
-    rz = 0.0
-    m = 0.0
+    rf, mf, pf = r.ravel(), minv.ravel(), p.ravel()
+    rz = m = 0.0
     for i in range(rf.size):
         v = rf[i]
         e = abs(pf[i] * (v - cp))
@@ -363,10 +330,7 @@ def ncg_shift(r, minv, p, c, cp):
 def ncg_direction(d, r, minv, wdiag, beta, d2):
     """``d = minv r + beta d``, one pass; ``d2`` receives a copy (the single-precision input
     of the next FFT, or ``d`` itself). Returns ``sum wdiag d^2``, the diagonal part of ``d.A d``."""
-    df = d.ravel()
-    d2f = d2.ravel()
-    rf = r.ravel()
-    mf = minv.ravel()
+    df, d2f, rf, mf = d.ravel(), d2.ravel(), r.ravel(), minv.ravel()
     wf = wdiag.ravel()
     s = 0.0
     for i in range(df.size):
@@ -385,10 +349,7 @@ def project_active(z, h, v, pel, contact):
     """Active-set hard wall: a contact node under compression (``pel > 0``) stays on the wall
     (``z = h``, ``v = 0``; nodes detach only under tension), a free node that penetrates
     joins it. Returns the number of contact nodes."""
-    zf = z.ravel()
-    hf = h.ravel()
-    vf = v.ravel()
-    pf = pel.ravel()
+    zf, hf, vf, pf = z.ravel(), h.ravel(), v.ravel(), pel.ravel()
     cf = contact.ravel()
     nc = 0
     for i in range(zf.size):
@@ -406,11 +367,8 @@ def project_active(z, h, v, pel, contact):
 def hard_force(contact, pel, f):
     """Hard-wall projected force: 0 on a compressed contact node, ``-p_el`` elsewhere.
     Returns ``(max |f|, sum of reactions)``."""
-    cf = contact.ravel()
-    pf = pel.ravel()
-    ff = f.ravel()
-    r = 0.0
-    s = 0.0
+    cf, pf, ff = contact.ravel(), pel.ravel(), f.ravel()
+    r = s = 0.0
     for i in range(pf.size):
         if cf[i] and pf[i] > 0.0:
             s += pf[i]
