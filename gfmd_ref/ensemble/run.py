@@ -151,15 +151,10 @@ def parse_walls(spec) -> list:
 
 def _floats(name, values) -> list:
     values = [values] if isinstance(values, (numbers.Number, str)) else list(values)
-    out = []
-    for v in values:
-        try:
-            f = float(v)
-        except (TypeError, ValueError):
-            f = math.nan
-        if not (math.isfinite(f) and f > 0):
-            raise ValueError(f"{name} must be finite numbers > 0; got {v!r}")
-        out.append(f)
+    try:
+        out = [check_positive(name, float(v)) for v in values]
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be finite numbers > 0; got {values!r}") from None
     if not out:
         raise ValueError(f"{name} must not be empty")
     return out

@@ -30,6 +30,8 @@ import numpy as np
 from ..histogram import PressureHistogram
 from ..solvers import EXP_CONTACT_THRESHOLD
 
+host = socket.gethostname
+
 __all__ = ["STORE_LEVELS", "HIST_EDGES_P0", "EnsembleRecord", "Ensemble", "EnsembleGroup", "case_key", "case_label",
            "reduce_pressure_field", "shell_spectrum", "write_record", "read_record", "load_ensemble", "store_keys",
            "wall_label"]
@@ -207,19 +209,10 @@ class EnsembleRecord:
         return (self.zeta, self.mean_pressure, self.n, self.E_star, _canonical(self.params.get("surface", {})))
 
     def cdf(self, p) -> np.ndarray:
-        """Empirical CDF ``P(pressure <= p)`` interpolated from the quantiles (exact at
-        the stored quantiles to one level step, right-continuous at ties)."""
-        p = np.asarray(p, dtype=float)
-        q = self.quantiles
-        idx = np.searchsorted(q, p, side="right")
-        lo = np.clip(idx - 1, 0, q.size - 1)
-        hi = np.clip(idx, 0, q.size - 1)
-        ql, qh = q[lo], q[hi]
-        ll, lh = self.levels[lo], self.levels[hi]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            t = np.where(qh > ql, (p - ql) / np.where(qh > ql, qh - ql, 1.0), 0.0)
-        out = ll + np.clip(t, 0.0, 1.0) * (lh - ll)
-        return np.where(p < q[0], 0.0, np.where(p >= q[-1], 1.0, out))
+        """Empirical CDF ``P(pressure <= p)``, linear between the quantiles (exact at the
+        stored quantiles to one level step; at tied quantiles, such as the hard wall's zeros,
+        the last level: right-continuous)."""
+        return np.interp(np.asarray(p, dtype=float), self.quantiles, self.levels, left=0.0, right=1.0)
 
 
 _ARRAYS = ("levels", "quantiles", "hist_edges", "hist_counts", "spectrum_q", "spectrum_power",
@@ -268,10 +261,6 @@ def store_keys(store: os.PathLike | str) -> set:
 
 def now_iso() -> str:
     return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
-
-
-def host() -> str:
-    return socket.gethostname()
 
 
 def _wall_order(z: Optional[float]) -> float:

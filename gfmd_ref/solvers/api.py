@@ -81,17 +81,6 @@ class ContactResult:
         return float(np.count_nonzero(self.pressure > thr)) / self.pressure.size
 
 
-def _full_contact_hard(h, p0, el):
-    """Closed-form hard-wall solution when every node is in contact: the solid follows
-    the surface, ``p = p0 + IFFT[(q E*/2) FFT(h)]``; valid (and exact) iff ``min p >= 0``.
-    Returns the pressure or ``None``."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        p = p0 + el.apply(el.K, h)
-    if not np.all(np.isfinite(p)) or np.min(p) < 0.0:
-        return None
-    return p
-
-
 def solve_contact(
     heights,
     *,
@@ -208,7 +197,11 @@ def solve_contact(
                 f"is below double precision (force-residual floor {floor:.1e} p0); need E_star > "
                 f"{2.2e-16 * p0 / (q1 * zeta * EXP_FLOOR_LIMIT):.1e}")
     el = Elastic(h.shape, lengths, E_star, threads)
-    closed = _full_contact_hard(h, p0, el) if method in ("ccg", "pk") else None
+    closed = None
+    if method in ("ccg", "pk"):  # full contact: the solid follows the surface, exact iff min p >= 0
+        with np.errstate(over="ignore", invalid="ignore"):
+            closed = p0 + el.apply(el.K, h)
+        closed = closed if np.all(np.isfinite(closed)) and np.min(closed) >= 0.0 else None
     if closed is not None:
         load = abs(float(np.mean(closed)) - p0) / p0
         out = dict(pressure=closed, gap=np.zeros_like(h), displacement=h.copy(), converged=load < tol,

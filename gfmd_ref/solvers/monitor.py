@@ -13,24 +13,11 @@ import numpy as np
 
 
 class Monitor:
-    """History, progress bar and stop rule of one solver run.
-
-    Parameters
-    ----------
-    name : str
-        Label of the progress bar.
-    tol : float
-        The run has converged when a residual is below ``tol``.
-    max_iter : int
-        The run stops when the iteration count given to :meth:`check` reaches it.
-    window : int
-        Stall window: the run has stalled when its best residual has not fallen by a
-        factor 2 within ``window`` steps (0: never).
-    progress : bool
-        Show a tqdm bar counting decades of residual reduction from the first residual
-        down to ``tol`` (what the run will really do, not ``max_iter``).
-    step : str
-        What the stall window counts, for the stop message ("iteration", "Newton step").
+    """History, progress bar and stop rule of one solver run named ``name``: converged when a
+    residual is below ``tol``; stopped at ``max_iter`` iterations or when the best residual
+    has not halved within ``window`` steps (0: never; ``step`` names what the window counts
+    in the message). ``progress`` shows a tqdm bar of the decades of residual reduction
+    from the first residual down to ``tol`` (what the run will really do, not ``max_iter``).
     """
 
     def __init__(self, name: str, tol: float, max_iter: int, window: int, progress: bool = False,

@@ -20,12 +20,6 @@ NEWTON_STALL_STEPS = 20
 SINGLE_CG_MIN_FORCING = 1e-5
 
 
-def log_ratio(p: np.ndarray, p0: float, out: np.ndarray) -> np.ndarray:
-    """``out = log(p/p0)`` (numpy, vectorized)."""
-    np.divide(p, p0, out=out)
-    return np.log(out, out=out)
-
-
 def z0_residual(u: np.ndarray, h: np.ndarray, p: np.ndarray, p0: float, zeta: float,
                 scratch: np.ndarray, keep: np.ndarray | None = None) -> tuple:
     """``(z0, residual)`` of the exponential wall, one exponential per node.
@@ -65,7 +59,7 @@ def newton(h, p0, zeta, el, tol, max_iter, progress):
     it = 0
     n_newton = cg_total = n_single = 0
     mon = Monitor("newton", tol, max_iter, NEWTON_STALL_STEPS, progress, step="Newton step")
-    log_ratio(p, p0, lp)  # then kept by every accepted step: its trial's energy leaves log(ptry/p0) in lp
+    np.log(np.divide(p, p0, out=lp), out=lp)  # log(p/p0), then kept by every accepted step (its trial's)
     while True:
         E, E_scale = kr.dual_energy(u, h, p, lp, zeta, grad)
         z0, res = z0_residual(u, h, p, p0, zeta, scratch, keep)
@@ -110,7 +104,7 @@ def newton(h, p0, zeta, el, tol, max_iter, progress):
             kr.dual_step(p, x, alpha, p0, pmin, ptry)
             el.fft.apply_route(el.Gn, ptry, utry, dot=False)
             it += 1
-            Et, _ = kr.dual_energy(utry, h, ptry, log_ratio(ptry, p0, lp), zeta)
+            Et, _ = kr.dual_energy(utry, h, ptry, np.log(np.divide(ptry, p0, out=lp), out=lp), zeta)
             if Et <= E + 1e-4 * alpha * slope:
                 break
             # energy change at round-off of its terms (E_scale >> |E| near the solution): use the force residual
