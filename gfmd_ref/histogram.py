@@ -119,8 +119,6 @@ class PressureHistogram:
         metadata : dict, optional
             Provenance kept with the histogram.
         """
-        if np.ndim(bins) == 0:
-            bins = check_int("bins", bins, minimum=1)
         n_quantiles = check_int("n_quantiles", n_quantiles, minimum=2)
         p_max = None if p_max is None else check_positive("p_max", p_max)
         values = np.asarray(pressure, dtype=float).ravel()
@@ -132,7 +130,7 @@ class PressureHistogram:
         positive = values[values != 0.0]
         if np.ndim(bins) == 0:
             top = p_max if p_max is not None else float(positive.max() if positive.size else 1.0)
-            edges = np.linspace(0.0, top, bins + 1)
+            edges = np.linspace(0.0, top, check_int("bins", bins, minimum=1) + 1)
         else:
             edges = np.asarray(bins, dtype=float)
             if edges.ndim != 1 or edges.size < 2 or not np.all(np.isfinite(edges)) or np.any(np.diff(edges) <= 0) \

@@ -1,13 +1,10 @@
 """GFMD ensembles on Dask: seeds x walls x loads x grid sizes, resumable (docs/ensembles.md).
 
 Each case is one :func:`~gfmd_ref.solve_contact` on a self-affine surface (default: the
-paper's Fig. 1 surface, :func:`~gfmd_ref.fig1_surface`), reduced by
-:func:`~gfmd_ref.ensemble.store.reduce_pressure_field` and written as one record of an
-:mod:`~gfmd_ref.ensemble.store` directory by the worker that solved it. Cases run on an
-existing Dask cluster, a local cluster (one single-threaded worker per core) or, with
-``serial=True``, in this process (Dask is the optional ``diffusion-pr[ensemble]``).
-Parameters are checked before anything is scheduled; finished cases are skipped on a
-rerun; writes are atomic and idempotent.
+paper's Fig. 1 surface), reduced and written as one record of a store directory by the
+worker that solved it, on an existing Dask cluster, a local cluster (one single-threaded
+worker per core) or, with ``serial=True``, in this process (Dask is the optional
+``diffusion-pr[ensemble]``). Parameters are checked before anything is scheduled.
 """
 from __future__ import annotations
 
@@ -20,6 +17,7 @@ import os
 import subprocess
 import sys
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
@@ -28,7 +26,8 @@ import numpy as np
 
 from .._validation import check_int, check_positive, check_real, check_tol, check_writable_dir
 from ..scene import FIG1, band_surface, zeta_on_grid
-from ..solvers import METHODS
+from ..interactions import ExponentialRepulsion, HardWall
+from ..solvers import METHODS, ConvergenceWarning, solve_contact
 from .store import (Ensemble, case_key, case_label, host, load_ensemble, now_iso, parse_wall, reduce_pressure_field,
                     shell_spectrum, store_keys, wall_label, write_record)
 
@@ -216,11 +215,6 @@ def _store_case(store, params: dict, pressure: np.ndarray, heights: np.ndarray, 
 def solve_case(params: dict, store: str, provenance: Optional[dict] = None, threads: int = 1) -> dict:
     """Solve, reduce and store one case with ``threads`` FFT threads (runs on a worker).
     Returns its provenance and ``path``."""
-    import warnings
-
-    from ..interactions import ExponentialRepulsion, HardWall
-    from ..solvers import ConvergenceWarning, solve_contact
-
     h = case_surface(params)
     inter = HardWall() if params["zeta"] is None else ExponentialRepulsion(params["zeta"])
     with warnings.catch_warnings():

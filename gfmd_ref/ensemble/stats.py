@@ -1,15 +1,9 @@
-"""Reductions of an ensemble with error bars.
-
-All functions take the converged records of one pool (an
-:class:`~gfmd_ref.ensemble.store.EnsembleGroup` or a list of records). The pooled
-distribution gives every seed the same area: ``F(p) = mean_s F_s(p)``, each
-``F_s`` interpolated linearly between its stored quantiles. Distances between
-such CDFs are piecewise linear between the union of the knots, so evaluating
-them on that union (:func:`cdf_grid`) gives the exact supremum.
-
-Conventions: Kolmogorov distances are taken over ``p >= p_min`` with default
-``p_min = p0/20`` (below it the hard-wall delta peak and the soft walls' tiny
-pressures would be compared, a convention rather than physics).
+"""Reductions of an ensemble with error bars, from the converged records of one pool (an
+:class:`~gfmd_ref.ensemble.store.EnsembleGroup` or a list of records). The pooled distribution
+gives every seed the same area, ``F(p) = mean_s F_s(p)``, each ``F_s`` linear between its
+stored quantiles, so distances between such CDFs are exact on the union of the knots
+(:func:`cdf_grid`). Kolmogorov distances are taken over ``p >= p_min``, default ``p0/20``
+(below it the hard-wall peak and the soft walls' tiny pressures would be compared).
 """
 from __future__ import annotations
 
@@ -129,18 +123,11 @@ def noise_floor(recs, *, sizes: Optional[Sequence[int]] = None, repeats: int = 2
         raise ValueError(f"sizes must be in [1, {S // 2}] (two disjoint pools of N seeds); got {sizes.tolist()}")
     C = cdf_matrix(recs, cdf_grid(recs, p_min))
     rng = np.random.default_rng(seed)
-    mean, sd = [], []
-    for k in sizes:
-        ks = []
-        for _ in range(repeats):
-            perm = rng.permutation(S)
-            ks.append(np.max(np.abs(C[perm[:k]].mean(0) - C[perm[k:2 * k]].mean(0))))
-        mean.append(np.mean(ks))
-        sd.append(np.std(ks))
-    k_pair = np.array(mean)
-    k_noise = k_pair / np.sqrt(2.0)
+    ks = np.array([[np.max(np.abs(C[perm[:k]].mean(0) - C[perm[k:2 * k]].mean(0)))
+                    for perm in (rng.permutation(S) for _ in range(repeats))] for k in sizes])
+    k_noise = ks.mean(axis=1) / np.sqrt(2.0)
     coef = float(np.median(k_noise * np.sqrt(sizes)))
-    return NoiseFloor(sizes, k_pair, np.array(sd), k_noise, coef, S, coef / np.sqrt(S), p_min)
+    return NoiseFloor(sizes, ks.mean(axis=1), ks.std(axis=1), k_noise, coef, S, coef / np.sqrt(S), p_min)
 
 
 def scatter(recs, attr: str) -> tuple:

@@ -1,16 +1,10 @@
-"""The ensemble store: one small file per case, keyed by the case's parameters.
-
-A store is a directory. Each finished case is one compressed ``.npz`` file
-``<label>__<key>.npz``: ``key`` is the first 16 hex digits of the SHA-1 of the canonical
-JSON of the case parameters (:func:`case_key`), ``label`` a readable name
-(``n1024_hard_p0.004_s7``). A record holds the parameters, the provenance and the
-reductions of the pressure field (:func:`reduce_pressure_field`) and of the surface
-(:func:`shell_spectrum`); the fields are listed in ``docs/ensembles.md``.
-
-Every record is written by one ``os.replace`` of a temporary file in the same directory
-(atomic on POSIX): a killed process leaves at most a ``*.tmp`` file that readers ignore,
-and two writers of the same case write the same content under the same name, so the
-store stays duplicate-free without an index.
+"""The ensemble store: a directory with one compressed ``.npz`` per finished case,
+``<label>__<key>.npz`` (``key``: 16 hex digits of the SHA-1 of the case parameters' canonical
+JSON, :func:`case_key`; ``label``: e.g. ``n1024_hard_p0.004_s7``), holding the parameters, the
+provenance and the reductions of the pressure field and the surface (fields listed in
+``docs/ensembles.md``). Each record is written by one ``os.replace`` of a temporary file in
+the same directory: a killed process leaves at most a ``*.tmp`` file that readers ignore, and
+two writers of the same case write the same file, so the store needs no index.
 """
 from __future__ import annotations
 
