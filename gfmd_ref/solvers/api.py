@@ -173,7 +173,7 @@ def solve_contact(
     tol = check_tol(tol)
     if check_periodic:
         _check_periodic(h)
-    threads = check_int("threads", threads)
+    threads = check_int("threads", 1 if threads is None else threads)
     if not isinstance(interaction, (HardWall, ExponentialRepulsion)):
         raise ValueError("interaction must be gfmd_ref.HardWall() or gfmd_ref.ExponentialRepulsion(zeta); "
                          f"got {interaction!r}")
