@@ -12,22 +12,7 @@ from .scene import FIG1, fig1_surface
 from .solvers import EXP_CONTACT_THRESHOLD, ContactResult, ConvergenceWarning, solve_contact
 from .surface import self_affine_surface, spectral_rms_slope
 
-__all__ = [
-    "self_affine_surface",
-    "spectral_rms_slope",
-    "HardWall",
-    "ExponentialRepulsion",
-    "solve_contact",
-    "ContactResult",
-    "ConvergenceWarning",
-    "EXP_CONTACT_THRESHOLD",
-    "pressure_histogram",
-    "PressureHistogram",
-    "fig1_surface",
-    "FIG1",
-    "run_ensemble",
-    "load_ensemble",
-    "bundled_ensemble",
-    "ingest_fields",
-    "EnsembleSurface",
-]
+__all__ = ["self_affine_surface", "spectral_rms_slope", "HardWall", "ExponentialRepulsion", "solve_contact",
+           "ContactResult", "ConvergenceWarning", "EXP_CONTACT_THRESHOLD", "pressure_histogram", "PressureHistogram",
+           "fig1_surface", "FIG1", "run_ensemble", "load_ensemble", "bundled_ensemble", "ingest_fields",
+           "EnsembleSurface"]

@@ -3,18 +3,28 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
+import tempfile
 
 import numpy as np
 
 
+def check_real(name: str, value, *, low: float | None = None, high: float | None = None) -> float:
+    """A finite real number (not a string or bool), optionally within ``[low, high]``."""
+    rng = f" in [{low!r}, {high!r}]" if low is not None and high is not None else (
+        f" >= {low!r}" if low is not None else (f" <= {high!r}" if high is not None else ""))
+    v = float(value) if isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)) else math.nan
+    if not math.isfinite(v) or (low is not None and v < low) or (high is not None and v > high):
+        raise ValueError(f"{name} must be a finite real number{rng}; got {name}={value!r}")
+    return v
+
+
 def check_positive(name: str, value) -> float:
     """A finite float > 0 (strings and bools are rejected, not parsed)."""
-    if isinstance(value, (str, bytes, bool, np.bool_)):
-        raise ValueError(f"{name} must be a finite number > 0; got {value!r}")
     try:
-        v = float(value)
+        v = math.nan if isinstance(value, (str, bytes, bool, np.bool_)) else float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a finite number > 0; got {value!r}") from None
+        v = math.nan
     if not math.isfinite(v) or v <= 0:
         raise ValueError(f"{name} must be a finite number > 0; got {value!r}")
     return v
@@ -22,9 +32,7 @@ def check_positive(name: str, value) -> float:
 
 def check_int(name: str, value, minimum: int = 1) -> int:
     """An integer (not a bool or float) >= ``minimum``."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise ValueError(f"{name} must be an integer >= {minimum}; got {value!r}")
-    if value < minimum:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
         raise ValueError(f"{name} must be an integer >= {minimum}; got {value!r}")
     return int(value)
 
@@ -36,14 +44,13 @@ def check_heights(heights) -> np.ndarray:
         h = np.asarray(heights, dtype=np.float64)
     except (TypeError, ValueError):
         raise ValueError(
-            f"heights must be a 2-D array of finite real numbers; got {type(heights).__name__}"
-        ) from None
+            f"heights must be a 2-D array of finite real numbers; got {type(heights).__name__}") from None
     if h.ndim != 2 or min(h.shape) < 2:
         raise ValueError(
             f"heights must be a 2-D array (rows, columns), each >= 2, of one periodic cell; got shape {h.shape}")
     if not np.all(np.isfinite(h)):
-        bad = int(np.size(h) - np.count_nonzero(np.isfinite(h)))
-        raise ValueError(f"heights must be finite; got {bad} NaN/inf value(s)")
+        raise ValueError(f"heights must be finite; got {int(np.size(h) - np.count_nonzero(np.isfinite(h)))} "
+                         "NaN/inf value(s)")
     return np.ascontiguousarray(h)
 
 
@@ -81,23 +88,10 @@ TOL_MAX = 0.1
 
 def check_tol(tol) -> float:
     """A residual tolerance in ``(0, TOL_MAX]`` (relative to the mean pressure)."""
-    if isinstance(tol, (str, bytes, bool, np.bool_)) or not isinstance(tol, numbers.Real) \
-            or not math.isfinite(float(tol)) or not 0 < float(tol) <= TOL_MAX:
+    if isinstance(tol, (bool, np.bool_)) or not isinstance(tol, numbers.Real) or not 0 < float(tol) <= TOL_MAX:
         raise ValueError(f"tol must be a number in (0, {TOL_MAX:g}] (relative to the mean pressure p0); "
                          f"got tol={tol!r}")
     return float(tol)
-
-
-def check_real(name: str, value, *, low: float | None = None, high: float | None = None) -> float:
-    """A finite real number (not a string or bool), optionally within ``[low, high]``."""
-    rng = f" in [{low!r}, {high!r}]" if low is not None and high is not None else (
-        f" >= {low!r}" if low is not None else (f" <= {high!r}" if high is not None else ""))
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-        raise ValueError(f"{name} must be a finite real number{rng}; got {name}={value!r}")
-    v = float(value)
-    if not math.isfinite(v) or (low is not None and v < low) or (high is not None and v > high):
-        raise ValueError(f"{name} must be a finite real number{rng}; got {name}={value!r}")
-    return v
 
 
 def check_seed(name: str, value):
@@ -110,14 +104,9 @@ def check_seed(name: str, value):
 
 
 def check_writable_dir(name: str, path) -> str:
-    """Create the folder ``path`` if needed and check that a file can be written in it.
-
-    Called before any expensive work, so an unwritable output folder is an
-    immediate ``ValueError`` naming the parameter, not a crash after the solve.
-    """
-    import os
-    import tempfile
-
+    """Create the folder ``path`` if needed and check that a file can be written in it:
+    called before any expensive work, so an unwritable output folder is an immediate
+    ``ValueError`` naming the parameter, not a crash after the solve."""
     try:
         folder = os.fspath(path)
     except TypeError:

@@ -147,32 +147,24 @@ def run_default_scene(
     pmax = float(res.pressure.max())
     hist = pressure_histogram(res, bins=bins, range=(0.0, pmax) if pmax > 0 else None)
     paths = {}
-    label = "hard" if interaction == "hard" else f"exp_zeta{zeta:g}" + ("" if heights is not None else f"{length_unit}")
+    label = "hard" if interaction == "hard" else f"exp_zeta{zeta:g}" + ("" if heights is not None else length_unit)
     if out_dir is not None:
         stem = os.path.join(out_dir, name.format(label))
-        meta = dict(
-            scene=scene, interaction=label, tol=tol, method=res.method,
-            zeta=None if interaction == "hard" else zeta, zeta_unit=None if interaction == "hard" else unit,
-            zeta_solver=None if interaction == "hard" else z_solver, length=res.length,
-            E_star=E_star, mean_pressure=p0, contact_fraction=res.contact_fraction,
-            contact_threshold=res.contact_threshold,
-            iterations=res.iterations, residual=res.residual, converged=res.converged,
-            wall_time=res.wall_time, zero_weight=hist.zero_weight,
-        )
+        meta = dict(scene=scene, interaction=label, tol=tol, method=res.method,
+                    zeta=None if interaction == "hard" else zeta, zeta_unit=None if interaction == "hard" else unit,
+                    zeta_solver=None if interaction == "hard" else z_solver, length=res.length, E_star=E_star,
+                    mean_pressure=p0, contact_fraction=res.contact_fraction, contact_threshold=res.contact_threshold,
+                    iterations=res.iterations, residual=res.residual, converged=res.converged,
+                    wall_time=res.wall_time, zero_weight=hist.zero_weight)
         if heights is None:
             meta.update(n=n, seed=seed, hurst=FIG1["hurst"], rms_slope=FIG1["rms_slope"])
-        np.savez(
-            stem + "_histogram.npz", edges=hist.edges, centers=hist.centers,
-            density=hist.density, counts=hist.counts, zero_weight=hist.zero_weight,
-            meta=json.dumps(meta),
-        )
-        with open(stem + "_histogram.csv", "w") as fh:
-            fh.write(f"# {json.dumps(meta)}\n")
-            fh.write(f"# zero_weight (exact-zero pressures) = {hist.zero_weight:.10g}\n")
-            fh.write("p_left,p_right,p_center,density,count\n")
-            for a, b, c, d, k in zip(hist.edges[:-1], hist.edges[1:], hist.centers,
-                                     hist.density, hist.counts):
-                fh.write(f"{a:.10g},{b:.10g},{c:.10g},{d:.10g},{int(k)}\n")
+        paths = {k: f"{stem}_histogram.{k}" for k in ("npz", "csv", "png")}
+        np.savez(paths["npz"], edges=hist.edges, centers=hist.centers, density=hist.density, counts=hist.counts,
+                 zero_weight=hist.zero_weight, meta=json.dumps(meta))
+        np.savetxt(paths["csv"], np.column_stack([hist.edges[:-1], hist.edges[1:], hist.centers, hist.density,
+                                                  hist.counts]), fmt=["%.10g"] * 4 + ["%d"], delimiter=",",
+                   comments="", header=f"# {json.dumps(meta)}\n# zero_weight (exact-zero pressures) = "
+                                       f"{hist.zero_weight:.10g}\np_left,p_right,p_center,density,count")
         import matplotlib
 
         matplotlib.use("Agg")
@@ -181,25 +173,22 @@ def run_default_scene(
         fig, ax = plt.subplots(figsize=(5.5, 4))
         m = hist.density > 0
         ax.semilogy(hist.centers[m], hist.density[m], "o-", ms=3, label=f"GFMD {label}")
-        ax.set_xlabel("local pressure p")
-        ax.set_ylabel("Pr(p) (continuous part)")
-        ax.set_title(f"{scene}: contact fraction {res.contact_fraction:.4f}, "
-                     f"zero weight {hist.zero_weight:.3f}", fontsize=8)
+        ax.set(xlabel="local pressure p", ylabel="Pr(p) (continuous part)")
+        ax.set_title(f"{scene}: contact fraction {res.contact_fraction:.4f}, zero weight {hist.zero_weight:.3f}",
+                     fontsize=8)
         ax.legend(fontsize=8)
         fig.tight_layout()
-        fig.savefig(stem + "_histogram.png", dpi=120)
+        fig.savefig(paths["png"], dpi=120)
         plt.close(fig)
-        paths = dict(npz=stem + "_histogram.npz", csv=stem + "_histogram.csv",
-                     png=stem + "_histogram.png")
     if verbose:
         wall = "hard wall" if interaction == "hard" else f"exponential wall, zeta={zeta:g} in {unit}"
-        print(f"scene: {scene}, {wall}, E*={E_star:.6g}, p0={p0}")
-        print(f"method:           {res.method}")
-        print(f"converged:        {res.converged}")
-        print(f"contact fraction: {res.contact_fraction:.6f} (p > {res.contact_threshold:.3g})")
-        print(f"iterations:       {res.iterations}")
-        print(f"residual:         {res.residual:.3e} (tol {tol:.1e}, relative to p0)")
-        print(f"wall time:        {res.wall_time:.3f} s")
+        print(f"scene: {scene}, {wall}, E*={E_star:.6g}, p0={p0}\n"
+              f"method:           {res.method}\n"
+              f"converged:        {res.converged}\n"
+              f"contact fraction: {res.contact_fraction:.6f} (p > {res.contact_threshold:.3g})\n"
+              f"iterations:       {res.iterations}\n"
+              f"residual:         {res.residual:.3e} (tol {tol:.1e}, relative to p0)\n"
+              f"wall time:        {res.wall_time:.3f} s")
         for k, v in paths.items():
             print(f"wrote {k}: {v}")
     return res, hist, paths
@@ -212,6 +201,20 @@ def _length_arg(text: str):
     return parts[0] if len(parts) == 1 else tuple(parts)
 
 
+def _solver_arguments(parser: argparse.ArgumentParser, tol: float, zeta_of: str) -> None:
+    """The options ``run`` and ``ensemble`` share: ``--length-unit``, ``--E-star``, ``--tol``, ``--method``."""
+    parser.add_argument("--length-unit", choices=list(LENGTH_UNITS), default="grid",
+                        help=f"the unit of {zeta_of} (the unit of the cell's side L): grid = {LENGTH_UNITS['grid']}; "
+                             f"paper = {LENGTH_UNITS['paper']}, converted to zeta * n / 1024 on the solved grid "
+                             "(default: grid)")
+    parser.add_argument("--E-star", type=float, default=None, help="contact modulus E* (default: the paper's 8/3)")
+    parser.add_argument("--tol", type=float, default=tol,
+                        help=f"residual tolerance, relative to p0, in (0, 0.1] (dimensionless; default: {tol:g})")
+    parser.add_argument("--method", choices=["auto", "ccg", "pk", "newton", "fire"], default="auto",
+                        help="solver: ccg (preconditioned constrained CG), pk (plain Polonsky-Keer), fire "
+                             "(hard wall); newton, fire (exponential wall) (default: auto = ccg / newton)")
+
+
 def add_run_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add the ``run`` options to an (sub)parser."""
     parser.add_argument("--n", type=int, default=256,
@@ -222,24 +225,16 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParse
     parser.add_argument("--length", type=_length_arg, default=None,
                         help="with --heights: the map's side along its first axis (same spacing along the second), "
                              "or 'Lx,Ly', in the user's length unit (default: the number of rows, i.e. grid spacings)")
-    parser.add_argument("--length-unit", choices=list(LENGTH_UNITS), default="grid",
-                        help="Fig. 1 scene: the unit of --zeta (the unit of the cell's side L): grid = "
-                             f"{LENGTH_UNITS['grid']}; paper = {LENGTH_UNITS['paper']} (default: grid)")
     parser.add_argument("--interaction", choices=["hard", "exp"], default=None,
                         help="hard wall or exponential repulsion (default: exp if --zeta is given, else hard)")
     parser.add_argument("--zeta", type=float, default=None,
                         help="decay length of the exponential wall (implies --interaction exp), in the unit of "
                              f"--length-unit (grid: {LENGTH_UNITS['grid']}; paper: {ZETA_UNIT}) or, with "
                              "--heights, of --length (default: 0.01)")
-    parser.add_argument("--E-star", type=float, default=None, help="contact modulus E* (default: the paper's 8/3)")
+    _solver_arguments(parser, 1e-8, "--zeta for the Fig. 1 scene")
     parser.add_argument("--mean-pressure", type=float, default=None,
                         help="mean pressure p0, in the unit of E* (default: the paper's 0.004)")
     parser.add_argument("--seed", type=int, default=1, help="Fig. 1 surface seed, integer >= 0 (default: 1)")
-    parser.add_argument("--tol", type=float, default=1e-8,
-                        help="residual tolerance, relative to p0, in (0, 0.1] (dimensionless; default: 1e-8)")
-    parser.add_argument("--method", choices=["auto", "ccg", "pk", "newton", "fire"], default="auto",
-                        help="solver: ccg (preconditioned constrained CG), pk (plain Polonsky-Keer), fire "
-                             "(hard wall); newton, fire (exponential wall) (default: auto = ccg / newton)")
     parser.add_argument("--bins", type=int, default=60, help="histogram bins on [0, max p] (default: 60)")
     parser.add_argument("--out", default="gfmd_out",
                         help="output folder, checked for writability before solving (default: gfmd_out)")
@@ -275,24 +270,15 @@ def add_ensemble_arguments(parser: argparse.ArgumentParser) -> argparse.Argument
     parser.add_argument("--walls", default="hard",
                         help="walls: 'hard' and/or exponential ranges zeta in the unit of --length-unit, "
                              "e.g. hard,4,0.25 (default: hard)")
-    parser.add_argument("--length-unit", choices=list(LENGTH_UNITS), default="grid",
-                        help=f"the unit of the zeta of --walls (the unit of the cell's side L): grid = "
-                             f"{LENGTH_UNITS['grid']}, paper = {LENGTH_UNITS['paper']}, converted to zeta * n / 1024 "
-                             "on each grid; the store records zeta in grid spacings with L = n (default: grid)")
-    parser.add_argument("--mean-pressures", default=None,
-                        help="loads p0, comma separated (default the paper's 0.004)")
-    parser.add_argument("--E-star", type=float, default=None, help="contact modulus (default 8/3)")
+    _solver_arguments(parser, 1e-6, "the zeta of --walls; the store records zeta in grid spacings with L = n")
+    parser.add_argument("--mean-pressures", default=None, help="loads p0, comma separated (default the paper's 0.004)")
     parser.add_argument("--hurst", type=float, default=None, help="surface Hurst exponent (default 0.3)")
     parser.add_argument("--rms-slope", type=float, default=None, help="surface rms slope (default 0.031)")
     parser.add_argument("--n-waves", type=int, default=None,
                         help="q_max/q_min, shortest wavelength L/n_waves (default 32)")
-    parser.add_argument("--tol", type=float, default=1e-6, help="solver tolerance relative to p0 (default 1e-6)")
-    parser.add_argument("--method", choices=["auto", "ccg", "pk", "newton", "fire"], default="auto",
-                        help="solver, as for the run command (default: auto = ccg / newton)")
     parser.add_argument("--workers", type=int, default=None,
                         help="local cluster worker processes (default: one per core)")
-    parser.add_argument("--threads-per-worker", type=int, default=None,
-                        help="FFT threads per worker (default 1)")
+    parser.add_argument("--threads-per-worker", type=int, default=None, help="FFT threads per worker (default 1)")
     parser.add_argument("--scheduler", default=None, help="address of a running Dask scheduler (tcp://host:8786)")
     parser.add_argument("--serial", action="store_true", help="no cluster: solve the cases in this process")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -304,13 +290,10 @@ def _ensemble_command(args, command: str) -> int:
     from . import ensemble as ens
 
     if args.command == "ensemble":
-        fig1 = ens.FIG1_SURFACE
-        surface = ens.EnsembleSurface(fig1.hurst if args.hurst is None else args.hurst,
-                                      fig1.rms_slope if args.rms_slope is None else args.rms_slope,
-                                      fig1.n_waves if args.n_waves is None else args.n_waves)
-        ns = [int(v) if v.strip().lstrip("-").isdigit() else v for v in str(args.n).split(",")]
+        surface = ens.EnsembleSurface(**{k: getattr(args, k) for k in ("hurst", "rms_slope", "n_waves")
+                                         if getattr(args, k) is not None})
         loads = None if args.mean_pressures is None else args.mean_pressures.split(",")
-        run = ens.run_ensemble(args.store, n=ns, seeds=args.seeds, walls=args.walls, length_unit=args.length_unit,
+        run = ens.run_ensemble(args.store, n=args.n.split(","), seeds=args.seeds, walls=args.walls, length_unit=args.length_unit,
                                mean_pressures=loads, surface=surface, E_star=args.E_star, tol=args.tol,
                                method=args.method, workers=args.workers, threads_per_worker=args.threads_per_worker,
                                scheduler=args.scheduler, serial=args.serial, progress=not args.no_progress,

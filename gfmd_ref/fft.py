@@ -7,16 +7,12 @@ product by Parseval; ``float32`` data and multiplier run in single precision.
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import scipy.fft as sfft
 from numba import njit
 
-__all__ = ["DEFAULT_THREADS", "FFTPair", "check_threads", "spectral_multiply", "spectral_scale"]
-
-#: FFT threads when a caller does not say.
-DEFAULT_THREADS = 1
+__all__ = ["FFTPair", "spectral_multiply", "spectral_scale"]
 
 
 @njit(cache=True, error_model="numpy")
@@ -24,8 +20,8 @@ def spectral_multiply(spec, mult, n_last):
     """``spec *= mult`` for the half spectrum of a real ``(n0, n_last)`` field ``x`` and
     a real multiplier; returns ``sum_k w_k mult_k |X_k|^2`` (``w_k`` = 1 on the columns
     that are their own mirror, 2 elsewhere), which by Parseval is ``sum_i x_i y_i`` for
-    ``y = irfft2(mult X) n0 n_last``. Real arithmetic, ``(Re x m, Im x m)``, gives numpy's
-    values bit for bit; two accumulators per row shorten the add chain."""
+    ``y = irfft2(mult X) n0 n_last``. Real arithmetic gives numpy's values bit for bit;
+    two accumulators per row shorten the add chain."""
     n0, nh = spec.shape
     last = nh - 1 if n_last % 2 == 0 else nh  # the Nyquist column has weight 1
     s = 0.0
@@ -72,42 +68,18 @@ def spectral_scale(spec, mult):
         sf[k] = complex(x.real * m, x.imag * m)
 
 
-def check_threads(threads) -> int:
-    """``threads`` -> an int >= 1 (``None`` -> :data:`DEFAULT_THREADS`); ValueError otherwise."""
-    if threads is None:
-        return DEFAULT_THREADS
-    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
-        raise ValueError(f"threads must be an integer >= 1 (or None for the default); got {threads!r}")
-    return int(threads)
-
-
 class FFTPair:
-    """``rfft2``/``irfft2`` on an ``(n, n)`` grid.
+    """``rfft2``/``irfft2`` on a real grid of ``shape`` with ``threads`` workers."""
 
-    ``transform_seconds`` and ``multiply_seconds`` sum the time spent in the transforms
-    and in the spectral multiplies between them over the pair's life (a solve reports its
-    own share as ``info["fft_seconds"]`` and ``info["multiply_seconds"]``).
-    """
-
-    name = "scipy"
-
-    def __init__(self, shape: tuple, threads: int | None = None):
+    def __init__(self, shape: tuple, threads: int = 1):
         self.shape = tuple(shape)
-        self.threads = check_threads(threads)
-        self.transform_seconds = 0.0
-        self.multiply_seconds = 0.0
+        self.threads = threads
 
     def rfft(self, x: np.ndarray) -> np.ndarray:
-        t0 = time.perf_counter()
-        out = sfft.rfft2(x, workers=self.threads)
-        self.transform_seconds += time.perf_counter() - t0
-        return out
+        return sfft.rfft2(x, workers=self.threads)
 
     def irfft(self, X: np.ndarray) -> np.ndarray:
-        t0 = time.perf_counter()
-        out = sfft.irfft2(X, s=self.shape, workers=self.threads)
-        self.transform_seconds += time.perf_counter() - t0
-        return out
+        return sfft.irfft2(X, s=self.shape, workers=self.threads)
 
     def apply(self, mult: np.ndarray, x: np.ndarray) -> np.ndarray:
         """``irfft2(mult * rfft2(x))``: a Fourier multiplier applied to a real field (a new array)."""
@@ -120,16 +92,11 @@ class FFTPair:
         multiplier ``mult_n = mult / n^2``; ``src`` is kept unless it is ``dst``). ``float32``
         arrays and multiplier run in single precision. Returns ``src . dst`` by Parseval
         (summed in double) with ``dot``, else NaN (the multiply skips the sum)."""
-        t0 = time.perf_counter()
         X = sfft.rfft2(src, workers=self.threads)
-        t1 = time.perf_counter()
         if dot:
             out = spectral_multiply(X, mult_n, self.shape[1])
         else:
             spectral_scale(X, mult_n)
             out = math.nan
-        t2 = time.perf_counter()
         dst[...] = sfft.irfft2(X, s=self.shape, workers=self.threads, overwrite_x=True, norm="forward")
-        self.transform_seconds += (t1 - t0) + (time.perf_counter() - t2)
-        self.multiply_seconds += t2 - t1
         return out

@@ -1,9 +1,7 @@
-"""Pressure histograms with the hard-wall non-contact delta peak kept apart.
-
-:class:`PressureHistogram` carries what a comparison with a theory needs: the bins,
-the weight of exactly-zero pressures, the moments and the contact fraction at the
-solver's threshold, the field's quantile function and provenance.
-"""
+"""Pressure histograms with the hard-wall non-contact delta peak kept apart: the bins, the
+weight of exactly-zero pressures, the moments, the contact fraction at the solver's
+threshold, the field's quantile function and provenance (what a comparison with a theory
+needs)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -66,15 +64,9 @@ class PressureHistogram:
         object.__setattr__(self, "edges", edges)
         object.__setattr__(self, "density", density)
 
-    @property
-    def centers(self) -> np.ndarray:
-        """Bin centres [pressure]."""
-        return 0.5 * (self.edges[1:] + self.edges[:-1])
-
-    @property
-    def widths(self) -> np.ndarray:
-        """Bin widths [pressure]."""
-        return np.diff(self.edges)
+    #: Bin centres and widths [pressure].
+    centers = property(lambda self: 0.5 * (self.edges[1:] + self.edges[:-1]))
+    widths = property(lambda self: np.diff(self.edges))
 
     @property
     def contact_threshold(self) -> float:
@@ -82,15 +74,12 @@ class PressureHistogram:
         wall 0, exponential wall ``EXP_CONTACT_THRESHOLD * p0``) when known, else 0."""
         return float(self.moments.get("contact_threshold", 0.0))
 
-    @property
-    def contact_fraction(self) -> float:
-        """:meth:`contact_area` at its default threshold."""
-        return self.contact_area()
-
     def contact_area(self, threshold: float | None = None) -> float:
         """Fraction of the field with pressure ``> threshold`` [pressure] (default
         :attr:`contact_threshold`); see :meth:`fraction_above`."""
         return self.fraction_above(self.contact_threshold if threshold is None else threshold)
+
+    contact_fraction = property(contact_area, doc=":meth:`contact_area` at its default threshold.")
 
     def fraction_above(self, threshold: float = 0.0) -> float:
         """Fraction of the field with pressure ``> threshold`` [pressure, >= 0].
@@ -130,8 +119,6 @@ class PressureHistogram:
         metadata : dict, optional
             Provenance kept with the histogram.
         """
-        if np.ndim(bins) == 0:
-            bins = check_int("bins", bins, minimum=1)
         n_quantiles = check_int("n_quantiles", n_quantiles, minimum=2)
         p_max = None if p_max is None else check_positive("p_max", p_max)
         values = np.asarray(pressure, dtype=float).ravel()
@@ -143,7 +130,7 @@ class PressureHistogram:
         positive = values[values != 0.0]
         if np.ndim(bins) == 0:
             top = p_max if p_max is not None else float(positive.max() if positive.size else 1.0)
-            edges = np.linspace(0.0, top, bins + 1)
+            edges = np.linspace(0.0, top, check_int("bins", bins, minimum=1) + 1)
         else:
             edges = np.asarray(bins, dtype=float)
             if edges.ndim != 1 or edges.size < 2 or not np.all(np.isfinite(edges)) or np.any(np.diff(edges) <= 0) \

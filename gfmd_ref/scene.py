@@ -1,14 +1,8 @@
-"""The paper's Fig. 1 scene at any grid size.
-
-Müser, Phys. Rev. Lett. 100, 055504 (2008), doi:10.1103/PhysRevLett.100.055504:
-"roughness on wavelengths 32 <= lambda <= 1024, the Hurst roughness exponent is
-H = 0.3, and the root-mean-square slope is 0.031. Furthermore, E' = 8/3 and
-p_0 = 0.004 in the same units. [...] The unit for length scale is defined by the
-distance between two grid points in the numerical solution."
-
-:mod:`gfmd_ref` never imports :mod:`diffusion_pr`, so it keeps its own copy of
-these numbers in :data:`FIG1`; ``diffusion_pr.paper`` holds the package's copy
-(with the quotes) and the test suite checks that the two agree.
+"""The paper's Fig. 1 scene at any grid size (Müser, Phys. Rev. Lett. 100, 055504 (2008),
+doi:10.1103/PhysRevLett.100.055504): wavelengths 32 ... 1024 grid spacings, H = 0.3, rms
+slope 0.031, E* = 8/3, p0 = 0.004. :mod:`gfmd_ref` never imports :mod:`diffusion_pr`, so it
+keeps its own copy of these numbers in :data:`FIG1`; ``diffusion_pr.paper`` holds the
+package's copy (with the quotes) and the test suite checks that the two agree.
 """
 from __future__ import annotations
 

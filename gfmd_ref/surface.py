@@ -15,13 +15,7 @@ import scipy.fft as sfft
 
 from ._validation import check_heights, check_int, check_positive, check_real, check_seed
 
-__all__ = ["self_affine_surface", "wavevector_magnitude", "spectral_rms_slope"]
-
-
-def wavevector_magnitude(n: int, length: float) -> np.ndarray:
-    """|q| on the full ``(n, n)`` FFT grid, ``q = 2 pi (m, k)/length`` (numpy fftfreq order)."""
-    k = 2.0 * np.pi * np.fft.fftfreq(n, d=length / n)
-    return np.sqrt(k[:, None] ** 2 + k[None, :] ** 2)
+__all__ = ["self_affine_surface", "spectral_rms_slope"]
 
 
 def spectral_rms_slope(heights: np.ndarray, length: float) -> float:
@@ -32,9 +26,9 @@ def spectral_rms_slope(heights: np.ndarray, length: float) -> float:
     n = h.shape[0]
     if h.shape[1] != n:
         raise ValueError(f"heights must be a square (n, n) array; got shape {h.shape}")
-    ht = sfft.fft2(h) / h.size
-    q = wavevector_magnitude(n, length)
-    return float(np.sqrt(np.sum(q**2 * np.abs(ht) ** 2)))
+    k = 2.0 * np.pi * np.fft.fftfreq(n, d=length / n)
+    q2 = k[:, None] ** 2 + k[None, :] ** 2
+    return float(np.sqrt(np.sum(q2 * np.abs(sfft.fft2(h) / h.size) ** 2)))
 
 
 def self_affine_surface(
@@ -104,20 +98,15 @@ def self_affine_surface(
         raise ValueError(f"q_max must be <= the grid's Nyquist wavenumber pi n / length = {nyquist:.6g} "
                          f"(n={n}, length={length!r}); got q_max={q_max!r}: use n >= {math.ceil(q_max * length / math.pi)}")
     if (rms_slope is None) == (h_rms is None):
-        raise ValueError(
-            "exactly one of rms_slope and h_rms must be given; got "
-            f"rms_slope={rms_slope!r}, h_rms={h_rms!r}"
-        )
+        raise ValueError(f"exactly one of rms_slope and h_rms must be given; got rms_slope={rms_slope!r}, "
+                         f"h_rms={h_rms!r}")
     if rms_slope is not None:
         rms_slope = check_positive("rms_slope", rms_slope)
-    if h_rms is not None:
+    else:
         h_rms = check_positive("h_rms", h_rms)
-    if q_roll is not None:
-        q_roll = check_positive("q_roll", q_roll)
-        if not (q_min <= q_roll <= q_max):
-            raise ValueError(
-                f"q_roll must lie in [q_min, q_max] = [{q_min!r}, {q_max!r}]; got {q_roll!r}"
-            )
+    q_roll = None if q_roll is None else check_positive("q_roll", q_roll)
+    if q_roll is not None and not q_min <= q_roll <= q_max:
+        raise ValueError(f"q_roll must lie in [q_min, q_max] = [{q_min!r}, {q_max!r}]; got {q_roll!r}")
 
     # work on the integer lattice (m, k) with q = (2 pi / length) |(m, k)|, so no
     # length or band limit, however large or small, overflows
@@ -128,10 +117,8 @@ def self_affine_surface(
     lo, hi = q_min / unit, q_max / unit
     band = (qhat >= lo * (1 - 1e-12)) & (qhat <= hi * (1 + 1e-12))
     if not np.any(band):
-        raise ValueError(
-            f"no lattice wave vector 2 pi (m, k)/length lies in [q_min, q_max] = "
-            f"[{q_min!r}, {q_max!r}] for n={n}, length={length!r}"
-        )
+        raise ValueError(f"no lattice wave vector 2 pi (m, k)/length lies in [q_min, q_max] = "
+                         f"[{q_min!r}, {q_max!r}] for n={n}, length={length!r}")
     qq = np.where(band, qhat, 1.0)
     if q_roll is not None:
         qq = np.maximum(qq, q_roll / unit)

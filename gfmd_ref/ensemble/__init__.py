@@ -1,8 +1,6 @@
-"""GFMD ensembles: runs on Dask (:mod:`~gfmd_ref.ensemble.run`), the store of one file per case
-(:mod:`~gfmd_ref.ensemble.store`), reductions with error bars (:mod:`~gfmd_ref.ensemble.stats`)
-and the bundled data (:mod:`~gfmd_ref.ensemble.data`). Dask is imported only when a run needs
-a cluster (``pip install "diffusion-pr[ensemble]"``).
-"""
+"""GFMD ensembles: runs on Dask (:mod:`.run`), the store of one file per case (:mod:`.store`),
+reductions with error bars (:mod:`.stats`) and the bundled data (:mod:`.data`). Dask is imported
+only when a run needs a cluster (``pip install "diffusion-pr[ensemble]"``)."""
 from .data import bundled_ensemble, write_bundle
 from .run import EnsembleRun, EnsembleSurface, FIG1_SURFACE, code_version, ingest_fields, run_ensemble
 from .store import Ensemble, EnsembleGroup, EnsembleRecord, load_ensemble, reduce_pressure_field

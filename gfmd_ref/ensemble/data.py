@@ -19,7 +19,7 @@ import numpy as np
 
 from .store import Ensemble, EnsembleRecord, _jsonable, case_key, load_ensemble, now_iso
 
-__all__ = ["BUNDLE_LEVELS", "BUNDLED_ENSEMBLES", "bundled_ensemble", "write_bundle", "bundle_path"]
+__all__ = ["BUNDLE_LEVELS", "BUNDLED_ENSEMBLES", "bundled_ensemble", "write_bundle"]
 
 BUNDLE_LEVELS = np.linspace(0.0, 1.0, 1025)
 #: names of the bundled ensembles and what they are.
@@ -33,21 +33,15 @@ _SCAL = ("mean", "variance", "third_central", "sd", "skewness", "contact_fractio
          "zero_weight")
 
 
-def bundle_path(name: str) -> Path:
-    return Path(__file__).resolve().parent.parent / "data" / f"ensemble_{name}.npz"
-
-
 def write_bundle(stores: Sequence[os.PathLike | str] | os.PathLike | str, out: os.PathLike | str, *, name: str,
                  command: str = "", regenerate: str = "", seeds=None) -> tuple:
     """Write the records of ``stores`` (only ``seeds`` if given) as a compact bundle;
     returns ``(path, bytes)``."""
-    if isinstance(stores, (str, os.PathLike)):
-        stores = [stores]
-    recs = []
-    infos = []
+    stores = [stores] if isinstance(stores, (str, os.PathLike)) else stores
+    recs, infos = [], []
     for s in stores:
         e = load_ensemble(s)
-        recs.extend(e.records if seeds is None else [r for r in e.records if r.seed in set(seeds)])
+        recs.extend(r for r in e.records if seeds is None or r.seed in set(seeds))
         infos.append(dict(store=str(s), runs=e.info.get("runs", [])))
     if not recs:
         raise ValueError(f"no record to bundle (stores {list(map(str, stores))}, seeds {seeds})")
@@ -55,21 +49,17 @@ def write_bundle(stores: Sequence[os.PathLike | str] | os.PathLike | str, out: o
     for r in recs:
         if not np.allclose(r.levels[::step], BUNDLE_LEVELS, rtol=0, atol=1e-15):
             raise ValueError(f"record {r.key}: its levels do not contain the bundle levels i/1024")
-    keys = [r.key for r in recs]
-    if len(set(keys)) != len(keys):
+    if len({r.key for r in recs}) != len(recs):
         raise ValueError("the stores share cases: a bundle must not hold a case twice")
-    surf_of = {}
-    spec_q, spec_p, spec_m, spec_off = [], [], [], [0]
-    rec_spec = []
+    surf_of, spectra, spec_off, rec_spec = {}, [], [0], []  # one spectrum per surface (n, seed, family, L)
     for r in recs:
         sk = (r.n, r.seed, json.dumps(r.params["surface"], sort_keys=True), r.length)
         if sk not in surf_of and r.spectrum_q is not None:
-            surf_of[sk] = len(spec_off) - 1
-            spec_q.append(r.spectrum_q)
-            spec_p.append(r.spectrum_power)
-            spec_m.append(r.spectrum_multiplicity)
+            surf_of[sk] = len(spectra)
+            spectra.append((r.spectrum_q, r.spectrum_power, r.spectrum_multiplicity))
             spec_off.append(spec_off[-1] + r.spectrum_q.size)
         rec_spec.append(surf_of.get(sk, -1))
+    spec_q, spec_p, spec_m = zip(*spectra) if spectra else ((np.zeros(0),), (np.zeros(0),), (np.zeros(0, np.int32),))
     arrays = dict(
         levels=BUNDLE_LEVELS,
         quantiles=np.array([r.quantiles[::step] for r in recs], dtype=np.float32),
@@ -80,9 +70,8 @@ def write_bundle(stores: Sequence[os.PathLike | str] | os.PathLike | str, out: o
             source=r.provenance.get("source"), code=r.provenance.get("code"),
             field_code=r.provenance.get("field_code"), command=r.provenance.get("command"))) for r in recs]),
         spectrum_index=np.array(rec_spec, dtype=np.int32),
-        spectrum_q=np.concatenate(spec_q) if spec_q else np.zeros(0),
-        spectrum_power=np.concatenate(spec_p) if spec_p else np.zeros(0),
-        spectrum_multiplicity=np.concatenate(spec_m).astype(np.int32) if spec_m else np.zeros(0, np.int32),
+        spectrum_q=np.concatenate(spec_q), spectrum_power=np.concatenate(spec_p),
+        spectrum_multiplicity=np.concatenate(spec_m).astype(np.int32),
         spectrum_offsets=np.array(spec_off, dtype=np.int64),
         info=json.dumps(dict(name=name, created=now_iso(), command=command, regenerate=regenerate,
                              description=BUNDLED_ENSEMBLES.get(name, ""), stores=infos, n_records=len(recs))),
@@ -112,16 +101,12 @@ def _load_bundle(path: str) -> tuple:
         prov = json.loads(str(d["provenance"][i]))
         prov["bundle"] = info["name"]
         j = int(d["spectrum_index"][i])
-        spec = (None, None, None)
-        if j >= 0:
-            sl = slice(int(off[j]), int(off[j + 1]))
-            spec = (d["spectrum_q"][sl], d["spectrum_power"][sl], d["spectrum_multiplicity"][sl])
+        sl = slice(int(off[j]), int(off[j + 1])) if j >= 0 else None
+        spec = {k: None if sl is None else d[k][sl] for k in ("spectrum_q", "spectrum_power", "spectrum_multiplicity")}
         q = d["quantiles"][i].astype(np.float64)
         q.setflags(write=False)
-        recs.append(EnsembleRecord(key=case_key(params), params=params, provenance=prov, levels=levels,
-                                   quantiles=q, spectrum_q=spec[0], spectrum_power=spec[1],
-                                   spectrum_multiplicity=spec[2],
-                                   **{k: float(d[k][i]) for k in _SCAL}))
+        recs.append(EnsembleRecord(key=case_key(params), params=params, provenance=prov, levels=levels, quantiles=q,
+                                   **spec, **{k: float(d[k][i]) for k in _SCAL}))
     return tuple(recs), info
 
 
@@ -136,7 +121,7 @@ def bundled_ensemble(name: str = "fig1_n1024") -> Ensemble:
     """
     if name not in BUNDLED_ENSEMBLES:
         raise ValueError(f"name must be one of {sorted(BUNDLED_ENSEMBLES)}; got {name!r}")
-    path = bundle_path(name)
+    path = Path(__file__).resolve().parent.parent / "data" / f"ensemble_{name}.npz"
     if not path.exists():
         raise ValueError(f"bundled ensemble {name!r} is missing from the installation ({path})")
     recs, info = _load_bundle(str(path))

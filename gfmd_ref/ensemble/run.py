@@ -1,13 +1,10 @@
 """GFMD ensembles on Dask: seeds x walls x loads x grid sizes, resumable (docs/ensembles.md).
 
 Each case is one :func:`~gfmd_ref.solve_contact` on a self-affine surface (default: the
-paper's Fig. 1 surface, :func:`~gfmd_ref.fig1_surface`), reduced by
-:func:`~gfmd_ref.ensemble.store.reduce_pressure_field` and written as one record of an
-:mod:`~gfmd_ref.ensemble.store` directory by the worker that solved it. Cases run on an
-existing Dask cluster, a local cluster (one single-threaded worker per core) or, with
-``serial=True``, in this process (Dask is the optional ``diffusion-pr[ensemble]``).
-Parameters are checked before anything is scheduled; finished cases are skipped on a
-rerun; writes are atomic and idempotent.
+paper's Fig. 1 surface), reduced and written as one record of a store directory by the
+worker that solved it, on an existing Dask cluster, a local cluster (one single-threaded
+worker per core) or, with ``serial=True``, in this process (Dask is the optional
+``diffusion-pr[ensemble]``). Parameters are checked before anything is scheduled.
 """
 from __future__ import annotations
 
@@ -20,6 +17,7 @@ import os
 import subprocess
 import sys
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
@@ -27,35 +25,14 @@ from typing import Optional
 import numpy as np
 
 from .._validation import check_int, check_positive, check_real, check_tol, check_writable_dir
-from ..scene import band_surface
-from .store import (
-    Ensemble,
-    _parse_wall,
-    case_key,
-    case_label,
-    host,
-    load_ensemble,
-    now_iso,
-    reduce_pressure_field,
-    shell_spectrum,
-    store_keys,
-    wall_label,
-    write_record,
-)
+from ..scene import FIG1, band_surface, zeta_on_grid
+from ..interactions import ExponentialRepulsion, HardWall
+from ..solvers import METHODS, ConvergenceWarning, solve_contact
+from .store import (Ensemble, case_key, case_label, host, load_ensemble, now_iso, parse_wall, reduce_pressure_field,
+                    shell_spectrum, store_keys, wall_label, write_record)
 
-__all__ = [
-    "EnsembleSurface",
-    "FIG1_SURFACE",
-    "EnsembleRun",
-    "build_cases",
-    "parse_seeds",
-    "parse_walls",
-    "case_surface",
-    "solve_case",
-    "run_ensemble",
-    "ingest_fields",
-    "code_version",
-]
+__all__ = ["EnsembleSurface", "FIG1_SURFACE", "EnsembleRun", "build_cases", "parse_seeds", "parse_walls",
+           "case_surface", "solve_case", "run_ensemble", "ingest_fields", "code_version"]
 
 
 @dataclass(frozen=True)
@@ -79,9 +56,9 @@ class EnsembleSurface:
     physical system (all lengths in units of ``L``) at a finer discretisation.
     """
 
-    hurst: float = 0.3
-    rms_slope: float = 0.031
-    n_waves: int = 32
+    hurst: float = FIG1["hurst"]
+    rms_slope: float = FIG1["rms_slope"]
+    n_waves: int = FIG1["n_waves"]
 
     def __post_init__(self):
         object.__setattr__(self, "hurst", check_real("hurst", self.hurst, low=0.0, high=1.0))
@@ -93,10 +70,7 @@ class EnsembleSurface:
 
 
 #: The paper's Fig. 1 surface family (H = 0.3, rms slope 0.031, wavelengths L ... L/32).
-FIG1_SURFACE = EnsembleSurface(0.3, 0.031, 32)
-#: The paper's modulus and load (Fig. 1).
-FIG1_E_STAR = 8.0 / 3.0
-FIG1_MEAN_PRESSURE = 0.004
+FIG1_SURFACE = EnsembleSurface()
 
 
 def case_surface(params: dict) -> np.ndarray:
@@ -107,36 +81,31 @@ def case_surface(params: dict) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=None)
-def _code_version() -> dict:
+def _code_version() -> tuple:
     try:
         from importlib.metadata import version
 
         ver = version("diffusion-pr")
     except Exception:  # pragma: no cover - not installed
         ver = "unknown"
-    rev = "unknown"
-    here = Path(__file__).resolve().parent
+    here = str(Path(__file__).resolve().parent)
+
+    def git(*args):
+        out = subprocess.run(["git", "-C", here, *args], capture_output=True, text=True, timeout=5)
+        return out.stdout.strip() if out.returncode == 0 else None
+
     try:
-        out = subprocess.run(["git", "-C", str(here), "rev-parse", "--short=12", "HEAD"], capture_output=True,
-                             text=True, timeout=5)
-        if out.returncode == 0:
-            rev = out.stdout.strip()
-            dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain", "--", "."],
-                                   capture_output=True, text=True, timeout=5)
-            if dirty.returncode == 0 and dirty.stdout.strip():
-                rev += "+dirty"
+        rev = git("rev-parse", "--short=12", "HEAD")
+        return ver, rev + ("+dirty" if git("status", "--porcelain", "--", ".") else "") if rev else "unknown"
     except Exception:  # pragma: no cover - no git
-        pass
-    return dict(package="diffusion-pr", version=ver, git=rev)
+        return ver, "unknown"
 
 
 def code_version() -> dict:
     """``{"package", "version", "git"}`` of the code making a record (git revision of
     the gfmd_ref sources with ``+dirty`` if they have uncommitted changes)."""
-    return dict(_code_version())
-
-
-# ----------------------------------------------------------------------------- parameters
+    ver, rev = _code_version()
+    return dict(package="diffusion-pr", version=ver, git=rev)
 
 
 def parse_seeds(spec) -> list:
@@ -145,44 +114,34 @@ def parse_seeds(spec) -> list:
         spec = [int(spec)]
     if isinstance(spec, str):
         out = []
-        for part in spec.split(","):
-            part = part.strip()
-            if not part:
-                continue
+        for part in filter(None, (p.strip() for p in spec.split(","))):
+            a, _, b = part.partition("-")
             try:
-                if "-" in part:
-                    a, b = part.split("-", 1)
-                    a, b = int(a), int(b)
-                    if b < a:
-                        raise ValueError
-                    out.extend(range(a, b + 1))
-                else:
-                    out.append(int(part))
+                lo, hi = int(a), int(b or a)
             except ValueError:
-                raise ValueError(f"seeds must look like '1-16' or '1,3,5-7' (integers >= 0); got {spec!r}") from None
+                lo, hi = 0, -1
+            if hi < lo:
+                raise ValueError(f"seeds must look like '1-16' or '1,3,5-7' (integers >= 0); got {spec!r}")
+            out.extend(range(lo, hi + 1))
         spec = out
-    seeds = []
-    for s in spec:
-        if isinstance(s, bool) or not isinstance(s, numbers.Integral) or s < 0:
-            raise ValueError(f"seeds must be integers >= 0; got {s!r}")
-        seeds.append(int(s))
+    seeds = sorted({check_int("seeds", s, minimum=0) for s in spec})
     if not seeds:
         raise ValueError(f"seeds must name at least one seed; got {spec!r}")
-    return sorted(set(seeds))
+    return seeds
 
 
 def parse_walls(spec) -> list:
     """``"hard,4,0.25"`` or a sequence of ``"hard"``/None/zeta -> list of ``None``/float."""
     if isinstance(spec, str):
         spec = [w for w in spec.split(",") if w.strip()]
-    if spec is None or isinstance(spec, (numbers.Number,)):
+    if spec is None or isinstance(spec, numbers.Number):
         spec = [spec]
     out = []
     for w in spec:
-        z = _parse_wall(w)
+        z = parse_wall(w)
         if z is not None and not (math.isfinite(z) and z > 0):
             raise ValueError(f"walls: zeta must be a finite number > 0 (or 'hard'); got {w!r}")
-        if not any((z is None and o is None) or (z is not None and o is not None and z == o) for o in out):
+        if z not in out:
             out.append(z)
     if not out:
         raise ValueError(f"walls must name at least one wall; got {spec!r}")
@@ -190,17 +149,11 @@ def parse_walls(spec) -> list:
 
 
 def _floats(name, values) -> list:
-    if isinstance(values, (numbers.Number, str)):
-        values = [values]
-    out = []
-    for v in values:
-        try:
-            f = float(v)
-        except (TypeError, ValueError):
-            raise ValueError(f"{name} must be finite numbers > 0; got {v!r}") from None
-        if not (math.isfinite(f) and f > 0):
-            raise ValueError(f"{name} must be finite numbers > 0; got {v!r}")
-        out.append(f)
+    values = [values] if isinstance(values, (numbers.Number, str)) else list(values)
+    try:
+        out = [check_positive(name, float(v)) for v in values]
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be finite numbers > 0; got {values!r}") from None
     if not out:
         raise ValueError(f"{name} must not be empty")
     return out
@@ -215,21 +168,19 @@ def build_cases(*, n=1024, seeds=(1,), walls=("hard",), mean_pressures=None, sur
     ``length_unit="paper"`` reads the zetas of ``walls`` in grid spacings of the paper's
     1024^2 system (``L = 1024``) and converts them to ``zeta * n / 1024`` on each grid.
 
-    ``max_iter`` (default: the solver's) enters the parameters, hence the key,
-    only when given: rerunning non-converged cases with a larger ``max_iter`` makes
-    new records (both are kept; reductions use the converged ones).
+    ``max_iter`` (default: the solver's) enters the parameters, hence the key, only when
+    given: rerunning non-converged cases with a larger ``max_iter`` makes new records
+    (both are kept; reductions use the converged ones).
 
-    Order: grid size, load, then seeds outer and walls inner. Raises
-    ``ValueError`` naming the parameter, value and allowed range.
+    Order: grid size, load, then seeds outer and walls inner. Raises ``ValueError``
+    naming the parameter, value and allowed range.
     """
     surface = FIG1_SURFACE if surface is None else surface
     if not isinstance(surface, EnsembleSurface):
         raise ValueError(f"surface must be an EnsembleSurface; got {type(surface).__name__}")
-    ns = [n] if isinstance(n, numbers.Integral) or isinstance(n, str) else list(n)
     grid = []
-    for v in ns:
-        if isinstance(v, str) and v.strip().isdigit():
-            v = int(v)
+    for v in [n] if isinstance(n, (numbers.Integral, str)) else list(n):
+        v = int(v) if isinstance(v, str) and v.strip().isdigit() else v
         if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v < 2:
             raise ValueError(f"n must be integers >= 2; got {v!r}")
         if 2 * surface.n_waves > v:
@@ -237,8 +188,8 @@ def build_cases(*, n=1024, seeds=(1,), walls=("hard",), mean_pressures=None, sur
         grid.append(int(v))
     seeds = parse_seeds(seeds)
     walls = parse_walls(walls)
-    loads = _floats("mean_pressures", FIG1_MEAN_PRESSURE if mean_pressures is None else mean_pressures)
-    E = _floats("E_star", FIG1_E_STAR if E_star is None else E_star)[0]
+    loads = _floats("mean_pressures", FIG1["mean_pressure"] if mean_pressures is None else mean_pressures)
+    E = _floats("E_star", FIG1["E_star"] if E_star is None else E_star)[0]
     tol = check_tol(tol)
     if length_unit not in ("grid", "paper"):
         raise ValueError(f"length_unit must be 'grid' or 'paper'; got length_unit={length_unit!r}")
@@ -246,60 +197,42 @@ def build_cases(*, n=1024, seeds=(1,), walls=("hard",), mean_pressures=None, sur
     if method not in allowed:
         raise ValueError(f"method must be one of {allowed}; got {method!r}")
     for z in walls:
-        if method in ("ccg", "pk") and z is not None or method == "newton" and z is None:
+        if method != "auto" and method not in METHODS["HardWall" if z is None else "ExponentialRepulsion"]:
             raise ValueError(f"method={method!r} does not apply to wall {wall_label(z)} "
                              "(ccg, pk: hard wall only, newton: exponential walls only; use 'auto')")
     extra = {} if max_iter is None else {"max_iter": check_int("max_iter", max_iter)}
-    cases = []
-    for nn in grid:
-        for p0 in loads:
-            for s in seeds:
-                for z in walls:
-                    if z is not None and length_unit == "paper":
-                        z = z * nn / 1024.0
-                    cases.append(dict(n=nn, length=float(nn), seed=s, zeta=z, mean_pressure=p0, E_star=E,
-                                      surface=surface.as_dict(), tol=tol, method=method, **extra))
-    return cases
+    return [dict(n=nn, length=float(nn), seed=s, mean_pressure=p0, E_star=E, surface=surface.as_dict(), tol=tol,
+                 method=method, zeta=zeta_on_grid(z, nn) if z is not None and length_unit == "paper" else z, **extra)
+            for nn in grid for p0 in loads for s in seeds for z in walls]
 
 
-# ----------------------------------------------------------------------------- one case
+def _store_case(store, params: dict, pressure: np.ndarray, heights: np.ndarray, provenance: dict) -> Path:
+    """Reduce a case's pressure field and its surface and write the record."""
+    red = reduce_pressure_field(pressure, mean_pressure=params["mean_pressure"], zeta=params["zeta"])
+    return write_record(store, params, provenance, red, shell_spectrum(heights, params["length"]))
 
 
 def solve_case(params: dict, store: str, provenance: Optional[dict] = None, threads: int = 1) -> dict:
     """Solve, reduce and store one case with ``threads`` FFT threads (runs on a worker).
-    Returns a small summary."""
-    import warnings
-
-    from ..interactions import ExponentialRepulsion, HardWall
-    from ..solvers import ConvergenceWarning, solve_contact
-
+    Returns its provenance and ``path``."""
     h = case_surface(params)
     inter = HardWall() if params["zeta"] is None else ExponentialRepulsion(params["zeta"])
-    t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)  # recorded in the record instead
         res = solve_contact(h, length=params["length"], E_star=params["E_star"],
                             mean_pressure=params["mean_pressure"], interaction=inter, tol=params["tol"],
                             method=params["method"], max_iter=params.get("max_iter"), threads=threads)
-    wall = time.perf_counter() - t0
-    red = reduce_pressure_field(res.pressure, mean_pressure=params["mean_pressure"], zeta=params["zeta"])
     prov = dict(provenance or {})
     prov.update(source="live", converged=bool(res.converged), residual=float(res.residual),
-                iterations=int(res.iterations), wall_time=wall, method=res.method, message=res.message,
-                fft=res.info.get("fft"), fft_threads=threads,
-                host=host(), pid=os.getpid(), created=now_iso())
+                iterations=int(res.iterations), wall_time=res.wall_time, method=res.method, message=res.message,
+                fft_threads=threads, host=host(), pid=os.getpid(), created=now_iso())
     prov.setdefault("code", code_version())
-    path = write_record(store, params, prov, red, shell_spectrum(h, params["length"]))
-    return dict(key=case_key(params), label=case_label(params), converged=bool(res.converged),
-                wall_time=wall, path=str(path), residual=float(res.residual), iterations=int(res.iterations))
-
-
-# ----------------------------------------------------------------------------- runner
+    return dict(prov, path=str(_store_case(store, params, res.pressure, h, prov)))
 
 
 @dataclass(frozen=True)
 class EnsembleRun:
-    """What :func:`run_ensemble` did.
+    """What :func:`run_ensemble` (or :func:`ingest_fields`) did.
 
     ``n_cases`` in the grid, ``n_skipped`` already in the store, ``n_computed`` now,
     ``n_not_converged`` among those computed now (kept in the store, excluded from
@@ -325,27 +258,69 @@ class EnsembleRun:
         return load_ensemble(self.store)
 
 
-#: default (docs/ensembles.md): one worker process per core, one thread and one FFT thread each.
-DEFAULT_THREADS_PER_WORKER = 1
+class _Tally:
+    """The cases of one run as they finish: counts, failures, a tqdm bar on stderr, the report."""
 
+    def __init__(self, what: str, store: Path, n_cases: int, todo: int, entry: dict, progress: bool, verbose: bool,
+                 stream, unit: str, **bar):
+        self.what, self.store, self.n_cases, self.skipped, self.verbose = what, store, n_cases, n_cases - todo, verbose
+        self.out = sys.stdout if stream is None else stream
+        self.t0, self.failed, self.computed, self.not_conv, self.bar = time.perf_counter(), {}, 0, 0, None
+        if verbose:
+            print(f"{what}: {n_cases} {unit}s; {self.skipped} already in {store}, {todo} to run", file=self.out,
+                  flush=True)
+        store.mkdir(parents=True, exist_ok=True)
+        if todo:  # the run's entry in the store's manifest
+            man = store / "ensemble.json"
+            info = json.loads(man.read_text()) if man.exists() else {"format": "gfmd_ref ensemble store",
+                                                                     "version": 1, "runs": []}
+            info["runs"].append(dict(entry, n_cases=n_cases, n_skipped=self.skipped, host=host()))
+            tmp = store / f".ensemble.json.{os.getpid()}.tmp"
+            tmp.write_text(json.dumps(info, indent=1, sort_keys=True))
+            os.replace(tmp, man)
+            if progress:
+                from tqdm.auto import tqdm
 
-def _require_dask():
-    try:
-        importlib.import_module("dask.distributed")
-    except ImportError as exc:
-        raise ImportError('run_ensemble on a cluster needs Dask: pip install "diffusion-pr[ensemble]" '
-                          "(or pass serial=True)") from exc
+                self.bar = tqdm(total=todo, file=sys.stderr, unit=unit, **bar)
+
+    def add(self, label: str, get) -> None:
+        """Count the case ``label`` whose summary (a dict with ``converged``) ``get()`` returns."""
+        try:
+            summary = get()
+        except Exception as exc:  # e.g. KilledWorker; reported, not stored; a rerun retries
+            self.failed[label] = f"{type(exc).__name__}: {exc}"
+        else:
+            self.computed += 1
+            self.not_conv += not summary["converged"]
+        if self.bar is not None:
+            self.bar.set_postfix(not_converged=self.not_conv, refresh=False)
+            self.bar.update(1)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+    def finish(self, sched: str) -> EnsembleRun:
+        t = time.perf_counter() - self.t0
+        msg = (f"{self.what}: {self.computed} computed now ({self.not_conv} not converged: kept in the store, excluded "
+               f"from reductions), {self.skipped} skipped, {len(self.failed)} failed; "
+               f"{self.n_cases - self.skipped - self.computed} of {self.n_cases} remain; {t:.1f} s, {sched}")
+        if self.verbose:
+            print(msg, file=self.out, flush=True)
+            for k, v in self.failed.items():
+                print(f"  failed {k}: {v}", file=self.out)
+        return EnsembleRun(str(self.store), self.n_cases, self.skipped, self.computed, self.not_conv, self.failed,
+                           t, sched, msg)
 
 
 def _local_cluster(workers: Optional[int], threads: int):
+    import dask
     from dask.distributed import Client, LocalCluster
 
     ncpu = os.cpu_count() or 1
     workers = max(1, ncpu // threads) if workers is None else int(workers)
     # Dask's nanny sets OMP/MKL/OPENBLAS_NUM_THREADS=1; BLAS threading changes np.vdot's round-off,
     # so workers get this process's setting and give bit-identical records.
-    import dask
-
     pre = dict(dask.config.get("distributed.nanny.pre-spawn-environ", default={}) or {})
     for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         pre[k] = os.environ.get(k, str(ncpu))
@@ -356,49 +331,20 @@ def _local_cluster(workers: Optional[int], threads: int):
 
 
 def _probe_scheduler(address: str, timeout: float = 2.0) -> None:
-    """ValueError naming ``address`` unless a TCP connection to it opens within ``timeout`` s."""
+    """ValueError naming ``address`` unless a TCP connection to it opens within ``timeout`` s
+    (other transports, tls:// or inproc://, and malformed addresses are left to Dask)."""
     import socket
     from urllib.parse import urlsplit
 
+    url = urlsplit(address if "://" in address else "tcp://" + address)
     try:
-        url = urlsplit(address if "://" in address else "tcp://" + address)
-        host_, port = url.hostname, url.port
-    except ValueError:
-        host_ = port = None
-    if url.scheme != "tcp" or not host_ or port is None:
-        return  # another transport (tls://, inproc://, ...): Dask reports it
-    try:
-        socket.create_connection((host_, port), timeout=timeout).close()
+        if url.scheme == "tcp" and url.hostname and url.port is not None:
+            socket.create_connection((url.hostname, url.port), timeout=timeout).close()
+    except ValueError:  # a port out of range
+        return
     except OSError as exc:
         raise ValueError(f"scheduler={address!r}: no Dask scheduler accepts connections there "
                          f"({exc.strerror or exc}); start one (dask scheduler) or omit --scheduler") from None
-
-
-def _write_manifest(store: Path, entry: dict) -> None:
-    store.mkdir(parents=True, exist_ok=True)
-    man = store / "ensemble.json"
-    info = json.loads(man.read_text()) if man.exists() else {"format": "gfmd_ref ensemble store", "version": 1,
-                                                               "runs": []}
-    info["runs"].append(entry)
-    tmp = store / f".ensemble.json.{os.getpid()}.tmp"
-    tmp.write_text(json.dumps(info, indent=1, sort_keys=True))
-    os.replace(tmp, man)
-
-
-def _progress_bar(progress: bool, todo: list, **kw):
-    """A tqdm bar on stderr over ``todo``, or None (no progress wanted or nothing to do)."""
-    if not (progress and todo):
-        return None
-    from tqdm.auto import tqdm
-
-    return tqdm(total=len(todo), file=sys.stderr, **kw)
-
-
-def _report(msg: str, failed: dict, verbose: bool, out) -> None:
-    if verbose:
-        print(msg, file=out, flush=True)
-        for k, v in failed.items():
-            print(f"  failed {k}: {v}", file=out)
 
 
 def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), length_unit: str = "grid", mean_pressures=None,
@@ -456,103 +402,62 @@ def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), length_unit: st
         Bad parameters, an unwritable ``store`` or an unreachable ``scheduler``, before
         any case is computed.
     """
-    t0 = time.perf_counter()
     cases = build_cases(n=n, seeds=seeds, walls=walls, mean_pressures=mean_pressures, surface=surface,
                         E_star=E_star, tol=tol, method=method, max_iter=max_iter, length_unit=length_unit)
     workers = None if workers is None else check_int("workers", workers)
-    threads = DEFAULT_THREADS_PER_WORKER if threads_per_worker is None else check_int("threads_per_worker",
-                                                                                      threads_per_worker)
+    threads = 1 if threads_per_worker is None else check_int("threads_per_worker", threads_per_worker)
     if not serial:
-        _require_dask()
+        try:
+            importlib.import_module("dask.distributed")
+        except ImportError as exc:
+            raise ImportError('run_ensemble on a cluster needs Dask: pip install "diffusion-pr[ensemble]" '
+                              "(or pass serial=True)") from exc
     store = Path(store)
     if store.exists() and not store.is_dir():
         raise ValueError(f"store must be a directory; {str(store)!r} is a file")
     check_writable_dir("store", store)
     if scheduler is not None and client is None and not serial:
         _probe_scheduler(scheduler)
-    out = stream if stream is not None else sys.stdout
     done = store_keys(store)
     todo = [c for c in cases if case_key(c) not in done]
-    skipped = len(cases) - len(todo)
     if command is None:
         command = (f"gfmd_ref.run_ensemble({str(store)!r}, n={n!r}, seeds={seeds!r}, walls={walls!r}, "
                    f"mean_pressures={mean_pressures!r}, surface={surface!r}, E_star={E_star!r}, tol={tol!r}, "
                    f"method={method!r})")
-    if verbose:
-        print(f"ensemble: {len(cases)} cases; {skipped} already in {store}, {len(todo)} to run", file=out, flush=True)
     prov = dict(command=command, code=code_version(), run_started=now_iso())
-    failed: dict = {}
-    not_conv = 0
-    computed = 0
-    sched = "serial (this process)"
-    store.mkdir(parents=True, exist_ok=True)
-    if todo:
-        _write_manifest(store, dict(command=command, started=prov["run_started"], n_cases=len(cases),
-                                    n_skipped=skipped, code=prov["code"], host=host(), length_unit=length_unit,
-                                    zeta_unit="grid spacings of each record's grid (L = n)"))
-    bar = _progress_bar(progress, todo, unit="case", smoothing=0.0, desc="gfmd ensemble")
-
-    def _collect(case, get):
-        nonlocal not_conv, computed
-        try:
-            summary = get()
-        except Exception as exc:  # e.g. KilledWorker; reported, not stored; a rerun retries
-            failed[case_label(case)] = f"{type(exc).__name__}: {exc}"
-        else:
-            computed += 1
-            not_conv += not summary["converged"]
-            if bar is not None:
-                bar.set_postfix(not_converged=not_conv, refresh=False)
-        if bar is not None:
-            bar.update(1)
-
-    own = None
+    tally = _Tally("ensemble", store, len(cases), len(todo),
+                   dict(command=command, started=prov["run_started"], code=prov["code"], length_unit=length_unit,
+                        zeta_unit="grid spacings of each record's grid (L = n)"),
+                   progress, verbose, stream, "case", smoothing=0.0, desc="gfmd ensemble")
+    sched, own = "serial (this process)", ()
     try:
-        if not todo:
-            pass
-        elif serial:
+        if serial or not todo:
             for c in todo:
-                _collect(c, lambda: solve_case(c, str(store), prov, threads))
+                tally.add(case_label(c), lambda: solve_case(c, str(store), prov, threads))
         else:
             from dask.distributed import Client, as_completed
 
-            if client is None:
-                if scheduler is not None:
-                    client = Client(scheduler)
-                    own = (client, None)
-                    sched = f"scheduler {scheduler}"
-                else:
-                    client, cluster, sched = _local_cluster(workers, threads)
-                    own = (client, cluster)
-            else:
+            if client is not None:
                 sched = f"client {getattr(client, 'scheduler', None) and client.scheduler.address}"
-            futs = {}
-            for c in todo:
-                f = client.submit(solve_case, c, str(store.resolve()), prov, threads, key=f"gfmd-case-{case_key(c)}",
-                                  pure=False)
-                futs[f] = c
+            elif scheduler is not None:
+                client, sched = Client(scheduler), f"scheduler {scheduler}"
+                own = (client,)
+            else:
+                client, cluster, sched = _local_cluster(workers, threads)
+                own = (client, cluster)
+            futs = {client.submit(solve_case, c, str(store.resolve()), prov, threads, key=f"gfmd-case-{case_key(c)}",
+                                  pure=False): c for c in todo}
             try:
                 for f in as_completed(list(futs)):
-                    _collect(futs[f], f.result)
+                    tally.add(case_label(futs[f]), f.result)
             except BaseException:
                 client.cancel(list(futs))  # interrupted: do not leave cases running on a shared cluster
                 raise
     finally:
-        if bar is not None:
-            bar.close()
-        if own is not None:
-            own[0].close()
-            if own[1] is not None:
-                own[1].close()
-    msg = (f"ensemble: {computed} computed now ({not_conv} not converged: kept in the store, excluded from "
-           f"reductions), {skipped} skipped, {len(failed)} failed; "
-           f"{len(cases) - skipped - computed} of {len(cases)} remain; {time.perf_counter() - t0:.1f} s, {sched}")
-    _report(msg, failed, verbose, out)
-    return EnsembleRun(str(store), len(cases), skipped, computed, not_conv, failed, time.perf_counter() - t0,
-                       sched, msg)
-
-
-# ----------------------------------------------------------------------------- ingest
+        tally.close()
+        for obj in own:
+            obj.close()
+    return tally.finish(sched)
 
 
 def ingest_fields(field_dir, store, *, surface: Optional[EnsembleSurface] = None, method: str = "auto",
@@ -560,30 +465,27 @@ def ingest_fields(field_dir, store, *, surface: Optional[EnsembleSurface] = None
                   verbose: bool = True, stream=None) -> EnsembleRun:
     """Reduce saved pressure fields into store records, exactly as a live case would.
 
-    Each ``*.npz`` of ``field_dir`` holds ``pressure`` (the full field) and ``meta``
-    (JSON with ``n``, ``seed``, ``zeta``, ``length``, ``tol``, ``E_star``,
-    ``mean_pressure``, ``converged``, ``residual``, ``iterations``, ``wall_time``,
-    ``code``), as written by jobs that call ``solve_contact(fig1_surface(n, seed), ...)``.
-    The record gets the key of the live case with the same parameters (``method`` as requested, default "auto"),
+    Each ``*.npz`` of ``field_dir`` holds ``pressure`` (the full field) and ``meta`` (JSON
+    with ``n``, ``seed``, ``zeta``, ``length``, ``tol``, ``E_star``, ``mean_pressure``,
+    ``converged``, ``residual``, ``iterations``, ``wall_time``, ``code``), as written by
+    jobs that call ``solve_contact(fig1_surface(n, seed), ...)``. The record gets the key
+    of the live case with the same parameters (``method`` as requested, default "auto"),
     so a later :func:`run_ensemble` of those cases skips them; its provenance says
     ``source="ingested"``, the field file and ``field_command``. The surface is
-    regenerated from the seed (for the spectrum) and checked against the field's
-    grid. Cases already in the store are skipped.
+    regenerated from the seed (for the spectrum) and checked against the field's grid.
+    Cases already in the store are skipped.
     """
     surface = FIG1_SURFACE if surface is None else surface
-    field_dir = Path(field_dir)
+    field_dir, store = Path(field_dir), Path(store)
     if not field_dir.is_dir():
         raise ValueError(f"field_dir must be an existing directory; got {str(field_dir)!r}")
     files = sorted(p for p in field_dir.glob("*.npz") if not p.name.endswith(".tmp.npz"))
     if not files:
         raise ValueError(f"field_dir {str(field_dir)!r} holds no *.npz field")
-    out = stream if stream is not None else sys.stdout
-    t0 = time.perf_counter()
     done = store_keys(store)
-    if command is None:
-        command = f"gfmd_ref.ingest_fields({str(field_dir)!r}, {str(store)!r})"
+    command = f"gfmd_ref.ingest_fields({str(field_dir)!r}, {str(store)!r})" if command is None else command
     base = dict(command=command, code=code_version(), run_started=now_iso())
-    plan = []
+    todo = []
     for f in files:
         with np.load(f, allow_pickle=False) as z:
             meta = json.loads(str(z["meta"]))
@@ -593,44 +495,25 @@ def ingest_fields(field_dir, store, *, surface: Optional[EnsembleSurface] = None
                              E_star=float(meta["E_star"]), tol=float(meta["tol"]), method=method)[0]
         if float(meta["length"]) != float(params["n"]):
             raise ValueError(f"{f.name}: length {float(meta['length'])} != n {params['n']} (ensembles use L = n)")
-        plan.append((f, meta, params))
-    todo = [(f, m, p) for f, m, p in plan if case_key(p) not in done]
-    if verbose:
-        print(f"ingest: {len(plan)} fields; {len(plan) - len(todo)} already in {store}, {len(todo)} to reduce",
-              file=out, flush=True)
-    Path(store).mkdir(parents=True, exist_ok=True)
-    if todo:
-        _write_manifest(Path(store), dict(command=command, started=base["run_started"], n_cases=len(plan),
-                                          n_skipped=len(plan) - len(todo), code=base["code"], host=host(),
-                                          ingested_from=str(field_dir), field_command=field_command))
-    bar = _progress_bar(progress, todo, unit="field", desc="ingest")
-    not_conv = 0
-    failed = {}
+        if case_key(params) not in done:
+            todo.append((f, meta, params))
+
+    def ingest(f, meta, params) -> dict:
+        with np.load(f, allow_pickle=False) as z:
+            pressure = np.array(z["pressure"], dtype=np.float64)
+        if pressure.shape != (params["n"], params["n"]):
+            raise ValueError(f"field shape {pressure.shape} != ({params['n']}, {params['n']})")
+        prov = dict(base, source="ingested", field_file=str(f.resolve()), field_command=field_command,
+                    field_code=meta.get("code"), converged=bool(meta["converged"]), residual=float(meta["residual"]),
+                    iterations=int(meta["iterations"]), wall_time=float(meta["wall_time"]),
+                    method=meta.get("method"), host=host(), created=now_iso())
+        _store_case(store, params, pressure, case_surface(params), prov)
+        return prov
+
+    tally = _Tally("ingest", store, len(files), len(todo),
+                   dict(command=command, started=base["run_started"], code=base["code"], ingested_from=str(field_dir),
+                        field_command=field_command), progress, verbose, stream, "field", desc="ingest")
     for f, meta, params in todo:
-        try:
-            with np.load(f, allow_pickle=False) as z:
-                pressure = np.array(z["pressure"], dtype=np.float64)
-            if pressure.shape != (params["n"], params["n"]):
-                raise ValueError(f"field shape {pressure.shape} != ({params['n']}, {params['n']})")
-            h = case_surface(params)
-            red = reduce_pressure_field(pressure, mean_pressure=params["mean_pressure"], zeta=params["zeta"])
-            prov = dict(base)
-            prov.update(source="ingested", field_file=str(f.resolve()), field_command=field_command,
-                        field_code=meta.get("code"), converged=bool(meta["converged"]),
-                        residual=float(meta["residual"]), iterations=int(meta["iterations"]),
-                        wall_time=float(meta["wall_time"]), method=meta.get("method"), host=host(),
-                        created=now_iso())
-            write_record(store, params, prov, red, shell_spectrum(h, params["length"]))
-            not_conv += not prov["converged"]
-        except Exception as exc:
-            failed[f.name] = f"{type(exc).__name__}: {exc}"
-        if bar is not None:
-            bar.update(1)
-    if bar is not None:
-        bar.close()
-    computed = len(todo) - len(failed)
-    msg = (f"ingest: {computed} reduced now ({not_conv} not converged), {len(plan) - len(todo)} skipped, "
-           f"{len(failed)} failed; {time.perf_counter() - t0:.1f} s")
-    _report(msg, failed, verbose, out)
-    return EnsembleRun(str(store), len(plan), len(plan) - len(todo), computed, not_conv, failed,
-                       time.perf_counter() - t0, "ingest (this process)", msg)
+        tally.add(f.name, lambda: ingest(f, meta, params))
+    tally.close()
+    return tally.finish("ingest (this process)")

@@ -1,15 +1,9 @@
-"""Reductions of an ensemble with error bars.
-
-All functions take the converged records of one pool (an
-:class:`~gfmd_ref.ensemble.store.EnsembleGroup` or a list of records). The pooled
-distribution gives every seed the same area: ``F(p) = mean_s F_s(p)``, each
-``F_s`` interpolated linearly between its stored quantiles. Distances between
-such CDFs are piecewise linear between the union of the knots, so evaluating
-them on that union (:func:`cdf_grid`) gives the exact supremum.
-
-Conventions: Kolmogorov distances are taken over ``p >= p_min`` with default
-``p_min = p0/20`` (below it the hard-wall delta peak and the soft walls' tiny
-pressures would be compared, a convention rather than physics).
+"""Reductions of an ensemble with error bars, from the converged records of one pool (an
+:class:`~gfmd_ref.ensemble.store.EnsembleGroup` or a list of records). The pooled distribution
+gives every seed the same area, ``F(p) = mean_s F_s(p)``, each ``F_s`` linear between its
+stored quantiles, so distances between such CDFs are exact on the union of the knots
+(:func:`cdf_grid`). Kolmogorov distances are taken over ``p >= p_min``, default ``p0/20``
+(below it the hard-wall peak and the soft walls' tiny pressures would be compared).
 """
 from __future__ import annotations
 
@@ -18,25 +12,15 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-__all__ = [
-    "group_records",
-    "cdf_grid",
-    "cdf_matrix",
-    "pooled_cdf",
-    "bootstrap_cdf_band",
-    "bootstrap_density_band",
-    "kolmogorov",
-    "NoiseFloor",
-    "noise_floor",
-    "scatter",
-    "finite_size_table",
-]
+from .store import parse_wall
+
+__all__ = ["group_records", "cdf_grid", "cdf_matrix", "pooled_cdf", "bootstrap_cdf_band", "bootstrap_density_band",
+           "kolmogorov", "NoiseFloor", "noise_floor", "scatter", "finite_size_table"]
 
 
 def group_records(group_or_records) -> list:
     """Converged records of a group or list (non-converged ones are dropped)."""
-    recs = list(getattr(group_or_records, "records", group_or_records))
-    recs = [r for r in recs if getattr(r, "converged", True)]
+    recs = [r for r in getattr(group_or_records, "records", group_or_records) if getattr(r, "converged", True)]
     if not recs:
         raise ValueError("no converged record to reduce")
     return recs
@@ -49,9 +33,8 @@ def _default_p_min(recs) -> float:
 def cdf_grid(recs, p_min: Optional[float] = None, max_points: int = 40000) -> np.ndarray:
     """Sorted union of the records' quantile knots ``>= p_min`` (and ``p_min``).
 
-    If there are more than ``max_points`` knots, an evenly thinned subset plus the
-    pooled quantiles at every level step is used (the supremum is then exact to
-    about one level step)."""
+    Above ``max_points`` knots an evenly thinned subset is used (the supremum is then
+    exact to about one level step)."""
     recs = group_records(recs)
     p_min = _default_p_min(recs) if p_min is None else float(p_min)
     x = np.unique(np.concatenate([r.quantiles for r in recs] + [[p_min]]))
@@ -63,8 +46,7 @@ def cdf_grid(recs, p_min: Optional[float] = None, max_points: int = 40000) -> np
 
 def cdf_matrix(recs, x) -> np.ndarray:
     """``C[s, j] = F_s(x_j)`` for every record ``s``."""
-    recs = group_records(recs)
-    return np.array([r.cdf(x) for r in recs])
+    return np.array([r.cdf(x) for r in group_records(recs)])
 
 
 def pooled_cdf(recs, p) -> np.ndarray:
@@ -72,30 +54,29 @@ def pooled_cdf(recs, p) -> np.ndarray:
     return cdf_matrix(recs, np.asarray(p, dtype=float)).mean(axis=0)
 
 
+def _bootstrap(M, n_boot: int, level: float, seed: int):
+    """Mean over the rows (seeds) of ``M`` and the ``(1 -+ level)/2`` percentiles of the
+    means of ``n_boot`` resamples of the rows (with replacement)."""
+    rng = np.random.default_rng(seed)
+    S = M.shape[0]
+    boot = np.array([M[rng.integers(0, S, S)].mean(axis=0) for _ in range(n_boot)])
+    a = 100 * (1 - level) / 2
+    return M.mean(axis=0), np.percentile(boot, a, axis=0), np.percentile(boot, 100 - a, axis=0)
+
+
 def bootstrap_cdf_band(recs, p, *, n_boot: int = 400, level: float = 0.95, seed: int = 0):
     """Pooled CDF at ``p`` and its bootstrap band over seeds (resampled with replacement).
 
     Returns ``(F, lo, hi)``: the pooled CDF and the ``(1 - level)/2``,
     ``(1 + level)/2`` percentiles of the resampled pooled CDF at each ``p``."""
-    C = cdf_matrix(recs, np.asarray(p, dtype=float))
-    rng = np.random.default_rng(seed)
-    S = C.shape[0]
-    boot = np.array([C[rng.integers(0, S, S)].mean(axis=0) for _ in range(n_boot)])
-    a = 100 * (1 - level) / 2
-    return C.mean(axis=0), np.percentile(boot, a, axis=0), np.percentile(boot, 100 - a, axis=0)
+    return _bootstrap(cdf_matrix(recs, np.asarray(p, dtype=float)), n_boot, level, seed)
 
 
 def bootstrap_density_band(recs, edges, *, n_boot: int = 400, level: float = 0.95, seed: int = 0):
     """Pooled density of the bins ``edges`` (mass / width, the delta peak at 0 is
     not in it) and its bootstrap band. Returns ``(density, lo, hi)``."""
     edges = np.asarray(edges, dtype=float)
-    C = cdf_matrix(recs, edges)
-    M = np.diff(C, axis=1) / np.diff(edges)
-    rng = np.random.default_rng(seed)
-    S = M.shape[0]
-    boot = np.array([M[rng.integers(0, S, S)].mean(axis=0) for _ in range(n_boot)])
-    a = 100 * (1 - level) / 2
-    return M.mean(axis=0), np.percentile(boot, a, axis=0), np.percentile(boot, 100 - a, axis=0)
+    return _bootstrap(np.diff(cdf_matrix(recs, edges), axis=1) / np.diff(edges), n_boot, level, seed)
 
 
 def kolmogorov(first, second, p_min: Optional[float] = None) -> float:
@@ -142,18 +123,11 @@ def noise_floor(recs, *, sizes: Optional[Sequence[int]] = None, repeats: int = 2
         raise ValueError(f"sizes must be in [1, {S // 2}] (two disjoint pools of N seeds); got {sizes.tolist()}")
     C = cdf_matrix(recs, cdf_grid(recs, p_min))
     rng = np.random.default_rng(seed)
-    mean, sd = [], []
-    for k in sizes:
-        ks = []
-        for _ in range(repeats):
-            perm = rng.permutation(S)
-            ks.append(np.max(np.abs(C[perm[:k]].mean(0) - C[perm[k:2 * k]].mean(0))))
-        mean.append(np.mean(ks))
-        sd.append(np.std(ks))
-    k_pair = np.array(mean)
-    k_noise = k_pair / np.sqrt(2.0)
+    ks = np.array([[np.max(np.abs(C[perm[:k]].mean(0) - C[perm[k:2 * k]].mean(0)))
+                    for perm in (rng.permutation(S) for _ in range(repeats))] for k in sizes])
+    k_noise = ks.mean(axis=1) / np.sqrt(2.0)
     coef = float(np.median(k_noise * np.sqrt(sizes)))
-    return NoiseFloor(sizes, k_pair, np.array(sd), k_noise, coef, S, coef / np.sqrt(S), p_min)
+    return NoiseFloor(sizes, ks.mean(axis=1), ks.std(axis=1), k_noise, coef, S, coef / np.sqrt(S), p_min)
 
 
 def scatter(recs, attr: str) -> tuple:
@@ -174,20 +148,11 @@ def finite_size_table(ensemble, wall, *, n_ref: int = 1024, mean_pressure=None, 
     noise of those two pools (the quadrature sum of their split-half noise
     estimates; 0 when a pool has fewer than 2 seeds).
     """
-    from .store import _parse_wall
-
-    z_ref = _parse_wall(wall)
-    recs = []
-    for r in ensemble.records:
-        if not r.converged:
-            continue
-        if mean_pressure is not None and not np.isclose(r.mean_pressure, mean_pressure, rtol=1e-12):
-            continue
-        if z_ref is None:
-            if r.zeta is None:
-                recs.append(r)
-        elif r.zeta is not None and np.isclose(r.zeta, z_ref * r.n / n_ref, rtol=1e-9):
-            recs.append(r)
+    z_ref = parse_wall(wall)
+    recs = [r for r in ensemble.records if r.converged
+            and (mean_pressure is None or np.isclose(r.mean_pressure, mean_pressure, rtol=1e-12))
+            and ((r.zeta is None and z_ref is None)
+                 or (None not in (r.zeta, z_ref) and np.isclose(r.zeta, z_ref * r.n / n_ref, rtol=1e-9)))]
     ns = sorted({r.n for r in recs})
     if not ns:
         raise ValueError(f"no converged records for wall={wall!r} (zeta scaled as n/{n_ref})")

@@ -1,17 +1,10 @@
-"""The ensemble store: one small file per case, keyed by the case's parameters.
-
-A store is a directory. Each finished case is one compressed ``.npz`` file
-``<label>__<key>.npz``: ``key`` is the first 16 hex digits of the SHA-1 of the
-canonical JSON of the case parameters (:func:`case_key`), ``label`` a readable name
-(``n1024_hard_p0.004_s7``). A record holds the parameters, the provenance (convergence,
-code version, FFT threads, host, command) and the reductions of the pressure field
-(:func:`reduce_pressure_field`) and of the surface (:func:`shell_spectrum`); the fields
-are listed in ``docs/ensembles.md``.
-
-Every record is written by one ``os.replace`` of a temporary file in the same directory
-(atomic on POSIX): concurrent writers never share a file, a killed process leaves at most
-a ``*.tmp`` file that readers ignore, and two writers of the same case write the same
-content under the same name, so the store stays duplicate-free without an index.
+"""The ensemble store: a directory with one compressed ``.npz`` per finished case,
+``<label>__<key>.npz`` (``key``: 16 hex digits of the SHA-1 of the case parameters' canonical
+JSON, :func:`case_key`; ``label``: e.g. ``n1024_hard_p0.004_s7``), holding the parameters, the
+provenance and the reductions of the pressure field and the surface (fields listed in
+``docs/ensembles.md``). Each record is written by one ``os.replace`` of a temporary file in
+the same directory: a killed process leaves at most a ``*.tmp`` file that readers ignore, and
+two writers of the same case write the same file, so the store needs no index.
 """
 from __future__ import annotations
 
@@ -28,22 +21,14 @@ from typing import Iterable, Iterator, Optional
 
 import numpy as np
 
-__all__ = [
-    "STORE_LEVELS",
-    "HIST_EDGES_P0",
-    "EnsembleRecord",
-    "Ensemble",
-    "EnsembleGroup",
-    "case_key",
-    "case_label",
-    "reduce_pressure_field",
-    "shell_spectrum",
-    "write_record",
-    "read_record",
-    "load_ensemble",
-    "store_keys",
-    "wall_label",
-]
+from ..histogram import PressureHistogram
+from ..solvers import EXP_CONTACT_THRESHOLD
+
+host = socket.gethostname
+
+__all__ = ["STORE_LEVELS", "HIST_EDGES_P0", "EnsembleRecord", "Ensemble", "EnsembleGroup", "case_key", "case_label",
+           "reduce_pressure_field", "shell_spectrum", "write_record", "read_record", "load_ensemble", "store_keys",
+           "wall_label"]
 
 #: Quantile levels kept per case in a store: ``i/2048``, ``i = 0 ... 2048``. Between
 #: two stored levels the empirical CDF is monotone, so a Kolmogorov distance read
@@ -51,8 +36,6 @@ __all__ = [
 STORE_LEVELS = np.linspace(0.0, 1.0, 2049)
 #: Histogram edges in units of the mean pressure ``p0`` (400 bins of 0.05 p0).
 HIST_EDGES_P0 = np.linspace(0.0, 20.0, 401)
-#: Exponential walls: contact means ``p > EXP_CONTACT_THRESHOLD * p0`` (as solve_contact).
-EXP_CONTACT_THRESHOLD = 0.01
 FORMAT_VERSION = 1
 
 
@@ -61,17 +44,38 @@ def wall_label(zeta: Optional[float]) -> str:
     return "hard" if zeta is None else f"zeta{float(zeta):g}"
 
 
-def _canonical(params: dict) -> str:
-    def norm(v):
-        if isinstance(v, dict):
-            return {k: norm(v[k]) for k in sorted(v)}
-        if isinstance(v, (float, np.floating)):
-            return repr(float(v))
-        if isinstance(v, (np.integer,)):
-            return int(v)
-        return v
+def parse_wall(wall) -> Optional[float]:
+    """``"hard"`` (or ``None``) -> ``None``; ``"zeta0.5"``, ``"0.5"`` or a number -> a float."""
+    if wall is None:
+        return None
+    if isinstance(wall, str):
+        w = wall.strip().lower()
+        if w in ("hard", "hardwall", "hard-wall"):
+            return None
+        try:
+            return float(w[4:] if w.startswith("zeta") else w)
+        except ValueError:
+            raise ValueError(f"wall must be 'hard' or a zeta > 0; got {wall!r}") from None
+    return float(wall)
 
-    return json.dumps(norm(params), sort_keys=True, separators=(",", ":"))
+
+def _jsonable(d: dict) -> str:
+    def conv(v):
+        if isinstance(v, dict):
+            return {k: conv(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [conv(x) for x in v]
+        return v.item() if isinstance(v, np.generic) else v
+
+    return json.dumps(conv(d), sort_keys=True)
+
+
+def _canonical(params: dict) -> str:
+    """Sorted compact JSON with every float written as its repr (the key's text)."""
+    def norm(v):
+        return {k: norm(x) for k, x in v.items()} if isinstance(v, dict) else repr(v) if isinstance(v, float) else v
+
+    return json.dumps(norm(json.loads(_jsonable(params))), sort_keys=True, separators=(",", ":"))
 
 
 def case_key(params: dict) -> str:
@@ -100,19 +104,16 @@ def shell_spectrum(heights: np.ndarray, length: float):
     k = np.fft.fftfreq(n, d=1.0 / n).astype(np.int64)
     k2 = (k[:, None] ** 2 + k[None, :] ** 2).ravel()
     pw[0] = 0.0
-    total = pw.sum()
-    keep = (pw > 1e-24 * total) & (k2 > 0)
+    keep = (pw > 1e-24 * pw.sum()) & (k2 > 0)
     uk2, inv = np.unique(k2[keep], return_inverse=True)
     power = np.bincount(inv, weights=pw[keep], minlength=uk2.size)
     mult = np.bincount(inv, minlength=uk2.size)
-    q = 2.0 * math.pi / float(length) * np.sqrt(uk2.astype(float))
-    return q, power, mult
+    return 2.0 * math.pi / float(length) * np.sqrt(uk2.astype(float)), power, mult
 
 
-def reduce_pressure_field(pressure: np.ndarray, *, mean_pressure: float, zeta: Optional[float],
-                          levels: np.ndarray = STORE_LEVELS) -> dict:
-    """Reduce one pressure field to what the store keeps (the single reduction used
-    by live runs and by ingested fields alike).
+def reduce_pressure_field(pressure: np.ndarray, *, mean_pressure: float, zeta: Optional[float]) -> dict:
+    """Reduce one pressure field to what the store keeps (the one reduction of live runs
+    and ingested fields, :meth:`~gfmd_ref.PressureHistogram.from_pressures`).
 
     Parameters
     ----------
@@ -122,62 +123,39 @@ def reduce_pressure_field(pressure: np.ndarray, *, mean_pressure: float, zeta: O
         Nominal ``p0`` (sets the contact threshold and the histogram edges).
     zeta : float or None
         Wall range (``None``: hard wall, contact means ``p > 0``; else ``p > 0.01 p0``).
-    levels : array
-        Quantile levels in ``[0, 1]``.
 
     Returns
     -------
     dict
-        ``levels``, ``quantiles`` (``np.quantile``, linear interpolation between
-        order statistics), ``mean``, ``variance``, ``third_central``, ``sd``,
-        ``skewness``, ``contact_fraction``, ``contact_threshold``, ``zero_weight``,
-        ``hist_edges``, ``hist_counts`` (non-zero pressures only), ``hist_zero``,
-        ``hist_overflow``, ``n_values``.
+        ``levels`` (:data:`STORE_LEVELS`), ``quantiles`` (``np.quantile``, linear
+        interpolation between order statistics), ``mean``, ``variance``,
+        ``third_central``, ``sd``, ``skewness``, ``contact_fraction``,
+        ``contact_threshold``, ``zero_weight``, ``hist_edges``, ``hist_counts`` (non-zero
+        pressures only), ``hist_zero``, ``hist_overflow``, ``n_values``.
     """
-    p = np.asarray(pressure, dtype=np.float64).ravel()
-    if p.size == 0 or not np.all(np.isfinite(p)):
-        raise ValueError("pressure must be a non-empty array of finite values")
-    if np.any(p < 0):
-        raise ValueError(f"pressure must be >= 0; found min {p.min()!r}")
     p0 = float(mean_pressure)
-    srt = np.sort(p)
-    q = np.quantile(srt, levels)
-    mean = float(p.mean())
-    c = p - mean
-    var = float(np.mean(c * c))
-    third = float(np.mean(c * c * c))
-    sd = math.sqrt(var)
     thr = 0.0 if zeta is None else EXP_CONTACT_THRESHOLD * p0
-    nz = srt[srt != 0.0]
-    edges = HIST_EDGES_P0 * p0
-    counts, _ = np.histogram(nz, bins=edges)
-    return dict(
-        levels=np.asarray(levels, dtype=np.float64),
-        quantiles=q,
-        mean=mean,
-        variance=var,
-        third_central=third,
-        sd=sd,
-        skewness=third / sd**3 if sd > 0 else 0.0,
-        contact_fraction=float(np.count_nonzero(p > thr)) / p.size,
-        contact_threshold=thr,
-        zero_weight=float(p.size - nz.size) / p.size,
-        hist_edges=edges,
-        hist_counts=counts.astype(np.int64),
-        hist_zero=int(p.size - nz.size),
-        hist_overflow=int(nz.size - counts.sum()),
-        n_values=int(p.size),
-    )
+    hist = PressureHistogram.from_pressures(pressure, bins=HIST_EDGES_P0 * p0, n_quantiles=STORE_LEVELS.size,
+                                            contact_threshold=thr)
+    m = hist.moments
+    sd = math.sqrt(m["variance"])
+    return dict(levels=hist.quantile_levels, quantiles=hist.quantiles, mean=m["mean"], variance=m["variance"],
+                third_central=m["third_central"], sd=sd, skewness=m["third_central"] / sd**3 if sd > 0 else 0.0,
+                contact_fraction=m["contact_fraction"], contact_threshold=thr, zero_weight=hist.zero_weight,
+                hist_edges=hist.edges, hist_counts=hist.counts.astype(np.int64),
+                hist_zero=int(hist.n_total - hist.counts.sum() - hist.n_outside), hist_overflow=hist.n_outside,
+                n_values=hist.n_total)
 
 
 @dataclass(frozen=True, eq=False)
 class EnsembleRecord:
     """One case of an ensemble (read from a store or from bundled data).
 
-    ``quantiles`` are the pressures [pressure units] at ``levels``; ``zeta`` is
-    ``None`` for the hard wall, else in the unit of ``length`` (grid spacings, ``L = n``); ``contact_fraction`` uses the solver's definition;
-    ``provenance`` says how the number was made. Records of bundled data have no
-    histogram (``hist_counts is None``) and ``spectrum_q`` may be ``None``.
+    ``quantiles`` are the pressures [pressure units] at ``levels``; ``zeta`` is ``None``
+    for the hard wall, else in the unit of ``length`` (grid spacings, ``L = n``);
+    ``contact_fraction`` uses the solver's definition; ``provenance`` says how the number
+    was made. Records of bundled data have no histogram (``hist_counts is None``) and
+    ``spectrum_q`` may be ``None``.
     """
 
     key: str
@@ -202,19 +180,14 @@ class EnsembleRecord:
     spectrum_power: Optional[np.ndarray] = None
     spectrum_multiplicity: Optional[np.ndarray] = None
 
-    # parameter shortcuts
-    @property
-    def seed(self) -> int:
-        return int(self.params["seed"])
-
-    @property
-    def zeta(self) -> Optional[float]:
-        z = self.params["zeta"]
-        return None if z is None else float(z)
-
-    @property
-    def n(self) -> int:
-        return int(self.params["n"])
+    seed = property(lambda self: int(self.params["seed"]))
+    n = property(lambda self: int(self.params["n"]))
+    length = property(lambda self: float(self.params["length"]))
+    mean_pressure = property(lambda self: float(self.params["mean_pressure"]))
+    E_star = property(lambda self: float(self.params["E_star"]))
+    converged = property(lambda self: bool(self.provenance["converged"]))
+    zeta = property(lambda self: parse_wall(self.params["zeta"]))
+    wall = property(lambda self: wall_label(self.zeta))
 
     def zeta_in(self, unit: str = "grid") -> Optional[float]:
         """The wall range in ``"grid"`` spacings of this record's grid (as stored, ``L = n``)
@@ -225,58 +198,15 @@ class EnsembleRecord:
         return z if z is None or unit == "grid" else z * 1024.0 / self.n
 
     @property
-    def length(self) -> float:
-        return float(self.params["length"])
-
-    @property
-    def mean_pressure(self) -> float:
-        return float(self.params["mean_pressure"])
-
-    @property
-    def E_star(self) -> float:
-        return float(self.params["E_star"])
-
-    @property
-    def converged(self) -> bool:
-        return bool(self.provenance["converged"])
-
-    @property
-    def wall(self) -> str:
-        return wall_label(self.zeta)
-
-    @property
     def group_key(self) -> tuple:
-        """``(zeta, mean_pressure, n)`` plus the surface and modulus (what makes a pool)."""
+        """``(zeta, mean_pressure, n)`` plus the modulus and surface (what makes a pool)."""
         return (self.zeta, self.mean_pressure, self.n, self.E_star, _canonical(self.params.get("surface", {})))
 
     def cdf(self, p) -> np.ndarray:
-        """Empirical CDF ``P(pressure <= p)`` interpolated from the quantiles
-        (exact at the stored quantiles to one level step)."""
-        p = np.asarray(p, dtype=float)
-        q = self.quantiles
-        # right-continuous at ties (the delta at 0): last level with quantile <= p
-        idx = np.searchsorted(q, p, side="right")
-        lo = np.clip(idx - 1, 0, q.size - 1)
-        hi = np.clip(idx, 0, q.size - 1)
-        ql, qh = q[lo], q[hi]
-        ll, lh = self.levels[lo], self.levels[hi]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            t = np.where(qh > ql, (p - ql) / np.where(qh > ql, qh - ql, 1.0), 0.0)
-        out = ll + np.clip(t, 0.0, 1.0) * (lh - ll)
-        return np.where(p < q[0], 0.0, np.where(p >= q[-1], 1.0, out))
-
-
-def _jsonable(d: dict) -> str:
-    def conv(v):
-        if isinstance(v, dict):
-            return {k: conv(x) for k, x in v.items()}
-        if isinstance(v, (list, tuple)):
-            return [conv(x) for x in v]
-        if isinstance(v, np.generic):
-            return v.item()
-        return v
-
-    return json.dumps(conv(d), sort_keys=True)
+        """Empirical CDF ``P(pressure <= p)``, linear between the quantiles (exact at the
+        stored quantiles to one level step; at tied quantiles, such as the hard wall's zeros,
+        the last level: right-continuous)."""
+        return np.interp(np.asarray(p, dtype=float), self.quantiles, self.levels, left=0.0, right=1.0)
 
 
 _ARRAYS = ("levels", "quantiles", "hist_edges", "hist_counts", "spectrum_q", "spectrum_power",
@@ -285,24 +215,20 @@ _SCALARS = ("mean", "variance", "third_central", "sd", "skewness", "contact_frac
             "contact_threshold", "zero_weight", "hist_zero", "hist_overflow", "n_values")
 
 
-def record_path(store: os.PathLike | str, params: dict) -> Path:
-    return Path(store) / f"{case_label(params)}__{case_key(params)}.npz"
-
-
 def write_record(store: os.PathLike | str, params: dict, provenance: dict, reduced: dict,
                  spectrum: Optional[tuple] = None) -> Path:
     """Write one record atomically (temporary file in the store, then ``os.replace``)."""
     store = Path(store)
     store.mkdir(parents=True, exist_ok=True)
-    path = record_path(store, params)
-    arrays = {k: np.asarray(reduced[k]) for k in ("levels", "quantiles", "hist_edges", "hist_counts")}
+    path = store / f"{case_label(params)}__{case_key(params)}.npz"
+    arrays = {k: np.asarray(reduced[k]) for k in _ARRAYS[:4]}
     if spectrum is not None:
-        arrays["spectrum_q"], arrays["spectrum_power"], arrays["spectrum_multiplicity"] = spectrum
-    scalars = {k: reduced[k] for k in _SCALARS}
+        arrays.update(zip(_ARRAYS[4:], spectrum))
     tmp = store / f".{path.stem}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp"
     with open(tmp, "wb") as fh:
         np.savez_compressed(fh, params=_jsonable(params), provenance=_jsonable(provenance),
-                            scalars=_jsonable(scalars), format_version=FORMAT_VERSION, **arrays)
+                            scalars=_jsonable({k: reduced[k] for k in _SCALARS}), format_version=FORMAT_VERSION,
+                            **arrays)
         fh.flush()
         os.fsync(fh.fileno())
     os.replace(tmp, path)
@@ -314,10 +240,9 @@ def read_record(path: os.PathLike | str) -> EnsembleRecord:
     try:
         with np.load(path, allow_pickle=False) as z:
             params = json.loads(str(z["params"]))
-            prov = json.loads(str(z["provenance"]))
-            scal = json.loads(str(z["scalars"]))
             arr = {k: (np.array(z[k]) if k in z.files else None) for k in _ARRAYS}
-        return EnsembleRecord(key=case_key(params), params=params, provenance=prov, **arr, **scal)
+            return EnsembleRecord(key=case_key(params), params=params, provenance=json.loads(str(z["provenance"])),
+                                  **arr, **json.loads(str(z["scalars"])))
     except Exception as exc:  # zip, npy, JSON or field errors of a damaged or foreign file
         raise ValueError(f"{os.fspath(path)!r} is not a readable ensemble record ({type(exc).__name__}: {exc}); "
                          "delete it (its case is recomputed by the next run) or move it out of the store") from None
@@ -325,31 +250,25 @@ def read_record(path: os.PathLike | str) -> EnsembleRecord:
 
 def store_keys(store: os.PathLike | str) -> set:
     """Keys of the finished cases in a store (from the file names; no file is opened)."""
-    store = Path(store)
-    if not store.is_dir():
-        return set()
-    return {p.stem.rsplit("__", 1)[-1] for p in store.glob("*__*.npz")}
+    return {p.stem.rsplit("__", 1)[-1] for p in Path(store).glob("*__*.npz")} if Path(store).is_dir() else set()
 
 
 def now_iso() -> str:
     return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
-def host() -> str:
-    return socket.gethostname()
-
-
-# ----------------------------------------------------------------------------- collections
+def _wall_order(z: Optional[float]) -> float:
+    return -1.0 if z is None else z
 
 
 @dataclass(frozen=True, eq=False)
 class EnsembleGroup:
     """The records of one pool: one wall, load, grid (and surface, modulus).
 
-    ``records`` are the converged ones (what reductions use), one per seed;
-    ``excluded`` the non-converged ones, kept visible (``n_excluded``);
-    ``superseded`` further converged records of a seed already in ``records`` (the
-    same case at another ``tol``/``max_iter``: the smallest tol, then residual, wins).
+    ``records`` are the converged ones (what reductions use), one per seed; ``excluded``
+    the non-converged ones, kept visible (``n_excluded``); ``superseded`` further
+    converged records of a seed already in ``records`` (the same case at another
+    ``tol``/``max_iter``: the smallest tol, then residual, wins).
     """
 
     zeta: Optional[float]
@@ -359,25 +278,11 @@ class EnsembleGroup:
     excluded: tuple = ()
     superseded: tuple = ()
 
-    @property
-    def wall(self) -> str:
-        return wall_label(self.zeta)
-
-    @property
-    def seeds(self) -> list:
-        return sorted(r.seed for r in self.records)
-
-    @property
-    def n_seeds(self) -> int:
-        return len(self.records)
-
-    @property
-    def n_excluded(self) -> int:
-        return len(self.excluded)
-
-    @property
-    def E_star(self) -> float:
-        return self.records[0].E_star if self.records else self.excluded[0].E_star
+    wall = property(lambda self: wall_label(self.zeta))
+    seeds = property(lambda self: sorted(r.seed for r in self.records))
+    n_seeds = property(lambda self: len(self.records))
+    n_excluded = property(lambda self: len(self.excluded))
+    E_star = property(lambda self: (self.records or self.excluded)[0].E_star)
 
     def cdf(self, p) -> np.ndarray:
         """Pooled CDF: the mean of the per-seed empirical CDFs (equal area per seed)."""
@@ -395,14 +300,12 @@ class EnsembleGroup:
 class Ensemble:
     """A set of records (from :func:`load_ensemble` or :func:`bundled_ensemble`).
 
-    ``records`` holds every record, converged or not; :meth:`groups` and
-    :meth:`group` pool the converged ones per (wall, load, grid) and count the rest.
+    ``records`` holds every record, converged or not; :meth:`groups` and :meth:`group`
+    pool the converged ones per (wall, load, grid) and count the rest.
     """
 
     def __init__(self, records: Iterable[EnsembleRecord], *, source: str = "", info: Optional[dict] = None):
-        recs = list(records)
-        recs.sort(key=lambda r: (r.n, r.mean_pressure, -1.0 if r.zeta is None else r.zeta, r.seed))
-        self.records = recs
+        self.records = sorted(records, key=lambda r: (r.n, r.mean_pressure, _wall_order(r.zeta), r.seed))
         self.source = source
         self.info = dict(info or {})
 
@@ -423,34 +326,21 @@ class Ensemble:
     @property
     def zetas(self) -> list:
         """Walls present (``None`` = hard wall first, then increasing zeta)."""
-        zs = {r.zeta for r in self.records}
-        return sorted(zs, key=lambda z: -1.0 if z is None else z)
+        return sorted({r.zeta for r in self.records}, key=_wall_order)
 
     def select(self, *, wall=..., zeta=..., mean_pressure=None, n=None, seeds=None,
                converged: Optional[bool] = None) -> list:
-        """Records matching every given criterion. ``wall`` may be ``"hard"``, a
-        float zeta or ``None``; ``zeta=None`` also means the hard wall."""
+        """Records matching every given criterion. ``wall`` may be ``"hard"``, a float zeta
+        or ``None``; ``zeta=None`` also means the hard wall."""
         if wall is not ... and zeta is not ...:
             raise ValueError("give wall or zeta, not both")
-        target = ...
-        if wall is not ...:
-            target = _parse_wall(wall)
-        elif zeta is not ...:
-            target = None if zeta is None else float(zeta)
-        out = []
-        for r in self.records:
-            if target is not ... and not _same_zeta(r.zeta, target):
-                continue
-            if mean_pressure is not None and not math.isclose(r.mean_pressure, mean_pressure, rel_tol=1e-12):
-                continue
-            if n is not None and r.n != int(n):
-                continue
-            if seeds is not None and r.seed not in set(seeds):
-                continue
-            if converged is not None and r.converged != converged:
-                continue
-            out.append(r)
-        return out
+        target = ... if wall is ... and zeta is ... else parse_wall(wall if zeta is ... else zeta)
+        return [r for r in self.records
+                if (target is ... or (r.zeta is None and target is None)
+                    or (None not in (r.zeta, target) and math.isclose(r.zeta, target, rel_tol=1e-9)))
+                and (mean_pressure is None or math.isclose(r.mean_pressure, mean_pressure, rel_tol=1e-12))
+                and (n is None or r.n == int(n)) and (seeds is None or r.seed in set(seeds))
+                and (converged is None or r.converged == converged)]
 
     def groups(self) -> list:
         """One :class:`EnsembleGroup` per (wall, load, grid, surface, modulus)."""
@@ -461,104 +351,55 @@ class Ensemble:
         for k, recs in by.items():
             best: dict = {}
             extra = []
-            for r in sorted((r for r in recs if r.converged), key=_rank):
-                if r.seed in best:
+            rank = (lambda r: (float(r.params.get("tol", 1.0)), float(r.provenance.get("residual", 1.0)), r.key))
+            for r in sorted((r for r in recs if r.converged), key=rank):
+                if best.setdefault(r.seed, r) is not r:
                     extra.append(r)
-                else:
-                    best[r.seed] = r
-            conv = tuple(best[s] for s in sorted(best))
             bad = tuple(sorted((r for r in recs if not r.converged), key=lambda r: r.seed))
-            out.append(EnsembleGroup(k[0], k[1], k[2], conv, bad, tuple(extra)))
-        out.sort(key=lambda g: (g.n, g.mean_pressure, -1.0 if g.zeta is None else g.zeta))
-        return out
+            out.append(EnsembleGroup(k[0], k[1], k[2], tuple(best[s] for s in sorted(best)), bad, tuple(extra)))
+        return sorted(out, key=lambda g: (g.n, g.mean_pressure, _wall_order(g.zeta)))
 
     def group(self, wall=..., *, zeta=..., mean_pressure=None, n=None, seeds=None) -> EnsembleGroup:
-        """The single group of ``wall`` (``"hard"``/None or a zeta; default the hard
-        wall), or equivalently of ``zeta`` (None = hard wall), as in :meth:`select`;
+        """The single group of ``wall`` (``"hard"``/None or a zeta; default the hard wall),
+        or equivalently of ``zeta`` (None = hard wall), as in :meth:`select`;
         ``mean_pressure`` and ``n`` are needed only when the ensemble has several."""
         if wall is ... and zeta is ...:
             wall = "hard"
         recs = self.select(wall=wall, zeta=zeta, mean_pressure=mean_pressure, n=n, seeds=seeds)
-        if wall is ...:
-            wall = "hard" if zeta is None else zeta
+        wall = wall if zeta is ... else ("hard" if zeta is None else zeta)
         if not recs:
             raise ValueError(f"no records for wall={wall!r}, mean_pressure={mean_pressure!r}, n={n!r}; "
                              f"walls present: {[wall_label(z) for z in self.zetas]}")
         keys = {r.group_key for r in recs}
         if len(keys) > 1:
-            raise ValueError(f"wall={wall!r} matches {len(keys)} groups (loads/grids {sorted({(k[1], k[2]) for k in keys})}); "
-                             "give mean_pressure= and n=")
+            raise ValueError(f"wall={wall!r} matches {len(keys)} groups (loads/grids "
+                             f"{sorted({(k[1], k[2]) for k in keys})}); give mean_pressure= and n=")
         return Ensemble(recs).groups()[0]
 
-    def summary_rows(self) -> list:
-        """Per-group table rows (dicts): counts, contact fraction, sd, skewness
-        (mean and seed-to-seed sd over converged records), non-converged count."""
-        rows = []
-        for g in self.groups():
-            recs = g.records
-
-            def ms(attr):
-                v = np.array([getattr(r, attr) for r in recs], dtype=float)
-                if v.size == 0:
-                    return float("nan"), float("nan")
-                return float(v.mean()), float(v.std(ddof=1)) if v.size > 1 else 0.0
-
-            cf, cf_s = ms("contact_fraction")
-            sd, sd_s = ms("sd")
-            sk, sk_s = ms("skewness")
-            it = [int(r.provenance.get("iterations", 0)) for r in recs]
-            wt = [float(r.provenance.get("wall_time", float("nan"))) for r in recs]
-            rows.append(dict(wall=g.wall, zeta=g.zeta, mean_pressure=g.mean_pressure, n=g.n,
-                             seeds=g.n_seeds, not_converged=g.n_excluded,
-                             contact_fraction=cf, contact_fraction_sd=cf_s, sd=sd, sd_sd=sd_s,
-                             skewness=sk, skewness_sd=sk_s,
-                             median_iterations=float(np.median(it)) if it else float("nan"),
-                             median_wall_time=float(np.median(wt)) if wt else float("nan")))
-        return rows
-
     def summary(self) -> str:
-        """The per-group table as text (what ``gfmd-ref ensemble-summary`` prints)."""
-        rows = self.summary_rows()
-        lines = [f"ensemble: {self.source or '(in memory)'}: {len(self.records)} records in {len(rows)} groups; "
+        """Per-group table (what ``gfmd-ref ensemble-summary`` prints): seeds, non-converged
+        count, contact fraction, sd/p0 and skewness (mean and seed-to-seed sd over the
+        converged records), median iterations and wall time."""
+        groups = self.groups()
+        lines = [f"ensemble: {self.source or '(in memory)'}: {len(self.records)} records in {len(groups)} groups; "
                  f"{self.n_not_converged} not converged (excluded from every reduction); "
                  "wall zeta in grid spacings of the record's grid (L = n)",
                  f"{'n':>5} {'p0':>8} {'wall':>10} {'seeds':>5} {'not conv':>8} "
                  f"{'contact frac (sd)':>20} {'sd/p0 (sd)':>16} {'skewness (sd)':>16} {'med it':>7} {'med s':>7}"]
-        for r in rows:
-            p0 = r["mean_pressure"]
-            lines.append(
-                f"{r['n']:>5} {p0:>8.4g} {r['wall']:>10} {r['seeds']:>5} {r['not_converged']:>8} "
-                f"{r['contact_fraction']:>11.5f} ({r['contact_fraction_sd']:.5f}) "
-                f"{r['sd'] / p0:>8.4f} ({r['sd_sd'] / p0:.4f}) "
-                f"{r['skewness']:>8.3f} ({r['skewness_sd']:.3f}) "
-                f"{r['median_iterations']:>7.0f} {r['median_wall_time']:>7.2f}")
+        for g in groups:
+            def ms(attr, scale=1.0):
+                v = np.array([getattr(r, attr) for r in g], dtype=float) / scale
+                return (float("nan"),) * 2 if v.size == 0 else (v.mean(), v.std(ddof=1) if v.size > 1 else 0.0)
+
+            def median(key):
+                return float(np.median([float(r.provenance.get(key, float("nan"))) for r in g])) if g.records \
+                    else float("nan")
+
+            cf, sd, sk = ms("contact_fraction"), ms("sd", g.mean_pressure), ms("skewness")
+            lines.append(f"{g.n:>5} {g.mean_pressure:>8.4g} {g.wall:>10} {g.n_seeds:>5} {g.n_excluded:>8} "
+                         f"{cf[0]:>11.5f} ({cf[1]:.5f}) {sd[0]:>8.4f} ({sd[1]:.4f}) {sk[0]:>8.3f} ({sk[1]:.3f}) "
+                         f"{median('iterations'):>7.0f} {median('wall_time'):>7.2f}")
         return "\n".join(lines)
-
-
-def _rank(r: EnsembleRecord) -> tuple:
-    return (float(r.params.get("tol", 1.0)), float(r.provenance.get("residual", 1.0)), r.key)
-
-
-def _parse_wall(wall) -> Optional[float]:
-    if wall is None:
-        return None
-    if isinstance(wall, str):
-        w = wall.strip().lower()
-        if w in ("hard", "hardwall", "hard-wall"):
-            return None
-        if w.startswith("zeta"):
-            w = w[4:]
-        try:
-            return float(w)
-        except ValueError:
-            raise ValueError(f"wall must be 'hard' or a zeta > 0; got {wall!r}") from None
-    return float(wall)
-
-
-def _same_zeta(a: Optional[float], b: Optional[float]) -> bool:
-    if a is None or b is None:
-        return a is None and b is None
-    return math.isclose(a, b, rel_tol=1e-9)
 
 
 def load_ensemble(store: os.PathLike | str) -> Ensemble:
@@ -572,8 +413,6 @@ def load_ensemble(store: os.PathLike | str) -> Ensemble:
     files = sorted(path.glob("*__*.npz"))
     if not files:
         raise ValueError(f"store {str(store)!r} holds no ensemble record (*__<key>.npz)")
-    info = {}
     man = path / "ensemble.json"
-    if man.exists():
-        info = json.loads(man.read_text())
-    return Ensemble((read_record(f) for f in files), source=str(path), info=info)
+    return Ensemble((read_record(f) for f in files), source=str(path),
+                    info=json.loads(man.read_text()) if man.exists() else {})

@@ -1,9 +1,9 @@
-"""Real-space Numba kernels of the contact solvers (module level, ``cache=True``, no fastmath).
+"""Real-space Numba kernels of the contact solvers (``cache=True``, no fastmath).
 
-numba's numpy error model: a division by zero gives IEEE inf/NaN (no exception branch).
-Grid arrays are C-contiguous ``(n, n)``, looped over flat. The hard wall's contact-set
-fields are packed: ``pc[k]``, ``tc[k]``, ``gcon[k]`` belong to node ``idx[k]`` (``idx``
-sorted). Exponents are clamped to ``[EXP_MIN, EXP_MAX]`` (overflow guard, docs/gfmd.md).
+numba's numpy error model: a division by zero gives IEEE inf/NaN. Grid arrays are
+C-contiguous, looped over flat. The hard wall's contact-set fields are packed: ``pc[k]``,
+``tc[k]``, ``gcon[k]`` belong to node ``idx[k]`` (``idx`` sorted). Exponents are clamped
+to ``[EXP_MIN, EXP_MAX]`` (overflow guard, docs/gfmd.md).
 """
 from __future__ import annotations
 
@@ -25,37 +25,20 @@ def _clamp_exp(x):
     return math.exp(x)
 
 
-# --------------------------------------------------------------------------- hard wall, CCG
-# One full pass per iteration (:func:`pk_gap`); the rest touches only ``idx[:nc]``.
-# The contact set is also kept as a mask ``c`` (``c = p > 0``).
+# hard wall, CCG: one full pass per iteration (pk_gap), the rest touches only idx[:nc];
+# the contact set is also kept as a mask c (c = p > 0)
 
 
 @njit(cache=True, error_model="numpy")
-def contact_sums(z, gcon, idx, nc):
-    """``(sum_c z, sum_c g z)`` over the contact set ``idx[:nc]`` (``gcon[k]`` = ``g`` at
-    ``idx[k]``), one pass: the mean of the preconditioned gap and its dot with the gap."""
+def contact_sums(z, w, idx, nc):
+    """``(sum_c z, sum_c w z)`` over the contact set ``idx[:nc]``, one pass (``w[k]`` packed:
+    the value at ``idx[k]``; ``z`` may be single precision, sums in double)."""
     zf = z.ravel()
-    s = 0.0
-    d = 0.0
+    s = d = 0.0
     for k in range(nc):
         v = float(zf[idx[k]])
         s += v
-        d += gcon[k] * v
-    return s, d
-
-
-@njit(cache=True, error_model="numpy")
-def contact_dot(r, tc, idx, nc):
-    """``(sum_c r, sum_c r t)`` over the contact set ``idx[:nc]``, one pass (``r`` may be
-    single precision, sums in double; ``tc[k]`` = ``t`` at ``idx[k]``, packed): the mean
-    shift and ``t.Gt`` of the step length."""
-    rf = r.ravel()
-    s = 0.0
-    d = 0.0
-    for k in range(nc):
-        v = float(rf[idx[k]])
-        s += v
-        d += v * tc[k]
+        d += w[k] * v
     return s, d
 
 
@@ -63,34 +46,20 @@ def contact_dot(r, tc, idx, nc):
 def pk_gap(u, h, pc, c, idx, nc, masked, want_masked, gcon, ol, olg, gv, a, scale, fold):
     """Gap ``g = u - h - gbar``, ``gbar`` the mean of ``u - h`` over the contact set.
 
-    ``gcon[k]`` = ``g`` at ``idx[k]``; with ``want_masked``, ``masked = g`` on the set and 0
-    elsewhere (the preconditioner's input); the overlaps (``g < 0`` off the set) go to
-    ``ol[:n_overlap]`` (indices) and ``olg`` (gaps). With ``fold``, ``u = scale (u + a gv)``
-    is applied first (the last step's increment) and ``gv`` is zeroed.
-    Returns ``(sum_c g, sum_c g^2, max_c |p g|, max(-g) off the set, n_overlap,
-    max |gv|)`` (the last 0 without ``fold``)."""
-    uf = u.ravel()
-    hf = h.ravel()
-    cf = c.ravel()
-    mf = masked.ravel()
+    ``gcon[k]`` = ``g`` at ``idx[k]``; with ``want_masked``, ``masked = g`` on the set, 0
+    elsewhere; the overlaps (``g < 0`` off the set) go to ``ol[:n_overlap]`` and ``olg``.
+    With ``fold``, ``u = scale (u + a gv)`` first (the last step's increment), ``gv`` zeroed.
+    Returns ``(sum_c g, sum_c g^2, max_c |p g|, max(-g) off the set, n_overlap, max |gv|)``."""
+    uf, hf, cf, mf = u.ravel(), h.ravel(), c.ravel(), masked.ravel()
     gf = gv.ravel()
     s = 0.0
-    if fold:
-        for k in range(nc):
-            i = idx[k]
-            d = scale * (uf[i] + a * float(gf[i])) - hf[i]
-            gcon[k] = d
-            s += d
-    else:
-        for k in range(nc):
-            i = idx[k]
-            d = uf[i] - hf[i]
-            gcon[k] = d
-            s += d
+    for k in range(nc):
+        i = idx[k]
+        d = (scale * (uf[i] + a * float(gf[i])) if fold else uf[i]) - hf[i]
+        gcon[k] = d
+        s += d
     gbar = s / nc if nc > 0 else 0.0
-    sg = 0.0
-    gn = 0.0
-    comp = 0.0
+    sg = gn = comp = 0.0
     for k in range(nc):
         gi = gcon[k] - gbar
         gcon[k] = gi
@@ -128,16 +97,12 @@ def pk_gap(u, h, pc, c, idx, nc, masked, want_masked, gcon, ol, olg, gv, a, scal
 
 @njit(cache=True, error_model="numpy")
 def pk_direction(z, from_gap, gcon, idx, nc, tc, shift, beta, t2):
-    """Polonsky-Keer direction on the contact set, packed (``tc[k]`` = ``t`` at ``idx[k]``;
-    ``t`` is zero elsewhere): ``t = g + beta t`` (``from_gap``: plain conjugate gradients)
-    or, preconditioned, ``t = z - shift + beta t`` with ``z = K (masked g)`` and
-    ``shift = mean_c z`` (so that a step along ``t`` keeps the load). ``t2`` (full grid,
-    zero off the set) receives ``t`` at ``idx[k]``: the direction the step length's FFT
-    reads, in single or double precision. Returns ``(sum t, sum g t)``."""
-    zf = z.ravel()
-    t2f = t2.ravel()
-    st = 0.0
-    sgt = 0.0
+    """Polonsky-Keer direction on the contact set, packed (zero elsewhere): ``t = g + beta t``
+    (``from_gap``, plain CG) or ``t = z - shift + beta t`` with ``z = K (masked g)`` and
+    ``shift = mean_c z`` (a step along ``t`` keeps the load). ``t2`` (full grid) receives
+    ``t`` for the step length's FFT. Returns ``(sum t, sum g t)``."""
+    zf, t2f = z.ravel(), t2.ravel()
+    st = sgt = 0.0
     for k in range(nc):
         x = gcon[k] if from_gap else zf[idx[k]] - shift
         v = x + beta * tc[k]
@@ -154,17 +119,12 @@ def pk_step(pc, c, tc, idx, nc, ol, olg, n_overlap, tau, idx_new, pc_new, tc_new
 
     A projected node leaves the set; an overlap ``ol[m]`` joins it where ``-tau g > 0``
     (with ``t = 0``). One merge pass over both sorted lists writes the new set to
-    ``idx_new``, ``pc_new``, ``tc_new``. With ``want_dv``, ``dv = p_new - p_old`` (float32)
-    at every visited node. The load is restored by :func:`pk_rescale`.
-    Returns ``(n_projected, sum p, new nc)``."""
-    cf = c.ravel()
-    t2f = t2.ravel()
-    vf = dv.ravel()
+    ``idx_new``, ``pc_new``, ``tc_new``; with ``want_dv``, ``dv = p_new - p_old`` (float32)
+    at every visited node. Returns ``(n_projected, sum p, new nc)``."""
+    cf, t2f, vf = c.ravel(), t2.ravel(), dv.ravel()
     nproj = 0
     s = 0.0
-    k = 0
-    m = 0
-    n = 0
+    k = m = n = 0
     while k < nc or m < n_overlap:
         if m >= n_overlap or (k < nc and idx[k] < ol[m]):
             i = idx[k]
@@ -201,8 +161,7 @@ def pk_step(pc, c, tc, idx, nc, ol, olg, n_overlap, tau, idx_new, pc_new, tc_new
 
 @njit(cache=True, error_model="numpy")
 def pk_rescale(pc, nc, scale):
-    """``p *= scale`` on the contact set (packed ``pc[:nc]``: the load back at ``p0``).
-    Returns ``sum p`` after the scaling."""
+    """``pc[:nc] *= scale`` (the load back at ``p0``); returns the new ``sum p``."""
     s = 0.0
     for k in range(nc):
         v = pc[k] * scale
@@ -213,7 +172,7 @@ def pk_rescale(pc, nc, scale):
 
 @njit(cache=True, error_model="numpy")
 def zero_at(x, idx, nc):
-    """``x[idx[k]] = 0`` for ``k < nc`` (the nodes a step wrote its increment to)."""
+    """``x[idx[k]] = 0`` for ``k < nc``."""
     xf = x.ravel()
     for k in range(nc):
         xf[idx[k]] = 0.0
@@ -221,32 +180,14 @@ def zero_at(x, idx, nc):
 
 @njit(cache=True, error_model="numpy")
 def scatter_contact(pc, idx, nc, p):
-    """The full grid of a packed field: ``p = 0``, then ``p[idx[k]] = pc[k]`` for ``k < nc``
-    (the pressure the exact ``u = G p`` and the answer need)."""
+    """The full grid of a packed field: ``p = 0``, then ``p[idx[k]] = pc[k]`` for ``k < nc``."""
     pf = p.ravel()
     pf[:] = 0.0
     for k in range(nc):
         pf[idx[k]] = pc[k]
 
 
-# --------------------------------------------------------------------------- exponential wall
-
-
-@njit(cache=True, error_model="numpy")
-def exp_log_mean(u, h, zeta):
-    """``zeta * log(mean(exp(-(u - h)/zeta)))`` evaluated stably (log-sum-exp)."""
-    uf = u.ravel()
-    hf = h.ravel()
-    n = uf.size
-    m = -np.inf
-    for i in range(n):
-        x = -(uf[i] - hf[i]) / zeta
-        if x > m:
-            m = x
-    s = 0.0
-    for i in range(n):
-        s += math.exp(-(uf[i] - hf[i]) / zeta - m)
-    return zeta * (m + math.log(s / n))
+# exponential wall
 
 
 #: exp(x) rounds to +0 for every x below this (round-to-nearest gives 0 below exp(-745.13))
@@ -255,13 +196,10 @@ EXP_ZERO = -746.0
 
 @njit(cache=True, error_model="numpy")
 def exp_exponents(u, h, zeta, e, keep):
-    """``e = x - m`` with the wall's exponents ``x = -(u - h)/zeta`` and their largest
-    ``m`` (returned). Below :data:`EXP_ZERO` (exponential ``+0``) ``e`` is set to 0 and
-    ``keep`` False, so numpy's ``exp(where=keep)`` skips libm's slow underflow path."""
-    uf = u.ravel()
-    hf = h.ravel()
-    ef = e.ravel()
-    kf = keep.ravel()
+    """``e = x - m`` with the wall's exponents ``x = -(u - h)/zeta`` and their largest ``m``
+    (returned). Below :data:`EXP_ZERO` ``e = 0`` and ``keep`` False, so numpy's
+    ``exp(where=keep)`` skips libm's slow underflow path."""
+    uf, hf, ef, kf = u.ravel(), h.ravel(), e.ravel(), keep.ravel()
     m = -np.inf
     for i in range(uf.size):
         x = -(uf[i] - hf[i]) / zeta
@@ -280,12 +218,10 @@ def exp_exponents(u, h, zeta, e, keep):
 
 @njit(cache=True, error_model="numpy")
 def exp_sum_residual(e, p, p0):
-    """From ``e = exp(x - m)`` (:func:`exp_exponents`): ``s = sum e`` and the force
-    residual ``max |sigma - p| / p0`` with the wall pressure ``sigma = p0 exp(-(z0 + u -
-    h)/zeta) = p0 e n / s`` (``e <= 1`` never overflows, and ``n/s <= n``). Returns
-    ``(s, residual)``."""
-    ef = e.ravel()
-    pf = p.ravel()
+    """From ``e = exp(x - m)`` (:func:`exp_exponents`): ``(s, residual)``, ``s = sum e`` and
+    the force residual ``max |sigma - p| / p0`` with the wall pressure ``sigma = p0 exp(-(z0
+    + u - h)/zeta) = p0 e n / s`` (never overflows: ``e <= 1``, ``n/s <= n``)."""
+    ef, pf = e.ravel(), p.ravel()
     n = ef.size
     s = 0.0
     for i in range(n):
@@ -302,56 +238,29 @@ def exp_sum_residual(e, p, p0):
 @njit(cache=True, error_model="numpy")
 def exp_pressure(z, h, p0, zeta, out):
     """``out = p0 exp(-(z - h)/zeta)`` with the exponent clamped (see module doc)."""
-    zf = z.ravel()
-    hf = h.ravel()
-    of = out.ravel()
+    zf, hf, of = z.ravel(), h.ravel(), out.ravel()
     for i in range(zf.size):
         of[i] = p0 * _clamp_exp(-(zf[i] - hf[i]) / zeta)
 
 
 @njit(cache=True, error_model="numpy")
-def _energy_terms(p, u, h, lp, zeta):
-    """One node's dual-energy density ``p u/2 - p h + zeta p lp`` and the sum of its terms'
-    magnitudes."""
-    t1 = 0.5 * p * u
-    t2 = p * h
-    t3 = zeta * p * lp
-    return t1 - t2 + t3, abs(t1) + abs(t2) + abs(t3)
-
-
-@njit(cache=True, error_model="numpy")
-def dual_gradient(u, h, p, lp, zeta, grad):
-    """Gradient of the dual energy: ``u - h + zeta (lp + 1)`` with ``lp = log(p/p0)``
-    (taken by numpy, vectorized); returns the dual energy per node ``mean(p u / 2 - p h
-    + zeta p lp)`` and the mean magnitude of its terms (the scale of its round-off, see
-    :func:`dual_energy`)."""
-    uf = u.ravel()
-    hf = h.ravel()
-    pf = p.ravel()
-    lf = lp.ravel()
-    gf = grad.ravel()
-    e = 0.0
-    a = 0.0
+def dual_energy(u, h, p, lp, zeta, grad=None):
+    """The dual energy per node ``mean(p u/2 - p h + zeta p lp)`` (``lp = log(p/p0)``) and the
+    mean magnitude of its terms: near the solution the energy is a small difference of
+    those terms, so its round-off scales with the magnitude. With ``grad``, also writes the
+    gradient ``u - h + zeta (lp + 1)`` there."""
+    uf, hf, pf, lf = u.ravel(), h.ravel(), p.ravel(), lp.ravel()
+    if grad is not None:
+        gf = grad.ravel()
+    e = a = 0.0
     for i in range(uf.size):
-        gf[i] = uf[i] - hf[i] + zeta * (lf[i] + 1.0)
-        de, da = _energy_terms(pf[i], uf[i], hf[i], lf[i], zeta)
-        e += de
-        a += da
-    return e / uf.size, a / uf.size
-
-
-@njit(cache=True, error_model="numpy")
-def dual_energy(u, h, p, lp, zeta):
-    """The dual energy per node (as :func:`dual_gradient`, without the gradient) and the
-    mean magnitude of its terms. The energy is a small difference of those terms near
-    the solution, so its round-off scales with the magnitude, not with the energy."""
-    uf = u.ravel()
-    e = 0.0
-    a = 0.0
-    for i in range(uf.size):
-        de, da = _energy_terms(p.flat[i], uf[i], h.flat[i], lp.flat[i], zeta)
-        e += de
-        a += da
+        if grad is not None:
+            gf[i] = uf[i] - hf[i] + zeta * (lf[i] + 1.0)
+        t1 = 0.5 * pf[i] * uf[i]
+        t2 = pf[i] * hf[i]
+        t3 = zeta * pf[i] * lf[i]
+        e += t1 - t2 + t3
+        a += abs(t1) + abs(t2) + abs(t3)
     return e / uf.size, a / uf.size
 
 
@@ -360,9 +269,7 @@ def dual_step(p, dp, alpha, p0, pmin, out):
     """Trial point along a Newton direction: linear where ``dp >= 0``, multiplicative
     ``p exp(alpha dp / p)`` where ``dp < 0`` (stays positive), floored at ``pmin``,
     rescaled to mean ``p0``."""
-    pf = p.ravel()
-    df = dp.ravel()
-    of = out.ravel()
+    pf, df, of = p.ravel(), dp.ravel(), out.ravel()
     n = pf.size
     s = 0.0
     for i in range(n):
@@ -384,18 +291,11 @@ def dual_step(p, dp, alpha, p0, pmin, out):
 
 @njit(cache=True, error_model="numpy")
 def ncg_update(x, r, d, gd, wdiag, minv, p, a):
-    """One projected-CG update of the Newton direction, one pass: ``x += a d`` and
-    ``r -= a (G d + wdiag d)`` (``gd = G d``). Returns ``(sum minv r, sum p r)`` of the
-    new ``r``: the shifts of :func:`ncg_shift`."""
-    xf = x.ravel()
-    rf = r.ravel()
-    df = d.ravel()
-    gf = gd.ravel()
-    wf = wdiag.ravel()
-    mf = minv.ravel()
-    pf = p.ravel()
-    sm = 0.0
-    sp = 0.0
+    """One projected-CG update, one pass: ``x += a d``, ``r -= a (gd + wdiag d)`` (``gd = G d``).
+    Returns ``(sum minv r, sum p r)`` of the new ``r`` (the shifts of :func:`ncg_shift`)."""
+    xf, rf, df, gf = x.ravel(), r.ravel(), d.ravel(), gd.ravel()
+    wf, mf, pf = wdiag.ravel(), minv.ravel(), p.ravel()
+    sm = sp = 0.0
     for i in range(xf.size):
         di = df[i]
         xf[i] += a * di
@@ -413,11 +313,8 @@ def ncg_shift(r, minv, p, c, cp):
     ``c = (minv.r)/sum minv`` makes ``z = minv r`` sum to 0. Returns ``(r.z, max |p (r -
     cp)|)``, ``cp = sum p r / sum p`` before the shift: the preconditioned norm and the
     predicted force residual times ``zeta p0``."""
-    rf = r.ravel()
-    mf = minv.ravel()
-    pf = p.ravel()
-    rz = 0.0
-    m = 0.0
+    rf, mf, pf = r.ravel(), minv.ravel(), p.ravel()
+    rz = m = 0.0
     for i in range(rf.size):
         v = rf[i]
         e = abs(pf[i] * (v - cp))
@@ -431,13 +328,9 @@ def ncg_shift(r, minv, p, c, cp):
 
 @njit(cache=True, error_model="numpy")
 def ncg_direction(d, r, minv, wdiag, beta, d2):
-    """``d = minv r + beta d`` (the next projected-CG direction), one pass; ``d2``
-    receives a copy (the single-precision input of the next FFT; pass ``d`` itself where
-    there is none). Returns ``sum wdiag d^2``, the diagonal part of ``d.A d``."""
-    df = d.ravel()
-    d2f = d2.ravel()
-    rf = r.ravel()
-    mf = minv.ravel()
+    """``d = minv r + beta d``, one pass; ``d2`` receives a copy (the single-precision input
+    of the next FFT, or ``d`` itself). Returns ``sum wdiag d^2``, the diagonal part of ``d.A d``."""
+    df, d2f, rf, mf = d.ravel(), d2.ravel(), r.ravel(), minv.ravel()
     wf = wdiag.ravel()
     s = 0.0
     for i in range(df.size):
@@ -448,19 +341,15 @@ def ncg_direction(d, r, minv, wdiag, beta, d2):
     return s
 
 
-# --------------------------------------------------------------------------- FIRE helpers
+# FIRE
 
 
 @njit(cache=True, error_model="numpy")
 def project_active(z, h, v, pel, contact):
-    """Active-set hard wall for FIRE. A contact node (``contact[i]``) that still carries
-    compression (``pel > 0``) stays on the wall (``z = h``, ``v = 0``): contact nodes
-    only detach under tension. A free node that penetrates (``z < h``) is put on the
-    wall and joins the contact set. Returns the number of contact nodes."""
-    zf = z.ravel()
-    hf = h.ravel()
-    vf = v.ravel()
-    pf = pel.ravel()
+    """Active-set hard wall: a contact node under compression (``pel > 0``) stays on the wall
+    (``z = h``, ``v = 0``; nodes detach only under tension), a free node that penetrates
+    joins it. Returns the number of contact nodes."""
+    zf, hf, vf, pf = z.ravel(), h.ravel(), v.ravel(), pel.ravel()
     cf = contact.ravel()
     nc = 0
     for i in range(zf.size):
@@ -478,11 +367,8 @@ def project_active(z, h, v, pel, contact):
 def hard_force(contact, pel, f):
     """Hard-wall projected force: 0 on a compressed contact node, ``-p_el`` elsewhere.
     Returns ``(max |f|, sum of reactions)``."""
-    cf = contact.ravel()
-    pf = pel.ravel()
-    ff = f.ravel()
-    r = 0.0
-    s = 0.0
+    cf, pf, ff = contact.ravel(), pel.ravel(), f.ravel()
+    r = s = 0.0
     for i in range(pf.size):
         if cf[i] and pf[i] > 0.0:
             s += pf[i]

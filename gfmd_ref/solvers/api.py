@@ -15,7 +15,6 @@ import numpy as np
 
 from .._validation import check_heights, check_int, check_positive, check_real, check_tol
 from .._validation import check_periodic as _check_periodic
-from ..fft import check_threads
 from ..interactions import ExponentialRepulsion, HardWall
 from .ccg import ccg
 from .elastic import Elastic
@@ -24,11 +23,8 @@ from .newton import newton
 
 __all__ = ["solve_contact", "ContactResult", "ConvergenceWarning", "METHODS", "EXP_CONTACT_THRESHOLD"]
 
-#: methods available per interaction ("auto" picks the first, the fastest).
-METHODS = {
-    "HardWall": ("ccg", "pk", "fire"),
-    "ExponentialRepulsion": ("newton", "fire"),
-}
+#: methods per interaction ("auto" picks the first, the fastest).
+METHODS = {"HardWall": ("ccg", "pk", "fire"), "ExponentialRepulsion": ("newton", "fire")}
 
 #: exponential wall: refuse problems whose round-off floor of the residual exceeds this.
 EXP_FLOOR_LIMIT = 1e-3
@@ -49,15 +45,14 @@ class ContactResult:
     displacement - heights``. ``contact_fraction`` is :meth:`contact_area` at its default
     threshold ``contact_threshold``: hard wall, fraction of nodes with ``pressure > 0``;
     exponential wall, fraction with ``pressure > EXP_CONTACT_THRESHOLD * p0 = 0.01 p0``.
-    ``length`` is the cell side ``L`` (a float) or ``(Lx, Ly)`` for a rectangular cell. ``iterations`` counts the costly
-    operator applications (one FFT pair each: CG/FIRE steps, Newton line-search
-    evaluations). ``residual`` is relative to ``mean_pressure`` (see module doc).
+    ``length`` is the cell side ``L`` (a float) or ``(Lx, Ly)`` for a rectangular cell.
+    ``iterations`` counts the costly operator applications (one FFT pair each: CG/FIRE
+    steps, Newton line-search evaluations). ``residual`` is relative to ``mean_pressure``.
     """
 
     pressure: np.ndarray
     gap: np.ndarray
     displacement: np.ndarray
-    contact_fraction: float
     converged: bool
     iterations: int
     residual: float
@@ -73,30 +68,17 @@ class ContactResult:
     contact_threshold: float = 0.0
     info: dict = field(default_factory=dict)
 
+    @property
+    def contact_fraction(self) -> float:
+        """:meth:`contact_area` at its default threshold :attr:`contact_threshold`."""
+        return self.contact_area()
+
     def contact_area(self, threshold: float | None = None) -> float:
         """Relative contact area: the fraction of nodes with ``pressure > threshold``
         [pressure]; default :attr:`contact_threshold` (hard wall 0, exponential wall
         ``EXP_CONTACT_THRESHOLD * mean_pressure``)."""
         thr = self.contact_threshold if threshold is None else check_real("threshold", threshold, low=0.0)
         return float(np.count_nonzero(self.pressure > thr)) / self.pressure.size
-
-
-def _full_contact_hard(h, p0, el):
-    """Closed-form hard-wall solution when every node is in contact: the solid follows
-    the surface, ``p = p0 + IFFT[(q E*/2) FFT(h)]``; valid (and exact) iff ``min p >= 0``.
-    Returns the pressure or ``None``."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        p = p0 + el.apply(el.K, h)
-    if not np.all(np.isfinite(p)) or np.min(p) < 0.0:
-        return None
-    return p
-
-
-def default_max_iter(n: int, interaction, method: str) -> int:
-    """The default cap on operator applications of ``method`` on an ``(n, n)`` grid."""
-    if method == "fire":
-        return 100000 if isinstance(interaction, ExponentialRepulsion) else 20000
-    return 5000 + 20 * n
 
 
 def solve_contact(
@@ -110,8 +92,7 @@ def solve_contact(
     max_iter: int | None = None,
     method: str = "auto",
     progress: bool = False,
-    warm_start: bool = False,
-    threads: int | None = None,
+    threads: int = 1,
     check_periodic: bool = True,
 ) -> ContactResult:
     """Equilibrium of an elastic half-space pressed on a rigid periodic rough surface.
@@ -145,22 +126,17 @@ def solve_contact(
         Cap on operator applications (FFT pairs; default depends on method and size).
     method : {"auto", "ccg", "pk", "newton", "fire"}
         ``"ccg"``: Polonsky-Keer constrained conjugate gradients with a Fourier-diagonal
-        preconditioner ``q E*/2`` (hard wall only); ``"pk"``: the same without the
-        preconditioner;
+        preconditioner ``q E*/2`` (hard wall only); ``"pk"``: the same without it;
         ``"newton"``: dual Newton-CG (exponential wall only); ``"fire"``: GFMD with
-        mass-weighted FIRE (both). ``"auto"`` picks ``ccg`` / ``newton``.
-        With ``ccg``/``pk``, a load high enough for full contact is answered by the closed form
+        mass-weighted FIRE (both). ``"auto"`` picks ``ccg`` / ``newton``. With
+        ``ccg``/``pk``, a load high enough for full contact is answered by the closed form
         ``p = p0 + IFFT[(q E*/2) FFT(h)]`` (exact when it is ``>= 0`` everywhere;
         ``info["closed_form"] = True``, zero iterations).
     progress : bool
         Show a tqdm progress bar in decades of residual reduction (from the first
         residual down to ``tol``).
-    warm_start : bool
-        Exponential wall with ``newton``: start from the hard-wall (CCG) solution
-        instead of the uniform pressure ``p0`` (default False, the faster one).
-    threads : int, optional
-        FFT threads (default :data:`gfmd_ref.fft.DEFAULT_THREADS` = 1). The answer does
-        not depend on it beyond round-off.
+    threads : int
+        FFT threads (>= 1). The answer does not depend on it beyond round-off.
     check_periodic : bool
         Refuse (ValueError) a map whose jump across the cell boundary exceeds 3 times its
         largest step between neighbours inside (:func:`gfmd_ref._validation.check_periodic`:
@@ -189,15 +165,15 @@ def solve_contact(
     if np.ndim(length) == 1 and len(length) == 2:
         lengths = (check_positive("length[0]", length[0]), check_positive("length[1]", length[1]))
     else:
-        lengths = (check_positive("length", length),) * 2
-        lengths = (lengths[0], lengths[0] * h.shape[1] / h.shape[0])
+        lx = check_positive("length", length)
+        lengths = (lx, lx * h.shape[1] / h.shape[0])
     length = lengths[0] if h.shape[0] == h.shape[1] and lengths[0] == lengths[1] else lengths
     E_star = check_positive("E_star", E_star)
     p0 = check_positive("mean_pressure", mean_pressure)
     tol = check_tol(tol)
     if check_periodic:
         _check_periodic(h)
-    threads = check_threads(threads)
+    threads = check_int("threads", 1 if threads is None else threads)
     if not isinstance(interaction, (HardWall, ExponentialRepulsion)):
         raise ValueError("interaction must be gfmd_ref.HardWall() or gfmd_ref.ExponentialRepulsion(zeta); "
                          f"got {interaction!r}")
@@ -205,59 +181,42 @@ def solve_contact(
     allowed = ("auto",) + METHODS[kind]
     if not isinstance(method, str) or method not in allowed:
         raise ValueError(f"method must be one of {allowed} for {kind}; got {method!r}")
-    if method == "auto":
-        method = METHODS[kind][0]
-    n = max(h.shape)
-    if max_iter is None:
-        max_iter = default_max_iter(n, interaction, method)
-    max_iter = check_int("max_iter", max_iter, minimum=1)
-    hard = isinstance(interaction, HardWall)
-    zeta = None if hard else interaction.zeta
-    if not hard:
+    method = METHODS[kind][0] if method == "auto" else method
+    zeta = getattr(interaction, "zeta", None)
+    if max_iter is None:  # FIRE's steps are cheap and many; CG's grow with the grid
+        max_iter = (20000 if zeta is None else 100000) if method == "fire" else 5000 + 20 * max(h.shape)
+    max_iter = check_int("max_iter", max_iter)
+    if zeta is not None:
         # u = G p has absolute error ~ eps p0/(E* q1): a residual floor eps p0/(E* q1 zeta).
         # Refuse a floor above 1e-3; below it an unreachable tol ends by stall detection.
         q1 = 2.0 * math.pi / max(lengths)
         floor = 2.2e-16 * (p0 / E_star) / (q1 * zeta)
         if not floor < EXP_FLOOR_LIMIT:
-            need = 2.2e-16 * p0 / (q1 * zeta * EXP_FLOOR_LIMIT)
             raise ValueError(
-                f"E_star={E_star!r} is too small for mean_pressure={p0!r} and zeta={zeta!r}: the elastic "
-                f"response is below double precision (force-residual floor {floor:.1e} p0); need E_star > {need:.1e}")
+                f"E_star={E_star!r} is too small for mean_pressure={p0!r} and zeta={zeta!r}: the elastic response "
+                f"is below double precision (force-residual floor {floor:.1e} p0); need E_star > "
+                f"{2.2e-16 * p0 / (q1 * zeta * EXP_FLOOR_LIMIT):.1e}")
     el = Elastic(h.shape, lengths, E_star, threads)
-    hs = float(np.std(h))
-    h_scale = hs if hs > 0 else max(lengths)
-
-    closed = _full_contact_hard(h, p0, el) if method in ("ccg", "pk") else None
+    closed = None
+    if method in ("ccg", "pk"):  # full contact: the solid follows the surface, exact iff min p >= 0
+        with np.errstate(over="ignore", invalid="ignore"):
+            closed = p0 + el.apply(el.K, h)
+        closed = closed if np.all(np.isfinite(closed)) and np.min(closed) >= 0.0 else None
     if closed is not None:
         load = abs(float(np.mean(closed)) - p0) / p0
         out = dict(pressure=closed, gap=np.zeros_like(h), displacement=h.copy(), converged=load < tol,
                    iterations=0, residual=load, history=np.array([load]),
-                   stop="converged" if load < tol else "max_iter",
-                   info=dict(h_scale=h_scale, fft_pairs=1, closed_form=True,
-                             history_stamps=np.array([[0.0, time.perf_counter() - t0]])))
+                   stop="converged" if load < tol else "max_iter", info=dict(fft_pairs=1, closed_form=True))
     elif method in ("ccg", "pk"):
-        out = ccg(h, p0, el, tol, max_iter, progress, h_scale, precond=method == "ccg")
-        out["info"]["closed_form"] = False
+        hs = float(np.std(h))
+        out = ccg(h, p0, el, tol, max_iter, progress, hs if hs > 0 else max(lengths), precond=method == "ccg")
     elif method == "fire":
         out = fire(h, p0, zeta, el, tol, max_iter, progress)
     else:
-        p_init, it0, tw = None, 0, time.perf_counter()
-        if warm_start:
-            hw = ccg(h, p0, el, max(1e-6, tol), max_iter, False, h_scale)
-            it0 = hw["iterations"]
-            g = np.maximum(hw["gap"], 0.0)
-            p_init = np.where(hw["pressure"] > 0, hw["pressure"], p0 * np.exp(-np.minimum(g / zeta, 740.0)))
-        tw = time.perf_counter() - tw
-        out = newton(h, p0, zeta, el, tol, max_iter, progress, p_init, it0)
-        if out["info"]["history_stamps"].size:
-            out["info"]["history_stamps"][:, 1] += tw
-        out["info"].update(warm_start=bool(warm_start), warm_start_iterations=it0)
-
-    p = out["pressure"]
-    thr = 0.0 if hard else EXP_CONTACT_THRESHOLD * p0
-    cf = float(np.count_nonzero(p > thr)) / p.size
+        out = newton(h, p0, zeta, el, tol, max_iter, progress)
+    info = dict(out["info"], stop=out["stop"], fft_threads=threads, closed_form=closed is not None)
     if out["converged"]:
-        how = "closed form (full contact)" if out["info"].get("closed_form") else method
+        how = "closed form (full contact)" if info["closed_form"] else method
         msg = f"converged: residual {out['residual']:.3e} < tol {tol:.1e} after {out['iterations']} iterations ({how})"
     else:
         reason = f"max_iter={max_iter} reached" if out["stop"] == "max_iter" else out["stop"]
@@ -265,10 +224,8 @@ def solve_contact(
                f"after {out['iterations']} iterations ({method}; {reason})")
         warnings.warn(msg, ConvergenceWarning, stacklevel=2)
     return ContactResult(
-        pressure=p, gap=out["gap"], displacement=out["displacement"], contact_fraction=cf,
-        converged=bool(out["converged"]), iterations=int(out["iterations"]), residual=float(out["residual"]),
-        wall_time=time.perf_counter() - t0, method=method, message=msg, residual_history=out["history"],
-        interaction=interaction, mean_pressure=p0, E_star=E_star, length=length, tol=tol, contact_threshold=thr,
-        info={**out["info"], "stop": out["stop"], "fft": el.fft.name, "fft_threads": el.fft.threads,
-              "fft_seconds": el.fft.transform_seconds, "multiply_seconds": el.fft.multiply_seconds},
-    )
+        pressure=out["pressure"], gap=out["gap"], displacement=out["displacement"], converged=bool(out["converged"]),
+        iterations=int(out["iterations"]), residual=float(out["residual"]), wall_time=time.perf_counter() - t0,
+        method=method, message=msg, residual_history=out["history"], interaction=interaction, mean_pressure=p0,
+        E_star=E_star, length=length, tol=tol, contact_threshold=0.0 if zeta is None else EXP_CONTACT_THRESHOLD * p0,
+        info=info)

@@ -86,22 +86,19 @@ def ccg(h, p0, el, tol, max_iter, progress, h_scale, precond=True):
             sg, gn, n_ol, res, _ = residual()
         if mon.check(res, it):
             break
+        zbar, gz = 0.0, gn  # pk: the direction from the gap itself
         if precond:  # z = K (masked g) in place; g.z over the contact set
             el.fft.apply_route(Kn32, z32, z32, dot=False)
             n_single += 1
             zsum, sgz = kr.contact_sums(z32, gcon, idx, nc)
             zbar = zsum / nc if nc > 0 else 0.0
             gz = sgz - zbar * sg  # sum_c g (z - zbar), the preconditioned residual norm
-            beta = delta * gz / gold if gold > 0.0 else 0.0
-            st, sgt = kr.pk_direction(z32, False, gcon, idx, nc, tc, zbar, beta, t32)
-            gold = gz
-        else:
-            beta = delta * gn / gold if gold > 0.0 else 0.0
-            st, sgt = kr.pk_direction(z32, True, gcon, idx, nc, tc, 0.0, beta, t32)
-            gold = gn
+        beta = delta * gz / gold if gold > 0.0 else 0.0
+        st, sgt = kr.pk_direction(z32, not precond, gcon, idx, nc, tc, zbar, beta, t32)
+        gold = gz
         el.fft.apply_route(Gn32, t32, r32, dot=False)  # r = G t (the step length only)
         n_single += 1
-        rsum, srt = kr.contact_dot(r32, tc, idx, nc)
+        rsum, srt = kr.contact_sums(r32, tc, idx, nc)
         den = srt - (rsum / nc if nc > 0 else 0.0) * st  # sum_c (r - rbar) t
         tau = sgt / den if den != 0 else 0.0
         # increment u by G dv unless its rounding bound nears the residual, the residual stalls, or REFRESH ran

@@ -33,7 +33,11 @@ def fire(h, p0, zeta, el, tol, max_iter, progress):
     m = K + kappa
     kbar = float(np.sum(w * K)) / n2 + kappa
     # start: flat surface touching the highest point (hard) / carrying p0 (exp)
-    z0 = float(h.max()) if hard else kr.exp_log_mean(np.zeros(el.shape), h, zeta)
+    if hard:
+        z0 = float(h.max())
+    else:  # zeta log(mean(exp(h/zeta))), log-sum-exp
+        x = h / zeta
+        z0 = zeta * (float(x.max()) + math.log(float(np.mean(np.exp(x - x.max())))))
     z = np.full(el.shape, z0)
     Z = el.rfft(z)
     V = np.zeros_like(Z)

@@ -1,38 +1,23 @@
 """The iteration monitor shared by the three contact solvers.
 
-Every solver loop computes a residual, hands it to :meth:`Monitor.check` and stops when
-that returns True. The monitor keeps the residual history and its timestamps, drives the
-optional tqdm bar, and decides the stop: the tolerance, ``max_iter``, a non-finite
-residual, or a stall (the best residual has not halved within ``window`` steps).
+Every solver loop hands its residual to :meth:`Monitor.check` and stops when that returns
+True. The monitor keeps the residual history, drives the optional tqdm bar, and decides
+the stop: the tolerance, ``max_iter``, a non-finite residual, or a stall (the best
+residual has not halved within ``window`` steps).
 """
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 
 
 class Monitor:
-    """History, timestamps, progress bar and stop rule of one solver run.
-
-    Parameters
-    ----------
-    name : str
-        Label of the progress bar.
-    tol : float
-        The run has converged when a residual is below ``tol``.
-    max_iter : int
-        The run stops when the iteration count given to :meth:`check` reaches it.
-    window : int
-        Stall window: the run has stalled when its best residual has not fallen by a
-        factor 2 within ``window`` steps (0: never).
-    progress : bool
-        Show a tqdm bar counting decades of residual reduction from the first residual
-        down to ``tol`` (what the run will really do, not ``max_iter``), so that its ETA
-        is a real estimate.
-    step : str
-        What the stall window counts, for the stop message ("iteration", "Newton step").
+    """History, progress bar and stop rule of one solver run named ``name``: converged when a
+    residual is below ``tol``; stopped at ``max_iter`` iterations or when the best residual
+    has not halved within ``window`` steps (0: never; ``step`` names what the window counts
+    in the message). ``progress`` shows a tqdm bar of the decades of residual reduction
+    from the first residual down to ``tol`` (what the run will really do, not ``max_iter``).
     """
 
     def __init__(self, name: str, tol: float, max_iter: int, window: int, progress: bool = False,
@@ -40,14 +25,9 @@ class Monitor:
         self.name, self.tol, self.max_iter, self.window, self.step = name, tol, max_iter, int(window), step
         self.progress = bool(progress)
         self.history: list = []
-        self.stamps: list = []
-        self.t0 = time.perf_counter()
         self.best, self.it_best = math.inf, 0
-        self.converged = False
-        self.stop = "max_iter"
-        self.residual = math.inf
-        self._bar = None
-        self._res0 = None
+        self.converged, self.stop, self.residual = False, "max_iter", math.inf
+        self._bar = self._res0 = None
 
     def done(self, res: float, it: int) -> bool:
         """Whether ``res`` at iteration ``it`` ends the run by tolerance or ``max_iter``
@@ -60,7 +40,6 @@ class Monitor:
         (:attr:`converged`, :attr:`stop` say why)."""
         self.residual = res
         self.history.append(res)
-        self.stamps.append((it, time.perf_counter() - self.t0))
         self._show(res, it)
         steps = it if steps is None else steps
         if res < self.tol:
@@ -108,8 +87,6 @@ class Monitor:
 
     def outcome(self, iterations: int, **fields) -> dict:
         """The solver's answer with the run's record: ``converged``, ``iterations``,
-        ``residual``, ``history``, ``stop``, and ``info["history_stamps"]`` (iteration,
-        seconds since the start) beside the solver's own ``info``."""
-        info = dict(fields.pop("info", {}), history_stamps=np.asarray(self.stamps))
+        ``residual``, ``history``, ``stop`` beside the solver's ``fields``."""
         return dict(fields, converged=self.converged, iterations=iterations, residual=self.residual,
-                    history=np.asarray(self.history), stop=self.stop, info=info)
+                    history=np.asarray(self.history), stop=self.stop)

@@ -20,12 +20,6 @@ NEWTON_STALL_STEPS = 20
 SINGLE_CG_MIN_FORCING = 1e-5
 
 
-def log_ratio(p: np.ndarray, p0: float, out: np.ndarray) -> np.ndarray:
-    """``out = log(p/p0)`` (numpy, vectorized)."""
-    np.divide(p, p0, out=out)
-    return np.log(out, out=out)
-
-
 def z0_residual(u: np.ndarray, h: np.ndarray, p: np.ndarray, p0: float, zeta: float,
                 scratch: np.ndarray, keep: np.ndarray | None = None) -> tuple:
     """``(z0, residual)`` of the exponential wall, one exponential per node.
@@ -41,14 +35,13 @@ def z0_residual(u: np.ndarray, h: np.ndarray, p: np.ndarray, p0: float, zeta: fl
     return zeta * (m + math.log(s / h.size)), res
 
 
-def newton(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0):
+def newton(h, p0, zeta, el, tol, max_iter, progress):
     """Newton-CG on the dual (pressure) energy of the exponential wall.
 
     ``Phi(p) = mean(p u/2 - p h + zeta p log(p/p0))``, ``u = G p``, ``mean(p) = p0``; its
     minimiser is the equilibrium pressure. Projected PCG, multiplicative steps and the line
     search are described in docs/gfmd.md ("Methods"). ``G d`` runs in single precision
-    where the forcing asks for no more than :data:`SINGLE_CG_MIN_FORCING`. ``p_init``
-    (optional) is the start pressure, ``iters0`` the iterations already spent on it.
+    where the forcing asks for no more than :data:`SINGLE_CG_MIN_FORCING`. Start: uniform ``p0``.
     """
     n2 = h.size
     pmin = max(p0 * 1e-300, 1e-300)
@@ -58,20 +51,17 @@ def newton(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0):
     p, u, d, gd = (np.zeros(shape) for _ in range(4))
     d32, gd32 = np.zeros(shape, dtype=np.float32), np.zeros(shape, dtype=np.float32)
     Gn32 = el.Gn.astype(np.float32)
-    if p_init is None:
-        p[...] = p0
-    else:
-        np.maximum(p_init, pmin, out=p)
+    p[...] = p0
     p *= p0 / p.mean()
     el.fft.apply_route(el.Gn, p, u, dot=False)
     grad, minv, wdiag, x, r, scratch, lp = (np.empty(shape) for _ in range(7))
     keep = np.empty(shape, dtype=np.bool_)  # where the wall's exponentials are not +0
-    it = iters0
+    it = 0
     n_newton = cg_total = n_single = 0
     mon = Monitor("newton", tol, max_iter, NEWTON_STALL_STEPS, progress, step="Newton step")
-    log_ratio(p, p0, lp)  # then kept by every accepted step: its trial's energy leaves log(ptry/p0) in lp
+    np.log(np.divide(p, p0, out=lp), out=lp)  # log(p/p0), then kept by every accepted step (its trial's)
     while True:
-        E, E_scale = kr.dual_gradient(u, h, p, lp, zeta, grad)
+        E, E_scale = kr.dual_energy(u, h, p, lp, zeta, grad)
         z0, res = z0_residual(u, h, p, p0, zeta, scratch, keep)
         if mon.check(res, it, n_newton):
             break
@@ -114,7 +104,7 @@ def newton(h, p0, zeta, el, tol, max_iter, progress, p_init=None, iters0=0):
             kr.dual_step(p, x, alpha, p0, pmin, ptry)
             el.fft.apply_route(el.Gn, ptry, utry, dot=False)
             it += 1
-            Et, _ = kr.dual_energy(utry, h, ptry, log_ratio(ptry, p0, lp), zeta)
+            Et, _ = kr.dual_energy(utry, h, ptry, np.log(np.divide(ptry, p0, out=lp), out=lp), zeta)
             if Et <= E + 1e-4 * alpha * slope:
                 break
             # energy change at round-off of its terms (E_scale >> |E| near the solution): use the force residual

@@ -84,25 +84,6 @@ def test_exponential_methods_agree(fig1_64, zeta):
     assert a.contact_fraction == pytest.approx(b.contact_fraction, abs=2 / h.size)
 
 
-@pytest.mark.parametrize("n", [64, 256])
-def test_exponential_warm_start_gives_the_same_answer(n):
-    """``warm_start=True`` (a hard-wall solve first, in the same FFT work arrays the
-    Newton solver then uses) against the cold start, tol 1e-10, zeta 0.01 on a Fig. 1
-    surface (64^2 scipy, 256^2 FFTW): both are converged answers, 1e-8 p0 apart at most
-    (each within 1e-10 of the equilibrium in the force residual; measured 1e-12 p0). A
-    work array shared wrongly between the two solves would leave the hard-wall state in
-    the answer, and a result that aliased a work array would change with the next solve."""
-    h, L = fig1_surface(n, seed=1)
-    inter = ExponentialRepulsion(0.01)
-    cold = _solve(h, L, inter, method="newton", tol=1e-10, warm_start=False)
-    kept = cold.pressure.copy()
-    warm = _solve(h, L, inter, method="newton", tol=1e-10, warm_start=True)
-    assert np.array_equal(cold.pressure, kept)
-    assert cold.converged and warm.converged and warm.info["warm_start"]
-    assert warm.info["warm_start_iterations"] > 0
-    assert np.max(np.abs(warm.pressure - cold.pressure)) / P0 < 1e-8
-
-
 def test_exponential_tends_to_hard_wall(fig1_64):
     """zeta -> 0: the exponential wall approaches the hard wall. The gap scale of the
     softness is ~zeta ln(p/p0) ~ 5 zeta, so at zeta = 1e-4 (2e-3 of h_rms = 0.05) the

@@ -94,6 +94,18 @@ def test_ensemble_exits_1_when_no_case_converged(tmp_path, capsys):
     assert "1 not converged" in capsys.readouterr().out
 
 
+def test_ensemble_exits_1_when_every_case_failed(tmp_path, capsys, monkeypatch):
+    """A case that raises (a killed worker, memory) is reported by label and retried by a rerun;
+    when every case failed the command exits 1, not 0."""
+    import gfmd_ref.ensemble.run as run
+
+    monkeypatch.setattr(run, "solve_case", lambda *a, **k: (_ for _ in ()).throw(MemoryError("no memory")))
+    assert main(["ensemble", "--store", str(tmp_path / "s"), "--n", "64", "--seeds", "1-2", "--walls", "hard",
+                 "--serial", "--no-progress"]) == 1
+    out = capsys.readouterr().out
+    assert "0 computed now" in out and "2 failed" in out and "failed n64_hard_p0.004_s2: MemoryError: no memory" in out
+
+
 def test_unwritable_store_fails_before_computing(monkeypatch):
     import gfmd_ref.ensemble.run as run
 
