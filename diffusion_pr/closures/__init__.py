@@ -49,7 +49,6 @@ __all__ = [
     "LocalResponseDiffusivity",
     "LoadExcessDrift",
     "RigidApproachBalance",
-    "contact_fraction",
     "DEFAULT_CONTINUUM_SHELLS",
 ]
 
@@ -60,35 +59,11 @@ CLOSURES: tuple[str, ...] = ("second_order", "lognormal_gap", "local_g1", "local
 #: (the names tests/oracles/closure_reference.py imports)
 _BALANCED, _cached_shells = BALANCED, cached_shells
 
-#: GFMD's contact threshold for exponential walls, relative to p0
-CONTACT_THRESHOLD = 0.01
-
-
 def check_closure(closure: object) -> str:
     """Return ``closure`` if it names a closure, else raise ``ValueError`` listing the names."""
     if not isinstance(closure, str) or closure not in CLOSURES:
         raise ValueError(f"closure must be one of {list(CLOSURES)}; got closure={closure!r}")
     return closure
-
-
-def contact_fraction(theory: Any, *, zeta: float, mean_pressure: float) -> float:
-    """Contact fraction of a theory with GFMD's definition (one definition for both).
-
-    Hard wall (``zeta = 0``): ``P(p > 0) = 1 - zero_weight``.  Exponential wall:
-    ``P(p > 0.01 p0)``, GFMD's threshold (``gfmd_ref`` reports the fraction of
-    grid points above ``0.01 p0``).
-
-    Parameters
-    ----------
-    theory : PressureDistribution
-    zeta : float
-        Wall range [length], >= 0.
-    mean_pressure : float
-        ``p0`` [pressure].
-    """
-    if float(zeta) == 0.0:
-        return float(1.0 - theory.zero_weight)
-    return float(1.0 - theory.cdf(CONTACT_THRESHOLD * float(mean_pressure)))
 
 
 def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: float, zeta: float = 0.0,

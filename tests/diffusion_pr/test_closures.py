@@ -8,14 +8,13 @@ gap-field physics behind the log-normal and local closures.
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
 
 import diffusion_pr as dp
 from diffusion_pr.closed_forms import lognormal_gap_distribution
-from diffusion_pr.closures import CLOSURES, closure_problem, contact_fraction, continuum, shells, spectrum_shells
+from diffusion_pr.closures import CLOSURES, closure_problem, continuum, shells, spectrum_shells
 from oracles.closure_reference import reference_distribution
 
 E, P0 = 8.0 / 3.0, 0.004
@@ -204,14 +203,15 @@ def test_gfmd_large_zeta_is_its_own_gap_field_through_the_wall_law():
 
 
 # ----------------------------------------------------------------------------- contact fraction
-def test_contact_fraction_definition(fig1, persson):
-    assert contact_fraction(persson, zeta=0.0, mean_pressure=P0) == pytest.approx(persson.contact_fraction)
+def test_contact_area_of_the_lognormal_gap_is_its_tail_above_gfmds_threshold(fig1, persson):
+    """Hard wall: P(p > 0) = 1 - zero_weight; exponential wall: P(p > 0.01 p0) of the log-normal, in closed form."""
+    assert persson.contact_area() == pytest.approx(1.0 - persson.zero_weight, abs=1e-15)
     r = lognormal_gap_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.25)
     s2 = r.diagnostics["ln_variance"]
     from scipy.special import ndtr
 
     expect = 1.0 - ndtr((math.log(0.01) + 0.5 * s2) / math.sqrt(s2))
-    assert contact_fraction(r, zeta=0.25, mean_pressure=P0) == pytest.approx(expect, abs=1e-4)
+    assert r.contact_area(0.01 * P0) == pytest.approx(expect, abs=1e-4)
 
 
 # ----------------------------------------------------------------------------- staged problem
