@@ -62,8 +62,10 @@ def second_order_problems(n: int, seed: int):
         elif kind == "cutoff":
             cutoff, tail = str(rng.choice(CUTOFFS)), TAILS[int(rng.integers(len(TAILS)))]
             p_c, p_t = _log_uniform(rng, 1e-3, 1.0), _log_uniform(rng, 0.1, 10.0)
+            p_t = p_t if tail in ("linear", "max_linear") else None  # the Gaussian tail takes no p_t
             f = dp.PressureFactor(dp.make_cutoff(cutoff, p_c), dp.make_tail(tail, p_t))
-            label = f"p0 {p0:.3g}, {cutoff} p_c {p_c:.3g}" + (f", {tail} p_t {p_t:.3g}" if tail else "")
+            label = f"p0 {p0:.3g}, {cutoff} p_c {p_c:.3g}" + (f", {tail}" if tail else "") + (
+                f" p_t {p_t:.3g}" if p_t else "")
         if kind != "drift":
             yield kind, label, (lambda rtol, backend, p0=p0, f=f:
                                 dp.propagate(p0, 1.0, diffusivity=f, rtol=rtol, backend=backend))
