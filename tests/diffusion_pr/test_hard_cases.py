@@ -1,4 +1,5 @@
-"""Hard cases: stable, conservative, non-negative over the ranges issue 3 names.
+"""Hard cases: stable, conservative, non-negative over wide ranges of p0/sqrt(V) (1e-3 ... 10), p_c (1e-4 ... 1),
+magnification (1e4), zeta (1e-4 ... 10) and Hurst exponent (0.1 ... 0.9).
 
 Every case asserts: success with the estimate below rtol, total probability
 (continuous part + zero weight) 1 to within the error estimate (the outflow at
@@ -103,7 +104,7 @@ def test_seed_figure1_cutoffs_all_converge():
         check_sound(r, 0.004)
 
 
-# ------------------------------------------------------------------ issue 7 item 3: hard cases and crash items
+# ------------------------------------------------------------------ user cutoffs, clear errors, extreme inputs
 P_C = 0.0027
 
 
@@ -173,8 +174,9 @@ def test_results_are_not_mutated_by_the_api():
     assert "stress_variance" in r1.diagnostics and r1.diagnostics["backend_requested"] == "auto"
 
 
-def test_issue7_silently_wrong_scene_now_conserves_the_mean():
-    """Issue 7: native returned success with zero_weight 0.976 and mean 1e-4 here (grid floor above p0)."""
+def test_a_grid_floor_above_p0_is_not_a_silent_success():
+    """With the grid floor placed above p0, native returned success with zero_weight 0.976 and mean 1e-4 here;
+    the floor must lie below p0 and the mean (force balance) hold to rtol."""
     s = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
     r = dp.pressure_distribution(s, E_star=8 / 3, mean_pressure=0.004, zeta=4, cutoff="smoothstep", p_c=0.02,
                                  backend="native", rtol=1e-6)
@@ -187,10 +189,10 @@ def test_a_diverging_refinement_stops_and_says_so():
     # a restoring drift with the paper's cutoff at a tiny p_c: below the floor, where 59 % of the probability lies,
     # the drift outweighs the diffusion f ~ (pi p/p_c)^2/2 and traps it in cells with |dt L_ii| up to 1e14, and the
     # finer grids lose accuracy: the shifted solves' round-off there (eps |dt L_ii|, growing 4x per halving).  Before
-    # the flux form (twenty-fourth session) they also lost probability (1.5e-6 on 12208 cells) and the refinement
-    # diverged from rtol 1e-8 on (2.3e-8 -> 5.3e-8 -> 2.5e-7, and without the divergence rule on to 6.1e-6 on 65536
-    # cells).  Now the mass holds to round-off and rtol 1e-8 converges (2.4e-9 on 890 cells); at 1e-9 the estimate
-    # still grows (5.6e-10 -> 3.2e-9 -> 1.3e-8): the solve must stop at the second rise, fail, and say why
+    # the flux form they also lost probability (1.5e-6 on 12208 cells) and the refinement diverged from rtol 1e-8
+    # on (2.3e-8 -> 5.3e-8 -> 2.5e-7, and without the divergence rule on to 6.1e-6 on 65536 cells).  With the flux
+    # form the mass holds to round-off and rtol 1e-8 converges (2.4e-9 on 890 cells); at 1e-9 the estimate still
+    # grows (5.6e-10 -> 3.2e-9 -> 1.3e-8): the solve must stop at the second rise, fail, and say why
     p0, c = 0.272, 0.39
     f = dp.PressureFactor(dp.MuserCutoff(0.00252))
     drift = lambda p, tau: -c * (p - p0) / 2.0  # noqa: E731
