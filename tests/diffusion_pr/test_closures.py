@@ -535,7 +535,7 @@ def test_where_the_walls_layer_is_thin_the_estimate_keeps_the_corrections_second
 
 def test_romberg_is_not_taken_on_a_ratio_just_above_its_order(l1_on_cells, monkeypatch):
     """``H = 0.8``, rms slope 0.031, q from 2 pi/1024 to 2 pi/32, zeta = 0.03, p0 = 0.016, shell partition, uniform
-    shells (a ``benchmarks/closure_estimates.py`` scene): on 6/12/24/48 shells the ``R(n/2, n)`` differences fall
+    shells (a scene of the closure-estimate audit): on 6/12/24/48 shells the ``R(n/2, n)`` differences fall
     17.8x (16 at fourth order), then 6.7x, 11.4x and 9.3x on finer ladders.  Romberg's column on 48 shells was
     1.86e-6 off while its residual claimed 6.8e-7; with the extrapolated correction's own error counted the answer
     claimed 9.6e-7 and was 1.94e-6 off.  Romberg is trusted up to :data:`continuum.ROMBERG_MAX_RATIO` = 17 now: the
@@ -739,8 +739,8 @@ def test_the_later_rungs_on_the_coarse_grid_keep_the_answer_within_its_estimate(
 
 def test_a_uniform_ladder_keeps_its_later_rungs_on_both_grids(monkeypatch, l1_on_cells):
     """The later rungs on the N grid alone (closures.COARSE_RUNGS) only where the shells are graded.  On a uniform
-    ladder the refinement's spatial error is not what its count says: the random audit of seed 21 (scene 232,
-    benchmarks/stress_balance.py --truth --random 250 --seed 21) found local_g1_shell_balanced 4.2e-6 from its
+    ladder the refinement's spatial error is not what its count says: the random audit of seed 21 (scene 232 of 250
+    random scenes against rtol-1e-8 answers) found local_g1_shell_balanced 4.2e-6 from its
     rtol-1e-8 oracle against an estimate of 8.9e-7 with the coarse rung (96 shells); with the later rungs on both grids
     the ladder goes on to 192 shells and the answer is 7.6e-8 off against 7.2e-7 (measured).  Oracle: the rtol-1e-8
     answer; the answer must be within its estimate and rtol, and the same bits as with the switch off.  Break that
@@ -765,8 +765,8 @@ def test_a_uniform_ladder_keeps_its_later_rungs_on_both_grids(monkeypatch, l1_on
 def test_the_uniform_table_takes_the_zero_weights_order_apart(monkeypatch, l1_on_cells, hurst, q_min, q_max, C0,
                                                               closure, zeta, p0, before):
     """On uniform shells the table decides its branch on the zero weight and on the cells apart
-    (closures.UNIFORM_PARTS).  Two scenes of the out-of-sample random audits (seeds 17-22,
-    benchmarks/shell_table_audit.py) whose zero weight converged at its own order, hidden in the L1 sums by the cells'
+    (closures.UNIFORM_PARTS).  Two scenes of the out-of-sample random audits (seeds 17-22)
+    whose zero weight converged at its own order, hidden in the L1 sums by the cells'
     larger differences: the whole ladder's table took Romberg and claimed 1.9e-7 and 8.2e-7 where the answers were
     8.2e-7 and 2.65e-6 off.  Oracle: the rtol-1e-8 answer; the answer must be within its estimate and rtol.  The
     break that fails it, kept as the second half: the table on the whole ladder (the rule before), ``before``x
@@ -866,7 +866,7 @@ def test_uniform_table_below_second_order_does_not_trust_a_faster_r_ratio(monkey
 
 
 def test_uniform_ladder_below_second_order_meets_rtol():
-    """Random seed 5, scene 234 of ``benchmarks/stress_balance.py --random 250 --seed 5`` (``local_g1``, ``H`` 0.785,
+    """Random seed 5, scene 234 of a 250-scene stress audit (``local_g1``, ``H`` 0.785,
     ``q`` from ``2 pi/8192`` to ``2 pi/64``, ``zeta`` 2.91, ``p0`` 6.0e-4; uniform shells, ``kappa`` 78, a thin start
     ``lambda`` 1.5e-3): its P differences fell 3.03x per doubling at 48 shells and its R differences 5.45x, and
     R(24, 48) was 1.35e-6 from the rtol-1e-8 answer (which agrees with R(768, 1536) of uniform shells at rtol 1e-8
@@ -887,7 +887,7 @@ def test_uniform_ladder_below_second_order_meets_rtol():
 
 
 def test_thin_start_table_counts_a_crossing_undivided(monkeypatch):
-    """Random seed 7, scene 54 of ``benchmarks/stress_balance.py --random 250 --seed 7`` (``local_g1_shell_balanced``,
+    """Random seed 7, scene 54 of a 250-scene stress audit (``local_g1_shell_balanced``,
     ``H`` 0.790, ``q`` from ``2 pi/2048`` to ``2 pi/8``, ``zeta`` 0.161, ``p0`` 6.7e-5; "ends" shells, ``lambda``
     4.8e-5): the R differences of its 6-48-shell ladder fell 70x at the last doubling, a crossing of terms, and the
     thin layer's table divided the last one by 2^2.5 - 1: R(24, 48) was 1.31e-6 from the rtol-1e-8 answer (which
@@ -975,7 +975,7 @@ def test_forced_grids_do_not_make_the_kernels_compile_again(fig1):
 ])
 def test_romberg_is_not_taken_where_the_shells_ratio_is_far_above_its_order(monkeypatch, l1_on_cells, spectrum,
                                                                             zeta, p0, closure):
-    """Two stress scenes (``benchmarks/stress_balance.py``) on uniform shells, where the 6/12/24/48-shell ladder is
+    """Two stress scenes (random audit) on uniform shells, where the 6/12/24/48-shell ladder is
     not yet asymptotic: ``R(n/2, n)`` falls 33x and 42x per doubling (16 at fourth order), because ``R`` on 12 or 24
     shells happens to lie near the continuum, and Romberg's sixth-order column with its /15 residual claimed 5.4e-7
     and 1.0e-6 where the L1 error was 1.0e-5 and 3.8e-6 (19x and 3.8x).  Above :data:`continuum.ROMBERG_MAX_RATIO`

@@ -6,8 +6,7 @@ derived from the ensemble's own bootstrap noise
 (:func:`diffusion_pr.compare.compare_ensemble`, K over ``p >= p0/20``); no test
 asserts a single seed's K below its noise (about 0.07 at the 95th percentile).
 Single-seed checks that remain (curvature, moments, fits, the gap-field mapping)
-compare quantities far above that noise.  Numbers: ``docs/fig1.md``,
-``benchmarks/fig1_claims.py``.
+compare quantities far above that noise.  Numbers: ``docs/fig1.md``.
 """
 from __future__ import annotations
 

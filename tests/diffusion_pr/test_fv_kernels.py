@@ -1051,7 +1051,7 @@ def test_the_cubic_ratio_predictor_saves_corrections():
     """The balance's multiplier is predicted from the cubic through the last four ratios ``A/A_mid``:
     on the Fig. 1 scene at ``zeta = 0.01`` (``local_g1_shell_balanced``, 48 uniform shells, 79 coarsest
     cells) the finest grid takes 36 corrections where the parabola through three took 53 (measured on the same
-    code with the parabola, ``benchmarks/results/balance_predictor_order_s42.md``); the bound sits between them.
+    code with the parabola); the bound sits between them.
     The answer is the one the balance converged to within its tolerance either way (the Python oracle's test above
     checks the algorithm step by step). Break that fails it: the predictor back to the parabola (kernel and oracle)."""
     spec = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)

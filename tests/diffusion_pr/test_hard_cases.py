@@ -208,7 +208,7 @@ def test_a_diverging_refinement_stops_and_says_so():
 
 
 def test_probability_trapped_in_stiff_cells_is_conserved():
-    """Random drift problem #196 of seed 6 (``benchmarks/fp_random_truth.py``): a restoring drift on the paper's
+    """Random drift problem #196 of seed 6 (an audit of random drift problems): a restoring drift on the paper's
     cutoff at ``p_c/sqrt(V)`` = 0.001 traps 80 % of the probability far below the floor (``p_c`` 4.5e-7, the floor
     1.1e-10), in cells with ``|dt L_ii|`` up to 1.6e8.  The partial fractions lost ``eps |dt L_ii|`` of it per
     application: 1.3e-6 over the solve at rtol 1e-6 (the solve failed: "mass not conserved"), with alternating
@@ -235,7 +235,7 @@ def test_probability_trapped_in_stiff_cells_is_conserved():
 
 
 def _seed7_problem_122():
-    """Random drift problem #122 of seed 7 (``benchmarks/fp_random_truth.py``): a restoring drift on the smoothstep
+    """Random drift problem #122 of seed 7 (an audit of random drift problems): a restoring drift on the smoothstep
     cutoff at ``p_c/sqrt(V)`` 0.009, ``p0/sqrt(V)`` 0.005; ``solve(rtol)`` returns the native answer."""
     spec = dp.SelfAffineSpectrum(0.8712260578507987, 0.0015339807878856412, 1.5707963267948966,
                                  C0=165380.1678226687)
@@ -281,7 +281,7 @@ def test_a_dominating_drift_keeps_the_spectrum_real():
     answer, oracle = solve(1e-6), solve(1e-7)
     for r in (answer, oracle):
         assert r.success and abs(r.diagnostics["mass_error"]) < 1e-9
-    x = np.concatenate(([0.0], answer.edges))  # the L1 of benchmarks/fp_random_truth.py: zero weight and cells
+    x = np.concatenate(([0.0], answer.edges))  # the audit's L1: zero weight and cells
     l1 = float(abs(answer.zero_weight - oracle.zero_weight)
                + np.sum(np.abs(np.diff(answer.cdf(x))[1:] - np.diff(oracle.cdf(x))[1:])))
     assert l1 <= 1e-6

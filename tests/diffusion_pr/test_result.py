@@ -105,8 +105,8 @@ def test_native_cdf_between_the_edges_meets_rtol(rtol):
     Mirror Gaussian (oracle: scipy's normal cdf) and the Fig. 1 scene at zeta = 0.25 (oracle: native at rtol
     1e-10), default scheme: the largest distance on 5000 pressures is within rtol, and within 2x of the
     estimate (measured 6.9e-6 and 1.2e-7 for the mirror, estimates 4.3e-6 and 7.2e-8; Fig. 1 1.4e-5 and 1.5e-7,
-    estimates 1.1e-5 and 1.8e-7).  The sixth-order option once returned 8.9e-5 here for an estimate of 3.2e-7
-    (tests/diffusion_pr/test_fv_sixth.py)."""
+    estimates 1.1e-5 and 1.8e-7).  The sixth-order option once returned 8.9e-5 here for an estimate of
+    3.2e-7."""
     import diffusion_pr as dp
     from diffusion_pr.problem import FokkerPlanckProblem
 
