@@ -61,7 +61,7 @@ class Fig1Case:
     contact_threshold : float
         Pressure above which a point counts as in contact: :func:`diffusion_pr.paper.contact_threshold`.
     pressure : ndarray
-        The GFMD pressure field (units of E*).
+        The GFMD pressure field (the scene's reduced pressure unit, in which E* = 8/3).
     """
 
     zeta: Optional[float]
