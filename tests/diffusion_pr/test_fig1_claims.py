@@ -316,7 +316,7 @@ def test_fig1_hard_wall_contact_area_exceeds_persson_on_the_ensemble():
 @pytest.mark.parametrize("name, zeta", [("fig1_n1024", z) for z in (None, 0.001, 0.01, 0.1, 0.25, 0.5, 1.0, 2.0, 4.0)]
                          + [("offscene_n512", z) for z in (None, 0.01, 0.1, 0.5, 2.0)])
 def test_shell_balanced_closure_meets_every_target(name, zeta):
-    """The closure found here, local_g1_shell_balanced (partition at each shell's q_k), meets
+    """The closure local_g1_shell_balanced (partition at each shell's q_k) meets
     the K targets (FIG1_TARGETS) at every wall of both ensembles, no fitted number: K within target +
     2 x the bootstrap noise.  Measured (16 seeds each): Fig. 1 0.027 (hard), 0.017 (0.001),
     0.027 (0.01), 0.034 (0.1), 0.014 (0.25), 0.004 (0.5), 0.002 (1, 2), 0.0025 (4);

@@ -697,9 +697,9 @@ def test_balanced_closure_answer_does_not_follow_rtol(zeta):
     """Same question, same answer: a balanced closure at rtol 1e-4 and 1e-5 agrees within 1e-4.
 
     Its drift cancels the Ito drift of ln p below the floor, so probability
-    returns from below and the answer depends on the depth of the domain; the
-    depth used to be ln(10/rtol) e-folds and the two answers differed by 7e-4 in
-    F(p0/20) at zeta = 0.001 (70x the looser rtol).  Now the depth is fixed
+    returns from below and the answer depends on the depth of the domain; with a
+    depth of ln(10/rtol) e-folds the two answers differed by 7e-4 in F(p0/20) at
+    zeta = 0.001 (70x the looser rtol), so the depth is fixed
     (domain.BOTTOM_EFOLDS_DRIFT).
     """
     from diffusion_pr.closures import closure_distribution
