@@ -523,7 +523,7 @@ def test_on_uniform_shells_the_estimate_counts_the_extrapolated_correction(fig1,
 
 def test_where_the_walls_layer_is_thin_the_estimate_keeps_the_corrections_second_order_size(fig1):
     """Fig. 1 scene at zeta = 0.01 (graded shells): the thin layer's tables were 2-2.7x optimistic on two scenes
-    where the correction's second-order size hid it (docs/closures.md "The correction extrapolated in space"), so
+    where the correction's second-order size hid it (``continuum._correction_in_space``), so
     there that size is what the estimate counts, and the extrapolated correction's own error is diagnostics only."""
     r = dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.01, closure="local_g1_balanced")
     d = r.diagnostics

@@ -182,8 +182,8 @@ def _generator_with_drift(rng, n, scale):
 
 def _stiff_trap(rng, n=120, stiff=40, scale=1e9):
     """A generator whose first ``stiff`` states exchange probability at rates ``scale`` times the others' (a drift
-    trapping probability in tiny cells far below the floor, docs/backends.md "Probability conserved in stiff
-    cells"), and a start vector of unit mass spread over all states."""
+    trapping probability in tiny cells far below the floor, where the flux form must conserve
+    probability), and a start vector of unit mass spread over all states."""
     lo, up = rng.uniform(0.5, 2.0, n - 1), rng.uniform(0.5, 2.0, n - 1)
     lo[:stiff] *= scale
     up[:stiff] *= scale
