@@ -4,7 +4,7 @@
 ``pressure_distribution`` does the whole scene of Müser, PRL 100, 055504 (2008),
 doi:10.1103/PhysRevLett.100.055504: the stress variance of the spectrum, the pressure factor ``f(p) = c(p) t(p)``,
 an optional drift, and the solve.  ``backend="auto"`` takes the closed form wherever it is exact, else
-``"native"`` (docs/backends.md); every backend returns the same ``zero_weight`` and density within ``rtol``.
+``"native"`` (docs/backends.md, "Backends"); every backend returns the same ``zero_weight`` and density within ``rtol``.
 A result with ``success=False`` is returned with a :class:`ConvergenceWarning` carrying its message."""
 from __future__ import annotations
 

@@ -91,7 +91,7 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="diffusion-pr",
         description="Pressure distributions in rough elastic contacts (Müser, PRL 100, 055504 (2008), "
-                    "doi:10.1103/PhysRevLett.100.055504). Pressures are in the unit of E* (the paper's E'), "
+                    "doi:10.1103/PhysRevLett.100.055504). Pressures share the unit of --E-star (the paper's E'), "
                     "lengths in the unit of the surface's side L (--length-unit, --length).")
     parser.add_argument("--version", action="version", version=f"diffusion-pr {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="{fig1,theory,make-reference,load-curve}")
@@ -133,17 +133,17 @@ def _parser() -> argparse.ArgumentParser:
                     help=f"amplitude: the surface's rms slope (dimensionless; default: {paper.RMS_SLOPE})")
     th.add_argument("--E-star", type=float, default=paper.E_STAR, help="contact modulus E* (default: 8/3)")
     th.add_argument("--mean-pressure", type=float, default=paper.MEAN_PRESSURE,
-                    help=f"mean pressure p0, in the unit of E* (default: {paper.MEAN_PRESSURE})")
+                    help=f"mean pressure p0, in the unit of --E-star (default: {paper.MEAN_PRESSURE})")
     th.add_argument("--cutoff", default="sharp", choices=["sharp", "muser", "raised_cosine", "smoothstep"],
                     help="second_order: cutoff of the diffusivity at small p (default: sharp, Persson's)")
     th.add_argument("--p-c", type=float, default=None,
-                    help="cutoff pressure of a smooth cutoff, unit of E* (the paper: 0.0027 for zeta >= 0.25; "
-                         "default: none)")
+                    help="cutoff pressure of a smooth cutoff, in the unit of --E-star (the paper: 0.0027 for "
+                         "zeta >= 0.25; default: none)")
     th.add_argument("--backend", default="auto", help="auto, closed_form, native, pypde, fipy (default: auto)")
     th.add_argument("--rtol", type=float, default=1e-6,
                     help="L1 tolerance of the density (dimensionless; default: 1e-6)")
     th.add_argument("--out", default=None,
-                    help="write the curve as CSV (columns p [unit of E*], density [1/E*], cdf; the "
+                    help="write the curve as CSV (columns p [unit of --E-star], density [1/that unit], cdf; the "
                          "zero_weight in a comment line) to this file, checked before solving (default: print only)")
 
     ref = sub.add_parser("make-reference", help="regenerate GFMD reference data (like the bundled cases)",

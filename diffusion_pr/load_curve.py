@@ -44,7 +44,7 @@ class LoadCurve:
         order = np.argsort(self.table["p0"])
         ax.loglog(self.table["p0"][order], self.table["contact_area"][order], "o-", ms=3,
                   label=f"{self.closure}, zeta = {self.zeta:g}")
-        ax.set_xlabel("mean pressure p0 (units of E*)")
+        ax.set_xlabel("mean pressure p0 (same unit as E*)")
         ax.set_ylabel("relative contact area a_r")
         ax.legend()
         return ax
@@ -133,13 +133,14 @@ def add_cli(sub: Any, zeta_unit: str) -> None:
 
     lc = sub.add_parser("load-curve", help="relative contact area against the mean pressure",
                         description="Contact area against load for the Fig. 1 spectrum or a periodic height map "
-                                    "(.npy); prints the table, --out writes it as CSV. Pressures in units of E*.")
+                                    "(.npy); prints the table, --out writes it as CSV. Pressures in the unit of "
+                                    "--E-star.")
     lc.add_argument("--closure", default="second_order", choices=CLOSURES, help="theory (default: second_order)")
     lc.add_argument("--zeta", type=float, default=0.0,
                     help=f"range of the exponential wall, in the length unit of the surface (Fig. 1 spectrum: "
                          f"{zeta_unit}; --heights: the unit of --length); 0 is the hard wall (default: 0)")
     lc.add_argument("--p0", type=float, nargs=2, default=(5e-5, 0.07), metavar=("MIN", "MAX"),
-                    help="smallest and largest mean pressure, units of E* (default: 5e-5 0.07)")
+                    help="smallest and largest mean pressure, in the unit of --E-star (default: 5e-5 0.07)")
     lc.add_argument("--n-loads", type=int, default=50, help="loads, log-spaced (default: 50)")
     lc.add_argument("--E-star", type=float, default=8 / 3, help="contact modulus (default: 8/3, the paper's)")
     lc.add_argument("--heights", default=None, help="periodic height map, .npy (default: the Fig. 1 spectrum)")

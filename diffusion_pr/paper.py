@@ -55,7 +55,7 @@ QUOTES: dict[str, str] = {
 
 #: Contact modulus ``E' = E / (1 - nu^2)`` ("E' = 8/3"), units of pressure.
 E_STAR: float = 8.0 / 3.0
-#: Mean pressure ``p0`` ("p_0 = 0.004"), units of E*.
+#: Mean pressure ``p0`` ("p_0 = 0.004"), in the unit of :data:`E_STAR` (the paper's reduced units).
 MEAN_PRESSURE: float = 0.004
 #: Hurst exponent ("H = 0.3").
 HURST: float = 0.3
@@ -89,8 +89,9 @@ FIG1_SCENE: dict[str, float] = {"length": LENGTH, "hurst": HURST, "q_min": 2.0 *
 
 
 def cutoff_pressure(zeta: float) -> float:
-    """The paper's cutoff pressure ``p_c`` (units of E*): 0.0027 for ``zeta >= 0.25``, 0.0082 at ``zeta = 0.01``,
-    0.0068 at ``zeta = 0.001``; for a ``zeta`` the paper does not name (e.g. 0.1), the log-nearest named one's.
+    """The paper's cutoff pressure ``p_c`` (in the unit of :data:`E_STAR`): 0.0027 for ``zeta >= 0.25``, 0.0082 at
+    ``zeta = 0.01``, 0.0068 at ``zeta = 0.001``; for a ``zeta`` the paper does not name (e.g. 0.1), the log-nearest
+    named one's.
 
     Parameters
     ----------

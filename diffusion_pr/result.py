@@ -190,7 +190,8 @@ class PressureDistribution:
     def cdf(self, p: Any) -> Array:
         """Cumulative probability ``P(pressure <= p)`` including the delta at 0. Finite volumes: the cumulative masses
         at the edges exactly, between them :func:`cumulative_interpolant` (fifth-order accurate for a piecewise smooth
-        density, docs/backends.md); 0 below the edges (a floor's mass is ``zero_weight``).  Closed forms: exact."""
+        density; docs/backends.md, "What the result exposes"); 0 below the edges (a floor's mass is
+        ``zero_weight``).  Closed forms: exact."""
         p = np.asarray(p, dtype=float)
         if self.analytic is not None:
             out = self.analytic.cdf(np.maximum(p, 0.0))

@@ -1,6 +1,6 @@
 """pytest helpers: a theory against GFMD data within the data's own noise, and seeded surfaces.
 
-Copy and adapt (lengths in grid spacings, pressures in units of E*)::
+Copy and adapt (lengths in grid spacings, pressures in the paper's reduced unit, in which E* = 8/3)::
 
     import gfmd_ref, diffusion_pr as dp
     from diffusion_pr.testing import assert_matches_gfmd, seeded_surface  # noqa: F401 (the fixture)

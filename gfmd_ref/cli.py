@@ -96,12 +96,26 @@ def run_default_scene(
         Surface seed (Fig. 1 scene).
     tol : float
         Residual tolerance relative to p0, in (0, 0.1].
+    method, progress
+        As :func:`~gfmd_ref.solve_contact`.
+    bins : int
+        Bins of the pressure histogram.
     out_dir : path or None
         Output folder, checked for writability before the solve; None writes nothing.
+    verbose : bool
+        Print a summary and the written files.
 
-    Returns ``(result, histogram, paths)``; ``paths`` maps "npz", "csv", "png" to the
-    written files (empty if ``out_dir`` is None). Bad input raises ValueError before any
-    solve.
+    Returns
+    -------
+    tuple
+        ``(result, histogram, paths)``: the :class:`~gfmd_ref.ContactResult`, the
+        :class:`~gfmd_ref.PressureHistogram` and a dict mapping "npz", "csv", "png" to the
+        written files (empty if ``out_dir`` is None).
+
+    Raises
+    ------
+    ValueError
+        Bad input, before any solve.
     """
     if interaction is None:
         interaction = "hard" if zeta is None else "exp"
@@ -233,7 +247,7 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParse
                              "--heights, of --length (default: 0.01)")
     _solver_arguments(parser, 1e-8, "--zeta for the Fig. 1 scene")
     parser.add_argument("--mean-pressure", type=float, default=None,
-                        help="mean pressure p0, in the unit of E* (default: the paper's 0.004)")
+                        help="mean pressure p0, in the unit of --E-star (default: the paper's 0.004)")
     parser.add_argument("--seed", type=int, default=1, help="Fig. 1 surface seed, integer >= 0 (default: 1)")
     parser.add_argument("--bins", type=int, default=60, help="histogram bins on [0, max p] (default: 60)")
     parser.add_argument("--out", default="gfmd_out",

@@ -15,10 +15,11 @@ pressure ``p_c``.  The closures here need no fitted number:
     Shell by shell in ``q`` (``tau`` advancing by ``dV0_k/2`` across shell ``k``):
     ``dPr/dtau = d^2/dp^2 [g(q_k; p)^2 Pr]`` with ``g(q; p) = 1/(1 + zeta q E*/(2p))`` at the local pressure.
 ``"local_g1_balanced"``
-    As ``local_g1`` plus the drift ``b = (1 - g(q_min; p)) (g(q_k; p)^2/p - A p)``, ``A(tau)`` the one number
-    per instant that keeps ``<p> = p0``.
+    As ``local_g1`` plus the drift ``b = (1 - g(q_min; p)) (g(q_k; p)^2/p - A p)``, ``A`` one number per
+    shell (by default) that brings ``<p>`` back to ``p0`` at the shell's end.
 ``"local_g1_shell_balanced"``
-    As ``local_g1_balanced`` with ``g(q_k; p)`` in the partition; the best on the GFMD ensembles (docs/fig1.md).
+    As ``local_g1_balanced`` with ``g(q_k; p)`` in the partition; the best on the Fig. 1 scene's GFMD
+    ensemble, not off it (docs/closures.md, docs/fig1.md).
 
 Submodules: :mod:`~diffusion_pr.closures.shells`, :mod:`~diffusion_pr.closures.models`,
 :mod:`~diffusion_pr.closures.continuum`.  Pressures in the unit of ``E_star``; lengths in the unit of the

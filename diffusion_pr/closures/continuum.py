@@ -144,7 +144,8 @@ def shell_extrapolated(sol: Any, scene: tuple, rtol: float, options: dict) -> An
 
 
 def _shell_corrected(sol: Any, scene: tuple, rtol: float, options: dict) -> Any:
-    """The continuum closure as ``res = sol.result`` plus a correction from plain grids (docs/closures.md).
+    """The continuum closure as ``res = sol.result`` plus a correction from plain grids (docs/closures.md,
+    "How the shell closures are solved").
 
     The shells' difference is taken from the plain masses ``P`` of the last level's grids, solved for ``n/2``,
     ``n/4``, ``n/8`` shells on ``res``'s grids: ``c = X(top) - P(n)`` per grid, ``X`` the continuum of
@@ -339,7 +340,7 @@ def _correction_in_space(c_coarse: np.ndarray, c_fine: np.ndarray, own: list) ->
     ``c_2N + split(agg(c_2N) - c_N)/3`` aggregates to the fourth-order ``(4 agg(c_2N) - c_N)/3``.  Its error is the
     second-order estimate ``s = |agg(c_2N) - c_N|/3`` times ``max(SPLIT_MARGIN rho, SPLIT_FLOOR)``, ``rho`` the same
     extrapolation's observed relative error on ``own = [P_N, P_2N, P_4N]``; where that factor is >= 1 or ``P_4N`` is
-    missing, ``c_2N`` with ``s`` (docs/closures.md "The correction extrapolated in space")."""
+    missing, ``c_2N`` with ``s`` (the extrapolation trusted only as far as the problem's own grids bear it out)."""
     l1, agg = _l1, _aggregated
     second = l1(agg(c_fine) - c_coarse) / 3.0
     p_n, p_2n, p_4n = own
@@ -359,7 +360,7 @@ def _shell_table(ladder: list, thin: bool = False, start: bool = False) -> tuple
     """``(continuum, residual, diagnostics)`` from the masses ``[P(n), P(n/2), P(n/4)(, P(n/8))]`` of one grid.
 
     The midpoint rule's error is ``a h^2 + b h^4 + ...``, so ``R(n/2, n) = (4 P(n) - P(n/2))/3``.  With ``P(n/8)``
-    the observed ratio of ``R``'s successive differences decides (docs/closures.md):
+    the observed ratio of ``R``'s successive differences decides:
 
     * above :data:`ROMBERG_MAX_RATIO` (pre-asymptotic): ``R(n/2, n)``, its last difference undivided as residual;
     * at least :data:`ROMBERG_RATIO`: Romberg's ``(16 R(n/2, n) - R(n/4, n/2))/15``, residual its difference over 15;
@@ -413,7 +414,8 @@ def _uniform_table(ladder: list) -> tuple:
 
 
 def _thin_layer_table(ladder: list, start: bool = False) -> tuple:
-    """:func:`_shell_table` where the wall's layer is thin (graded shells; docs/closures.md "The thin layer's table").
+    """:func:`_shell_table` where the wall's layer is thin (graded shells, whose ladder converges at the
+    frozen layer's order 2.5 rather than 4).
 
     ``R(n/2, n)`` is the continuum (never Romberg); the residual sums, over the zero weight and the cells,
     ``|R(n/2, n) - R(n/4, n/2)|`` over ``min(rho_R, THIN_LAYER_RATIO) - 1``, or :func:`_shell_residual`'s estimate

@@ -218,7 +218,7 @@ def shell_grading(spectrum: Spectrum, *, E_star: float, zeta: float, mean_pressu
     """``(grading, kappa, lambda)``: the shells' grading of the continuum closure (:func:`spectrum_shells`) and why.
 
     The shell sum freezes each shell's operator at its midpoint; where the wall's layer is thin the error comes
-    from the ends (docs/closures.md "Graded shells"):
+    from the ends, so the shells are graded towards them:
 
     * ``kappa = p*(q_max)^2 / tau_last``: the wall's layer ``p* = zeta q_max E*/2`` [pressure] against the
       diffusion length of the last of :data:`EXTRAPOLATION_SHELLS` uniform shells, ``tau_last = dV0_last/2``.  The

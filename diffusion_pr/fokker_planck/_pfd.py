@@ -223,7 +223,8 @@ def flux_weights(c, theta, alpha0):  # pragma: no cover - numba
 @njit(cache=True, nogil=True, error_model="numpy")
 def _flux_form(lower, upper, t, y, w, r0, out):  # pragma: no cover - numba
     """``out = r0 y + t L w`` with ``t L w`` as differences of the face fluxes ``F_i = t (lower_i w_i - upper_i
-    w_{i+1})``: probability conserved to round-off (docs/backends.md, "Probability conserved in stiff cells").
+    w_{i+1})``: their sum telescopes, so probability is conserved to round-off whatever the error of ``w`` in
+    stiff cells.
 
     The partial fractions ``alpha0 y + 2 Re sum_j c_j x_j`` equal ``r(0) y + t L w`` with ``w = 2 Re sum_j (c_j /
     theta_j) x_j``, since ``(t L - theta)^-1 = (t L (t L - theta)^-1 - 1)/theta``; ``L``'s columns sum to 0.

@@ -32,8 +32,8 @@ FLOOR = 1e-6
 #: largest p0 / spread whose distribution double precision can resolve
 MAX_RATIO = 1e12
 #: the weight of the logarithmic grading towards an exit wall (``f ~ p^k``, ``0 < k < 2``): its wall face is first
-#: order, so cells shrinking geometrically towards ``p = 0`` make that error negligible (docs/backends.md
-#: "Exit walls graded")
+#: order, so cells shrinking geometrically towards ``p = 0`` make that error negligible (a fall of
+#: 16x per doubling of the cells, as at every other wall)
 C_EXIT_WALL = 1.0
 #: the inner scale of that grading, ``delta = EXIT_WALL_DEPTH rtol s`` (``s`` the spread); the wall error left is
 #: about ``1e-4 delta / s``

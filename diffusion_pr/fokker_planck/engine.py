@@ -415,7 +415,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
     return FVSolution(result=result, grid=best_grid, plain=best_plain, prep=prep)
 
 
-#: a grid whose states sum in absolute value to more than this is unstable (docs/backends.md "An unstable grid")
+#: a grid whose states sum in absolute value to more than this is unstable (probability is at most 1)
 UNSTABLE_L1 = 2.0
 
 

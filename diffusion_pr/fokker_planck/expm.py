@@ -72,7 +72,7 @@ def expm_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, t: 
     """``exp(t L) y`` for the tridiagonal ``L = (lower, diag, upper)`` [1/time], ``t >= 0``: CRAM-16 in the IPF
     form, eight LAPACK ``zgtsv`` solves (round-off about 1e-15 of ``max |y|``).  With ``flux_form`` (``L``'s
     columns summing to 0) each factor is ``r y + t L w`` with ``t L w`` as differences of face fluxes, so ``sum y``
-    is conserved to round-off even where ``|t L_ii|`` is huge (docs/backends.md).  Raises ``FloatingPointError``
+    is conserved to round-off even where ``|t L_ii|`` is huge (the face fluxes telescope).  Raises ``FloatingPointError``
     where a shifted system is singular.
     """
     y = np.array(y, dtype=float)

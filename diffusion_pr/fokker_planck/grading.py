@@ -121,7 +121,7 @@ def _regraded(prep: Prepared, edges: np.ndarray, diff: np.ndarray, j: int, remap
     cost = (np.sum(d * rho[:, :, :n_pts] ** 4, axis=2) / float(np.sum(d))) ** 0.25
     same = (weights == spec.c_wall)[:, None] & (deltas == spec._delta)[None, :]
     cost[same] = np.inf  # the present grading is no candidate
-    # within the range the wall_grading option accepts
+    # no candidate steeper than WALL_GRADING_MAX
     cost[weights > WALL_GRADING_MAX, :] = np.inf
     iw, idp = np.unravel_index(int(np.argmin(cost)), cost.shape)
     best_cost = float(cost[iw, idp])

@@ -4,7 +4,7 @@ State ``y = [z, m_0, ..., m_{n-1}]``: ``z`` the probability absorbed at ``p_wall
 cell ``i`` (centre ``c_i``, width ``h_i``, ``u_i = m_i / h_i``).  The flux through the face between cells ``i``
 and ``i+1`` is ``-(f_{i+1} u_{i+1} - f_i u_i) / (c_{i+1} - c_i) + a_face ((1/2 + s) u_i + (1/2 - s) u_{i+1})``:
 central (``s = 0``, second order) where the cell Peclet number ``|Pe| <= 2``, leaning upwind beyond
-(:func:`fitted_weight`) so that the spectrum stays real (docs/backends.md, "An unstable grid").  Closure and
+(:func:`fitted_weight`) so that the spectrum stays real (CRAM holds on the negative real axis).  Closure and
 balance drifts keep the central value (``fitted=False``).  The wall face carries ``-(f_0 u_0)/(c_0 - p_wall)``
 (``f Pr = 0`` at the wall, Feller's exit condition) plus the drift's flux, clipped to an outflow
 (:func:`wall_drift`); nothing leaves through ``p_max``.  The matrix is tridiagonal, ``z + sum m_i`` is

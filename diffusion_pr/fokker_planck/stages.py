@@ -37,7 +37,7 @@ MAX_BALANCE_ITERATIONS = 30
 #: p0 by less than sqrt(LINEAR_FRACTION * rtol) p0: its O(miss^2) state error is then about LINEAR_FRACTION * rtol
 LINEAR_FRACTION = 1e-2
 #: the compiled stages use CRAM in partial fractions down to this rtol, below it the IPF form (round-off 1e-15
-#: of max|y| per application against 1e-13; docs/backends.md)
+#: of max|y| per application against 1e-13)
 PFD_MIN_RTOL = 1e-10
 #: cells per balance substep (the substeps double with the cells, so Richardson removes their O(dtau^2) error)
 SUBSTEP_CELLS = 16

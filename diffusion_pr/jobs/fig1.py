@@ -23,7 +23,7 @@ DEFAULT_ZETAS: tuple[float, ...] = (0.001, 0.01, 0.25, 1.0, 4.0)
 #: Key of the paper's curve in :attr:`Fig1Case.theories`.
 PAPER = "paper"
 
-#: The best parameter-free closure (docs/closures.md, docs/fig1.md), drawn beside the paper's curve.
+#: The parameter-free closure best on the Fig. 1 scene (docs/closures.md, docs/fig1.md), drawn beside the paper's.
 BEST_CLOSURE = "local_g1_shell_balanced"
 
 #: Bin width of the main job's histograms, in units of p0.
@@ -33,8 +33,8 @@ BIN_WIDTH_P0 = 0.1
 def theory_curves(case: Any, *, cutoff: str, backend: str, rtol: float) -> dict[str, Any]:
     """The theory curves of one wall: ``{label: PressureDistribution}``. The one place where the main job's curves are
     chosen: every entry is compared with the wall's histogram, reported, written and drawn.  :data:`PAPER` is the
-    paper's curve (:func:`~diffusion_pr.jobs.reference_data.paper_theory`); :data:`BEST_CLOSURE` the best parameter-free
-    closure (:func:`diffusion_pr.pressure_distribution` with ``closure=BEST_CLOSURE``) on the same spectrum."""
+    paper's curve (:func:`~diffusion_pr.jobs.reference_data.paper_theory`); :data:`BEST_CLOSURE`, the parameter-free
+    closure best on the Fig. 1 scene, on the same spectrum (:func:`diffusion_pr.pressure_distribution`)."""
     from ..api import pressure_distribution
     from .reference_data import paper_theory
 
@@ -61,7 +61,7 @@ class Fig1Case:
     contact_threshold : float
         Pressure above which a point counts as in contact: :func:`diffusion_pr.paper.contact_threshold`.
     pressure : ndarray
-        The GFMD pressure field (units of E*).
+        The GFMD pressure field (the scene's reduced pressure unit, in which E* = 8/3).
     """
 
     zeta: Optional[float]
@@ -104,7 +104,7 @@ class Fig1Report:
         """A short human-readable report."""
         lines = [
             "Fig. 1 of Müser, PRL 100, 055504 (2008): GFMD against the second-order cumulant theory "
-            "and the best parameter-free closure",
+            "and the parameter-free closure best on the Fig. 1 scene",
             "scene: " + ", ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}"
                                   for k, v in self.scene.items()),
             f"Persson (zeta -> 0): sqrt(V0) = {np.sqrt(self.variance_persson):.6f}"

@@ -371,7 +371,7 @@ def run_ensemble(store, *, n=1024, seeds="1-4", walls=("hard",), length_unit: st
         spacings of the paper's 1024^2 system, stored as ``zeta * n / 1024`` (records keep
         ``zeta`` in units of their ``L = n``; :meth:`EnsembleRecord.zeta_in`).
     mean_pressures : float or sequence, optional
-        Loads ``p0`` [units of E*] (default the paper's 0.004).
+        Loads ``p0`` [the unit of ``E_star``] (default the paper's 0.004).
     surface : EnsembleSurface, optional
         Surface family (default Fig. 1: H = 0.3, rms slope 0.031, 32 wavelengths).
     E_star : float, optional

@@ -8,7 +8,7 @@ Oracles and tolerances:
   O(h^2)-different discretization) and FiPy (its terms) must each be within
   rtol of a converged finer native run (``zero_weight``; cell masses within
   2 rtol: the finer run's cumulative is transferred by a cubic spline) on
-  the issue's 27-scene grid (3 cutoffs x 3 sqrt(V) x 3 p_c, p0 = 0.004; a
+  a 27-scene grid (3 cutoffs x 3 sqrt(V) x 3 p_c, p0 = 0.004; a
   diagonal subset by default, all 27 as slow), on the Fig. 1 scenes, and on a
   staged problem with drift and the balance multiplier.
 """

@@ -142,8 +142,8 @@ def test_partition_at_the_shell_q_is_continuous_too(fig1, persson):
     """The partition 1 - g(q_k; p) at the shell's own q (closure 'local_g1_shell_balanced',
     also reachable as partition_q="shell") against q_min: both tend to Persson linearly in
     zeta; the shell partition is 10x further at a given zeta (K = 0.017, 1.8e-3, 1.9e-4,
-    1.6e-5 at zeta = 1e-3 ... 1e-6, against 1.6e-3, 1.6e-4, 1.3e-5 with q_min).  Issue 9 reported K = 0.48 at zeta = 0.001 for this
-    variant and called the limit lost; that is not reproduced here (docs/closures.md)."""
+    1.6e-5 at zeta = 1e-3 ... 1e-6, against 1.6e-3, 1.6e-4, 1.3e-5 with q_min): the shell partition does not
+    lose the Persson limit."""
     good = reference_distribution(fig1, E_star=E, mean_pressure=P0, zeta=1e-3, closure="local_g1_balanced", **FAST)
     shell = {z: reference_distribution(fig1, E_star=E, mean_pressure=P0, zeta=z, closure="local_g1_shell_balanced",
                                        **FAST) for z in (1e-3, 1e-4)}
@@ -380,8 +380,8 @@ _IN_SPACE = "correction from plain grids, extrapolated in space (N and 2N grids)
 
 def _second_order_size_counted(monkeypatch) -> None:
     """The N and 2N grids' extrapolation of the shells' correction not trusted: ``c_2N`` with its second-order size
-    counted (what ``continuum._correction_in_space`` returns where the problem's own grids do not trust it; on
-    uniform shells the default before the thirty-first session), to reach the paths that follow from it."""
+    counted (what ``continuum._correction_in_space`` returns where the problem's own grids do not trust it), to
+    reach the paths that follow from it."""
     in_space = continuum._correction_in_space
     monkeypatch.setattr(continuum, "_correction_in_space",
                         lambda c_n, c_2n, own: (c_2n,) + 2 * in_space(c_n, c_2n, own)[2:3] + (False,))
@@ -398,12 +398,12 @@ def test_shell_extrapolation_reaches_the_continuum_closure(fig1, monkeypatch, cl
     Richardson differences is 15.3, a fourth order).  The correction is extrapolated in space from the N and 2N
     grids (``continuum._correction_in_space``).  Where the problem's own grids do not trust that extrapolation, its
     error is counted at its second-order size; forced so at zeta = 0.25, that size (7.6e-7) is too large for rtol,
-    and the 4N grids extrapolate it in space (the default took that path there before the thirty-first session,
-    which counts the extrapolated correction's own error on uniform shells).  The oracle is the continuum closure
+    and the 4N grids extrapolate it in space (the default counts the extrapolated correction's own error on uniform
+    shells, so it takes that path only when forced).  The oracle is the continuum closure
     from independent solves: 384 and 768 shells at rtol 1e-9 on their own grids, Richardson (what is left of it is
     < 1e-9).  shell_extrapolation meets rtol against it (measured 2.8e-8 / 2.6e-8 / 3.7e-8 sup in the cdf, 1.4e-7 /
-    1.5e-7 / 1.3e-7 in L1; estimates 9.2e-7 / 9.9e-7 / 3.9e-7; with the correction not extrapolated, before the
-    twenty-ninth session: 6.5e-7 / 7.1e-7 in L1 at zeta = 1), the plain 96-shell answer does not (measured 5.2e-5 /
+    1.5e-7 / 1.3e-7 in L1; estimates 9.2e-7 / 9.9e-7 / 3.9e-7; with the correction not extrapolated
+    in space: 6.5e-7 / 7.1e-7 in L1 at zeta = 1), the plain 96-shell answer does not (measured 5.2e-5 /
     5.3e-5 / 7.7e-5), and diagnostics["shell_error"] says how far the 48-shell one is (5.7e-4 ... 6.7e-4 in L1)."""
     kw = dict(E_star=E, mean_pressure=P0, zeta=zeta, closure=closure)
     fine = {n: dp.pressure_distribution(fig1, rtol=1e-9, n_shells=n, **kw) for n in (384, 768)}
@@ -508,9 +508,9 @@ def test_on_uniform_shells_the_estimate_counts_the_extrapolated_correction(fig1,
     (``shell_correction_counted`` is ``shell_correction_extrapolated_error``), not at the second-order size of the
     correction taken from the 2N grid alone, which the answer no longer carries.  Oracle: the rtol-1e-8 answer.
     Measured: true 1.13e-7 / 6.4e-8 / 1.38e-7 against estimates 2.9e-7 / 2.7e-7 / 4.2e-7 (2.6x, 4.2x, 3.1x); with the
-    second-order size counted, as before the thirty-first session, 6.1x, 10.9x and 6.7x, beyond the issue's factor of
-    10 at zeta = 0.25.  The bound 5x: the grids' own estimate is taken 15/7 safe by design (RICHARDSON_DIVISOR), the
-    rest is the shells' table.  Counting the second-order size again fails all three."""
+    second-order size counted, 6.1x, 10.9x and 6.7x, beyond the accuracy contract's factor of 10 at zeta = 0.25.
+    The bound 5x: the grids' own estimate is taken 15/7 safe by design (RICHARDSON_DIVISOR), the rest is the
+    shells' table.  Counting the second-order size again fails all three."""
     kw = dict(E_star=E, mean_pressure=P0, zeta=zeta, closure=closure)
     r = dp.pressure_distribution(fig1, **kw)
     ref = dp.pressure_distribution(fig1, rtol=1e-8, **kw)
@@ -523,7 +523,7 @@ def test_on_uniform_shells_the_estimate_counts_the_extrapolated_correction(fig1,
 
 def test_where_the_walls_layer_is_thin_the_estimate_keeps_the_corrections_second_order_size(fig1):
     """Fig. 1 scene at zeta = 0.01 (graded shells): the thin layer's tables were 2-2.7x optimistic on two scenes
-    where the correction's second-order size hid it (docs/closures.md "The correction extrapolated in space"), so
+    where the correction's second-order size hid it (``continuum._correction_in_space``), so
     there that size is what the estimate counts, and the extrapolated correction's own error is diagnostics only."""
     r = dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.01, closure="local_g1_balanced")
     d = r.diagnostics
@@ -535,13 +535,13 @@ def test_where_the_walls_layer_is_thin_the_estimate_keeps_the_corrections_second
 
 def test_romberg_is_not_taken_on_a_ratio_just_above_its_order(l1_on_cells, monkeypatch):
     """``H = 0.8``, rms slope 0.031, q from 2 pi/1024 to 2 pi/32, zeta = 0.03, p0 = 0.016, shell partition, uniform
-    shells (a ``benchmarks/closure_estimates.py`` scene): on 6/12/24/48 shells the ``R(n/2, n)`` differences fall
+    shells (a scene of the closure-estimate audit): on 6/12/24/48 shells the ``R(n/2, n)`` differences fall
     17.8x (16 at fourth order), then 6.7x, 11.4x and 9.3x on finer ladders.  Romberg's column on 48 shells was
     1.86e-6 off while its residual claimed 6.8e-7; with the extrapolated correction's own error counted the answer
     claimed 9.6e-7 and was 1.94e-6 off.  Romberg is trusted up to :data:`continuum.ROMBERG_MAX_RATIO` = 17 now: the
     ladder grows to 96 shells, and the answer is within its estimate of the rtol-1e-8 one (measured 3.0e-7 against
     6.3e-7).  ``ROMBERG_MAX_RATIO = 20`` (the value before) fails it.  That is the table on the whole ladder
-    (``UNIFORM_PARTS`` off).  With the zero weight and the cells apart (the default since the forty-ninth session)
+    (``UNIFORM_PARTS`` off).  With the zero weight and the cells apart (the default, ``UNIFORM_PARTS``)
     the zero weight's own ``R`` ratios (48-55 at 48 shells, 2.1-2.4 at 96, 12 at 192) take the ladder to 192 shells:
     1.3e-7 off against 2.9e-7."""
     spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
@@ -739,8 +739,8 @@ def test_the_later_rungs_on_the_coarse_grid_keep_the_answer_within_its_estimate(
 
 def test_a_uniform_ladder_keeps_its_later_rungs_on_both_grids(monkeypatch, l1_on_cells):
     """The later rungs on the N grid alone (closures.COARSE_RUNGS) only where the shells are graded.  On a uniform
-    ladder the refinement's spatial error is not what its count says: the random audit of seed 21 (scene 232,
-    benchmarks/stress_balance.py --truth --random 250 --seed 21) found local_g1_shell_balanced 4.2e-6 from its
+    ladder the refinement's spatial error is not what its count says: the random audit of seed 21 (scene 232 of 250
+    random scenes against rtol-1e-8 answers) found local_g1_shell_balanced 4.2e-6 from its
     rtol-1e-8 oracle against an estimate of 8.9e-7 with the coarse rung (96 shells); with the later rungs on both grids
     the ladder goes on to 192 shells and the answer is 7.6e-8 off against 7.2e-7 (measured).  Oracle: the rtol-1e-8
     answer; the answer must be within its estimate and rtol, and the same bits as with the switch off.  Break that
@@ -765,8 +765,8 @@ def test_a_uniform_ladder_keeps_its_later_rungs_on_both_grids(monkeypatch, l1_on
 def test_the_uniform_table_takes_the_zero_weights_order_apart(monkeypatch, l1_on_cells, hurst, q_min, q_max, C0,
                                                               closure, zeta, p0, before):
     """On uniform shells the table decides its branch on the zero weight and on the cells apart
-    (closures.UNIFORM_PARTS, forty-ninth session).  Two scenes of the out-of-sample random audits (seeds 17-22,
-    benchmarks/shell_table_audit.py) whose zero weight converged at its own order, hidden in the L1 sums by the cells'
+    (closures.UNIFORM_PARTS).  Two scenes of the out-of-sample random audits (seeds 17-22)
+    whose zero weight converged at its own order, hidden in the L1 sums by the cells'
     larger differences: the whole ladder's table took Romberg and claimed 1.9e-7 and 8.2e-7 where the answers were
     8.2e-7 and 2.65e-6 off.  Oracle: the rtol-1e-8 answer; the answer must be within its estimate and rtol.  The
     break that fails it, kept as the second half: the table on the whole ladder (the rule before), ``before``x
@@ -866,7 +866,7 @@ def test_uniform_table_below_second_order_does_not_trust_a_faster_r_ratio(monkey
 
 
 def test_uniform_ladder_below_second_order_meets_rtol():
-    """Random seed 5, scene 234 of ``benchmarks/stress_balance.py --random 250 --seed 5`` (``local_g1``, ``H`` 0.785,
+    """Random seed 5, scene 234 of a 250-scene stress audit (``local_g1``, ``H`` 0.785,
     ``q`` from ``2 pi/8192`` to ``2 pi/64``, ``zeta`` 2.91, ``p0`` 6.0e-4; uniform shells, ``kappa`` 78, a thin start
     ``lambda`` 1.5e-3): its P differences fell 3.03x per doubling at 48 shells and its R differences 5.45x, and
     R(24, 48) was 1.35e-6 from the rtol-1e-8 answer (which agrees with R(768, 1536) of uniform shells at rtol 1e-8
@@ -887,7 +887,7 @@ def test_uniform_ladder_below_second_order_meets_rtol():
 
 
 def test_thin_start_table_counts_a_crossing_undivided(monkeypatch):
-    """Random seed 7, scene 54 of ``benchmarks/stress_balance.py --random 250 --seed 7`` (``local_g1_shell_balanced``,
+    """Random seed 7, scene 54 of a 250-scene stress audit (``local_g1_shell_balanced``,
     ``H`` 0.790, ``q`` from ``2 pi/2048`` to ``2 pi/8``, ``zeta`` 0.161, ``p0`` 6.7e-5; "ends" shells, ``lambda``
     4.8e-5): the R differences of its 6-48-shell ladder fell 70x at the last doubling, a crossing of terms, and the
     thin layer's table divided the last one by 2^2.5 - 1: R(24, 48) was 1.31e-6 from the rtol-1e-8 answer (which
@@ -975,7 +975,7 @@ def test_forced_grids_do_not_make_the_kernels_compile_again(fig1):
 ])
 def test_romberg_is_not_taken_where_the_shells_ratio_is_far_above_its_order(monkeypatch, l1_on_cells, spectrum,
                                                                             zeta, p0, closure):
-    """Two stress scenes (``benchmarks/stress_balance.py``) on uniform shells, where the 6/12/24/48-shell ladder is
+    """Two stress scenes (random audit) on uniform shells, where the 6/12/24/48-shell ladder is
     not yet asymptotic: ``R(n/2, n)`` falls 33x and 42x per doubling (16 at fourth order), because ``R`` on 12 or 24
     shells happens to lie near the continuum, and Romberg's sixth-order column with its /15 residual claimed 5.4e-7
     and 1.0e-6 where the L1 error was 1.0e-5 and 3.8e-6 (19x and 3.8x).  Above :data:`continuum.ROMBERG_MAX_RATIO`
@@ -983,7 +983,7 @@ def test_romberg_is_not_taken_where_the_shells_ratio_is_far_above_its_order(monk
     ladder grows (to 192 and 384 shells).  By default both scenes' shells are graded at both ends now (a load deep in
     the wall's layer, :data:`shells.START_WALL_LAYER_RATIO`), which answers them on asymptotic tables; the uniform
     shells are forced here to test the gate.  Oracle: the default rtol-1e-8 answer.  Breaks that fail it: the gate
-    removed (the seventeenth session's strict xfail), the residual divided by 15."""
+    removed, the residual divided by 15."""
     H, lo, hi, slope = spectrum
     spec = dp.SelfAffineSpectrum(H, 2 * np.pi / lo, 2 * np.pi / hi, rms_slope=slope)
     kw = dict(E_star=E, mean_pressure=p0, zeta=zeta, closure=closure)

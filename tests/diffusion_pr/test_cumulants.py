@@ -178,7 +178,7 @@ def test_variance_vs_magnification_against_quad(zeta):
 
 @pytest.mark.parametrize("H", [0.1, 0.9])
 def test_variance_vs_magnification_wide_range(H):
-    # magnification 1e4 (hard-case range of issue 3), zeta 1e-4 and 10
+    # magnification 1e4 (the hard-case range), zeta 1e-4 and 10
     s = SelfAffineSpectrum(H, 1e-4, 1.0, rms_slope=0.1)
     eta = np.array([1.0, 3.0, 100.0, 2e3, 1e4])
     for zeta in (1e-4, 10.0):

@@ -182,8 +182,8 @@ def _generator_with_drift(rng, n, scale):
 
 def _stiff_trap(rng, n=120, stiff=40, scale=1e9):
     """A generator whose first ``stiff`` states exchange probability at rates ``scale`` times the others' (a drift
-    trapping probability in tiny cells far below the floor, docs/backends.md "Probability conserved in stiff
-    cells"), and a start vector of unit mass spread over all states."""
+    trapping probability in tiny cells far below the floor, where the flux form must conserve
+    probability), and a start vector of unit mass spread over all states."""
     lo, up = rng.uniform(0.5, 2.0, n - 1), rng.uniform(0.5, 2.0, n - 1)
     lo[:stiff] *= scale
     up[:stiff] *= scale
@@ -606,7 +606,7 @@ def test_lamperti_domain_too_short_falls_back(monkeypatch, closure):
     zeta = 3, p0 = 1e-5 left 9.8e-6 (q_min partition) and 1.9e-6 (q_k) in the top cell, a failed solve.  The solve
     is repeated on the conservative domain and says so; its answer is the answer with the Lamperti bound switched
     off (the same computation, bit for bit), and a solve that fits the bound is not repeated (p0 = 0.04: within
-    1.4e-8 ... 1.0e-7 of the conservative domain's answer; p0 = 1e-3, the example until the seventeenth session, now
+    1.4e-8 ... 1.0e-7 of the conservative domain's answer; p0 = 1e-3, which once fitted the bound, now
     falls back too: its top cell's share of the mean was 3e-5, and the q_min partition's answer 2.5e-6 off)."""
     spec = dp.SelfAffineSpectrum(0.5, 2 * np.pi / 8192, 2 * np.pi / 8, rms_slope=0.3)
     kw = dict(E_star=8 / 3, mean_pressure=1e-5, zeta=3.0, closure=closure)
@@ -626,7 +626,7 @@ def test_lamperti_domain_whose_top_cell_carries_mean_falls_back(monkeypatch):
     """A balanced closure on the Lamperti-bounded domain (H = 0.8, rms slope 0.1, zeta = 3, p0 = 1e-5, 96 shells):
     its top cell held 5.3e-7 < rtol at p_max = 5087 p0, but the tail beyond carried 4.3 % of the mean, which the
     balance made up by moving the whole distribution: the cdf was 3.4e-3 off the conservative domain's answer while
-    the estimate claimed 5.5e-7 (found by the seventeenth session's stress comparison).  A balance's top cell now
+    the estimate claimed 5.5e-7 (found by a stress comparison of random scenes).  A balance's top cell now
     counts with its weight in the mean (p_max/p0): the solve is repeated on the conservative domain and is the
     answer with the Lamperti bound switched off, bit for bit."""
     spec = dp.SelfAffineSpectrum(0.8, 2 * np.pi / 4096, 2 * np.pi / 16, rms_slope=0.1)
@@ -697,9 +697,9 @@ def test_balanced_closure_answer_does_not_follow_rtol(zeta):
     """Same question, same answer: a balanced closure at rtol 1e-4 and 1e-5 agrees within 1e-4.
 
     Its drift cancels the Ito drift of ln p below the floor, so probability
-    returns from below and the answer depends on the depth of the domain; the
-    depth used to be ln(10/rtol) e-folds and the two answers differed by 7e-4 in
-    F(p0/20) at zeta = 0.001 (70x the looser rtol).  Now the depth is fixed
+    returns from below and the answer depends on the depth of the domain; with a
+    depth of ln(10/rtol) e-folds the two answers differed by 7e-4 in F(p0/20) at
+    zeta = 0.001 (70x the looser rtol), so the depth is fixed
     (domain.BOTTOM_EFOLDS_DRIFT).
     """
     from diffusion_pr.closures import closure_distribution
@@ -943,7 +943,7 @@ def test_a_first_level_whose_balance_fails_is_repeated_finer(monkeypatch):
     """py-pde's operator with CRAM-16 on a stress scene (H = 0.8, rms slope 0.1, zeta = p0 = 1e-5,
     local_g1_balanced) whose first levels' balances fail (injected into the first two levels attempted, whatever
     their cells: with py-pde 0.59 / numpy 2.4 the balance of stage 5 fails there by itself again on 158 cells, as it
-    did until the twenty-fourth session's flux form, so the uninjected solve already repeats its level): the first
+    did before the flux form, so the uninjected solve already repeats its level): the first
     level is repeated with twice the cells (at most twice), and at 4x the start it solves, within 2e-6 of native in
     the cdf (both claim 1e-6).  Without the repetition the solve raises with the balance's message."""
     pytest.importorskip("pde")
@@ -966,8 +966,8 @@ def test_a_first_level_whose_balance_fails_is_repeated_finer(monkeypatch):
 
 def test_a_later_level_whose_balance_fails_is_repeated_finer(monkeypatch):
     """Native with CRAM-16, H = 0.8, rms slope 0.031, zeta = 1e-3, p0 = 1e-5, local_g1_balanced on 48 shells: the
-    first level solves; the second level's balances fail (injected: until the twenty-fourth session's flux form the
-    balance of stage 0 failed there by itself, on 444 cells, the mean 0.1 p0 off after 30 steps); the level is
+    first level solves; the second level's balances fail (injected: before the flux form the balance of stage 0
+    failed there by itself, on 444 cells, the mean 0.1 p0 off after 30 steps); the level is
     repeated with twice the cells and solves, within 2e-6 of the uninjected answer in the cdf (both claim
     1e-6).  Without the repetition the solve reports failure (the first level's answer is no result)."""
     monkeypatch.setattr(grading, "_remapped", lambda *a, **k: None)
@@ -1020,8 +1020,8 @@ def _regraded_family_diverges(monkeypatch) -> list:
 
 def test_a_regraded_family_that_diverges_falls_back_to_the_first_levels(monkeypatch):
     """A random stress scene (seed 1, #6: H 0.744, rms slope 0.080, zeta 1.6e-4, p0 2.3e-3, shell partition): after
-    the first level (79 cells, estimate 1.4e-6) the regrade chooses a family with less grading at the wall.  On the
-    machine of the earlier sessions the estimates grew on it, 2.4e-6 on 67 and 3.9e-5 on 134 cells, and the solve
+    the first level (79 cells, estimate 1.4e-6) the regrade chooses a family with less grading at the wall.  On
+    another machine the estimates grew on it, 2.4e-6 on 67 and 3.9e-5 on 134 cells, and the solve
     ended "refinement diverges"; with numpy 2.4 / an AMD EPYC they fall to 1.9e-7 on 134 cells and it converges.
     So the divergence is injected (:func:`_regraded_family_diverges`: the regraded grids lose accuracy with their
     cells).  The engine repeats such a solve once on the first level's family (diagnostics["regrade"] says so): it
@@ -1048,10 +1048,10 @@ def test_a_regraded_family_that_diverges_falls_back_to_the_first_levels(monkeypa
 
 
 def test_the_cubic_ratio_predictor_saves_corrections():
-    """The balance's multiplier is predicted from the cubic through the last four ratios ``A/A_mid`` (forty-second
-    session): on the Fig. 1 scene at ``zeta = 0.01`` (``local_g1_shell_balanced``, 48 uniform shells, 79 coarsest
+    """The balance's multiplier is predicted from the cubic through the last four ratios ``A/A_mid``:
+    on the Fig. 1 scene at ``zeta = 0.01`` (``local_g1_shell_balanced``, 48 uniform shells, 79 coarsest
     cells) the finest grid takes 36 corrections where the parabola through three took 53 (measured on the same
-    code with the parabola, ``benchmarks/results/balance_predictor_order_s42.md``); the bound sits between them.
+    code with the parabola); the bound sits between them.
     The answer is the one the balance converged to within its tolerance either way (the Python oracle's test above
     checks the algorithm step by step). Break that fails it: the predictor back to the parabola (kernel and oracle)."""
     spec = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)

@@ -1,4 +1,5 @@
-"""Hard cases: stable, conservative, non-negative over the ranges issue 3 names.
+"""Hard cases: stable, conservative, non-negative over wide ranges of p0/sqrt(V) (1e-3 ... 10), p_c (1e-4 ... 1),
+magnification (1e4), zeta (1e-4 ... 10) and Hurst exponent (0.1 ... 0.9).
 
 Every case asserts: success with the estimate below rtol, total probability
 (continuous part + zero weight) 1 to within the error estimate (the outflow at
@@ -103,7 +104,7 @@ def test_seed_figure1_cutoffs_all_converge():
         check_sound(r, 0.004)
 
 
-# ------------------------------------------------------------------ issue 7 item 3: hard cases and crash items
+# ------------------------------------------------------------------ user cutoffs, clear errors, extreme inputs
 P_C = 0.0027
 
 
@@ -173,8 +174,9 @@ def test_results_are_not_mutated_by_the_api():
     assert "stress_variance" in r1.diagnostics and r1.diagnostics["backend_requested"] == "auto"
 
 
-def test_issue7_silently_wrong_scene_now_conserves_the_mean():
-    """Issue 7: native returned success with zero_weight 0.976 and mean 1e-4 here (grid floor above p0)."""
+def test_a_grid_floor_above_p0_is_not_a_silent_success():
+    """With the grid floor placed above p0, native returned success with zero_weight 0.976 and mean 1e-4 here;
+    the floor must lie below p0 and the mean (force balance) hold to rtol."""
     s = dp.SelfAffineSpectrum(0.3, 2 * np.pi / 1024, 2 * np.pi / 32, rms_slope=0.031)
     r = dp.pressure_distribution(s, E_star=8 / 3, mean_pressure=0.004, zeta=4, cutoff="smoothstep", p_c=0.02,
                                  backend="native", rtol=1e-6)
@@ -187,10 +189,10 @@ def test_a_diverging_refinement_stops_and_says_so():
     # a restoring drift with the paper's cutoff at a tiny p_c: below the floor, where 59 % of the probability lies,
     # the drift outweighs the diffusion f ~ (pi p/p_c)^2/2 and traps it in cells with |dt L_ii| up to 1e14, and the
     # finer grids lose accuracy: the shifted solves' round-off there (eps |dt L_ii|, growing 4x per halving).  Before
-    # the flux form (twenty-fourth session) they also lost probability (1.5e-6 on 12208 cells) and the refinement
-    # diverged from rtol 1e-8 on (2.3e-8 -> 5.3e-8 -> 2.5e-7, and without the divergence rule on to 6.1e-6 on 65536
-    # cells).  Now the mass holds to round-off and rtol 1e-8 converges (2.4e-9 on 890 cells); at 1e-9 the estimate
-    # still grows (5.6e-10 -> 3.2e-9 -> 1.3e-8): the solve must stop at the second rise, fail, and say why
+    # the flux form they also lost probability (1.5e-6 on 12208 cells) and the refinement diverged from rtol 1e-8
+    # on (2.3e-8 -> 5.3e-8 -> 2.5e-7, and without the divergence rule on to 6.1e-6 on 65536 cells).  With the flux
+    # form the mass holds to round-off and rtol 1e-8 converges (2.4e-9 on 890 cells); at 1e-9 the estimate still
+    # grows (5.6e-10 -> 3.2e-9 -> 1.3e-8): the solve must stop at the second rise, fail, and say why
     p0, c = 0.272, 0.39
     f = dp.PressureFactor(dp.MuserCutoff(0.00252))
     drift = lambda p, tau: -c * (p - p0) / 2.0  # noqa: E731
@@ -206,7 +208,7 @@ def test_a_diverging_refinement_stops_and_says_so():
 
 
 def test_probability_trapped_in_stiff_cells_is_conserved():
-    """Random drift problem #196 of seed 6 (``benchmarks/fp_random_truth.py``): a restoring drift on the paper's
+    """Random drift problem #196 of seed 6 (an audit of random drift problems): a restoring drift on the paper's
     cutoff at ``p_c/sqrt(V)`` = 0.001 traps 80 % of the probability far below the floor (``p_c`` 4.5e-7, the floor
     1.1e-10), in cells with ``|dt L_ii|`` up to 1.6e8.  The partial fractions lost ``eps |dt L_ii|`` of it per
     application: 1.3e-6 over the solve at rtol 1e-6 (the solve failed: "mass not conserved"), with alternating
@@ -233,7 +235,7 @@ def test_probability_trapped_in_stiff_cells_is_conserved():
 
 
 def _seed7_problem_122():
-    """Random drift problem #122 of seed 7 (``benchmarks/fp_random_truth.py``): a restoring drift on the smoothstep
+    """Random drift problem #122 of seed 7 (an audit of random drift problems): a restoring drift on the smoothstep
     cutoff at ``p_c/sqrt(V)`` 0.009, ``p0/sqrt(V)`` 0.005; ``solve(rtol)`` returns the native answer."""
     spec = dp.SelfAffineSpectrum(0.8712260578507987, 0.0015339807878856412, 1.5707963267948966,
                                  C0=165380.1678226687)
@@ -279,7 +281,7 @@ def test_a_dominating_drift_keeps_the_spectrum_real():
     answer, oracle = solve(1e-6), solve(1e-7)
     for r in (answer, oracle):
         assert r.success and abs(r.diagnostics["mass_error"]) < 1e-9
-    x = np.concatenate(([0.0], answer.edges))  # the L1 of benchmarks/fp_random_truth.py: zero weight and cells
+    x = np.concatenate(([0.0], answer.edges))  # the audit's L1: zero weight and cells
     l1 = float(abs(answer.zero_weight - oracle.zero_weight)
                + np.sum(np.abs(np.diff(answer.cdf(x))[1:] - np.diff(oracle.cdf(x))[1:])))
     assert l1 <= 1e-6

@@ -9,7 +9,7 @@ Oracles and tolerances:
   normal with mean ``ln p0 - tau`` and variance ``2 tau``), which checks the
   non-contact weight where the wall is not reached (the mass below the floor);
 * the error estimate must be honest: true L1 error within a factor 10 of it
-  (issue 10), and the estimate below rtol;
+  (the package's accuracy contract), and the estimate below rtol;
 * a Monte Carlo of the Ito SDE where there is no closed form;
 * CRAM-16 against scipy's dense ``expm`` (to 1e-13).
 """
@@ -66,7 +66,7 @@ def test_meets_rtol_with_an_honest_estimate(case, p0, rtol):
     assert r.success, r.message
     err = l1_error(r, dens, zw)
     assert err <= rtol
-    # the estimate is within a factor 10 of the true error (issue 10: "rtol buys what it says")
+    # the estimate is within a factor 10 of the true error, the package's accuracy contract
     assert r.error_estimate / 10 <= err <= 10 * r.error_estimate
     assert abs(r.mass - 1.0) < 1e-12 + r.error_estimate and abs(r.mean - p0) <= rtol * p0
 
@@ -78,7 +78,7 @@ def test_an_exit_wall_is_graded_and_converges_at_fourth_order(exit_weight):
     # fell only 4x per doubling (the estimate then needed the divisor 3, and rtol 1e-6 took 3548-15784 coarsest
     # cells); graded geometrically down to rtol s (C_EXIT_WALL, EXIT_WALL_DEPTH) they fall 16x (measured 15-17 from
     # 40 to 160 cells), like every other wall.  Oracle: Feller's closed form.  Tolerances: a fall of at least 10x per
-    # doubling (4x fails it), rtol met, and the estimate within [1, 10]x the true error (issue 10).
+    # doubling (4x fails it), rtol met, and the estimate within [1, 10]x the true error (the accuracy contract).
     p0, V = 1.0, 1.0
     p_1 = exit_weight * (V / 2) / p0  # the non-contact weight is exp(-p0 p_1 / tau) = exp(-exit_weight)
     problem, dens, zw = feller_case(p0, V, p_1)
@@ -404,8 +404,8 @@ def test_a_drift_away_from_an_exit_wall_against_the_squared_bessel_process(alpha
     """The absorbed squared Bessel process (``besq_case``): p0 = 1, V = 0.5, p_1 = 1.  Before the wall carried a
     drift away from it (drift dropped there: an O(1) error in the wall flux) the solves failed at 32768 cells with
     L1 errors 1.0e-4 ... 8.5e-4; with the drift, 2.0e-7 ... 5.8e-7 on 17832-31568 cells (the wall face is first
-    order); since the exit wall's grading (twenty-seventh session) 4e-8 ... 1e-7 on about 300-400 cells.
-    Tolerances: rtol, and the honest-estimate factor 10 of issue 10."""
+    order); with the exit wall graded, 4e-8 ... 1e-7 on about 300-400 cells.
+    Tolerances: rtol, and the estimate within a factor 10 of the true error (the accuracy contract)."""
     problem, dens, zw = besq_case(1.0, 0.5, 1.0, alpha_p1)
     r = native.solve(problem, rtol=1e-6)
     assert r.success, r.message
@@ -419,7 +419,7 @@ def cir_solved_against_its_closed_form(p0: float, V: float, p_1: float, alpha: f
     """``(result, L1 error, exact zero weight)`` of ``f = p/p_1``, ``a = alpha - beta p`` solved natively at rtol 1e-6,
     against ``closed_forms.cir_density`` / ``cir_zero_weight`` (cell masses by 24-point Gauss-Legendre quadrature: the
     density is analytic in p on every cell, exact to round-off here); asserts success, the error within rtol and
-    within 10x of the estimate (issue 10)."""
+    within 10x of the estimate (the accuracy contract)."""
     r = native.solve(FokkerPlanckProblem(p0, V, ProportionalDiffusivity(p_1),
                                          drift=lambda p, tau: alpha - beta * p), rtol=1e-6)
     assert r.success, r.message
@@ -438,9 +438,9 @@ def test_an_exit_wall_with_an_affine_drift_against_the_absorbed_cir_process(p0, 
     towards-the-wall drifts against ``closed_forms.cir_density`` / ``cir_zero_weight`` (the time-changed squared
     Bessel process).  Before the exit wall's grading ``alpha p_1 = 0.9, beta = 3`` failed at 65536 cells (L1 4.2e-6
     against an estimate of 1.6e-6) and the others took 4184-32768 cells (7-557 ms); now 316-512 cells (2-12 ms),
-    L1 2.7e-8 ... 1.0e-7, each about half its estimate.  Tolerances: rtol, the estimate within 10x (issue 10), the
-    zero weight within rtol; cell masses by 24-point Gauss-Legendre quadrature of the closed form (its density is
-    analytic in p on every cell, exact to round-off here)."""
+    L1 2.7e-8 ... 1.0e-7, each about half its estimate.  Tolerances: rtol, the estimate within 10x (the accuracy
+    contract), the zero weight within rtol; cell masses by 24-point Gauss-Legendre quadrature of the closed form
+    (its density is analytic in p on every cell, exact to round-off here)."""
     r, _, zw = cir_solved_against_its_closed_form(p0, V, p_1, alpha, beta)
     assert abs(r.zero_weight - zw) <= 1e-6 and r.diagnostics["wall"] == "absorbing at p = 0"
     # the grid the grading buys (deterministic, not a timing): 316-512 output cells measured, 4184-32768 ungraded
@@ -471,12 +471,12 @@ def test_an_entrance_wall_is_never_crossed(p0, V, p_1, alpha, beta):
 def test_a_drift_towards_the_wall_moves_the_domains_bottom(drift, backend):
     """``f = 1`` with a constant drift towards the wall, ``p0 = 1``, ``V = 0.01`` (spread 0.1), so the drift moves
     Pr down by ``S = a V/2`` = 5 and 1.5 spreads; oracle ``closed_forms.drifted_mirror_gaussian_density`` / ``_zero
-    _weight`` (images with the Girsanov weight).  Until the thirtieth session the domain's bottom was placed at
-    ``p0 - z s`` by the spread and the drift away from the wall alone: the first scene booked 15 % of the
-    probability into zero_weight (0.153 against 3.9e-7) and claimed success with an estimate of 2.2e-7 (L1 0.31);
-    the second claimed success at L1 6.6e-6 (estimate 2.1e-7).  Now the drift towards the wall below ``p0`` moves the bottom down by its shift; measured L1
-    7.5e-8 ... 1.3e-7, each within its estimate.  Tolerances: rtol 1e-6, and the estimate within 10x (issue 10);
-    every backend shares the domain."""
+    _weight`` (images with the Girsanov weight).  With the domain's bottom placed at ``p0 - z s`` by the spread
+    and the drift away from the wall alone, the first scene booked 15 % of the probability into zero_weight (0.153
+    against 3.9e-7) and claimed success with an estimate of 2.2e-7 (L1 0.31); the second claimed success at L1
+    6.6e-6 (estimate 2.1e-7).  The drift towards the wall below ``p0`` moves the bottom down by its shift; measured
+    L1 7.5e-8 ... 1.3e-7, each within its estimate.  Tolerances: rtol 1e-6, and the estimate within 10x (the
+    accuracy contract); every backend shares the domain."""
     p0, V = 1.0, 0.01
     shift = drift * V / 2
     r = dp_propagate(p0, V, drift=lambda p, tau: drift + 0.0 * p, rtol=1e-6, backend=backend)
@@ -520,8 +520,8 @@ def test_a_growing_cir_drift_against_the_absorbed_cir_process(p0, p_1, alpha_p1,
     """``f = p/p_1``, ``a = alpha - beta p`` with ``beta tau <= -1`` (the random CIR audit's problems, seed 11, #184
     and #65 among them): refused with "could not bound the pressure domain" before the affine envelope (53 of that
     audit's 200, all with ``beta tau <= -0.83``; then 11, all "drift-dominated stage" at ``beta tau <= -1.69``, the
-    last two here: their domains were 4.6-17x the exact tail quantile, bounded with the largest diffusivity; since
-    the thirty-first session the affine diffusivity's Chernoff bound closes them, and none of the 200 is refused).
+    last two here: their domains were 4.6-17x the exact tail quantile, bounded with the largest diffusivity; the
+    affine diffusivity's Chernoff bound closes them, and none of the 200 is refused).
     Oracle: ``closed_forms.cir_density`` / ``cir_zero_weight``.  Tolerances as the other CIR test's."""
     V = 1.0
     alpha, beta = alpha_p1 / p_1, beta_tau / (V / 2)

@@ -226,7 +226,7 @@ def test_histogram_of_any_field_is_normalized(field, bins):
 
 
 def test_native_known_wrong_success():
-    """Regression (issue 7): at p_c = 5 p0, sqrt(V)/p0 = 0.125 the smoothstep cutoff once gave
+    """Regression: at p_c = 5 p0, sqrt(V)/p0 = 0.125 the smoothstep cutoff once gave
     success=True with mean 7e-28 and zero_weight 1 (force balance violated); found by
     test_native_contract_wide. A reported success must honour the contract."""
     r = dp.propagate(1.0, 0.125**2, diffusivity=_diffusivity("smoothstep", 5.0, None, None), backend="native",

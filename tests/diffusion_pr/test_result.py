@@ -105,8 +105,8 @@ def test_native_cdf_between_the_edges_meets_rtol(rtol):
     Mirror Gaussian (oracle: scipy's normal cdf) and the Fig. 1 scene at zeta = 0.25 (oracle: native at rtol
     1e-10), default scheme: the largest distance on 5000 pressures is within rtol, and within 2x of the
     estimate (measured 6.9e-6 and 1.2e-7 for the mirror, estimates 4.3e-6 and 7.2e-8; Fig. 1 1.4e-5 and 1.5e-7,
-    estimates 1.1e-5 and 1.8e-7).  The sixth-order option once returned 8.9e-5 here for an estimate of 3.2e-7
-    (tests/diffusion_pr/test_fv_sixth.py)."""
+    estimates 1.1e-5 and 1.8e-7).  The sixth-order option once returned 8.9e-5 here for an estimate of
+    3.2e-7."""
     import diffusion_pr as dp
     from diffusion_pr.problem import FokkerPlanckProblem
 
@@ -154,7 +154,7 @@ def test_native_cdf_between_the_edges_near_a_floor_and_a_kink(p0, cutoff, p_c, p
     masses, estimates 1-2e-9) was 1.6e-6 with a spline in ``p`` (a non-contact peak above the floor), 1.7e-6 in
     ``Phi`` ending at the floor (the first cell), 9.8e-7 in ``Phi`` beside the tail's kink at ``p_t`` (``Phi``'s
     floor grading runs on over a density flat in ``p``); now 5.5e-8, 1.4e-7 and 1.5e-8.  Over 264 random problems
-    the largest is 2.0e-7 (docs/backends.md).  Assert 0.3 rtol: each of the three fails without its ingredient."""
+    the largest is 2.0e-7.  Assert 0.3 rtol: each of the three fails without its ingredient."""
     import diffusion_pr as dp
 
     f = dp.PressureFactor(dp.make_cutoff(cutoff, p_c), dp.make_tail("max_linear", p_t))
@@ -168,8 +168,7 @@ def test_native_cdf_between_the_edges_near_a_floor_and_a_kink(p0, cutoff, p_c, p
 def test_the_cdf_breaks_its_spline_only_where_the_density_may_kink():
     """``diagnostics["knots"]`` (where the cdf's spline is broken) holds the coefficients' breakpoints; the start
     ``p0`` and the floor only where one is one of them (the start's delta has diffused into a smooth density, and
-    the floor cuts the report, not the problem; breaking the spline at ``p0`` cost up to 2e-7 beside it,
-    docs/backends.md)."""
+    the floor cuts the report, not the problem; breaking the spline at ``p0`` cost up to 2e-7 beside it)."""
     import diffusion_pr as dp
 
     f = dp.PressureFactor(dp.make_cutoff("smoothstep", 0.05))

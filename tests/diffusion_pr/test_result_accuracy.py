@@ -2,7 +2,7 @@
 
 Oracles: the closed forms (mirror Gaussian ``N(p; p0, V) - N(p; -p0, V)``, Feller's ``f = p``, a Gaussian far
 from the wall), evaluated by :mod:`diffusion_pr.closed_forms` and, for their cdfs, by scipy's quadrature.
-Bars (issue of the result contract): the L1 distance of ``pdf`` at most ``10 rtol``; ``error_estimate`` within a
+Bars (the result contract): the L1 distance of ``pdf`` at most ``10 rtol``; ``error_estimate`` within a
 factor 10 of it either way; the largest density within 1 % of the exact maximum; the probability of any interval
 within ``rtol``.  Measured on native (ratios L1 / estimate 0.32 to 0.52; the linear interpolation of cell averages
 it replaces had 50 to 2e11)."""

@@ -41,8 +41,8 @@ def test_theory_on_own_spectrum_matches_own_gfmd(seeded_surface, zeta, closure):
 
 
 def test_wrong_theory_fails_with_a_readable_message(seeded_surface):
-    """A theory at 1.5 p0 against GFMD at p0 (measured K/noise 6.2): the failure names K, the noise, where the
-    CDFs differ most and the contact areas."""
+    """A theory at 1.5 p0 against GFMD at p0 (measured K = 0.65, K/noise 8.6): the failure names K, the noise,
+    where the CDFs differ most and the contact areas."""
     s = seeded_surface(n=64, seed=3)
     res = _gfmd(s, 0.5)
     wrong = dp.pressure_distribution(s.spectrum, E_star=8 / 3, mean_pressure=0.006, zeta=0.5,

@@ -68,7 +68,7 @@ def test_fig1_bundle_agrees_with_independent_reference_seeds(fig1, wall):
 
 
 def test_fig1_noise_floor_scales_as_inverse_sqrt_n(fig1):
-    """The issue's measurement: K(N) ~ 0.037/sqrt(N) at large zeta. The split-half
+    """The measured noise floor: K(N) ~ 0.037/sqrt(N) at large zeta. The split-half
     estimate must fall like 1/sqrt(N) (ratio K(1)/K(N_max) = sqrt(N_max) within
     sampling error) with a coefficient of that size."""
     nf = noise_floor(fig1.group(4.0), repeats=100)
