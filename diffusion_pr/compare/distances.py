@@ -58,8 +58,28 @@ class Comparison:
     contact_threshold: float = 0.0
 
 
-def compare(theory: Any, hist: SimulatedHistogram, *, contact_threshold: Optional[float] = None) -> Comparison:
-    """Compare a :class:`~diffusion_pr.result.PressureDistribution` with a histogram.
+def _as_histogram(simulated: Any, theory: Any) -> SimulatedHistogram:
+    """``simulated`` as a histogram: a histogram as it is, a GFMD ``ContactResult`` by
+    :func:`gfmd_ref.pressure_histogram`, a pressure field (any shape) counted at the theory's ``contact_threshold``."""
+    if isinstance(simulated, PressureHistogram):
+        return simulated
+    if hasattr(simulated, "pressure") and hasattr(simulated, "contact_threshold"):
+        from gfmd_ref import pressure_histogram
+
+        return pressure_histogram(simulated)
+    field = np.asarray(simulated)
+    if field.dtype.kind not in "iuf" or field.size < 2:
+        raise TypeError("compare takes a PressureHistogram, a gfmd_ref ContactResult, a pressure field (a real array) "
+                        f"or an ensemble (group or records); got {type(simulated).__name__}")
+    return PressureHistogram.from_pressures(field, contact_threshold=getattr(theory, "contact_threshold", 0.0))
+
+
+def compare(theory: Any, simulated: Any, *, contact_threshold: Optional[float] = None) -> Any:
+    """Compare a :class:`~diffusion_pr.result.PressureDistribution` with a simulation.
+
+    ``simulated``: a :data:`SimulatedHistogram`, a GFMD ``ContactResult``, a pressure field (an array of local
+    pressures), or an ensemble (an ``EnsembleGroup`` or a sequence of records: then this is
+    :func:`~diffusion_pr.compare.compare_ensemble`, with the ensemble's noise).
 
     Both distances are taken at the histogram's resolution: the ``delta(p)`` peaks (the theory's ``zero_weight`` and the
     simulation's exactly-zero pressures) are counted in the first bin ``[0, edges[1])``, since below one bin width a
@@ -71,6 +91,12 @@ def compare(theory: Any, hist: SimulatedHistogram, *, contact_threshold: Optiona
       available (both sides of every empirical jump), else at the bin edges.
     * contact fractions: the fraction with ``p > contact_threshold`` on both sides; default the theory's
       ``contact_threshold`` (0 on a hard wall, GFMD's ``0.01 p0`` on an exponential wall), else the histogram's."""
+    if hasattr(simulated, "records") or (isinstance(simulated, (list, tuple)) and simulated
+                                         and hasattr(simulated[0], "quantiles")):
+        from .ensemble import compare_ensemble
+
+        return compare_ensemble(theory, simulated)
+    hist = _as_histogram(simulated, theory)
     if contact_threshold is None:
         contact_threshold = getattr(theory, "contact_threshold", None)
     threshold = float(hist.contact_threshold if contact_threshold is None else contact_threshold)

@@ -226,3 +226,28 @@ def test_contact_fraction_at_a_threshold_on_both_sides(rng):
     assert plain.fraction_above(t) == pytest.approx(cmp.contact_fraction_sim, abs=1.0 / 2048)
     with pytest.raises(ValueError, match="contact_threshold"):
         compare(theory, hist, contact_threshold=-1.0)
+
+
+def test_compare_takes_a_gfmd_result_a_field_a_histogram_or_an_ensemble():
+    """One bridge: a ContactResult, its pressure field and its histogram give the same comparison (the field counted
+    at the theory's threshold, as the result's histogram is); an ensemble group is compare_ensemble's comparison."""
+    import gfmd_ref as g
+
+    import diffusion_pr as dp
+    from diffusion_pr.compare import EnsembleComparison, compare, compare_ensemble
+
+    h, L = g.fig1_surface(64, seed=1)
+    res = g.solve_contact(h, length=L, E_star=8 / 3, mean_pressure=0.004, interaction=g.HardWall())
+    theory = dp.pressure_distribution(dp.DiscreteSpectrum.from_heights(h, L), E_star=8 / 3, mean_pressure=0.004,
+                                      rtol=1e-5)
+    field_hist = g.PressureHistogram.from_pressures(res.pressure, contact_threshold=theory.contact_threshold)
+    for other, same in ((compare(theory, res), compare(theory, g.pressure_histogram(res))),
+                        (compare(theory, res.pressure), compare(theory, field_hist))):
+        assert other.contact_fraction_sim == pytest.approx(res.contact_area(), abs=1e-12)
+        assert other.kolmogorov == same.kolmogorov and other.l1 == same.l1  # the same field, bins and quantiles
+    group = g.bundled_ensemble("fig1_n1024").group(None)
+    pooled = compare(theory, group)
+    assert isinstance(pooled, EnsembleComparison)
+    assert pooled.kolmogorov == pytest.approx(compare_ensemble(theory, group).kolmogorov, abs=1e-12)
+    with pytest.raises(TypeError, match="PressureHistogram"):
+        compare(theory, "field.npy")
