@@ -107,6 +107,22 @@ def run(workers: int = 2, seeds: str = SEEDS, only=None) -> None:
                                   E_star=E_STAR, workers=workers, threads_per_worker=1, progress=False,
                                   verbose=False, command=cmd)
             print(f"H={H} breadth={b} n={n}: {time.time() - t:.0f} s", flush=True)
+    top_up(workers)
+
+
+def top_up(workers: int = 2, spare: int = 8) -> None:
+    """Scenes with fewer than 16 converged seeds (a stalled solve is kept in the store and excluded from the pool)
+    get the next seeds, one at a time, up to ``spare`` more."""
+    import gfmd_ref
+    for s in scenes():
+        for extra in range(17, 17 + spare):
+            g = _group(s)
+            if g.n_seeds >= 16:
+                break
+            gfmd_ref.run_ensemble(_store(s["hurst"], s["breadth"], s["n"]), n=s["n"], seeds=[extra],
+                                  walls=["hard" if s["zeta"] is None else s["zeta"]], mean_pressures=[s["p0"]],
+                                  surface=_surface(s["hurst"], s["breadth"]), E_star=E_STAR, serial=True,
+                                  progress=False, verbose=False, command="python scripts/evidence_base.py run")
 
 
 def resolution(workers: int = 2) -> None:
