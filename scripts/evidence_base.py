@@ -1,6 +1,6 @@
 """Evidence base beyond the Fig. 1 scene: GFMD ensembles over H, spectral breadth, load and wall.
 
-One command regenerates everything (about 25 min on 2 cores)::
+One command regenerates everything (about 35 min on 2 cores)::
 
     python scripts/evidence_base.py all            # design, GFMD, resolution check, summary, dev table
 
