@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -194,8 +193,9 @@ def summarize() -> dict:
                         contact_area=_sig(ar.mean(), 6), contact_area_se=_sig(ar.std(ddof=1) / np.sqrt(ar.size), 3),
                         V0=_sig(persson_variance(g), 8),
                         noise_bootstrap={k: _sig(v, 3) for k, v in noise.items()},
-                        seeds=[dict(seed=r.seed, contact_area=_sig(r.contact_fraction, 6), mean_over_p0=_sig(r.mean / p0),
-                                    sd_over_p0=_sig(r.sd / p0), skewness=_sig(r.skewness, 3)) for r in recs],
+                        seeds=[dict(seed=r.seed, contact_area=_sig(r.contact_fraction, 6),
+                                    mean_over_p0=_sig(r.mean / p0), sd_over_p0=_sig(r.sd / p0),
+                                    skewness=_sig(r.skewness, 3)) for r in recs],
                         pooled_quantiles_over_p0=[_sig(v) for v in pooled]))
     res = []
     for H in RESOLUTION["hurst"]:
@@ -203,12 +203,14 @@ def summarize() -> dict:
             for w in WALLS[:3]:
                 s = dict(hurst=H, breadth=RESOLUTION["breadth"], n=GRID[RESOLUTION["breadth"]], load=load,
                          p0=load * E_STAR * RMS_SLOPE, wall=w)
-                seeds = [int(x) for x in range(1, 9)]
+                lo, hi = (int(x) for x in RESOLUTION["seeds"].split("-"))
+                seeds = range(lo, hi + 1)
                 ar = [float(np.mean([r.contact_fraction for r in _group(s, n).records if r.seed in seeds]))
                       for n in (s["n"], RESOLUTION["n_fine"])]
                 res.append(dict(id=scene_id(s), n=[s["n"], RESOLUTION["n_fine"]],
                                 points_per_lambda_s=[s["n"] / s["breadth"], RESOLUTION["n_fine"] / s["breadth"]],
-                                contact_area_8_seeds=[_sig(a, 5) for a in ar], relative_change=_sig(ar[1] / ar[0] - 1, 3)))
+                                contact_area_8_seeds=[_sig(a, 5) for a in ar],
+                                relative_change=_sig(ar[1] / ar[0] - 1, 3)))
     summ = dict(provenance=dict(code=git_rev(), command="python scripts/evidence_base.py all",
                                 created=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())),
                 design="data/evidence/design.json", levels=N_LEVELS, scenes=out, resolution=res)
