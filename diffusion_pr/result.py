@@ -32,8 +32,13 @@ def cumulative_interpolant(u: Array, cum: Array, breaks: Any = ()) -> Any:
     for a, b in zip(cuts[:-1], cuts[1:]):
         x, y = u[a:b + 1], cum[a:b + 1]
         k = 5 if b - a >= 5 else 3 if b - a >= 3 else 1
-        spline = make_interp_spline(x, y, k=k)
-        for m in range(k + 1):  # each interval's Taylor coefficients at its left end
+        # nodes a round-off apart (micro-cells under a breakpoint, floor ghosts) make the collocation matrix singular
+        # or ill-conditioned: the spline runs through the others (the segment's ends kept)
+        kept, tiny = [0], 1e-9 * (x[-1] - x[0])
+        kept += [i for i in range(1, x.size - 1) if x[i] - x[kept[-1]] > tiny and x[-1] - x[i] > tiny]
+        kept.append(x.size - 1)
+        spline = make_interp_spline(x[kept], y[kept], k=min(k, len(kept) - 1))
+        for m in range(spline.k + 1):  # each interval's Taylor coefficients at its left end
             coef[DEGREE - m, a:b] = spline(x[:-1], nu=m) / factorial(m)
         slope = PPoly(coef[:, a:b], x).derivative()
         crit = slope.derivative().roots(discontinuity=False, extrapolate=False)

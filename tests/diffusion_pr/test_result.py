@@ -180,3 +180,22 @@ def test_the_cdf_breaks_its_spline_only_where_the_density_may_kink():
 
     grids = [_solve_full(FokkerPlanckProblem(p0, 1.0, f), "native", 1e-6, {}).grid for p0 in (0.05, 0.06)]
     assert 0.05 in grids[0].spec.knots and 0.06 in grids[1].spec.knots
+
+
+def test_cumulative_interpolant_survives_nodes_a_round_off_apart():
+    """Micro-cells under a breakpoint and floor ghosts put nodes 1e-12 apart in the monitor coordinate (a scene of
+    the evidence base: local_g1_balanced, H 0.3, zeta 2, p0 1e-3): the quintic's collocation matrix was singular and
+    cdf() raised.  The spline then runs through the other nodes: exact at them, within 1e-12 at the dropped ones
+    (their cumulative mass differs by less), and it interpolates a smooth cdf as before (the normal cdf on
+    [-1.5, 10], 200 nodes: 1e-9)."""
+    from scipy.special import ndtr
+
+    from diffusion_pr.result import cumulative_interpolant
+
+    u = np.r_[-1.5, -1.5 + 3.6e-12, -1.5 + 7.2e-12, np.linspace(-1.45, 10.0, 200)]
+    cum = ndtr(u)
+    poly = cumulative_interpolant(u, cum)
+    assert np.max(np.abs(poly(u[3:]) - cum[3:])) < 1e-15 and np.max(np.abs(poly(u) - cum)) < 1e-12
+    x = np.linspace(-1.5, 10.0, 5001)
+    assert np.max(np.abs(poly(x) - ndtr(x))) < 1e-9
+    assert np.all(poly.derivative()(x) >= 0.0)
