@@ -337,7 +337,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
         # the estimate falls like N^-order: the factor on this level's cells that meets rtol
         need = NEED_MARGIN * max((est / (SAFETY * rtol)) ** (1.0 / order),
                                  (mean_miss / (SAFETY * rtol * prep.p0)) ** (1.0 / order))
-        best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(3)], mean_full, need)
+        best = (out_edges, out_y, out_mom, est, cnt, [n_base << k for k in range(3)], mean_full)
         best_grid = GridFamily(prep.spec, tuple(idx.tolist()), finest)
         best_ghosts = _floor_ghosts(e2, r23, j2)
         best_plain = (_lump(y1, j1), _lump(y2, j2), _lump(y3, 2 * j2)) if plain == "keep" else None
@@ -384,7 +384,7 @@ def _solve_levels(problem, *, rtol: float, backend: str, assemble: Assemble, n_c
         # the grid family the first level's errors favoured diverged where the first level's family may
         # converge: once more without (a divergence only: other failures are reported as they are)
         return "regrade", f"the first level's grid family (the regraded one failed: {failure})"
-    edges, y, moments, est, cnt, cells, mean_full, _ = best
+    edges, y, moments, est, cnt, cells, mean_full = best
     # under a balance the top cell's mass counts with its weight p_max / p0 in the mean
     top_weight = max(1.0, float(edges[-1]) / prep.p0) if prep.has_balance else 1.0
     if prep.lamperti_bounded and failure is None and abs(float(y[-1])) * top_weight > rtol:
