@@ -298,11 +298,15 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
                            rtol: float = 1e-6, closure: str = "second_order",
                            **options: Any) -> PressureDistribution:
     """:func:`pressure_distribution`'s result before the :class:`ConvergenceWarning` check."""
-    backend, rtol = _check_backend(backend), _check_rtol(rtol)
-    if closure != "second_order":
-        from .closures import _closure_distribution, check_closure
+    from .closures import PERSSON_CORRECTIONS, _closure_distribution, check_closure
 
-        check_closure(closure)
+    backend, rtol = _check_backend(backend), _check_rtol(rtol)
+    gamma = PERSSON_CORRECTIONS.get(check_closure(closure))
+    if gamma is not None and (np.any(np.asarray(zeta) != 0) or cutoff != "sharp" or tail is not None
+                              or drift is not None):
+        raise ValueError(f"closure={closure!r} corrects Persson's hard-wall theory: it needs zeta=0 and no cutoff, "
+                         f"tail or drift; got zeta={zeta!r}, cutoff={cutoff!r}, tail={tail!r}, drift={drift!r}")
+    if closure != "second_order" and gamma is None:
         for name, value in (("drift", drift), ("cutoff", None if cutoff == "sharp" else cutoff), ("p_c", p_c),
                             ("tail", tail), ("p_t", p_t)):
             if value is not None:
@@ -337,9 +341,14 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
         raise ValueError(f"the stress variance of this spectrum is {V!r}; it must be finite and > 0 "
                          "(check the spectrum for NaN or zero amplitude)")
     extra: dict = {"stress_variance": V, "zeta": float(z), "E_star": float(E), "pressure_factor": factor,
-                   "closure": "second_order"}
+                   "closure": closure}
+    if gamma is not None:
+        from .closed_forms import persson_corrected_variance
+
+        extra.update(gamma=gamma, corrected_variance=persson_corrected_variance(float(p0), V, gamma))
     if drift is None:
-        problem = FokkerPlanckProblem(float(p0), V, factor, label="pressure_distribution")
+        problem = FokkerPlanckProblem(float(p0), extra.get("corrected_variance", V), factor,
+                                      label="pressure_distribution")
     else:
         eta = np.geomspace(1.0, float(spectrum.q_max / spectrum.q_min), N_ETA)
         v_eta = np.asarray(variance_vs_magnification(spectrum, eta, E_star=E, mean_pressure=p0, zeta=z), dtype=float)

@@ -20,6 +20,10 @@ pressure ``p_c``.  The closures here need no fitted number:
 ``"local_g1_shell_balanced"``
     As ``local_g1_balanced`` with ``g(q_k; p)`` in the partition; the best on the Fig. 1 scene's GFMD
     ensemble, not off it (docs/closures.md, docs/fig1.md).
+``"yang_persson"``, ``"wang_muser"``
+    Not parameter free: Persson's hard-wall diffusion slowed by ``gamma + (1 - gamma) a_r^2`` with a constant
+    fitted to simulations by Yang & Persson 2008 (``gamma = 0.45``) and Wang & Müser 2017 (``5/9``), for
+    comparison (:func:`diffusion_pr.closed_forms.persson_corrected_variance`; ``zeta = 0`` only).
 
 Submodules: :mod:`~diffusion_pr.closures.shells`, :mod:`~diffusion_pr.closures.models`,
 :mod:`~diffusion_pr.closures.continuum`.  Pressures in the unit of ``E_star``; lengths in the unit of the
@@ -51,11 +55,14 @@ __all__ = [
     "LoadExcessDrift",
     "RigidApproachBalance",
     "DEFAULT_CONTINUUM_SHELLS",
+    "PERSSON_CORRECTIONS",
 ]
 
 #: the closures by name; "second_order" is the paper's theory
 CLOSURES: tuple[str, ...] = ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced",
-                             "local_g1_shell_balanced")
+                             "local_g1_shell_balanced", "yang_persson", "wang_muser")
+#: the hard-wall corrections of Persson's theory and their fitted ``gamma`` (docs/closures.md)
+PERSSON_CORRECTIONS: dict[str, float] = {"yang_persson": 0.45, "wang_muser": 5.0 / 9.0}
 
 #: (the names tests/oracles/closure_reference.py imports)
 _BALANCED, _cached_shells = BALANCED, cached_shells

@@ -280,17 +280,38 @@ def test_bad_input(fig1, kwargs, match):
 
 
 def test_closure_names():
-    assert CLOSURES == ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced", "local_g1_shell_balanced")
+    assert CLOSURES == ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced", "local_g1_shell_balanced",
+                        "yang_persson", "wang_muser")
 
 
 # ----------------------------------------------------------------------------- api and engine
 @pytest.mark.parametrize("closure", CLOSURES)
 def test_pressure_distribution_closure_keyword(fig1, closure):  # noqa: D103
-    r = dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.5, closure=closure,
+    zeta = 0.0 if closure in ("yang_persson", "wang_muser") else 0.5
+    r = dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure,
                                  **({"shell_extrapolation": False, "rtol": 1e-4} if closure.startswith("local")
                                     else {}))
     assert r.diagnostics["closure"] == closure
     assert r.success
+
+
+@pytest.mark.parametrize("closure, gamma", [("yang_persson", 0.45), ("wang_muser", 5 / 9)])
+def test_fitted_hard_wall_corrections(fig1, closure, gamma):
+    """Oracle: the mirror Gaussian of the re-timed variance (closed form) -- contact area erf(p0/sqrt(2 V_eff)),
+    mean p0 -- and more contact than Persson; refused away from the hard wall (no wall law in the correction)."""
+    from scipy.special import erf
+
+    from diffusion_pr.closed_forms import persson_corrected_variance
+
+    r = dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, closure=closure)
+    persson = dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0)
+    v_eff = persson_corrected_variance(P0, persson.diagnostics["stress_variance"], gamma)
+    assert r.diagnostics["closure"] == closure and r.diagnostics["gamma"] == gamma
+    assert r.contact_area() == pytest.approx(erf(P0 / np.sqrt(2 * v_eff)), rel=1e-9)
+    assert r.contact_area() > 1.2 * persson.contact_area()
+    assert r.mean == pytest.approx(P0, rel=1e-9)
+    with pytest.raises(ValueError, match="zeta=0"):
+        dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.1, closure=closure)
 
 
 def test_pressure_distribution_closure_bad_input(fig1):
