@@ -9,8 +9,9 @@ development and held-out scenes, fixed before any GFMD number is looked at); ``r
 store (``evidence_out/``, gitignored; resumable); ``resolution`` solves a few development scenes with the
 shortest wavelength on twice the grid points; ``summarize`` writes ``data/evidence/summary.json`` (per scene and
 seed: contact area at the solver's threshold, mean, and 129 pressure quantiles); ``measure`` compares the
-package's theories with the DEVELOPMENT scenes only and writes ``data/evidence/dev_table.json`` and a Markdown
-table. The held-out scenes are never compared with a theory here.
+package's theories with the DEVELOPMENT scenes only (the ``dev_table`` of the summary and a Markdown table);
+``decide`` compares them with the HELD-OUT scenes by :data:`DECISION_RULE` (``held_out_table`` and ``decision``
+in the summary).
 
 Units: lengths in grid spacings (``L = n``), pressures in units of ``E* = 1``; the surfaces have rms slope 0.1,
 so a load ``p0 / (E* gbar)`` is ``10 p0``.
@@ -38,7 +39,14 @@ HELD_OUT = ((0.3, 32), (0.5, 100), (0.8, 16))  # (H, breadth): a Latin square, e
 CUT = ((100, 0.25),)                         # (breadth, load) left out: ccg/newton stall at 800^2, pk 12 s a solve
 RESOLUTION = dict(hurst=(0.5, 0.8), breadth=32, n_fine=512, seeds="1-8")
 N_LEVELS = 129                               # quantile levels kept per seed in the summary
-CLOSURES = ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced", "local_g1_shell_balanced")
+CLOSURES = ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced", "local_g1_shell_balanced",
+            "yang_persson", "wang_muser")
+#: fixed before any theory met a held-out scene (committed with the step that measures them)
+DECISION_RULE = (
+    "On the held-out scenes only: per closure, the contact-area error a_r(theory)/a_r(GFMD) - 1 at the hard wall "
+    "(goal: within 3 %) and K/noise over p >= p0/20 at every wall (goal: K <= 2 noise). The default closure is the "
+    "parameter-free closure (yang_persson and wang_muser carry fitted constants and are not candidates) with the "
+    "smallest median K/noise over all held-out scene points (among those defined and solved at every point); ties (medians within 10 %) go to the cheaper closure.")
 
 
 def scenes() -> list:
@@ -271,13 +279,36 @@ def measure_scene(s: dict) -> dict:
     return row
 
 
-def measure() -> list:
-    """Theory against GFMD on the development scenes only; the table goes into the summary."""
-    rows = [measure_scene(s) for s in scenes() if s["split"] == "dev"]
+def measure(split: str = "dev") -> list:
+    """Theory against GFMD on the scenes of ``split``; the table goes into the summary."""
+    rows = [measure_scene(s) for s in scenes() if s["split"] == split]
     summ = json.loads((DATA / "summary.json").read_text())
-    summ["dev_table"] = [_round(r) for r in rows]
+    summ["dev_table" if split == "dev" else "held_out_table"] = [_round(r) for r in rows]
+    if split == "held_out":
+        summ["decision"] = decision(rows)
     (DATA / "summary.json").write_text(json.dumps(summ, separators=(",", ":")) + "\n")
     return rows
+
+
+def decision(rows: list) -> dict:
+    """:data:`DECISION_RULE` applied to held-out rows: per closure the median and maximum K/noise, the worst
+    hard-wall contact-area error, and the chosen default."""
+    out = {"rule": DECISION_RULE, "closures": {}}
+    for cl in CLOSURES:
+        ratios = [r["theory"][cl]["K"]["p0_20"] / r["noise"]["p0_20"] for r in rows if "K" in r["theory"].get(cl, {})]
+        area = [r["theory"][cl]["contact_area"] / r["contact_area_gfmd"] - 1 for r in rows
+                if r["wall"] is None and "K" in r["theory"].get(cl, {})]
+        if ratios:
+            out["closures"][cl] = dict(points=len(ratios), median_K_over_noise=_sig(float(np.median(ratios)), 3),
+                                       max_K_over_noise=_sig(max(ratios), 3),
+                                       within_2_noise=sum(x <= 2 for x in ratios),
+                                       hard_wall_area_error=[_sig(a, 3) for a in area])
+    cost = ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced", "local_g1_shell_balanced")
+    cand = {c: v["median_K_over_noise"] for c, v in out["closures"].items()
+            if c not in ("yang_persson", "wang_muser") and v["points"] == len(rows)}
+    best = min(cand.values())
+    out["default"] = next(c for c in cost if c in cand and cand[c] <= 1.1 * best)
+    return out
 
 
 def _round(r: dict) -> dict:
@@ -304,18 +335,21 @@ def markdown(rows: list) -> str:
         lines.append(f"| {r['hurst']} | {r['breadth']} | {r['load']:g} | {wall} | {r['contact_area_gfmd']:.3g} "
                      f"± {r['contact_area_se']:.1g} | " + " | ".join(ar(t, c) for c in cls[::2][:1] + cls[3:])
                      + f" | {r['noise']['p0_20']:.4f} | " + " | ".join(K(t, c) for c in cls) + " |")
-    lines += ["", "| H | q_s/q_r | load | a_r GFMD | Persson | deficit | noise (all p) | K (all p) |",
-              "|" + "---|" * 8]
+    lines += ["", "| H | q_s/q_r | load | a_r GFMD | Persson | deficit | noise (all p) | K (all p) | a_r error: "
+              "yang_persson | wang_muser | noise (p0/20) | K: yang_persson | wang_muser |", "|" + "---|" * 13]
     for r in (r for r in rows if r["wall"] is None):
-        a, p = r["contact_area_gfmd"], r["theory"]["second_order"]["contact_area"]
+        a, t = r["contact_area_gfmd"], r["theory"]
+        err = [f"{100 * (t[c]['contact_area'] / a - 1):+.0f} %" if "K" in t.get(c, {}) else "-"
+               for c in ("second_order", "yang_persson", "wang_muser")]
         lines.append(f"| {r['hurst']} | {r['breadth']} | {r['load']:g} | {a:.4g} ± {r['contact_area_se']:.1g} | "
-                     f"{p:.4g} | {100 * (p / a - 1):+.0f} % | {r['noise']['all']:.4f} | "
-                     f"{r['theory']['second_order']['K']['all']:.3f} |")
+                     f"{t['second_order']['contact_area']:.4g} | {err[0]} | {r['noise']['all']:.4f} | "
+                     f"{t['second_order']['K']['all']:.3f} | {err[1]} | {err[2]} | {r['noise']['p0_20']:.4f} | "
+                     + " | ".join(K(t, c) for c in ("yang_persson", "wang_muser")) + " |")
     return "\n".join(lines)
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("step", choices=["design", "run", "resolution", "summarize", "measure", "all"])
+    ap.add_argument("step", choices=["design", "run", "resolution", "summarize", "measure", "decide", "all"])
     ap.add_argument("--workers", type=int, default=2)
     a = ap.parse_args()
     if a.step in ("design", "all"):
@@ -328,3 +362,6 @@ if __name__ == "__main__":
         summarize()
     if a.step in ("measure", "all"):
         print(markdown(measure()))
+    if a.step in ("decide", "all"):
+        print(markdown(measure("held_out")))
+        print(json.dumps(json.loads((DATA / "summary.json").read_text())["decision"], indent=1))
