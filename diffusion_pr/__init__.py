@@ -10,8 +10,9 @@ Main entry points::
 
     from diffusion_pr import SelfAffineSpectrum, pressure_distribution, propagate
     s = SelfAffineSpectrum(0.3, 2*np.pi/1024, 2*np.pi/32, rms_slope=0.031)
-    r = pressure_distribution(s, E_star=8/3, mean_pressure=0.004, zeta=0.25,
-                              cutoff="smoothstep", p_c=0.0027)
+    r = pressure_distribution(s, E_star=8/3, mean_pressure=0.004, zeta=0.25)
+    paper = pressure_distribution(s, E_star=8/3, mean_pressure=0.004, zeta=0.25,
+                                  closure="second_order", cutoff="smoothstep", p_c=0.0027)
     r.plot()
 
 Every public name is imported lazily on first access, so ``import
@@ -78,6 +79,7 @@ _LAZY = {
     "is_available": "fokker_planck.backends",
     "warm_up": "api",
     "ConvergenceWarning": "api",
+    "DEFAULT_CLOSURE": "api",
     "InputTypeError": "_validation",
 }
 

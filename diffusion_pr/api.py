@@ -20,8 +20,12 @@ from .paper import contact_threshold
 from .problem import FokkerPlanckProblem, StagedProblem
 from .result import PressureDistribution
 
+#: the closure of :func:`pressure_distribution` when none is named: the parameter-free closure closest to GFMD on
+#: the held-out scenes of the evidence base (docs/closures.md, "Which closure to use")
+DEFAULT_CLOSURE = "local_g1_shell_balanced"
+
 __all__ = ["warm_up", "propagate", "pressure_distribution", "pressure_distributions", "solve_problem",
-           "choose_backend", "BACKENDS", "ConvergenceWarning"]
+           "choose_backend", "BACKENDS", "DEFAULT_CLOSURE", "ConvergenceWarning"]
 
 #: names accepted by ``backend=`` (besides any registered later)
 BACKENDS = ("auto", "closed_form", "native", "pypde", "fipy")
@@ -229,11 +233,16 @@ def pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float,
                           cutoff: Any = "sharp", p_c: Optional[float] = None, tail: Any = None,
                           p_t: Optional[float] = None,
                           drift: Optional[Callable[[np.ndarray, float], np.ndarray]] = None, backend: str = "auto",
-                          rtol: float = 1e-6, closure: str = "second_order", **options: Any) -> PressureDistribution:
+                          rtol: float = 1e-6, closure: Optional[str] = None, **options: Any) -> PressureDistribution:
     """Pressure distribution of a rough contact (Müser 2008, Eqs. 2, 9, 10; docs/theory.md).
 
-    ``closure`` picks the theory (docs/closures.md, :data:`diffusion_pr.closures.CLOSURES`): ``"second_order"``
-    (the paper, default; everything below), or the parameter-free ``"lognormal_gap"`` (a closed form:
+    ``closure`` picks the theory (docs/closures.md, :data:`diffusion_pr.closures.CLOSURES`).  ``None`` (default):
+    :data:`DEFAULT_CLOSURE`, the closure chosen on held-out GFMD ensembles, on exponential walls; the paper's
+    ``"second_order"`` where one of its own options (a cutoff other than ``"sharp"``, ``p_c``, ``tail``, ``p_t``,
+    ``drift``, ``backend="closed_form"``) is given, and at the hard wall, where every parameter-free closure is
+    Persson's mirror Gaussian (a closed form).  Named: ``"second_order"`` (the paper), the fitted hard-wall
+    corrections ``"yang_persson"`` and ``"wang_muser"`` (``zeta = 0``), or the
+    parameter-free ``"lognormal_gap"`` (a closed form:
     ``backend`` ``"auto"``/``"closed_form"`` only, no solver options; defined for exponential walls ``zeta > 0``
     and meaningful where the gap's linear response holds, i.e. ``V/p0^2`` small, large ``zeta``),
     ``"local_g1"``, ``"local_g1_balanced"``, ``"local_g1_shell_balanced"`` (no cutoff, tail or drift; solved by
@@ -295,12 +304,16 @@ def pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float,
 def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float, zeta: float = 0.0,
                            cutoff: Any = "sharp", p_c: Optional[float] = None, tail: Any = None,
                            p_t: Optional[float] = None, drift: Optional[Callable] = None, backend: str = "auto",
-                           rtol: float = 1e-6, closure: str = "second_order",
+                           rtol: float = 1e-6, closure: Optional[str] = None,
                            **options: Any) -> PressureDistribution:
     """:func:`pressure_distribution`'s result before the :class:`ConvergenceWarning` check."""
     from .closures import PERSSON_CORRECTIONS, _closure_distribution, check_closure
 
     backend, rtol = _check_backend(backend), _check_rtol(rtol)
+    if closure is None:
+        paper_options = cutoff != "sharp" or backend == "closed_form" or any(
+            v is not None for v in (p_c, tail, p_t, drift))
+        closure = "second_order" if paper_options or np.all(np.asarray(zeta) == 0) else DEFAULT_CLOSURE
     gamma = PERSSON_CORRECTIONS.get(check_closure(closure))
     if gamma is not None and (np.any(np.asarray(zeta) != 0) or cutoff != "sharp" or tail is not None
                               or drift is not None):
@@ -310,8 +323,8 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
         for name, value in (("drift", drift), ("cutoff", None if cutoff == "sharp" else cutoff), ("p_c", p_c),
                             ("tail", tail), ("p_t", p_t)):
             if value is not None:
-                raise ValueError(f"{name} applies to closure='second_order' only; closure={closure!r} has no fitted "
-                                 f"cutoff, tail or drift (got {name}={value!r})")
+                raise ValueError(f"{name} applies to closure='second_order' only (the paper's theory: pass it); "
+                                 f"closure={closure!r} has no fitted cutoff, tail or drift (got {name}={value!r})")
         given = sorted(k for k, v in options.items() if v is not None)
         if closure == "lognormal_gap" and (backend not in ("auto", "closed_form") or given):
             raise ValueError(f"closure='lognormal_gap' is a closed form: backend must be 'auto' or 'closed_form' "

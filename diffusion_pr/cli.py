@@ -117,8 +117,9 @@ def _parser() -> argparse.ArgumentParser:
                         description="The theory's pressure distribution for a self-affine spectrum (default: the "
                                     "paper's Fig. 1 scene); prints a summary and the contact area, --out writes "
                                     "the curve.")
-    th.add_argument("--closure", default="second_order", choices=list(CLOSURES),
-                    help="theory: the paper's second order or a parameter-free closure (default: second_order)")
+    th.add_argument("--closure", default=None, choices=list(CLOSURES),
+                    help="theory: the paper's second_order or a closure beyond it (default: as "
+                         "diffusion_pr.pressure_distribution's, docs/closures.md)")
     th.add_argument("--zeta", type=float, default=0.0,
                     help="decay length of the exponential wall, in the unit of --length; 0 is the hard wall "
                          "(default: 0)")

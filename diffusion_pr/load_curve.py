@@ -57,7 +57,7 @@ class LoadCurve:
 
 
 def load_curve(spectrum: Any, *, E_star: float, mean_pressures: Any, zeta: float = 0.0,
-               closure: str = "second_order", backend: str = "auto", rtol: float = 1e-4,
+               closure: Optional[str] = None, backend: str = "auto", rtol: float = 1e-4,
                p_c_ratio: Optional[float] = None, progress: bool = False, **options: Any) -> LoadCurve:
     """:func:`~diffusion_pr.pressure_distribution` at every load of ``mean_pressures``, with a table of ``a_r``.
 
@@ -90,7 +90,7 @@ def load_curve(spectrum: Any, *, E_star: float, mean_pressures: Any, zeta: float
     check_positive("mean_pressures", p0s)
     if p_c_ratio is not None:
         check_positive("p_c_ratio", p_c_ratio)
-        if closure != "second_order" or options.get("p_c") is not None:
+        if closure not in (None, "second_order") or options.get("p_c") is not None:
             raise ValueError(f"p_c_ratio={p_c_ratio!r} sets the second order's p_c per load: it needs "
                              f"closure='second_order' and no p_c (got closure={closure!r}, p_c={options.get('p_c')!r})")
     if progress:
@@ -103,6 +103,7 @@ def load_curve(spectrum: Any, *, E_star: float, mean_pressures: Any, zeta: float
     table = np.array([(r.mean_pressure, r.contact_area(), r.contact_threshold, r.mean,
                        np.sqrt(max(r.moment(2, central=True), 0.0)), r.error_estimate, r.success)
                       for r in results], dtype=[(c, bool if c == "success" else float) for c in COLUMNS])
+    closure = results[0].diagnostics["closure"]
     note = _monotonicity_note(table, closure, options, p_c_ratio)
     if note:
         warnings.warn(note, UserWarning, stacklevel=2)
@@ -135,7 +136,8 @@ def add_cli(sub: Any, zeta_unit: str) -> None:
                         description="Contact area against load for the Fig. 1 spectrum or a periodic height map "
                                     "(.npy); prints the table, --out writes it as CSV. Pressures in the unit of "
                                     "--E-star.")
-    lc.add_argument("--closure", default="second_order", choices=CLOSURES, help="theory (default: second_order)")
+    lc.add_argument("--closure", default=None, choices=CLOSURES,
+                    help="theory (default: as diffusion_pr.pressure_distribution's, docs/closures.md)")
     lc.add_argument("--zeta", type=float, default=0.0,
                     help=f"range of the exponential wall, in the length unit of the surface (Fig. 1 spectrum: "
                          f"{zeta_unit}; --heights: the unit of --length); 0 is the hard wall (default: 0)")

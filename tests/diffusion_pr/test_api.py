@@ -114,7 +114,7 @@ def test_fig1_persson_numbers():
 
 def test_zeta_uses_G1_variance():
     s = fig1_spectrum()
-    r = dp.pressure_distribution(s, E_star=8 / 3, mean_pressure=0.004, zeta=0.25)
+    r = dp.pressure_distribution(s, E_star=8 / 3, mean_pressure=0.004, zeta=0.25, closure="second_order")
     V = dp.stress_variance(s, E_star=8 / 3, mean_pressure=0.004, zeta=0.25)
     V0 = dp.stress_variance(s, E_star=8 / 3, mean_pressure=0.004)
     assert r.diagnostics["stress_variance"] == V and V < V0
@@ -324,3 +324,19 @@ def test_warm_up_compiles_the_engine_and_closure_kernels_and_checks_its_backend(
     subprocess.run([sys.executable, "-c", code], check=True, timeout=600)
     with pytest.raises(ValueError, match="backend"):
         dp.warm_up("nope")
+
+
+def test_default_closure_follows_the_scene():
+    """closure=None: the held-out choice on exponential walls; the paper's second order where its own options are
+    given; Persson's closed form at the hard wall, where the default closure is the same mirror Gaussian (checked
+    against its finite-volume solve to the solve's error estimate)."""
+    s = fig1_spectrum()
+    kw = dict(E_star=8 / 3, mean_pressure=0.004)
+    soft = dp.pressure_distribution(s, zeta=0.25, **kw, rtol=1e-4)
+    assert soft.diagnostics["closure"] == dp.DEFAULT_CLOSURE == "local_g1_shell_balanced"
+    paper = dp.pressure_distribution(s, zeta=0.25, cutoff="muser", p_c=0.0027, **kw)
+    assert paper.diagnostics["closure"] == "second_order"
+    hard = dp.pressure_distribution(s, **kw)
+    fv = dp.pressure_distribution(s, closure=dp.DEFAULT_CLOSURE, **kw)
+    assert hard.diagnostics["closure"] == "second_order" and hard.backend == "closed_form"
+    assert abs(fv.contact_area() - hard.contact_area()) <= 10 * fv.error_estimate + 1e-12
