@@ -80,13 +80,7 @@ def warm_up() -> float:
 def solve(problem, *, rtol: float = 1e-6, n_cells: Optional[int] = None, max_cells: int = MAX_CELLS,
           p_floor: Optional[float] = None) -> PressureDistribution:
     """Solve with py-pde's operators (see the module docstring); the options as for
-    :func:`~diffusion_pr.fokker_planck.backends.native.solve`.
-
-    Raises
-    ------
-    BackendUnavailableError
-        py-pde is not installed.
-    """
+    :func:`~diffusion_pr.fokker_planck.backends.native.solve`.  ``BackendUnavailableError`` without py-pde."""
     return solve_full(problem, rtol=rtol, n_cells=n_cells, max_cells=max_cells, p_floor=p_floor).result
 
 
