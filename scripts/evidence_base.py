@@ -40,13 +40,19 @@ CUT = ((100, 0.25),)                         # (breadth, load) left out: ccg/new
 RESOLUTION = dict(hurst=(0.5, 0.8), breadth=32, n_fine=512, seeds="1-8")
 N_LEVELS = 129                               # quantile levels kept per seed in the summary
 CLOSURES = ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced", "local_g1_shell_balanced",
-            "yang_persson", "wang_muser")
+            "yang_persson", "wang_muser", "sum_rule")
 #: fixed before any theory met a held-out scene (committed with the step that measures them)
 DECISION_RULE = (
     "On the held-out scenes only: per closure, the contact-area error a_r(theory)/a_r(GFMD) - 1 at the hard wall "
     "(goal: within 3 %) and K/noise over p >= p0/20 at every wall (goal: K <= 2 noise). The default closure is the "
     "parameter-free closure (yang_persson and wang_muser carry fitted constants and are not candidates) with the "
-    "smallest median K/noise over all held-out scene points (among those defined and solved at every point); ties (medians within 10 %) go to the cheaper closure.")
+    "smallest median K/noise over all held-out scene points (among those defined and solved at every point); ties "
+    "(medians within 10 %) go to the cheaper closure.")
+#: fixed after the rule above was applied and before sum_rule (built on development scenes only) met a held-out scene
+HARD_WALL_RULE = (
+    "At the hard wall (zeta = 0) the default is sum_rule instead of Persson's mirror Gaussian if, on the held-out "
+    "hard-wall points, its median K/noise (p >= p0/20) and its median |a_r(theory)/a_r(GFMD) - 1| are both smaller "
+    "than Persson's.")
 
 
 def scenes() -> list:
@@ -308,6 +314,15 @@ def decision(rows: list) -> dict:
             if c not in ("yang_persson", "wang_muser") and v["points"] == len(rows)}
     best = min(cand.values())
     out["default"] = next(c for c in cost if c in cand and cand[c] <= 1.1 * best)
+    hard = [r for r in rows if r["wall"] is None]
+
+    def medians(c):
+        return (np.median([r["theory"][c]["K"]["p0_20"] / r["noise"]["p0_20"] for r in hard]),
+                np.median([abs(r["theory"][c]["contact_area"] / r["contact_area_gfmd"] - 1) for r in hard]))
+    if "sum_rule" in out["closures"]:
+        out["hard_wall_rule"] = HARD_WALL_RULE
+        wins = all(a < b for a, b in zip(medians("sum_rule"), medians("second_order")))
+        out["hard_wall_default"] = "sum_rule" if wins else "second_order"
     return out
 
 
