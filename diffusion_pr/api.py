@@ -241,7 +241,7 @@ def pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float,
     ``"second_order"`` where one of its own options (a cutoff other than ``"sharp"``, ``p_c``, ``tail``, ``p_t``,
     ``drift``, ``backend="closed_form"``) is given, and at the hard wall, where every parameter-free closure is
     Persson's mirror Gaussian (a closed form).  Named: ``"second_order"`` (the paper), the fitted hard-wall
-    corrections ``"yang_persson"`` and ``"wang_muser"`` (``zeta = 0``), or the
+    corrections ``"yang_persson"`` and ``"wang_muser"`` and the parameter-free ``"sum_rule"`` (``zeta = 0``), or the
     parameter-free ``"lognormal_gap"`` (a closed form:
     ``backend`` ``"auto"``/``"closed_form"`` only, no solver options; defined for exponential walls ``zeta > 0``
     and meaningful where the gap's linear response holds, i.e. ``V/p0^2`` small, large ``zeta``),
@@ -307,7 +307,7 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
                            rtol: float = 1e-6, closure: Optional[str] = None,
                            **options: Any) -> PressureDistribution:
     """:func:`pressure_distribution`'s result before the :class:`ConvergenceWarning` check."""
-    from .closures import PERSSON_CORRECTIONS, _closure_distribution, check_closure
+    from .closures import PERSSON_CORRECTIONS, check_closure, closure_distribution
 
     backend, rtol = _check_backend(backend), _check_rtol(rtol)
     if closure is None:
@@ -315,11 +315,11 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
             v is not None for v in (p_c, tail, p_t, drift))
         closure = "second_order" if paper_options or np.all(np.asarray(zeta) == 0) else DEFAULT_CLOSURE
     gamma = PERSSON_CORRECTIONS.get(check_closure(closure))
-    if gamma is not None and (np.any(np.asarray(zeta) != 0) or cutoff != "sharp" or tail is not None
-                              or drift is not None):
+    retimed = gamma is not None or closure == "sum_rule"  # Persson on another clock: a mirror Gaussian
+    if retimed and (np.any(np.asarray(zeta) != 0) or cutoff != "sharp" or tail is not None or drift is not None):
         raise ValueError(f"closure={closure!r} corrects Persson's hard-wall theory: it needs zeta=0 and no cutoff, "
                          f"tail or drift; got zeta={zeta!r}, cutoff={cutoff!r}, tail={tail!r}, drift={drift!r}")
-    if closure != "second_order" and gamma is None:
+    if closure != "second_order" and not retimed:
         for name, value in (("drift", drift), ("cutoff", None if cutoff == "sharp" else cutoff), ("p_c", p_c),
                             ("tail", tail), ("p_t", p_t)):
             if value is not None:
@@ -329,8 +329,8 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
         if closure == "lognormal_gap" and (backend not in ("auto", "closed_form") or given):
             raise ValueError(f"closure='lognormal_gap' is a closed form: backend must be 'auto' or 'closed_form' "
                              f"(got backend={backend!r}) and solver options do not apply (got {given})")
-        result = _closure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
-                                       closure=closure, backend=backend, rtol=rtol, **options)[0]
+        result = closure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
+                                      closure=closure, backend=backend, rtol=rtol, **options)
         return replace(result, contact_threshold=contact_threshold(zeta, mean_pressure))
     for name in ("n_shells", "shell_extrapolation"):
         if options.pop(name, None) is not None:
@@ -355,12 +355,13 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
                          "(check the spectrum for NaN or zero amplitude)")
     extra: dict = {"stress_variance": V, "zeta": float(z), "E_star": float(E), "pressure_factor": factor,
                    "closure": closure}
-    if gamma is not None:
-        from .closed_forms import persson_corrected_variance
+    if retimed:
+        from .closed_forms import persson_corrected_variance, sum_rule_variance
 
-        extra.update(gamma=gamma, corrected_variance=persson_corrected_variance(float(p0), V, gamma))
+        extra.update(gamma=gamma, retimed_variance=sum_rule_variance(float(p0), V) if gamma is None
+                     else persson_corrected_variance(float(p0), V, gamma))
     if drift is None:
-        problem = FokkerPlanckProblem(float(p0), extra.get("corrected_variance", V), factor,
+        problem = FokkerPlanckProblem(float(p0), extra.get("retimed_variance", V), factor,
                                       label="pressure_distribution")
     else:
         eta = np.geomspace(1.0, float(spectrum.q_max / spectrum.q_min), N_ETA)

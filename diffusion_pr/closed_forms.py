@@ -18,8 +18,9 @@ shape of ``p`` (any shape; 0 for ``p < 0`` where the wall absorbs).  Every ``*_d
 * The mirror Gaussian with a constant drift (method of images with the Girsanov weight; A. N. Borodin and
   P. Salminen, *Handbook of Brownian Motion*, 2nd ed., 2002, doi:10.1007/978-3-0348-8163-0, part II, 2.1.15.6):
   :func:`drifted_mirror_gaussian_density`, :func:`drifted_mirror_gaussian_zero_weight`.
-* Persson's diffusion slowed by a fitted factor of the contact area (the ``"yang_persson"`` and ``"wang_muser"``
-  closures): :func:`persson_corrected_variance`."""
+* Persson's diffusion re-timed at the hard wall: by the stress-variance sum rule (the ``"sum_rule"`` closure,
+  :func:`sum_rule_variance`) or by a fitted factor of the contact area (``"yang_persson"``, ``"wang_muser"``,
+  :func:`persson_corrected_variance`)."""
 from __future__ import annotations
 
 import math
@@ -35,7 +36,8 @@ from ._validation import check_finite, check_finite_array, check_int, check_nonn
 __all__ = ["Moments", "gaussian_density", "gaussian_moments", "mirror_gaussian_density", "mirror_gaussian_moments",
            "persson_zero_weight", "persson_contact_fraction", "feller_density", "feller_zero_weight",
            "feller_moments", "cir_density", "cir_zero_weight", "drifted_mirror_gaussian_density",
-           "drifted_mirror_gaussian_zero_weight", "lognormal_gap_distribution", "persson_corrected_variance"]
+           "drifted_mirror_gaussian_zero_weight", "lognormal_gap_distribution", "persson_corrected_variance",
+           "sum_rule_variance"]
 
 _SQRT2PI = math.sqrt(2.0 * math.pi)
 
@@ -136,6 +138,32 @@ def persson_corrected_variance(mean_pressure: float, variance: float, gamma: flo
     if g == 1.0:
         return v
     return 2.0 * optimize.brentq(lambda t: elapsed(t) - 0.5 * v, 0.5 * g * v, 0.5 * v, rtol=1e-13)
+
+
+def sum_rule_variance(mean_pressure: float, variance: float) -> float:
+    r"""The variance ``T`` of the ``"sum_rule"`` closure's mirror Gaussian: the one whose pressure variance is
+    ``a_r V`` (docs/closures.md).
+
+    Linear elasticity gives ``Var(p) = (E*/2)^2 <|grad u|^2>`` exactly; at a hard wall ``grad u = grad h`` on the
+    contact, so with the free surface's slopes neglected and the slopes in contact those of the whole surface,
+    ``Var(p) = a_r V`` at every magnification (``V`` the Persson variance resolved so far).  Persson's diffusion
+    on the clock ``T`` has ``Var = int_0^T a_r(t) dt``, ``a_r(t) = erf(p0/sqrt(2t))``, so ``T`` solves
+    (``c = p0/sqrt 2``)
+
+        V = T + [2 c sqrt(T/pi) exp(-c^2/T) - 2 c^2 erfc(c/sqrt T)] / erf(c/sqrt T),
+
+    between ``V/2`` (small loads: ``a_r = 4/sqrt(pi) p0/(E* gbar)``) and ``V`` (full contact); Brent's root,
+    relative error about 1e-14.  Units: ``p0`` [pressure], ``V``, ``T`` [pressure^2]."""
+    from scipy import optimize
+
+    p0, v = _positive(mean_pressure=mean_pressure, variance=variance)
+    c = p0 / math.sqrt(2.0)
+
+    def excess(t: float) -> float:
+        z = c / math.sqrt(t)
+        return t - v + 2.0 * c * (math.sqrt(t / math.pi) * math.exp(-z * z) - c * math.erfc(z)) / math.erf(z)
+
+    return float(optimize.brentq(excess, 0.25 * v, v, xtol=1e-300, rtol=1e-14))
 
 
 def mirror_gaussian_moments(mean_pressure: float, variance: float) -> Moments:

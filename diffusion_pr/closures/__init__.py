@@ -20,6 +20,10 @@ pressure ``p_c``.  The closures here need no fitted number:
 ``"local_g1_shell_balanced"``
     As ``local_g1_balanced`` with ``g(q_k; p)`` in the partition; the best on the Fig. 1 scene's GFMD
     ensemble, not off it (docs/closures.md, docs/fig1.md).
+``"sum_rule"``
+    The hard wall: Persson's mirror Gaussian re-timed so that ``Var(p) = a_r V`` (elasticity's
+    ``Var(p) = (E*/2)^2 <|grad u|^2>`` with the slopes in contact those of the surface;
+    :func:`diffusion_pr.closed_forms.sum_rule_variance`; ``zeta = 0`` only).
 ``"yang_persson"``, ``"wang_muser"``
     Not parameter free: Persson's hard-wall diffusion slowed by ``gamma + (1 - gamma) a_r^2`` with a constant
     fitted to simulations by Yang & Persson 2008 (``gamma = 0.45``) and Wang & Müser 2017 (``5/9``), for
@@ -60,7 +64,7 @@ __all__ = [
 
 #: the closures by name; "second_order" is the paper's theory
 CLOSURES: tuple[str, ...] = ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced",
-                             "local_g1_shell_balanced", "yang_persson", "wang_muser")
+                             "local_g1_shell_balanced", "yang_persson", "wang_muser", "sum_rule")
 #: the hard-wall corrections of Persson's theory and their fitted ``gamma`` (docs/closures.md)
 PERSSON_CORRECTIONS: dict[str, float] = {"yang_persson": 0.45, "wang_muser": 5.0 / 9.0}
 
@@ -72,30 +76,6 @@ def check_closure(closure: object) -> str:
     if not isinstance(closure, str) or closure not in CLOSURES:
         raise ValueError(f"closure must be one of {list(CLOSURES)}; got closure={closure!r}")
     return closure
-
-
-def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: float, zeta: float = 0.0,
-                         closure: str, backend: str = "auto", rtol: float = 1e-6, n_shells: Optional[int] = None,
-                         shell_extrapolation: Optional[bool] = None, **options: Any) -> Any:
-    r"""The pressure distribution of a closure beyond the paper's second order: the layer's entry, which
-    :func:`diffusion_pr.pressure_distribution` calls with ``closure=`` (the parameters are described there).
-
-    ``"lognormal_gap"`` is a closed form (:func:`diffusion_pr.closed_forms.lognormal_gap_distribution`).  The
-    shell closures are a :class:`~diffusion_pr.problem.StagedProblem` (:func:`closure_problem`) on the shells of
-    the spectrum (:func:`spectrum_shells`: a :class:`~diffusion_pr.spectra.DiscreteSpectrum`'s own, or
-    ``n_shells`` of a continuum), solved by the finite-volume ``backend`` (``"auto"``: ``"native"``); with
-    ``shell_extrapolation`` (the default on a continuum spectrum without ``n_shells``) the continuum closure,
-    extrapolated in the number of shells (:mod:`~diffusion_pr.closures.continuum`; the first solve on
-    :data:`~diffusion_pr.closures.shells.EXTRAPOLATION_SHELLS` shells graded by :func:`shell_grading`).
-
-    Returns
-    -------
-    PressureDistribution
-        ``diagnostics["closure"]`` names the closure.
-    """
-    return _closure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta, closure=closure,
-                                 backend=backend, rtol=rtol, n_shells=n_shells,
-                                 shell_extrapolation=shell_extrapolation, **options)[0]
 
 
 def _check_fv_options(backend: str, options: dict) -> str:
@@ -120,14 +100,29 @@ def _check_fv_options(backend: str, options: dict) -> str:
     return chosen
 
 
-def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: float, zeta: float = 0.0,
-                          closure: str, backend: str = "auto", rtol: float = 1e-6, n_shells: Optional[int] = None,
-                          shell_extrapolation: Optional[bool] = None, **options: Any) -> tuple:
-    """``(result, solution)``: :func:`closure_distribution`'s result and the finite-volume solution of its (last)
-    ``n``-shell solve (None where there is none)."""
+def closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: float, zeta: float = 0.0,
+                         closure: str, backend: str = "auto", rtol: float = 1e-6, n_shells: Optional[int] = None,
+                         shell_extrapolation: Optional[bool] = None, **options: Any) -> Any:
+    r"""The pressure distribution of a closure beyond the paper's second order: the layer's entry, which
+    :func:`diffusion_pr.pressure_distribution` calls with ``closure=`` (the parameters are described there).
+
+    ``"lognormal_gap"`` is a closed form (:func:`diffusion_pr.closed_forms.lognormal_gap_distribution`).  The
+    shell closures are a :class:`~diffusion_pr.problem.StagedProblem` (:func:`closure_problem`) on the shells of
+    the spectrum (:func:`spectrum_shells`: a :class:`~diffusion_pr.spectra.DiscreteSpectrum`'s own, or
+    ``n_shells`` of a continuum), solved by the finite-volume ``backend`` (``"auto"``: ``"native"``); with
+    ``shell_extrapolation`` (the default on a continuum spectrum without ``n_shells``) the continuum closure,
+    extrapolated in the number of shells (:mod:`~diffusion_pr.closures.continuum`; the first solve on
+    :data:`~diffusion_pr.closures.shells.EXTRAPOLATION_SHELLS` shells graded by :func:`shell_grading`).
+
+    Returns
+    -------
+    PressureDistribution
+        ``diagnostics["closure"]`` names the closure.
+    """
     check_closure(closure)
-    if closure == "second_order":
-        raise ValueError("closure='second_order' is the paper's theory: diffusion_pr.pressure_distribution solves it")
+    if closure in ("second_order", "sum_rule", *PERSSON_CORRECTIONS):
+        raise ValueError(f"closure={closure!r} is a mirror Gaussian or the paper's theory: "
+                         "diffusion_pr.pressure_distribution solves it")
     for name, value in (("E_star", E_star), ("mean_pressure", mean_pressure), ("zeta", zeta)):
         if np.ndim(value) != 0:
             raise ValueError(f"{name} must be a scalar (loop for several distributions); got an array of shape "
@@ -147,7 +142,7 @@ def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: f
             raise ValueError("shell options (n_shells) do not apply to closure='lognormal_gap' (closed form)")
         from ..closed_forms import lognormal_gap_distribution
 
-        return lognormal_gap_distribution(spectrum, E_star=E, mean_pressure=p0, zeta=z, rtol=rtol), None
+        return lognormal_gap_distribution(spectrum, E_star=E, mean_pressure=p0, zeta=z, rtol=rtol)
     if shell_extrapolation is None:  # the default: the continuum closure where the shells are a quadrature
         shell_extrapolation = bool(not isinstance(spectrum, DiscreteSpectrum) and n_shells is None)
     chosen = _check_fv_options(backend, options)
@@ -173,7 +168,7 @@ def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: f
     sol = solve_shells(problem, shells, closure, chosen, rtol, options, keep=shell_extrapolation,
                        note=note)
     if not shell_extrapolation:
-        return sol.result, sol
+        return sol.result
     first = int(shells.q.size)
     tightened = False  # the first solve was repeated on tighter grids (once at most)
     spent = 0.0  # the discarded attempts' time (a retry on tighter grids, a restart from twice the shells)
@@ -194,7 +189,7 @@ def _closure_distribution(spectrum: Spectrum, *, E_star: float, mean_pressure: f
         if "shell_extrapolation_failed" not in out.diagnostics or 2 * n > MAX_CONTINUUM_SHELLS:
             out = replace(out, diagnostics={**out.diagnostics, "shell_grading": grading, "wall_layer_ratio": kappa,
                                             "start_layer_ratio": lam})
-            return (out if spent == 0.0 else replace(out, wall_time=out.wall_time + spent)), sol
+            return out if spent == 0.0 else replace(out, wall_time=out.wall_time + spent)
         # a coarser-shell problem did not solve on these grids (wide shells on a steep spectrum at a small load):
         # all three with twice the shells, on the grids of the finer first solve
         spent += out.wall_time

@@ -410,3 +410,43 @@ def test_persson_corrected_variance_limits_and_bad_input():
     for gamma in (0.0, 1.5, float("nan")):
         with pytest.raises(ValueError, match="gamma"):
             persson_corrected_variance(0.3, 1.0, gamma)
+
+
+@pytest.mark.parametrize("p0", [1e-4, 0.02, 0.5, 1.0, 3.0])
+def test_sum_rule_variance_against_the_retiming_ode(p0):
+    """Oracle: the sum rule Var(p) = a_r(T) V held at every V, integrated forward as the ODE
+    dT/dV = 1 / (1 + V |d ln a_r/dT|) (LSODA, rtol 1e-11) from full contact; the closed form solves the end point
+    instead.  Both: the mirror Gaussian of variance T has the pressure variance a_r V (closed-form moments, 1e-12),
+    T between V/2 and V.  Measured agreement 1e-9; bar 1e-7 (the ODE's start at V = 1e-12 V0)."""
+    from scipy.integrate import solve_ivp
+    from scipy.special import erf
+
+    from diffusion_pr.closed_forms import mirror_gaussian_moments, sum_rule_variance
+
+    V = 1.0
+
+    def dlna(T):
+        z = p0 / np.sqrt(2 * T)
+        return (2 / np.sqrt(np.pi)) * np.exp(-z * z) * z / (2 * T) / erf(z)
+
+    v1 = 1e-12 * V
+    ode = solve_ivp(lambda v, y: [1 / (1 + v * dlna(y[0]))], (v1, V), [v1], method="LSODA", rtol=1e-11,
+                    atol=1e-14 * V)
+    T = sum_rule_variance(p0, V)
+    assert T == pytest.approx(ode.y[0, -1], rel=1e-7)
+    moments = mirror_gaussian_moments(p0, T)
+    assert moments.variance == pytest.approx(erf(p0 / np.sqrt(2 * T)) * V, rel=1e-12)
+    assert 0.5 * V <= T <= V
+
+
+def test_sum_rule_limits():
+    """Small loads: T -> V/2, so a_r -> 4/sqrt(pi) p0/(E* gbar) (kappa 2.257 against Persson's sqrt(8/pi));
+    full contact: T -> V (Persson)."""
+    from diffusion_pr.closed_forms import sum_rule_variance
+
+    assert sum_rule_variance(1e-7, 1.0) == pytest.approx(0.5, rel=1e-6)
+    assert sum_rule_variance(10.0, 1.0) == pytest.approx(1.0, rel=1e-12)
+    E_star, gbar, p0 = 1.0, 0.1, 1e-6
+    V = (E_star * gbar / 2) ** 2
+    a_r = math.erf(p0 / math.sqrt(2 * sum_rule_variance(p0, V)))
+    assert a_r / (p0 / (E_star * gbar)) == pytest.approx(4 / math.sqrt(math.pi), rel=1e-5)

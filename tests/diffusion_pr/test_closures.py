@@ -281,18 +281,37 @@ def test_bad_input(fig1, kwargs, match):
 
 def test_closure_names():
     assert CLOSURES == ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced", "local_g1_shell_balanced",
-                        "yang_persson", "wang_muser")
+                        "yang_persson", "wang_muser", "sum_rule")
 
 
 # ----------------------------------------------------------------------------- api and engine
 @pytest.mark.parametrize("closure", CLOSURES)
 def test_pressure_distribution_closure_keyword(fig1, closure):  # noqa: D103
-    zeta = 0.0 if closure in ("yang_persson", "wang_muser") else 0.5
+    zeta = 0.0 if closure in ("yang_persson", "wang_muser", "sum_rule") else 0.5
     r = dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=zeta, closure=closure,
                                  **({"shell_extrapolation": False, "rtol": 1e-4} if closure.startswith("local")
                                     else {}))
     assert r.diagnostics["closure"] == closure
     assert r.success
+
+
+def test_sum_rule_closure(fig1):
+    """Oracle: the closed form's mirror Gaussian of variance T (sum_rule_variance): contact area erf(p0/sqrt(2T)),
+    pressure variance a_r V0 (the rule itself, from the result's own moments), mean p0; between Persson and full
+    contact; refused at zeta > 0."""
+    from scipy.special import erf
+
+    from diffusion_pr.closed_forms import sum_rule_variance
+
+    r = dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, closure="sum_rule")
+    V0 = r.diagnostics["stress_variance"]
+    T = sum_rule_variance(P0, V0)
+    assert r.diagnostics["closure"] == "sum_rule" and r.diagnostics["retimed_variance"] == T
+    assert r.contact_area() == pytest.approx(erf(P0 / np.sqrt(2 * T)), rel=1e-9)
+    assert r.moment(2, central=True) == pytest.approx(r.contact_area() * V0, rel=1e-6)
+    assert r.mean == pytest.approx(P0, rel=1e-9)
+    with pytest.raises(ValueError, match="zeta=0"):
+        dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.1, closure="sum_rule")
 
 
 @pytest.mark.parametrize("closure, gamma", [("yang_persson", 0.45), ("wang_muser", 5 / 9)])
