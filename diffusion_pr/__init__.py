@@ -80,6 +80,7 @@ _LAZY = {
     "warm_up": "api",
     "ConvergenceWarning": "api",
     "DEFAULT_CLOSURE": "api",
+    "HARD_WALL_DEFAULT": "api",
     "InputTypeError": "_validation",
 }
 

@@ -20,12 +20,12 @@ from .paper import contact_threshold
 from .problem import FokkerPlanckProblem, StagedProblem
 from .result import PressureDistribution
 
-#: the closure of :func:`pressure_distribution` when none is named: the parameter-free closure closest to GFMD on
-#: the held-out scenes of the evidence base (docs/closures.md, "Which closure to use")
-DEFAULT_CLOSURE = "local_g1_shell_balanced"
+#: the closures of :func:`pressure_distribution` when none is named, on exponential walls and at the hard wall:
+#: the parameter-free closures closest to GFMD on the held-out scenes of the evidence base (docs/closures.md)
+DEFAULT_CLOSURE, HARD_WALL_DEFAULT = "local_g1_shell_balanced", "sum_rule"
 
 __all__ = ["warm_up", "propagate", "pressure_distribution", "pressure_distributions", "solve_problem",
-           "choose_backend", "BACKENDS", "DEFAULT_CLOSURE", "ConvergenceWarning"]
+           "choose_backend", "BACKENDS", "DEFAULT_CLOSURE", "HARD_WALL_DEFAULT", "ConvergenceWarning"]
 
 #: names accepted by ``backend=`` (besides any registered later)
 BACKENDS = ("auto", "closed_form", "native", "pypde", "fipy")
@@ -237,11 +237,11 @@ def pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float,
     """Pressure distribution of a rough contact (Müser 2008, Eqs. 2, 9, 10; docs/theory.md).
 
     ``closure`` picks the theory (docs/closures.md, :data:`diffusion_pr.closures.CLOSURES`).  ``None`` (default):
-    :data:`DEFAULT_CLOSURE`, the closure chosen on held-out GFMD ensembles, on exponential walls; the paper's
-    ``"second_order"`` where one of its own options (a cutoff other than ``"sharp"``, ``p_c``, ``tail``, ``p_t``,
-    ``drift``, ``backend="closed_form"``) is given, and at the hard wall, where every parameter-free closure is
-    Persson's mirror Gaussian (a closed form).  Named: ``"second_order"`` (the paper), the fitted hard-wall
-    corrections ``"yang_persson"`` and ``"wang_muser"`` and the parameter-free ``"sum_rule"`` (``zeta = 0``), or the
+    the closures chosen on held-out GFMD ensembles, :data:`DEFAULT_CLOSURE` on exponential walls and
+    :data:`HARD_WALL_DEFAULT` at ``zeta = 0``; the paper's ``"second_order"`` where one of its own options (a cutoff
+    other than ``"sharp"``, ``p_c``, ``tail``, ``p_t``, ``drift``, ``backend="closed_form"``) is given.  Named:
+    ``"second_order"`` (the paper; Persson's mirror Gaussian at ``zeta = 0``), the hard-wall closures
+    ``"sum_rule"`` and the fitted ``"yang_persson"``, ``"wang_muser"`` (``zeta = 0``), the
     parameter-free ``"lognormal_gap"`` (a closed form:
     ``backend`` ``"auto"``/``"closed_form"`` only, no solver options; defined for exponential walls ``zeta > 0``
     and meaningful where the gap's linear response holds, i.e. ``V/p0^2`` small, large ``zeta``),
@@ -313,7 +313,8 @@ def _pressure_distribution(spectrum: Any, *, E_star: float, mean_pressure: float
     if closure is None:
         paper_options = cutoff != "sharp" or backend == "closed_form" or any(
             v is not None for v in (p_c, tail, p_t, drift))
-        closure = "second_order" if paper_options or np.all(np.asarray(zeta) == 0) else DEFAULT_CLOSURE
+        closure = "second_order" if paper_options else HARD_WALL_DEFAULT if np.all(np.asarray(zeta) == 0) \
+            else DEFAULT_CLOSURE
     gamma = PERSSON_CORRECTIONS.get(check_closure(closure))
     retimed = gamma is not None or closure == "sum_rule"  # Persson on another clock: a mirror Gaussian
     if retimed and (np.any(np.asarray(zeta) != 0) or cutoff != "sharp" or tail is not None or drift is not None):

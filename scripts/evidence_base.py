@@ -350,16 +350,15 @@ def markdown(rows: list) -> str:
         lines.append(f"| {r['hurst']} | {r['breadth']} | {r['load']:g} | {wall} | {r['contact_area_gfmd']:.3g} "
                      f"± {r['contact_area_se']:.1g} | " + " | ".join(ar(t, c) for c in cls[::2][:1] + cls[3:])
                      + f" | {r['noise']['p0_20']:.4f} | " + " | ".join(K(t, c) for c in cls) + " |")
-    lines += ["", "| H | q_s/q_r | load | a_r GFMD | Persson | deficit | noise (all p) | K (all p) | a_r error: "
-              "yang_persson | wang_muser | noise (p0/20) | K: yang_persson | wang_muser |", "|" + "---|" * 13]
+    hard = ("second_order", "sum_rule", "yang_persson", "wang_muser")
+    lines += ["", "| H | q_s/q_r | load | a_r GFMD | Persson | a_r error: Persson | sum_rule | yang_persson | "
+              "wang_muser | noise (p0/20) | K: Persson | sum_rule | yang_persson | wang_muser |", "|" + "---|" * 14]
     for r in (r for r in rows if r["wall"] is None):
         a, t = r["contact_area_gfmd"], r["theory"]
-        err = [f"{100 * (t[c]['contact_area'] / a - 1):+.0f} %" if "K" in t.get(c, {}) else "-"
-               for c in ("second_order", "yang_persson", "wang_muser")]
+        err = [f"{100 * (t[c]['contact_area'] / a - 1):+.1f} %" if "K" in t.get(c, {}) else "-" for c in hard]
         lines.append(f"| {r['hurst']} | {r['breadth']} | {r['load']:g} | {a:.4g} ± {r['contact_area_se']:.1g} | "
-                     f"{t['second_order']['contact_area']:.4g} | {err[0]} | {r['noise']['all']:.4f} | "
-                     f"{t['second_order']['K']['all']:.3f} | {err[1]} | {err[2]} | {r['noise']['p0_20']:.4f} | "
-                     + " | ".join(K(t, c) for c in ("yang_persson", "wang_muser")) + " |")
+                     f"{t['second_order']['contact_area']:.4g} | " + " | ".join(err) +
+                     f" | {r['noise']['p0_20']:.4f} | " + " | ".join(K(t, c, "p0_20") for c in hard) + " |")
     return "\n".join(lines)
 
 if __name__ == "__main__":

@@ -152,7 +152,8 @@ def fit_cutoff_pressure(hist: SimulatedHistogram, spectrum: Any, *, E_star: floa
     def theory_for(p_c: float) -> Any:
         calls["n"] += 1
         return pressure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta,
-                                     cutoff=cutoff, p_c=p_c, tail=tail, p_t=p_t, backend=backend, rtol=rtol)
+                                     cutoff=cutoff, p_c=p_c, tail=tail, p_t=p_t, backend=backend, rtol=rtol,
+                                     closure="second_order")
 
     lo, hi = bounds if bounds is not None else (0.02 * mean_pressure, 5.0 * mean_pressure)
     res = _fit_log_density(hist, theory_for, (lo, hi), xatol)
@@ -173,7 +174,7 @@ def fit_tail_pressure(hist: SimulatedHistogram, spectrum: Any, *, E_star: float,
 
     def theory_for(p_t: float) -> Any:
         return pressure_distribution(spectrum, E_star=E_star, mean_pressure=mean_pressure, zeta=zeta, cutoff=cutoff,
-                                     p_c=p_c, tail=tail, p_t=p_t, backend=backend, rtol=rtol)
+                                     p_c=p_c, tail=tail, p_t=p_t, backend=backend, rtol=rtol, closure="second_order")
 
     res = _fit_log_density(hist, theory_for, bounds or (0.05 * mean_pressure, 1e3 * mean_pressure), 1e-3)
     return float(np.exp(res.x)), float(res.fun)

@@ -15,6 +15,7 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
+from ..api import DEFAULT_CLOSURE, HARD_WALL_DEFAULT
 from ..paper import FIG1_SCENE, contact_threshold, cutoff_pressure
 
 #: zeta values of the default scene: those the paper gives cutoff pressures for.
@@ -23,8 +24,9 @@ DEFAULT_ZETAS: tuple[float, ...] = (0.001, 0.01, 0.25, 1.0, 4.0)
 #: Key of the paper's curve in :attr:`Fig1Case.theories`.
 PAPER = "paper"
 
-#: The parameter-free closure best on the Fig. 1 scene (docs/closures.md, docs/fig1.md), drawn beside the paper's.
-BEST_CLOSURE = "local_g1_shell_balanced"
+#: The closures drawn beside the paper's, on exponential walls and at the hard wall: pressure_distribution's
+#: defaults, the parameter-free closures chosen on held-out GFMD ensembles (docs/closures.md).
+BEST_CLOSURE, HARD_WALL_CLOSURE = DEFAULT_CLOSURE, HARD_WALL_DEFAULT
 
 #: Bin width of the main job's histograms, in units of p0.
 BIN_WIDTH_P0 = 0.1
@@ -33,15 +35,16 @@ BIN_WIDTH_P0 = 0.1
 def theory_curves(case: Any, *, cutoff: str, backend: str, rtol: float) -> dict[str, Any]:
     """The theory curves of one wall: ``{label: PressureDistribution}``. The one place where the main job's curves are
     chosen: every entry is compared with the wall's histogram, reported, written and drawn.  :data:`PAPER` is the
-    paper's curve (:func:`~diffusion_pr.jobs.reference_data.paper_theory`); :data:`BEST_CLOSURE`, the parameter-free
-    closure best on the Fig. 1 scene, on the same spectrum (:func:`diffusion_pr.pressure_distribution`)."""
+    paper's curve (:func:`~diffusion_pr.jobs.reference_data.paper_theory`); :data:`BEST_CLOSURE`
+    (:data:`HARD_WALL_CLOSURE` at the hard wall) on the same spectrum (:func:`diffusion_pr.pressure_distribution`)."""
     from ..api import pressure_distribution
     from .reference_data import paper_theory
 
     paper = paper_theory(case, cutoff=cutoff, backend=backend, rtol=rtol)  # (first: its refusals come first)
-    return {PAPER: paper, BEST_CLOSURE: pressure_distribution(case.spectrum, E_star=case.E_star, zeta=case.zeta or 0.0,
-                                                              mean_pressure=case.mean_pressure, closure=BEST_CLOSURE,
-                                                              backend=backend, rtol=rtol)}
+    closure = BEST_CLOSURE if case.zeta else HARD_WALL_CLOSURE
+    return {PAPER: paper, closure: pressure_distribution(case.spectrum, E_star=case.E_star, zeta=case.zeta or 0.0,
+                                                         mean_pressure=case.mean_pressure, closure=closure,
+                                                         backend=backend, rtol=rtol)}
 
 
 @dataclass
@@ -104,7 +107,7 @@ class Fig1Report:
         """A short human-readable report."""
         lines = [
             "Fig. 1 of Müser, PRL 100, 055504 (2008): GFMD against the second-order cumulant theory "
-            "and the parameter-free closure best on the Fig. 1 scene",
+            "and the parameter-free closures chosen on held-out GFMD ensembles",
             "scene: " + ", ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}"
                                   for k, v in self.scene.items()),
             f"Persson (zeta -> 0): sqrt(V0) = {np.sqrt(self.variance_persson):.6f}"

@@ -95,10 +95,11 @@ def paper_theory(case: Any, *, cutoff: str = "muser", p_c: Optional[float] = Non
     ``backend`` and ``rtol`` go to :func:`diffusion_pr.pressure_distribution`."""
     from ..api import pressure_distribution
 
-    kw = {"zeta": 0.0, "cutoff": "sharp"} if case.zeta is None else {
+    kw = {"zeta": 0.0} if case.zeta is None else {
         "zeta": case.zeta, "cutoff": cutoff, "p_c": cutoff_pressure(case.zeta) if p_c is None else p_c,
         "backend": backend, "rtol": rtol}
-    return pressure_distribution(case.spectrum, E_star=case.E_star, mean_pressure=case.mean_pressure, **kw)
+    return pressure_distribution(case.spectrum, E_star=case.E_star, mean_pressure=case.mean_pressure,
+                                 closure="second_order", **kw)
 
 
 def available_references(data_dir: Path | str | None = None) -> list[str]:

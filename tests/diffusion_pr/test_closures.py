@@ -28,7 +28,7 @@ def fig1():
 
 @pytest.fixture(scope="module")
 def persson(fig1):
-    return dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.0)
+    return dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, zeta=0.0, closure="second_order")
 
 
 def kolmogorov(a, b, p_min=P0 / 20, p_max=0.3):
@@ -323,7 +323,7 @@ def test_fitted_hard_wall_corrections(fig1, closure, gamma):
     from diffusion_pr.closed_forms import persson_corrected_variance
 
     r = dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, closure=closure)
-    persson = dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0)
+    persson = dp.pressure_distribution(fig1, E_star=E, mean_pressure=P0, closure="second_order")
     v_eff = persson_corrected_variance(P0, persson.diagnostics["stress_variance"], gamma)
     assert r.diagnostics["closure"] == closure and r.diagnostics["gamma"] == gamma
     assert r.contact_area() == pytest.approx(erf(P0 / np.sqrt(2 * v_eff)), rel=1e-9)

@@ -21,7 +21,7 @@ LOADS = np.geomspace(5e-5, 0.07, 12)
 
 def test_hard_wall_is_persson():
     """Hard wall: a_r = erf(p0 / sqrt(2 V)) with V = (E* gbar / 2)^2 (Persson; the closed form's own rtol)."""
-    lc = load_curve(SPECTRUM, E_star=E, mean_pressures=LOADS)
+    lc = load_curve(SPECTRUM, E_star=E, mean_pressures=LOADS, closure="second_order")
     exact = erf(LOADS / math.sqrt(2.0) / (E * F["rms_slope"] / 2))
     assert lc.table["contact_area"] == pytest.approx(exact, rel=1e-6)
     assert lc.table["contact_area"][0] < 2e-3 and lc.table["contact_area"][-1] > 0.9
@@ -104,7 +104,7 @@ def test_cli_load_curve(tmp_path, capsys):
     from gfmd_ref import self_affine_surface
 
     out = tmp_path / "lc.csv"
-    assert main(["load-curve", "--n-loads", "4", "--out", str(out)]) == 0
+    assert main(["load-curve", "--n-loads", "4", "--closure", "second_order", "--out", str(out)]) == 0
     table = np.loadtxt(out, delimiter=",")
     exact = erf(np.geomspace(5e-5, 0.07, 4) / math.sqrt(2.0) / (E * F["rms_slope"] / 2))
     assert table[:, 1] == pytest.approx(exact, rel=1e-6)
