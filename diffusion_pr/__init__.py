@@ -26,63 +26,26 @@ from typing import Any
 
 __version__ = "0.1.0"
 
-# public name -> submodule that defines it
-_LAZY = {
-    # spectra and cumulants
-    "Spectrum": "spectra",
-    "SelfAffineSpectrum": "spectra",
-    "DiscreteSpectrum": "spectra",
-    "G1": "cumulants",
-    "stress_variance": "cumulants",
-    "variance_vs_magnification": "cumulants",
-    "diffusivity_vs_magnification": "cumulants",
-    "TabulatedSpectrum": "topography",
-    "spectrum_from_map": "topography",
-    "spectrum_from_psd": "topography",
-    "spectrum_from_topography": "topography",
-    # closed forms
-    "gaussian_density": "closed_forms",
-    "mirror_gaussian_density": "closed_forms",
-    "persson_zero_weight": "closed_forms",
-    "persson_contact_fraction": "closed_forms",
-    "feller_density": "closed_forms",
-    "feller_zero_weight": "closed_forms",
-    "gaussian_moments": "closed_forms",
-    "mirror_gaussian_moments": "closed_forms",
-    "feller_moments": "closed_forms",
-    # models
-    "SharpCutoff": "models",
-    "MuserCutoff": "models",
-    "RaisedCosineCutoff": "models",
-    "SmoothstepCutoff": "models",
-    "GaussianTail": "models",
-    "LinearTail": "models",
-    "MaxLinearTail": "models",
-    "PressureFactor": "models",
-    "ProportionalDiffusivity": "models",
-    "make_cutoff": "models",
-    "make_tail": "models",
-    # problem, result, solving
-    "FokkerPlanckProblem": "problem",
-    "Stage": "problem",
-    "StagedProblem": "problem",
-    "PressureDistribution": "result",
-    "propagate": "api",
-    "pressure_distribution": "api",
-    "pressure_distributions": "api",
-    "load_curve": "load_curve",
-    "LoadCurve": "load_curve",
-    "solve_problem": "api",
-    "choose_backend": "api",
-    "BackendUnavailableError": "fokker_planck.backends",
-    "backend_names": "fokker_planck.backends",
-    "is_available": "fokker_planck.backends",
-    "warm_up": "api",
-    "ConvergenceWarning": "api",
-    "DEFAULT_CLOSURE": "api",
-    "HARD_WALL_DEFAULT": "api",
-    "InputTypeError": "_validation",
+# submodule -> the public names it defines
+_MODULES = {
+    "spectra": ["Spectrum", "SelfAffineSpectrum", "DiscreteSpectrum"],
+    "cumulants": ["G1", "stress_variance", "variance_vs_magnification", "diffusivity_vs_magnification"],
+    "topography": ["TabulatedSpectrum", "spectrum_from_map", "spectrum_from_psd", "spectrum_from_topography"],
+    "closed_forms": ["gaussian_density", "mirror_gaussian_density", "persson_zero_weight", "persson_contact_fraction",
+                     "feller_density", "feller_zero_weight", "gaussian_moments", "mirror_gaussian_moments",
+                     "feller_moments"],
+    "models": ["SharpCutoff", "MuserCutoff", "RaisedCosineCutoff", "SmoothstepCutoff", "GaussianTail", "LinearTail",
+               "MaxLinearTail", "PressureFactor", "ProportionalDiffusivity", "make_cutoff", "make_tail"],
+    "problem": ["FokkerPlanckProblem", "Stage", "StagedProblem"],
+    "result": ["PressureDistribution"],
+    "api": ["propagate", "pressure_distribution", "pressure_distributions", "solve_problem", "choose_backend",
+            "warm_up", "ConvergenceWarning", "DEFAULT_CLOSURE", "HARD_WALL_DEFAULT"],
+    "load_curve": ["load_curve", "LoadCurve"],
+    "fokker_planck.backends": ["BackendUnavailableError", "backend_names", "is_available"],
+    "_validation": ["InputTypeError"],
 }
+#: public name -> submodule that defines it
+_LAZY = {name: module for module, names in _MODULES.items() for name in names}
 
 __all__ = sorted(_LAZY) + ["__version__"]
 

@@ -1,8 +1,8 @@
-"""Parameter-free closures beyond the paper's second order (docs/closures.md).
+"""Closures beyond the paper's second order (docs/closures.md).
 
 The paper (M. H. Müser, Phys. Rev. Lett. 100, 055504 (2008), doi:10.1103/PhysRevLett.100.055504) broadens a
 Gaussian with the second-order variance ``V = sum_q (q E*/2)^2 G1(q)^2 |h~(q)|^2`` and needs a fitted cutoff
-pressure ``p_c``.  The closures here need no fitted number:
+pressure ``p_c``.  The closures here need no fitted number, but for the two fitted corrections at the end:
 
 ``"second_order"``
     The paper: ``dPr/dtau = d^2/dp^2 [f(p) Pr]`` to ``tau = V/2`` (solved by
@@ -48,19 +48,9 @@ from .models import (BALANCED_FLOOR, LoadExcessDrift, LocalResponseDiffusivity, 
 from .shells import (BALANCED, DEFAULT_CONTINUUM_SHELLS, EXTRAPOLATION_SHELLS, Shells, cached_shells, local_response,
                      shell_grading, spectrum_shells)
 
-__all__ = [
-    "CLOSURES",
-    "Shells",
-    "spectrum_shells",
-    "shell_grading",
-    "local_response",
-    "closure_problem",
-    "LocalResponseDiffusivity",
-    "LoadExcessDrift",
-    "RigidApproachBalance",
-    "DEFAULT_CONTINUUM_SHELLS",
-    "PERSSON_CORRECTIONS",
-]
+__all__ = ["CLOSURES", "Shells", "spectrum_shells", "shell_grading", "local_response", "closure_problem",
+           "LocalResponseDiffusivity", "LoadExcessDrift", "RigidApproachBalance", "DEFAULT_CONTINUUM_SHELLS",
+           "PERSSON_CORRECTIONS"]
 
 #: the closures by name; "second_order" is the paper's theory
 CLOSURES: tuple[str, ...] = ("second_order", "lognormal_gap", "local_g1", "local_g1_balanced",
