@@ -1,6 +1,8 @@
 """Result object shared by every backend (scipy-style contract)."""
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any, Optional
@@ -140,7 +142,12 @@ class PressureDistribution:
         """Moment ``<p^k>`` (or ``<(p - mean)^k>`` if ``central``) of the full ``Pr``, including the ``delta(p)`` peak.
 
         Finite volumes: in every cell the linear density with the cell's mass and barycentre (3-point
-        Gauss-Legendre, exact); closed forms: their quadrature of the exact density."""
+        Gauss-Legendre, exact); closed forms: their quadrature of the exact density, or the exact law's own moments
+        where it has them (the log-normal closure, whose grid does not reach the heavy tail of ``p^k Pr``)."""
+        if callable(getattr(self.analytic, "moment", None)):
+            mu = float(self.analytic.mean()) if central else 0.0
+            return float(sum(math.comb(order, j) * self.analytic.moment(j) * (-mu) ** (order - j)
+                             for j in range(order + 1)))
         shift = self.mean if central else 0.0
         if self.edges is None:
             value = float(np.sum(self.weights * (self.p - shift) ** order * self.density))
