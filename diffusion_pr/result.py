@@ -131,7 +131,7 @@ class PressureDistribution:
     @property
     def mean(self) -> float:
         """Mean pressure ``integral p Pr(p) dp`` (the delta at 0 adds nothing)."""
-        return float(np.sum(self.weights * self.p * self.density))
+        return float(np.sum(self.p * (self.weights * self.density)))  # masses first: no overflow in the far tail
 
     @property
     def second_moment(self) -> float:
@@ -142,12 +142,17 @@ class PressureDistribution:
         """Moment ``<p^k>`` (or ``<(p - mean)^k>`` if ``central``) of the full ``Pr``, including the ``delta(p)`` peak.
 
         Finite volumes: in every cell the linear density with the cell's mass and barycentre (3-point
-        Gauss-Legendre, exact); closed forms: their quadrature of the exact density, or the exact law's own moments
-        where it has them (the log-normal closure, whose grid does not reach the heavy tail of ``p^k Pr``)."""
-        if callable(getattr(self.analytic, "moment", None)):
-            mu = float(self.analytic.mean()) if central else 0.0
-            return float(sum(math.comb(order, j) * self.analytic.moment(j) * (-mu) ** (order - j)
-                             for j in range(order + 1)))
+        Gauss-Legendre, exact); closed forms: their quadrature of the exact density; the log-normal closure: its
+        exact ``<p^j> = exp(j ln(scale) + j^2 s^2/2)`` (its cells do not reach the heavy tail of ``p^k Pr``),
+        ``inf`` where that is beyond floating point."""
+        if getattr(getattr(self.analytic, "dist", None), "name", "") == "lognorm":
+            (s,), log_scale = self.analytic.args, math.log(self.analytic.kwds["scale"])
+            logs = [j * log_scale + 0.5 * j * j * s * s for j in range(order + 1)]
+            if logs[-1] > 709.0:  # beyond floating point (the central moment too: the top raw one dominates)
+                return math.inf
+            raw = [math.exp(x) for x in logs]
+            mu = raw[1] if central else 0.0
+            return float(sum(math.comb(order, j) * raw[j] * (-mu) ** (order - j) for j in range(order + 1)))
         shift = self.mean if central else 0.0
         if self.edges is None:
             value = float(np.sum(self.weights * (self.p - shift) ** order * self.density))

@@ -405,6 +405,21 @@ def test_main_job_draws_the_best_closure_beside_the_paper(tmp_path):
     assert f"{best}_zeta0.25" in header
 
 
+def test_lognormal_gap_moments_beyond_floating_point_are_inf_not_nan():
+    """s^2 = 400: <p^2> = p0^2 e^{s^2} = 3e168 exactly; <p^3> = p0^3 e^{3 s^2} overflows: inf, no NaN, no warning
+    (summed over the cells the mean overflowed to NaN and <p^2> to inf)."""
+    import warnings
+
+    s = dp.SelfAffineSpectrum(0.5, 1.0, 32.0, rms_slope=0.1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        r = lognormal_gap_distribution(s, E_star=1.0, mean_pressure=2.5e-3, zeta=1e-7)
+        s2 = r.diagnostics["ln_variance"]
+        assert r.mean == pytest.approx(2.5e-3, rel=1e-12)
+        assert r.moment(2) == pytest.approx(2.5e-3**2 * math.exp(s2), rel=1e-12)
+        assert r.moment(3) == r.moment(3, central=True) == math.inf
+
+
 def test_lognormal_gap_mean_at_small_zeta(fig1):
     """At zeta = 0.001 the ln-variance is s^2 = 99: the mean is carried by pressures
     exp(s^2/2) above p0, far in the tail (an earlier grid of <ln p> +- 9.5 s gave a mean of
