@@ -15,7 +15,7 @@ from . import _kernels as kr
 from .monitor import Monitor
 
 #: stall windows (iterations without halving the best residual) of ``ccg`` and ``pk``
-CCG_STALL_WINDOW = 50
+CCG_STALL_WINDOW = 200
 PK_STALL_WINDOW = 200
 #: bound on the rounding of one single-precision ``G dv`` relative to its largest value
 INCREMENT_ROUNDING = 2e-6
