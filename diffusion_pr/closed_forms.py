@@ -127,16 +127,18 @@ def persson_corrected_variance(mean_pressure: float, variance: float, gamma: flo
     g = float(check_positive("gamma", gamma))
     if g > 1.0:
         raise ValueError(f"gamma must be in (0, 1]; got gamma={gamma!r}")
-    lo = 1e-12 * min(p0 * p0, v)  # below it S = 1 to within 1e-300
-
-    def elapsed(t: float) -> float:  # tau at tau_eff = t
-        f = lambda x: math.exp(x) / (g + (1.0 - g) * math.erf(p0 / (2.0 * math.exp(0.5 * x))) ** 2)  # noqa: E731
-        mid = min(max(math.log(p0 * p0), math.log(lo)), math.log(t))
-        return lo + sum(integrate.quad(f, a, b, epsabs=0.0, epsrel=1e-13, limit=200)[0]
-                        for a, b in ((math.log(lo), mid), (mid, math.log(t))))
-
     if g == 1.0:
         return v
+    lo = 1e-12 * min(p0 * p0, v)  # below it S = 1 to within 1e-300
+
+    def rate(x: float) -> float:  # d tau / d ln(tau_eff) at tau_eff = e^x
+        return math.exp(x) / (g + (1.0 - g) * math.erf(p0 / (2.0 * math.exp(0.5 * x))) ** 2)
+
+    def elapsed(t: float) -> float:  # tau at tau_eff = t, the quadrature split where a_r starts to fall
+        mid = min(2.0 * math.log(p0), math.log(t))
+        return lo + sum(integrate.quad(rate, a, b, epsabs=0.0, epsrel=1e-13, limit=200)[0]
+                        for a, b in ((math.log(lo), mid), (mid, math.log(t))))
+
     return 2.0 * optimize.brentq(lambda t: elapsed(t) - 0.5 * v, 0.5 * g * v, 0.5 * v, rtol=1e-13)
 
 
